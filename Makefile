@@ -1,0 +1,53 @@
+# circcal: one-command setup, demo, tests, benchmarks.
+# Every target that needs the environment depends on the stamp, so `make test` on a fresh clone sets up first
+# and is a no-op setup afterwards.
+PY      ?= $(shell command -v python3.11 || command -v python3)
+VENV    := .venv
+VPY     := $(VENV)/bin/python
+STAMP   := $(VENV)/.circcal-setup-stamp
+TORCH   := torch==2.13.0
+JOBS    ?= 2
+
+.PHONY: setup demo test bench study conformance mrcal clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@test -x $(VPY) || $(PY) -m venv $(VENV)
+	$(VPY) -m pip install -q --upgrade pip
+	@# torch first, pinned: it is the CPU wheel on local disk; unpinned it would pull a multi-GB CUDA build.
+	$(VPY) -m pip install -q $(TORCH)
+	$(VPY) -m pip install -q -e '.[all]'
+	@$(MAKE) --no-print-directory mrcal
+	@touch $(STAMP)
+
+# mrcal cannot import beside numpy 2 on Python 3.11: it runs out of process under Debian's /usr/bin/python3.
+mrcal:
+	@if /usr/bin/python3 -c 'import mrcal' >/dev/null 2>&1; then \
+	  echo "mrcal: $$(/usr/bin/python3 -c 'import mrcal; print(mrcal.__version__)' 2>/dev/null || echo present) (Debian, /usr/bin/python3)"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "mrcal: installing Debian's mrcal python3-mrcal (about 1 minute)"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mrcal python3-mrcal) >/dev/null \
+	    || echo "mrcal: apt-get install failed; the mrcal reference will report itself unavailable"; \
+	else \
+	  echo "mrcal: not installed. As root run: apt-get install -y mrcal python3-mrcal"; \
+	  echo "       or point CIRCCAL_MRCAL_PYTHON at a Python that can 'import mrcal' (e.g. PyPI mrcal 2.5 on 3.12)"; \
+	fi
+
+demo: setup
+	$(VENV)/bin/circcal demo
+
+test: setup
+	$(VPY) -m pytest -n $(JOBS) -q
+
+study: setup
+	$(VPY) -m pytest -n $(JOBS) -q -m slow
+
+conformance: setup
+	$(VPY) -m pytest -n $(JOBS) -q -m 'slow or not slow' tests/conformance
+
+bench: setup
+	$(VPY) -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) .fixture-cache .pytest_cache build *.egg-info

@@ -1,0 +1,46 @@
+"""Reprojection-error statistics in the three conventions people quote, written once.
+
+* ``rms_per_point_px``: sqrt(sum |dq|^2 / N_points), the RMS of the 2-D error per point: what
+  ``cv2.calibrateCamera`` returns (about 1.414 sigma for per-axis noise sigma).
+* ``rms_per_coord_px``: sqrt(sum (dx^2 + dy^2) / (2 N_points)), the RMS per coordinate: what mrcal reports (~sigma).
+* ``mean_2d_px``: mean of |dq|, the paper's eq. 22 and its tables (~1.253 sigma).
+
+Every number circcal prints or writes names its convention in the key.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SQRT2 = float(np.sqrt(2.0))
+
+
+def error_stats(residuals: np.ndarray) -> dict[str, float]:
+    """``residuals``: (..., 2) reprojection errors in px (NaN rows are ignored).
+
+    Returns ``{"n_points", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_2d_px"}``.
+    """
+    r = np.asarray(residuals, dtype=np.float64).reshape(-1, 2)
+    r = r[np.all(np.isfinite(r), axis=1)]
+    if len(r) == 0:
+        nan = float("nan")
+        return {"n_points": 0, "rms_per_point_px": nan, "rms_per_coord_px": nan, "mean_2d_px": nan,
+                "max_2d_px": nan}
+    norm = np.hypot(r[:, 0], r[:, 1])
+    ms = float(np.mean(norm ** 2))
+    return {
+        "n_points": int(len(r)),
+        "rms_per_point_px": float(np.sqrt(ms)),
+        "rms_per_coord_px": float(np.sqrt(ms / 2.0)),
+        "mean_2d_px": float(np.mean(norm)),
+        "max_2d_px": float(np.max(norm)),
+    }
+
+
+def per_point_to_per_coord(rms_per_point: float) -> float:
+    """OpenCV's RMS (2-D, per point) -> mrcal's RMS (per coordinate)."""
+    return rms_per_point / SQRT2
+
+
+def per_coord_to_per_point(rms_per_coord: float) -> float:
+    """mrcal's RMS (per coordinate) -> OpenCV's RMS (2-D, per point)."""
+    return rms_per_coord * SQRT2
