@@ -190,6 +190,21 @@ def distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.n
     return np.stack([xd, yd], axis=-1), J_x, J_d
 
 
+def _distort_jx(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
+    """Distortion and its 2x2 Jacobian w.r.t. the normalised point, as separate 1-D arrays (Newton's inner loop)."""
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    xy = x * y
+    fx = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    fy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    off = 2.0 * xy * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    d = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return fx, fy, a, off, d
+
+
 def undistort(
     xd: np.ndarray,
     dist: np.ndarray,
@@ -202,7 +217,8 @@ def undistort(
 
     ``xd``: (..., 2) distorted normalised coordinates; ``dist``: (5,); ``x0``: optional (..., 2) initial guess (e.g. a
     neighbouring solution: two Newton steps then suffice). Stops when every residual ``|distort(x) - xd|`` (max norm,
-    normalised units) is below ``tol``; 1e-15 normalised is ~1e-11 px for f up to 10^4 px.
+    normalised units) is below ``tol`` (relative to ``|xd|`` beyond 1); 1e-15 normalised is ~1e-11 px for f up to
+    10^4 px. A step that does not reduce a point's residual is halved (guards strong barrel distortion).
     Returns (..., 2) undistorted normalised coordinates. Points where the model folds over (no unique inverse,
     far outside a sensible field of view) come back as NaN rather than a wrong value.
     """
@@ -212,37 +228,47 @@ def undistort(
         return xd.copy()
     shape = xd.shape
     t = xd.reshape(-1, 2)
-    x = (t.copy() if x0 is None else np.asarray(x0, dtype=np.float64).reshape(-1, 2).copy())
-    active = np.arange(t.shape[0])
+    out = (t.copy() if x0 is None else np.asarray(x0, dtype=np.float64).reshape(-1, 2).copy())
+    idx = np.arange(t.shape[0])                     # points still iterating
+    tx, ty = t[:, 0].copy(), t[:, 1].copy()
+    x, y = out[:, 0].copy(), out[:, 1].copy()
+    thr = tol * np.maximum(1.0, np.maximum(np.abs(tx), np.abs(ty)))
+    fx, fy, a, b, c = _distort_jx(x, y, d)
+    rx, ry = fx - tx, fy - ty
+    err = np.maximum(np.abs(rx), np.abs(ry))
     for _ in range(max_iter):
-        xa = x[active]
-        f, J, _ = distort_jacobian(xa, d)
-        res = f - t[active]
-        err = np.max(np.abs(res), axis=-1)
-        done = err <= tol * np.maximum(1.0, np.max(np.abs(t[active]), axis=-1))
-        if np.all(done):
-            active = active[:0]
+        done = err <= thr
+        if done.any():
+            out[idx[done], 0] = x[done]
+            out[idx[done], 1] = y[done]
+            keep = ~done
+            idx, tx, ty, x, y, thr, a, b, c, rx, ry, err = (
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, c, rx, ry, err))
+        if idx.size == 0:
             break
-        keep = ~done
-        active, xa, res, J, err = active[keep], xa[keep], res[keep], J[keep], err[keep]
-        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        det = a * c - b * b
         det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-        step = np.stack(
-            [(J[:, 1, 1] * res[:, 0] - J[:, 0, 1] * res[:, 1]) / det,
-             (-J[:, 1, 0] * res[:, 0] + J[:, 0, 0] * res[:, 1]) / det], axis=-1)
-        # Damping: halve the step while it does not reduce the residual (guards strong barrel distortion).
-        lam = np.ones(len(active))
-        for _ in range(30):
-            trial = xa - lam[:, None] * step
-            terr = np.max(np.abs(distort(trial, d) - t[active]), axis=-1)
-            worse = terr > err
-            if not np.any(worse):
+        sx = (c * rx - b * ry) / det
+        sy = (a * ry - b * rx) / det
+        lam = np.ones_like(x)
+        for _ in range(40):
+            nx, ny = x - lam * sx, y - lam * sy
+            fx, fy, na, nb, nc = _distort_jx(nx, ny, d)
+            nrx, nry = fx - tx, fy - ty
+            nerr = np.maximum(np.abs(nrx), np.abs(nry))
+            worse = ~(nerr <= err)  # also catches NaN
+            if not worse.any():
                 break
-            lam = np.where(worse, lam * 0.5, lam)
-        x[active] = xa - lam[:, None] * step
-    if active.size:
-        x[active] = np.nan
-    return x.reshape(shape)
+            lam = np.where(worse, 0.5 * lam, lam)
+        x, y, a, b, c, rx, ry, err = nx, ny, na, nb, nc, nrx, nry, nerr
+        if worse.any():  # no descent even after 40 halvings: no inverse here (the model folds over)
+            out[idx[worse]] = np.nan
+            keep = ~worse
+            idx, tx, ty, x, y, thr, a, b, c, rx, ry, err = (
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, c, rx, ry, err))
+    if idx.size:
+        out[idx] = np.nan
+    return out.reshape(shape)
 
 
 def project(
