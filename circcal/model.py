@@ -268,6 +268,13 @@ def undistort(
                 v[keep] for v in (idx, tx, ty, x, y, thr, a, b, c, rx, ry, err))
     if idx.size:
         out[idx] = np.nan
+    # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no
+    # inverse of a real lens: report it as NaN.
+    k1, k2, _, _, k3 = d
+    r2 = out[:, 0] ** 2 + out[:, 1] ** 2
+    _, _, a, b, c = _distort_jx(out[:, 0], out[:, 1], d)
+    bad = ((1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) <= 0) | ((a * c - b * b) <= 0)
+    out[bad] = np.nan
     return out.reshape(shape)
 
 

@@ -1,0 +1,22 @@
+"""Shared test setup: a per-session fixture cache (unless CIRCCAL_CACHE is set) and paths to shared data."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+REALDATA = SHARED / "data" / "realdata"
+
+
+@pytest.fixture(scope="session")
+def realdata() -> Path:
+    if not REALDATA.is_dir():
+        pytest.skip(f"real data not found at {REALDATA} (expected ../shared beside the repository)")
+    return REALDATA
+
+
+def pytest_report_header(config):
+    return [f"circcal fixture cache: {os.environ.get('CIRCCAL_CACHE', Path.home() / '.cache' / 'circcal')}"]

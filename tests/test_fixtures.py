@@ -1,0 +1,166 @@
+"""Perturbations keep the geometric truth; scenarios are deterministic, cached and self-describing."""
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from circcal.board import Board
+from circcal.model import Camera, project
+from fixtures.perturb import KINDS, apply_perturbations, validate
+from fixtures.poses import pose_looking_at
+from fixtures.render import Levels, render_coverage
+from fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario, load_truth, render_fixture
+
+CAM = Camera(320, 240, 300.0, 300.0, 159.5, 119.5, [0, 0, 0, 0, 0])
+ONE_DOT = Board(2, 2, 30.0, 10.0, margin_mm=20.0)
+
+
+@pytest.fixture(scope="module")
+def single():
+    """A 2x2 board seen head-on: linear image, board mask, exact dark-weighted centroid of dot 0."""
+    rvec, tvec = pose_looking_at(CAM, ONE_DOT, distance_mm=150.0)
+    bc, dc = render_coverage(CAM, ONE_DOT, rvec, tvec)
+    lv = Levels()
+    img = lv.background + bc * (lv.board - lv.background) - dc * (lv.board - lv.dark)
+    return img, bc > 0.5, project(ONE_DOT.object_points(), rvec, tvec, CAM)
+
+
+def _dark_centroid(img: np.ndarray, centre: np.ndarray, r: int, white: float) -> np.ndarray:
+    u0, v0 = np.rint(centre).astype(int)
+    w = np.clip(white - img[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1], 0, None)
+    vv, uu = np.mgrid[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1]
+    return np.array([(w * uu).sum() / w.sum(), (w * vv).sum() / w.sum()])
+
+
+@pytest.mark.parametrize("step", [
+    {"kind": "gaussian_blur", "sigma_px": 2.0},
+    {"kind": "defocus", "radius_px": 3.5},
+    {"kind": "motion_blur", "length_px": 7.0, "angle_deg": 33.0},
+])
+def test_blur_does_not_move_dots(single, step):
+    """Centred symmetric PSFs keep the dark-weighted centroid of a dot (to 1e-9 px in float before quantisation)."""
+    img, mask, centres = single
+    from fixtures import perturb
+
+    kernel_img = {"gaussian_blur": lambda: cv2.GaussianBlur(img, (0, 0), step["sigma_px"]),
+                  "defocus": lambda: cv2.filter2D(img, -1, perturb._disk_kernel(step["radius_px"])),
+                  "motion_blur": lambda: cv2.filter2D(img, -1, perturb._motion_kernel(step["length_px"],
+                                                                                       step["angle_deg"]))}
+    blurred = kernel_img[step["kind"]]()
+    before = _dark_centroid(img, centres[0], 18, 0.9)
+    after = _dark_centroid(blurred, centres[0], 18, 0.9)
+    assert np.max(np.abs(after - before)) < 1e-9
+    assert np.max(np.abs(blurred - img)) > 0.1  # and the blur really happened
+
+
+def test_every_kind_applies_and_is_seeded(single):
+    img, mask, _ = single
+    all_steps = [{"kind": "clutter", "n": 3, "radius_px": (3, 6)}, {"kind": "uneven"}, {"kind": "vignetting"},
+                 {"kind": "strong", "gain": 1.2}, {"kind": "weak"}, {"kind": "gaussian_blur", "sigma_px": 1.0},
+                 {"kind": "defocus", "radius_px": 1.5}, {"kind": "motion_blur", "length_px": 3.0},
+                 {"kind": "noise", "sigma": 0.01, "full_well": 1000}, {"kind": "occlusion", "fraction": 0.2,
+                                                                        "side": "left"}]
+    assert {s["kind"] for s in all_steps} | {"jpeg"} == set(KINDS)
+    a, occ, jpg = apply_perturbations(img, all_steps, 5, board_mask=mask)
+    b, _, _ = apply_perturbations(img, all_steps, 5, board_mask=mask)
+    c, _, _ = apply_perturbations(img, all_steps, 6, board_mask=mask)
+    assert a.dtype == np.uint8 and np.array_equal(a, b) and not np.array_equal(a, c) and jpg is None
+    assert occ is not None and occ[:, 0].all() and not occ[:, -1].any()
+    j, _, jpg = apply_perturbations(img, [{"kind": "jpeg", "quality": 60}], 0)
+    assert jpg[:2] == b"\xff\xd8" and np.array_equal(cv2.imdecode(np.frombuffer(jpg, np.uint8), 0), j)
+    s16, _, _ = apply_perturbations(img, [], 0, bits=16)
+    assert s16.dtype == np.uint16
+
+
+def test_clutter_stays_off_the_board(single):
+    img, mask, _ = single
+    out, _, _ = apply_perturbations(img, [{"kind": "clutter", "n": 6, "radius_px": (3, 8), "level": 0.0}], 1,
+                                    board_mask=mask)
+    clean = apply_perturbations(img, [], 1)[0]
+    changed = out != clean
+    assert changed.any() and not (changed & mask).any()
+
+
+def test_strong_clips_and_weak_compresses(single):
+    img, mask, _ = single
+    strong = apply_perturbations(img, [{"kind": "strong", "gain": 1.6}], 0)[0]
+    weak = apply_perturbations(img, [{"kind": "weak", "contrast": 0.2, "offset": 0.05}], 0)[0]
+    assert strong[mask].max() == 255 and (strong == 255).sum() > 0.5 * mask.sum()
+    assert int(weak.max()) - int(weak.min()) <= round(0.2 * 0.8 * 255) + 1
+
+
+def test_unknown_perturbation_is_refused():
+    with pytest.raises(ValueError, match="unknown perturbation 'fog'.*known: clutter"):
+        validate([{"kind": "fog"}])
+
+
+def test_unknown_scenario_lists_the_catalogue():
+    with pytest.raises(ValueError, match="unknown scenario 'nope'; known scenarios: paper, "):
+        get_scenario("nope")
+    with pytest.raises(ValueError, match="has no variant 'sunny'"):
+        fixture_dir("paper", "sunny")
+
+
+def test_catalogue_has_the_required_sets():
+    need = {"paper", "wide", "tilted-large-dots", "asymmetric", "small-noisy"}
+    assert need <= set(SCENARIOS)
+    p = SCENARIOS["paper"]
+    assert (p.board.rows, p.board.cols, p.board.diameter_mm, p.board.pitch_mm) == (7, 7, 5.0, 10.0)
+    assert (p.camera.width, p.camera.height, p.n_views) == (1920, 1080, 14) and abs(p.camera.fx - 4900) < 50
+    assert list(p.variants) == ["normal", "uneven", "strong", "weak"]
+    assert SCENARIOS["asymmetric"].board.layout == "asymmetric" and SCENARIOS["asymmetric"].board.pattern_size \
+        == (4, 11)
+    assert SCENARIOS["wide"].camera.dist[0] == pytest.approx(-0.3)
+
+
+def test_truth_file_is_exact_and_complete(tmp_path):
+    """A rendered set: truth.json schema, centres = exact projections, images on disk, deterministic pixels."""
+    sc = SCENARIOS["small-noisy"]
+    dirs = render_fixture(sc, tmp_path / "a", ["noisy"], progress=False)
+    truth = json.loads((dirs["noisy"] / "truth.json").read_text())
+    assert set(truth["camera"]) == {"width", "height", "fx", "fy", "cx", "cy", "dist"}
+    assert {"rows", "cols", "pitch_mm", "diameter_mm", "layout"} <= set(truth["board"])
+    assert len(truth["views"]) == sc.n_views
+    t = load_truth(dirs["noisy"])
+    for v in t.views:
+        assert v.image.exists()
+        assert np.max(np.abs(project(t.board.object_points(), v.rvec, v.tvec, t.camera) - v.centers)) == 0.0
+        assert v.visible.all()
+        img = cv2.imread(str(v.image), cv2.IMREAD_UNCHANGED)
+        assert img.shape == (t.camera.height, t.camera.width) and img.dtype == np.uint8
+    again = render_fixture(sc, tmp_path / "b", ["noisy"], progress=False)
+    for f in ("view_00.png", "view_07.png"):
+        assert (dirs["noisy"] / f).read_bytes() == (again["noisy"] / f).read_bytes()
+
+
+def test_partial_scenario_marks_hidden_points(tmp_path):
+    sc = SCENARIOS["partial"]
+    dirs = render_fixture(sc, tmp_path, ["occlusion"], progress=False)
+    t = load_truth(dirs["occlusion"])
+    hidden = sum(int((~v.visible).sum()) for v in t.views)
+    assert 0 < hidden < sum(len(v.visible) for v in t.views)
+
+
+def test_fixture_cache_hits(tmp_path, monkeypatch):
+    monkeypatch.setenv("CIRCCAL_CACHE", str(tmp_path))
+    d = fixture_dir("small-noisy", "noisy")
+    stamp = (d / "truth.json").stat().st_mtime_ns
+    assert fixture_dir("small-noisy", "noisy") == d
+    assert fixture_dir("small-noisy", "very-noisy").exists()  # rendered with the first call (shared geometry)
+    assert (d / "truth.json").stat().st_mtime_ns == stamp
+    assert d.name.startswith("small-noisy-noisy-") and d.parent == tmp_path / "fixtures"
+
+
+def test_cli_render(tmp_path, monkeypatch, capsys):
+    from circcal.cli import main
+
+    monkeypatch.setenv("CIRCCAL_CACHE", str(tmp_path / "cache"))
+    assert main(["render", "small-noisy", "--variant", "noisy", "--out", str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "truth.json").exists() and (tmp_path / "out" / "view_13.png").exists()
+    assert main(["render", "bogus", "--out", str(tmp_path / "x")]) == 2
+    assert "known scenarios: paper" in capsys.readouterr().err
+    assert main(["render", "--list"]) == 0
