@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml Makefile
 # mrcal cannot import beside numpy 2 on Python 3.11: it runs out of process under Debian's /usr/bin/python3.
 mrcal:
 	@if /usr/bin/python3 -c 'import mrcal' >/dev/null 2>&1; then \
-	  echo "mrcal: $$(/usr/bin/python3 -c 'import mrcal; print(mrcal.__version__)' 2>/dev/null || echo present) (Debian, /usr/bin/python3)"; \
+	  echo "mrcal: $$(dpkg-query -W -f='$${Version}' python3-mrcal 2>/dev/null || echo present) (/usr/bin/python3)"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "mrcal: installing Debian's mrcal python3-mrcal (about 1 minute)"; \
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mrcal python3-mrcal) >/dev/null \

@@ -1,0 +1,77 @@
+"""Solve time of circcal's calibration vs ``cv2.calibrateCamera`` on the same 14-view points.
+
+Both get identical float32-rounded observations (7x7 board, 14 tilted views, 0.1 px noise, 1920x1080, f 1500,
+moderate distortion) and solve to their tightest tolerance; the time is the median of repeated full solves
+(closed-form start + refinement + covariance for circcal; calibrateCameraExtended, which also computes the
+standard deviations, for OpenCV). ``ratio`` = circcal / OpenCV (goal <= 1.0).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def _problem():
+    from circcal.board import Board
+    from circcal.model import Camera, project
+    from fixtures.poses import sample_poses
+
+    cam = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.2, 0.1, 0.001, -0.0005, -0.02]))
+    board = Board(7, 7, 10.0, 5.0)
+    rng = np.random.default_rng(0)
+    poses = sample_poses(cam, board, 14, 0, max_tilt_deg=40.0)
+    obj = [board.object_points().astype(np.float32) for _ in poses]
+    img = [(project(board.object_points(), r, t, cam) + rng.normal(0.0, 0.1, (49, 2))).astype(np.float32)
+           for r, t in poses]
+    return obj, img, (cam.width, cam.height)
+
+
+def _median_time(fn, repeats: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def run(repeats: int = 15) -> dict:
+    import cv2
+
+    from circcal.calibrate import calibrate
+
+    obj, img, size = _problem()
+    obj64 = [o.astype(np.float64) for o in obj]
+    img64 = [p.astype(np.float64) for p in img]
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 1000, 1e-15)
+    threads = cv2.getNumThreads()
+    t_cv = _median_time(lambda: cv2.calibrateCameraExtended(obj, img, size, None, None, criteria=crit), repeats)
+    cv2.setNumThreads(1)
+    t_cv1 = _median_time(lambda: cv2.calibrateCameraExtended(obj, img, size, None, None, criteria=crit), repeats)
+    cv2.setNumThreads(threads)
+    t_cc = _median_time(lambda: calibrate(obj64, img64, size), repeats)
+    t_sp = _median_time(lambda: calibrate(obj64, img64, size, solver="scipy"), max(3, repeats // 5))
+    res = calibrate(obj64, img64, size)
+    ref = cv2.calibrateCamera(obj, img, size, None, None, criteria=crit)
+    K, d = ref[1], ref[2].ravel()
+    ref_p = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d[:5]])
+    return {
+        "views": len(obj),
+        "points": int(sum(len(o) for o in obj)),
+        "circcal_s": t_cc,
+        "circcal_scipy_s": t_sp,
+        "opencv_s": t_cv,
+        "opencv_1thread_s": t_cv1,
+        "ratio": t_cc / t_cv,
+        "ratio_vs_1thread": t_cc / t_cv1,
+        "circcal_iterations": res.n_iterations,
+        "max_rel_param_diff_vs_opencv": float(np.max(np.abs(res.camera.intrinsics - ref_p) / np.abs(ref_p))),
+    }
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(run(), indent=2))

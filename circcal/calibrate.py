@@ -1,0 +1,718 @@
+"""Calibration solver: Zhang's closed form, then Levenberg-Marquardt over intrinsics, distortion and all board poses.
+
+Model and conventions are :mod:`circcal.model`'s (OpenCV's pinhole + ``[k1, k2, p1, p2, k3]``, pixel centres at
+integer coordinates). The refinement minimises the sum of squared reprojection errors (px) with an analytic
+Jacobian that is sparse by construction: each view's residuals depend only on the intrinsics and that view's six
+pose parameters (a dense intrinsic block beside a block-diagonal pose part). The default solver
+(:func:`_lm_schur`) is Levenberg-Marquardt that solves each damped step exactly by eliminating the 6x6 pose blocks
+(Schur complement), as OpenCV does; ``solver="scipy"`` runs ``scipy.optimize.least_squares`` (TRF, sparse Jacobian,
+LSMR) on the same residuals and Jacobian as a cross-check (it stops ~1e-7 relative short of the minimum and is
+~10x slower, hence not the default). The covariance of the intrinsics is ``sigma^2 (J^T J)^-1`` restricted to the
+intrinsics via the Schur complement of the pose blocks (poses marginalised), ``sigma^2 = SSR / (2N - n_params)``:
+the same estimate as ``cv2.calibrateCameraExtended``'s standard deviations.
+
+Entry points: :func:`calibrate` (point correspondences in, :class:`CalibrationResult` out) and
+:func:`calibrate_images` (detect -> calibrate -> re-correct every centre under the current model -> recalibrate).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from circcal.metrics import error_stats
+from circcal.model import DIST_NAMES, Camera, distort_jacobian, rodrigues
+from circcal.zhang import CalibrationError, DegenerateViewsError, pose_from_homography, view_tilts_deg, zhang
+
+__all__ = [
+    "PARAM_NAMES",
+    "CalibrationError",
+    "DegenerateViewsError",
+    "CalibrationResult",
+    "ImagesCalibration",
+    "calibrate",
+    "calibrate_images",
+    "rotate_jacobian",
+    "project_jacobian",
+]
+
+PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy") + DIST_NAMES
+
+#: A free focal length whose standard deviation per 1 px of per-coordinate noise exceeds this fraction of itself is
+#: called unobservable (DegenerateViewsError). Well-spread 14-view sets give ~0.005; boards all within a few degrees
+#: of fronto-parallel 0.5 and more.
+MAX_UNIT_REL_STD_F = 0.2
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Derivatives
+# --------------------------------------------------------------------------------------------------------------------
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x``."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) (..., 3, 3) at axis-angle ``rvec`` (..., 3):
+    ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0)."""
+    r = np.asarray(rvec, dtype=np.float64)
+    t2 = np.sum(r * r, axis=-1)[..., None, None]
+    t = np.sqrt(t2)
+    small = t2 < 1e-10
+    safe = np.where(small, 1.0, t)
+    a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
+    K = _skew(r)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def rotate_jacobian(rvec: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotated points and their derivative with respect to the axis-angle vector.
+
+    ``rvec``: (3,) radians; ``points``: (N, 3). Returns ``(Y, dY)``: ``Y = R(rvec) X`` (N, 3) and
+    ``dY = d Y / d rvec`` (N, 3, 3) = ``-[Y]x J_l(rvec)`` with :func:`_left_jacobian` (the derivative of a rotation
+    perturbed on the left, ``R(r + dr) = Exp(J_l(r) dr) R(r)``).
+    """
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
+    return Y, -_skew(Y) @ _left_jacobian(r)
+
+
+def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`circcal.model.project` with derivatives, for one view.
+
+    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 9) with respect to
+    fx, fy, cx, cy, k1, k2, p1, p2, k3; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
+    """
+    Y, dY = rotate_jacobian(np.asarray(rvec, dtype=np.float64).reshape(3), np.asarray(points, dtype=np.float64))
+    return _project_jac(Y + np.asarray(tvec, dtype=np.float64).reshape(3), dY, camera.intrinsics)
+
+
+def _project_jac(Xc: np.ndarray, dY: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) with d Xc / d rvec (N, 3, 3) -> (uv, J_intr (N, 2, 9), J_pose (N, 2, 6))."""
+    fx, fy = p[0], p[1]
+    iz = 1.0 / Xc[:, 2]
+    xn = Xc[:, :2] * iz[:, None]
+    xd, Jx, Jd = distort_jacobian(xn, p[4:9])
+    n = len(Xc)
+    uv = np.empty((n, 2))
+    uv[:, 0] = fx * xd[:, 0] + p[2]
+    uv[:, 1] = fy * xd[:, 1] + p[3]
+    Ji = np.zeros((n, 2, 9))
+    Ji[:, 0, 0] = xd[:, 0]
+    Ji[:, 1, 1] = xd[:, 1]
+    Ji[:, 0, 2] = 1.0
+    Ji[:, 1, 3] = 1.0
+    Ji[:, 0, 4:] = fx * Jd[:, 0, :]
+    Ji[:, 1, 4:] = fy * Jd[:, 1, :]
+    # d uv / d Xc = diag(f) Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
+    A = Jx * np.array([fx, fy])[None, :, None]
+    dP = np.empty((n, 2, 3))
+    dP[:, :, 0] = A[:, :, 0] * iz[:, None]
+    dP[:, :, 1] = A[:, :, 1] * iz[:, None]
+    dP[:, :, 2] = -(A[:, :, 0] * xn[:, 0:1] + A[:, :, 1] * xn[:, 1:2]) * iz[:, None]
+    Jp = np.empty((n, 2, 6))
+    Jp[:, :, :3] = dP @ dY
+    Jp[:, :, 3:] = dP
+    return uv, Ji, Jp
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Result
+# --------------------------------------------------------------------------------------------------------------------
+
+@dataclass
+class CalibrationResult:
+    """A calibrated camera with its uncertainty and fit statistics.
+
+    ``std``: standard deviation of each of fx, fy, cx, cy, k1, k2, p1, p2, k3 (px / unitless) from
+    ``sigma_px^2 (J^T J)^-1`` with the poses marginalised; 0.0 for a parameter held fixed (listed in ``fixed``); with a
+    fixed aspect ratio fx = a * fy, fx's std is a * std(fy). ``correlation``: (9, 9), NaN in the rows and columns of
+    fixed parameters. ``rvecs``/``tvecs``: (V, 3) board -> camera (radians / mm). ``residuals``: per view (N_v, 2)
+    px, observed - projected. ``errors``: :func:`circcal.metrics.error_stats` over all points (keys name the
+    convention: rms_per_point_px = OpenCV's RMS, rms_per_coord_px = mrcal's, mean_2d_px = the paper's eq. 22);
+    ``per_view_errors`` the same per view. ``sigma_px``: per-coordinate noise estimate sqrt(SSR / (2N - n_params)).
+    ``fixed``: names of parameters held at their initial value, plus ``"aspect_ratio"`` when fx/fy was held.
+    ``view_names``: optional label per view (image file names when calibrating images).
+    """
+
+    camera: Camera
+    std: dict[str, float]
+    correlation: np.ndarray
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    residuals: list[np.ndarray]
+    errors: dict
+    per_view_errors: list[dict]
+    sigma_px: float
+    n_iterations: int
+    converged: bool
+    fixed: tuple[str, ...]
+    view_names: list[str] | None = None
+    n_params: int = 0
+
+    def to_model_json(self) -> dict[str, Any]:
+        """model.json content: the ``camera`` block (:meth:`Camera.to_dict`), ``std``, ``fixed``, ``correlation``
+        (NaN -> None), ``errors`` (overall, convention in each key), ``sigma_px`` and one entry per view (pose and
+        errors)."""
+        corr = [[None if not np.isfinite(v) else float(v) for v in row] for row in self.correlation]
+        views = []
+        for i in range(len(self.rvecs)):
+            entry: dict[str, Any] = {}
+            if self.view_names is not None:
+                entry["name"] = self.view_names[i]
+            entry["rvec"] = [float(v) for v in self.rvecs[i]]
+            entry["tvec_mm"] = [float(v) for v in self.tvecs[i]]
+            entry["errors"] = dict(self.per_view_errors[i])
+            views.append(entry)
+        return {
+            "format": "circcal-model",
+            "version": 1,
+            "camera": self.camera.to_dict(),
+            "std": {k: float(v) for k, v in self.std.items()},
+            "fixed": list(self.fixed),
+            "parameter_order": list(PARAM_NAMES),
+            "correlation": corr,
+            "errors": dict(self.errors),
+            "sigma_px": float(self.sigma_px),
+            "n_params": int(self.n_params),
+            "n_iterations": int(self.n_iterations),
+            "converged": bool(self.converged),
+            "views": views,
+        }
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------------------------------------
+
+def _check_inputs(object_points, image_points, image_size) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
+    if len(image_size) != 2 or int(image_size[0]) <= 0 or int(image_size[1]) <= 0:
+        raise ValueError(f"image_size must be (width, height) in pixels, got {image_size!r}")
+    w, h = int(image_size[0]), int(image_size[1])
+    if len(object_points) != len(image_points):
+        raise ValueError(f"got {len(object_points)} object-point views but {len(image_points)} image-point views")
+    obj, img = [], []
+    for v, (o, p) in enumerate(zip(object_points, image_points)):
+        o = np.asarray(o, dtype=np.float64)
+        p = np.asarray(p, dtype=np.float64)
+        if o.ndim == 3 and o.shape[1] == 1:  # OpenCV's (N, 1, 3)
+            o = o[:, 0]
+        if p.ndim == 3 and p.shape[1] == 1:
+            p = p[:, 0]
+        if o.ndim != 2 or o.shape[1] != 3:
+            raise ValueError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
+        if len(o) != len(p):
+            raise ValueError(f"view {v}: {len(o)} object points but {len(p)} image points")
+        bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+        if bad.size:
+            raise CalibrationError(
+                f"view {v}: {bad.size} image point(s) are NaN/inf (indices {bad[:10].tolist()}"
+                f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
+        if not np.all(np.isfinite(o)):
+            raise CalibrationError(f"view {v}: object points contain NaN/inf")
+        out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
+        if out.size:
+            raise CalibrationError(
+                f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
+                f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
+                f"image_size or a bad detection")
+        scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
+        if np.max(np.abs(o[:, 2])) > 1e-9 * scale:
+            raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
+                                   f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
+        if len(o) < 6:
+            raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least 6 (a pose has 6 parameters "
+                                   f"and the homography 8). Remove the view or detect more points")
+        obj.append(o)
+        img.append(p)
+    if len(obj) < 3:
+        raise CalibrationError(f"{len(obj)} usable view(s); calibration needs at least 3 views of the board "
+                               f"(10-20 well-tilted views recommended)")
+    return obj, img, w, h
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Solver
+# --------------------------------------------------------------------------------------------------------------------
+
+class _Problem:
+    """Stacked observations and the free-parameter map for one least-squares solve."""
+
+    def __init__(self, obj, img, base: np.ndarray, free: list[int], aspect: float | None):
+        self.counts = np.array([len(o) for o in obj])
+        self.view = np.repeat(np.arange(len(obj)), self.counts)
+        self.X = np.concatenate(obj)
+        self.uv = np.concatenate(img)
+        self.n_views = len(obj)
+        self.base = base.copy()
+        self.base[free] = 0.0
+        if aspect is not None:
+            self.base[0] = 0.0
+        self.free = free
+        self.aspect = aspect
+        # intrinsics (9,) = base + T @ x_intr
+        self.T = np.zeros((9, len(free)))
+        for j, k in enumerate(free):
+            self.T[k, j] = 1.0
+            if aspect is not None and k == 1:
+                self.T[0, j] = aspect
+        self.nf = len(free)
+        self.n = self.nf + 6 * self.n_views
+        m = 2 * len(self.X)
+        row_nnz = self.nf + 6
+        self.indptr = np.arange(0, m * row_nnz + 1, row_nnz)
+        cols_i = np.broadcast_to(np.arange(self.nf), (m, self.nf))
+        cols_p = self.nf + 6 * np.repeat(self.view, 2)[:, None] + np.arange(6)
+        self.indices = np.concatenate([cols_i, cols_p], axis=1).ravel()
+        self._cache_x: bytes | None = None
+
+    def intrinsics(self, x: np.ndarray) -> np.ndarray:
+        return self.base + self.T @ x[: self.nf]
+
+    def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
+        xi = np.array([intr[k] for k in self.free])
+        return np.concatenate([xi, np.column_stack([rvecs, tvecs]).ravel()])
+
+    def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        P = x[self.nf:].reshape(-1, 6)
+        return P[:, :3].copy(), P[:, 3:].copy()
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """-> (f (2N,) projected - observed, Xc (N, 3), J_intr_free (N, 2, nf), J_pose (N, 2, 6))."""
+        key = x.tobytes()
+        if key == self._cache_x:
+            return self._cache
+        p = self.intrinsics(x)
+        rv, tv = self.poses(x)
+        R = rodrigues(rv)[self.view]
+        Y = np.einsum("nij,nj->ni", R, self.X)
+        dY = -_skew(Y) @ _left_jacobian(rv)[self.view]
+        Xc = Y + tv[self.view]
+        uv, Ji, Jp = _project_jac(Xc, dY, p)
+        f = (uv - self.uv).ravel()
+        self._cache_x, self._cache = key, (f, Xc, Ji @ self.T, Jp)
+        return self._cache
+
+    def fun(self, x: np.ndarray) -> np.ndarray:
+        return self.evaluate(x)[0]
+
+    def jac(self, x: np.ndarray):
+        from scipy.sparse import csr_matrix
+
+        _, _, Ji, Jp = self.evaluate(x)
+        data = np.concatenate([Ji.reshape(-1, self.nf), Jp.reshape(-1, 6)], axis=1).ravel()
+        return csr_matrix((data, self.indices, self.indptr), shape=(2 * len(self.X), self.n))
+
+    def intrinsic_information(self, x: np.ndarray) -> np.ndarray:
+        """Schur complement (nf, nf) of the pose blocks in J^T J: the information on the free intrinsics with the
+        poses marginalised."""
+        _, _, Ji, Jp = self.evaluate(x)
+        S = np.einsum("nka,nkb->ab", Ji, Ji)
+        for v, idx in enumerate(np.split(np.arange(len(self.X)), np.cumsum(self.counts)[:-1])):
+            Jiv = Ji[idx].reshape(-1, self.nf)
+            Jpv = Jp[idx].reshape(-1, 6)
+            B = Jiv.T @ Jpv
+            D = Jpv.T @ Jpv
+            S -= B @ np.linalg.solve(D, B.T)
+        return 0.5 * (S + S.T)
+
+
+def _normal_blocks(prob: "_Problem", f: np.ndarray, Ji: np.ndarray, Jp: np.ndarray, starts: np.ndarray):
+    """Blocks of J^T J and J^T f: A (nf, nf), gi (nf,), B (V, nf, 6), D (V, 6, 6), gp (V, 6)."""
+    nf = Ji.shape[2]
+    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, nf + 6)
+    Jt = Jc.transpose(0, 2, 1)
+    G = np.add.reduceat(Jt @ Jc, starts, axis=0)                       # (V, nf + 6, nf + 6)
+    g = np.add.reduceat((Jt @ f.reshape(-1, 2, 1))[:, :, 0], starts, axis=0)
+    return G[:, :nf, :nf].sum(axis=0), g[:, :nf].sum(axis=0), G[:, :nf, nf:], G[:, nf:, nf:], g[:, nf:]
+
+
+def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
+    """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks. Returns (nf + 6V,)."""
+    dA = np.diag(A)
+    dD = np.diagonal(D, axis1=1, axis2=2)
+    Dd = D + lam * dD[:, :, None] * np.eye(6) if lam else D
+    Dinv_Bt = np.linalg.solve(Dd, np.transpose(B, (0, 2, 1)))  # (V, 6, nf)
+    Dinv_g = np.linalg.solve(Dd, gp[:, :, None])[:, :, 0]     # (V, 6)
+    S = A + lam * np.diag(dA) - np.einsum("vab,vbc->ac", B, Dinv_Bt)
+    r = gi - np.einsum("vab,vb->a", B, Dinv_g)
+    try:
+        di = -np.linalg.solve(S, r)
+    except np.linalg.LinAlgError:
+        return np.full(A.shape[0] + 6 * len(D), np.nan)
+    dp = -Dinv_g - np.einsum("vab,b->va", Dinv_Bt, di)
+    return np.concatenate([di, dp.ravel()])
+
+
+def _lm_schur(prob: "_Problem", x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int, bool, str]:
+    """Levenberg-Marquardt on ``prob`` with exact Schur-complement solves of the damped normal equations.
+
+    Each iteration forms ``J^T J`` blockwise (intrinsic block A, per-view coupling B_v and 6x6 pose blocks D_v),
+    damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant like ``x_scale='jac'``), eliminates
+    the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. Once no damped step lowers the cost by more
+    than 1e-13 relative (the cost's own rounding level), undamped Gauss-Newton steps polish the parameters until a
+    step changes none of them by more than 1e-10 relative (the cost cannot resolve that; the gradient can).
+    Returns ``(x, iterations, converged, message)``.
+    """
+    starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
+    x = x0.copy()
+    f, _, Ji, Jp = prob.evaluate(x)
+    cost = float(f @ f)
+    lam = 1e-3
+    it = 0
+    stalled = False
+    while it < max_iterations and not stalled:
+        it += 1
+        blocks = _normal_blocks(prob, f, Ji, Jp, starts)
+        while True:
+            step = _schur_step(*blocks, lam)
+            cost_new = np.inf
+            if np.all(np.isfinite(step)):
+                f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
+                if np.all(np.isfinite(f_new)):
+                    cost_new = float(f_new @ f_new)
+            if cost_new < cost:
+                drop = cost - cost_new
+                x, f, Ji, Jp, cost = x + step, f_new, Ji_new, Jp_new, cost_new
+                lam = max(lam / 10.0, 1e-12)
+                stalled = drop <= 1e-13 * cost
+                break
+            lam *= 10.0
+            if lam > 1e12:
+                stalled = True
+                break
+    if not stalled:
+        prob.evaluate(x)
+        return x, it, False, f"iteration limit {max_iterations} reached"
+    # Gauss-Newton polish: near the minimum its steps are exact to rounding even where the cost cannot tell.
+    prev = np.inf
+    for _ in range(8):
+        blocks = _normal_blocks(prob, f, Ji, Jp, starts)
+        step = _schur_step(*blocks, 0.0)
+        if not np.all(np.isfinite(step)):
+            break
+        rel = float(np.max(np.abs(step) / (np.abs(x) + 1e-6)))
+        if rel >= prev:
+            break
+        f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
+        cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
+        if not cost_new <= cost * (1.0 + 1e-12) + 1e-300:
+            break
+        x, f, Ji, Jp, cost, prev = x + step, f_new, Ji_new, Jp_new, cost_new, rel
+        it += 1
+        if rel < 1e-10:
+            break
+    prob.evaluate(x)
+    # Converged if the scaled gradient is negligible at the final point.
+    A, gi, B, D, gp = _normal_blocks(prob, f, Ji, Jp, starts)
+    scale = np.sqrt(np.concatenate([np.diag(A), np.diagonal(D, axis1=1, axis2=2).ravel()]))
+    g = np.concatenate([gi, gp.ravel()]) / np.maximum(scale, 1e-300)
+    ok = bool(np.max(np.abs(g)) <= 1e-6 * np.sqrt(cost) + 1e-12)
+    return x, it, ok, ("converged" if ok else "stalled: no step lowers the cost but the gradient is not small")
+
+
+def _solve(prob: _Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tuple[np.ndarray, int, bool, str]:
+    """Run the chosen least-squares solver. Returns ``(x, iterations, converged, message)``."""
+    if solver == "schur":
+        return _lm_schur(prob, x0, max_iterations)
+    if solver != "scipy":
+        raise ValueError(f"unknown solver {solver!r}; expected 'schur' or 'scipy'")
+    from scipy.optimize import least_squares
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sol = least_squares(prob.fun, x0, jac=prob.jac, method="trf", x_scale="jac", ftol=1e-15, xtol=1e-15,
+                            gtol=1e-15, max_nfev=max_iterations, tr_solver="lsmr",
+                            tr_options={"atol": 1e-15, "btol": 1e-15, "maxiter": 10 * prob.n})
+    prob.evaluate(sol.x)
+    return sol.x, int(sol.njev if sol.njev is not None else sol.nfev), bool(sol.status > 0), str(sol.message)
+
+
+def _sane(prob: _Problem, x: np.ndarray, converged: bool) -> bool:
+    """A solve worth keeping: converged, finite, positive focal lengths, every point in front of the camera."""
+    if not converged or not np.all(np.isfinite(x)):
+        return False
+    f, Xc, _, _ = prob.evaluate(x)
+    p = prob.intrinsics(x)
+    return bool(np.all(np.isfinite(f)) and p[0] > 0 and p[1] > 0 and np.all(Xc[:, 2] > 0))
+
+
+def _initial_poses(obj, img, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Poses from homographies of the undistorted, normalised observations under ``camera``."""
+    from circcal.model import pixel_to_normalized, undistort
+    from circcal.zhang import homography
+
+    rv, tv = [], []
+    for o, p in zip(obj, img):
+        xn = undistort(pixel_to_normalized(p, camera), camera.dist)
+        if not np.all(np.isfinite(xn)):
+            raise CalibrationError("the initial camera's distortion cannot be inverted at some observed points")
+        r, t = pose_from_homography(homography(o[:, :2], xn), np.eye(3))
+        rv.append(r)
+        tv.append(t)
+    return np.stack(rv), np.stack(tv)
+
+
+def calibrate(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    *,
+    fix_k3: bool = False,
+    fix_tangential: bool = False,
+    fix_aspect_ratio: bool = False,
+    fix_principal_point: bool = False,
+    initial: Camera | None = None,
+    max_iterations: int = 200,
+    solver: str = "schur",
+) -> CalibrationResult:
+    """Calibrate a camera from planar-board correspondences.
+
+    ``object_points``: per view (N_v, 3) board coordinates in mm with z = 0; ``image_points``: per view (N_v, 2)
+    pixels (OpenCV convention); views may hold different points (partial boards), N_v >= 6; ``image_size``:
+    (width, height). ``fix_k3`` / ``fix_tangential`` hold k3 / (p1, p2) at their initial values (``initial``'s, else
+    0); ``fix_principal_point`` holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
+    ``fix_aspect_ratio`` holds fx / fy at ``initial``'s ratio or 1. ``initial``: start from this camera
+    (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form. ``max_iterations``: Jacobian evaluations
+    allowed; reaching it warns and returns ``converged=False``. ``solver``: ``"schur"`` (default) is
+    Levenberg-Marquardt with exact Schur-complement solves (:func:`_lm_schur`: reaches the minimum to ~1e-11
+    relative, like OpenCV); ``"scipy"`` is ``scipy.optimize.least_squares`` (trust-region reflective, sparse
+    analytic Jacobian, LSMR) on the same residuals and Jacobian, slower and stopping ~1e-7 relative short of the
+    minimum: an independent cross-check.
+
+    Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
+    6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
+    unobservable (e.g. boards nearly parallel to the image plane), naming those views.
+    """
+    obj, img, w, h = _check_inputs(object_points, image_points, image_size)
+    centre = (0.5 * (w - 1), 0.5 * (h - 1))
+    fixed: list[str] = []
+    if fix_aspect_ratio:
+        fixed.append("aspect_ratio")
+    if fix_principal_point:
+        fixed += ["cx", "cy"]
+    if fix_tangential:
+        fixed += ["p1", "p2"]
+    if fix_k3:
+        fixed.append("k3")
+    aspect = (initial.fx / initial.fy if initial is not None else 1.0) if fix_aspect_ratio else None
+
+    if initial is None:
+        z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect,
+                  distortion_rounds=0)
+        c = z.camera
+        intr = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
+        if fix_principal_point:
+            intr[2:4] = centre
+        rvecs, tvecs = z.rvecs, z.tvecs
+    else:
+        if (initial.width, initial.height) != (w, h):
+            raise ValueError(f"initial camera is {initial.width}x{initial.height} but image_size is {w}x{h}")
+        intr = initial.intrinsics.copy()
+        rvecs, tvecs = _initial_poses(obj, img, initial)
+    if aspect is not None:
+        intr[0] = aspect * intr[1]
+
+    free = [k for k, name in enumerate(PARAM_NAMES) if name not in fixed and not (aspect is not None and k == 0)]
+    prob = _Problem(obj, img, intr, free, aspect)
+    x0 = prob.pack(intr, rvecs, tvecs)
+
+    x, n_iter, converged, message = _solve(prob, x0, max_iterations, solver)
+    if initial is None and not _sane(prob, x, converged):
+        # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
+        z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect,
+                  distortion_rounds=10)
+        c = z.camera
+        intr = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
+        if fix_principal_point:
+            intr[2:4] = centre
+        if aspect is not None:
+            intr[0] = aspect * intr[1]
+        prob = _Problem(obj, img, intr, free, aspect)
+        x, n_iter2, converged, message = _solve(prob, prob.pack(intr, z.rvecs, z.tvecs), max_iterations, solver)
+        n_iter += n_iter2
+    f, Xc, _, _ = prob.evaluate(x)
+    p = prob.intrinsics(x)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
+        raise CalibrationError("the solver diverged (non-finite parameters or residuals); check the point "
+                               "correspondences (board order, image_size) and the views")
+    if p[0] <= 0 or p[1] <= 0:
+        raise CalibrationError(f"the solver diverged to a non-positive focal length (fx={p[0]:.4g}, fy={p[1]:.4g}); "
+                               f"check the point correspondences and the views")
+    if np.any(Xc[:, 2] <= 0):
+        bad = sorted(set(prob.view[Xc[:, 2] <= 0].tolist()))
+        raise CalibrationError(f"the solver diverged: board points behind the camera in view(s) {bad}")
+    if not converged:
+        warnings.warn(f"calibration did not converge ({message}); the model may be inaccurate", RuntimeWarning,
+                      stacklevel=2)
+
+    camera = Camera.from_intrinsics(w, h, p)
+    rv, tv = prob.poses(x)
+    m = 2 * len(prob.X)
+    dof = m - prob.n
+    ssr = float(f @ f)
+    if dof <= 0:
+        raise CalibrationError(f"{m} residuals for {prob.n} parameters: add views or points")
+    sigma2 = ssr / dof
+
+    # Uncertainty of the intrinsics, poses marginalised.
+    S = prob.intrinsic_information(x)
+    scale = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    Sn = S / np.outer(scale, scale)
+    ev = np.linalg.eigvalsh(Sn)
+    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+    if not np.isfinite(cond) or cond > 1e14:
+        cov_free_unit = np.full(S.shape, np.inf)
+    else:
+        cov_free_unit = np.linalg.inv(Sn) / np.outer(scale, scale)
+    cov9_unit = prob.T @ cov_free_unit @ prob.T.T if np.all(np.isfinite(cov_free_unit)) else None
+    f_idx = 1 if aspect is not None else 0
+    unit_rel = (float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf"))
+    if not np.isfinite(unit_rel) or unit_rel > MAX_UNIT_REL_STD_F:
+        tilts = view_tilts_deg(rv)
+        flat = [int(i) for i in np.flatnonzero(tilts < 10.0)]
+        listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat) or "none below 10 deg"
+        raise DegenerateViewsError(
+            f"focal length is not observable from these {len(obj)} views: std(f) would be {100 * unit_rel:.3g}% of f "
+            f"per 1 px of noise (limit {100 * MAX_UNIT_REL_STD_F:g}%); condition number of the intrinsic "
+            f"information matrix {cond:.3g}. Views nearly parallel to the image plane: {listing}. Add views with "
+            f"the board tilted 20-50 deg about different axes.", flat, cond)
+    cov9 = sigma2 * cov9_unit
+    std_arr = np.sqrt(np.maximum(np.diag(cov9), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov9 / np.outer(std_arr, std_arr)
+    corr[std_arr == 0, :] = np.nan
+    corr[:, std_arr == 0] = np.nan
+    std = {name: float(s) for name, s in zip(PARAM_NAMES, std_arr)}
+
+    residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
+    errors = error_stats(np.concatenate(residuals))
+    if errors["rms_per_coord_px"] > 2.0:
+        warnings.warn(f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
+                      f"coordinate): outliers, wrong board geometry or a lens the 5-coefficient model cannot fit",
+                      RuntimeWarning, stacklevel=2)
+    return CalibrationResult(
+        camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,
+        per_view_errors=[error_stats(r) for r in residuals], sigma_px=float(np.sqrt(sigma2)),
+        n_iterations=int(n_iter), converged=bool(converged),
+        fixed=tuple(fixed), n_params=int(prob.n))
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Images -> model
+# --------------------------------------------------------------------------------------------------------------------
+
+@dataclass
+class ImagesCalibration:
+    """Outcome of :func:`calibrate_images`. ``result``: the final model; ``paths``: all inputs; ``detections``:
+    one per path (``circcal.detect.Detection``); ``used``: indices of the paths in the model (the views of
+    ``result``, in order); ``failed``: (path, reason) for every image left out; ``rounds``: per calibration round
+    ``{"round", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_center_shift_px"}``."""
+
+    result: CalibrationResult
+    paths: list[str]
+    detections: list[Any]
+    used: list[int]
+    failed: list[tuple[str, str]]
+    rounds: list[dict] = field(default_factory=list)
+
+
+def _points_of(centers: np.ndarray, board_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the detected (finite) centres with their object points; a detector marks missing points with NaN."""
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    if len(c) != len(board_points):
+        raise ValueError(f"detector returned {len(c)} centres for a board of {len(board_points)} points")
+    ok = np.all(np.isfinite(c), axis=1)
+    return board_points[ok], c[ok]
+
+
+def calibrate_images(
+    paths: Sequence[str | Path],
+    board,
+    *,
+    fix_k3: bool = False,
+    fix_tangential: bool = False,
+    fix_aspect_ratio: bool = False,
+    fix_principal_point: bool = False,
+    max_rounds: int = 6,
+    tol_px: float = 1e-4,
+    progress: bool = True,
+    image_size: tuple[int, int] | None = None,
+) -> ImagesCalibration:
+    """Detect the board in every image, calibrate, then re-correct every centre under the current model
+    (perspective and distortion aware, ``circcal.detect.recorrect``) and recalibrate, until no centre moves more than
+    ``tol_px`` (typically 2-3 rounds) or ``max_rounds`` calibrations were made.
+
+    ``board``: :class:`circcal.board.Board`. Images where the board is not found are left out and listed in
+    ``failed`` with the detector's reason. Raises :class:`CalibrationError` when fewer than 3 images remain.
+    """
+    import cv2
+
+    from circcal import detect as det_mod
+
+    paths = [str(p) for p in paths]
+    if not paths:
+        raise ValueError("no images given")
+    detections = det_mod.detect_files(paths, board, camera=None, progress=progress)
+    failed: list[tuple[str, str]] = []
+    used: list[int] = []
+    for i, d in enumerate(detections):
+        if d.found and d.centers is not None:
+            used.append(i)
+        else:
+            failed.append((paths[i], d.reason or "board not found"))
+    if image_size is None:
+        sizes = set()
+        for i in used:
+            size = getattr(detections[i], "image_size", None)
+            if size is None:
+                im = cv2.imread(paths[i], cv2.IMREAD_UNCHANGED)
+                if im is None:
+                    raise FileNotFoundError(f"cannot read image {paths[i]}")
+                size = (im.shape[1], im.shape[0])
+            sizes.add((int(size[0]), int(size[1])))
+        if len(sizes) > 1:
+            raise CalibrationError(f"images differ in size {sorted(sizes)}: one calibration needs one camera mode")
+        image_size = sizes.pop() if sizes else (0, 0)
+    if len(used) < 3:
+        raise CalibrationError(
+            f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least 3"
+            + "".join(f"\n  {p}: {r}" for p, r in failed))
+    board_pts = board.object_points()
+    names = [Path(paths[i]).name for i in used]
+    opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
+                fix_principal_point=fix_principal_point)
+
+    centers = [np.asarray(detections[i].centers, dtype=np.float64) for i in used]
+    pairs = [_points_of(c, board_pts) for c in centers]
+    result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, **opts)
+    rounds = [{"round": 0, **{k: result.errors[k] for k in ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")},
+               "max_center_shift_px": float("nan")}]
+    for r in range(1, max_rounds):
+        new = [np.asarray(det_mod.recorrect(detections[i], board, result.camera), dtype=np.float64) for i in used]
+        shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centers))
+        centers = new
+        pairs = [_points_of(c, board_pts) for c in centers]
+        result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera, **opts)
+        rounds.append({"round": r, **{k: result.errors[k] for k in ("rms_per_point_px", "rms_per_coord_px",
+                                                                     "mean_2d_px")},
+                       "max_center_shift_px": shift})
+        if shift < tol_px:
+            break
+    else:
+        if max_rounds > 1:
+            warnings.warn(f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
+                          f"(last shift {rounds[-1]['max_center_shift_px']:.3g} px)", RuntimeWarning, stacklevel=2)
+    result.view_names = names
+    return ImagesCalibration(result, paths, detections, used, failed, rounds)

@@ -1,0 +1,118 @@
+"""``circcal calibrate IMAGES... --grid RxC --pitch 10mm --out model.json``: detect, calibrate, re-correct, report."""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
+
+
+def parse_length_mm(text: str) -> float:
+    """'10mm', '1cm', '0.01m', '0.5in' or a bare number (mm) -> mm."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in|)\s*", str(text))
+    if not m:
+        raise argparse.ArgumentTypeError(f"not a length: {text!r} (expected e.g. 10mm, 1.5cm, 0.01m)")
+    value = float(m.group(1)) * _UNITS_MM[m.group(2)]
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"length must be positive, got {text!r}")
+    return value
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """'7x7' -> (rows, cols): points per column x points per row."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX*]\s*(\d+)\s*", str(text))
+    if not m:
+        raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "calibrate", help="calibrate a camera from images of a circle grid",
+        description="Detect the circle grid in every image, calibrate (Zhang + Levenberg-Marquardt over fx, fy, cx, "
+                    "cy, k1, k2, p1, p2, k3 and all poses), re-correct every centre under the current model and "
+                    "recalibrate until the centres settle. Writes model.json (or, by extension, OpenCV .yaml, "
+                    "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).")
+    p.add_argument("images", nargs="+", type=Path, help="image files")
+    p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
+    p.add_argument("--pitch", type=parse_length_mm, required=True,
+                   help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)")
+    p.add_argument("--diameter", type=parse_length_mm, help="dot diameter, e.g. 5mm (default: half the pitch)")
+    p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
+    p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0")
+    p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0")
+    p.add_argument("--fix-aspect-ratio", action="store_true", help="hold fx = fy")
+    p.add_argument("--fix-principal-point", action="store_true", help="hold (cx, cy) at the image centre")
+    p.add_argument("--out", type=Path, default=Path("model.json"), help="output model file (default model.json)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def format_summary(cal, *, worst: int = 3) -> str:
+    """Human-readable summary of an :class:`circcal.calibrate.ImagesCalibration` (or a CalibrationResult)."""
+    from circcal.calibrate import PARAM_NAMES
+
+    res = getattr(cal, "result", cal)
+    lines = []
+    vals = res.camera.intrinsics
+    lines.append(f"camera {res.camera.width}x{res.camera.height}, {len(res.rvecs)} views, "
+                 f"{res.errors['n_points']} points, {res.n_iterations} iterations"
+                 f"{'' if res.converged else ' (NOT converged)'}")
+    lines.append(f"  {'parameter':>9}  {'value':>14}  {'+- 1 sigma':>12}")
+    for name, v in zip(PARAM_NAMES, vals):
+        s = res.std[name]
+        note = "  (fixed)" if name in res.fixed else ""
+        if name == "fx" and "aspect_ratio" in res.fixed:
+            note = "  (= aspect * fy)"
+        lines.append(f"  {name:>9}  {v:14.6f}  {s:12.6f}{note}")
+    e = res.errors
+    lines.append(f"reprojection error: RMS per point (OpenCV) {e['rms_per_point_px']:.4f} px, RMS per coordinate "
+                 f"(mrcal) {e['rms_per_coord_px']:.4f} px, mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px, "
+                 f"max {e['max_2d_px']:.4f} px; noise estimate sigma {res.sigma_px:.4f} px")
+    order = sorted(range(len(res.per_view_errors)), key=lambda i: -res.per_view_errors[i]["rms_per_point_px"])
+    names = res.view_names or [f"view {i}" for i in range(len(res.per_view_errors))]
+    lines.append("worst views (RMS per point):")
+    for i in order[:worst]:
+        pv = res.per_view_errors[i]
+        lines.append(f"  {names[i]}: {pv['rms_per_point_px']:.4f} px (max {pv['max_2d_px']:.4f} px, "
+                     f"{pv['n_points']} points)")
+    rounds = getattr(cal, "rounds", None)
+    if rounds:
+        lines.append("re-correction rounds: " + ", ".join(
+            f"{r['round']}: RMS/pt {r['rms_per_point_px']:.4f} px"
+            + ("" if r["round"] == 0 else f", centres moved <= {r['max_center_shift_px']:.2g} px") for r in rounds))
+    failed = getattr(cal, "failed", None)
+    if failed:
+        lines.append(f"{len(failed)} image(s) left out:")
+        lines += [f"  {p}: {reason}" for p, reason in failed]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from circcal.board import Board
+    from circcal.calibrate import CalibrationError, calibrate_images
+    from circcal.formats import detect_format, write_camera
+
+    rows, cols = args.grid
+    layout = "asymmetric" if args.asymmetric else "symmetric"
+    diameter = args.diameter if args.diameter is not None else 0.5 * args.pitch
+    board = Board(rows, cols, args.pitch, diameter, layout)
+    fmt = detect_format(args.out)  # fail before the work on an unknown extension
+    try:
+        cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,
+                               fix_aspect_ratio=args.fix_aspect_ratio, fix_principal_point=args.fix_principal_point,
+                               progress=not args.no_progress)
+    except CalibrationError as exc:
+        print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
+        return 1
+    print(format_summary(cal))
+    model = cal.result.to_model_json()
+    model["board"] = board.to_dict()
+    model["failed_images"] = [{"path": p, "reason": r} for p, r in cal.failed]
+    model["recorrection_rounds"] = cal.rounds
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_camera(args.out, cal.result.camera, fmt, model_json=model)
+    print(f"wrote {args.out} ({fmt})")
+    return 0

@@ -1,0 +1,40 @@
+"""``circcal convert IN OUT``: convert a camera model between circcal, OpenCV, mrcal, COLMAP and ROS files."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from circcal.formats import FORMATS
+
+    p = sub.add_parser(
+        "convert", help="convert a camera model file to another format",
+        description="Convert a camera model. Formats by extension (and, for input, content): .json (circcal "
+                    "model.json / truth.json), .yaml/.yml/.xml (OpenCV FileStorage; ROS camera_info when the name "
+                    "contains 'camera_info'), .cameramodel (mrcal), .txt (COLMAP cameras.txt; cx, cy shift by "
+                    "+0.5 px into COLMAP's pixel convention).")
+    p.add_argument("input", type=Path, help="camera file to read")
+    p.add_argument("output", type=Path, help="camera file to write")
+    p.add_argument("--from", dest="from_fmt", choices=FORMATS, help="input format (default: detected)")
+    p.add_argument("--to", dest="to_fmt", choices=FORMATS, help="output format (default: from the extension)")
+    p.add_argument("--colmap-model", default="auto", choices=("auto", "OPENCV", "FULL_OPENCV"),
+                   help="COLMAP camera model (auto: OPENCV when k3 = 0, else FULL_OPENCV)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from circcal.formats import read_camera, write_camera
+
+    camera = read_camera(args.input, args.from_fmt)
+    model_json = None
+    if (args.to_fmt or "") == "json" or (args.to_fmt is None and args.output.suffix.lower() == ".json"):
+        # keep the whole model.json (std, errors, poses) when converting json -> json
+        if args.input.suffix.lower() == ".json":
+            model_json = json.loads(args.input.read_text())
+    fmt = write_camera(args.output, camera, args.to_fmt, model_json=model_json, colmap_model=args.colmap_model)
+    print(f"{args.input} -> {args.output} ({fmt}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
+          f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
+    return 0

@@ -1,0 +1,354 @@
+"""Zhang's closed-form calibration: plane homographies -> image of the absolute conic -> intrinsics -> poses.
+
+The initial guess for :func:`circcal.calibrate.calibrate` (Zhang 2000, "A flexible new technique for camera
+calibration"), written for a zero-skew camera:
+
+1. per view, a Hartley-normalised DLT homography ``H`` from board-plane coordinates (X, Y) in mm to pixels;
+2. the image of the absolute conic ``B ~ K^-T K^-1``: each view gives two linear constraints
+   ``h1^T B h2 = 0`` and ``h1^T B h1 = h2^T B h2`` on the entries of ``B``; with zero skew ``B`` has 5 entries
+   (``B11, B22, B13, B23, B33``; 4 unknowns up to scale, so >= 2 views), or 3 (``B11, B22, B33``) when the principal
+   point is given (the variant OpenCV uses for its own initial guess);
+3. ``K`` from ``B``; each pose from ``K^-1 H = s [r1 r2 t]``, the rotation orthonormalised by SVD.
+
+Distortion is ignored here (the homographies are fitted to distorted pixels): the result is exact on noiseless,
+distortion-free data and a starting point for the joint least-squares refinement otherwise.
+
+Focal length is only observable from views whose board is tilted against the image plane: for a fronto-parallel
+board ``H`` has no perspective part and the constraints say nothing about ``f``. :func:`zhang` raises
+:class:`DegenerateViewsError` (naming the near-fronto-parallel views) when no positive-definite conic fits; a conic
+that fits but is poorly determined is caught after the refinement, from its covariance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from circcal.model import Camera
+
+__all__ = [
+    "CalibrationError",
+    "DegenerateViewsError",
+    "ZhangResult",
+    "homography",
+    "intrinsics_from_homographies",
+    "pose_from_homography",
+    "view_tilts_deg",
+    "zhang",
+]
+
+
+class CalibrationError(ValueError):
+    """The observations cannot give a trustworthy camera model (the message says why and what is needed)."""
+
+
+class DegenerateViewsError(CalibrationError):
+    """The views leave the focal length (or the principal point) unobservable, e.g. all boards nearly
+    fronto-parallel. ``views`` lists the offending view indices, ``condition`` the condition number measured."""
+
+    def __init__(self, message: str, views: list[int], condition: float):
+        super().__init__(message)
+        self.views = views
+        self.condition = condition
+
+
+@dataclass(frozen=True)
+class ZhangResult:
+    """Closed-form estimate. ``rvecs``/``tvecs``: (V, 3) radians / mm; ``homographies``: (V, 3, 3) board mm ->
+    pixels (of the distortion-corrected points of the kept round); ``condition``: condition number of the
+    normalised IAC system (informative only: noise hides near-degeneracy from it; the solver judges observability
+    from the final Jacobian);
+    ``principal_point_fixed``: True when the principal point was given or the free solution was implausible and
+    the image centre was used instead."""
+
+    camera: Camera
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    homographies: np.ndarray
+    condition: float
+    principal_point_fixed: bool
+
+
+def _similarity_normaliser(pts: np.ndarray) -> np.ndarray:
+    """Hartley's normalisation (3, 3): centroid to the origin, mean distance sqrt(2)."""
+    c = pts.mean(axis=0)
+    d = np.mean(np.linalg.norm(pts - c, axis=1))
+    s = np.sqrt(2.0) / d if d > 0 else 1.0
+    return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+
+
+def homography(object_xy: np.ndarray, image_points: np.ndarray) -> np.ndarray:
+    """Plane homography (3, 3) mapping board coordinates ``object_xy`` (N, 2) mm to ``image_points`` (N, 2), N >= 4.
+
+    Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless
+    data). Scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
+    """
+    src = np.asarray(object_xy, dtype=np.float64).reshape(-1, 2)
+    dst = np.asarray(image_points, dtype=np.float64).reshape(-1, 2)
+    if len(src) < 4:
+        raise CalibrationError(f"a plane homography needs >= 4 points, got {len(src)}")
+    Ts, Td = _similarity_normaliser(src), _similarity_normaliser(dst)
+    a = src @ Ts[:2, :2].T + Ts[:2, 2]
+    b = dst @ Td[:2, :2].T + Td[:2, 2]
+    n = len(a)
+    A = np.zeros((2 * n, 9))
+    A[0::2, 0:2] = a
+    A[0::2, 2] = 1.0
+    A[0::2, 6:8] = -b[:, :1] * a
+    A[0::2, 8] = -b[:, 0]
+    A[1::2, 3:5] = a
+    A[1::2, 5] = 1.0
+    A[1::2, 6:8] = -b[:, 1:2] * a
+    A[1::2, 8] = -b[:, 1]
+    _, sv, Vt = np.linalg.svd(A, full_matrices=False)
+    if sv[-2] <= 1e-12 * sv[0]:
+        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
+    H = np.linalg.solve(Td, Vt[-1].reshape(3, 3) @ Ts)
+    if not np.all(np.isfinite(H)):
+        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
+    H = H / np.linalg.norm(H)
+    return -H if H[2, 2] < 0 else H
+
+
+def _pixel_normaliser(image_size: tuple[int, int]) -> np.ndarray:
+    """(3, 3) map taking pixels to centred coordinates of order 1 (conditions the IAC system)."""
+    w, h = image_size
+    s = 0.5 * max(w, h)
+    return np.array([[1.0 / s, 0.0, -0.5 * (w - 1) / s], [0.0, 1.0 / s, -0.5 * (h - 1) / s], [0.0, 0.0, 1.0]])
+
+
+def _constraint_rows(Hs: np.ndarray, principal_point_known: bool) -> np.ndarray:
+    """The two IAC constraints per view, (2V, 5) for (B11, B22, B13, B23, B33) or (2V, 3) for (B11, B22, B33)."""
+    h1 = Hs[:, :, 0]
+    h2 = Hs[:, :, 1]
+
+    def v(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        cols = [a[:, 0] * b[:, 0], a[:, 1] * b[:, 1]]
+        if not principal_point_known:
+            cols += [a[:, 0] * b[:, 2] + a[:, 2] * b[:, 0], a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1]]
+        cols.append(a[:, 2] * b[:, 2])
+        return np.stack(cols, axis=-1)
+
+    rows = np.empty((2 * len(Hs), 3 if principal_point_known else 5))
+    rows[0::2] = v(h1, h2)
+    rows[1::2] = v(h1, h1) - v(h2, h2)
+    rows /= np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-300)
+    return rows
+
+
+def intrinsics_from_homographies(
+    homographies: np.ndarray,
+    image_size: tuple[int, int],
+    *,
+    principal_point: tuple[float, float] | None = None,
+    aspect_ratio: float | None = None,
+) -> tuple[np.ndarray, float]:
+    """Zero-skew ``K`` (3, 3) from the image of the absolute conic.
+
+    ``homographies``: (V, 3, 3) board -> pixels. ``principal_point``: (cx, cy) px to hold fixed (then ``V >= 1``);
+    ``aspect_ratio``: fx / fy to impose on the solution (applied after the linear solve, as the geometric mean).
+    Returns ``(K, condition)`` where ``condition`` = s_1 / s_{n-1} of the normalised constraint matrix (its
+    smallest singular direction is the solution; a second near-zero singular value means the solution is not
+    determined). ``K`` is NaN when the conic is not positive definite (inconsistent or degenerate views).
+    """
+    T = _pixel_normaliser(image_size)
+    Hs = np.asarray(homographies, dtype=np.float64)
+    known = principal_point is not None
+    if known:
+        Tc = np.array([[1.0, 0.0, -principal_point[0]], [0.0, 1.0, -principal_point[1]], [0.0, 0.0, 1.0]])
+        s = 0.5 * max(image_size)
+        T = np.diag([1.0 / s, 1.0 / s, 1.0]) @ Tc
+    Hn = T @ Hs
+    Hn /= np.linalg.norm(Hn, axis=(1, 2), keepdims=True)
+    A = _constraint_rows(Hn, known)
+    _, sv, Vt = np.linalg.svd(A, full_matrices=False)
+    n = A.shape[1]
+    condition = float(sv[0] / sv[n - 2]) if sv.size >= n - 1 and sv[n - 2] > 0 else float("inf")
+    if A.shape[0] < n - 1:
+        condition = float("inf")
+    b = Vt[-1]
+    nan_K = np.full((3, 3), np.nan)
+    if known:
+        B11, B22, B33 = b
+        if B11 * B33 <= 0 or B22 * B33 <= 0:  # B ~ diag(1/fx^2, 1/fy^2, 1) up to a (signed) scale
+            return nan_K, condition
+        fx_n, fy_n = np.sqrt(B33 / B11), np.sqrt(B33 / B22)
+        cxn = cyn = 0.0
+    else:
+        B11, B22, B13, B23, B33 = b
+        if B11 * B22 <= 0:
+            return nan_K, condition
+        cxn, cyn = -B13 / B11, -B23 / B22
+        lam = B33 - B13 * B13 / B11 - B23 * B23 / B22
+        if lam / B11 <= 0 or lam / B22 <= 0:
+            return nan_K, condition
+        fx_n, fy_n = np.sqrt(lam / B11), np.sqrt(lam / B22)
+    if aspect_ratio is not None:
+        fy_n = np.sqrt(fx_n * fy_n / aspect_ratio)
+        fx_n = aspect_ratio * fy_n
+    Kn = np.array([[fx_n, 0.0, cxn], [0.0, fy_n, cyn], [0.0, 0.0, 1.0]])
+    K = np.linalg.solve(T, Kn)
+    return K / K[2, 2], condition
+
+
+def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Board pose from a homography ``H`` (3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
+
+    ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in
+    front of the camera, ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvec`` (3,) radians, ``tvec`` (3,) mm.
+    """
+    import cv2
+
+    M = np.linalg.solve(K, np.asarray(H, dtype=np.float64))
+    s = 2.0 / (np.linalg.norm(M[:, 0]) + np.linalg.norm(M[:, 1]))
+    if M[2, 2] < 0:
+        s = -s
+    r1, r2, t = s * M[:, 0], s * M[:, 1], s * M[:, 2]
+    R = np.column_stack([r1, r2, np.cross(r1, r2)])
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return cv2.Rodrigues(R)[0].ravel(), t
+
+
+def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
+    """Angle (deg) between each board's normal and the optical axis, (V,) from rvecs (V, 3)."""
+    from circcal.model import rodrigues
+
+    R = rodrigues(np.asarray(rvecs, dtype=np.float64).reshape(-1, 3))
+    return np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
+
+
+def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.ndarray:
+    """Linear least-squares (k1, k2) given intrinsics and poses (Zhang 2000, sec. 3.3): observed pixel offsets from
+    the ideal projections are ``(u - cx) (k1 r^2 + k2 r^4)``."""
+    from circcal.model import transform
+
+    rows, rhs = [], []
+    for o, p, r, t in zip(object_points, image_points, rvecs, tvecs):
+        Xc = transform(o, r, t)
+        xn = Xc[:, :2] / Xc[:, 2:3]
+        r2 = np.sum(xn * xn, axis=1)
+        ideal = np.column_stack([camera.fx * xn[:, 0] + camera.cx, camera.fy * xn[:, 1] + camera.cy])
+        d = ideal - np.array([camera.cx, camera.cy])
+        rows.append(np.stack([d * r2[:, None], d * (r2 * r2)[:, None]], axis=-1).reshape(-1, 2))
+        rhs.append((np.asarray(p, dtype=np.float64) - ideal).reshape(-1))
+    k, *_ = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)
+    return k
+
+
+def _rms(object_points, image_points, camera, rvecs, tvecs) -> float:
+    from circcal.model import project
+
+    r = np.concatenate([project(o, rv, tv, camera) - p for o, p, rv, tv in
+                        zip(object_points, image_points, rvecs, tvecs)])
+    return float(np.sqrt(np.mean(r * r))) if np.all(np.isfinite(r)) else float("inf")
+
+
+def zhang(
+    object_points: list[np.ndarray],
+    image_points: list[np.ndarray],
+    image_size: tuple[int, int],
+    *,
+    principal_point: tuple[float, float] | None = None,
+    aspect_ratio: float | None = None,
+    distortion_rounds: int = 10,
+    min_tilt_deg: float = 10.0,
+) -> ZhangResult:
+    """Closed-form intrinsics and poses from planar views, with an optional linear radial-distortion estimate.
+
+    ``object_points``: per view (N_v, 3) mm with z = 0 (N_v >= 4); ``image_points``: per view (N_v, 2) px;
+    ``image_size``: (width, height). With ``principal_point`` None the zero-skew IAC is solved for (fx, fy, cx, cy)
+    (needs >= 2 views); if that gives an implausible principal point (outside the image) or a non-positive conic,
+    the image centre ``((w-1)/2, (h-1)/2)`` is used and only (fx, fy) are solved, as OpenCV does.
+
+    ``distortion_rounds`` > 0 alternates (Zhang 2000, sec. 3.3): linear (k1, k2) from the current intrinsics and
+    poses, undistort the observations with them, re-solve the closed form; the round with the lowest reprojection
+    RMS is kept (round 0 is the plain closed form with zero distortion). Returns a :class:`ZhangResult` whose camera
+    carries ``dist = [k1, k2, 0, 0, 0]``.
+
+    Raises :class:`DegenerateViewsError` when no positive-definite conic exists (e.g. all views fronto-parallel),
+    naming the views tilted less than ``min_tilt_deg``.
+    """
+    from circcal.model import pixel_to_normalized, undistort
+
+    w, h = image_size
+    obj = [np.asarray(o, dtype=np.float64) for o in object_points]
+    img = [np.asarray(p, dtype=np.float64) for p in image_points]
+    all_img = np.concatenate(img)
+    splits = np.cumsum([len(p) for p in img])[:-1]
+    x_prev = None
+    best = None
+    k = np.zeros(2)
+    for _ in range(distortion_rounds + 1):
+        if np.any(k):
+            cam0 = best[0].camera
+            cam_k = Camera(int(w), int(h), cam0.fx, cam0.fy, cam0.cx, cam0.cy, np.array([k[0], k[1], 0, 0, 0]))
+            und = undistort(pixel_to_normalized(all_img, cam_k), cam_k.dist, x0=x_prev, tol=1e-12)
+            if not np.all(np.isfinite(und)):
+                break
+            x_prev = und
+            pts = np.split(np.column_stack([und[:, 0] * cam0.fx + cam0.cx, und[:, 1] * cam0.fy + cam0.cy]), splits)
+        else:
+            pts = img
+        try:
+            res = _closed_form(obj, pts, image_size, principal_point, aspect_ratio, min_tilt_deg)
+        except DegenerateViewsError:
+            if best is None:
+                raise
+            break
+        cam = Camera(int(w), int(h), res.camera.fx, res.camera.fy, res.camera.cx, res.camera.cy,
+                     np.array([k[0], k[1], 0.0, 0.0, 0.0]))
+        res = ZhangResult(cam, res.rvecs, res.tvecs, res.homographies, res.condition, res.principal_point_fixed)
+        if distortion_rounds == 0:
+            return res
+        rms = _rms(obj, img, cam, res.rvecs, res.tvecs)
+        if best is None or rms < best[1]:
+            best = (res, rms)
+        elif rms > best[1]:
+            break
+        k_new = _radial_from_poses(obj, img, cam, res.rvecs, res.tvecs)
+        if np.all(np.abs(k_new - k) <= 1e-4 * (np.abs(k_new) + 1e-3)):
+            break
+        k = k_new
+    return best[0]
+
+
+def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_deg) -> ZhangResult:
+    w, h = image_size
+    Hs = np.stack([homography(o[:, :2], p) for o, p in zip(obj, img)])
+    centre = (0.5 * (w - 1), 0.5 * (h - 1))
+    pp_fixed = principal_point is not None
+    K = None
+    condition = float("inf")
+    if not pp_fixed and len(Hs) >= 2:
+        K, condition = intrinsics_from_homographies(Hs, image_size, aspect_ratio=aspect_ratio)
+        ok = (np.all(np.isfinite(K)) and -0.5 <= K[0, 2] <= w - 0.5 and -0.5 <= K[1, 2] <= h - 0.5
+              and 0.2 < K[0, 0] / K[1, 1] < 5.0)
+        if not ok:
+            K = None
+    if K is None:
+        pp = principal_point if pp_fixed else centre
+        K, condition = intrinsics_from_homographies(Hs, image_size, principal_point=pp, aspect_ratio=aspect_ratio)
+        pp_fixed = True
+    if not np.all(np.isfinite(K)):
+        f_guess = float(max(w, h))
+        K_guess = np.array([[f_guess, 0.0, centre[0]], [0.0, f_guess, centre[1]], [0.0, 0.0, 1.0]])
+        tilts = view_tilts_deg(np.stack([pose_from_homography(H, K_guess)[0] for H in Hs]))
+        flat = [int(i) for i in np.flatnonzero(tilts < min_tilt_deg)]
+        if flat:
+            listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat)
+            hint = (f"Views nearly fronto-parallel (tilt < {min_tilt_deg:g} deg, measured with a nominal "
+                    f"f = {f_guess:.0f} px): {listing}. Add views with the board tilted 20-50 deg about different "
+                    f"axes.")
+        else:
+            hint = ("No view is nearly fronto-parallel, so the homographies are inconsistent with any pinhole "
+                    "camera: check the point correspondences (board order, rows/cols) and the object points.")
+        raise DegenerateViewsError(
+            f"focal length is not observable from these {len(Hs)} views: the image of the absolute conic is not "
+            f"positive definite (condition number {condition:.3g}). {hint}", flat, condition)
+    poses = [pose_from_homography(H, K) for H in Hs]
+    camera = Camera(int(w), int(h), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), np.zeros(5))
+    return ZhangResult(camera, np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]), Hs, condition,
+                       pp_fixed)
