@@ -1,0 +1,356 @@
+"""The interface every reference calibrator implements, and the result it hands back.
+
+A reference calibrator (OpenCV, mrcal, kornia, pycolmap, or a third party's plug-in) takes the *same* 2-D centres as
+circcal and returns a :class:`ReferenceResult`. Nothing raised inside an adapter reaches the caller: :func:`run_safely`
+turns a crash, a divergence or bad input into ``status="failed"`` with the message, so one broken reference never
+stops the others.
+
+Conventions (those of :mod:`circcal.model`): pixel centres at integer coordinates, OpenCV point order, board points in
+mm with z = 0, poses map board to camera (``X_cam = R(rvec) X + tvec``). Residuals are ``observed - projected`` in px.
+"""
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from circcal.metrics import error_stats
+from circcal.model import Camera, project
+
+__all__ = [
+    "PARAM_NAMES",
+    "STATUSES",
+    "MODES",
+    "ReferenceResult",
+    "ReferenceCalibrator",
+    "BaseCalibrator",
+    "run_safely",
+    "check_observations",
+    "residuals_of",
+    "DIVERGED_RMS_PX",
+    "seed_camera",
+    "check_divergence",
+]
+
+PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+STATUSES: tuple[str, ...] = ("ok", "unavailable", "unsupported", "failed")
+MODES: tuple[str, ...] = ("fair", "default")
+Mode = Literal["fair", "default"]
+
+#: A solve whose RMS per point exceeds this (px) is reported as diverged (status "failed").
+DIVERGED_RMS_PX = 100.0
+
+
+@dataclass
+class ReferenceResult:
+    """What one reference calibrator produced on one problem.
+
+    ``status``: "ok" | "unavailable" (reference not installed) | "unsupported" (input it cannot handle, e.g. an
+    asymmetric grid for mrcal) | "failed" (crash, divergence, bad input); ``message`` says why.
+    ``camera``: the calibrated :class:`circcal.model.Camera` (None unless ok). ``std``: standard deviations keyed by
+    :data:`PARAM_NAMES` (a fixed parameter has 0.0), or None when the reference offers none.
+    ``rvecs``, ``tvecs``: (V, 3) board-to-camera poses (rad; mm). ``residuals``: list of (N_v, 2) px,
+    observed - projected (NaN for points a reference dropped as outliers). ``errors``: :func:`circcal.metrics.error_stats`
+    of all residuals. ``object_points``/``image_points``: the observations actually used (per view; (N_v, 3) mm and
+    (N_v, 2) px). ``views``: indices (into the caller's views/images) of the views used. ``extra``: reference-specific
+    facts (fixed parameters, flags, mrcal statistics, seeds) that a report should show.
+    """
+
+    name: str
+    version: str
+    mode: str
+    status: str
+    message: str = ""
+    camera: Camera | None = None
+    std: dict[str, float] | None = None
+    rvecs: np.ndarray | None = None
+    tvecs: np.ndarray | None = None
+    residuals: list[np.ndarray] | None = None
+    errors: dict[str, float] | None = None
+    time_s: float = 0.0
+    object_points: list[np.ndarray] | None = None
+    image_points: list[np.ndarray] | None = None
+    views: list[int] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status must be one of {', '.join(STATUSES)}, got {self.status!r}")
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def summary(self) -> str:
+        """One line for logs and CLI tables."""
+        head = f"{self.name} {self.version} [{self.mode}]: {self.status}"
+        if not self.ok:
+            return f"{head}: {self.message}"
+        c = self.camera
+        e = self.errors or {}
+        return (f"{head}: fx={c.fx:.4f} fy={c.fy:.4f} cx={c.cx:.4f} cy={c.cy:.4f} "
+                f"dist={np.array2string(c.dist, precision=5)} rms_per_point={e.get('rms_per_point_px', np.nan):.4f} px "
+                f"({self.time_s:.3f} s)")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (arrays as lists; residuals per view)."""
+        def arr(a: Any) -> Any:
+            return None if a is None else np.asarray(a, dtype=float).tolist()
+
+        return {
+            "name": self.name,
+            "version": self.version,
+            "mode": self.mode,
+            "status": self.status,
+            "message": self.message,
+            "camera": None if self.camera is None else self.camera.to_dict(),
+            "std": self.std,
+            "rvecs": arr(self.rvecs),
+            "tvecs": arr(self.tvecs),
+            "residuals": None if self.residuals is None else [arr(r) for r in self.residuals],
+            "errors": self.errors,
+            "time_s": float(self.time_s),
+            "views": self.views,
+            "extra": _jsonable(self.extra),
+        }
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+@runtime_checkable
+class ReferenceCalibrator(Protocol):
+    """What the registry hands out. Third-party plug-ins implement this (subclassing :class:`BaseCalibrator` is the
+    easy way) and register under the entry-point group ``circcal.validators``."""
+
+    name: str
+
+    @property
+    def version(self) -> str: ...
+
+    def available(self) -> tuple[bool, str]: ...
+
+    def calibrate_observations(self, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                               image_size: tuple[int, int], *, mode: Mode = "fair",
+                               initial: Camera | None = None) -> ReferenceResult: ...
+
+    def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
+                         mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult: ...
+
+
+def check_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                       image_size: tuple[int, int], *, min_views: int = 3,
+                       planar: bool = True) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
+    """Validate and normalise observations; raises ``ValueError`` saying what is wrong and what was expected.
+
+    Returns float64 copies: object points (N_v, 3) mm, image points (N_v, 2) px, and ``(width, height)``.
+    """
+    if len(object_points) != len(image_points):
+        raise ValueError(f"got {len(object_points)} object-point sets but {len(image_points)} image-point sets; "
+                         "expected one of each per view")
+    if len(object_points) < min_views:
+        raise ValueError(f"need at least {min_views} views to calibrate, got {len(object_points)}")
+    try:
+        w, h = (int(image_size[0]), int(image_size[1]))
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"image_size must be (width, height), got {image_size!r}") from exc
+    if w <= 0 or h <= 0:
+        raise ValueError(f"image_size must be positive (width, height), got {image_size!r}")
+    obj, img = [], []
+    for v, (o, p) in enumerate(zip(object_points, image_points)):
+        o = np.asarray(o, dtype=np.float64)
+        p = np.asarray(p, dtype=np.float64)
+        if o.ndim == 2 and o.shape[1] == 2:
+            o = np.concatenate([o, np.zeros((len(o), 1))], axis=1)
+        if o.ndim != 2 or o.shape[1] != 3:
+            raise ValueError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
+        p = p.reshape(-1, 2) if p.ndim == 3 and p.shape[1] == 1 else p
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
+        if len(o) != len(p):
+            raise ValueError(f"view {v}: {len(o)} object points but {len(p)} image points")
+        if len(o) < 4:
+            raise ValueError(f"view {v}: need at least 4 points, got {len(o)}")
+        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(p))):
+            raise ValueError(f"view {v}: non-finite coordinates (NaN/inf); drop missing points before calibrating")
+        if planar and np.max(np.abs(o[:, 2])) > 1e-9 * max(1.0, np.max(np.abs(o))):
+            raise ValueError(f"view {v}: board points must lie on z = 0 (planar target), max |z| = "
+                             f"{np.max(np.abs(o[:, 2])):.3g} mm")
+        obj.append(o)
+        img.append(p)
+    return obj, img, (w, h)
+
+
+def residuals_of(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, object_points: Sequence[np.ndarray],
+                 image_points: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Per-view residuals ``observed - projected`` (N_v, 2) px, projected with :func:`circcal.model.project`."""
+    return [np.asarray(p, dtype=np.float64) - project(o, r, t, camera)
+            for o, p, r, t in zip(object_points, image_points, np.asarray(rvecs), np.asarray(tvecs))]
+
+
+class BaseCalibrator:
+    """Convenience base: subclasses set ``name``, implement ``_version``, ``_available`` and ``_calibrate`` (and
+    ``_calibrate_images`` where the reference has its own detector). The public methods never raise."""
+
+    name: str = "base"
+    #: modes this reference distinguishes; others give the same estimator for both.
+    modes: tuple[str, ...] = MODES
+
+    # -- to implement ---------------------------------------------------------------------------------------------
+    def _version(self) -> str:
+        return "unknown"
+
+    def _available(self) -> tuple[bool, str]:
+        return True, ""
+
+    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
+                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+        raise NotImplementedError
+
+    def _calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *,
+                          mode: str, initial: Camera | None) -> ReferenceResult:
+        return self.result(mode, "unsupported", f"{self.name} has no circle-grid detector of its own; "
+                                                "use calibrate_observations with detected centres")
+
+    # -- public, never raising ------------------------------------------------------------------------------------
+    @property
+    def version(self) -> str:
+        try:
+            return str(self._version())
+        except Exception as exc:  # noqa: BLE001
+            return f"unknown ({exc})"
+
+    def available(self) -> tuple[bool, str]:
+        try:
+            ok, why = self._available()
+            return bool(ok), str(why)
+        except Exception as exc:  # noqa: BLE001
+            return False, f"{type(exc).__name__}: {exc}"
+
+    def calibrate_observations(self, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                               image_size: tuple[int, int], *, mode: Mode = "fair",
+                               initial: Camera | None = None) -> ReferenceResult:
+        """Calibrate from given centres. ``object_points``: per view (N_v, 3) mm (z = 0); ``image_points``: per view
+        (N_v, 2) px; ``image_size``: (width, height). ``mode``: "fair" (plain least squares, the estimator of
+        cv2.calibrateCamera) or "default" (what the reference's users get out of the box)."""
+
+        def go() -> ReferenceResult:
+            obj, img, size = check_observations(object_points, image_points, image_size)
+            return self._calibrate(obj, img, size, mode=mode, initial=initial)
+
+        return run_safely(go, name=self.name, version=lambda: self.version, mode=mode, available=self.available)
+
+    def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
+                         mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult:
+        """Detect with the reference's own detector, then calibrate. ``board``: :class:`circcal.board.Board`."""
+        return run_safely(lambda: self._calibrate_images(list(paths), board, image_size, mode=mode,
+                                                         initial=initial),
+                          name=self.name, version=lambda: self.version, mode=mode, available=self.available)
+
+    # -- helpers for subclasses -----------------------------------------------------------------------------------
+    def result(self, mode: str, status: str, message: str = "", **kw: Any) -> ReferenceResult:
+        return ReferenceResult(name=self.name, version=self.version, mode=mode, status=status, message=message, **kw)
+
+    def finish(self, mode: str, camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray,
+               object_points: list[np.ndarray], image_points: list[np.ndarray], t0: float, *,
+               std: dict[str, float] | None = None, residuals: list[np.ndarray] | None = None,
+               views: list[int] | None = None, message: str = "", **extra: Any) -> ReferenceResult:
+        """Assemble an "ok" result (residuals computed with circcal.model unless given) and check for divergence."""
+        rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
+        tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
+        if residuals is None:
+            residuals = residuals_of(camera, rvecs, tvecs, object_points, image_points)
+        errors = error_stats(np.concatenate([r.reshape(-1, 2) for r in residuals]))
+        res = self.result(mode, "ok", message, camera=camera, std=std, rvecs=rvecs, tvecs=tvecs,
+                          residuals=residuals, errors=errors, time_s=time.perf_counter() - t0,
+                          object_points=object_points, image_points=image_points,
+                          views=list(range(len(object_points))) if views is None else list(views),
+                          extra=dict(extra))
+        return check_divergence(res)
+
+
+def check_divergence(res: ReferenceResult, max_rms_px: float = DIVERGED_RMS_PX) -> ReferenceResult:
+    """Turn an "ok" result with non-finite parameters or an absurd RMS into status "failed" (kept camera for
+    inspection)."""
+    if not res.ok:
+        return res
+    c = res.camera
+    if c is None or not np.all(np.isfinite(c.intrinsics)):
+        res.status, res.message = "failed", "diverged: non-finite intrinsics"
+        return res
+    for label, a in (("rvecs", res.rvecs), ("tvecs", res.tvecs)):
+        if a is None or not np.all(np.isfinite(a)):
+            res.status, res.message = "failed", f"diverged: non-finite {label}"
+            return res
+    rms = (res.errors or {}).get("rms_per_point_px", np.nan)
+    if not np.isfinite(rms) or rms > max_rms_px:
+        res.status, res.message = "failed", f"diverged: RMS per point {rms:.4g} px > {max_rms_px:g} px"
+    return res
+
+
+def run_safely(fn: Callable[[], ReferenceResult], *, name: str, version: str | Callable[[], str] = "unknown",
+               mode: str = "fair", available: Callable[[], tuple[bool, str]] | None = None) -> ReferenceResult:
+    """Run ``fn`` and always return a :class:`ReferenceResult`.
+
+    ``available`` (optional) is checked first: a missing reference gives status "unavailable" with its reason.
+    Any exception becomes status "failed" with ``"<ExceptionType>: message"`` (traceback in ``extra``); a
+    ``NotImplementedError`` becomes "unsupported".
+    """
+    t0 = time.perf_counter()
+
+    def ver() -> str:
+        try:
+            return version() if callable(version) else str(version)
+        except Exception as exc:  # noqa: BLE001
+            return f"unknown ({exc})"
+
+    if mode not in MODES:
+        return ReferenceResult(name, ver(), str(mode), "failed",
+                               f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+    if available is not None:
+        try:
+            ok, why = available()
+        except Exception as exc:  # noqa: BLE001
+            ok, why = False, f"{type(exc).__name__}: {exc}"
+        if not ok:
+            return ReferenceResult(name, ver(), mode, "unavailable", why)
+    try:
+        res = fn()
+        if not isinstance(res, ReferenceResult):
+            raise TypeError(f"adapter returned {type(res).__name__}, expected ReferenceResult")
+        return check_divergence(res)
+    except NotImplementedError as exc:
+        return ReferenceResult(name, ver(), mode, "unsupported", str(exc) or "not supported",
+                               time_s=time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001
+        return ReferenceResult(name, ver(), mode, "failed", f"{type(exc).__name__}: {exc}",
+                               time_s=time.perf_counter() - t0, extra={"traceback": traceback.format_exc()})
+
+
+def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                image_size: tuple[int, int]) -> Camera:
+    """A rough pinhole seed (no distortion) from ``cv2.initCameraMatrix2D`` (Zhang with the principal point at the
+    image centre), for references that need a starting focal length (mrcal's ``focal_estimate``, pycolmap's camera).
+    Only a starting point: each reference then solves its own least-squares problem."""
+    import cv2
+
+    K = cv2.initCameraMatrix2D([np.asarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points],
+                               [np.asarray(p, dtype=np.float32).reshape(-1, 1, 2) for p in image_points],
+                               (int(image_size[0]), int(image_size[1])))
+    w, h = int(image_size[0]), int(image_size[1])
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
+        fx = fy = float(max(w, h))
+    return Camera(w, h, fx, fy, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(5))

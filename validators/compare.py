@@ -1,0 +1,220 @@
+"""Comparison metrics between calibrations, written once and used by the CLI, the tests and the reports.
+
+* :func:`param_diff`: intrinsics differences, raw and in units of the stated standard deviations.
+* :func:`projection_diff`: pixel difference between two models over a grid of pixels, with or without fitting the
+  implied rotation (the idea of ``mrcal.projection_diff``: raw intrinsics differences mislead because a shift of the
+  principal point can be absorbed by a small rotation of every pose).
+* :func:`match_grid_order`: undo the 90/180-degree rotations (and, if asked, mirror flips) with which a detector may
+  return a symmetric grid, against a reference set of centres.
+* :func:`centre_errors`: detected centres against true centre projections, per view and overall.
+* Error-convention conversions come from :mod:`circcal.metrics` (re-exported here).
+
+All projection and unprojection goes through :mod:`circcal.model` (pixel centres at integer coordinates).
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from circcal.metrics import error_stats, per_coord_to_per_point, per_point_to_per_coord
+from circcal.model import Camera, distort, normalized_to_pixel, pixel_to_normalized, undistort
+
+__all__ = [
+    "param_diff",
+    "projection_diff",
+    "pixel_grid",
+    "unproject",
+    "project_rays",
+    "fit_rotation",
+    "grid_permutations",
+    "match_grid_order",
+    "centre_errors",
+    "error_stats",
+    "per_point_to_per_coord",
+    "per_coord_to_per_point",
+]
+
+PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
+               std_b: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
+    """Per-parameter difference ``b - a``.
+
+    Returns ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for fx..k3, where ``sigma`` combines the stated
+    standard deviations: sqrt(std_a^2 + std_b^2) over those given (NaN when neither states one, or both are 0).
+    """
+    va, vb = a.intrinsics, b.intrinsics
+    out: dict[str, dict[str, float]] = {}
+    for i, n in enumerate(PARAMS):
+        s2 = 0.0
+        given = False
+        for s in (std_a, std_b):
+            if s is not None and n in s and s[n] is not None and np.isfinite(s[n]):
+                s2 += float(s[n]) ** 2
+                given = True
+        sigma = float(np.sqrt(s2)) if given and s2 > 0 else float("nan")
+        d = float(vb[i] - va[i])
+        out[n] = {"a": float(va[i]), "b": float(vb[i]), "diff": d, "sigma": sigma,
+                  "diff_sigmas": d / sigma if np.isfinite(sigma) else float("nan")}
+    return out
+
+
+def pixel_grid(camera: Camera, gridn_width: int = 60, gridn_height: int | None = None) -> np.ndarray:
+    """(gridn_height * gridn_width, 2) pixels spanning the whole imager, corners included (pixel centres
+    0..W-1, 0..H-1). ``gridn_height`` defaults to keep the cells square."""
+    w, h = camera.width, camera.height
+    if gridn_height is None:
+        gridn_height = max(2, int(round(gridn_width * (h - 1) / max(w - 1, 1))) + 1)
+    x = np.linspace(0.0, w - 1.0, gridn_width)
+    y = np.linspace(0.0, h - 1.0, gridn_height)
+    u, v = np.meshgrid(x, y)
+    return np.stack([u.ravel(), v.ravel()], axis=-1)
+
+
+def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
+    """Pixels (N, 2) -> rays (N, 3) with z = 1 (undistorted normalised coordinates); NaN where the distortion has no
+    unique inverse (see :func:`circcal.model.undistort`)."""
+    xn = undistort(pixel_to_normalized(uv, camera), camera.dist)
+    return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
+
+
+def project_rays(P: np.ndarray, camera: Camera) -> np.ndarray:
+    """Camera-frame points or rays (N, 3) -> pixels (N, 2) (NaN for points at or behind the camera)."""
+    P = np.asarray(P, dtype=np.float64)
+    z = np.where(P[:, 2] > 0, P[:, 2], np.nan)
+    xn = P[:, :2] / z[:, None]
+    return normalized_to_pixel(distort(xn, camera.dist), camera)
+
+
+def fit_rotation(A: np.ndarray, B: np.ndarray, *, translation: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rigid alignment ``B ~ R A + t`` (Kabsch). ``A``, ``B``: (N, 3). Without ``translation`` the
+    points are not centred (aligning unit vectors: rotation only) and t = 0. Returns (R (3, 3), t (3,))."""
+    A = np.asarray(A, dtype=np.float64)
+    B = np.asarray(B, dtype=np.float64)
+    ca = A.mean(axis=0) if translation else np.zeros(3)
+    cb = B.mean(axis=0) if translation else np.zeros(3)
+    M = (B - cb).T @ (A - ca)
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    return R, cb - R @ ca
+
+
+def projection_diff(a: Camera, b: Camera, *, gridn_width: int = 60, distance: float | None = None,
+                    fit: bool = False, margin_px: float = 0.0) -> dict[str, Any]:
+    """Pixel difference between two models over the imager of ``a``.
+
+    A grid of pixels of ``a`` (``gridn_width`` across, corners included, ``margin_px`` in from the border) is
+    unprojected with ``a``; at ``distance`` (mm along the ray) or at infinity (``None``: rays only). Without ``fit``
+    the same 3-D points are projected with ``b``. With ``fit`` the rotation (plus translation at a finite distance)
+    that best aligns ``b``'s unprojection of the same pixels onto ``a``'s points is applied first, as
+    ``mrcal.projection_diff`` does: an implied rotation between the two models is not counted as a difference.
+
+    Returns ``{"rms_px", "max_px", "median_px", "n", "n_invalid", "R", "t", "diff" (N,), "uv" (N, 2)}``; the RMS
+    is of the 2-D difference per grid point.
+    """
+    w, h = a.width, a.height
+    uv = pixel_grid(a, gridn_width)
+    if margin_px:
+        uv = margin_px + uv * np.array([(w - 1 - 2 * margin_px) / (w - 1), (h - 1 - 2 * margin_px) / (h - 1)])
+    ra = unproject(uv, a)
+    if distance is None:
+        Pa = ra / np.linalg.norm(ra, axis=1, keepdims=True)
+    else:
+        Pa = ra / np.linalg.norm(ra, axis=1, keepdims=True) * float(distance)
+    R, t = np.eye(3), np.zeros(3)
+    if fit:
+        rb = unproject(uv, b)
+        Pb = rb / np.linalg.norm(rb, axis=1, keepdims=True)
+        if distance is not None:
+            Pb = Pb * float(distance)
+        good = np.all(np.isfinite(Pa), axis=1) & np.all(np.isfinite(Pb), axis=1)
+        # R, t map a's frame into b's: b sees a's point X at R X + t
+        R, t = fit_rotation(Pa[good], Pb[good], translation=distance is not None)
+        # refine in pixel space would change the criterion; mrcal also fits in 3-D, so stop here
+    qb = project_rays(Pa @ R.T + t, b)
+    d = np.linalg.norm(qb - uv, axis=1)
+    valid = np.isfinite(d)
+    dv = d[valid]
+    return {
+        "rms_px": float(np.sqrt(np.mean(dv ** 2))) if dv.size else float("nan"),
+        "max_px": float(np.max(dv)) if dv.size else float("nan"),
+        "median_px": float(np.median(dv)) if dv.size else float("nan"),
+        "n": int(valid.sum()),
+        "n_invalid": int((~valid).sum()),
+        "R": R,
+        "t": t,
+        "diff": d,
+        "uv": uv,
+    }
+
+
+def grid_permutations(rows: int, cols: int, *, mirror: bool = False) -> list[tuple[str, np.ndarray]]:
+    """Index permutations of a symmetric ``rows x cols`` grid (OpenCV order) that map it onto itself.
+
+    Each entry ``(label, perm)`` means: the detection ``det`` re-ordered as ``det[perm]`` is in board order if the
+    detector returned the grid transformed by ``label``. Rotations by 0/180 degrees always; by 90/270 only for square
+    grids; with ``mirror``, the mirror images as well.
+    """
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    cands = [("rot0", idx), ("rot180", idx[::-1, ::-1])]
+    if rows == cols:
+        cands += [("rot90", np.rot90(idx, 1)), ("rot270", np.rot90(idx, 3))]
+    if mirror:
+        more = [("flip_lr", idx[:, ::-1]), ("flip_ud", idx[::-1, :])]
+        if rows == cols:
+            more += [("transpose", idx.T), ("antitranspose", idx[::-1, ::-1].T)]
+        cands += more
+    return [(label, np.ascontiguousarray(p).ravel()) for label, p in cands]
+
+
+def match_grid_order(detected: np.ndarray, reference: np.ndarray, rows: int, cols: int, *,
+                     mirror: bool = False) -> tuple[np.ndarray, str, float]:
+    """Re-order a detected symmetric grid to the order of ``reference`` (e.g. true centre projections).
+
+    ``detected``, ``reference``: (rows*cols, 2) px. Tries the grid's symmetries (:func:`grid_permutations`) and keeps
+    the one with the smallest RMS distance. Returns (re-ordered (rows*cols, 2), label, rms distance px).
+    """
+    det = np.asarray(detected, dtype=np.float64).reshape(-1, 2)
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 2)
+    if len(det) != rows * cols or len(ref) != rows * cols:
+        raise ValueError(f"expected {rows * cols} points for a {rows}x{cols} grid, got {len(det)} detected and "
+                         f"{len(ref)} reference")
+    best = None
+    for label, perm in grid_permutations(rows, cols, mirror=mirror):
+        cand = det[perm]
+        rms = float(np.sqrt(np.mean(np.sum((cand - ref) ** 2, axis=1))))
+        if best is None or rms < best[2]:
+            best = (cand, label, rms)
+    assert best is not None
+    return best
+
+
+def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, grid: tuple[int, int] | None = None,
+                  mirror: bool = False) -> dict[str, Any]:
+    """Detected centres against true centre projections.
+
+    ``detected``, ``truth``: per view (N_v, 2) px, same order unless ``grid=(rows, cols)`` is given, in which case
+    each detected view is first re-matched with :func:`match_grid_order` (symmetric grids). Returns
+    ``{"overall": error_stats, "per_view": [error_stats], "errors": [(N_v, 2) detected - truth], "matched":
+    [label per view]}``.
+    """
+    if len(detected) != len(truth):
+        raise ValueError(f"{len(detected)} detected views but {len(truth)} truth views")
+    errs, per_view, labels = [], [], []
+    for d, t in zip(detected, truth):
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 2)
+        t = np.asarray(t, dtype=np.float64).reshape(-1, 2)
+        label = "given"
+        if grid is not None:
+            d, label, _ = match_grid_order(d, t, grid[0], grid[1], mirror=mirror)
+        if d.shape != t.shape:
+            raise ValueError(f"detected {d.shape} and truth {t.shape} differ in shape")
+        e = d - t
+        errs.append(e)
+        per_view.append(error_stats(e))
+        labels.append(label)
+    overall = error_stats(np.concatenate(errs)) if errs else error_stats(np.zeros((0, 2)))
+    return {"overall": overall, "per_view": per_view, "errors": errs, "matched": labels}

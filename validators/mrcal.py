@@ -1,0 +1,246 @@
+"""mrcal as a reference, run out of process.
+
+mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`validators.mrcal_worker` runs under another
+interpreter: ``$CIRCCAL_MRCAL_PYTHON`` if set, else ``/usr/bin/python3`` if it can ``import mrcal`` (Debian's
+``python3-mrcal``). JSON goes in on stdin and comes back on stdout. The worker uses mrcal's Python API
+(``seed_stereographic``, then staged ``mrcal.optimize``) with ``LENSMODEL_OPENCV5`` = OpenCV's 5 coefficients; it
+supports the 2.2 and 2.5 APIs.
+
+Modes
+-----
+* ``"fair"``: no board warp, no regularisation, no outlier rejection: the estimator of cv2.calibrateCamera.
+* ``"default"``: what mrcal users get: board warp, regularisation, outlier rejection. Its residuals are mrcal's own
+  (warped board; outliers NaN) and its RMS differs from OpenCV's by design.
+
+mrcal's board model is a full W x H lattice per image (points (j s, i s, 0), row-major): the observations are mapped
+onto the lattice their board coordinates span (missing points get weight -1). A staggered (asymmetric) grid does not
+map onto it and is reported "unsupported". mrcal reports RMS per coordinate; ``errors`` here follow
+:func:`circcal.metrics.error_stats` (all three conventions). mrcal offers projection uncertainty rather than
+parameter standard deviations: ``std`` is None.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import time
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from circcal.metrics import error_stats
+from circcal.model import Camera, project, rodrigues
+from validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations, run_safely, \
+    seed_camera
+
+__all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "NOT_FOUND_MESSAGE"]
+
+WORKER = Path(__file__).with_name("mrcal_worker.py")
+ENV_VAR = "CIRCCAL_MRCAL_PYTHON"
+DEFAULT_PYTHON = "/usr/bin/python3"
+NOT_FOUND_MESSAGE = ("mrcal not found: as root run `apt-get install -y mrcal python3-mrcal`, or set "
+                     "CIRCCAL_MRCAL_PYTHON to a Python that can import mrcal")
+
+
+@lru_cache(maxsize=8)
+def _probe(python: str) -> tuple[bool, str, dict]:
+    try:
+        out = subprocess.run([python, str(WORKER), "--probe"], capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.SubprocessError) as exc:
+        return False, f"{type(exc).__name__}: {exc}", {}
+    try:
+        info = json.loads(out.stdout.strip().splitlines()[-1])
+    except (json.JSONDecodeError, IndexError):
+        return False, f"probe printed no JSON (exit {out.returncode}): {out.stderr.strip()[-300:]}", {}
+    if out.returncode != 0 or "error" in info:
+        return False, info.get("error", f"exit {out.returncode}"), info
+    return True, "", info
+
+
+def mrcal_python() -> tuple[str | None, str, dict]:
+    """(interpreter, reason when none, probe info {"version", "api", "python"})."""
+    env = os.environ.get(ENV_VAR)
+    if env:
+        ok, why, info = _probe(env)
+        if ok:
+            return env, "", info
+        return None, f"{NOT_FOUND_MESSAGE} ({ENV_VAR}={env}: {why})", {}
+    if Path(DEFAULT_PYTHON).exists():
+        ok, why, info = _probe(DEFAULT_PYTHON)
+        if ok:
+            return DEFAULT_PYTHON, "", info
+        return None, f"{NOT_FOUND_MESSAGE} ({DEFAULT_PYTHON}: {why})", {}
+    return None, NOT_FOUND_MESSAGE, {}
+
+
+class UnsupportedLayout(NotImplementedError):
+    pass
+
+
+def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6) -> dict[str, Any]:
+    """Map per-view board points (N_v, 3) mm onto mrcal's rectangular lattice.
+
+    Returns ``{"spacing", "origin" (3,), "width_n", "height_n", "ij": [(N_v, 2) int (row i, column j)]}``.
+    Raises :class:`UnsupportedLayout` (a ``NotImplementedError``) for points off a square lattice or a staggered
+    (asymmetric) grid, ``ValueError`` for duplicated points in a view.
+    """
+    allp = np.concatenate(object_points)
+    xs = np.unique(np.round(allp[:, 0], 9))
+    ys = np.unique(np.round(allp[:, 1], 9))
+    d = np.concatenate([np.diff(xs), np.diff(ys)])
+    d = d[d > 0]
+    if d.size == 0:
+        raise UnsupportedLayout("board points do not span a 2-D lattice")
+    s = float(d.min())
+    origin = np.array([xs.min(), ys.min(), 0.0])
+    scale = max(1.0, float(np.max(np.abs(allp))))
+    ij = []
+    for v, o in enumerate(object_points):
+        j = (o[:, 0] - origin[0]) / s
+        i = (o[:, 1] - origin[1]) / s
+        ji, ii = np.round(j), np.round(i)
+        if np.max(np.abs(j - ji)) * s > rel_tol * scale or np.max(np.abs(i - ii)) * s > rel_tol * scale:
+            raise UnsupportedLayout(
+                f"view {v}: board points are not on a square lattice of pitch {s:g} (mrcal's board model is a "
+                "rectangular grid of equally spaced points)")
+        a = np.stack([ii, ji], -1).astype(int)
+        if len(np.unique(a, axis=0)) != len(a):
+            raise ValueError(f"view {v}: duplicated board points")
+        ij.append(a)
+    cat = np.concatenate(ij)
+    if len(np.unique(cat, axis=0)) > 4 and np.all((cat.sum(axis=1) % 2) == 0):
+        raise UnsupportedLayout(
+            "asymmetric (staggered) circle grid: mrcal's board model needs a full rectangular W x H lattice; "
+            "only symmetric grids are supported by the mrcal reference")
+    return {"spacing": s, "origin": origin, "width_n": int(cat[:, 1].max()) + 1,
+            "height_n": int(cat[:, 0].max()) + 1, "ij": ij}
+
+
+class MrcalCalibrator(BaseCalibrator):
+    """Reference: mrcal (out of process). ``python``: interpreter to use (default: ``$CIRCCAL_MRCAL_PYTHON`` or
+    ``/usr/bin/python3``). ``timeout_s``: limit for one worker run."""
+
+    name = "mrcal"
+    modes = ("fair", "default")
+
+    def __init__(self, *, python: str | None = None, timeout_s: float = 300.0) -> None:
+        self.python = python
+        self.timeout_s = float(timeout_s)
+
+    def _interp(self) -> tuple[str | None, str, dict]:
+        if self.python:
+            ok, why, info = _probe(self.python)
+            return (self.python, "", info) if ok else (None, f"{NOT_FOUND_MESSAGE} ({self.python}: {why})", {})
+        return mrcal_python()
+
+    def _version(self) -> str:
+        py, why, info = self._interp()
+        return str(info.get("version", "unavailable")) if py else "unavailable"
+
+    def _available(self) -> tuple[bool, str]:
+        py, why, _ = self._interp()
+        return (py is not None), why
+
+    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
+                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+        return self._run(object_points, image_points, image_size, [mode], initial)[0]
+
+    def calibrate_modes(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
+                        image_size: tuple[int, int], *, modes: tuple[str, ...] = ("fair", "default"),
+                        initial: Camera | None = None) -> list[ReferenceResult]:
+        """Several modes from one worker run (same seed). Never raises; one result per mode."""
+        holder: dict[str, list[ReferenceResult]] = {}
+
+        def go() -> ReferenceResult:
+            obj, img, size = check_observations(object_points, image_points, image_size)
+            holder["r"] = self._run(obj, img, size, list(modes), initial)
+            return holder["r"][0]
+
+        first = run_safely(go, name=self.name, version=lambda: self.version, mode=modes[0], available=self.available)
+        if "r" in holder:
+            return [check_divergence(r) for r in holder["r"]]
+        out = []
+        for m in modes:  # same failure for every mode
+            out.append(ReferenceResult(first.name, first.version, m, first.status, first.message,
+                                       time_s=first.time_s, extra=dict(first.extra)))
+        return out
+
+    def _run(self, object_points: list[np.ndarray], image_points: list[np.ndarray], image_size: tuple[int, int],
+             modes: list[str], initial: Camera | None) -> list[ReferenceResult]:
+        t0 = time.perf_counter()
+        py, why, info = self._interp()
+        if py is None:
+            return [self.result(m, "unavailable", why) for m in modes]
+        lat = board_lattice(object_points)
+        W, H, s, origin = lat["width_n"], lat["height_n"], lat["spacing"], lat["origin"]
+        nf = len(object_points)
+        obs = np.zeros((nf, H, W, 3))
+        obs[..., 2] = -1.0
+        for v, (ij, q) in enumerate(zip(lat["ij"], image_points)):
+            obs[v, ij[:, 0], ij[:, 1], :2] = q
+            obs[v, ij[:, 0], ij[:, 1], 2] = 1.0
+        seed = initial if initial is not None else seed_camera(object_points, image_points, image_size)
+        req = {"modes": modes, "width_n": W, "height_n": H, "spacing": s, "observations": obs.tolist(),
+               "imagersize": [int(image_size[0]), int(image_size[1])],
+               "focal_estimate": float(0.5 * (seed.fx + seed.fy)),
+               "seed_intrinsics": None if initial is None else initial.intrinsics.tolist()}
+        try:
+            proc = subprocess.run([py, str(WORKER)], input=json.dumps(req), capture_output=True, text=True,
+                                  timeout=self.timeout_s)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"mrcal worker ran past {self.timeout_s:g} s") from None
+        try:
+            reply = json.loads(proc.stdout)
+        except json.JSONDecodeError:
+            raise RuntimeError(f"mrcal worker crashed (exit {proc.returncode}): "
+                               f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
+        if proc.returncode != 0 or "error" in reply:
+            raise RuntimeError(f"mrcal failed: {reply.get('error', proc.returncode)}")
+        wall = time.perf_counter() - t0
+        out = []
+        for r in reply["results"]:
+            intr = np.asarray(r["intrinsics"], dtype=np.float64)
+            cam = Camera.from_intrinsics(image_size[0], image_size[1], intr)
+            rt = np.asarray(r["frames_rt_toref"], dtype=np.float64).reshape(nf, 6)
+            rvecs = rt[:, :3]
+            # mrcal's board frame starts at the lattice origin: ours is shifted by `origin`
+            tvecs = np.array([rt[v, 3:] - rodrigues(rt[v, :3]) @ origin for v in range(nf)])
+            x = np.asarray(r["x_board"], dtype=np.float64).reshape(nf, H, W, 2)
+            wts = np.asarray(r["weights"], dtype=np.float64).reshape(nf, H, W)
+            mrcal_res = []
+            for v, ij in enumerate(lat["ij"]):
+                rv = -x[v, ij[:, 0], ij[:, 1]]  # ours: observed - projected
+                rv[wts[v, ij[:, 0], ij[:, 1]] <= 0] = np.nan
+                mrcal_res.append(rv)
+            extra = dict(api=reply["api"], version_source=reply.get("version_source"), interpreter=py,
+                         lattice={"width_n": W, "height_n": H, "spacing_mm": s, "origin_mm": origin.tolist()},
+                         rms_per_coord_px_mrcal=r["rms_per_coord_px"], n_outliers=r["n_outliers"],
+                         calobject_warp=r["calobject_warp"], seed_focal_px=req["focal_estimate"],
+                         seed_from="cv2.initCameraMatrix2D focal (mrcal needs a focal estimate)"
+                         if initial is None else "initial camera", worker_wall_s=wall,
+                         lensmodel="LENSMODEL_OPENCV5")
+            if r["mode"] == "fair":
+                res = self.finish(r["mode"], cam, rvecs, tvecs, object_points, image_points, t0, **extra)
+                # mrcal's own residuals agree with ours (flat board, same model): record the check
+                ours = np.concatenate(res.residuals)
+                extra_check = float(np.nanmax(np.abs(ours - np.concatenate(mrcal_res))))
+                res.extra["max_abs_residual_diff_vs_mrcal_px"] = extra_check
+            else:
+                res = self.finish(r["mode"], cam, rvecs, tvecs, object_points, image_points, t0,
+                                  residuals=mrcal_res,
+                                  message=f"mrcal default: board warp {np.round(r['calobject_warp'], 6).tolist()}, "
+                                          f"regularisation, {r['n_outliers']} outliers rejected", **extra)
+                res.extra["errors_flat_board_no_outlier_rejection"] = error_stats(
+                    np.concatenate([p - project(o, rv, tv, cam) for o, p, rv, tv in
+                                    zip(object_points, image_points, rvecs, tvecs)]))
+            res.time_s = wall / len(reply["results"])
+            out.append(res)
+        return out
+
+    def _calibrate_images(self, paths, board, image_size, *, mode, initial) -> ReferenceResult:
+        return self.result(mode, "unsupported",
+                           "mrcal has no circle-grid detector (its finder, mrgingham, finds chessboards): "
+                           "use calibrate_observations with detected centres")
+

@@ -1,0 +1,182 @@
+#!/usr/bin/env python3
+"""mrcal worker: runs under an interpreter that can ``import mrcal`` (Debian's /usr/bin/python3 with mrcal 2.2, or a
+Python 3.12 with PyPI's mrcal 2.5). It imports nothing from circcal (that side runs numpy 2, which mrcal cannot sit
+beside).
+
+Protocol: one JSON object on stdin, one JSON object on stdout; exit status 0 on success, 1 with ``{"error": ...}``.
+
+``python mrcal_worker.py --probe`` prints ``{"version": ..., "api": ...}`` and exits.
+
+Request::
+
+    {"modes": ["fair", "default"],          # each solved from the same seed
+     "width_n": W, "height_n": H,           # board lattice (points per row, rows)
+     "spacing": s,                          # lattice pitch, caller's unit (mm)
+     "observations": [[[[x, y, w], ...]]],  # (Nframes, H, W, 3); w = 1 observed, -1 missing
+     "imagersize": [width, height],
+     "focal_estimate": f,                   # seed focal length (px)
+     "seed_intrinsics": null | [fx, fy, cx, cy, k1, k2, p1, p2, k3]}
+
+Reply::
+
+    {"version": "2.2-4+b1", "version_source": "...", "api": "2.2" | "2.5",
+     "results": [{"mode", "intrinsics" (9,), "frames_rt_toref" (Nframes, 6), "rms_per_coord_px",
+                  "x_board" (Nframes, H, W, 2) mrcal's residuals projected - observed (0 for outliers/missing),
+                  "weights" (Nframes, H, W) after outlier rejection, "n_outliers", "calobject_warp" | null,
+                  "stats_keys"}]}
+
+Modes
+-----
+* ``fair``: the estimator of cv2.calibrateCamera: no board warp, no regularisation, no outlier rejection
+  (as ``mrcal-calibrate-cameras --skip-calobject-warp-solve --skip-regularization --skip-outlier-rejection``:
+  a regularised pass first keeps the solve from wandering, then the final pass without regularisation).
+* ``default``: what mrcal users get: board warp solved, regularisation on, outlier rejection on.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+# This script sits beside validators/mrcal.py: drop its own folder from the path so `import mrcal` finds mrcal.
+_HERE = os.path.dirname(os.path.realpath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.realpath(p or os.curdir) != _HERE]
+
+
+def _version(mrcal) -> tuple[str, str]:
+    v = getattr(mrcal, "__version__", None)
+    if v:
+        return str(v), "mrcal.__version__"
+    try:
+        import importlib.metadata as md
+
+        return md.version("mrcal"), "importlib.metadata"
+    except Exception:  # noqa: BLE001
+        pass
+    for pkg in ("python3-mrcal", "mrcal"):
+        try:
+            out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", pkg], capture_output=True, text=True,
+                                 timeout=20)
+            if out.returncode == 0 and out.stdout.strip():
+                return out.stdout.strip(), f"dpkg-query {pkg}"
+        except Exception:  # noqa: BLE001
+            pass
+    return "unknown", "none"
+
+
+def _api(mrcal) -> str:
+    return "2.5" if hasattr(mrcal, "measurements_board") else "2.2"
+
+
+def _names(api: str) -> tuple[str, str]:
+    """(camera-extrinsics key, frame-poses key) of optimize()'s inputs."""
+    return ("rt_cam_ref", "rt_ref_frame") if api == "2.5" else ("extrinsics_rt_fromref", "frames_rt_toref")
+
+
+def solve(req: dict) -> dict:
+    import numpy as np
+
+    import mrcal
+
+    api = _api(mrcal)
+    k_ext, k_frames = _names(api)
+    version, vsrc = _version(mrcal)
+    W, H = int(req["width_n"]), int(req["height_n"])
+    spacing = float(req["spacing"])
+    obs0 = np.ascontiguousarray(np.asarray(req["observations"], dtype=np.float64).reshape(-1, H, W, 3))
+    nf = obs0.shape[0]
+    imagersizes = np.array([req["imagersize"]], dtype=np.int32)
+    indices_frame_camera = np.array([[i, 0] for i in range(nf)], dtype=np.int32)
+    indices_fce = np.array([[i, 0, -1] for i in range(nf)], dtype=np.int32)
+
+    # ---- seed: stereographic, geometry only, then + core (as mrcal-calibrate-cameras does) ----------------------
+    obs = obs0.copy()
+    seeded = mrcal.seed_stereographic(imagersizes=imagersizes, focal_estimate=float(req["focal_estimate"]),
+                                      indices_frame_camera=indices_frame_camera, observations=obs,
+                                      object_spacing=spacing)
+    intrinsics, extrinsics, frames = [np.ascontiguousarray(a, dtype=np.float64) for a in seeded]
+    common = dict(points=None, observations_board=obs, indices_frame_camintrinsics_camextrinsics=indices_fce,
+                  observations_point=None, indices_point_camintrinsics_camextrinsics=None,
+                  imagersizes=imagersizes, calibration_object_spacing=spacing, verbose=False)
+    for core in (False, True):
+        inputs = dict(common, intrinsics=intrinsics, lensmodel="LENSMODEL_STEREOGRAPHIC",
+                      do_optimize_intrinsics_core=core, do_optimize_intrinsics_distortions=False,
+                      do_optimize_calobject_warp=False, calobject_warp=None,
+                      do_apply_outlier_rejection=False, do_apply_regularization=False)
+        inputs[k_ext] = extrinsics
+        inputs[k_frames] = frames
+        mrcal.optimize(**inputs)
+    if req.get("seed_intrinsics") is not None:
+        seed_intr = np.asarray(req["seed_intrinsics"], dtype=np.float64).reshape(1, 9)
+    else:
+        rng = np.random.default_rng(0)  # tiny non-zero distortion seed, as the CLI does (deterministic here)
+        seed_intr = np.concatenate([intrinsics, (rng.random((1, 5)) - 0.5) * 2e-6], axis=1)
+    seed_frames = frames.copy()
+
+    results = []
+    for mode in req["modes"]:
+        obs = obs0.copy()
+        intr = seed_intr.copy()
+        fr = seed_frames.copy()
+        ext = np.zeros((0, 6))
+        base = dict(common, observations_board=obs, intrinsics=intr, lensmodel="LENSMODEL_OPENCV5",
+                    do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
+                    do_optimize_extrinsics=True, do_optimize_frames=True)
+        base[k_ext] = ext
+        base[k_frames] = fr
+        # main solve from the seed (the CLI's solve_initial): regularised, no warp
+        first = dict(base, calobject_warp=None, do_optimize_calobject_warp=False, do_apply_regularization=True,
+                     do_apply_outlier_rejection=(mode == "default"))
+        mrcal.optimize(**first)
+        warp = None
+        if mode == "fair":
+            final = dict(base, calobject_warp=None, do_optimize_calobject_warp=False, do_apply_regularization=False,
+                         do_apply_outlier_rejection=False)
+        elif mode == "default":
+            warp = np.zeros(2, dtype=np.float64)
+            final = dict(base, calobject_warp=warp, do_optimize_calobject_warp=True, do_apply_regularization=True,
+                         do_apply_outlier_rejection=True)
+        else:
+            raise ValueError(f"unknown mode {mode!r}")
+        stats = mrcal.optimize(**final)
+        x = np.asarray(stats["x"], dtype=np.float64)[: nf * H * W * 2].reshape(nf, H, W, 2)
+        n_out = stats.get("Noutliers_board", stats.get("Noutliers", 0))
+        results.append({
+            "mode": mode,
+            "intrinsics": intr.reshape(-1).tolist(),
+            "frames_rt_toref": fr.tolist(),
+            "rms_per_coord_px": float(stats["rms_reproj_error__pixels"]),
+            "x_board": x.tolist(),
+            "weights": obs[..., 2].tolist(),
+            "n_outliers": int(n_out),
+            "calobject_warp": None if warp is None else warp.tolist(),
+            "stats_keys": sorted(str(k) for k in stats.keys()),
+        })
+    return {"version": version, "version_source": vsrc, "api": api, "results": results}
+
+
+def main(argv: list[str]) -> int:
+    if "--probe" in argv:
+        try:
+            import mrcal
+        except Exception as exc:  # noqa: BLE001
+            print(json.dumps({"error": f"cannot import mrcal: {type(exc).__name__}: {exc}"}))
+            return 1
+        v, src = _version(mrcal)
+        print(json.dumps({"version": v, "version_source": src, "api": _api(mrcal), "python": sys.version.split()[0]}))
+        return 0
+    try:
+        req = json.loads(sys.stdin.read())
+        out = solve(req)
+    except Exception as exc:  # noqa: BLE001
+        import traceback
+
+        print(json.dumps({"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}))
+        return 1
+    sys.stdout.write(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,210 @@
+"""OpenCV as a reference: ``cv2.findCirclesGrid`` (blob centroids) and ``cv2.calibrateCameraExtended``.
+
+* Solver: 5 distortion coefficients (k1, k2, p1, p2, k3), optionally k3 fixed (``fix_k3=True``), tight criteria.
+  OpenCV takes float32 points: the observations are rounded to float32 and the result records the rounded values it
+  actually used (feed float32-representable centres when comparing solvers to 1e-6 px).
+  ``CALIB_DISABLE_SCHUR_COMPLEMENT`` is never used: in OpenCV 5 it equals ``CALIB_TILTED_MODEL``.
+* "fair" and "default" are the same estimator here (OpenCV has no regularisation, warp or outlier rejection).
+* Detector: a SimpleBlobDetector whose area limits follow the expected dot size (OpenCV's default ``maxArea`` of
+  5000 px^2 misses large dots), symmetric/asymmetric flags, and a ``CALIB_CB_CLUSTERING`` retry.
+  Symmetric square grids may come back rotated by 90 degrees between views: see
+  :func:`validators.compare.match_grid_order` before comparing centres one by one.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from circcal.model import Camera
+from validators.base import PARAM_NAMES, BaseCalibrator, ReferenceResult
+
+__all__ = ["OpenCVCalibrator", "make_blob_detector", "find_circles_grid"]
+
+
+def _cv2():
+    import cv2
+
+    return cv2
+
+
+def _tight_criteria():
+    """500 iterations, eps 1e-16 (OpenCV's default stops after 30)."""
+    cv2 = _cv2()
+    return (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16)
+
+
+def make_blob_detector(board: Any, image_size: tuple[int, int], *, min_fill: float = 0.08, max_fill: float = 1.2,
+                       min_area: float | None = None, max_area: float | None = None,
+                       threshold_step: float = 10.0, permissive: bool = False):
+    """A ``cv2.SimpleBlobDetector`` whose area window fits the dots of ``board`` in an image of ``image_size``.
+
+    Otherwise OpenCV's defaults (or, with ``permissive``, wider thresholds and looser shape filters).
+
+    The dot's apparent diameter is bounded by assuming the dot grid spans between ``min_fill`` and ``max_fill`` of
+    the image's longer side (perspective can enlarge the near dots: the upper bound gets another factor 1.5).
+    ``board``: :class:`circcal.board.Board` (pitch and diameter in mm). ``min_area``/``max_area`` (px^2) override.
+    """
+    cv2 = _cv2()
+    x0, y0, x1, y1 = board.feature_extent_mm()
+    extent = max(x1 - x0, y1 - y0)
+    long_side = float(max(image_size))
+    d_max = 1.5 * max_fill * long_side * board.diameter_mm / extent
+    d_min = min_fill * long_side * board.diameter_mm / extent
+    spacing_mm = board.pitch_mm * (np.sqrt(2.0) if board.layout == "asymmetric" else 1.0)
+    # OpenCV's defaults (thresholds 50..220, inertia >= 0.1, convexity >= 0.95) with the area window fitted to the
+    # dots; ``permissive`` widens thresholds and shape filters for low-contrast or strongly tilted dots.
+    p = cv2.SimpleBlobDetector_Params()
+    p.minArea = float(min_area if min_area is not None else min(25.0, max(4.0, 0.25 * np.pi / 4.0 * d_min ** 2)))
+    p.maxArea = float(max_area if max_area is not None else max(5000.0, np.pi / 4.0 * d_max ** 2))
+    if permissive:
+        p.minThreshold = 10.0
+        p.maxThreshold = 240.0
+        p.thresholdStep = float(threshold_step)
+        p.minInertiaRatio = 0.05
+        p.minConvexity = 0.85
+        p.minDistBetweenBlobs = float(max(2.0, min(10.0, 0.5 * min_fill * long_side
+                                                   * (spacing_mm - board.diameter_mm) / extent)))
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def find_circles_grid(image: np.ndarray, board: Any, *, detector: Any = None,
+                      clustering_fallback: bool = True) -> tuple[np.ndarray | None, str]:
+    """Detect ``board``'s grid in a grey ``image`` (H, W) uint8. Returns ((rows*cols, 2) float64 px in OpenCV's order
+    or None, how it was found: "plain" | "clustering" | reason it failed)."""
+    cv2 = _cv2()
+    if board.layout not in ("symmetric", "asymmetric"):
+        raise ValueError(f"findCirclesGrid needs a circle grid, got layout {board.layout!r}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    h, w = image.shape[:2]
+    # OpenCV's default detector first (its baseline), then the area window fitted to the dot size (large dots exceed
+    # the default maxArea of 5000 px^2), then the permissive variant.
+    detectors = [("", detector)] if detector is not None else [
+        ("default-detector ", cv2.SimpleBlobDetector_create()), ("sized-detector ", make_blob_detector(board, (w, h))),
+        ("permissive-detector ", make_blob_detector(board, (w, h), permissive=True))]
+    base = cv2.CALIB_CB_SYMMETRIC_GRID if board.layout == "symmetric" else cv2.CALIB_CB_ASYMMETRIC_GRID
+    attempts = [("plain", base)]
+    if clustering_fallback:
+        attempts.append(("clustering", base | cv2.CALIB_CB_CLUSTERING))
+    for label, det in detectors:
+        for how, flags in attempts:
+            ok, centres = cv2.findCirclesGrid(image, board.pattern_size, flags=flags, blobDetector=det)
+            if ok and centres is not None and len(centres) == board.n_points:
+                return centres.reshape(-1, 2).astype(np.float64), label + how
+    return None, "grid not found (plain and clustering; default, sized and permissive blob detectors)"
+
+
+class OpenCVCalibrator(BaseCalibrator):
+    """Reference: OpenCV's calibrateCameraExtended (5 coefficients) and findCirclesGrid.
+
+    ``fix_k3``: hold k3 at its initial value (0 unless ``initial`` says otherwise) (``CALIB_FIX_K3``).
+    ``criteria``: cv2 termination criteria (default: 500 iterations, eps 1e-16).
+    """
+
+    name = "opencv"
+    modes = ("fair",)
+
+    def __init__(self, *, fix_k3: bool = False, criteria: tuple | None = None) -> None:
+        self.fix_k3 = bool(fix_k3)
+        self.criteria = criteria
+
+    def _version(self) -> str:
+        return _cv2().__version__
+
+    def _available(self) -> tuple[bool, str]:
+        try:
+            _cv2()
+        except ImportError as exc:
+            return False, f"OpenCV not importable ({exc}); pip install opencv-contrib-python-headless"
+        return True, ""
+
+    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
+                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+        cv2 = _cv2()
+        t0 = time.perf_counter()
+        obj32 = [np.ascontiguousarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points]
+        img32 = [np.ascontiguousarray(p, dtype=np.float32).reshape(-1, 1, 2) for p in image_points]
+        flags = 0
+        K0, d0 = None, None
+        if initial is not None:
+            flags |= cv2.CALIB_USE_INTRINSIC_GUESS
+            K0, d0 = initial.K.copy(), initial.dist.copy().reshape(1, 5)
+        fixed = []
+        if self.fix_k3:
+            flags |= cv2.CALIB_FIX_K3
+            fixed.append("k3")
+        criteria = self.criteria or _tight_criteria()
+        # one thread: with several, OpenCV's parallel sums make the result vary run to run by ~2e-7 px
+        n_threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
+                obj32, img32, (int(image_size[0]), int(image_size[1])), K0, d0, flags=flags, criteria=criteria)
+        finally:
+            cv2.setNumThreads(n_threads)
+        dist = np.asarray(dist, dtype=np.float64).reshape(-1)[:5]
+        cam = Camera(int(image_size[0]), int(image_size[1]), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                     float(K[1, 2]), dist)
+        std_v = np.asarray(std_in, dtype=np.float64).reshape(-1)
+        std = {n: float(std_v[i]) for i, n in enumerate(PARAM_NAMES)}
+        used_obj = [o.reshape(-1, 3).astype(np.float64) for o in obj32]
+        used_img = [p.reshape(-1, 2).astype(np.float64) for p in img32]
+        rv = np.array([np.asarray(r, dtype=np.float64).reshape(3) for r in rvecs])
+        tv = np.array([np.asarray(t, dtype=np.float64).reshape(3) for t in tvecs])
+        return self.finish(mode, cam, rv, tv, used_obj, used_img, t0, std=std, fixed=fixed, flags=int(flags),
+                           rms_opencv_per_point_px=float(rms),
+                           per_view_rms_px=np.asarray(per_view, dtype=float).reshape(-1).tolist(),
+                           criteria=list(criteria),
+                           note="OpenCV has no regularisation/warp/outlier rejection: fair == default")
+
+    def detect(self, paths: Sequence[Any], board: Any, *, detector: Any = None) -> dict[str, Any]:
+        """Run findCirclesGrid on every image. Returns ``{"image_points": [...], "views": [indices found],
+        "how": {index: "plain"|"clustering"}, "missed": {path: reason}, "image_size": (w, h)}``."""
+        cv2 = _cv2()
+        image_points, views, how, missed = [], [], {}, {}
+        size = None
+        for i, path in enumerate(paths):
+            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                missed[str(path)] = "could not read image"
+                continue
+            s = (img.shape[1], img.shape[0])
+            if size is None:
+                size = s
+            elif s != size:
+                missed[str(path)] = f"image size {s} differs from the first image's {size}"
+                continue
+            centres, h = find_circles_grid(img, board, detector=detector)
+            if centres is None:
+                missed[str(path)] = h
+                continue
+            image_points.append(centres)
+            views.append(i)
+            how[i] = h
+        return {"image_points": image_points, "views": views, "how": how, "missed": missed, "image_size": size}
+
+    def _calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *,
+                          mode: str, initial: Camera | None) -> ReferenceResult:
+        t0 = time.perf_counter()
+        paths = [Path(p) for p in paths]
+        det = self.detect(paths, board)
+        size = tuple(image_size) if image_size is not None else det["image_size"]
+        if size is None:
+            raise ValueError("no image could be read: " + "; ".join(f"{k}: {v}" for k, v in det["missed"].items()))
+        if len(det["views"]) < 3:
+            return self.result(mode, "failed", f"findCirclesGrid found the grid in {len(det['views'])} of "
+                                               f"{len(paths)} images (need 3); missed: {det['missed']}",
+                               extra={"missed": det["missed"]})
+        obj = [board.object_points() for _ in det["views"]]
+        res = self.calibrate_observations(obj, det["image_points"], size, mode=mode, initial=initial)
+        res.views = det["views"]
+        res.time_s = time.perf_counter() - t0
+        res.extra.update(detection_how={str(paths[k]): v for k, v in det["how"].items()}, missed=det["missed"],
+                         n_images=len(paths))
+        if det["missed"]:
+            res.message = (res.message + "; " if res.message else "") + \
+                f"grid not found in {len(det['missed'])} of {len(paths)} images"
+        return res
