@@ -14,6 +14,8 @@ import math
 import numpy as np
 import pytest
 
+from conftest import skip_unless_available
+
 from circcal.board import Board
 from circcal.model import Camera, project, rodrigues
 from validators import registry
@@ -87,9 +89,7 @@ def mrcal_results(problem):
     from validators.mrcal import MrcalCalibrator
 
     cal = MrcalCalibrator()
-    ok, why = cal.available()
-    if not ok:
-        pytest.skip(f"mrcal unavailable: {why}")
+    skip_unless_available(cal)
     return {r.mode: r for r in cal.calibrate_modes(problem["object_points"], problem["image_points"],
                                                    problem["image_size"], modes=("fair", "default"))}
 
@@ -114,9 +114,7 @@ def _std_rel(std: dict, ref: dict) -> dict:
                               "pycolmap-OPENCV-vs-FIX_K3"])
 def test_same_observations_same_calibration(problem, cv_ref, name, kwargs, fix_k3, tol):
     cal = registry.get(name, **kwargs)
-    ok, why = cal.available()
-    if not ok:
-        pytest.skip(f"{name} unavailable: {why}")
+    skip_unless_available(cal)
     res = cal.calibrate_observations(problem["object_points"], problem["image_points"], problem["image_size"])
     assert res.status == "ok", res.message
     ref_cam, ref_std = cv_ref[fix_k3]
@@ -175,8 +173,7 @@ def test_kornia_batch_matches_single_problems(cv_ref, problem):
     from validators.kornia import KorniaCalibrator
 
     cal = KorniaCalibrator()
-    if not cal.available()[0]:
-        pytest.skip(cal.available()[1])
+    skip_unless_available(cal)
     p2 = make_problem(1, n_views=9, noise=0.1)
     p2["object_points"] = [o[:-3] for o in p2["object_points"]]  # fewer views and points: padding is exercised
     p2["image_points"] = [q[:-3] for q in p2["image_points"]]
@@ -225,8 +222,7 @@ def test_mrcal_on_real_detections(realdata):
     from validators.mrcal import MrcalCalibrator
 
     cal = MrcalCalibrator()
-    if not cal.available()[0]:
-        pytest.skip(f"mrcal unavailable: {cal.available()[1]}")
+    skip_unless_available(cal)
     board = Board(8, 10, 25.0, 15.0)
     cv = registry.get("opencv")
     det = cv.detect(sorted((realdata / "boofcv_sony_hx5v_circle_regular_10x8").glob("*.jpg")), board)
@@ -271,9 +267,9 @@ def test_asymmetric_grid_unsupported_by_mrcal():
 
     board = Board(11, 4, 10.0, 5.0, layout="asymmetric")
     p = make_problem(2, n_views=6, board=board)
-    res = MrcalCalibrator().calibrate_observations(p["object_points"], p["image_points"], p["image_size"])
-    if res.status == "unavailable":
-        pytest.skip(res.message)
+    cal = MrcalCalibrator()
+    skip_unless_available(cal)
+    res = cal.calibrate_observations(p["object_points"], p["image_points"], p["image_size"])
     assert res.status == "unsupported"
     assert "asymmetric" in res.message
     # the lattice mapping itself: symmetric boards map, with the right size and pitch
