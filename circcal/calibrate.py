@@ -618,7 +618,8 @@ class ImagesCalibration:
     """Outcome of :func:`calibrate_images`. ``result``: the final model; ``paths``: all inputs; ``detections``:
     one per path (``circcal.detect.Detection``); ``used``: indices of the paths in the model (the views of
     ``result``, in order); ``failed``: (path, reason) for every image left out; ``rounds``: per calibration round
-    ``{"round", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_center_shift_px"}``."""
+    ``{"round", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_center_shift_px"}``; ``centers``: the
+    final (re-corrected) centres of each used view, (N, 2) px in board order, NaN where a point was not detected."""
 
     result: CalibrationResult
     paths: list[str]
@@ -626,6 +627,13 @@ class ImagesCalibration:
     used: list[int]
     failed: list[tuple[str, str]]
     rounds: list[dict] = field(default_factory=list)
+    centers: list[np.ndarray] = field(default_factory=list)
+
+    def observations(self, board) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """(object_points, image_points) per used view: the final centres with their board points (finite only),
+        exactly what the final model was fitted to."""
+        pairs = [_points_of(c, board.object_points()) for c in self.centers]
+        return [o for o, _ in pairs], [p for _, p in pairs]
 
 
 def _points_of(centers: np.ndarray, board_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -715,4 +723,4 @@ def calibrate_images(
             warnings.warn(f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
                           f"(last shift {rounds[-1]['max_center_shift_px']:.3g} px)", RuntimeWarning, stacklevel=2)
     result.view_names = names
-    return ImagesCalibration(result, paths, detections, used, failed, rounds)
+    return ImagesCalibration(result, paths, detections, used, failed, rounds, centers)
