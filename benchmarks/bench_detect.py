@@ -1,0 +1,68 @@
+"""Detector timing on 1920x1080 renders: circcal ``detect`` against ``cv2.findCirclesGrid`` in the same run.
+
+``run() -> dict`` (the lead wires it into ``make bench``): per-image wall time (median over views) of both, the
+ratio circcal / OpenCV, and circcal's peak Python-heap memory per image (tracemalloc; OpenCV's own C++ buffers are
+not seen by tracemalloc).
+"""
+from __future__ import annotations
+
+import time
+import tracemalloc
+
+import cv2
+import numpy as np
+
+
+def _views(n: int = 4):
+    from circcal.board import Board
+    from circcal.model import Camera
+    from fixtures.poses import sample_poses
+    from fixtures.render import render_view, to_uint
+
+    cam = Camera(1920, 1080, 4900.0, 4902.5, 963.7, 536.2)  # the paper's camera, 7x7 dots
+    board = Board(7, 7, 10.0, 5.0)
+    imgs = [to_uint(render_view(cam, board, r, t), 8) for r, t in sample_poses(cam, board, n, seed=1, max_tilt_deg=45)]
+    return imgs, board
+
+
+def run(n_views: int = 4, repeats: int = 3) -> dict:
+    from circcal.detect import detect
+
+    imgs, board = _views(n_views)
+    flags = cv2.CALIB_CB_SYMMETRIC_GRID
+    t_ours, t_cv = [], []
+    found_ours = found_cv = 0
+    for img in imgs:
+        best_o = best_c = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            d = detect(img, board)
+            best_o = min(best_o, time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            ok, _ = cv2.findCirclesGrid(img, board.pattern_size, flags=flags)
+            best_c = min(best_c, time.perf_counter() - t0)
+        found_ours += d.found
+        found_cv += bool(ok)
+        t_ours.append(best_o)
+        t_cv.append(best_c)
+    tracemalloc.start()
+    detect(imgs[0], board)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    ours, cvt = float(np.median(t_ours)), float(np.median(t_cv))
+    return {
+        "image": "1920x1080 uint8, 7x7 symmetric grid (paper setup)",
+        "views": len(imgs),
+        "circcal_detect_s_per_image": ours,
+        "opencv_findCirclesGrid_s_per_image": cvt,
+        "ratio_circcal_over_opencv": ours / cvt,
+        "circcal_found": int(found_ours),
+        "opencv_found": int(found_cv),
+        "circcal_peak_python_memory_mb": peak / 2 ** 20,
+    }
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(run(), indent=1))

@@ -1,0 +1,156 @@
+"""Projective correction of circle centres: from an imaged circle (an ellipse) to the image of its centre.
+
+Under a perspective map ``H`` (board plane -> undistorted image) a circle images to an ellipse ``E`` (conic matrix),
+but the ellipse's centre is not the image of the circle's centre. The image of the centre is the pole of the board's
+vanishing line ``l = H^-T (0, 0, 1)^T`` with respect to ``E``: ``c ~ E^-1 l`` (the circle's centre is the pole of
+the line at infinity w.r.t. the circle, and poles/polars are preserved by homographies).
+
+Two independent computations are given:
+
+* :func:`pole_centre`: the closed form ``E^-1 l``.
+* :func:`tangent_chord_centre`: the classical construction (as in Chen et al. 2023): through a point ``V`` of the
+  vanishing line draw secants; on each, the tangents at the two boundary points meet at a point ``P`` and the
+  harmonic conjugate ``M`` of ``V`` w.r.t. the two boundary points (the "projective midpoint" of the chord; the plain
+  midpoint when ``V`` is at infinity) is found; all ``P`` and ``M`` are collinear (the polar of ``V``). Two such lines
+  from two points of the vanishing line are concurrent at the centre's image. Used to cross-check the closed form.
+
+:func:`correct_centres` iterates: homography from the current centres, vanishing line, poles, until stable.
+All coordinates are pixels (OpenCV convention).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .ellipse import conic_params
+
+__all__ = ["vanishing_line", "pole_centre", "tangent_chord_centre", "fit_homography", "correct_centres"]
+
+
+def vanishing_line(H: np.ndarray) -> np.ndarray:
+    """(3,) homogeneous vanishing line of the board plane, ``H^-T (0, 0, 1)``, for ``H`` board -> image (3, 3)."""
+    return np.linalg.solve(np.asarray(H, dtype=np.float64).T, np.array([0.0, 0.0, 1.0]))
+
+
+def _local_frame(Q: np.ndarray) -> np.ndarray:
+    """(3, 3) similarity T (local -> pixel) centred on the ellipse with unit = its major semi-axis (conditioning)."""
+    c, (a, _), _ = conic_params(Q)
+    return np.array([[a, 0.0, c[0]], [0.0, a, c[1]], [0.0, 0.0, 1.0]])
+
+
+def pole_centre(Q: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """(2,) pole of ``line`` (3,) w.r.t. the ellipse ``Q`` (3, 3): the image of the circle's centre when ``line`` is
+    the board's vanishing line. Computed in a frame centred on the ellipse for conditioning."""
+    T = _local_frame(Q)
+    Ql = T.T @ Q @ T
+    ll = T.T @ np.asarray(line, dtype=np.float64)
+    p = T @ np.linalg.solve(Ql, ll)
+    return p[:2] / p[2]
+
+
+def _line_conic(Ql: np.ndarray, p0: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    """Parameters t1 < t2 where ``p0 + t d`` (homogeneous p0 finite, d a direction with d[2] = 0) meets ``Ql``."""
+    a = d @ Ql @ d
+    b = 2.0 * (p0 @ Ql @ d)
+    c = p0 @ Ql @ p0
+    disc = b * b - 4.0 * a * c
+    if disc <= 0:
+        raise ValueError("secant misses the ellipse")
+    s = np.sqrt(disc)
+    q = -0.5 * (b + np.copysign(s, b))
+    t1, t2 = q / a, c / q
+    return (t1, t2) if t1 < t2 else (t2, t1)
+
+
+def tangent_chord_centre(Q: np.ndarray, line: np.ndarray, n_secants: int = 4) -> np.ndarray:
+    """(2,) image of the circle's centre by the tangent/chord construction (see module docstring).
+
+    ``Q``: (3, 3) ellipse; ``line``: (3,) vanishing line (may be the line at infinity, (0, 0, 1)).
+    Two points of ``line`` are taken where it meets the ellipse's two axes; through each, ``n_secants`` secants
+    cross the ellipse; per secant the tangent intersection and the harmonic conjugate give two points of the polar
+    line, which is fitted through all of them; the two polar lines meet at the result.
+    """
+    T = _local_frame(Q)
+    Ql = T.T @ Q @ T
+    Ql = Ql / np.linalg.norm(Ql)
+    ll = T.T @ np.asarray(line, dtype=np.float64)
+    _, _, ang = conic_params(Ql)
+    axes = [np.array([np.cos(ang), np.sin(ang)]), np.array([-np.sin(ang), np.cos(ang)])]
+    polars = []
+    for u in axes:
+        axis_line = np.cross([0.0, 0.0, 1.0], [u[0], u[1], 0.0])  # line through the local origin along u
+        V = np.cross(ll, axis_line)
+        V = V / np.linalg.norm(V)
+        pts = []
+        # secants through V and points spread across the ellipse interior, along the other axis
+        w = np.array([-u[1], u[0]])
+        for k in range(n_secants):
+            off = (k + 0.5) / n_secants - 0.5  # in (-0.5, 0.5): inside the ellipse (axes >= its minor semi-axis)
+            scale = 0.9 * min(conic_params(Ql)[1])
+            X = np.array([off * scale * w[0], off * scale * w[1], 1.0])
+            if abs(V[2]) > 1e-12 * np.linalg.norm(V[:2]):
+                Ve = V / V[2]
+                d = np.array([Ve[0] - X[0], Ve[1] - X[1], 0.0])
+                tv = (1.0, 1.0)  # V = X + 1 * d
+            else:
+                d = np.array([V[0], V[1], 0.0])
+                tv = (1.0, 0.0)  # V at infinity along d
+            ta, tb = _line_conic(Ql, X, d)
+            A = X + ta * d
+            B = X + tb * d
+            # tangents at the two boundary points, and where they meet
+            P = np.cross(Ql @ A, Ql @ B)
+            if abs(P[2]) > 1e-12 * np.linalg.norm(P):
+                pts.append(P[:2] / P[2])
+            # harmonic conjugate of V w.r.t. A, B on this secant (t in homogeneous form s / w)
+            s, wv = tv
+            num = s * (ta + tb) - 2.0 * wv * ta * tb
+            den = 2.0 * s - wv * (ta + tb)
+            if abs(den) > 1e-12:
+                pts.append((X + (num / den) * d)[:2])
+        pts = np.asarray(pts)
+        # total-least-squares line through the points
+        m = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - m)
+        nrm = vt[-1]
+        polars.append(np.array([nrm[0], nrm[1], -nrm @ m]))
+    c = T @ np.cross(polars[0], polars[1])
+    return c[:2] / c[2]
+
+
+def fit_homography(board_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
+    """(3, 3) least-squares homography board (N, 2) mm -> image (N, 2) px (``cv2.findHomography``, all points,
+    with OpenCV's Levenberg-Marquardt refinement of the reprojection error). Raises ``ValueError`` if degenerate."""
+    import cv2
+
+    H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64), 0)
+    if H is None or not np.all(np.isfinite(H)):
+        raise ValueError("could not fit a board homography to the centres (degenerate configuration)")
+    return H
+
+
+def correct_centres(
+    conics: np.ndarray,
+    board_xy: np.ndarray,
+    *,
+    init: np.ndarray | None = None,
+    max_iter: int = 10,
+    tol_px: float = 1e-9,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Images of the circle centres from their ellipses, iterating homography and poles until stable.
+
+    ``conics``: (N, 3, 3) ellipses (undistorted pixel coordinates), in board order; ``board_xy``: (N, 2) board
+    coordinates of the circle centres (mm); ``init``: optional (N, 2) starting centres (default: ellipse centres).
+    Returns ``(centres (N, 2) px, H (3, 3) board -> image from the final centres)``.
+    """
+    conics = np.asarray(conics, dtype=np.float64)
+    c = (np.array([conic_params(Q)[0] for Q in conics]) if init is None else np.asarray(init, np.float64).copy())
+    H = fit_homography(board_xy, c)
+    for _ in range(max_iter):
+        line = vanishing_line(H)
+        new = np.array([pole_centre(Q, line) for Q in conics])
+        step = np.max(np.abs(new - c))
+        c = new
+        H = fit_homography(board_xy, c)
+        if step < tol_px:
+            break
+    return c, H

@@ -1,0 +1,155 @@
+"""Grid recognition and ordering of candidate dot centres, with one documented orientation rule.
+
+Recognition uses OpenCV's circle-grid finder (``cv2.findCirclesGrid``) as a helper for *ordering only*: the candidate
+dots are drawn as clean ellipses on a blank canvas and the finder's blob detector reads them back; each ordered
+position is then matched to our candidate (the centres returned by circcal are always our own sub-pixel ones).
+Clutter (extra dark blobs off the board) is tolerated by the finder's graph search; when the plain search fails,
+OpenCV's clustering variant is tried, then the same on the candidates of the dominant size class.
+
+Orientation rule (:func:`canonical_order`)
+------------------------------------------
+A board's point set is symmetric under some rigid relabelings (a symmetric rows x cols grid under 180 deg rotation,
+and under 90 deg rotations when square; an asymmetric grid with an even number of rows under 180 deg rotation; with
+an odd number of rows, under a mirror only). Among the labelings allowed by those symmetries, circcal keeps only those
+whose image handedness matches the board frame seen from the front (board x right and y down map to an image frame
+with positive orientation, i.e. the board-to-image homography has a positive Jacobian determinant: x right, y down
+in the image as in the board), and among those picks the one whose first point (object point 0) lies nearest to the
+image's top-left corner (pixel (0, 0)). So a fronto-parallel, unrolled symmetric board is numbered row by row from
+the top-left, like OpenCV's object points; asymmetric grids are at most 2-fold ambiguous and the same rule decides.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .board import Board
+
+__all__ = ["board_symmetries", "canonical_order", "order_grid", "orientation_sign"]
+
+
+def board_symmetries(board: Board) -> list[np.ndarray]:
+    """Permutations ``p`` (each (N,) int) of the board's object points such that relabelling point k as ``p[k]``
+    is a rigid map (rotation or reflection about the grid centre) of the point set onto itself. Includes identity."""
+    pts = board.object_points()[:, :2]
+    c = pts.mean(axis=0)
+    d = pts - c
+    scale = board.pitch_mm
+    perms = []
+    for rot in range(4):
+        for mirror in (False, True):
+            t = d.copy()
+            if mirror:
+                t[:, 0] = -t[:, 0]
+            for _ in range(rot):
+                t = np.column_stack([-t[:, 1], t[:, 0]])
+            # match t to d
+            dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
+            j = np.argmin(dist, axis=1)
+            if np.all(dist[np.arange(len(d)), j] < 1e-6 * scale) and len(np.unique(j)) == len(d):
+                if not any(np.array_equal(j, q) for q in perms):
+                    perms.append(j)
+    return perms
+
+
+def orientation_sign(board: Board, centers: np.ndarray) -> float:
+    """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centers``
+    (N, 2) in board order: +1 when the board is seen from the front (see module docstring), -1 mirrored."""
+    obj = board.object_points()[:, :2]
+    H, _ = cv2.findHomography(obj, np.asarray(centers, np.float64), 0)
+    if H is None:
+        return 0.0
+    c = obj.mean(axis=0)
+    w = H[2] @ np.array([c[0], c[1], 1.0])
+    J = (H[:2, :2] * w - np.outer(H[:2] @ np.array([c[0], c[1], 1.0]), H[2, :2])) / (w * w)
+    return float(np.sign(np.linalg.det(J)))
+
+
+def canonical_order(board: Board, centers: np.ndarray) -> np.ndarray:
+    """Indices ``idx`` (N,) so that ``centers[idx]`` follows the orientation rule of this module.
+
+    ``centers``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
+    """
+    centers = np.asarray(centers, dtype=np.float64)
+    best, best_d = None, np.inf
+    for p in board_symmetries(board):
+        # new labelling: point k of the board is the old point p[k]
+        cand = centers[p]
+        if orientation_sign(board, cand) <= 0:
+            continue
+        d = np.hypot(*cand[0])
+        if d < best_d - 1e-9:
+            best, best_d = p, d
+    if best is None:
+        raise ValueError("no labelling of the detected grid is seen from the board's front (mirrored image?)")
+    return best
+
+
+def _canvas(points: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    canvas = np.full(shape, 255, np.uint8)
+    for (x, y), r in zip(points, radii):
+        cv2.circle(canvas, (int(round(x * 4)), int(round(y * 4))), max(4, int(round(r * 4))), 0, -1,
+                   lineType=cv2.LINE_8, shift=2)
+    return canvas
+
+
+def _blob_detector(max_radius: float) -> cv2.SimpleBlobDetector:
+    p = cv2.SimpleBlobDetector_Params()
+    # the canvas is binary; a single threshold (minRepeatability 1) makes OpenCV report the whole canvas as a blob
+    p.minThreshold, p.maxThreshold, p.thresholdStep = 60, 200, 40
+    p.minRepeatability = 2
+    p.minDistBetweenBlobs = 0.5
+    p.filterByColor, p.blobColor = True, 0
+    # a large maxArea lets OpenCV take the canvas background for a blob and merge it with a dot
+    p.filterByArea, p.minArea, p.maxArea = True, 1.0, 4.0 * np.pi * (max_radius + 2.0) ** 2
+    p.filterByCircularity = p.filterByInertia = p.filterByConvexity = False
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]
+               ) -> np.ndarray | None:
+    """Recognise the board among candidate dots and order it.
+
+    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px (for drawing); ``image_shape``:
+    (H, W). Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None``.
+    """
+    N = board.n_points
+    M = len(points)
+    if M < N:
+        return None
+    points = np.asarray(points, np.float64)
+    radii = np.asarray(radii, np.float64)
+    # drawn radius: a fraction of the distance to the nearest other candidate, so blobs never merge
+    dist = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    nn = dist.min(axis=1)
+    draw_r = np.minimum(radii, 0.35 * nn)
+    canvas = _canvas(points, draw_r, image_shape)
+    det = _blob_detector(float(draw_r.max()))
+    base = cv2.CALIB_CB_ASYMMETRIC_GRID if board.layout == "asymmetric" else cv2.CALIB_CB_SYMMETRIC_GRID
+    subsets = [np.arange(M)]
+    # the dominant size class (drops clutter of other sizes)
+    area = radii ** 2
+    med = np.median(area)
+    keep = np.nonzero((area > med / 6.0) & (area < med * 6.0))[0]
+    if N <= len(keep) < M:
+        subsets.append(keep)
+    for sub in subsets:
+        cv_ = canvas if len(sub) == M else _canvas(points[sub], draw_r[sub], image_shape)
+        for flags in (base, base | cv2.CALIB_CB_CLUSTERING):
+            try:
+                ok, found = cv2.findCirclesGrid(cv_, board.pattern_size, flags=flags, blobDetector=det)
+            except cv2.error:
+                ok, found = False, None
+            if not ok or found is None:
+                continue
+            found = found.reshape(-1, 2).astype(np.float64)
+            d = np.linalg.norm(found[:, None] - points[sub][None], axis=-1)
+            j = np.argmin(d, axis=1)
+            if len(np.unique(j)) != N or np.any(d[np.arange(N), j] > np.maximum(1.5, 0.5 * draw_r[sub][j])):
+                continue
+            idx = sub[j]
+            try:
+                return idx[canonical_order(board, points[idx])]
+            except ValueError:
+                continue
+    return None
