@@ -197,6 +197,8 @@ def run_validation(
         label = f"{r.name} [{r.mode}]"
         if r.status == "failed":
             checks.append(Check(f"{label} runs", float("nan"), float("nan"), False, r.message))
+        elif r.status == "unavailable" and "all" not in against:  # asked for by name: its absence is a failure
+            checks.append(Check(f"{label} is available", float("nan"), float("nan"), False, r.message))
         elif r.ok and observations == "circcal" and r.mode == "fair" and "vs_circcal" in row:
             b = bounds.solver_mrcal if r.name == "mrcal" else bounds.solver
             v = row["vs_circcal"]["max_px"]
