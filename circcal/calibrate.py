@@ -508,14 +508,20 @@ def calibrate(
         fixed.append("k3")
     aspect = (initial.fx / initial.fy if initial is not None else 1.0) if fix_aspect_ratio else None
 
-    if initial is None:
+    def zhang_start(distortion_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Intrinsics (9,) and poses from Zhang's closed form, honouring the fixed principal point / aspect."""
         z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect,
-                  distortion_rounds=0)
+                  distortion_rounds=distortion_rounds)
         c = z.camera
-        intr = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
+        start = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
         if fix_principal_point:
-            intr[2:4] = centre
-        rvecs, tvecs = z.rvecs, z.tvecs
+            start[2:4] = centre
+        if aspect is not None:
+            start[0] = aspect * start[1]
+        return start, z.rvecs, z.tvecs
+
+    if initial is None:
+        intr, rvecs, tvecs = zhang_start(0)
     else:
         if (initial.width, initial.height) != (w, h):
             raise ValueError(f"initial camera is {initial.width}x{initial.height} but image_size is {w}x{h}")
@@ -531,16 +537,9 @@ def calibrate(
     x, n_iter, converged, message = _solve(prob, x0, max_iterations, solver)
     if initial is None and not _sane(prob, x, converged):
         # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
-        z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect,
-                  distortion_rounds=10)
-        c = z.camera
-        intr = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
-        if fix_principal_point:
-            intr[2:4] = centre
-        if aspect is not None:
-            intr[0] = aspect * intr[1]
+        intr, rvecs, tvecs = zhang_start(10)
         prob = _Problem(obj, img, intr, free, aspect)
-        x, n_iter2, converged, message = _solve(prob, prob.pack(intr, z.rvecs, z.tvecs), max_iterations, solver)
+        x, n_iter2, converged, message = _solve(prob, prob.pack(intr, rvecs, tvecs), max_iterations, solver)
         n_iter += n_iter2
     f, Xc, _, _ = prob.evaluate(x)
     p = prob.intrinsics(x)
