@@ -28,6 +28,17 @@ __all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "format_table",
 
 PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
+#: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
+#: squared residuals carry ~1e-13 relative rounding).
+COST_TIE_REL = 1e-10
+
+
+def _ssr(residuals: Sequence[np.ndarray] | None) -> float:
+    """Sum of squared residuals over all views (NaN entries, e.g. rejected outliers, make it NaN)."""
+    if not residuals:
+        return float("nan")
+    return float(sum(np.sum(np.asarray(r, dtype=np.float64) ** 2) for r in residuals))
+
 
 @dataclass(frozen=True)
 class Bounds:
@@ -138,7 +149,8 @@ def run_validation(
         same = calibrate(obj, img, (res.camera.width, res.camera.height), fix_k3=fix_k3, initial=res.camera)
         image_size = (res.camera.width, res.camera.height)
         cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
-                  n_views=len(cal.used), converged=res.converged, solver_camera=same.camera)
+                  n_views=len(cal.used), converged=res.converged, solver_camera=same.camera,
+                  solver_ssr=_ssr(same.residuals))
     except (CalibrationError, ValueError, FileNotFoundError) as exc:
         cc.update(status="failed", message=str(exc))
     cc["time_s"] = time.perf_counter() - t0
@@ -202,8 +214,25 @@ def run_validation(
         elif r.ok and observations == "circcal" and r.mode == "fair" and "vs_circcal" in row:
             b = bounds.solver_mrcal if r.name == "mrcal" else bounds.solver
             v = row["vs_circcal"]["max_px"]
-            checks.append(Check(f"{label} vs circcal on identical observations: max projection difference", v, b,
-                                v <= b))
+            name = f"{label} vs circcal on identical observations: max projection difference"
+            if v <= b:
+                checks.append(Check(name, v, b, True))
+                continue
+            # Beyond the bound: is circcal short of the minimum, or the reference? On a flat problem (k3 at a long
+            # focal length) two solvers can stop 1e-6..1e-5 px apart with costs equal to ~1e-12 relative; the gate
+            # fails only if the reference found a lower cost than circcal (circcal did not reach the minimum).
+            ssr_ref = _ssr(r.residuals)
+            ssr_cc = cc["solver_ssr"]
+            rel = (ssr_ref - ssr_cc) / ssr_cc if ssr_cc > 0 else float("nan")
+            circcal_short = not (rel >= -COST_TIE_REL)
+            if circcal_short:
+                note = f"{r.name}'s cost is lower than circcal's by {-rel:.2g} (relative): circcal missed the minimum"
+            elif rel <= COST_TIE_REL:
+                note = (f"costs equal to {abs(rel):.1g} relative: both at the minimum to double precision; the "
+                        f"difference lies along a flat direction")
+            else:
+                note = f"{r.name}'s cost is higher than circcal's by {rel:.2g} (relative): {r.name} stopped short"
+            checks.append(Check(name, v, b, not circcal_short, note))
     return ValidationRun(source or {"images": paths}, board, image_size, truth, cc, refs, comparisons, checks,
                          observations)
 
