@@ -28,6 +28,7 @@ __all__ = [
     "ReferenceCalibrator",
     "BaseCalibrator",
     "run_safely",
+    "jsonable",
     "check_observations",
     "residuals_of",
     "DIVERGED_RMS_PX",
@@ -114,19 +115,27 @@ class ReferenceResult:
             "errors": self.errors,
             "time_s": float(self.time_s),
             "views": self.views,
-            "extra": _jsonable(self.extra),
+            "extra": jsonable(self.extra),
         }
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
+    """JSON-ready copy: dicts/lists recursed, numpy arrays and scalars -> Python, non-finite floats -> None (JSON
+    has no NaN), :class:`circcal.model.Camera` -> its ``camera`` block."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
+    if isinstance(x, Camera):
+        return x.to_dict()
     if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
+        return jsonable(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if np.isfinite(x) else None
     return x
 
 

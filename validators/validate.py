@@ -21,7 +21,7 @@ import numpy as np
 from circcal.board import Board
 from circcal.model import Camera
 from validators import registry
-from validators.base import ReferenceResult
+from validators.base import ReferenceResult, jsonable
 from validators.compare import param_diff, projection_diff
 
 __all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "format_table", "write_report"]
@@ -306,25 +306,9 @@ def format_table(run: ValidationRun) -> str:
     return "\n".join(lines)
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, Camera):
-        return x.to_dict()
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    return x
-
-
 def to_dict(run: ValidationRun) -> dict[str, Any]:
     cc = {k: v for k, v in run.circcal.items()}
-    return _jsonable({
+    return jsonable({
         "source": run.source, "board": run.board.to_dict(), "image_size": list(run.image_size),
         "truth": run.truth, "observations": run.observations, "circcal": cc,
         "references": [r.to_dict() for r in run.references],
