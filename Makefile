@@ -41,7 +41,7 @@ test: setup
 	$(VPY) -m pytest -n $(JOBS) -q
 
 study: setup
-	$(VPY) -m pytest -n $(JOBS) -q -m slow
+	$(VPY) -m pytest -n $(JOBS) -q -m slow --ignore=tests/conformance
 
 conformance: setup
 	$(VPY) -m pytest -n $(JOBS) -q -m 'slow or not slow' tests/conformance

@@ -24,7 +24,8 @@ from validators import registry
 from validators.base import ReferenceResult, jsonable
 from validators.compare import param_diff, projection_diff
 
-__all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "format_table", "write_report"]
+__all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "solver_agreement", "format_table",
+           "write_report"]
 
 PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
@@ -33,7 +34,7 @@ PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 COST_TIE_REL = 1e-10
 
 
-def _ssr(residuals: Sequence[np.ndarray] | None) -> float:
+def ssr(residuals: Sequence[np.ndarray] | None) -> float:
     """Sum of squared residuals over all views (NaN entries, e.g. rejected outliers, make it NaN)."""
     if not residuals:
         return float("nan")
@@ -150,7 +151,7 @@ def run_validation(
         image_size = (res.camera.width, res.camera.height)
         cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
                   n_views=len(cal.used), converged=res.converged, solver_camera=same.camera,
-                  solver_ssr=_ssr(same.residuals))
+                  solver_ssr=ssr(same.residuals))
     except (CalibrationError, ValueError, FileNotFoundError) as exc:
         cc.update(status="failed", message=str(exc))
     cc["time_s"] = time.perf_counter() - t0
@@ -213,28 +214,32 @@ def run_validation(
             checks.append(Check(f"{label} is available", float("nan"), float("nan"), False, r.message))
         elif r.ok and observations == "circcal" and r.mode == "fair" and "vs_circcal" in row:
             b = bounds.solver_mrcal if r.name == "mrcal" else bounds.solver
-            v = row["vs_circcal"]["max_px"]
-            name = f"{label} vs circcal on identical observations: max projection difference"
-            if v <= b:
-                checks.append(Check(name, v, b, True))
-                continue
-            # Beyond the bound: is circcal short of the minimum, or the reference? On a flat problem (k3 at a long
-            # focal length) two solvers can stop 1e-6..1e-5 px apart with costs equal to ~1e-12 relative; the gate
-            # fails only if the reference found a lower cost than circcal (circcal did not reach the minimum).
-            ssr_ref = _ssr(r.residuals)
-            ssr_cc = cc["solver_ssr"]
-            rel = (ssr_ref - ssr_cc) / ssr_cc if ssr_cc > 0 else float("nan")
-            circcal_short = not (rel >= -COST_TIE_REL)
-            if circcal_short:
-                note = f"{r.name}'s cost is lower than circcal's by {-rel:.2g} (relative): circcal missed the minimum"
-            elif rel <= COST_TIE_REL:
-                note = (f"costs equal to {abs(rel):.1g} relative: both at the minimum to double precision; the "
-                        f"difference lies along a flat direction")
-            else:
-                note = f"{r.name}'s cost is higher than circcal's by {rel:.2g} (relative): {r.name} stopped short"
-            checks.append(Check(name, v, b, not circcal_short, note))
+            checks.append(solver_agreement(label, r, row["vs_circcal"]["max_px"], cc["solver_ssr"], b))
     return ValidationRun(source or {"images": paths}, board, image_size, truth, cc, refs, comparisons, checks,
                          observations)
+
+
+def solver_agreement(label: str, ref: ReferenceResult, max_px: float, circcal_ssr: float, bound: float) -> Check:
+    """The identical-observations check: ``ref``'s solve vs circcal's solver on the same points.
+
+    Passes when the max projection difference ``max_px`` is within ``bound``. Beyond it the costs decide: on a flat
+    problem (k3 at a long focal length) two solvers can stop 1e-6..1e-5 px apart with costs equal to ~1e-12
+    relative, which double precision cannot separate; the check then fails only if the reference found a lower
+    cost than circcal (beyond :data:`COST_TIE_REL`), i.e. circcal missed the minimum, and says which case it is.
+    """
+    name = f"{label} vs circcal on identical observations: max projection difference, px"
+    if np.isfinite(max_px) and max_px <= bound:
+        return Check(name, max_px, bound, True)
+    ssr_ref = ssr(ref.residuals)
+    rel = (ssr_ref - circcal_ssr) / circcal_ssr if circcal_ssr > 0 else float("nan")
+    if not rel >= -COST_TIE_REL:
+        return Check(name, max_px, bound, False, f"{ref.name}'s cost is lower than circcal's by {-rel:.2g} "
+                                                 f"(relative): circcal missed the minimum")
+    if rel <= COST_TIE_REL:
+        return Check(name, max_px, bound, True, f"costs equal to {abs(rel):.1g} relative: both at the minimum to "
+                                                f"double precision; the difference lies along a flat direction")
+    return Check(name, max_px, bound, True, f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): "
+                                            f"{ref.name} stopped short")
 
 
 def _f(v: Any, spec: str = ".4f") -> str:

@@ -1,0 +1,1 @@
+"""circcal's conformance suite (a package so that its conftest does not shadow ``tests/conftest.py``)."""

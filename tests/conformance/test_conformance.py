@@ -1,0 +1,206 @@
+"""circcal's conformance suite: every fixture scenario x variant x calibrator against ground truth and, on identical
+observations, against circcal's solver (what each case asserts, and why each bound: validators/conformance.py).
+
+The default run holds a fast slice (paper-normal and wide-clean, every calibrator); `make conformance` runs the whole
+matrix (`-m 'slow or not slow'`). circcal's calibration of a scenario-variant is computed once per run and reused by
+every reference case. With ``--calibrator MODULE:FN`` (the ``circcal`` pytest plug-in) the same cases test that
+calibrator instead; the plug-in itself is tested at the end of this file.
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import skip_unless_available
+
+from circcal.board import Board
+from circcal.model import Camera, project, rodrigues
+from validators import conformance
+from validators.base import ReferenceResult
+from validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator, solver_tolerance
+
+# kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
+
+REPO = Path(__file__).resolve().parents[2]
+HERE = Path(__file__).resolve().parent
+
+
+def test_conformance(conformance_case, conformance_observations, conformance_calibrator, conformance_record,
+                     request):
+    case = conformance_case
+    obs = conformance_observations(case.scenario, case.variant)
+    if case.reference == conformance.CIRCCAL:
+        outcome = conformance.run_circcal_case(case, obs)
+    else:
+        cal = conformance_calibrator(case)
+        skip_unless_available(cal)  # under CI (CI=true) a missing reference fails instead
+        outcome = conformance.run_reference_case(case, obs, cal, solver_px=solver_tolerance(request.config, case))
+    print(conformance.format_outcome(outcome))
+    conformance_record(outcome)
+    if outcome.status == "skip":
+        pytest.skip(outcome.skip_reason)
+    assert not conformance.failed_checks(outcome), conformance.format_outcome(outcome)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# The matrix itself
+# --------------------------------------------------------------------------------------------------------------------
+
+def test_matrix_covers_every_scenario_variant_with_readable_ids():
+    from fixtures.scenarios import SCENARIOS
+
+    refs = [("opencv", ("fair",)), ("mrcal", ("fair", "default")), ("kornia", ("fair",))]
+    cs = conformance.cases(refs)
+    ids = [c.id for c in cs]
+    assert len(ids) == len(set(ids))
+    for name, sc in SCENARIOS.items():
+        for v in sc.variants:
+            assert f"{name}-{v}-circcal" in ids
+            if name in conformance.CIRCCAL_UNSUPPORTED:
+                assert not any(i.startswith(f"{name}-{v}-") and not i.endswith("-circcal") for i in ids)
+            else:
+                for i in ("opencv", "mrcal_fair", "mrcal_default", "kornia"):
+                    assert f"{name}-{v}-{i}" in ids
+    fast = sorted(c.id for c in cs if not c.slow)
+    assert fast == sorted(f"{s}-{v}-{r}" for s, v in (("paper", "normal"), ("wide", "clean"))
+                          for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default", "kornia"))
+    # scenario-variant major, circcal first: the expensive calibration is reused by the cases right after it
+    assert ids.index("paper-uneven-circcal") < ids.index("paper-uneven-opencv") < ids.index("paper-strong-circcal")
+
+
+def test_user_calibrators_replace_circcal_and_the_references():
+    cs = conformance.cases(user=[("mine", ("fair",))])
+    assert {c.reference for c in cs} == {"mine"} and all(c.user for c in cs)
+    assert "paper-normal-mine" in [c.id for c in cs if not c.slow]
+
+
+def test_observations_are_computed_once_across_workers(tmp_path, monkeypatch):
+    calls = []
+
+    def fake(scenario, variant):
+        calls.append((scenario, variant))
+        return {"scenario": scenario, "variant": variant}
+
+    monkeypatch.setattr(conformance, "observe", fake)
+    a, b = ObservationCache(tmp_path), ObservationCache(tmp_path)  # two workers sharing the run's folder
+    assert a("wide", "clean") == b("wide", "clean") == a("wide", "clean")
+    assert b("wide", "jpeg")["variant"] == "jpeg"
+    assert calls == [("wide", "clean"), ("wide", "jpeg")]
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# The plug-in: loading a user's calibrator
+# --------------------------------------------------------------------------------------------------------------------
+
+def _problem(n_views: int = 8, seed: int = 0) -> tuple[list, list, tuple[int, int], Camera]:
+    cam = Camera(1280, 960, 1000.0, 1001.0, 641.0, 479.0, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    board = Board(7, 7, 15.0, 7.0)
+    P = board.object_points()
+    rng = np.random.default_rng(seed)
+    obj, img = [], []
+    for _ in range(n_views):
+        r = np.array([*np.deg2rad(rng.uniform(-35, 35, 2)), rng.uniform(-0.3, 0.3)])
+        t = np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(250, 350)]) - rodrigues(r) @ board.center_mm()
+        obj.append(P.astype(np.float32).astype(np.float64))
+        img.append((project(P, r, t, cam) + rng.normal(0, 0.02, (len(P), 2))).astype(np.float32).astype(np.float64))
+    return obj, img, (cam.width, cam.height), cam
+
+
+def test_load_calibrator_accepts_a_function_a_file_and_a_class():
+    f = load_calibrator("tests.conformance.example_calibrator:opencv_calibrate")
+    assert isinstance(f, FunctionCalibrator) and f.name == "opencv_calibrate"
+    g = load_calibrator(f"mine={HERE / 'example_calibrator.py'}:opencv_biased")
+    assert isinstance(g, FunctionCalibrator) and g.label == "mine"
+    c = load_calibrator("validators.opencv:OpenCVCalibrator")
+    assert c.name == "opencv" and hasattr(c, "calibrate_observations")
+    obj, img, size, truth = _problem()
+    res = f.calibrate_observations(obj, img, size)
+    assert res.ok, res.message
+    assert abs(res.camera.fx - truth.fx) < 5 * res.std["fx"]
+    assert res.extra["poses"].startswith("cv2.solvePnP")
+    assert 0.01 < res.errors["rms_per_coord_px"] < 0.03  # noise 0.02 px per coordinate, poses solved by PnP
+    biased = g.calibrate_observations(obj, img, size)
+    assert biased.ok and biased.camera.fx == pytest.approx(res.camera.fx * 1.0001, rel=1e-9)
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("no_colon_here", "expected [LABEL=]package.module:function"),
+    ("validators.no_such_module:fn", "cannot import 'validators.no_such_module'"),
+    ("validators.base:no_such_attr", "has no attribute 'no_such_attr'"),
+    ("validators.base:PARAM_NAMES", "not a function or a ReferenceCalibrator"),
+    ("missing/file.py:fn", "no such file"),
+])
+def test_load_calibrator_says_what_is_wrong(spec, words):
+    with pytest.raises(ValueError, match=re.escape(words)):
+        load_calibrator(spec)
+
+
+@pytest.mark.parametrize("returned, words", [
+    ("text", "returned str; expected a ReferenceResult"),
+    (("not a camera", None), "returned str as the camera"),
+    ("raise", "ZeroDivisionError"),
+])
+def test_a_bad_user_function_becomes_a_failed_result(returned, words):
+    def fn(obj, img, size):
+        if returned == "raise":
+            return 1 / 0
+        return returned
+
+    res = FunctionCalibrator(fn, "bad").calibrate_observations(*_problem(4)[:3])
+    assert res.status == "failed" and words in res.message
+
+
+def test_a_user_function_may_return_a_reference_result_or_refuse():
+    def refuse(obj, img, size):
+        raise NotImplementedError("only fisheye lenses")
+
+    def result(obj, img, size):
+        return ReferenceResult("mine", "1", "fair", "unsupported", "only asymmetric grids")
+
+    args = _problem(4)[:3]
+    assert FunctionCalibrator(refuse).calibrate_observations(*args).status == "unsupported"
+    assert FunctionCalibrator(result).calibrate_observations(*args).message == "only asymmetric grids"
+
+
+def test_option_selects_the_calibrator_under_test():
+    """A pytest run with --calibrator tests exactly the given calibrators: the honest OpenCV wrapper passes, the one
+    biased by 1e-4 in focal length fails the agreement check, and neither circcal nor a built-in reference runs."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST") and k != "PYTEST_ADDOPTS"}
+    cmd = [sys.executable, "-m", "pytest", "tests/conformance/test_conformance.py::test_conformance", "-v", "-rA",
+           "-p", "no:cacheprovider", "-k", "wide-clean",
+           "--calibrator", "tests/conformance/example_calibrator.py:opencv_calibrate",
+           "--calibrator", "biased=tests.conformance.example_calibrator:opencv_biased"]
+    out = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    text = out.stdout + out.stderr
+    assert out.returncode == 1, text[-3000:]
+    assert re.search(r"test_conformance\[wide-clean-opencv_calibrate\] PASSED", text), text[-3000:]
+    assert re.search(r"test_conformance\[wide-clean-biased\] FAILED", text), text[-3000:]
+    assert "1 failed, 1 passed" in text, text[-3000:]
+    assert "circcal conformance: calibrator(s) under test: opencv_calibrate (FunctionCalibrator), biased" in text
+    assert re.search(r"FAIL biased unknown \[fair\] vs circcal on identical observations: max projection "
+                     r"difference, px: 0\.0\d+ \(bound 1e-06\)", text), text[-3000:]
+    assert "-circcal" not in text.split("short test summary info")[-1]
+
+
+def test_bad_calibrator_option_is_a_usage_error():
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST") and k != "PYTEST_ADDOPTS"}
+    out = subprocess.run([sys.executable, "-m", "pytest", "tests/conformance", "--collect-only", "-q",
+                          "-p", "no:cacheprovider", "--calibrator", "validators.base:nothing"],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 4 and "has no attribute 'nothing'" in out.stdout + out.stderr
+
+
+def test_predicted_truth_rms_scales_with_the_stated_sigmas():
+    cam = Camera(1280, 960, 1000.0, 1000.0, 640.0, 480.0, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    std = {"fx": 0.1, "fy": 0.1, "cx": 0.1, "cy": 0.1, "k1": 1e-4, "k2": 1e-4, "p1": 1e-6, "p2": 1e-6, "k3": 0.0}
+    one = conformance.predicted_truth_rms(cam, std, None, n=50)
+    two = conformance.predicted_truth_rms(cam, {k: 2 * v for k, v in std.items()}, None, n=50)
+    assert 0 < one["p50"] < one["p99"] < 1.0
+    assert two["p99"] == pytest.approx(2 * one["p99"], rel=1e-3)  # same draws, linear regime

@@ -1,0 +1,355 @@
+"""pytest plug-in ``circcal`` (entry point ``pytest11``): run circcal's conformance suite against any calibrator.
+
+Installed with circcal (``pip install -e .``), it adds::
+
+    --calibrator SPEC        calibrator(s) under test (repeatable); SPEC is [LABEL=]MODULE:ATTR or [LABEL=]FILE.py:ATTR
+    --calibrator-tol PX      max projection difference to circcal's solver on identical observations (default 1e-6;
+                             'inf' measures without asserting, for an estimator that is not plain least squares)
+
+``ATTR`` may be
+
+* a function ``fn(object_points, image_points, image_size)`` with ``object_points``: per view (N_v, 3) float64 mm
+  (z = 0), ``image_points``: per view (N_v, 2) float64 px (OpenCV convention: pixel centres at integer
+  coordinates), ``image_size``: (width, height); it returns a :class:`validators.base.ReferenceResult`, or
+  ``(camera, std)`` or ``(camera, std, rvecs, tvecs)`` with ``camera`` a :class:`circcal.model.Camera`, ``std`` a
+  dict of standard deviations keyed fx, fy, cx, cy, k1, k2, p1, p2, k3 or None, rvecs/tvecs (V, 3) board-to-camera
+  (without them the poses are solved with cv2.solvePnP for the residuals). It is wrapped into a
+  :class:`validators.base.ReferenceCalibrator` whose calls go through :func:`validators.base.run_safely` (an
+  exception becomes a failed case with its message, ``NotImplementedError`` an unsupported one);
+* a :class:`~validators.base.ReferenceCalibrator` class, a zero-argument factory returning one, or an instance.
+
+With ``--calibrator`` the conformance cases test only the given calibrator(s) (ids ``<scenario>-<variant>-<label>``,
+label: LABEL, else the calibrator's ``name``, else the function's name); without it they test circcal and every
+registered reference. Any test that takes the ``conformance_case`` argument is parametrised over the matrix of
+:func:`validators.conformance.cases`, slow-marked outside the fast slice. Fixtures: ``conformance_observations``
+(session: ``get(scenario, variant) -> Observations``, circcal's calibration computed once per scenario-variant and,
+under pytest-xdist, once per run across workers), ``conformance_calibrator`` (``get(case) -> ReferenceCalibrator``).
+A summary of every case (key numbers, including those measured and not asserted) is printed at the end.
+"""
+from __future__ import annotations
+
+import fcntl
+import importlib
+import importlib.util
+import inspect
+import os
+import pickle
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+
+from circcal.model import Camera
+from validators.base import BaseCalibrator, ReferenceResult
+
+__all__ = ["FunctionCalibrator", "load_calibrator", "parse_spec"]
+
+_USER_KEY = pytest.StashKey[list]()
+_PROPERTY = "circcal_conformance"
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Loading a user's calibrator
+# --------------------------------------------------------------------------------------------------------------------
+
+class FunctionCalibrator(BaseCalibrator):
+    """A plain function ``fn(object_points, image_points, image_size)`` as a
+    :class:`~validators.base.ReferenceCalibrator` (see the module docstring for what ``fn`` may return)."""
+
+    modes = ("fair",)
+
+    def __init__(self, fn: Callable[..., Any], name: str | None = None) -> None:
+        self.fn = fn
+        self.name = name or getattr(fn, "__name__", "calibrator")
+
+    def _version(self) -> str:
+        mod = sys.modules.get(getattr(self.fn, "__module__", "") or "")
+        return str(getattr(mod, "__version__", "unknown"))
+
+    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
+                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+        t0 = time.perf_counter()
+        out = self.fn(object_points, image_points, image_size)
+        if isinstance(out, ReferenceResult):
+            return out
+        if not isinstance(out, tuple) or len(out) not in (2, 4):
+            raise TypeError(f"{self.name} returned {type(out).__name__}; expected a ReferenceResult, "
+                            "(Camera, std | None) or (Camera, std | None, rvecs, tvecs)")
+        camera, std = out[0], out[1]
+        if not isinstance(camera, Camera):
+            raise TypeError(f"{self.name} returned {type(camera).__name__} as the camera; expected "
+                            "circcal.model.Camera")
+        if std is not None and not isinstance(std, dict):
+            raise TypeError(f"{self.name} returned std of type {type(std).__name__}; expected a dict keyed fx, fy, "
+                            "cx, cy, k1, k2, p1, p2, k3 or None")
+        if len(out) == 4:
+            rvecs, tvecs, poses = out[2], out[3], "returned"
+        else:
+            rvecs, tvecs = _solve_poses(camera, object_points, image_points)
+            poses = "cv2.solvePnP with the returned intrinsics"
+        return self.finish(mode, camera, rvecs, tvecs, object_points, image_points, t0, std=std, poses=poses)
+
+
+def _solve_poses(camera: Camera, object_points: list[np.ndarray], image_points: list[np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-view board poses for given intrinsics (cv2.solvePnP, iterative LM): (V, 3) rvecs, (V, 3) tvecs."""
+    import cv2
+
+    rv, tv = [], []
+    for o, p in zip(object_points, image_points):
+        ok, r, t = cv2.solvePnP(np.asarray(o, np.float64), np.asarray(p, np.float64), camera.K, camera.dist,
+                                flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            raise RuntimeError("cv2.solvePnP found no pose for a view with the returned intrinsics")
+        rv.append(np.asarray(r).reshape(3))
+        tv.append(np.asarray(t).reshape(3))
+    return np.array(rv), np.array(tv)
+
+
+def parse_spec(spec: str) -> tuple[str | None, str, str]:
+    """``[LABEL=]MODULE:ATTR`` or ``[LABEL=]PATH.py:ATTR`` -> (label or None, module or path, attr)."""
+    label, _, target = spec.rpartition("=") if "=" in spec.split(":", 1)[0] else (None, "", spec)
+    where, sep, attr = target.rpartition(":")
+    if not sep or not where or not attr:
+        raise ValueError(f"--calibrator {spec!r}: expected [LABEL=]package.module:function (or a class), or "
+                         "[LABEL=]path/to/file.py:function")
+    return (label or None), where, attr
+
+
+def _import(where: str) -> Any:
+    if where.endswith(".py") or os.sep in where or "/" in where:
+        path = Path(where).resolve()
+        if not path.is_file():
+            raise ValueError(f"--calibrator: no such file {where}")
+        name = f"_circcal_user_{path.stem}"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)  # type: ignore[union-attr]
+        return module
+    return importlib.import_module(where)
+
+
+def load_calibrator(spec: str) -> Any:
+    """The calibrator named by ``spec`` (see :func:`parse_spec`) as a ReferenceCalibrator; ``ValueError`` saying
+    what is wrong otherwise."""
+    label, where, attr = parse_spec(spec)
+    try:
+        module = _import(where)
+    except ValueError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"--calibrator {spec!r}: cannot import {where!r}: {type(exc).__name__}: {exc}") from exc
+    try:
+        obj = getattr(module, attr)
+    except AttributeError:
+        raise ValueError(f"--calibrator {spec!r}: {where} has no attribute {attr!r}") from None
+    if inspect.isclass(obj) or (callable(obj) and not hasattr(obj, "calibrate_observations") and _no_args(obj)):
+        try:
+            obj = obj()
+        except Exception as exc:  # noqa: BLE001
+            raise ValueError(f"--calibrator {spec!r}: constructing {attr} failed: {type(exc).__name__}: {exc}") from exc
+        if not hasattr(obj, "calibrate_observations"):
+            raise ValueError(f"--calibrator {spec!r}: {attr}() returned {type(obj).__name__}, which lacks "
+                             "calibrate_observations (see validators.base.ReferenceCalibrator)")
+    elif not hasattr(obj, "calibrate_observations"):
+        if not callable(obj):
+            raise ValueError(f"--calibrator {spec!r}: {attr} is a {type(obj).__name__}, not a function or a "
+                             "ReferenceCalibrator")
+        obj = FunctionCalibrator(obj, label or attr)
+    for need in ("name", "available", "calibrate_observations"):
+        if not hasattr(obj, need):
+            raise ValueError(f"--calibrator {spec!r}: the calibrator lacks {need!r} (see "
+                             "validators.base.ReferenceCalibrator)")
+    if label:
+        obj.label = label
+    return obj
+
+
+def _no_args(fn: Callable[..., Any]) -> bool:
+    """True for a callable that can be called with no arguments (a factory), False for fn(obj, img, size)."""
+    try:
+        inspect.signature(fn).bind()
+    except TypeError:
+        return False
+    except ValueError:  # no signature (a builtin): treat as a calibrating function
+        return False
+    return True
+
+
+def calibrator_label(cal: Any) -> str:
+    label = str(getattr(cal, "label", None) or getattr(cal, "name", "calibrator"))
+    return "".join(ch if ch.isalnum() or ch in "_." else "_" for ch in label)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Hooks
+# --------------------------------------------------------------------------------------------------------------------
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("circcal", "circcal conformance suite")
+    group.addoption("--calibrator", action="append", default=[], metavar="[LABEL=]MODULE:ATTR",
+                    help="calibrator under test (repeatable): a function fn(object_points, image_points, image_size) "
+                         "-> ReferenceResult or (Camera, std|None), or a ReferenceCalibrator class/factory; "
+                         "MODULE may be a path to a .py file. Replaces circcal and the built-in references in the "
+                         "conformance cases.")
+    group.addoption("--calibrator-tol", type=float, default=None, metavar="PX",
+                    help="max projection difference of --calibrator to circcal's solver on identical observations "
+                         "(default 1e-6 px; 'inf' = measure only)")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    specs = config.getoption("calibrator", default=None) or []
+    cals = []
+    for spec in specs:
+        try:
+            cals.append(load_calibrator(spec))
+        except ValueError as exc:
+            raise pytest.UsageError(str(exc)) from None
+    labels = [calibrator_label(c) for c in cals]
+    dup = {x for x in labels if labels.count(x) > 1}
+    if dup:
+        raise pytest.UsageError(f"--calibrator: labels must be unique, got {', '.join(sorted(dup))} twice; name "
+                                "them with LABEL=module:attr")
+    config.stash[_USER_KEY] = cals
+    if not config.pluginmanager.has_plugin("circcal-conformance-summary"):
+        config.pluginmanager.register(_Summary(), "circcal-conformance-summary")
+
+
+def _user(config: pytest.Config) -> list:
+    if _USER_KEY not in config.stash:  # plug-in registered late (tests/conformance/conftest.py fallback)
+        pytest_configure(config)
+    return config.stash[_USER_KEY]
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    cals = config.stash.get(_USER_KEY, [])
+    if not cals:
+        return []
+    return ["circcal conformance: calibrator(s) under test: "
+            + ", ".join(f"{calibrator_label(c)} ({type(c).__name__})" for c in cals)]
+
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    if "conformance_case" not in metafunc.fixturenames:
+        return
+    from validators import conformance
+
+    cals = _user(metafunc.config)
+    user = [(calibrator_label(c), conformance.reference_modes(c)) for c in cals]
+    params = []
+    for c in conformance.cases(user=user):
+        marks = [pytest.mark.slow] if c.slow else []
+        if not c.user and c.id in conformance.KNOWN_FAILURES:
+            marks.append(pytest.mark.xfail(strict=True, reason=conformance.KNOWN_FAILURES[c.id]))
+        params.append(pytest.param(c, id=c.id, marks=marks))
+    metafunc.parametrize("conformance_case", params)
+
+
+class _Summary:
+    """Collects each case's summary line from the test reports (the controller's, under xdist) and prints them."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        if report.when != "call":
+            return
+        for key, value in getattr(report, "user_properties", ()):
+            if key == _PROPERTY:
+                self.lines.append(str(value))
+
+    def pytest_terminal_summary(self, terminalreporter: Any) -> None:
+        if not self.lines:
+            return
+        terminalreporter.section("circcal conformance: every case (key numbers; FAIL = a check failed)")
+        for line in sorted(self.lines):
+            terminalreporter.write_line(line)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Fixtures
+# --------------------------------------------------------------------------------------------------------------------
+
+class ObservationCache:
+    """circcal's observations per (scenario, variant), computed once. Under pytest-xdist the workers share a folder
+    in the run's base temp directory (unique per run) and a file lock, so each scenario-variant is calibrated once
+    per run, not once per worker."""
+
+    def __init__(self, shared: Path | None) -> None:
+        self.shared = shared
+        self.memory: dict[tuple[str, str], Any] = {}
+
+    def __call__(self, scenario: str, variant: str):
+        from validators.conformance import observe
+
+        key = (scenario, variant)
+        if key in self.memory:
+            return self.memory[key]
+        if self.shared is None:
+            obs = observe(scenario, variant)
+        else:
+            self.shared.mkdir(parents=True, exist_ok=True)
+            f = self.shared / f"{scenario}--{variant}.pkl"
+            with open(self.shared / f"{scenario}--{variant}.lock", "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                if f.exists():
+                    obs = pickle.loads(f.read_bytes())
+                else:
+                    obs = observe(scenario, variant)
+                    tmp = f.with_suffix(".tmp")
+                    tmp.write_bytes(pickle.dumps(obs))
+                    tmp.replace(f)
+        self.memory[key] = obs
+        return obs
+
+
+@pytest.fixture(scope="session")
+def conformance_observations(request: pytest.FixtureRequest,
+                             tmp_path_factory: pytest.TempPathFactory) -> ObservationCache:
+    """``get(scenario, variant) -> validators.conformance.Observations`` (circcal's calibration, computed once)."""
+    shared = None
+    if hasattr(request.config, "workerinput"):  # a pytest-xdist worker: basetemp/.. is this run's, shared
+        shared = tmp_path_factory.getbasetemp().parent / "circcal-conformance"
+    return ObservationCache(shared)
+
+
+@pytest.fixture(scope="session")
+def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], Any]:
+    """``get(case) -> ReferenceCalibrator``: the ``--calibrator`` object for a user case, else the registry's
+    reference (one instance per name). A reference that cannot be loaded raises ``ImportError`` with the cause."""
+    from validators import registry
+
+    user = {calibrator_label(c): c for c in _user(request.config)}
+    made: dict[str, Any] = {}
+
+    def get(case: Any) -> Any:
+        if case.user:
+            return user[case.reference]
+        if case.reference not in made:
+            made[case.reference] = registry.get(case.reference)
+        return made[case.reference]
+
+    return get
+
+
+@pytest.fixture
+def conformance_record(record_property: Callable[[str, Any], None]) -> Callable[[Any], None]:
+    """``record(outcome)``: add a case's one-line summary to the end-of-run table (works under xdist)."""
+    from validators.conformance import summary_line
+
+    def record(outcome: Any) -> None:
+        record_property(_PROPERTY, summary_line(outcome))
+
+    return record
+
+
+def solver_tolerance(config: pytest.Config, case: Any) -> float | None:
+    """The agreement bound for a case: ``--calibrator-tol`` for user calibrators, else the module default."""
+    if case.user:
+        tol = config.getoption("calibrator_tol", default=None)
+        return 1e-6 if tol is None else float(tol)
+    return None
