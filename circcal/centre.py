@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ellipse import conic_params
+from .ellipse import conic_params, conic_params_batch
 
-__all__ = ["vanishing_line", "pole_centre", "tangent_chord_centre", "fit_homography", "correct_centres"]
+__all__ = ["vanishing_line", "pole_centre", "pole_centres", "tangent_chord_centre", "fit_homography",
+           "correct_centres"]
 
 
 def vanishing_line(H: np.ndarray) -> np.ndarray:
@@ -37,14 +38,34 @@ def _local_frame(Q: np.ndarray) -> np.ndarray:
     return np.array([[a, 0.0, c[0]], [0.0, a, c[1]], [0.0, 0.0, 1.0]])
 
 
+def _local_frames(conics: np.ndarray) -> np.ndarray:
+    """(D, 3, 3) similarities T (local -> pixel) centred on each ellipse with unit = its major semi-axis."""
+    c, axes, _, ok = conic_params_batch(conics)
+    if not np.all(ok):
+        raise ValueError(f"conic {int(np.argmin(ok))} is not a real ellipse")
+    T = np.zeros((len(c), 3, 3))
+    T[:, 0, 0] = T[:, 1, 1] = axes[:, 0]
+    T[:, :2, 2] = c
+    T[:, 2, 2] = 1.0
+    return T
+
+
 def pole_centre(Q: np.ndarray, line: np.ndarray) -> np.ndarray:
     """(2,) pole of ``line`` (3,) w.r.t. the ellipse ``Q`` (3, 3): the image of the circle's centre when ``line`` is
     the board's vanishing line. Computed in a frame centred on the ellipse for conditioning."""
-    T = _local_frame(Q)
-    Ql = T.T @ Q @ T
-    ll = T.T @ np.asarray(line, dtype=np.float64)
-    p = T @ np.linalg.solve(Ql, ll)
-    return p[:2] / p[2]
+    return pole_centres(np.asarray(Q, dtype=np.float64)[None], line)[0]
+
+
+def pole_centres(conics: np.ndarray, line: np.ndarray, frames: np.ndarray | None = None) -> np.ndarray:
+    """(D, 2) poles of ``line`` (3,) w.r.t. each ellipse of ``conics`` (D, 3, 3) (batched :func:`pole_centre`).
+    ``frames``: the (D, 3, 3) local frames of the conics when already computed (they do not depend on ``line``)."""
+    conics = np.asarray(conics, dtype=np.float64)
+    T = _local_frames(conics) if frames is None else frames
+    Tt = T.transpose(0, 2, 1)
+    Ql = Tt @ conics @ T
+    ll = Tt @ np.asarray(line, dtype=np.float64)
+    p = T @ np.linalg.solve(Ql, ll[..., None])
+    return p[:, :2, 0] / p[:, 2:, 0]
 
 
 def _line_conic(Ql: np.ndarray, p0: np.ndarray, d: np.ndarray) -> tuple[float, float]:
@@ -143,11 +164,12 @@ def correct_centres(
     Returns ``(centres (N, 2) px, H (3, 3) board -> image from the final centres)``.
     """
     conics = np.asarray(conics, dtype=np.float64)
-    c = (np.array([conic_params(Q)[0] for Q in conics]) if init is None else np.asarray(init, np.float64).copy())
+    frames = _local_frames(conics)
+    c = frames[:, :2, 2].copy() if init is None else np.asarray(init, np.float64).copy()
     H = fit_homography(board_xy, c)
     for _ in range(max_iter):
         line = vanishing_line(H)
-        new = np.array([pole_centre(Q, line) for Q in conics])
+        new = pole_centres(conics, line, frames)
         step = np.max(np.abs(new - c))
         c = new
         H = fit_homography(board_xy, c)

@@ -2,13 +2,16 @@
 
 :func:`detect` runs, on one image:
 
-1. grey conversion and segmentation that survives uneven/strong/weak illumination (:mod:`circcal.edges`);
+1. grey conversion and segmentation that survives uneven/strong/weak illumination (:mod:`circcal.edges`), on a
+   half-resolution copy first for images of 720 px and more (full resolution when that fails or the dots are
+   small; only the starting ellipses come from it);
 2. candidate dots from contours, filtered by area (limits scaled to the image and the board's dot density),
    circularity, inertia ratio and convexity;
 3. grid recognition and ordering in OpenCV's object-point order with circcal's orientation rule
    (:mod:`circcal.grid`);
 4. sub-pixel edge points on each dot's boundary (half-level crossings along ellipse normals, corrected for edge
-   curvature) and a direct least-squares ellipse fit (:mod:`circcal.ellipse`);
+   curvature) and a direct least-squares ellipse fit (:mod:`circcal.ellipse`), for all dots at once
+   (:func:`fit_dots`: one smoothing of the board's window, one interpolation call, stacked 3x3 solves);
 5. projective centre correction: each centre is the pole of the board's vanishing line w.r.t. its ellipse, the
    homography re-estimated from the corrected centres until stable (:mod:`circcal.centre`). With a camera model
    the edge points are undistorted first, the correction runs in the undistorted image and the centres are
@@ -24,16 +27,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .board import Board
 from .centre import correct_centres
-from .edges import find_candidates, normalise_u8, segmentations, subpixel_edge_points, to_gray
-from .ellipse import conic_params, fit_ellipse_direct
+from .edges import (Candidate, SmoothedImage, _masked_median, as_gray, find_candidates, normalise_u8,
+                    segmentations, subpixel_edge_points_batch)
+from .ellipse import FIT_ERRORS, conic_from_params, conic_params_batch, fit_ellipses_direct
 from .grid import order_grid
 from .model import Camera, distort_pixels, undistort_pixels
 
-__all__ = ["Detection", "detect", "recorrect", "detect_files", "fit_dot", "area_limits"]
+__all__ = ["Detection", "detect", "recorrect", "detect_files", "fit_dot", "fit_dots", "area_limits"]
 
 MIN_EDGE_POINTS = 10
 
@@ -79,14 +84,10 @@ def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
 
 
 EDGE_SIGMA = 1.5
-
-
-def _smoothing_sigma(Q: np.ndarray) -> float:
-    """Gaussian smoothing (px) for the edge profiles. 1.5 px makes the cubic interpolation of the pixel grid
-    accurate to ~1e-3 px even on unblurred (aliased) renders; measured best for dots of radius 7-30 px at tilts up
-    to 60 deg (smaller values leave interpolation error, larger ones curvature bias). With an optical blur of
-    ~1 px it is also near the noise-optimal (matched) smoothing."""
-    return EDGE_SIGMA
+"""Gaussian smoothing (px) for the edge profiles, one for all dots (so the board's window is smoothed once). 1.5 px
+makes the cubic interpolation of the pixel grid accurate to ~1e-3 px even on unblurred (aliased) renders; measured
+best for dots of radius 7-30 px at tilts up to 60 deg (smaller values leave interpolation error, larger ones
+curvature bias). With an optical blur of ~1 px it is also near the noise-optimal (matched) smoothing."""
 
 
 def fit_dot(gray: np.ndarray, Q0: np.ndarray, iterations: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -94,43 +95,131 @@ def fit_dot(gray: np.ndarray, Q0: np.ndarray, iterations: int = 2) -> tuple[np.n
 
     ``Q0``: a rough ellipse (e.g. from the contour). Edge points are re-measured along the normals of the latest
     fit ``iterations`` times; points further than 4 robust sigmas (and 0.1 px) from the fit are dropped.
-    Raises ``ValueError`` when the dot has too few measurable edge points.
+    Raises ``ValueError`` when the dot has too few measurable edge points. (One-dot form of :func:`fit_dots`.)
     """
-    Q = Q0
-    sigma = _smoothing_sigma(Q0)
-    pts = np.empty((0, 2))
+    pts, mask, Q, errors = fit_dots(gray, np.asarray(Q0, np.float64)[None], iterations)
+    if errors[0] is not None:
+        raise ValueError(errors[0])
+    return pts[0][mask[0]], Q[0]
+
+
+def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray, iterations: int = 2
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+    """:func:`fit_dot` for all dots at once (the detector's path): rough ellipses ``conics0`` (D, 3, 3).
+
+    ``gray``: (H, W) grey image, or a :class:`~circcal.edges.SmoothedImage` of it at :data:`EDGE_SIGMA` (reused
+    across calls). Returns ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points
+    are ``points[d][mask[d]]`` and ``conics[d]`` the ellipse fitted to exactly them; ``errors[d]`` is ``None`` or
+    why the dot could not be measured (then its points and conic are not meaningful).
+    """
+    src = gray if isinstance(gray, SmoothedImage) else SmoothedImage(gray, EDGE_SIGMA)
+    Q = np.asarray(conics0, np.float64).copy()
+    D = len(Q)
+    errors: list[str | None] = [None] * D
+    pts = np.zeros((D, 0, 2))
+    mask = np.zeros((D, 0), bool)
     for _ in range(iterations):
-        pts = subpixel_edge_points(gray, Q, sigma=sigma)
-        if len(pts) < MIN_EDGE_POINTS:
-            raise ValueError(f"only {len(pts)} sub-pixel edge points")
-        Q = fit_ellipse_direct(pts)
+        act = np.array([e is None for e in errors])
+        if not np.any(act):
+            break
+        ai = np.nonzero(act)[0]
+        p_a, m_a, err_a = subpixel_edge_points_batch(src, Q[ai])
+        if p_a.shape[1] != pts.shape[1]:
+            width = max(p_a.shape[1], pts.shape[1])
+            pts = np.concatenate([pts, np.zeros((D, width - pts.shape[1], 2))], axis=1)
+            mask = np.concatenate([mask, np.zeros((D, width - mask.shape[1]), bool)], axis=1)
+        pts[ai] = 0.0
+        mask[ai] = False
+        pts[ai, :p_a.shape[1]] = p_a
+        mask[ai, :p_a.shape[1]] = m_a
+        cnt = mask.sum(axis=1)
+        for d, e in zip(ai, err_a):
+            if e is not None:
+                errors[d] = e
+            elif cnt[d] < MIN_EDGE_POINTS:
+                errors[d] = f"only {cnt[d]} sub-pixel edge points"
+        ai = np.array([d for d in ai if errors[d] is None], int)
+        if len(ai) == 0:
+            break
+        Qa, ferr = fit_ellipses_direct(pts[ai], mask[ai])
         # robust: Sampson distances, drop outliers once
-        h = np.column_stack([pts, np.ones(len(pts))])
-        g = 2.0 * (h @ Q)[:, :2]
-        d = np.einsum("ij,jk,ik->i", h, Q, h) / np.linalg.norm(g, axis=1)
-        s = 1.4826 * np.median(np.abs(d - np.median(d)))
-        keep = np.abs(d) <= max(4.0 * s, 0.1)
-        if not np.all(keep) and np.count_nonzero(keep) >= MIN_EDGE_POINTS:
-            pts = pts[keep]
-            Q = fit_ellipse_direct(pts)
-        sigma = _smoothing_sigma(Q)
-    return pts, Q
+        h = np.concatenate([pts[ai], np.ones((len(ai), pts.shape[1], 1))], axis=2)
+        hQ = h @ Qa
+        g = 2.0 * hQ[..., :2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dist = np.sum(hQ * h, axis=2) / np.linalg.norm(g, axis=2)
+        m = mask[ai] & (ferr == 0)[:, None]
+        med = _masked_median(np.where(m, dist, 0.0), m)
+        sdev = 1.4826 * _masked_median(np.where(m, np.abs(dist - med[:, None]), 0.0), m)
+        with np.errstate(invalid="ignore"):
+            keep = m & (np.abs(dist) <= np.maximum(4.0 * sdev, 0.1)[:, None])
+        nk = keep.sum(axis=1)
+        refit = (ferr == 0) & (nk < m.sum(axis=1)) & (nk >= MIN_EDGE_POINTS)
+        if np.any(refit):
+            ri = ai[refit]
+            Qr, rerr = fit_ellipses_direct(pts[ri], keep[refit])
+            mask[ri] = keep[refit]
+            Qa[refit] = Qr
+            ferr = ferr.copy()
+            ferr[refit] = rerr
+        for j, d in enumerate(ai):
+            if ferr[j]:
+                errors[d] = FIT_ERRORS[int(ferr[j])]
+        Q[ai] = Qa
+    return pts, mask, Q, errors
 
 
-def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centres (N, 2) in the observed image, conics (N, 3, 3) in the undistorted image, H board -> undistorted."""
+def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
+             conics: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (N, 2) in the observed image, conics (N, 3, 3) in the undistorted image, H board -> undistorted.
+    ``conics``: the ellipses already fitted to ``edge_points`` (distorted image), reused when there is no
+    distortion to remove."""
     obj = board.object_points()[:, :2]
-    if camera is not None and np.any(camera.dist):
-        und = [undistort_pixels(p, camera) for p in edge_points]
-        und = [p[np.all(np.isfinite(p), axis=1)] for p in und]
-    else:
-        und = edge_points
-    conics = np.array([fit_ellipse_direct(p) for p in und])
+    distorted = camera is not None and np.any(camera.dist)
+    if conics is None or distorted:
+        counts = [len(p) for p in edge_points]
+        width = max(counts) if counts else 0
+        P = np.zeros((len(edge_points), width, 2))
+        M = np.zeros((len(edge_points), width), bool)
+        for i, p in enumerate(edge_points):
+            P[i, :len(p)] = p
+            M[i, :len(p)] = True
+        if distorted:
+            P[M] = undistort_pixels(P[M], camera)
+            M &= np.all(np.isfinite(P), axis=2)
+        conics, err = fit_ellipses_direct(P, M)
+        if np.any(err):
+            i = int(np.argmax(err != 0))
+            msg = FIT_ERRORS[int(err[i])]
+            raise ValueError(f"{msg}, got {int(M[i].sum())}" if err[i] == 1 else msg)
     centres, H = correct_centres(conics, obj)
-    if camera is not None and np.any(camera.dist):
+    if distorted:
         centres = distort_pixels(centres, camera)
     return centres, conics, H
+
+
+HALF_RES_MIN_SIDE = 720
+HALF_RES_MIN_RADIUS = 6.0
+
+
+def _segmentation_scales(height: int, width: int) -> tuple[int, ...]:
+    """Image scales (1 = full, 2 = half) to segment at, in order. Images with a shorter side of at least
+    :data:`HALF_RES_MIN_SIDE` px are segmented at half resolution first (4x fewer pixels to filter; the edges are
+    always measured at full resolution, starting from these contours); full resolution is the fallback, and is used
+    as well when the grid's dots are smaller than :data:`HALF_RES_MIN_RADIUS` px. Only the starting ellipses differ
+    between the two: on the fixtures the centres move by ~1e-4 px (up to ~1e-2 px on strongly blurred images, where
+    the two-pass refinement still depends slightly on its start), with the same accuracy against the truth. Setting
+    ``HALF_RES_MIN_SIDE`` above any image size restores full-resolution segmentation everywhere."""
+    return (2, 1) if min(height, width) >= HALF_RES_MIN_SIDE else (1,)
+
+
+def _upscaled(c: Candidate, scale: int) -> Candidate:
+    """A candidate found on an image shrunk ``scale`` x (pixel-area averaging) in full-image pixels. The contour
+    runs through the centres of the blob's boundary pixels, ~half a pixel inside its edge at either scale: the axes
+    get the difference back, so the starting ellipse is as close to the edge as one found at full resolution."""
+    off = 0.5 * (scale - 1)
+    return Candidate(c.center * scale + off, (c.axes[0] * scale + off, c.axes[1] * scale + off), c.angle,
+                     c.area * scale ** 2)
 
 
 def _check_camera(camera: Camera | None, width: int, height: int) -> None:
@@ -146,7 +235,7 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
     there (``found=False`` with a reason); raises ``ValueError`` for unusable input (wrong shape/dtype, camera for
     another image size).
     """
-    gray = to_gray(image)
+    gray = as_gray(image)
     Hh, W = gray.shape
     _check_camera(camera, W, Hh)
     if board.layout == "checkerboard":
@@ -156,36 +245,45 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
     best = 0
     order = cands = None
     seg_name = None
-    for name, mask in segmentations(u8):
-        cs = find_candidates(mask, min_area=min_area, max_area=max_area)
-        best = max(best, len(cs))
-        if len(cs) < board.n_points:
-            continue
-        pts = np.array([c.center for c in cs])
-        radii = np.array([np.sqrt(c.axes[0] * c.axes[1]) for c in cs])
-        order = order_grid(board, pts, radii, (Hh, W))
+    for scale in _segmentation_scales(Hh, W):
+        img = u8 if scale == 1 else cv2.resize(u8[:Hh // 2 * 2, :W // 2 * 2], (W // 2, Hh // 2),
+                                               interpolation=cv2.INTER_AREA)
+        for name, mask in segmentations(img):
+            cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
+            best = max(best, len(cs))
+            if len(cs) < board.n_points:
+                continue
+            if scale != 1:
+                cs = [_upscaled(c, scale) for c in cs]
+            pts = np.array([c.center for c in cs])
+            radii = np.array([np.sqrt(c.axes[0] * c.axes[1]) for c in cs])
+            order = order_grid(board, pts, radii, (Hh, W))
+            if order is not None and scale != 1 and np.min(radii[order]) < HALF_RES_MIN_RADIUS:
+                order = None  # small dots: their contours are worth the full resolution
+                break
+            if order is not None:
+                cands, seg_name = cs, name if scale == 1 else f"{name}@1/{scale}"
+                break
         if order is not None:
-            cands, seg_name = cs, name
             break
     if order is None:
         return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not found: at most {best} "
                                       f"candidate dots, {board.n_points} needed" if best < board.n_points else
                          f"grid {board.rows}x{board.cols} ({board.layout}) not recognised among {best} candidate "
                          f"dots", image_size=(W, Hh))
-    edge_points = []
-    for k, i in enumerate(order):
-        try:
-            pts, _ = fit_dot(gray, cands[i].conic)
-        except ValueError as exc:
-            return Detection(False, None, f"dot {k} of the grid: {exc}", image_size=(W, Hh),
+    Q0 = np.array([conic_from_params(cands[i].center, cands[i].axes, cands[i].angle) for i in order])
+    pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
+    for k, e in enumerate(errors):
+        if e is not None:
+            return Detection(False, None, f"dot {k} of the grid: {e}", image_size=(W, Hh),
                              candidates=np.array([c.center for c in cands]))
-        edge_points.append(pts)
+    edge_points = [pts[k][mask[k]] for k in range(len(order))]
     try:
-        centres, conics, H = _correct(edge_points, board, camera)
+        centres, conics, H = _correct(edge_points, board, camera, conics_d)
     except ValueError as exc:
         return Detection(False, None, f"centre correction failed: {exc}", edge_points=edge_points,
                          image_size=(W, Hh))
-    ell_c = np.array([conic_params(fit_ellipse_direct(p))[0] for p in edge_points])
+    ell_c = conic_params_batch(conics_d)[0]
     return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centers=ell_c,
                      homography=H, candidates=np.array([c.center for c in cands]), image_size=(W, Hh),
                      segmentation=seg_name)

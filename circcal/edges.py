@@ -4,8 +4,8 @@ Pipeline pieces used by :mod:`circcal.detect`:
 
 * :func:`to_gray` -- any uint8/uint16/float, grey or BGR(A) image -> float64 grey, linear in the input values.
 * :func:`segmentations` -- binary masks (255 = dark) that survive uneven, strong and weak illumination: Otsu on an
-  edge-preserving denoised image (``cv2.ximgproc.guidedFilter``), then local (adaptive-mean) thresholds at window
-  sizes scaled to the image.
+  edge-preserving denoised image (self-guided filter, :func:`guided_filter`), then local (adaptive-mean) thresholds
+  at window sizes scaled to the image.
 * :func:`find_candidates` -- outer contours filtered by area (limits scaled to image and grid size), circularity
   ``4 pi S / P^2``, inertia ratio and convexity ``S / hull area``.
 * :func:`subpixel_edge_points` -- sub-pixel boundary points of one dot: along the normals of a current ellipse the
@@ -15,6 +15,12 @@ Pipeline pieces used by :mod:`circcal.detect`:
   this crossing is the edge itself (and it is where the gradient magnitude along the normal peaks); with a
   smoothing scale matched to the edge width it is the efficient (Cramer-Rao) estimator of the edge position, which
   the gradient-peak location is not (``method="gradient"`` gives the gradient-peak variant).
+
+All dots are measured at once (:func:`subpixel_edge_points_batch`): one Gaussian smoothing and one spline
+prefilter of the window holding the dots (:class:`SmoothedImage`), all profiles of all dots sampled in one
+``map_coordinates`` call (first only the samples near the current boundary, the rest of a profile only where no
+crossing is found there: the nearest crossing is the same), the levels of all dots estimated together.
+:func:`subpixel_edge_points` is the one-dot form.
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
@@ -26,10 +32,11 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .ellipse import conic_from_params, conic_params, ellipse_normals, sample_ellipse
+from .ellipse import conic_from_params, conic_params_batch
 
-__all__ = ["Candidate", "to_gray", "normalise_u8", "segmentations", "find_candidates", "subpixel_edge_points",
-           "dot_levels"]
+__all__ = ["Candidate", "to_gray", "as_gray", "normalise_u8", "segmentations", "find_candidates",
+           "subpixel_edge_points", "subpixel_edge_points_batch", "SmoothedImage", "dot_levels", "dot_levels_batch",
+           "guided_filter"]
 
 
 @dataclass
@@ -47,9 +54,10 @@ class Candidate:
         return conic_from_params(self.center, self.axes, self.angle)
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) float64 grey, same scale as
-    the input values. Raises ``ValueError`` for other shapes or dtypes."""
+def as_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) grey in its own dtype (colour
+    converted by ``cv2.cvtColor``; float64 colour via float32 as in :func:`to_gray`). Raises ``ValueError`` for other
+    shapes or dtypes, and for NaN/inf."""
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
@@ -64,19 +72,30 @@ def to_gray(image: np.ndarray) -> np.ndarray:
         raise ValueError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
     if min(img.shape) < 8:
         raise ValueError(f"image too small: {img.shape[1]}x{img.shape[0]}")
-    out = img.astype(np.float64)
-    if not np.all(np.isfinite(out)):
+    if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
         raise ValueError("image contains NaN or inf")
-    return out
+    return img
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) float64 grey, same scale as
+    the input values. Raises ``ValueError`` for other shapes or dtypes."""
+    return as_gray(image).astype(np.float64)
 
 
 def normalise_u8(gray: np.ndarray) -> np.ndarray:
-    """Stretch the 0.5-99.5 percentile range of ``gray`` to uint8 (for thresholding only)."""
+    """Stretch the 0.5-99.5 percentile range of ``gray`` (H, W) to uint8 (for thresholding only). Integer images
+    (uint8/uint16, e.g. from :func:`as_gray`) go through a lookup table of the same formula (identical result)."""
     sub = gray[::4, ::4] if gray.size > 400_000 else gray
-    lo, hi = np.percentile(sub, [0.5, 99.5])
+    lo, hi = np.percentile(sub if sub.dtype in (np.uint8, np.uint16) else sub.astype(np.float64), [0.5, 99.5])
     if hi <= lo:
         hi = lo + 1e-9
-    return np.clip((gray - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    scale = 255.0 / (hi - lo)
+    if gray.dtype in (np.uint8, np.uint16):
+        lut = np.clip((np.arange(np.iinfo(gray.dtype).max + 1, dtype=np.float64) - lo) * scale, 0, 255)
+        lut = lut.astype(np.uint8)
+        return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
+    return np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
 
 
 def _odd(n: float) -> int:
@@ -92,19 +111,23 @@ def segmentations(gray_u8: np.ndarray):
        shadows, weak contrast); the offset is 8% of the global contrast.
     """
     H, W = gray_u8.shape
-    g = gray_u8.astype(np.float32) / 255.0
     radius = max(2, int(round(min(H, W) / 400)))
-    try:
-        filt = cv2.ximgproc.guidedFilter(g, g, radius, 0.02 ** 2)
-    except AttributeError:  # opencv without contrib: a bilateral filter is the nearest edge-preserving denoise
-        filt = cv2.bilateralFilter(g, 2 * radius + 1, 0.1, radius)
-    f8 = np.clip(filt * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    f8 = guided_filter(gray_u8, radius, 0.02 ** 2)
     _, otsu = cv2.threshold(f8, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
     yield "otsu", otsu
     for frac in (8.0, 3.0, 16.0):
         block = _odd(min(H, W) / frac)
         yield f"adaptive{block}", cv2.adaptiveThreshold(f8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
                                                         block, 255 * 0.08)
+
+
+def guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """Self-guided filter (He, Sun & Tang 2013) of a uint8 image: ``cv2.ximgproc.guidedFilter(g, g, radius, eps)``
+    on ``g = gray_u8 / 255`` (``eps`` in units of the [0, 1] intensity range), rounded back to uint8.
+    The edge-preserving denoise the paper uses before segmentation; OpenCV's implementation, not ours."""
+    g = gray_u8.astype(np.float32) * np.float32(1.0 / 255.0)
+    out = cv2.ximgproc.guidedFilter(g, g, int(radius), float(eps))
+    return cv2.convertScaleAbs(out, alpha=255.0)
 
 
 def find_candidates(
@@ -155,47 +178,236 @@ def find_candidates(
     return out
 
 
+def _segment_median(vals: np.ndarray, seg: np.ndarray, nseg: int) -> np.ndarray:
+    """(nseg,) median of ``vals[seg == k]`` for each k (as ``np.median``: the mean of the two middle values for an
+    even count; NaN for an empty segment). ``seg`` (M,) int must be sorted ascending (as ``np.nonzero`` gives)."""
+    m = np.bincount(seg, minlength=nseg)
+    width = int(max(1, m.max(initial=0)))
+    packed = np.full((nseg, width), np.inf)
+    start = np.cumsum(m) - m
+    packed.reshape(-1)[seg * width + (np.arange(len(seg)) - start[seg])] = vals
+    packed.sort(axis=1)
+    rows = np.arange(nseg)
+    lo = np.clip((m - 1) // 2, 0, width - 1)
+    hi = np.clip(m // 2, 0, width - 1)
+    out = 0.5 * (packed[rows, lo] + packed[rows, hi])
+    return np.where(m > 0, out, np.nan)
+
+
+def _masked_median(vals: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(D,) median of ``vals[d][mask[d]]`` per row of (D, P) arrays (NaN for an empty row)."""
+    f = np.flatnonzero(mask)
+    P = mask.shape[1] if mask.ndim == 2 else 1
+    return _segment_median(vals.reshape(-1)[f], f // max(P, 1), mask.shape[0])
+
+
+class SmoothedImage:
+    """A grey image (H, W) and, over a window grown on demand, its Gaussian smoothing (``sigma`` px, reflected
+    borders) as cubic B-spline coefficients (mirror boundary), for sampling edge profiles.
+
+    The window keeps a margin of :attr:`MARGIN` px around every requested box (or reaches the image border), so
+    samples inside a requested box equal those of smoothing the whole image (the Gaussian support is ``4 sigma`` and
+    the spline prefilter's influence decays by 0.27 per pixel). ``gray`` may be any real dtype; it is converted to
+    float64 window by window.
+    """
+
+    MARGIN = 24
+    SLACK = 8
+
+    def __init__(self, gray: np.ndarray, sigma: float):
+        self.gray = gray
+        self.sigma = float(sigma)
+        self.box: tuple[int, int, int, int] | None = None  # x0, y0, x1, y1 (exclusive) of the coefficients
+        self.coef: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.gray.shape
+
+    def ensure(self, x0: int, y0: int, x1: int, y1: int) -> None:
+        """Make the coefficients cover the box [x0, x1) x [y0, y1) px with the margin (clipped to the image)."""
+        H, W = self.gray.shape
+        m = self.MARGIN
+        need = (max(0, x0 - m), max(0, y0 - m), min(W, x1 + m), min(H, y1 + m))
+        if self.box is not None:
+            b = self.box
+            if b[0] <= need[0] and b[1] <= need[1] and b[2] >= need[2] and b[3] >= need[3]:
+                return
+            need = (min(b[0], need[0]), min(b[1], need[1]), max(b[2], need[2]), max(b[3], need[3]))
+        # a little more than needed, so the slightly moved boxes of the next pass fit without recomputing
+        sl = self.SLACK
+        bx0, by0, bx1, by1 = max(0, need[0] - sl), max(0, need[1] - sl), min(W, need[2] + sl), min(H, need[3] + sl)
+        roi = np.ascontiguousarray(self.gray[by0:by1, bx0:bx1], dtype=np.float64)
+        s = self.sigma
+        smooth = cv2.GaussianBlur(roi, (0, 0), s, borderType=cv2.BORDER_REFLECT) if s > 0 else roi
+        self.coef = ndimage.spline_filter(smooth, order=3, mode="mirror")
+        self.box = (bx0, by0, bx1, by1)
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Smoothed image at points (x, y) (1-D arrays, px, inside the current window), cubic spline."""
+        assert self.coef is not None
+        coords = np.stack([np.asarray(y, np.float64) - self.box[1], np.asarray(x, np.float64) - self.box[0]])
+        return ndimage.map_coordinates(self.coef, coords, order=3, mode="mirror", prefilter=False)
+
+
+def _roi_boxes(c: np.ndarray, axes: np.ndarray, sigma: float, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """Per-dot half profile length ``hw`` (D,) and ROI boxes x0, y0, x1, y1 (D,) int, clipped to the image."""
+    H, W = shape
+    a, b = axes[:, 0], axes[:, 1]
+    hw = np.minimum(3.0, np.maximum(1.0, 0.8 * b))
+    pad = hw + 3.0 * sigma + 4.0
+    x0 = np.maximum(0, np.floor(c[:, 0] - a - pad)).astype(int)
+    x1 = np.minimum(W, np.ceil(c[:, 0] + a + pad).astype(int) + 1)
+    y0 = np.maximum(0, np.floor(c[:, 1] - a - pad)).astype(int)
+    y1 = np.minimum(H, np.ceil(c[:, 1] + a + pad).astype(int) + 1)
+    return hw, x0, y0, x1, y1
+
+
 def dot_levels(img: np.ndarray, Q: np.ndarray, origin: tuple[int, int], edge_px: float = 2.0
                ) -> tuple[float, np.ndarray] | None:
     """Dark level inside a dot and the bright level around it as a plane.
 
     ``img``: ROI (h, w) float; ``Q``: the dot's ellipse in full-image pixels; ``origin``: (x0, y0) of the ROI.
     Returns ``(dark, plane)`` with ``plane`` (3,) so that bright(x, y) = plane @ (x, y, 1) in full-image pixels,
-    or ``None`` when there are not enough pixels.
+    or ``None`` when there are not enough pixels. (One-dot form of :func:`dot_levels_batch`.)
     """
-    c, (a, b), ang = conic_params(Q)
     h, w = img.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    xx = xx + origin[0]
-    yy = yy + origin[1]
-    dx, dy = xx - c[0], yy - c[1]
+    x0, y0 = origin
+    box = np.array([[x0, y0, x0 + w, y0 + h]])
+    full = np.zeros((y0 + h, x0 + w))
+    full[y0:, x0:] = img
+    dark, plane, ok = dot_levels_batch(full, np.asarray(Q, np.float64)[None], box, edge_px)
+    return (float(dark[0]), plane[0]) if ok[0] else None
+
+
+def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, edge_px: float = 2.0
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dark level inside each dot and the bright level around it as a plane, for all dots at once.
+
+    ``gray``: (H, W) image; ``conics``: (D, 3, 3) ellipses (px); ``boxes``: (D, 4) int ROIs ``x0, y0, x1, y1``
+    (exclusive ends) whose pixels are used. Dark: median inside the ellipse shrunk by ``edge_px`` (the 3 pixels
+    nearest the centre for tiny dots); bright: plane fitted (least squares, refitted once without >4 robust-sigma
+    residuals) to the ring ``edge_px`` .. ``edge_px + max(2, b/2)`` px outside, keeping only pixels brighter than
+    halfway between the dark level and the ring median (drops neighbouring dots). Returns ``(dark (D,),
+    plane (D, 3), ok (D,) bool)``: bright(x, y) = plane @ (x, y, 1) in image pixels; ``ok`` false where the ring has
+    too few pixels.
+    """
+    conics = np.asarray(conics, np.float64)
+    D = len(conics)
+    c, axes, ang, okc = conic_params_batch(conics)
+    boxes = np.asarray(boxes, int).reshape(D, 4)
+    dark = np.full(D, np.nan)
+    plane = np.full((D, 3), np.nan)
+    ok = np.zeros(D, bool)
+    if D == 0:
+        return dark, plane, ok
+    bw = np.maximum(boxes[:, 2] - boxes[:, 0], 0)
+    bh = np.maximum(boxes[:, 3] - boxes[:, 1], 0)
+    Wm, Hm = int(max(1, bw.max())), int(max(1, bh.max()))
+    # pixel values of each ROI (padded); coordinates NaN outside a ROI so no mask below selects them
+    vals = np.zeros((D, Hm, Wm))
+    for d in np.nonzero(okc)[0]:
+        x0, y0, x1, y1 = boxes[d]
+        vals[d, :bh[d], :bw[d]] = gray[y0:y1, x0:x1]
+    jj = np.arange(Wm, dtype=np.float64)
+    ii = np.arange(Hm, dtype=np.float64)
+    xs = np.where(jj[None, :] < bw[:, None], boxes[:, 0:1] + jj[None, :], np.nan)   # (D, Wm)
+    ys = np.where(ii[None, :] < bh[:, None], boxes[:, 1:2] + ii[None, :], np.nan)   # (D, Hm)
+    xs[~okc] = np.nan
+    # normalised radius rho (1 on the ellipse) from the separable quadratic form
+    # rho^2 = A dx^2 + B dx dy + C dy^2 (3 operations per pixel)
+    a, b = axes[:, 0], axes[:, 1]
     ca, sa = np.cos(ang), np.sin(ang)
-    u = (ca * dx + sa * dy) / a
-    v = (-sa * dx + ca * dy) / b
-    rho = np.sqrt(u * u + v * v)
-    inner = rho < 1.0 - edge_px / b
-    vals_in = img[inner]
-    if vals_in.size < 3:
-        order = np.argsort(rho, axis=None)[:3]
-        vals_in = img.ravel()[order]
-    dark = float(np.median(vals_in))
-    ring = (rho > 1.0 + edge_px / b) & (rho < 1.0 + (edge_px + max(2.0, 0.5 * b)) / b)
-    if np.count_nonzero(ring) < 8:
-        return None
-    vals = img[ring]
-    xs, ys = xx[ring].astype(np.float64), yy[ring].astype(np.float64)
-    mid = 0.5 * (dark + np.median(vals))
-    keep = vals > mid  # drop neighbouring dots and dark clutter in the ring
-    if np.count_nonzero(keep) < 6:
-        return None
-    A = np.column_stack([xs[keep], ys[keep], np.ones(np.count_nonzero(keep))])
-    plane, *_ = np.linalg.lstsq(A, vals[keep], rcond=None)
-    res = vals[keep] - A @ plane
-    s = 1.4826 * np.median(np.abs(res)) + 1e-12
-    ok = np.abs(res) < 4 * s
-    if np.count_nonzero(ok) >= 6 and not np.all(ok):
-        plane, *_ = np.linalg.lstsq(A[ok], vals[keep][ok], rcond=None)
-    return dark, plane
+    ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
+    qa = ca * ca * ia2 + sa * sa * ib2
+    qb = 2.0 * ca * sa * (ia2 - ib2)
+    qc = sa * sa * ia2 + ca * ca * ib2
+    dx = xs - c[:, 0:1]
+    dy = ys - c[:, 1:2]
+    with np.errstate(invalid="ignore"):
+        rho2 = (qb[:, None] * dx)[:, None, :] * dy[:, :, None]
+        rho2 += (qa[:, None] * dx * dx)[:, None, :]
+        rho2 += (qc[:, None] * dy * dy)[:, :, None]
+        t_in = 1.0 - edge_px / b
+        t_in = np.where(t_in > 0, t_in * t_in, -1.0)
+        t_lo = (1.0 + edge_px / b) ** 2
+        t_hi = (1.0 + (edge_px + np.maximum(2.0, 0.5 * b)) / b) ** 2
+        inner = rho2 < t_in[:, None, None]
+        ring = (rho2 > t_lo[:, None, None]) & (rho2 < t_hi[:, None, None])
+    inner = inner.reshape(-1)
+    ring = ring.reshape(-1)
+    vflat = vals.reshape(-1)
+    P = Hm * Wm
+    # the inner pixels' values per dot (flat, grouped by dot)
+    fi = np.flatnonzero(inner)
+    idd = fi // P
+    n_in = np.bincount(idd, minlength=D)
+    dk = _segment_median(vflat[fi], idd, D)
+    for d in np.nonzero((n_in < 3) & okc)[0]:  # tiny dot: the 3 pixels nearest the centre (as argsort of the ROI)
+        r2 = rho2[d, :bh[d], :bw[d]]
+        v2 = vals[d, :bh[d], :bw[d]]
+        dk[d] = float(np.median(v2.ravel()[np.argsort(r2, axis=None)[:3]]))
+    # the ring's pixels (flat, grouped by dot), coordinates centred on the dot (conditioning of the plane fit)
+    fr = np.flatnonzero(ring)
+    rd = fr // P
+    rem = fr - rd * P
+    ri = rem // Wm
+    rv = vflat[fr]
+    rx = (boxes[rd, 0] + (rem - ri * Wm)) - c[rd, 0]
+    ry = (boxes[rd, 1] + ri) - c[rd, 1]
+    n_ring = np.bincount(rd, minlength=D)
+    mid = 0.5 * (dk + _segment_median(rv, rd, D))
+    keep = rv > mid[rd]
+    n_keep = np.bincount(rd[keep], minlength=D)
+    good = okc & (n_ring >= 8) & (n_keep >= 6)
+
+    seg_start = np.cumsum(n_ring) - n_ring
+    has = n_ring > 0
+
+    def fit(wmask):
+        # the normal equations' sums per dot, over contiguous segments of the flat ring arrays
+        rows = np.empty((9, len(rv)))
+        w = rows[5]
+        w[:] = wmask
+        wx, wy = np.multiply(w, rx, out=rows[2]), np.multiply(w, ry, out=rows[4])
+        np.multiply(wx, rx, out=rows[0])
+        np.multiply(wx, ry, out=rows[1])
+        np.multiply(wy, ry, out=rows[3])
+        np.multiply(wx, rv, out=rows[6])
+        np.multiply(wy, rv, out=rows[7])
+        np.multiply(w, rv, out=rows[8])
+        sums = np.zeros((9, D))
+        if rows.shape[1]:
+            sums[:, has] = np.add.reduceat(rows, seg_start[has], axis=1)
+        sxx, sxy, sx, syy, sy, s1, sxv, syv, sv = sums
+        AtA = np.stack([np.stack([sxx, sxy, sx], 1), np.stack([sxy, syy, sy], 1), np.stack([sx, sy, s1], 1)], 1)
+        Atb = np.stack([sxv, syv, sv], axis=1)
+        AtA[~good] = np.eye(3)
+        return np.linalg.solve(AtA, Atb[..., None])[..., 0]
+
+    p = fit(keep)
+    res = np.abs(rv - (p[rd, 0] * rx + p[rd, 1] * ry + p[rd, 2]))
+    s = 1.4826 * _segment_median(res[keep], rd[keep], D) + 1e-12
+    okr = keep & (res < 4 * s[rd])
+    n_ok = np.bincount(rd[okr], minlength=D)
+    refit = good & (n_ok >= 6) & (n_ok < n_keep)
+    if np.any(refit):
+        p = np.where(refit[:, None], fit(np.where(refit[rd], okr, keep)), p)
+    dark[good] = dk[good]
+    plane[good] = np.stack([p[:, 0], p[:, 1], p[:, 2] - p[:, 0] * c[:, 0] - p[:, 1] * c[:, 1]], axis=1)[good]
+    ok[good] = True
+    return dark, plane, ok
+
+
+_S_CACHE: dict[tuple[float, float], np.ndarray] = {}
+
+
+def _profile_offsets(hw: float, step: float) -> np.ndarray:
+    key = (float(hw), float(step))
+    s = _S_CACHE.get(key)
+    if s is None:
+        s = _S_CACHE[key] = np.arange(-hw, hw + 1e-9, step)
+    return s
 
 
 def subpixel_edge_points(
@@ -217,81 +429,205 @@ def subpixel_edge_points(
     the exact shift of the half-level contour of a blurred disk with the ellipse's local radius of curvature (the
     level set of a blurred convex shape lies inside it by ~ sigma_t^2 / (2 rho)), sigma_t measured from the edge
     slope. Returns (M, 2) px; profiles without a clear edge are dropped (M may be small;
-    the caller decides).
+    the caller decides). One-dot form of :func:`subpixel_edge_points_batch`.
     """
-    c, (a, b), _ = conic_params(Q)
-    H, W = img.shape
-    hw = min(3.0, max(1.0, 0.8 * b))
-    pad = hw + 3.0 * sigma + 4.0
-    x0 = max(0, int(np.floor(c[0] - a - pad)))
-    x1 = min(W, int(np.ceil(c[0] + a + pad)) + 1)
-    y0 = max(0, int(np.floor(c[1] - a - pad)))
-    y1 = min(H, int(np.ceil(c[1] + a + pad)) + 1)
-    roi = np.ascontiguousarray(img[y0:y1, x0:x1], dtype=np.float64)
-    if roi.shape[0] < 4 or roi.shape[1] < 4:
-        return np.empty((0, 2))
-    smooth = cv2.GaussianBlur(roi, (0, 0), sigma, borderType=cv2.BORDER_REFLECT) if sigma > 0 else roi
-    coef = ndimage.spline_filter(smooth, order=3, mode="mirror")
-    # one profile per `spacing` px of perimeter (Ramanujan's approximation)
-    hab = ((a - b) / (a + b)) ** 2
-    perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-    n = int(max(24, np.ceil(perim / spacing)))
-    base = sample_ellipse(Q, n)
-    nrm = ellipse_normals(Q, base)
-    s = np.arange(-hw, hw + 1e-9, step)
-    pts = base[:, None, :] + s[None, :, None] * nrm[:, None, :]  # (n, k, 2)
-    inside = ((pts[..., 0] >= x0 + 1) & (pts[..., 0] <= x1 - 2) & (pts[..., 1] >= y0 + 1)
-              & (pts[..., 1] <= y1 - 2)).all(axis=1)
-    coords = np.stack([pts[..., 1] - y0, pts[..., 0] - x0])
-    prof = ndimage.map_coordinates(coef, coords.reshape(2, -1), order=3, mode="mirror", prefilter=False)
-    prof = prof.reshape(n, len(s))
-    if method == "level":
-        lv = dot_levels(roi, Q, (x0, y0))
-        if lv is None:
-            return np.empty((0, 2))
-        dark, plane = lv
-        bright_c = plane @ np.array([c[0], c[1], 1.0])
-        if not bright_c > dark:
-            return np.empty((0, 2))
-        ratio = dark / bright_c
-        half = (pts[..., 0] * plane[0] + pts[..., 1] * plane[1] + plane[2]) * (0.5 * (1.0 + ratio))
-        f = prof - half
-        up = (f[:, :-1] < 0) & (f[:, 1:] >= 0)
-        # the crossing nearest to the current boundary
-        dist = np.abs(0.5 * (s[:-1] + s[1:]))[None, :]
-        score = np.where(up, dist, np.inf)
-        k = np.argmin(score, axis=1)
-        ok = np.isfinite(score[np.arange(n), k]) & inside
-        fa = f[np.arange(n), k]
-        fb = f[np.arange(n), k + 1]
-        t = fa / (fa - fb)
-        off = s[k] + t * step
-        if curvature_correction:
-            # edge width from the slope at the crossing: a Gaussian-blurred step of height A has slope
-            # A / (sqrt(2 pi) sigma_t); the pixel box (variance 1/12) and our smoothing set a lower bound.
-            span = (pts[ok, k[ok], 0] * plane[0] + pts[ok, k[ok], 1] * plane[1] + plane[2]) * (1.0 - ratio)
-            slope = (fb[ok] - fa[ok]) / step
-            with np.errstate(divide="ignore", invalid="ignore"):
-                st = span / (np.sqrt(2.0 * np.pi) * slope)
-            st = st[np.isfinite(st) & (st > 0)]
-            nominal = np.sqrt(sigma * sigma + 1.0 / 12.0)
-            sigma_t = max(nominal, float(np.median(st))) if st.size else nominal
-            off = off + _curvature_shift(Q, base, sigma_t)
-    elif method == "gradient":
-        d = np.gradient(prof, step, axis=1)
-        k = np.clip(np.argmax(d[:, 1:-1], axis=1) + 1, 1, len(s) - 2)
-        r = np.arange(n)
-        dm, d0, dp = d[r, k - 1], d[r, k], d[r, k + 1]
-        ok = inside & (dm > 0) & (d0 > 0) & (dp > 0) & (d0 >= dm) & (d0 >= dp)
-        lm, l0, lp = (np.log(np.maximum(v, 1e-300)) for v in (dm, d0, dp))
-        den = lm - 2 * l0 + lp
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(den < 0, 0.5 * (lm - lp) / den, 0.0)
-        ok &= np.abs(frac) <= 1.0
-        off = s[k] + frac * step
-    else:
+    if method not in ("level", "gradient"):
         raise ValueError(f"unknown edge method {method!r}; expected 'level' or 'gradient'")
-    return base[ok] + off[ok, None] * nrm[ok]
+    pts, mask, err = subpixel_edge_points_batch(SmoothedImage(img, sigma), np.asarray(Q, np.float64)[None],
+                                                spacing=spacing, step=step, method=method,
+                                                curvature_correction=curvature_correction)
+    if err[0] == "conic is not a real ellipse":
+        raise ValueError(err[0])
+    return pts[0][mask[0]]
+
+
+def subpixel_edge_points_batch(
+    src: SmoothedImage,
+    conics: np.ndarray,
+    *,
+    spacing: float = 1.0,
+    step: float = 0.2,
+    method: str = "level",
+    curvature_correction: bool = True,
+    windows: tuple[float, ...] = (0.3, 0.9),
+) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
+    """Sub-pixel boundary points of many dots at once: :func:`subpixel_edge_points` for each ellipse of
+    ``conics`` (D, 3, 3) on ``src`` (the image and its smoothing scale).
+
+    Each dot keeps its own region of interest (the pixels its levels come from and the box its profiles must stay
+    inside, as in the one-dot form). For the level method the samples within ``windows[0]`` px of the current
+    boundary are interpolated first; a profile is sampled further (to the next window, then whole) only while it has
+    no crossing yet: the crossing nearest to the boundary is the same as with the whole profile sampled.
+
+    Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
+    ``points[d][mask[d]]``; ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all.
+    """
+    if method not in ("level", "gradient"):
+        raise ValueError(f"unknown edge method {method!r}; expected 'level' or 'gradient'")
+    conics = np.asarray(conics, np.float64)
+    D = len(conics)
+    errors: list[str | None] = [None] * D
+    c, axes, ang, okc = conic_params_batch(conics)
+    for d in np.nonzero(~okc)[0]:
+        errors[d] = "conic is not a real ellipse"
+    sigma = src.sigma
+    H, W = src.shape
+    a_ = np.where(okc, axes[:, 0], 1.0)
+    b_ = np.where(okc, axes[:, 1], 1.0)
+    c = np.where(okc[:, None], c, 0.0)
+    ang = np.where(okc, ang, 0.0)
+    hw, x0, y0, x1, y1 = _roi_boxes(c, np.stack([a_, b_], 1), sigma, (H, W))
+    live = okc & (y1 - y0 >= 4) & (x1 - x0 >= 4)
+    if not np.any(live):
+        return np.zeros((D, 0, 2)), np.zeros((D, 0), bool), errors
+    # one profile per `spacing` px of perimeter (Ramanujan's approximation)
+    hab = ((a_ - b_) / (a_ + b_)) ** 2
+    perim = np.pi * (a_ + b_) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
+    n = np.maximum(24, np.ceil(perim / spacing)).astype(int)
+    n[~live] = 0
+    N = int(n.max())
+    jn = np.arange(N)
+    prof_ok = jn[None, :] < n[:, None]                                   # (D, N)
+    t = jn[None, :] * (2.0 * np.pi / np.maximum(n, 1))[:, None]
+    ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    ex = a_[:, None] * np.cos(t)
+    ey = b_[:, None] * np.sin(t)
+    base = np.stack([c[:, 0:1] + ca * ex - sa * ey, c[:, 1:2] + sa * ex + ca * ey], axis=2)  # (D, N, 2)
+    g = base @ conics[:, :2, :2].transpose(0, 2, 1) + conics[:, None, :2, 2]
+    g = np.where((conics[:, 0, 0] + conics[:, 1, 1] < 0)[:, None, None], -g, g)
+    nrm = g / np.linalg.norm(g, axis=2, keepdims=True)
+    # profile offsets (one array per distinct half length, as np.arange gives them)
+    svecs = [_profile_offsets(h, step) for h in hw]
+    K = max(len(v) for v in svecs)
+    S = np.full((D, K), np.nan)
+    for d, v in enumerate(svecs):
+        S[d, :len(v)] = v
+    klen = np.array([len(v) for v in svecs])
+    s_first = S[:, 0]
+    s_last = S[np.arange(D), klen - 1]
+    # profiles entirely inside the ROI (a segment is inside a box iff both its ends are)
+    inside = prof_ok.copy()
+    for sv in (s_first, s_last):
+        e = base + sv[:, None, None] * nrm
+        inside &= ((e[..., 0] >= (x0 + 1)[:, None]) & (e[..., 0] <= (x1 - 2)[:, None])
+                   & (e[..., 1] >= (y0 + 1)[:, None]) & (e[..., 1] <= (y1 - 2)[:, None]))
+    src.ensure(int(x0[live].min()), int(y0[live].min()), int(x1[live].max()), int(y1[live].max()))
+
+    def pts_at(sel_d, sel_j, sel_k):
+        s_ = S[sel_d, sel_k]
+        return (base[sel_d, sel_j, 0] + s_ * nrm[sel_d, sel_j, 0], base[sel_d, sel_j, 1] + s_ * nrm[sel_d, sel_j, 1])
+
+    if method == "gradient":
+        prof = np.full((D, N, K), np.nan)
+        sd, sj, sk = np.nonzero(live[:, None, None] & prof_ok[:, :, None] & (np.arange(K)[None, None, :] <
+                                                                             klen[:, None, None]))
+        px, py = pts_at(sd, sj, sk)
+        prof[sd, sj, sk] = src.sample(px, py)
+        ok = np.zeros((D, N), bool)
+        off = np.zeros((D, N))
+        for d in np.nonzero(live)[0]:  # np.gradient per dot (profiles of one dot share their offsets)
+            kk = klen[d]
+            pr = prof[d, :n[d], :kk]
+            dd = np.gradient(pr, step, axis=1)
+            k = np.clip(np.argmax(dd[:, 1:-1], axis=1) + 1, 1, kk - 2)
+            r = np.arange(n[d])
+            dm, d0, dp = dd[r, k - 1], dd[r, k], dd[r, k + 1]
+            okd = inside[d, :n[d]] & (dm > 0) & (d0 > 0) & (dp > 0) & (d0 >= dm) & (d0 >= dp)
+            lm, l0, lp = (np.log(np.maximum(v, 1e-300)) for v in (dm, d0, dp))
+            den = lm - 2 * l0 + lp
+            with np.errstate(divide="ignore", invalid="ignore"):
+                frac = np.where(den < 0, 0.5 * (lm - lp) / den, 0.0)
+            okd &= np.abs(frac) <= 1.0
+            ok[d, :n[d]] = okd
+            off[d, :n[d]] = S[d, k] + frac * step
+        return base + off[..., None] * nrm, ok, errors
+
+    # ---- level method
+    dark, plane, okl = dot_levels_batch(src.gray, conics, np.stack([x0, y0, x1, y1], 1))
+    bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
+    with np.errstate(invalid="ignore"):
+        okl &= live & (bright_c > dark)
+    ratio = np.where(okl, dark / np.where(okl, bright_c, 1.0), 0.0)
+    halfk = 0.5 * (1.0 + ratio)
+    F = np.full((D, N, K), np.nan)   # profile minus half level, filled where sampled
+    mid_dist = np.abs(0.5 * (S[:, :-1] + S[:, 1:]))  # (D, K-1), NaN past a profile's end
+    todo = okl[:, None] & inside
+
+    def fill(rows, cols):
+        """Sample profile (d, j) at offsets k for rows[d, j] and cols[d, k]."""
+        rd_, rj_ = np.nonzero(rows)
+        if len(rd_) == 0:
+            return
+        dots = np.unique(rd_)
+        ks = np.nonzero(cols[dots[0]])[0]
+        if np.all(cols[dots] == cols[dots[0]]) and np.all(S[dots][:, ks] == S[dots[0], ks]):
+            # the usual case: every dot has the same offsets; (profiles, offsets) as a dense block
+            if len(ks) == 0:
+                return
+            sv = S[dots[0], ks][None, :]
+            bx, by = base[rd_, rj_, 0][:, None], base[rd_, rj_, 1][:, None]
+            px = bx + sv * nrm[rd_, rj_, 0][:, None]
+            py = by + sv * nrm[rd_, rj_, 1][:, None]
+            prof = src.sample(px.ravel(), py.ravel()).reshape(px.shape)
+            half = (px * plane[rd_, 0:1] + py * plane[rd_, 1:2] + plane[rd_, 2:3]) * halfk[rd_, None]
+            F[rd_[:, None], rj_[:, None], ks[None, :]] = prof - half
+            return
+        sd, sj, sk = np.nonzero(rows[:, :, None] & cols[:, None, :])
+        px, py = pts_at(sd, sj, sk)
+        prof = src.sample(px, py)
+        half = (px * plane[sd, 0] + py * plane[sd, 1] + plane[sd, 2]) * halfk[sd]
+        F[sd, sj, sk] = prof - half
+
+    # the samples of the intervals within each window of the current boundary, widening only for the profiles
+    # without a crossing yet: intervals outside a window are all further than those inside, so the nearest
+    # crossing found inside one is the nearest of the whole profile
+    def crossings():
+        with np.errstate(invalid="ignore"):
+            up = (F[:, :, :-1] < 0) & (F[:, :, 1:] >= 0)
+        score = np.where(up, mid_dist[:, None, :], np.inf)
+        k = np.argmin(score, axis=2)
+        return k, np.isfinite(np.take_along_axis(score, k[..., None], axis=2)[..., 0])
+
+    found = np.zeros((D, N), bool)
+    k = np.zeros((D, N), int)
+    prev = np.zeros((D, K), bool)
+    in_prof = np.arange(K)[None, :] < klen[:, None]
+    for w in (*windows, np.inf):
+        with np.errstate(invalid="ignore"):
+            win_iv = mid_dist <= w                                       # (D, K-1)
+        win_s = np.zeros((D, K), bool)
+        win_s[:, :-1] |= win_iv
+        win_s[:, 1:] |= win_iv
+        win_s &= in_prof
+        rows = todo & ~found
+        if not np.any(rows):
+            break
+        fill(rows, win_s & ~prev)
+        k, found = crossings()
+        prev = win_s
+    ok = found & todo
+    fa = np.take_along_axis(F, k[..., None], axis=2)[..., 0]
+    fb = np.take_along_axis(F, (k + 1)[..., None], axis=2)[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tt = fa / (fa - fb)
+    sk = np.take_along_axis(S, k, axis=1)
+    off = sk + tt * step
+    if curvature_correction:
+        # edge width from the slope at the crossing: a Gaussian-blurred step of height A has slope
+        # A / (sqrt(2 pi) sigma_t); the pixel box (variance 1/12) and our smoothing set a lower bound.
+        px = base[..., 0] + sk * nrm[..., 0]
+        py = base[..., 1] + sk * nrm[..., 1]
+        span = (px * plane[:, 0:1] + py * plane[:, 1:2] + plane[:, 2:3]) * (1.0 - ratio)[:, None]
+        slope = (fb - fa) / step
+        with np.errstate(divide="ignore", invalid="ignore"):
+            st = span / (np.sqrt(2.0 * np.pi) * slope)
+            use = ok & np.isfinite(st) & (st > 0)
+        med = _masked_median(np.where(use, st, 0.0), use)
+        nominal = np.sqrt(sigma * sigma + 1.0 / 12.0)
+        sigma_t = np.where(use.any(axis=1), np.maximum(nominal, med), nominal)
+        off = off + _curvature_shift_batch(c, a_, b_, ang, base, sigma_t)
+    off = np.where(ok, off, 0.0)
+    return base + off[..., None] * nrm, ok, errors
 
 
 def _half_level_radius(u: np.ndarray) -> np.ndarray:
@@ -319,19 +655,28 @@ _SHIFT_TABLE: np.ndarray | None = None
 def _curvature_shift(Q: np.ndarray, points: np.ndarray, sigma_t: float) -> np.ndarray:
     """(M,) outward shift (px) from the half-level contour to the true edge at ``points`` (M, 2) of the ellipse
     ``Q``, modelling the edge locally by its osculating circle blurred by a Gaussian of ``sigma_t`` px."""
+    c, axes, ang, _ = conic_params_batch(np.asarray(Q, np.float64)[None])
+    return _curvature_shift_batch(c, axes[:, 0], axes[:, 1], ang, np.asarray(points, np.float64)[None],
+                                  np.array([sigma_t]))[0]
+
+
+def _curvature_shift_batch(c: np.ndarray, a: np.ndarray, b: np.ndarray, ang: np.ndarray, points: np.ndarray,
+                           sigma_t: np.ndarray) -> np.ndarray:
+    """(D, M) :func:`_curvature_shift` for D ellipses (centres (D, 2), semi-axes a, b (D,), angles (D,)), points
+    (D, M, 2) and blur scales (D,)."""
     global _SHIFT_TABLE
     if _SHIFT_TABLE is None:
         _SHIFT_TABLE = _U_TABLE - _half_level_radius(_U_TABLE)
-    c, (a, b), ang = conic_params(Q)
-    d = points - c
-    ca, sa = np.cos(ang), np.sin(ang)
-    x = ca * d[:, 0] + sa * d[:, 1]
-    y = -sa * d[:, 0] + ca * d[:, 1]
+    d = points - c[:, None, :]
+    ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    x = ca * d[..., 0] + sa * d[..., 1]
+    y = -sa * d[..., 0] + ca * d[..., 1]
+    a, b = a[:, None], b[:, None]
     t = np.arctan2(y / b, x / a)
     rho = (a * a * np.sin(t) ** 2 + b * b * np.cos(t) ** 2) ** 1.5 / (a * b)  # radius of curvature
-    u = rho / sigma_t
+    u = rho / sigma_t[:, None]
     shift = np.where(u > _U_TABLE[-1], 0.5 / np.maximum(u, 1e-9),
                      np.interp(u, _U_TABLE, _SHIFT_TABLE, left=_SHIFT_TABLE[0]))
     # the osculating-circle model fails where the curvature changes within the blur (tight ends of thin
     # ellipses): no correction below u = 1.5, full above 2.5
-    return sigma_t * shift * np.clip(u - 1.5, 0.0, 1.0)
+    return sigma_t[:, None] * shift * np.clip(u - 1.5, 0.0, 1.0)

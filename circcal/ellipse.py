@@ -1,8 +1,10 @@
 """Ellipses as conic matrices: the direct least-squares fit and conversions.
 
 A conic is a symmetric (3, 3) matrix ``Q`` with ``x^T Q x = 0`` for homogeneous image points ``x = (u, v, 1)``
-(pixels, OpenCV convention: integer coordinates are pixel centres). Every function here works on single conics;
-scale and sign of ``Q`` are arbitrary unless stated.
+(pixels, OpenCV convention: integer coordinates are pixel centres). Scale and sign of ``Q`` are arbitrary unless
+stated. The single-conic functions have batched twins working on stacks ``(D, 3, 3)`` of conics at once
+(:func:`fit_ellipses_direct`, :func:`conic_params_batch`, :func:`conic_centers`); the single versions call them, so
+the math exists once.
 
 The fit is Fitzgibbon's direct ellipse-specific least squares in the numerically stable form of Halir & Flusser
 (1998), on coordinates normalised to zero mean and unit RMS radius (Hartley-style) and mapped back exactly.
@@ -13,6 +15,9 @@ import numpy as np
 
 __all__ = [
     "fit_ellipse_direct",
+    "fit_ellipses_direct",
+    "conic_params_batch",
+    "conic_centers",
     "conic_from_params",
     "conic_params",
     "conic_center",
@@ -23,12 +28,13 @@ __all__ = [
 ]
 
 
-def _normaliser(points: np.ndarray) -> np.ndarray:
-    """(3, 3) similarity N taking ``points`` (M, 2) to zero mean and RMS distance sqrt(2) from the origin."""
-    m = points.mean(axis=0)
-    d = np.sqrt(np.mean(np.sum((points - m) ** 2, axis=1)))
-    s = np.sqrt(2.0) / d if d > 0 else 1.0
-    return np.array([[s, 0.0, -s * m[0]], [0.0, s, -s * m[1]], [0.0, 0.0, 1.0]])
+FIT_ERRORS = {
+    1: "an ellipse fit needs at least 5 points",
+    2: "ellipse fit: points contain NaN or inf",
+    3: "ellipse fit: points are degenerate (collinear)",
+    4: "ellipse fit: no elliptic solution (points may lie on a line or hyperbola)",
+}
+"""Messages for the error codes of :func:`fit_ellipses_direct` (0 = fitted)."""
 
 
 def fit_ellipse_direct(points: np.ndarray) -> np.ndarray:
@@ -39,45 +45,102 @@ def fit_ellipse_direct(points: np.ndarray) -> np.ndarray:
     value at the centre (``x^T Q x < 0`` inside). Raises ``ValueError`` for fewer than 5 points or degenerate input.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(p) < 5:
-        raise ValueError(f"an ellipse fit needs at least 5 points, got {len(p)}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError("ellipse fit: points contain NaN or inf")
-    N = _normaliser(p)
-    x = p[:, 0] * N[0, 0] + N[0, 2]
-    y = p[:, 1] * N[1, 1] + N[1, 2]
-    D1 = np.column_stack([x * x, x * y, y * y])
-    D2 = np.column_stack([x, y, np.ones_like(x)])
-    S1 = D1.T @ D1
-    S2 = D1.T @ D2
-    S3 = D2.T @ D2
-    try:
-        T = -np.linalg.solve(S3, S2.T)
-    except np.linalg.LinAlgError as exc:
-        raise ValueError("ellipse fit: points are degenerate (collinear)") from exc
-    M = S1 + S2 @ T
-    M = np.array([M[2] / 2.0, -M[1], M[0] / 2.0])  # C1^-1 M
-    w, v = np.linalg.eig(M)
+    Q, err = fit_ellipses_direct(p[None], None)
+    if err[0]:
+        msg = FIT_ERRORS[int(err[0])]
+        raise ValueError(f"{msg}, got {len(p)}" if err[0] == 1 else msg)
+    return Q[0]
+
+
+def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Batched :func:`fit_ellipse_direct`: one ellipse per row of ``points`` (D, M, 2) px, using the points where
+    ``mask`` (D, M) bool is true (all when ``None``; masked-out points may hold anything, NaN included).
+
+    Returns ``(Q (D, 3, 3), err (D,) int)``: conics as in :func:`fit_ellipse_direct` (NaN where ``err != 0``) and
+    error codes (0 fitted; otherwise a key of :data:`FIT_ERRORS`). Each fit is the same normalised Halir-Flusser
+    solve as the single version (stacked 3x3 solves and eigen-decompositions); it never raises for a bad row.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 3 or p.shape[2] != 2:
+        raise ValueError(f"points must be (D, M, 2), got shape {p.shape}")
+    D = p.shape[0]
+    m = np.ones(p.shape[:2], bool) if mask is None else np.asarray(mask, bool)
+    err = np.zeros(D, int)
+    cnt = m.sum(axis=1)
+    finite = np.all(np.isfinite(p), axis=2)
+    err[np.any(m & ~finite, axis=1)] = 2
+    err[cnt < 5] = 1
+    w = (m & finite).astype(np.float64)
+    pz = np.where((m & finite)[..., None], p, 0.0)
+    n = np.maximum(cnt, 1).astype(np.float64)
+    # Hartley normalisation: zero mean, RMS distance sqrt(2) from the origin
+    mean = pz.sum(axis=1) / n[:, None]
+    d2 = (((pz - mean[:, None, :]) ** 2).sum(axis=2) * w).sum(axis=1) / n
+    d = np.sqrt(d2)
+    s = np.where(d > 0, np.sqrt(2.0) / np.where(d > 0, d, 1.0), 1.0)
+    x = (pz[..., 0] * s[:, None] - s[:, None] * mean[:, 0:1]) * w
+    y = (pz[..., 1] * s[:, None] - s[:, None] * mean[:, 1:2]) * w
+    D1 = np.stack([x * x, x * y, y * y], axis=2)   # masked rows are exactly zero
+    D2 = np.stack([x, y, w], axis=2)
+    D1t = D1.transpose(0, 2, 1)
+    S1 = D1t @ D1
+    S2 = D1t @ D2
+    S3 = D2.transpose(0, 2, 1) @ D2
+    good = err == 0
+    T = np.full((D, 3, 3), np.nan)
+    if np.any(good):
+        try:
+            T[good] = -np.linalg.solve(S3[good], S2[good].transpose(0, 2, 1))
+        except np.linalg.LinAlgError:  # some row singular: find which
+            for i in np.nonzero(good)[0]:
+                try:
+                    T[i] = -np.linalg.solve(S3[i], S2[i].T)
+                except np.linalg.LinAlgError:
+                    err[i] = 3
+    good = err == 0
+    Q = np.full((D, 3, 3), np.nan)
+    if not np.any(good):
+        return Q, err
+    gi = np.nonzero(good)[0]
+    Tg = T[gi]
+    M = S1[gi] + S2[gi] @ Tg
+    M = np.stack([M[:, 2] / 2.0, -M[:, 1], M[:, 0] / 2.0], axis=1)  # C1^-1 M
+    if not np.all(np.isfinite(M)):
+        bad = ~np.all(np.isfinite(M), axis=(1, 2))
+        err[gi[bad]] = 3
+        M[bad] = np.eye(3)
+    wv, v = np.linalg.eig(M)
     v = np.real(v)
-    cond = 4.0 * v[0] * v[2] - v[1] ** 2
-    ok = np.nonzero(cond > 0)[0]
-    if len(ok) == 0:
-        raise ValueError("ellipse fit: no elliptic solution (points may lie on a line or hyperbola)")
-    a1 = v[:, ok[np.argmin(np.abs(np.real(w[ok])))]]
-    a = np.concatenate([a1, T @ a1])
-    A, B, C, D, E, F = a
-    Qn = np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
-    Q = N.T @ Qn @ N
-    return _canonical(Q)
+    wr = np.abs(np.real(wv))
+    cond = 4.0 * v[:, 0, :] * v[:, 2, :] - v[:, 1, :] ** 2
+    ok = cond > 0
+    none = ~np.any(ok, axis=1)
+    err[gi[none & (err[gi] == 0)]] = 4
+    j = np.argmin(np.where(ok, wr, np.inf), axis=1)
+    a1 = np.take_along_axis(v, j[:, None, None], axis=2)[:, :, 0]   # (G, 3)
+    a2 = (Tg @ a1[:, :, None])[:, :, 0]
+    A, B, C = a1[:, 0], a1[:, 1], a1[:, 2]
+    Dd, E, F = a2[:, 0], a2[:, 1], a2[:, 2]
+    Qn = np.stack([np.stack([A, B / 2, Dd / 2], 1), np.stack([B / 2, C, E / 2], 1),
+                   np.stack([Dd / 2, E / 2, F], 1)], 1)
+    sg = s[gi]
+    N = np.zeros((len(gi), 3, 3))
+    N[:, 0, 0] = N[:, 1, 1] = sg
+    N[:, 0, 2] = -sg * mean[gi, 0]
+    N[:, 1, 2] = -sg * mean[gi, 1]
+    N[:, 2, 2] = 1.0
+    Qg = _canonical(N.transpose(0, 2, 1) @ Qn @ N)
+    keep = err[gi] == 0
+    Q[gi[keep]] = Qg[keep]
+    return Q, err
 
 
 def _canonical(Q: np.ndarray) -> np.ndarray:
-    """Scale Q to unit Frobenius norm, sign chosen so the upper-left block is positive definite."""
-    Q = 0.5 * (Q + Q.T)
-    Q = Q / np.linalg.norm(Q)
-    if Q[0, 0] + Q[1, 1] < 0:
-        Q = -Q
-    return Q
+    """Scale Q (..., 3, 3) to unit Frobenius norm, sign chosen so the upper-left block is positive definite."""
+    Q = 0.5 * (Q + np.swapaxes(Q, -1, -2))
+    Q = Q / np.sqrt(np.sum(Q * Q, axis=(-2, -1), keepdims=True))
+    sign = np.where(Q[..., 0, 0] + Q[..., 1, 1] < 0, -1.0, 1.0)
+    return Q * sign[..., None, None]
 
 
 def conic_from_params(center: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
@@ -99,25 +162,60 @@ def conic_center(Q: np.ndarray) -> np.ndarray:
     return np.linalg.solve(Q[:2, :2], -Q[:2, 2])
 
 
+def conic_centers(Q: np.ndarray) -> np.ndarray:
+    """(D, 2) centres of the ellipse conics ``Q`` (D, 3, 3) (closed-form 2x2 solve)."""
+    Q = np.asarray(Q, dtype=np.float64)
+    p, q, r = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
+    u, v = -Q[:, 0, 2], -Q[:, 1, 2]
+    det = p * r - q * q
+    return np.stack([(r * u - q * v) / det, (p * v - q * u) / det], axis=1)
+
+
 def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]:
     """Inverse of :func:`conic_from_params`: ``(center (2,), (a, b) with a >= b, angle of a in (-pi/2, pi/2])``.
 
     Raises ``ValueError`` if ``Q`` is not a real ellipse.
     """
-    Q = np.asarray(Q, dtype=np.float64)
-    c = conic_center(Q)
-    f0 = Q[:2, 2] @ c + Q[2, 2]  # value of x^T Q x at the centre
-    M = Q[:2, :2] / -f0
-    w, v = np.linalg.eigh(M)
-    if not np.all(w > 0):
+    c, axes, ang, ok = conic_params_batch(np.asarray(Q, dtype=np.float64).reshape(1, 3, 3))
+    if not ok[0]:
         raise ValueError("conic is not a real ellipse")
-    a, b = 1.0 / np.sqrt(w)  # eigh sorts ascending: smallest eigenvalue -> longest axis (a)
-    ang = float(np.arctan2(v[1, 0], v[0, 0]))
-    if ang <= -np.pi / 2:
-        ang += np.pi
-    elif ang > np.pi / 2:
-        ang -= np.pi
-    return c, (float(a), float(b)), ang
+    return c[0], (float(axes[0, 0]), float(axes[0, 1])), float(ang[0])
+
+
+def conic_params_batch(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Batched :func:`conic_params` for ``Q`` (D, 3, 3): ``(centers (D, 2), axes (D, 2) as (a, b) with a >= b,
+    angles (D,) in (-pi/2, pi/2], ok (D,) bool)``; rows that are not real ellipses have ``ok`` false (and NaN
+    values) instead of raising. Closed form: the centre from a 2x2 solve, axes and angle from the closed-form
+    eigen-decomposition of the symmetric 2x2 block."""
+    Q = np.asarray(Q, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = conic_centers(Q)
+        # value at the centre as the full quadratic (stationary there: an error in c enters squared; the linear
+        # form g.c + F loses ~1e-7 relative for small ellipses far from the origin)
+        cx, cy = c[:, 0], c[:, 1]
+        f0 = ((Q[:, 0, 0] * cx + 2.0 * Q[:, 0, 1] * cy) * cx + Q[:, 1, 1] * cy * cy
+              + 2.0 * (Q[:, 0, 2] * cx + Q[:, 1, 2] * cy) + Q[:, 2, 2])
+        p, q, r = (Q[:, 0, 0] / -f0, Q[:, 0, 1] / -f0, Q[:, 1, 1] / -f0)
+        # eigenvalues of [[p, q], [q, r]]: l_small (axis a), l_big (axis b)
+        h = 0.5 * (p - r)
+        disc = np.hypot(h, q)
+        mid = 0.5 * (p + r)
+        l_big = mid + disc
+        l_small = (p * r - q * q) / l_big  # = mid - disc without cancellation
+        ok = np.isfinite(l_small) & np.isfinite(l_big) & (l_small > 0) & (l_big > 0)
+        a = 1.0 / np.sqrt(l_small)
+        b = 1.0 / np.sqrt(l_big)
+        # eigenvector of the smallest eigenvalue: direction of the a axis, 0.5 * atan2(-2q, r - p) rotated
+        ang = 0.5 * np.arctan2(-2.0 * q, r - p)
+    ang = np.where(ang <= -np.pi / 2, ang + np.pi, np.where(ang > np.pi / 2, ang - np.pi, ang))
+    axes = np.stack([a, b], axis=1)
+    bad = ~ok
+    if np.any(bad):
+        c = c.copy()
+        c[bad] = np.nan
+        axes[bad] = np.nan
+        ang = np.where(bad, np.nan, ang)
+    return c, axes, ang, ok
 
 
 def sample_ellipse(Q: np.ndarray, n: int) -> np.ndarray:

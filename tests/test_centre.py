@@ -69,3 +69,16 @@ def test_iterated_correction_recovers_every_centre(seed):
     if np.linalg.norm(lin[:2]) / abs(lin[2]) > 1e-3:
         assert np.max(np.linalg.norm(biased - truth, axis=1)) > 1e-6
     assert np.allclose(_project(Hf, board), truth, atol=1e-6 * scale)
+
+
+def test_batched_poles_equal_single_poles():
+    from circcal.centre import pole_centres
+
+    H = _random_homography(7)
+    gx, gy = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)
+    conics = np.array([transform_conic(_circle(x, y, 3.0), H) for x, y in zip(gx.ravel(), gy.ravel())])
+    line = vanishing_line(H)
+    direct = np.array([np.linalg.solve(E, line) for E in conics])   # the closed form E^-1 l
+    direct = direct[:, :2] / direct[:, 2:]
+    assert np.allclose(pole_centres(conics, line), direct, rtol=0, atol=1e-7)
+    assert np.allclose(np.array([pole_centre(E, line) for E in conics]), pole_centres(conics, line), atol=1e-9)

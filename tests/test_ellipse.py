@@ -69,3 +69,68 @@ def test_bad_input_is_rejected():
         fit_ellipse_direct(np.full((6, 2), np.nan))
     with pytest.raises(ValueError):
         fit_ellipse_direct(np.column_stack([np.arange(10.0), 2 * np.arange(10.0)]))  # collinear
+
+
+def test_batched_fit_and_params_equal_the_single_versions():
+    """The stacked fit (with per-row masks, padding that may hold NaN) gives each row's own fit, equal to the
+    per-ellipse Halir-Flusser solve written out below, and the closed-form batched parameters equal an
+    eigen-decomposition reference."""
+    from circcal.ellipse import conic_params_batch, fit_ellipses_direct
+
+    rng = np.random.default_rng(3)
+    D, M = 12, 80
+    pts = np.full((D, M, 2), np.nan)
+    mask = np.zeros((D, M), bool)
+    singles = []
+    for d in range(D):
+        n = int(rng.integers(8, M))
+        Q = conic_from_params(rng.uniform(0, 2000, 2), (rng.uniform(3, 60), rng.uniform(2, 3)), rng.uniform(-1.5, 1.5))
+        p = sample_ellipse(Q, n) + rng.normal(0, 0.05, (n, 2))
+        pts[d, :n] = p
+        mask[d, :n] = True
+        singles.append(_reference_fit(p))
+    Qb, err = fit_ellipses_direct(pts, mask)
+    assert np.all(err == 0)
+    assert np.allclose(Qb, np.array(singles), rtol=0, atol=1e-12)
+    # bad rows are reported, not raised, and do not disturb the others
+    mask2 = mask.copy()
+    mask2[0] = False
+    mask2[0, :4] = True
+    Qc, err2 = fit_ellipses_direct(pts, mask2)
+    assert err2[0] == 1 and np.all(err2[1:] == 0) and np.allclose(Qc[1:], Qb[1:], atol=1e-12)
+    # parameters: centre by solve, axes and angle against numpy's eigh of the normalised 2x2 block
+    c, axes, ang, ok = conic_params_batch(Qb)
+    assert np.all(ok)
+    for d in range(D):
+        Q = Qb[d]
+        cc = np.linalg.solve(Q[:2, :2], -Q[:2, 2])
+        f0 = Q[:2, 2] @ cc + Q[2, 2]
+        w, v = np.linalg.eigh(Q[:2, :2] / -f0)
+        assert np.allclose(c[d], cc, atol=1e-9)
+        assert np.allclose(axes[d], 1.0 / np.sqrt(w), rtol=1e-8, atol=0)
+        da = (ang[d] - np.arctan2(v[1, 0], v[0, 0]) + np.pi / 2) % np.pi - np.pi / 2
+        assert abs(da) < 1e-9
+    assert not conic_params_batch(np.diag([1.0, -1.0, 1.0])[None])[3][0]  # a hyperbola
+
+
+def _reference_fit(p):
+    """One ellipse, the original per-call implementation (np.linalg.solve / eig on 3x3 matrices)."""
+    m = p.mean(axis=0)
+    s = np.sqrt(2.0) / np.sqrt(np.mean(np.sum((p - m) ** 2, axis=1)))
+    N = np.array([[s, 0.0, -s * m[0]], [0.0, s, -s * m[1]], [0.0, 0.0, 1.0]])
+    x, y = p[:, 0] * s - s * m[0], p[:, 1] * s - s * m[1]
+    D1 = np.column_stack([x * x, x * y, y * y])
+    D2 = np.column_stack([x, y, np.ones_like(x)])
+    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
+    T = -np.linalg.solve(S3, S2.T)
+    M = S1 + S2 @ T
+    M = np.array([M[2] / 2.0, -M[1], M[0] / 2.0])
+    w, v = np.linalg.eig(M)
+    v = np.real(v)
+    ok = np.nonzero(4.0 * v[0] * v[2] - v[1] ** 2 > 0)[0]
+    a1 = v[:, ok[np.argmin(np.abs(np.real(w[ok])))]]
+    A, B, C, D, E, F = np.concatenate([a1, T @ a1])
+    Q = N.T @ np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]]) @ N
+    Q = 0.5 * (Q + Q.T)
+    Q = Q / np.linalg.norm(Q)
+    return -Q if Q[0, 0] + Q[1, 1] < 0 else Q
