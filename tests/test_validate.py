@@ -89,3 +89,23 @@ def test_cli_gates_and_writes_an_atomic_report(tmp_path, capsys, monkeypatch):
 def test_cli_rejects_unknown_reference(capsys):
     assert main(["validate", "small-noisy", "--against", "nosuch", "--no-progress"]) == 2
     assert "unknown reference calibrator 'nosuch'" in capsys.readouterr().err
+
+
+def test_solver_agreement_rule():
+    """Within the px bound: pass. Beyond it: pass only for a cost tie (a flat direction double precision cannot
+    resolve); a reference with a higher cost, or a lower one (circcal missed the minimum), fails."""
+    from validators.base import ReferenceResult
+    from validators.validate import COST_TIE_REL, solver_agreement
+
+    def ref(ssr: float) -> ReferenceResult:
+        r = np.full((50, 2), np.sqrt(ssr / 100.0))
+        return ReferenceResult("x", "1", "fair", "ok", residuals=[r])
+
+    base = 0.5
+    assert solver_agreement("x", ref(base * 1.3), 5e-7, base, 1e-6).passed  # inside the bound: costs not consulted
+    tie = solver_agreement("x", ref(base * (1 + 0.1 * COST_TIE_REL)), 4e-6, base, 1e-6)
+    assert tie.passed and "flat direction" in tie.note
+    higher = solver_agreement("x", ref(base * (1 + 1e-6)), 4e-6, base, 1e-6)
+    assert not higher.passed and "did not reach the minimum" in higher.note
+    lower = solver_agreement("x", ref(base * (1 - 1e-6)), 4e-6, base, 1e-6)
+    assert not lower.passed and "circcal missed the minimum" in lower.note
