@@ -8,7 +8,7 @@ STAMP   := $(VENV)/.circcal-setup-stamp
 TORCH   := torch==2.13.0
 JOBS    ?= 2
 
-.PHONY: setup demo test bench study conformance mrcal clean
+.PHONY: setup demo test bench study conformance mrcal mrcal-2.5 clean
 
 setup: $(STAMP)
 
@@ -33,6 +33,16 @@ mrcal:
 	  echo "mrcal: not installed. As root run: apt-get install -y mrcal python3-mrcal"; \
 	  echo "       or point CIRCCAL_MRCAL_PYTHON at a Python that can 'import mrcal' (e.g. PyPI mrcal 2.5 on 3.12)"; \
 	fi
+
+# Optional: PyPI's mrcal 2.5 in its own Python 3.12 venv (its GUI dependency pyfltk is not needed and not built).
+# Then: CIRCCAL_MRCAL_PYTHON=$(CURDIR)/.venv-mrcal25/bin/python circcal validate --against mrcal
+PY312 ?= $(shell command -v python3.12 || ls /root/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | head -1)
+mrcal-2.5:
+	@test -n "$(PY312)" || { echo "mrcal-2.5 needs python3.12"; exit 1; }
+	$(PY312) -m venv .venv-mrcal25
+	.venv-mrcal25/bin/pip install -q --no-deps mrcal
+	.venv-mrcal25/bin/pip install -q numpy numpysane scipy gnuplotlib shapely pyyaml opencv-python-headless
+	@echo "export CIRCCAL_MRCAL_PYTHON=$(CURDIR)/.venv-mrcal25/bin/python"
 
 demo: setup
 	$(VENV)/bin/circcal demo
