@@ -31,6 +31,9 @@ def test_fit_recovers_exact_ellipse(e, n, t0):
     if ratio < 0.99:  # the angle is defined only for a non-circle
         d = (fang - ang + np.pi / 2) % np.pi - np.pi / 2
         assert abs(d) < 1e-6 / (1 - ratio)
+    # the fitted conic is the true one up to scale
+    Qn, Fn = Q / np.linalg.norm(Q), F / np.linalg.norm(F)
+    assert min(np.abs(Qn - Fn).max(), np.abs(Qn + Fn).max()) < 1e-6
     # points satisfy the conic (scale: unit Frobenius norm, residual relative to a^2 terms)
     assert np.max(np.abs(algebraic_distance(F, pts))) < 1e-9 * max(1.0, np.abs(F).max() * (abs(cx) + abs(cy) + a) ** 2)
 

@@ -9,8 +9,6 @@ pixel grid of the first model, with the implied rotation fitted (as ``mrcal.proj
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -324,20 +322,10 @@ def to_dict(run: ValidationRun) -> dict[str, Any]:
 
 def write_report(run: ValidationRun, out: str | Path) -> Path:
     """Write ``validation.json`` and ``validation.md`` into ``out`` atomically (a complete folder or none)."""
+    from circcal import atomic
+
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
-    try:
+    with atomic.folder(out) as tmp:
         (tmp / "validation.json").write_text(json.dumps(to_dict(run), indent=1))
         (tmp / "validation.md").write_text("# circcal validation\n\n" + format_table(run) + "\n")
-        if out.exists():
-            old = out.with_name(f".{out.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            out.replace(old)
-            tmp.replace(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.replace(out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return out
