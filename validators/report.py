@@ -550,12 +550,18 @@ def compute(cfg: ReportConfig = FULL, *, progress: bool = True) -> dict[str, Any
     timings["total_compute_s"] = time.perf_counter() - t0
     for c in paper.values():
         for ch in c["checks"]:
+            # Agreement values of 1e-12..1e-6 px move between runs (threaded reductions in the solvers) and a
+            # passing check's note says which side of the px bound it landed: keep them only when a check fails.
             ch["value"] = _quantise(ch["value"], CHECK_QUANTUM)
+            if ch["passed"]:
+                ch.pop("value")
+                ch.pop("note")
     numbers = _round_sig(jsonable({"config": asdict(cfg), "paper": paper, "checkerboard": cb,
                                     "paper_published": PAPER_PUBLISHED, "bias": bias, "realdata": real,
                                     "environment": environment()}))
     numbers["precision"] = (f"floats rounded to {SIG_DIGITS} significant digits; agreement-check values to "
-                            f"{CHECK_QUANTUM:g} px (pycolmap's solve varies ~1e-11 relative between runs)")
+                            f"{CHECK_QUANTUM:g} px and kept only for failed checks (they move between runs at "
+                            f"the 1e-7 px level)")
     numbers["timings"] = jsonable(timings)
     return numbers
 
