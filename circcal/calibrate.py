@@ -725,6 +725,25 @@ def calibrate_images(
     return ImagesCalibration(result, paths, detections, used, failed, rounds, centers)
 
 
+def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The board pose that best explains one view with ``camera`` held fixed.
+
+    ``object_points``: (N, 3) mm on the board (z = 0); ``image_points``: (N, 2) px. IPPE (planar) start, then
+    OpenCV's Levenberg-Marquardt refinement to convergence. Returns ``rvec`` (3,) rad, ``tvec`` (3,) mm;
+    :class:`CalibrationError` when no pose is found.
+    """
+    import cv2
+
+    o = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    ok, rvec, tvec = cv2.solvePnP(o, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
+    rvec, tvec = cv2.solvePnPRefineLM(o, p, camera.K, camera.dist, rvec, tvec,
+                                      (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15))
+    return rvec.reshape(3), tvec.reshape(3)
+
+
 def holdout_errors(
     object_points: Sequence[np.ndarray],
     image_points: Sequence[np.ndarray],
@@ -739,9 +758,6 @@ def holdout_errors(
     a bias absorbed into the intrinsics) predicts held-out views worse. Returns one
     :func:`circcal.metrics.error_stats` dict per view (plus ``"view"``); the residual has 2N - 6 degrees of freedom.
     """
-    import cv2
-
-    from circcal.metrics import error_stats
     from circcal.model import project
 
     out = []
@@ -750,11 +766,7 @@ def holdout_errors(
         res = calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, **options)
         obj = np.asarray(object_points[k], dtype=np.float64)
         img = np.asarray(image_points[k], dtype=np.float64)
-        ok, rvec, tvec = cv2.solvePnP(obj, img, res.camera.K, res.camera.dist, flags=cv2.SOLVEPNP_ITERATIVE)
-        if not ok:
-            raise CalibrationError(f"held-out view {k}: solvePnP failed")
-        rvec, tvec = cv2.solvePnPRefineLM(obj, img, res.camera.K, res.camera.dist, rvec, tvec,
-                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15))
-        pred = project(obj, rvec.ravel(), tvec.ravel(), res.camera)
+        rvec, tvec = fit_pose(obj, img, res.camera)
+        pred = project(obj, rvec, tvec, res.camera)
         out.append({"view": k, **error_stats(img - pred)})
     return out

@@ -89,24 +89,17 @@ class FunctionCalibrator(BaseCalibrator):
             rvecs, tvecs, poses = out[2], out[3], "returned"
         else:
             rvecs, tvecs = _solve_poses(camera, object_points, image_points)
-            poses = "cv2.solvePnP with the returned intrinsics"
+            poses = "circcal.calibrate.fit_pose (cv2.solvePnP) with the returned intrinsics"
         return self.finish(mode, camera, rvecs, tvecs, object_points, image_points, t0, std=std, poses=poses)
 
 
 def _solve_poses(camera: Camera, object_points: list[np.ndarray], image_points: list[np.ndarray]
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-view board poses for given intrinsics (cv2.solvePnP, iterative LM): (V, 3) rvecs, (V, 3) tvecs."""
-    import cv2
+    """Per-view board poses for given intrinsics (:func:`circcal.calibrate.fit_pose`): (V, 3) rvecs, (V, 3) tvecs."""
+    from circcal.calibrate import fit_pose
 
-    rv, tv = [], []
-    for o, p in zip(object_points, image_points):
-        ok, r, t = cv2.solvePnP(np.asarray(o, np.float64), np.asarray(p, np.float64), camera.K, camera.dist,
-                                flags=cv2.SOLVEPNP_ITERATIVE)
-        if not ok:
-            raise RuntimeError("cv2.solvePnP found no pose for a view with the returned intrinsics")
-        rv.append(np.asarray(r).reshape(3))
-        tv.append(np.asarray(t).reshape(3))
-    return np.array(rv), np.array(tv)
+    poses = [fit_pose(o, p, camera) for o, p in zip(object_points, image_points)]
+    return np.array([r for r, _ in poses]), np.array([t for _, t in poses])
 
 
 def parse_spec(spec: str) -> tuple[str | None, str, str]:

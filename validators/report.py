@@ -367,17 +367,12 @@ def realdata_board(folder: Path) -> tuple[Board, dict]:
 
 
 def _pnp_residual(obj: np.ndarray, img: np.ndarray, cam: Camera) -> np.ndarray:
-    """Residual (N, 2) px of ``img`` against the board points projected with ``cam`` at the pose fitted to ``img``
-    (IPPE for the planar board, then Levenberg-Marquardt refinement): 6 pose parameters fitted, intrinsics held."""
-    import cv2
+    """Residual (N, 2) px of ``img`` against the board projected with ``cam`` at the pose fitted to ``img``
+    (:func:`circcal.calibrate.fit_pose`: 6 pose parameters fitted, intrinsics held)."""
+    from circcal.calibrate import fit_pose
 
-    o = np.ascontiguousarray(obj, dtype=np.float64).reshape(-1, 1, 3)
-    p = np.ascontiguousarray(img, dtype=np.float64).reshape(-1, 1, 2)
-    ok, rvec, tvec = cv2.solvePnP(o, p, cam.K, cam.dist, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise ValueError("solvePnP failed on the held-out view")
-    rvec, tvec = cv2.solvePnPRefineLM(o, p, cam.K, cam.dist, rvec, tvec)
-    return np.asarray(img, dtype=np.float64) - project(obj, rvec.ravel(), tvec.ravel(), cam)
+    rvec, tvec = fit_pose(obj, img, cam)
+    return np.asarray(img, dtype=np.float64) - project(obj, rvec, tvec, cam)
 
 
 def _finite(centres: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
