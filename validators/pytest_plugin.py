@@ -89,7 +89,7 @@ class FunctionCalibrator(BaseCalibrator):
             rvecs, tvecs, poses = out[2], out[3], "returned"
         else:
             rvecs, tvecs = _solve_poses(camera, object_points, image_points)
-            poses = "circcal.calibrate.fit_pose (cv2.solvePnP) with the returned intrinsics"
+            poses = "cv2.solvePnP with the returned intrinsics (circcal.calibrate.fit_pose)"
         return self.finish(mode, camera, rvecs, tvecs, object_points, image_points, t0, std=std, poses=poses)
 
 
