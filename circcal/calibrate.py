@@ -141,7 +141,10 @@ class CalibrationResult:
     convention: rms_per_point_px = OpenCV's RMS, rms_per_coord_px = mrcal's, mean_2d_px = the paper's eq. 22);
     ``per_view_errors`` the same per view. ``sigma_px``: per-coordinate noise estimate sqrt(SSR / (2N - n_params)).
     ``fixed``: names of parameters held at their initial value, plus ``"aspect_ratio"`` when fx/fy was held.
-    ``view_names``: optional label per view (image file names when calibrating images).
+    ``view_names``: optional label per view (image file names when calibrating images). With board refinement
+    (``calibrate(refine_board=True)``): ``board_nominal`` (P, 3) mm the distinct board points in order of first
+    appearance, ``board_points`` (P, 3) mm their estimated positions, ``board_std`` (P, 3) mm standard deviations (0
+    for held coordinates), ``board_gauge`` the three points that fix the board frame; all None otherwise.
     """
 
     camera: Camera
@@ -158,6 +161,23 @@ class CalibrationResult:
     fixed: tuple[str, ...]
     view_names: list[str] | None = None
     n_params: int = 0
+    board_nominal: np.ndarray | None = None
+    board_points: np.ndarray | None = None
+    board_std: np.ndarray | None = None
+    board_gauge: tuple[int, int, int] | None = None
+
+    def board_lookup(self, object_points: np.ndarray) -> np.ndarray:
+        """Nominal board points (N, 3) mm -> the refined ones (N, 3) mm (unchanged without board refinement).
+        Raises ValueError for a point the calibration never saw."""
+        o = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+        if self.board_points is None:
+            return o.copy()
+        index = {tuple(k): i for i, k in enumerate(np.round(self.board_nominal, 6).tolist())}
+        try:
+            rows = [index[tuple(k)] for k in np.round(o, 6).tolist()]
+        except KeyError as e:
+            raise ValueError(f"board point {e.args[0]} was not part of the calibration") from None
+        return self.board_points[rows]
 
     def to_model_json(self) -> dict[str, Any]:
         """model.json content: the ``camera`` block (:meth:`Camera.to_dict`), ``std``, ``fixed``, ``correlation``
@@ -187,6 +207,11 @@ class CalibrationResult:
             "n_iterations": int(self.n_iterations),
             "converged": bool(self.converged),
             "views": views,
+            **({} if self.board_points is None else {"board_refinement": {
+                "gauge": [int(i) for i in self.board_gauge],
+                "nominal_mm": np.round(self.board_nominal, 9).tolist(),
+                "points_mm": self.board_points.tolist(),
+                "std_mm": self.board_std.tolist()}}),
         }
 
 
@@ -246,10 +271,72 @@ def _check_inputs(object_points, image_points, image_size) -> tuple[list[np.ndar
 # Solver
 # --------------------------------------------------------------------------------------------------------------------
 
-class _Problem:
-    """Stacked observations and the free-parameter map for one least-squares solve."""
+@dataclass
+class _BoardModel:
+    """Board points as unknowns (the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``).
 
-    def __init__(self, obj, img, base: np.ndarray, free: list[int], aspect: float | None):
+    ``nominal``: (P, 3) mm, the distinct board points in order of first appearance; ``point_index``: (N,) the board
+    point of each stacked observation; ``free``: indices into ``nominal.ravel()`` of the coordinates estimated (the
+    rest are held: the gauge and points seen in fewer than 3 views); ``gauge``: (a, b, c) point indices: a and b held
+    in x, y, z, c in z (7 constraints: the similarity transform a planar board's shape cannot fix by itself).
+    """
+
+    nominal: np.ndarray
+    point_index: np.ndarray
+    free: np.ndarray
+    gauge: tuple[int, int, int]
+    held_unseen: list[int]
+
+
+def _board_model(obj: list[np.ndarray], gauge: tuple[int, int, int] | None) -> _BoardModel:
+    """Identify the distinct board points across views (by their coordinates) and choose the gauge.
+
+    Default gauge: a = the first point, b = the point farthest from a, c = the point farthest from the line a-b (any
+    three non-collinear points give the same intrinsics and residuals; only the board frame changes).
+    """
+    X = np.concatenate(obj)
+    keys = np.round(X, 6)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    point_index = rank[np.asarray(inverse).ravel()]
+    nominal = X[first[order]].copy()
+    n_pts = len(nominal)
+    if n_pts < 4:
+        raise CalibrationError(f"board refinement needs at least 4 distinct board points, got {n_pts}")
+    if gauge is None:
+        a = 0
+        b = int(np.argmax(np.linalg.norm(nominal - nominal[a], axis=1)))
+        ab = nominal[b] - nominal[a]
+        off = nominal - nominal[a]
+        c = int(np.argmax(np.linalg.norm(off - np.outer(off @ ab / (ab @ ab), ab), axis=1)))
+        gauge = (a, b, c)
+    a, b, c = (int(i) for i in gauge)
+    if len({a, b, c}) != 3 or min(a, b, c) < 0 or max(a, b, c) >= n_pts:
+        raise ValueError(f"board gauge needs three distinct point indices in 0..{n_pts - 1}, got {gauge!r}")
+    ab, ac = nominal[b] - nominal[a], nominal[c] - nominal[a]
+    if np.linalg.norm(np.cross(ab, ac)) <= 1e-6 * (ab @ ab + ac @ ac):
+        raise ValueError(f"board gauge points {gauge!r} are collinear")
+    held = np.zeros((n_pts, 3), dtype=bool)
+    held[a] = held[b] = True
+    held[c, 2] = True
+    view = np.repeat(np.arange(len(obj)), [len(o) for o in obj])
+    n_views_seen = np.bincount(np.unique(np.column_stack([point_index, view]), axis=0)[:, 0], minlength=n_pts)
+    unseen = [int(i) for i in np.flatnonzero(n_views_seen < 3)]
+    held[unseen] = True
+    return _BoardModel(nominal, point_index, np.flatnonzero(~held.ravel()), (a, b, c), unseen)
+
+
+class _Problem:
+    """Stacked observations and the free-parameter map for one least-squares solve.
+
+    Parameter vector: the free intrinsics (``nf``), then the free board coordinates (``nb``, only with board
+    refinement), then 6 pose parameters per view; ``ng = nf + nb`` "global" parameters are shared by all views.
+    """
+
+    def __init__(self, obj, img, base: np.ndarray, free: list[int], aspect: float | None,
+                 board: _BoardModel | None = None):
         self.counts = np.array([len(o) for o in obj])
         self.view = np.repeat(np.arange(len(obj)), self.counts)
         self.X = np.concatenate(obj)
@@ -268,40 +355,65 @@ class _Problem:
             if aspect is not None and k == 1:
                 self.T[0, j] = aspect
         self.nf = len(free)
-        self.n = self.nf + 6 * self.n_views
+        self.board = board
+        self.nb = 0 if board is None else len(board.free)
+        if board is not None:
+            # column (within the global block) of each observation's x, y, z; -1 where held
+            slot = np.full(board.nominal.size, -1)
+            slot[board.free] = self.nf + np.arange(self.nb)
+            self.board_cols = slot.reshape(-1, 3)[board.point_index]          # (N, 3)
+        self.ng = self.nf + self.nb
+        self.n = self.ng + 6 * self.n_views
         m = 2 * len(self.X)
-        row_nnz = self.nf + 6
+        row_nnz = self.ng + 6
         self.indptr = np.arange(0, m * row_nnz + 1, row_nnz)
-        cols_i = np.broadcast_to(np.arange(self.nf), (m, self.nf))
-        cols_p = self.nf + 6 * np.repeat(self.view, 2)[:, None] + np.arange(6)
+        cols_i = np.broadcast_to(np.arange(self.ng), (m, self.ng))
+        cols_p = self.ng + 6 * np.repeat(self.view, 2)[:, None] + np.arange(6)
         self.indices = np.concatenate([cols_i, cols_p], axis=1).ravel()
         self._cache_x: bytes | None = None
 
     def intrinsics(self, x: np.ndarray) -> np.ndarray:
         return self.base + self.T @ x[: self.nf]
 
+    def board_points(self, x: np.ndarray) -> np.ndarray | None:
+        """(P, 3) mm: the board points at ``x`` (None without board refinement)."""
+        if self.board is None:
+            return None
+        pts = self.board.nominal.copy().ravel()
+        pts[self.board.free] = x[self.nf: self.ng]
+        return pts.reshape(-1, 3)
+
     def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
         xi = np.array([intr[k] for k in self.free])
-        return np.concatenate([xi, np.column_stack([rvecs, tvecs]).ravel()])
+        xb = self.board.nominal.ravel()[self.board.free] if self.board is not None else np.zeros(0)
+        return np.concatenate([xi, xb, np.column_stack([rvecs, tvecs]).ravel()])
 
     def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        P = x[self.nf:].reshape(-1, 6)
+        P = x[self.ng:].reshape(-1, 6)
         return P[:, :3].copy(), P[:, 3:].copy()
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """-> (f (2N,) projected - observed, Xc (N, 3), J_intr_free (N, 2, nf), J_pose (N, 2, 6))."""
+        """-> (f (2N,) projected - observed, Xc (N, 3), J_global (N, 2, ng), J_pose (N, 2, 6))."""
         key = x.tobytes()
         if key == self._cache_x:
             return self._cache
         p = self.intrinsics(x)
         rv, tv = self.poses(x)
         R = rodrigues(rv)[self.view]
-        Y = np.einsum("nij,nj->ni", R, self.X)
+        X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
+        Y = np.einsum("nij,nj->ni", R, X)
         dY = -_skew(Y) @ _left_jacobian(rv)[self.view]
         Xc = Y + tv[self.view]
         uv, Ji, Jp = _project_jac(Xc, dY, p)
         f = (uv - self.uv).ravel()
-        self._cache_x, self._cache = key, (f, Xc, Ji @ self.T, Jp)
+        Jg = Ji @ self.T
+        if self.board is not None:
+            # d uv / d X_board = (d uv / d Xc) R; d uv / d Xc is the translation block of J_pose
+            Jb = Jp[:, :, 3:] @ R                                             # (N, 2, 3)
+            Jg = np.concatenate([Jg, np.zeros((len(Xc), 2, self.nb))], axis=2)
+            rows, coords = np.nonzero(self.board_cols >= 0)
+            Jg[rows, :, self.board_cols[rows, coords]] = Jb[rows, :, coords]
+        self._cache_x, self._cache = key, (f, Xc, Jg, Jp)
         return self._cache
 
     def fun(self, x: np.ndarray) -> np.ndarray:
@@ -311,16 +423,16 @@ class _Problem:
         from scipy.sparse import csr_matrix
 
         _, _, Ji, Jp = self.evaluate(x)
-        data = np.concatenate([Ji.reshape(-1, self.nf), Jp.reshape(-1, 6)], axis=1).ravel()
+        data = np.concatenate([Ji.reshape(-1, self.ng), Jp.reshape(-1, 6)], axis=1).ravel()
         return csr_matrix((data, self.indices, self.indptr), shape=(2 * len(self.X), self.n))
 
-    def intrinsic_information(self, x: np.ndarray) -> np.ndarray:
-        """Schur complement (nf, nf) of the pose blocks in J^T J: the information on the free intrinsics with the
-        poses marginalised."""
+    def global_information(self, x: np.ndarray) -> np.ndarray:
+        """Schur complement (ng, ng) of the pose blocks in J^T J: the information on the free intrinsics (and board
+        coordinates) with the poses marginalised."""
         _, _, Ji, Jp = self.evaluate(x)
         S = np.einsum("nka,nkb->ab", Ji, Ji)
         for v, idx in enumerate(np.split(np.arange(len(self.X)), np.cumsum(self.counts)[:-1])):
-            Jiv = Ji[idx].reshape(-1, self.nf)
+            Jiv = Ji[idx].reshape(-1, self.ng)
             Jpv = Jp[idx].reshape(-1, 6)
             B = Jiv.T @ Jpv
             D = Jpv.T @ Jpv
@@ -329,13 +441,32 @@ class _Problem:
 
 
 def _normal_blocks(prob: "_Problem", f: np.ndarray, Ji: np.ndarray, Jp: np.ndarray, starts: np.ndarray):
-    """Blocks of J^T J and J^T f: A (nf, nf), gi (nf,), B (V, nf, 6), D (V, 6, 6), gp (V, 6)."""
-    nf = Ji.shape[2]
-    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, nf + 6)
-    Jt = Jc.transpose(0, 2, 1)
-    G = np.add.reduceat(Jt @ Jc, starts, axis=0)                       # (V, nf + 6, nf + 6)
-    g = np.add.reduceat((Jt @ f.reshape(-1, 2, 1))[:, :, 0], starts, axis=0)
-    return G[:, :nf, :nf].sum(axis=0), g[:, :nf].sum(axis=0), G[:, :nf, nf:], G[:, nf:, nf:], g[:, nf:]
+    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6)."""
+    ng = Ji.shape[2]
+    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, ng + 6)
+    if ng <= 16:
+        # few global parameters: per-point outer products, summed per view
+        Jt = Jc.transpose(0, 2, 1)
+        G = np.add.reduceat(Jt @ Jc, starts, axis=0)                   # (V, ng + 6, ng + 6)
+        g = np.add.reduceat((Jt @ f.reshape(-1, 2, 1))[:, :, 0], starts, axis=0)
+        return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
+    # board refinement (hundreds of global parameters): one matrix product per view
+    ends = np.append(starts[1:], len(Jc))
+    V = len(starts)
+    A = np.zeros((ng, ng))
+    gi = np.zeros(ng)
+    B = np.empty((V, ng, 6))
+    D = np.empty((V, 6, 6))
+    gp = np.empty((V, 6))
+    for v, (a, b) in enumerate(zip(starts, ends)):
+        Jv = Jc[a:b].reshape(-1, ng + 6)
+        fv = f[2 * a: 2 * b]
+        Gv = Jv.T @ Jv
+        gv = Jv.T @ fv
+        A += Gv[:ng, :ng]
+        gi += gv[:ng]
+        B[v], D[v], gp[v] = Gv[:ng, ng:], Gv[ng:, ng:], gv[ng:]
+    return A, gi, B, D, gp
 
 
 def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
@@ -345,8 +476,10 @@ def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
     Dd = D + lam * dD[:, :, None] * np.eye(6) if lam else D
     Dinv_Bt = np.linalg.solve(Dd, np.transpose(B, (0, 2, 1)))  # (V, 6, nf)
     Dinv_g = np.linalg.solve(Dd, gp[:, :, None])[:, :, 0]     # (V, 6)
-    S = A + lam * np.diag(dA) - np.einsum("vab,vbc->ac", B, Dinv_Bt)
-    r = gi - np.einsum("vab,vb->a", B, Dinv_g)
+    ng, V = A.shape[0], len(D)
+    Bf = np.transpose(B, (1, 0, 2)).reshape(ng, 6 * V)                # [B_1 ... B_V]
+    S = A + lam * np.diag(dA) - Bf @ Dinv_Bt.reshape(6 * V, ng)
+    r = gi - Bf @ Dinv_g.ravel()
     try:
         di = -np.linalg.solve(S, r)
     except np.linalg.LinAlgError:
@@ -474,6 +607,8 @@ def calibrate(
     fix_aspect_ratio: bool = False,
     fix_principal_point: bool = False,
     initial: Camera | None = None,
+    refine_board: bool = False,
+    board_gauge: tuple[int, int, int] | None = None,
     max_iterations: int = 200,
     solver: str = "schur",
 ) -> CalibrationResult:
@@ -490,6 +625,15 @@ def calibrate(
     relative, like OpenCV); ``"scipy"`` is ``scipy.optimize.least_squares`` (trust-region reflective, sparse
     analytic Jacobian, LSMR) on the same residuals and Jacobian, slower and stopping ~1e-7 relative short of the
     minimum: an independent cross-check.
+
+    ``refine_board``: also estimate the 3-D position of every board point (a printed board is rarely flat or printed
+    to scale; the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``). Board points are
+    identified across views by their nominal coordinates. ``board_gauge`` (a, b, c): indices of distinct points, in
+    order of first appearance across the views, held at their nominal positions (a and b in x, y, z; c in z only):
+    the 7 constraints that fix the board's frame and scale, exactly like calibrateCameraRO's first point,
+    ``iFixedPoint`` and last point's z. Default: the first point, the point farthest from it, and the point farthest
+    from the line through both. Points seen in fewer than 3 views are held. The refined points come back in
+    ``CalibrationResult.board_points``.
 
     Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
     6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
@@ -531,14 +675,18 @@ def calibrate(
         intr[0] = aspect * intr[1]
 
     free = [k for k, name in enumerate(PARAM_NAMES) if name not in fixed and not (aspect is not None and k == 0)]
-    prob = _Problem(obj, img, intr, free, aspect)
+    board = _board_model(obj, board_gauge) if refine_board else None
+    if board is not None and board.held_unseen:
+        warnings.warn(f"board refinement: {len(board.held_unseen)} point(s) seen in fewer than 3 views are held at "
+                      f"their nominal positions (indices {board.held_unseen[:10]})", RuntimeWarning, stacklevel=2)
+    prob = _Problem(obj, img, intr, free, aspect, board)
     x0 = prob.pack(intr, rvecs, tvecs)
 
     x, n_iter, converged, message = _solve(prob, x0, max_iterations, solver)
     if initial is None and not _sane(prob, x, converged):
         # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
         intr, rvecs, tvecs = zhang_start(10)
-        prob = _Problem(obj, img, intr, free, aspect)
+        prob = _Problem(obj, img, intr, free, aspect, board)
         x, n_iter2, converged, message = _solve(prob, prob.pack(intr, rvecs, tvecs), max_iterations, solver)
         n_iter += n_iter2
     f, Xc, _, _ = prob.evaluate(x)
@@ -565,16 +713,17 @@ def calibrate(
         raise CalibrationError(f"{m} residuals for {prob.n} parameters: add views or points")
     sigma2 = ssr / dof
 
-    # Uncertainty of the intrinsics, poses marginalised.
-    S = prob.intrinsic_information(x)
+    # Uncertainty of the intrinsics (and board points), poses marginalised.
+    S = prob.global_information(x)
     scale = np.sqrt(np.maximum(np.diag(S), 1e-300))
     Sn = S / np.outer(scale, scale)
     ev = np.linalg.eigvalsh(Sn)
     cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
     if not np.isfinite(cond) or cond > 1e14:
-        cov_free_unit = np.full(S.shape, np.inf)
+        cov_global_unit = np.full(S.shape, np.inf)
     else:
-        cov_free_unit = np.linalg.inv(Sn) / np.outer(scale, scale)
+        cov_global_unit = np.linalg.inv(Sn) / np.outer(scale, scale)
+    cov_free_unit = cov_global_unit[: prob.nf, : prob.nf]
     cov9_unit = prob.T @ cov_free_unit @ prob.T.T if np.all(np.isfinite(cov_free_unit)) else None
     f_idx = 1 if aspect is not None else 0
     unit_rel = (float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf"))
@@ -595,6 +744,13 @@ def calibrate(
     corr[:, std_arr == 0] = np.nan
     std = {name: float(s) for name, s in zip(PARAM_NAMES, std_arr)}
 
+    board_points = board_std = None
+    if board is not None:
+        board_points = prob.board_points(x)
+        board_std = np.zeros(board.nominal.size)
+        board_std[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf:], 0.0))
+        board_std = board_std.reshape(-1, 3)
+
     residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
     errors = error_stats(np.concatenate(residuals))
     if errors["rms_per_coord_px"] > 2.0:
@@ -605,7 +761,9 @@ def calibrate(
         camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,
         per_view_errors=[error_stats(r) for r in residuals], sigma_px=float(np.sqrt(sigma2)),
         n_iterations=int(n_iter), converged=bool(converged),
-        fixed=tuple(fixed), n_params=int(prob.n))
+        fixed=tuple(fixed), n_params=int(prob.n),
+        board_nominal=None if board is None else board.nominal, board_points=board_points, board_std=board_std,
+        board_gauge=None if board is None else board.gauge)
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -652,6 +810,7 @@ def calibrate_images(
     fix_tangential: bool = False,
     fix_aspect_ratio: bool = False,
     fix_principal_point: bool = False,
+    refine_board: bool = False,
     max_rounds: int = 6,
     tol_px: float = 1e-4,
     progress: bool = True,
@@ -661,7 +820,8 @@ def calibrate_images(
     (perspective and distortion aware, ``circcal.detect.recorrect``) and recalibrate, until no centre moves more than
     ``tol_px`` (typically 2-3 rounds) or ``max_rounds`` calibrations were made.
 
-    ``board``: :class:`circcal.board.Board`. Images where the board is not found are left out and listed in
+    ``board``: :class:`circcal.board.Board`. ``refine_board``: estimate the board's 3-D shape as well (see
+    :func:`calibrate`). Images where the board is not found are left out and listed in
     ``failed`` with the detector's reason. Raises :class:`CalibrationError` when fewer than 3 images remain.
     """
     import cv2
@@ -699,7 +859,7 @@ def calibrate_images(
     board_pts = board.object_points()
     names = [Path(paths[i]).name for i in used]
     opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
-                fix_principal_point=fix_principal_point)
+                fix_principal_point=fix_principal_point, refine_board=refine_board)
 
     centers = [np.asarray(detections[i].centers, dtype=np.float64) for i in used]
     pairs = [_points_of(c, board_pts) for c in centers]
@@ -728,15 +888,18 @@ def calibrate_images(
 def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The board pose that best explains one view with ``camera`` held fixed.
 
-    ``object_points``: (N, 3) mm on the board (z = 0); ``image_points``: (N, 2) px. IPPE (planar) start, then
-    OpenCV's Levenberg-Marquardt refinement to convergence. Returns ``rvec`` (3,) rad, ``tvec`` (3,) mm;
+    ``object_points``: (N, 3) mm on the board (z = 0, or the near-planar points of a refined board);
+    ``image_points``: (N, 2) px. IPPE start from the points flattened onto z = 0, then OpenCV's Levenberg-Marquardt
+    refinement with the actual points to convergence. Returns ``rvec`` (3,) rad, ``tvec`` (3,) mm;
     :class:`CalibrationError` when no pose is found.
     """
     import cv2
 
     o = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
     p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    ok, rvec, tvec = cv2.solvePnP(o, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    flat = o.copy()
+    flat[:, :, 2] = 0.0
+    ok, rvec, tvec = cv2.solvePnP(flat, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
     rvec, tvec = cv2.solvePnPRefineLM(o, p, camera.K, camera.dist, rvec, tvec,
@@ -753,8 +916,8 @@ def holdout_errors(
     """Leave-one-view-out check of a calibration's intrinsics.
 
     For each view k: calibrate on all other views (``options`` go to :func:`calibrate`), then estimate view k's pose
-    from its own points with that model held fixed (``cv2.solvePnP``, iterative, 6 pose parameters) and measure how
-    well the model predicts the view's centres. A model that only fits its own views well (over-fitted distortion,
+    from its own points with that model (and, with ``refine_board=True``, that board shape) held fixed
+    (:func:`fit_pose`, 6 pose parameters) and measure how well the model predicts the view's centres. A model that only fits its own views well (over-fitted distortion,
     a bias absorbed into the intrinsics) predicts held-out views worse. Returns one
     :func:`circcal.metrics.error_stats` dict per view (plus ``"view"``); the residual has 2N - 6 degrees of freedom.
     """
@@ -764,7 +927,7 @@ def holdout_errors(
     for k in range(len(object_points)):
         rest = [i for i in range(len(object_points)) if i != k]
         res = calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, **options)
-        obj = np.asarray(object_points[k], dtype=np.float64)
+        obj = res.board_lookup(np.asarray(object_points[k], dtype=np.float64))
         img = np.asarray(image_points[k], dtype=np.float64)
         rvec, tvec = fit_pose(obj, img, res.camera)
         pred = project(obj, rvec, tvec, res.camera)

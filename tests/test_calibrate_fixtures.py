@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.calibrate import calibrate_images, holdout_errors
+from circcal.calibrate import calibrate, calibrate_images, holdout_errors
 from fixtures.scenarios import fixture_dir, load_truth
 from validators.opencv import OpenCVCalibrator
 
@@ -59,14 +59,31 @@ REAL = {
 }
 
 
+def _rms(stats: list[dict]) -> float:
+    return float(np.sqrt(np.mean([h["rms_per_point_px"] ** 2 for h in stats])))
+
+
+def _opencv_centres_in_our_order(paths, board, centers):
+    """OpenCV's findCirclesGrid centres per view, each reversed where that matches circcal's order: a symmetric
+    grid has a 180-degree ambiguity, and findCirclesGrid resolves it per image (on the 10x8 set it flips 2 of 6
+    views), which is harmless for a rigid board but mixes up points once the board's shape is estimated."""
+    det = OpenCVCalibrator().detect(paths, board)
+    out = []
+    for c, p in zip(centers, det["image_points"]):
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
+        flip = np.nanmax(np.linalg.norm(c - p[::-1], axis=1)) < np.nanmax(np.linalg.norm(c - p, axis=1))
+        out.append(p[::-1] if flip else p)
+    return out
+
+
 @pytest.mark.parametrize("name", sorted(REAL))
 def test_real_photographs(realdata, name):
-    """Real photographs: every grid found; RMS and held-out-view prediction reported next to OpenCV's baseline.
+    """Real photographs, rigid board: every grid found; RMS and held-out-view prediction next to OpenCV's.
 
     Measured: RMS per point 0.1849 vs OpenCV's 0.183 (asym), 0.4764 vs 0.4755 (regular); held-out prediction
-    0.2029 vs 0.2017 and 0.5097 vs 0.5103. The residual on these sets is dominated by what no detector fixes
-    (printed board on a clipboard: mrcal's board-warp fit finds 0.5 mm; JPEG; the lens), so circcal ties OpenCV
-    rather than beating it; the bound below pins that tie (2 %) so a regression in either shows.
+    0.2029 vs 0.2017 and 0.5097 vs 0.5103. With a rigid board the residual on these sets is the board's shape
+    (a printed sheet on a clipboard; see test_real_photographs_board_refined), so circcal ties OpenCV here; the
+    bound pins that tie (2 %) so a regression in either shows.
     """
     board = REAL[name]
     folder = realdata / name
@@ -80,9 +97,49 @@ def test_real_photographs(realdata, name):
     det = OpenCVCalibrator().detect(paths, board)
     theirs = holdout_errors([board.object_points()] * len(det["image_points"]), det["image_points"],
                             det["image_size"])
-    h_ours = float(np.sqrt(np.mean([h["rms_per_point_px"] ** 2 for h in ours])))
-    h_theirs = float(np.sqrt(np.mean([h["rms_per_point_px"] ** 2 for h in theirs])))
+    h_ours, h_theirs = _rms(ours), _rms(theirs)
     print(f"\n{name}: RMS per point {rms:.4f} px (OpenCV baseline {baseline['rms_px']:.4f}); held-out "
           f"{h_ours:.4f} px (OpenCV {h_theirs:.4f})")
     assert rms <= 1.02 * baseline["rms_px"]
     assert h_ours <= 1.02 * h_theirs
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_real_photographs_board_refined(realdata, name):
+    """Real photographs with the board's shape estimated (``refine_board``): beats OpenCV's baseline RMS (rigid
+    board, SOURCE.txt) several times over, and the gain is real: held-out views are predicted 1.5-5x better than
+    with the rigid model (a shape fitted to noise would predict them worse).
+
+    Measured: RMS per point 0.0709 px (baseline 0.183, asym) and 0.0589 px (baseline 0.4755, regular); held-out
+    0.1316 vs rigid 0.2029, 0.1080 vs 0.5097. The same solver on OpenCV's centres, put in circcal's point order,
+    gives 0.0711 / 0.0590 px and held-out 0.1309 / 0.1083: on these 640x480 JPEGs the two detectors' centres tie once the board is modelled
+    (asserted within 3 %). In findCirclesGrid's own order the 10x8 set does not (2 of 6 views flipped). The
+    sheets deviate from the nominal board by up to 0.29 mm (asym) and 1.29 mm (regular), 15x and 28x their median
+    sigma (0.020, 0.046 mm).
+    """
+    board = REAL[name]
+    folder = realdata / name
+    paths = sorted(folder.glob("*.jpg"))
+    baseline = json.loads((folder / "opencv_baseline.json").read_text())
+    rigid = calibrate_images(paths, board, progress=False)
+    cal = calibrate_images(paths, board, progress=False, refine_board=True)
+    assert not cal.failed and len(cal.used) == len(paths)
+    rms = cal.result.errors["rms_per_point_px"]
+    obj, img = cal.observations(board)
+    size = (cal.result.camera.width, cal.result.camera.height)
+    h_refined = _rms(holdout_errors(obj, img, size, refine_board=True))
+    h_rigid = _rms(holdout_errors(*rigid.observations(board), size))
+    theirs_img = _opencv_centres_in_our_order(paths, board, cal.centers)
+    theirs_obj = [board.object_points()] * len(theirs_img)
+    theirs = calibrate(theirs_obj, theirs_img, size, refine_board=True)
+    h_theirs = _rms(holdout_errors(theirs_obj, theirs_img, size, refine_board=True))
+    dev = np.abs(cal.result.board_points - cal.result.board_nominal)
+    print(f"\n{name}: board refined: RMS per point {rms:.4f} px (OpenCV baseline, rigid: {baseline['rms_px']:.4f}; "
+          f"OpenCV centres, refined: {theirs.errors['rms_per_point_px']:.4f}); held-out {h_refined:.4f} px (rigid "
+          f"{h_rigid:.4f}, OpenCV centres refined {h_theirs:.4f}); board deviates up to {dev.max():.2f} mm "
+          f"(median sigma {np.median(cal.result.board_std[cal.result.board_std > 0]):.3f} mm)")
+    assert rms <= 0.5 * baseline["rms_px"]
+    assert h_refined <= 0.7 * h_rigid
+    assert rms <= 1.03 * theirs.errors["rms_per_point_px"] and h_refined <= 1.03 * h_theirs
+    std = cal.result.board_std
+    assert 5.0 * np.median(std[std > 0]) <= dev.max() <= 3.0  # a significant deformation, of printed-sheet size

@@ -45,6 +45,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0")
     p.add_argument("--fix-aspect-ratio", action="store_true", help="hold fx = fy")
     p.add_argument("--fix-principal-point", action="store_true", help="hold (cx, cy) at the image centre")
+    p.add_argument("--refine-board", action="store_true",
+                   help="also estimate the 3-D position of every board point (a printed board that is not flat or "
+                        "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json")
     p.add_argument("--out", type=Path, default=Path("model.json"), help="output model file (default model.json)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -52,6 +55,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def format_summary(cal, *, worst: int = 3) -> str:
     """Human-readable summary of an :class:`circcal.calibrate.ImagesCalibration` (or a CalibrationResult)."""
+    import numpy as np
+
     from circcal.calibrate import PARAM_NAMES
 
     res = getattr(cal, "result", cal)
@@ -78,6 +83,11 @@ def format_summary(cal, *, worst: int = 3) -> str:
         pv = res.per_view_errors[i]
         lines.append(f"  {names[i]}: {pv['rms_per_point_px']:.4f} px (max {pv['max_2d_px']:.4f} px, "
                      f"{pv['n_points']} points)")
+    if res.board_points is not None:
+        d = res.board_points - res.board_nominal
+        lines.append(f"board shape (refined, gauge points {list(res.board_gauge)} held): largest deviation from the "
+                     f"nominal board x {np.max(np.abs(d[:, 0])):.3f}, y {np.max(np.abs(d[:, 1])):.3f}, "
+                     f"z {np.max(np.abs(d[:, 2])):.3f} mm (typical 1-sigma {np.median(res.board_std[res.board_std > 0]):.3f} mm)")
     rounds = getattr(cal, "rounds", None)
     if rounds:
         lines.append("re-correction rounds: " + ", ".join(
@@ -103,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,
                                fix_aspect_ratio=args.fix_aspect_ratio, fix_principal_point=args.fix_principal_point,
-                               progress=not args.no_progress)
+                               refine_board=args.refine_board, progress=not args.no_progress)
     except CalibrationError as exc:
         print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
         return 1
