@@ -25,7 +25,7 @@ import numpy as np
 
 from circcal.metrics import error_stats
 from circcal.model import DIST_NAMES, Camera, distort_jacobian, rodrigues
-from circcal.zhang import CalibrationError, DegenerateViewsError, pose_from_homography, view_tilts_deg, zhang
+from circcal.zhang import CalibrationError, DegenerateViewsError, view_tilts_deg, zhang
 
 __all__ = [
     "PARAM_NAMES",
@@ -92,12 +92,26 @@ def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, cam
     ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 9) with respect to
     fx, fy, cx, cy, k1, k2, p1, p2, k3; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
     """
-    Y, dY = rotate_jacobian(np.asarray(rvec, dtype=np.float64).reshape(3), np.asarray(points, dtype=np.float64))
-    return _project_jac(Y + np.asarray(tvec, dtype=np.float64).reshape(3), dY, camera.intrinsics)
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
+    uv, Ji, dP = _project_jac(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics)
+    return uv, Ji, np.concatenate([_rotation_block(dP, Y) @ _left_jacobian(r), dP], axis=2)
 
 
-def _project_jac(Xc: np.ndarray, dY: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Camera-frame points (N, 3) with d Xc / d rvec (N, 3, 3) -> (uv, J_intr (N, 2, 9), J_pose (N, 2, 6))."""
+def _rotation_block(dP: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``dP (-[Y]x)`` (N, 2, 3) for d uv / d Xc ``dP`` (N, 2, 3) and rotated points ``Y`` (N, 3): row k is
+    ``Y x dP_k``. Times the left Jacobian of the view's rvec it is d uv / d rvec (:func:`rotate_jacobian`)."""
+    a0, a1, a2 = dP[:, :, 0], dP[:, :, 1], dP[:, :, 2]
+    y0, y1, y2 = Y[:, 0:1], Y[:, 1:2], Y[:, 2:3]
+    out = np.empty_like(dP)
+    out[:, :, 0] = y1 * a2 - y2 * a1
+    out[:, :, 1] = y2 * a0 - y0 * a2
+    out[:, :, 2] = y0 * a1 - y1 * a0
+    return out
+
+
+def _project_jac(Xc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) -> (uv (N, 2), J_intr (N, 2, 9), dP = d uv / d Xc (N, 2, 3))."""
     fx, fy = p[0], p[1]
     iz = 1.0 / Xc[:, 2]
     xn = Xc[:, :2] * iz[:, None]
@@ -119,10 +133,7 @@ def _project_jac(Xc: np.ndarray, dY: np.ndarray, p: np.ndarray) -> tuple[np.ndar
     dP[:, :, 0] = A[:, :, 0] * iz[:, None]
     dP[:, :, 1] = A[:, :, 1] * iz[:, None]
     dP[:, :, 2] = -(A[:, :, 0] * xn[:, 0:1] + A[:, :, 1] * xn[:, 1:2]) * iz[:, None]
-    Jp = np.empty((n, 2, 6))
-    Jp[:, :, :3] = dP @ dY
-    Jp[:, :, 3:] = dP
-    return uv, Ji, Jp
+    return uv, Ji, dP
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -355,6 +366,9 @@ class _Problem:
             if aspect is not None and k == 1:
                 self.T[0, j] = aspect
         self.nf = len(free)
+        self.T_is_identity = self.T.shape == (9, 9) and bool(np.all(self.T == np.eye(9)))
+        ends = np.cumsum(self.counts)
+        self.slices = [slice(a, b) for a, b in zip(ends - self.counts, ends)]
         self.board = board
         self.nb = 0 if board is None else len(board.free)
         if board is not None:
@@ -399,17 +413,24 @@ class _Problem:
             return self._cache
         p = self.intrinsics(x)
         rv, tv = self.poses(x)
-        R = rodrigues(rv)[self.view]
+        R = rodrigues(rv)
+        Jl = _left_jacobian(rv)
         X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
-        Y = np.einsum("nij,nj->ni", R, X)
-        dY = -_skew(Y) @ _left_jacobian(rv)[self.view]
-        Xc = Y + tv[self.view]
-        uv, Ji, Jp = _project_jac(Xc, dY, p)
+        Y = np.empty_like(X)
+        for v, sl in enumerate(self.slices):
+            np.matmul(X[sl], R[v].T, out=Y[sl])
+        Xc = Y + np.repeat(tv, self.counts, axis=0)
+        uv, Ji, dP = _project_jac(Xc, p)
         f = (uv - self.uv).ravel()
-        Jg = Ji @ self.T
+        C = _rotation_block(dP, Y)
+        Jp = np.empty((len(X), 2, 6))
+        for v, sl in enumerate(self.slices):
+            np.matmul(C[sl], Jl[v], out=Jp[sl, :, :3])
+        Jp[:, :, 3:] = dP
+        Jg = Ji if self.T_is_identity else Ji @ self.T
         if self.board is not None:
-            # d uv / d X_board = (d uv / d Xc) R; d uv / d Xc is the translation block of J_pose
-            Jb = Jp[:, :, 3:] @ R                                             # (N, 2, 3)
+            # d uv / d X_board = (d uv / d Xc) R
+            Jb = dP @ R[self.view]                                            # (N, 2, 3)
             Jg = np.concatenate([Jg, np.zeros((len(Xc), 2, self.nb))], axis=2)
             rows, coords = np.nonzero(self.board_cols >= 0)
             Jg[rows, :, self.board_cols[rows, coords]] = Jb[rows, :, coords]
@@ -441,32 +462,19 @@ class _Problem:
 
 
 def _normal_blocks(prob: "_Problem", f: np.ndarray, Ji: np.ndarray, Jp: np.ndarray, starts: np.ndarray):
-    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6)."""
+    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6); one matrix product
+    per view (each view's rows touch only the global block and its own pose)."""
     ng = Ji.shape[2]
-    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, ng + 6)
-    if ng <= 16:
-        # few global parameters: per-point outer products, summed per view
-        Jt = Jc.transpose(0, 2, 1)
-        G = np.add.reduceat(Jt @ Jc, starts, axis=0)                   # (V, ng + 6, ng + 6)
-        g = np.add.reduceat((Jt @ f.reshape(-1, 2, 1))[:, :, 0], starts, axis=0)
-        return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
-    # board refinement (hundreds of global parameters): one matrix product per view
-    ends = np.append(starts[1:], len(Jc))
+    Jc = np.concatenate([Ji, Jp], axis=2).reshape(-1, ng + 6)         # (2N, ng + 6)
+    ends = np.append(starts[1:], len(Ji))
     V = len(starts)
-    A = np.zeros((ng, ng))
-    gi = np.zeros(ng)
-    B = np.empty((V, ng, 6))
-    D = np.empty((V, 6, 6))
-    gp = np.empty((V, 6))
-    for v, (a, b) in enumerate(zip(starts, ends)):
-        Jv = Jc[a:b].reshape(-1, ng + 6)
-        fv = f[2 * a: 2 * b]
-        Gv = Jv.T @ Jv
-        gv = Jv.T @ fv
-        A += Gv[:ng, :ng]
-        gi += gv[:ng]
-        B[v], D[v], gp[v] = Gv[:ng, ng:], Gv[ng:, ng:], gv[ng:]
-    return A, gi, B, D, gp
+    G = np.empty((V, ng + 6, ng + 6))
+    g = np.empty((V, ng + 6))
+    for v in range(V):
+        Jv = Jc[2 * starts[v]: 2 * ends[v]]
+        np.matmul(Jv.T, Jv, out=G[v])
+        np.matmul(Jv.T, f[2 * starts[v]: 2 * ends[v]], out=g[v])
+    return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
 
 
 def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
@@ -488,65 +496,65 @@ def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
     return np.concatenate([di, dp.ravel()])
 
 
+def _quadratic_form(A, B, D, di: np.ndarray, dp: np.ndarray) -> float:
+    """``s^T (J^T J) s`` for a step split into its global part ``di`` (ng,) and pose part ``dp`` (V, 6)."""
+    return float(di @ A @ di + 2.0 * np.einsum("a,vab,vb->", di, B, dp) + np.einsum("va,vab,vb->", dp, D, dp))
+
+
 def _lm_schur(prob: "_Problem", x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int, bool, str]:
     """Levenberg-Marquardt on ``prob`` with exact Schur-complement solves of the damped normal equations.
 
-    Each iteration forms ``J^T J`` blockwise (intrinsic block A, per-view coupling B_v and 6x6 pose blocks D_v),
-    damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant like ``x_scale='jac'``), eliminates
-    the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. Once no damped step lowers the cost by more
-    than 1e-13 relative (the cost's own rounding level), undamped Gauss-Newton steps polish the parameters until a
-    step changes none of them by more than 1e-10 relative (the cost cannot resolve that; the gradient can).
+    Each iteration forms ``J^T J`` blockwise (global block A: intrinsics and any board coordinates; per-view
+    coupling B_v and 6x6 pose blocks D_v), damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
+    like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes.
+    Stopping: once the damping is negligible (lambda <= 1e-5, the step is Gauss-Newton's) and the step's predicted
+    decrease of the cost (from the local quadratic model, exact to rounding even where the cost itself is not) is
+    below 1e-10 of the cost, the cost can no longer rank steps and the model is trusted: steps that do not raise
+    the cost beyond its rounding are taken until one predicts less than 1e-18 of the cost, which is taken last.
+    The parameters then sit ~1e-9 of their own standard deviations from the minimum. A solve that can no
+    longer lower the cost otherwise ends "stalled" and is judged by its gradient.
     Returns ``(x, iterations, converged, message)``.
     """
     starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
+    ng = prob.ng
     x = x0.copy()
     f, _, Ji, Jp = prob.evaluate(x)
     cost = float(f @ f)
-    lam = 1e-3
+    lam = 1e-4
     it = 0
-    stalled = False
-    while it < max_iterations and not stalled:
+    done = stalled = False
+    while it < max_iterations and not (done or stalled):
         it += 1
-        blocks = _normal_blocks(prob, f, Ji, Jp, starts)
+        A, gi, B, D, gp = blocks = _normal_blocks(prob, f, Ji, Jp, starts)
         while True:
             step = _schur_step(*blocks, lam)
-            cost_new = np.inf
-            if np.all(np.isfinite(step)):
-                f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
-                if np.all(np.isfinite(f_new)):
-                    cost_new = float(f_new @ f_new)
-            if cost_new < cost:
-                drop = cost - cost_new
+            if not np.all(np.isfinite(step)):
+                lam *= 10.0
+                if lam > 1e12:
+                    stalled = True
+                    break
+                continue
+            di, dp = step[:ng], step[ng:].reshape(-1, 6)
+            # cost(x + s) ~ cost + 2 g.s + s^T J^T J s
+            predicted = -(2.0 * (gi @ di + np.sum(gp * dp)) + _quadratic_form(A, B, D, di, dp))
+            # Near the minimum the cost can no longer rank steps (its rounding is ~1e-16 relative) but the
+            # quadratic model can: there a step that does not raise the cost beyond rounding is taken.
+            trusted = lam <= 1e-5 and predicted <= 1e-10 * cost
+            final = trusted and predicted <= 1e-18 * cost
+            f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
+            cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
+            if cost_new < cost or (trusted and cost_new <= cost * (1.0 + 1e-12)):
                 x, f, Ji, Jp, cost = x + step, f_new, Ji_new, Jp_new, cost_new
                 lam = max(lam / 10.0, 1e-12)
-                stalled = drop <= 1e-13 * cost
+                done = final
                 break
             lam *= 10.0
             if lam > 1e12:
                 stalled = True
                 break
-    if not stalled:
-        prob.evaluate(x)
-        return x, it, False, f"iteration limit {max_iterations} reached"
-    # Gauss-Newton polish: near the minimum its steps are exact to rounding even where the cost cannot tell.
-    prev = np.inf
-    for _ in range(8):
-        blocks = _normal_blocks(prob, f, Ji, Jp, starts)
-        step = _schur_step(*blocks, 0.0)
-        if not np.all(np.isfinite(step)):
-            break
-        rel = float(np.max(np.abs(step) / (np.abs(x) + 1e-6)))
-        if rel >= prev:
-            break
-        f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
-        cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
-        if not cost_new <= cost * (1.0 + 1e-12) + 1e-300:
-            break
-        x, f, Ji, Jp, cost, prev = x + step, f_new, Ji_new, Jp_new, cost_new, rel
-        it += 1
-        if rel < 1e-10:
-            break
     prob.evaluate(x)
+    if not (done or stalled):
+        return x, it, False, f"iteration limit {max_iterations} reached"
     # Converged if the scaled gradient is negligible at the final point.
     A, gi, B, D, gp = _normal_blocks(prob, f, Ji, Jp, starts)
     scale = np.sqrt(np.concatenate([np.diag(A), np.diagonal(D, axis1=1, axis2=2).ravel()]))
@@ -584,17 +592,12 @@ def _sane(prob: _Problem, x: np.ndarray, converged: bool) -> bool:
 def _initial_poses(obj, img, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Poses from homographies of the undistorted, normalised observations under ``camera``."""
     from circcal.model import pixel_to_normalized, undistort
-    from circcal.zhang import homography
+    from circcal.zhang import homographies, poses_from_homographies
 
-    rv, tv = [], []
-    for o, p in zip(obj, img):
-        xn = undistort(pixel_to_normalized(p, camera), camera.dist)
-        if not np.all(np.isfinite(xn)):
-            raise CalibrationError("the initial camera's distortion cannot be inverted at some observed points")
-        r, t = pose_from_homography(homography(o[:, :2], xn), np.eye(3))
-        rv.append(r)
-        tv.append(t)
-    return np.stack(rv), np.stack(tv)
+    xn = [undistort(pixel_to_normalized(p, camera), camera.dist) for p in img]
+    if not all(np.all(np.isfinite(x)) for x in xn):
+        raise CalibrationError("the initial camera's distortion cannot be inverted at some observed points")
+    return poses_from_homographies(homographies([o[:, :2] for o in obj], xn), np.eye(3))
 
 
 def calibrate(

@@ -21,6 +21,7 @@ that fits but is poorly determined is caught after the refinement, from its cova
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -31,8 +32,10 @@ __all__ = [
     "DegenerateViewsError",
     "ZhangResult",
     "homography",
+    "homographies",
     "intrinsics_from_homographies",
     "pose_from_homography",
+    "poses_from_homographies",
     "view_tilts_deg",
     "zhang",
 ]
@@ -69,45 +72,67 @@ class ZhangResult:
     principal_point_fixed: bool
 
 
-def _similarity_normaliser(pts: np.ndarray) -> np.ndarray:
-    """Hartley's normalisation (3, 3): centroid to the origin, mean distance sqrt(2)."""
-    c = pts.mean(axis=0)
-    d = np.mean(np.linalg.norm(pts - c, axis=1))
-    s = np.sqrt(2.0) / d if d > 0 else 1.0
-    return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+def _similarity_normalisers(pts: np.ndarray) -> np.ndarray:
+    """Hartley's normalisation per view: (V, N, 2) -> (V, 3, 3) mapping the centroid to the origin and the mean
+    distance from it to sqrt(2)."""
+    c = pts.mean(axis=1)
+    d = np.mean(np.linalg.norm(pts - c[:, None, :], axis=2), axis=1)
+    s = np.where(d > 0, np.sqrt(2.0) / np.where(d > 0, d, 1.0), 1.0)
+    T = np.zeros((len(pts), 3, 3))
+    T[:, 0, 0] = T[:, 1, 1] = s
+    T[:, :2, 2] = -s[:, None] * c
+    T[:, 2, 2] = 1.0
+    return T
+
+
+def _homographies_same_size(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Normalised DLT for V views of N points each: ``src``, ``dst`` (V, N, 2) -> (V, 3, 3) (unnormalised scale)."""
+    Ts, Td = _similarity_normalisers(src), _similarity_normalisers(dst)
+    a = np.einsum("vij,vnj->vni", Ts[:, :2, :2], src) + Ts[:, None, :2, 2]
+    b = np.einsum("vij,vnj->vni", Td[:, :2, :2], dst) + Td[:, None, :2, 2]
+    V, n = a.shape[:2]
+    A = np.zeros((V, n, 2, 9))
+    A[:, :, 0, 0:2] = a
+    A[:, :, 0, 2] = 1.0
+    A[:, :, 0, 6:8] = -b[:, :, :1] * a
+    A[:, :, 0, 8] = -b[:, :, 0]
+    A[:, :, 1, 3:5] = a
+    A[:, :, 1, 5] = 1.0
+    A[:, :, 1, 6:8] = -b[:, :, 1:2] * a
+    A[:, :, 1, 8] = -b[:, :, 1]
+    _, sv, Vt = np.linalg.svd(A.reshape(V, 2 * n, 9), full_matrices=False)
+    if np.any(sv[:, -2] <= 1e-12 * sv[:, 0]):
+        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
+    return np.linalg.solve(Td, Vt[:, -1].reshape(V, 3, 3) @ Ts)
+
+
+def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndarray]) -> np.ndarray:
+    """Plane homographies (V, 3, 3), one per view, mapping board coordinates ``object_xy[v]`` (N_v, 2) mm to
+    ``image_points[v]`` (N_v, 2), N_v >= 4.
+
+    Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless data),
+    batched over views with equal point counts. Each scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
+    Raises :class:`CalibrationError` for fewer than 4 points or collinear / coincident points.
+    """
+    src = [np.asarray(o, dtype=np.float64).reshape(-1, 2) for o in object_xy]
+    dst = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points]
+    counts = np.array([len(o) for o in src])
+    if np.any(counts < 4):
+        raise CalibrationError(f"a plane homography needs >= 4 points, got {int(counts.min())}")
+    H = np.empty((len(src), 3, 3))
+    for n in np.unique(counts):
+        idx = np.flatnonzero(counts == n)
+        H[idx] = _homographies_same_size(np.stack([src[i] for i in idx]), np.stack([dst[i] for i in idx]))
+    if not np.all(np.isfinite(H)):
+        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
+    H /= np.linalg.norm(H, axis=(1, 2))[:, None, None]
+    H[H[:, 2, 2] < 0] *= -1.0
+    return H
 
 
 def homography(object_xy: np.ndarray, image_points: np.ndarray) -> np.ndarray:
-    """Plane homography (3, 3) mapping board coordinates ``object_xy`` (N, 2) mm to ``image_points`` (N, 2), N >= 4.
-
-    Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless
-    data). Scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
-    """
-    src = np.asarray(object_xy, dtype=np.float64).reshape(-1, 2)
-    dst = np.asarray(image_points, dtype=np.float64).reshape(-1, 2)
-    if len(src) < 4:
-        raise CalibrationError(f"a plane homography needs >= 4 points, got {len(src)}")
-    Ts, Td = _similarity_normaliser(src), _similarity_normaliser(dst)
-    a = src @ Ts[:2, :2].T + Ts[:2, 2]
-    b = dst @ Td[:2, :2].T + Td[:2, 2]
-    n = len(a)
-    A = np.zeros((2 * n, 9))
-    A[0::2, 0:2] = a
-    A[0::2, 2] = 1.0
-    A[0::2, 6:8] = -b[:, :1] * a
-    A[0::2, 8] = -b[:, 0]
-    A[1::2, 3:5] = a
-    A[1::2, 5] = 1.0
-    A[1::2, 6:8] = -b[:, 1:2] * a
-    A[1::2, 8] = -b[:, 1]
-    _, sv, Vt = np.linalg.svd(A, full_matrices=False)
-    if sv[-2] <= 1e-12 * sv[0]:
-        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
-    H = np.linalg.solve(Td, Vt[-1].reshape(3, 3) @ Ts)
-    if not np.all(np.isfinite(H)):
-        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
-    H = H / np.linalg.norm(H)
-    return -H if H[2, 2] < 0 else H
+    """One view's plane homography (3, 3): :func:`homographies` for a single view."""
+    return homographies([object_xy], [image_points])[0]
 
 
 def _pixel_normaliser(image_size: tuple[int, int]) -> np.ndarray:
@@ -191,25 +216,33 @@ def intrinsics_from_homographies(
     return K / K[2, 2], condition
 
 
-def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Board pose from a homography ``H`` (3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
+def poses_from_homographies(Hs: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Board poses from homographies ``Hs`` (V, 3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
 
     ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in
-    front of the camera, ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvec`` (3,) radians, ``tvec`` (3,) mm.
+    front of the camera, ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvecs`` (V, 3) radians, ``tvecs``
+    (V, 3) mm.
     """
     import cv2
 
-    M = np.linalg.solve(K, np.asarray(H, dtype=np.float64))
-    s = 2.0 / (np.linalg.norm(M[:, 0]) + np.linalg.norm(M[:, 1]))
-    if M[2, 2] < 0:
-        s = -s
-    r1, r2, t = s * M[:, 0], s * M[:, 1], s * M[:, 2]
-    R = np.column_stack([r1, r2, np.cross(r1, r2)])
+    M = np.linalg.solve(K, np.asarray(Hs, dtype=np.float64).reshape(-1, 3, 3))
+    s = 2.0 / (np.linalg.norm(M[:, :, 0], axis=1) + np.linalg.norm(M[:, :, 1], axis=1))
+    s = np.where(M[:, 2, 2] < 0, -s, s)
+    r1, r2, t = s[:, None] * M[:, :, 0], s[:, None] * M[:, :, 1], s[:, None] * M[:, :, 2]
+    R = np.stack([r1, r2, np.cross(r1, r2)], axis=2)
     U, _, Vt = np.linalg.svd(R)
+    flip = np.linalg.det(U @ Vt) < 0
+    U[flip, :, 2] *= -1.0
     R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
-    return cv2.Rodrigues(R)[0].ravel(), t
+    rvecs = np.stack([cv2.Rodrigues(r)[0].ravel() for r in R])
+    return rvecs, t
+
+
+def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One view's pose: :func:`poses_from_homographies` for a single (3, 3) homography. Returns ``rvec`` (3,),
+    ``tvec`` (3,)."""
+    rv, tv = poses_from_homographies(np.asarray(H)[None], K)
+    return rv[0], tv[0]
 
 
 def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
@@ -317,7 +350,7 @@ def zhang(
 
 def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_deg) -> ZhangResult:
     w, h = image_size
-    Hs = np.stack([homography(o[:, :2], p) for o, p in zip(obj, img)])
+    Hs = homographies([o[:, :2] for o in obj], img)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
     pp_fixed = principal_point is not None
     K = None
@@ -335,7 +368,7 @@ def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_d
     if not np.all(np.isfinite(K)):
         f_guess = float(max(w, h))
         K_guess = np.array([[f_guess, 0.0, centre[0]], [0.0, f_guess, centre[1]], [0.0, 0.0, 1.0]])
-        tilts = view_tilts_deg(np.stack([pose_from_homography(H, K_guess)[0] for H in Hs]))
+        tilts = view_tilts_deg(poses_from_homographies(Hs, K_guess)[0])
         flat = [int(i) for i in np.flatnonzero(tilts < min_tilt_deg)]
         if flat:
             listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat)
@@ -348,7 +381,6 @@ def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_d
         raise DegenerateViewsError(
             f"focal length is not observable from these {len(Hs)} views: the image of the absolute conic is not "
             f"positive definite (condition number {condition:.3g}). {hint}", flat, condition)
-    poses = [pose_from_homography(H, K) for H in Hs]
+    rvecs, tvecs = poses_from_homographies(Hs, K)
     camera = Camera(int(w), int(h), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), np.zeros(5))
-    return ZhangResult(camera, np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]), Hs, condition,
-                       pp_fixed)
+    return ZhangResult(camera, rvecs, tvecs, Hs, condition, pp_fixed)
