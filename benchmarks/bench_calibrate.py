@@ -4,6 +4,10 @@ Both get identical float32-rounded observations (7x7 board, 14 tilted views, 0.1
 moderate distortion) and solve to their tightest tolerance; the time is the median of repeated full solves
 (closed-form start + refinement + covariance for circcal; calibrateCameraExtended, which also computes the
 standard deviations, for OpenCV). ``ratio`` = circcal / OpenCV (goal <= 1.0).
+
+Also the whole pipeline on the `paper` scenario (normal light, 14 rendered 1920x1080 views): ``circcal calibrate``'s
+work (detect, calibrate, re-correct, recalibrate until the centres settle) against OpenCV's pipeline on the same
+images (findCirclesGrid + calibrateCameraExtended, validators.opencv).
 """
 from __future__ import annotations
 
@@ -37,6 +41,28 @@ def _median_time(fn, repeats: int) -> float:
     return float(np.median(times))
 
 
+def _pipeline(repeats: int = 3) -> dict:
+    """Whole-pipeline timings on the paper fixture (rendering not timed: cached)."""
+    from circcal.calibrate import calibrate_images
+    from fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from validators.opencv import OpenCVCalibrator
+
+    truth = load_truth(fixture_dir(DEFAULT_SCENARIO, "normal"))
+    paths = [v.image for v in truth.views]
+    size = (truth.camera.width, truth.camera.height)
+    holder: dict = {}
+
+    def ours():
+        holder["cal"] = calibrate_images(paths, truth.board, progress=False)
+
+    t_ours = _median_time(ours, repeats)
+    t_cv = _median_time(lambda: OpenCVCalibrator().calibrate_images(paths, truth.board, size), repeats)
+    cal = holder["cal"]
+    return {"paper_pipeline_views": len(paths), "paper_circcal_calibrate_s": t_ours,
+            "paper_circcal_rounds": len(cal.rounds), "paper_opencv_pipeline_s": t_cv,
+            "paper_pipeline_ratio": t_ours / t_cv}
+
+
 def run(repeats: int = 15) -> dict:
     import cv2
 
@@ -68,6 +94,7 @@ def run(repeats: int = 15) -> dict:
         "ratio_vs_1thread": t_cc / t_cv1,
         "circcal_iterations": res.n_iterations,
         "max_rel_param_diff_vs_opencv": float(np.max(np.abs(res.camera.intrinsics - ref_p) / np.abs(ref_p))),
+        **_pipeline(),
     }
 
 
