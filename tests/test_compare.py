@@ -7,7 +7,8 @@ import pytest
 from circcal.metrics import error_stats
 from circcal.model import Camera, rodrigues
 from validators.compare import (centre_errors, fit_rotation, grid_permutations, match_grid_order, param_diff,
-                                per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff, unproject)
+                                per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff,
+                                reverse_to_match, unproject)
 
 CAM = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.12, 0.08, 4e-4, -3e-4, -0.02]))
 PINHOLE = Camera(1920, 1080, 1500.0, 1500.0, 959.5, 539.5, np.zeros(5))
@@ -105,6 +106,27 @@ def test_mirror_only_when_asked():
     assert label == "flip_lr" and rms < 1e-12
     with pytest.raises(ValueError, match="expected 25 points"):
         match_grid_order(det[:-1], truth, rows, cols)
+
+
+def test_reverse_to_match_puts_views_in_the_reference_order():
+    """A second detector's views, some reversed (a symmetric grid's 180-degree ambiguity): reversed back where that
+    matches the reference, with NaN in the reference ignored and a view without a reference kept as detected."""
+    rows, cols = 8, 10
+    base = np.stack(np.meshgrid(np.arange(cols) * 25.0, np.arange(rows) * 25.0), -1).reshape(-1, 2) + 50.0
+    rng = np.random.default_rng(2)
+    ref = [base + rng.normal(0, 3.0, base.shape) for _ in range(4)]
+    det = [r + 0.05 for r in ref]
+    det[1], det[3] = det[1][::-1], det[3][::-1]
+    ref[3] = ref[3].copy()
+    ref[3][:5] = np.nan  # points the reference detector missed
+    got, flipped = reverse_to_match(det, ref)
+    assert flipped == [False, True, False, True]
+    for g, r in zip(got, ref):
+        assert np.allclose(g[5:], r[5:] + 0.05)
+    got, flipped = reverse_to_match(det, [ref[0], None, ref[2], ref[3]])
+    assert flipped == [False, False, False, True] and np.array_equal(got[1], det[1])
+    with pytest.raises(ValueError, match="differ in shape"):
+        reverse_to_match([base[:-1]], [base])
 
 
 def test_centre_errors_with_rematching():

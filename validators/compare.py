@@ -6,6 +6,8 @@
   principal point can be absorbed by a small rotation of every pose).
 * :func:`match_grid_order`: undo the 90/180-degree rotations (and, if asked, mirror flips) with which a detector may
   return a symmetric grid, against a reference set of centres.
+* :func:`reverse_to_match`: put each view of a detector's centres into another detector's point order where the two
+  differ by a reversal (the 180-degree ambiguity of a symmetric grid, resolved per image by each detector).
 * :func:`centre_errors`: detected centres against true centre projections, per view and overall.
 * Error-convention conversions come from :mod:`circcal.metrics` (re-exported here).
 
@@ -13,6 +15,7 @@ All projection and unprojection goes through :mod:`circcal.model` (pixel centres
 """
 from __future__ import annotations
 
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
@@ -29,6 +32,7 @@ __all__ = [
     "fit_rotation",
     "grid_permutations",
     "match_grid_order",
+    "reverse_to_match",
     "centre_errors",
     "error_stats",
     "per_point_to_per_coord",
@@ -190,6 +194,35 @@ def match_grid_order(detected: np.ndarray, reference: np.ndarray, rows: int, col
             best = (cand, label, rms)
     assert best is not None
     return best
+
+
+def reverse_to_match(detected: Sequence[np.ndarray], reference: Sequence[np.ndarray | None]
+                     ) -> tuple[list[np.ndarray], list[bool]]:
+    """Each detected view in the point order of ``reference``: reversed where the reversal lies closer to it.
+
+    ``detected``, ``reference``: per view (N, 2) px, same board; ``reference`` entries may hold NaN for points its
+    detector missed, or be None (that view is kept as detected). The criterion is the largest point distance (NaN
+    ignored), as a reversal moves points by the size of the grid. A symmetric grid has a 180-degree ambiguity that
+    each detector resolves its own way (findCirclesGrid numbers the real 10x8 set in opposite directions in its plain
+    and clustering modes, so a plain-then-clustering fallback reverses 2 of 6 views against circcal): harmless while
+    the board is rigid, since the pose absorbs it, but it mixes up points once each point's position is estimated. Returns (views re-ordered, (N, 2) float64 each; reversed? per view).
+    """
+    if len(detected) != len(reference):
+        raise ValueError(f"{len(detected)} detected views but {len(reference)} reference views")
+    out, flipped = [], []
+    for d, r in zip(detected, reference):
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 2)
+        flip = False
+        if r is not None:
+            r = np.asarray(r, dtype=np.float64).reshape(-1, 2)
+            if r.shape != d.shape:
+                raise ValueError(f"detected {d.shape} and reference {r.shape} differ in shape")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN reference view: kept as detected
+                flip = bool(np.nanmax(np.linalg.norm(r - d[::-1], axis=1)) < np.nanmax(np.linalg.norm(r - d, axis=1)))
+        out.append(d[::-1].copy() if flip else d)
+        flipped.append(flip)
+    return out, flipped
 
 
 def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, grid: tuple[int, int] | None = None,
