@@ -16,16 +16,17 @@ Pipeline pieces used by :mod:`circcal.detect`:
   smoothing scale matched to the edge width it is the efficient (Cramer-Rao) estimator of the edge position, which
   the gradient-peak location is not (``method="gradient"`` gives the gradient-peak variant).
 
-All dots are measured at once (:func:`subpixel_edge_points_batch`): one Gaussian smoothing and one spline
-prefilter of the window holding the dots (:class:`SmoothedImage`), all profiles of all dots sampled in one
-``map_coordinates`` call (first only the samples near the current boundary, the rest of a profile only where no
-crossing is found there: the nearest crossing is the same), the levels of all dots estimated together.
-:func:`subpixel_edge_points` is the one-dot form.
+All dots are measured at once (:func:`subpixel_edge_points_batch`): the Gaussian smoothing and spline prefilter of
+one crop per dot, all crops filtered by one OpenCV call (:class:`SmoothedImage`), the profiles of all dots sampled
+together with ``map_coordinates`` (first only the interval nearest the current boundary, the rest of a profile only
+where no crossing is found there: the nearest crossing is the same), the levels of all dots estimated together
+(medians of uint8 images from histograms). :func:`subpixel_edge_points` is the one-dot form.
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -195,59 +196,174 @@ def _segment_median(vals: np.ndarray, seg: np.ndarray, nseg: int) -> np.ndarray:
 
 
 def _masked_median(vals: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(D,) median of ``vals[d][mask[d]]`` per row of (D, P) arrays (NaN for an empty row)."""
-    f = np.flatnonzero(mask)
-    P = mask.shape[1] if mask.ndim == 2 else 1
-    return _segment_median(vals.reshape(-1)[f], f // max(P, 1), mask.shape[0])
+    """(D,) median of ``vals[d][mask[d]]`` per row of (D, P) arrays (NaN for an empty row; the values of
+    :func:`_segment_median` of the masked values, sorted in place of packing)."""
+    vals = np.asarray(vals, np.float64).reshape(len(mask), -1)
+    mask = np.asarray(mask, bool).reshape(vals.shape)
+    m = mask.sum(axis=1)
+    if vals.shape[1] == 0:
+        return np.full(len(m), np.nan)
+    srt = np.sort(np.where(mask, vals, np.inf), axis=1)
+    rows = np.arange(len(m))
+    lo = np.clip((m - 1) // 2, 0, vals.shape[1] - 1)
+    hi = np.clip(m // 2, 0, vals.shape[1] - 1)
+    return np.where(m > 0, 0.5 * (srt[rows, lo] + srt[rows, hi]), np.nan)
 
 
 class SmoothedImage:
-    """A grey image (H, W) and, over a window grown on demand, its Gaussian smoothing (``sigma`` px, reflected
-    borders) as cubic B-spline coefficients (mirror boundary), for sampling edge profiles.
+    """A grey image (H, W) and its Gaussian smoothing (``sigma`` px, reflected borders) as cubic B-spline coefficients
+    (mirror boundary), computed on demand in one crop per requested box (one box per dot), for sampling edge profiles.
 
-    The window keeps a margin of :attr:`MARGIN` px around every requested box (or reaches the image border), so
-    samples inside a requested box equal those of smoothing the whole image (the Gaussian support is ``4 sigma`` and
-    the spline prefilter's influence decays by 0.27 per pixel). ``gray`` may be any real dtype; it is converted to
-    float64 window by window.
+    A crop extends :attr:`margin` px beyond its box (clipped to the image): the Gaussian's radius, the half length of
+    the spline prefilter and the spline's own support, so samples inside the box equal those of smoothing the whole
+    image. The prefilter is the exact recursive B-spline filter written as its (symmetric, exponentially decaying)
+    impulse response truncated at :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both
+    filters run in float32 (values good to ~1e-7 relative, edge points to ~1e-7 px): the crops inside the image as
+    one separable filter (Gaussian and prefilter convolved) on all of them stacked (``cv2.sepFilter2D``), crops at
+    the image border each on their own with the border reflections (``cv2.GaussianBlur`` then the prefilter). The
+    coefficients of all crops are sampled from one stacked atlas (``map_coordinates``). A later box reuses the crop
+    made for the same dot (a crop holding the box, centred within :attr:`REUSE_PX` px of it), so a dot's samples
+    depend on that dot alone: measuring all dots at once gives the same points as one at a time. ``gray`` may be any
+    real dtype.
     """
 
-    MARGIN = 24
-    SLACK = 8
+    SLACK = 4
+    REUSE_PX = 4.0
 
     def __init__(self, gray: np.ndarray, sigma: float):
         self.gray = gray
         self.sigma = float(sigma)
-        self.box: tuple[int, int, int, int] | None = None  # x0, y0, x1, y1 (exclusive) of the coefficients
-        self.coef: np.ndarray | None = None
+        self.crops: list[tuple[int, int, int, int]] = []   # x0, y0, x1, y1 (exclusive) of each crop
+        self._sheets: list[np.ndarray] = []                # float32 coefficients of crops stacked top to bottom
+        self._place: list[tuple[int, int]] = []            # (sheet, first row) of each crop
+        self._atlas: np.ndarray | None = None              # all sheets stacked
+        self._rows = np.zeros(0, int)                      # first atlas row of each crop
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.gray.shape
 
-    def ensure(self, x0: int, y0: int, x1: int, y1: int) -> None:
-        """Make the coefficients cover the box [x0, x1) x [y0, y1) px with the margin (clipped to the image)."""
-        H, W = self.gray.shape
-        m = self.MARGIN
-        need = (max(0, x0 - m), max(0, y0 - m), min(W, x1 + m), min(H, y1 + m))
-        if self.box is not None:
-            b = self.box
-            if b[0] <= need[0] and b[1] <= need[1] and b[2] >= need[2] and b[3] >= need[3]:
-                return
-            need = (min(b[0], need[0]), min(b[1], need[1]), max(b[2], need[2]), max(b[3], need[3]))
-        # a little more than needed, so the slightly moved boxes of the next pass fit without recomputing
-        sl = self.SLACK
-        bx0, by0, bx1, by1 = max(0, need[0] - sl), max(0, need[1] - sl), min(W, need[2] + sl), min(H, need[3] + sl)
-        roi = np.ascontiguousarray(self.gray[by0:by1, bx0:bx1], dtype=np.float64)
-        s = self.sigma
-        smooth = cv2.GaussianBlur(roi, (0, 0), s, borderType=cv2.BORDER_REFLECT) if s > 0 else roi
-        self.coef = ndimage.spline_filter(smooth, order=3, mode="mirror")
-        self.box = (bx0, by0, bx1, by1)
+    @property
+    def margin(self) -> int:
+        """Pixels a crop extends beyond its box: Gaussian radius + prefilter half length + spline support."""
+        return _gauss_radius(self.sigma) + PREFILTER_HALF_LENGTH + 3
 
-    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Smoothed image at points (x, y) (1-D arrays, px, inside the current window), cubic spline."""
-        assert self.coef is not None
-        coords = np.stack([np.asarray(y, np.float64) - self.box[1], np.asarray(x, np.float64) - self.box[0]])
-        return ndimage.map_coordinates(self.coef, coords, order=3, mode="mirror", prefilter=False)
+    def crops_for(self, boxes: np.ndarray) -> np.ndarray:
+        """(D,) crop index for each box of ``boxes`` (D, 4) float ``x0, y0, x1, y1`` px (the extent of the points to
+        be sampled; rows with NaN get -1), making the crops that are missing."""
+        H, W = self.gray.shape
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        out = np.full(len(boxes), -1)
+        todo = np.all(np.isfinite(boxes), axis=1)
+        if not np.any(todo):
+            return out
+        m = self.margin
+        f = np.floor(boxes[todo]).astype(int)
+        need = np.stack([np.maximum(0, f[:, 0] - m), np.maximum(0, f[:, 1] - m),
+                         np.minimum(W, f[:, 2] + 1 + m), np.minimum(H, f[:, 3] + 1 + m)], axis=1)   # (T, 4)
+        idx = np.nonzero(todo)[0]
+        if self.crops:
+            have = np.array(self.crops)                                                         # (C, 4)
+            r = 2.0 * self.REUSE_PX
+            hit = ((have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
+                   & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3])
+                   & (np.abs((have[None, :, 0] + have[None, :, 2]) - (need[:, 0] + need[:, 2])[:, None]) <= r)
+                   & (np.abs((have[None, :, 1] + have[None, :, 3]) - (need[:, 1] + need[:, 3])[:, None]) <= r))
+            found = hit.any(axis=1)
+            out[idx[found]] = np.argmax(hit[found], axis=1)
+            idx, need = idx[~found], need[~found]
+        sl = self.SLACK
+        new = [(max(0, x0 - sl), max(0, y0 - sl), min(W, x1 + sl), min(H, y1 + sl)) for x0, y0, x1, y1 in need.tolist()]
+        # crops inside the image are filtered together, stacked in one array (the filters reach less than the margin,
+        # so each crop's box only sees its own pixels; a pixel's arithmetic does not depend on where its crop sits);
+        # crops at the image border each on their own, with the borders' reflections
+        inner = [k for k, c in enumerate(new) if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H]
+        place: dict[int, tuple[int, int]] = {}
+        if inner:
+            stack = _stacked([self.gray[c[1]:c[3], c[0]:c[2]] for c in (new[k] for k in inner)])
+            k1 = _combined_kernel(self.sigma)
+            self._sheets.append(cv2.sepFilter2D(stack, cv2.CV_32F, k1, k1, borderType=cv2.BORDER_REFLECT_101))
+            starts = np.cumsum([0] + [new[k][3] - new[k][1] for k in inner]).tolist()
+            place.update((k, (len(self._sheets) - 1, r0)) for k, r0 in zip(inner, starts))
+        for k, c in enumerate(new):
+            if k not in place:
+                self._sheets.append(_spline_coefficients(self.gray[c[1]:c[3], c[0]:c[2]], self.sigma))
+                place[k] = (len(self._sheets) - 1, 0)
+        for k, (d, c) in enumerate(zip(idx.tolist(), new)):
+            self._place.append(place[k])
+            self.crops.append(c)
+            out[d] = len(self.crops) - 1
+        if new:
+            self._atlas = None
+        return out
+
+    def sample(self, crop: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Smoothed image at points (x, y) px (1-D arrays) from the crops ``crop`` (same length, indices from
+        :meth:`crops_for`; the points must lie inside their crop's box), cubic B-spline."""
+        if self._atlas is None:
+            self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
+            first = np.cumsum([0] + [s.shape[0] for s in self._sheets])
+            self._rows = np.array([first[s] + r0 for s, r0 in self._place], int)
+        crop = np.asarray(crop, int)
+        org = np.array(self.crops, np.float64)[crop]
+        coords = np.empty((2, len(crop)))
+        np.subtract(y, org[:, 1], out=coords[0])
+        coords[0] += self._rows[crop]
+        np.subtract(x, org[:, 0], out=coords[1])
+        return ndimage.map_coordinates(self._atlas, coords, order=3, mode="mirror", prefilter=False,
+                                       output=np.float64)
+
+
+PREFILTER_HALF_LENGTH = 13
+"""Taps on either side of the FIR form of the cubic B-spline prefilter (the recursive filter's impulse response
+sqrt(3) z^|k|, z = sqrt(3) - 2, is below 1e-8 of its peak beyond 13 taps; the left-out tail is 5e-8 of its weight)."""
+
+
+def _gauss_radius(sigma: float) -> int:
+    """Radius of OpenCV's Gaussian kernel for float images (``ksize = round(8 sigma + 1) | 1``); 0 for no blur."""
+    return (int(round(8.0 * sigma + 1.0)) | 1) // 2 if sigma > 0 else 0
+
+
+@functools.lru_cache(maxsize=1)
+def _prefilter_kernel() -> np.ndarray:
+    """(2 L + 1,) float32 FIR cubic B-spline prefilter (interpolation coefficients from samples), normalised to a sum
+    of 1 (so a constant image keeps its value)."""
+    z = np.sqrt(3.0) - 2.0
+    k = np.sqrt(3.0) * z ** np.abs(np.arange(-PREFILTER_HALF_LENGTH, PREFILTER_HALF_LENGTH + 1))
+    return (k / k.sum()).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _combined_kernel(sigma: float) -> np.ndarray:
+    """(2 (r + L) + 1,) float32: OpenCV's Gaussian kernel of ``sigma`` (radius r, none for 0) convolved with the FIR
+    prefilter (half length L): smoothing and prefiltering in one separable filter (away from the image borders)."""
+    k = _prefilter_kernel().astype(np.float64)
+    r = _gauss_radius(sigma)
+    if r:
+        k = np.convolve(k, cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_64F)[:, 0])
+    return k.astype(np.float32)
+
+
+def _stacked(rois: list[np.ndarray]) -> np.ndarray:
+    """The images ``rois`` (each (h_k, w_k)) stacked top to bottom, left-aligned, zero-padded on the right, as one
+    (sum h_k, max w_k) array (uint8 kept, other dtypes as float32)."""
+    dt = np.uint8 if all(r.dtype == np.uint8 for r in rois) else np.float32
+    out = np.zeros((sum(r.shape[0] for r in rois), max(r.shape[1] for r in rois)), dt)
+    r0 = 0
+    for r in rois:
+        out[r0:r0 + r.shape[0], :r.shape[1]] = r
+        r0 += r.shape[0]
+    return out
+
+
+def _spline_coefficients(roi: np.ndarray, sigma: float) -> np.ndarray:
+    """(h, w) float32 cubic B-spline coefficients of ``roi`` (h, w) smoothed by a Gaussian of ``sigma`` px (reflected
+    border, as ``cv2.GaussianBlur``), with the prefilter's mirror boundary (OpenCV's ``BORDER_REFLECT_101``)."""
+    img = roi.astype(np.float32)
+    if sigma > 0:
+        img = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    k = _prefilter_kernel()
+    return cv2.sepFilter2D(img, cv2.CV_32F, k, k, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _roi_boxes(c: np.ndarray, axes: np.ndarray, sigma: float, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
@@ -280,6 +396,18 @@ def dot_levels(img: np.ndarray, Q: np.ndarray, origin: tuple[int, int], edge_px:
     return (float(dark[0]), plane[0]) if ok[0] else None
 
 
+def _segment_median_int(vals: np.ndarray, seg: np.ndarray, nseg: int, nbins: int) -> np.ndarray:
+    """:func:`_segment_median` for integer ``vals`` (M,) in ``[0, nbins)`` by per-segment histograms (O(M), no
+    sort; the same values: the mean of the two middle values for an even count, NaN for an empty segment)."""
+    hist = np.bincount(seg * nbins + vals, minlength=nseg * nbins).reshape(nseg, nbins)
+    cum = np.cumsum(hist, axis=1)
+    m = cum[:, -1]
+    # the value of sorted element i is the number of bins whose cumulative count is <= i
+    lo = np.count_nonzero(cum <= ((m - 1) // 2)[:, None], axis=1)
+    hi = np.count_nonzero(cum <= (m // 2)[:, None], axis=1)
+    return np.where(m > 0, 0.5 * (lo.astype(np.float64) + hi), np.nan)
+
+
 def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, edge_px: float = 2.0
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dark level inside each dot and the bright level around it as a plane, for all dots at once.
@@ -290,7 +418,7 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
     residuals) to the ring ``edge_px`` .. ``edge_px + max(2, b/2)`` px outside, keeping only pixels brighter than
     halfway between the dark level and the ring median (drops neighbouring dots). Returns ``(dark (D,),
     plane (D, 3), ok (D,) bool)``: bright(x, y) = plane @ (x, y, 1) in image pixels; ``ok`` false where the ring has
-    too few pixels.
+    too few pixels. The medians of a uint8 image come from per-dot histograms (same values as sorting).
     """
     conics = np.asarray(conics, np.float64)
     D = len(conics)
@@ -304,11 +432,12 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
     bw = np.maximum(boxes[:, 2] - boxes[:, 0], 0)
     bh = np.maximum(boxes[:, 3] - boxes[:, 1], 0)
     Wm, Hm = int(max(1, bw.max())), int(max(1, bh.max()))
-    # pixel values of each ROI (padded); coordinates NaN outside a ROI so no mask below selects them
-    vals = np.zeros((D, Hm, Wm))
-    for d in np.nonzero(okc)[0]:
-        x0, y0, x1, y1 = boxes[d]
-        vals[d, :bh[d], :bw[d]] = gray[y0:y1, x0:x1]
+    hist_bins = 256 if gray.dtype == np.uint8 else 0
+    # pixel values of each ROI (padded, in the image's dtype); coordinates NaN outside a ROI so no mask selects them
+    vals = np.zeros((D, Hm, Wm), gray.dtype if hist_bins else np.float64)
+    for d, x0, y0, h, w in zip(np.nonzero(okc)[0].tolist(), boxes[okc, 0].tolist(), boxes[okc, 1].tolist(),
+                               bh[okc].tolist(), bw[okc].tolist()):
+        vals[d, :h, :w] = gray[y0:y0 + h, x0:x0 + w]
     jj = np.arange(Wm, dtype=np.float64)
     ii = np.arange(Hm, dtype=np.float64)
     xs = np.where(jj[None, :] < bw[:, None], boxes[:, 0:1] + jj[None, :], np.nan)   # (D, Wm)
@@ -334,29 +463,29 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
         t_hi = (1.0 + (edge_px + np.maximum(2.0, 0.5 * b)) / b) ** 2
         inner = rho2 < t_in[:, None, None]
         ring = (rho2 > t_lo[:, None, None]) & (rho2 < t_hi[:, None, None])
-    inner = inner.reshape(-1)
-    ring = ring.reshape(-1)
     vflat = vals.reshape(-1)
     P = Hm * Wm
     # the inner pixels' values per dot (flat, grouped by dot)
     fi = np.flatnonzero(inner)
     idd = fi // P
     n_in = np.bincount(idd, minlength=D)
-    dk = _segment_median(vflat[fi], idd, D)
+    dk = (_segment_median_int(vflat[fi], idd, D, hist_bins) if hist_bins else
+          _segment_median(vflat[fi], idd, D))
     for d in np.nonzero((n_in < 3) & okc)[0]:  # tiny dot: the 3 pixels nearest the centre (as argsort of the ROI)
         r2 = rho2[d, :bh[d], :bw[d]]
-        v2 = vals[d, :bh[d], :bw[d]]
+        v2 = vals[d, :bh[d], :bw[d]].astype(np.float64)
         dk[d] = float(np.median(v2.ravel()[np.argsort(r2, axis=None)[:3]]))
     # the ring's pixels (flat, grouped by dot), coordinates centred on the dot (conditioning of the plane fit)
     fr = np.flatnonzero(ring)
-    rd = fr // P
-    rem = fr - rd * P
-    ri = rem // Wm
-    rv = vflat[fr]
-    rx = (boxes[rd, 0] + (rem - ri * Wm)) - c[rd, 0]
-    ry = (boxes[rd, 1] + ri) - c[rd, 1]
+    grow, col = np.divmod(fr, Wm)          # global row (d * Hm + i) and column of each ring pixel
+    rd = grow // Hm
+    rv_raw = vflat[fr]
+    rv = rv_raw.astype(np.float64)
+    rx = dx.reshape(-1)[rd * Wm + col]
+    ry = dy.reshape(-1)[grow]
     n_ring = np.bincount(rd, minlength=D)
-    mid = 0.5 * (dk + _segment_median(rv, rd, D))
+    ring_med = (_segment_median_int(rv_raw, rd, D, hist_bins) if hist_bins else _segment_median(rv, rd, D))
+    mid = 0.5 * (dk + ring_med)
     keep = rv > mid[rd]
     n_keep = np.bincount(rd[keep], minlength=D)
     good = okc & (n_ring >= 8) & (n_keep >= 6)
@@ -449,15 +578,16 @@ def subpixel_edge_points_batch(
     step: float = 0.2,
     method: str = "level",
     curvature_correction: bool = True,
-    windows: tuple[float, ...] = (0.3, 0.9),
+    windows: tuple[float, ...] = (0.0, 0.15, 0.35, 0.95),
 ) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
     """Sub-pixel boundary points of many dots at once: :func:`subpixel_edge_points` for each ellipse of
     ``conics`` (D, 3, 3) on ``src`` (the image and its smoothing scale).
 
     Each dot keeps its own region of interest (the pixels its levels come from and the box its profiles must stay
-    inside, as in the one-dot form). For the level method the samples within ``windows[0]`` px of the current
-    boundary are interpolated first; a profile is sampled further (to the next window, then whole) only while it has
-    no crossing yet: the crossing nearest to the boundary is the same as with the whole profile sampled.
+    inside, as in the one-dot form). For the level method the samples of the intervals within ``windows[0]`` px of
+    the current boundary are interpolated first (a window of 0: the nearest interval alone); a profile is sampled
+    further (to the next window, then whole) only while it has no crossing yet: the crossing nearest to the boundary
+    is the same as with the whole profile sampled.
 
     Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
     ``points[d][mask[d]]``; ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all.
@@ -490,12 +620,14 @@ def subpixel_edge_points_batch(
     prof_ok = jn[None, :] < n[:, None]                                   # (D, N)
     t = jn[None, :] * (2.0 * np.pi / np.maximum(n, 1))[:, None]
     ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    ex = a_[:, None] * np.cos(t)
-    ey = b_[:, None] * np.sin(t)
+    cos_t, sin_t = np.cos(t), np.sin(t)
+    ex = a_[:, None] * cos_t
+    ey = b_[:, None] * sin_t
     base = np.stack([c[:, 0:1] + ca * ex - sa * ey, c[:, 1:2] + sa * ex + ca * ey], axis=2)  # (D, N, 2)
     g = base @ conics[:, :2, :2].transpose(0, 2, 1) + conics[:, None, :2, 2]
     g = np.where((conics[:, 0, 0] + conics[:, 1, 1] < 0)[:, None, None], -g, g)
-    nrm = g / np.linalg.norm(g, axis=2, keepdims=True)
+    nrm = g / np.sqrt(g[..., 0] * g[..., 0] + g[..., 1] * g[..., 1])[..., None]   # (reductions over a tiny last
+    # axis are slow in numpy; the same sum, written out)
     # profile offsets (one array per distinct half length, as np.arange gives them)
     svecs = [_profile_offsets(h, step) for h in hw]
     K = max(len(v) for v in svecs)
@@ -507,11 +639,17 @@ def subpixel_edge_points_batch(
     s_last = S[np.arange(D), klen - 1]
     # profiles entirely inside the ROI (a segment is inside a box iff both its ends are)
     inside = prof_ok.copy()
-    for sv in (s_first, s_last):
-        e = base + sv[:, None, None] * nrm
+    ends = [base + sv[:, None, None] * nrm for sv in (s_first, s_last)]
+    for e in ends:
         inside &= ((e[..., 0] >= (x0 + 1)[:, None]) & (e[..., 0] <= (x1 - 2)[:, None])
                    & (e[..., 1] >= (y0 + 1)[:, None]) & (e[..., 1] <= (y1 - 2)[:, None]))
-    src.ensure(int(x0[live].min()), int(y0[live].min()), int(x1[live].max()), int(y1[live].max()))
+    # the smoothed image around the profiles that may be sampled, one crop per dot
+    sampled = live[:, None] & (inside if method == "level" else prof_ok)                   # (D, N)
+    s2 = np.concatenate([sampled, sampled], axis=1)
+    ext = np.stack([f(np.where(s2, np.concatenate([e[..., i] for e in ends], axis=1), fill), axis=1)
+                    for f, fill in ((np.min, np.inf), (np.max, -np.inf)) for i in (0, 1)], axis=1)    # (D, 4)
+    ext[~sampled.any(axis=1)] = np.nan
+    crop = src.crops_for(ext)
 
     def pts_at(sel_d, sel_j, sel_k):
         s_ = S[sel_d, sel_k]
@@ -522,7 +660,7 @@ def subpixel_edge_points_batch(
         sd, sj, sk = np.nonzero(live[:, None, None] & prof_ok[:, :, None] & (np.arange(K)[None, None, :] <
                                                                              klen[:, None, None]))
         px, py = pts_at(sd, sj, sk)
-        prof[sd, sj, sk] = src.sample(px, py)
+        prof[sd, sj, sk] = src.sample(crop[sd], px, py)
         ok = np.zeros((D, N), bool)
         off = np.zeros((D, N))
         for d in np.nonzero(live)[0]:  # np.gradient per dot (profiles of one dot share their offsets)
@@ -552,58 +690,67 @@ def subpixel_edge_points_batch(
     F = np.full((D, N, K), np.nan)   # profile minus half level, filled where sampled
     mid_dist = np.abs(0.5 * (S[:, :-1] + S[:, 1:]))  # (D, K-1), NaN past a profile's end
     todo = okl[:, None] & inside
+    # the usual case: every measured dot has the same offsets, so a window's samples form a dense block
+    tdots = np.nonzero(todo.any(axis=1))[0]
+    k0 = int(klen[tdots[0]]) if len(tdots) else 0
+    uniform = len(tdots) > 0 and bool(np.all(klen[tdots] == k0) and np.all(S[tdots, :k0] == S[tdots[0], :k0]))
 
-    def fill(rows, cols):
-        """Sample profile (d, j) at offsets k for rows[d, j] and cols[d, k]."""
-        rd_, rj_ = np.nonzero(rows)
-        if len(rd_) == 0:
-            return
-        dots = np.unique(rd_)
-        ks = np.nonzero(cols[dots[0]])[0]
-        if np.all(cols[dots] == cols[dots[0]]) and np.all(S[dots][:, ks] == S[dots[0], ks]):
-            # the usual case: every dot has the same offsets; (profiles, offsets) as a dense block
+    def fill(rd_, rj_, cols):
+        """Sample the profiles (rd_[i], rj_[i]) at the offsets k where cols[d, k]."""
+        if uniform:
+            ks = np.nonzero(cols[tdots[0]])[0]
             if len(ks) == 0:
                 return
-            sv = S[dots[0], ks][None, :]
-            bx, by = base[rd_, rj_, 0][:, None], base[rd_, rj_, 1][:, None]
-            px = bx + sv * nrm[rd_, rj_, 0][:, None]
-            py = by + sv * nrm[rd_, rj_, 1][:, None]
-            prof = src.sample(px.ravel(), py.ravel()).reshape(px.shape)
-            half = (px * plane[rd_, 0:1] + py * plane[rd_, 1:2] + plane[rd_, 2:3]) * halfk[rd_, None]
+            sv = S[tdots[0], ks][None, :]
+            px = base[rd_, rj_, 0][:, None] + sv * nrm[rd_, rj_, 0][:, None]
+            py = base[rd_, rj_, 1][:, None] + sv * nrm[rd_, rj_, 1][:, None]
+            prof = src.sample(np.repeat(crop[rd_], px.shape[1]), px.ravel(), py.ravel()).reshape(px.shape)
+            pl = plane[rd_]
+            half = (px * pl[:, 0:1] + py * pl[:, 1:2] + pl[:, 2:3]) * halfk[rd_, None]
             F[rd_[:, None], rj_[:, None], ks[None, :]] = prof - half
             return
+        rows = np.zeros((D, N), bool)
+        rows[rd_, rj_] = True
         sd, sj, sk = np.nonzero(rows[:, :, None] & cols[:, None, :])
         px, py = pts_at(sd, sj, sk)
-        prof = src.sample(px, py)
+        prof = src.sample(crop[sd], px, py)
         half = (px * plane[sd, 0] + py * plane[sd, 1] + plane[sd, 2]) * halfk[sd]
         F[sd, sj, sk] = prof - half
 
     # the samples of the intervals within each window of the current boundary, widening only for the profiles
     # without a crossing yet: intervals outside a window are all further than those inside, so the nearest
-    # crossing found inside one is the nearest of the whole profile
-    def crossings():
-        with np.errstate(invalid="ignore"):
-            up = (F[:, :, :-1] < 0) & (F[:, :, 1:] >= 0)
-        score = np.where(up, mid_dist[:, None, :], np.inf)
-        k = np.argmin(score, axis=2)
-        return k, np.isfinite(np.take_along_axis(score, k[..., None], axis=2)[..., 0])
-
+    # crossing found inside one is the nearest of the whole profile. The nearest up-crossing of a profile just
+    # sampled is searched among the intervals of the window (the others are not sampled yet).
     found = np.zeros((D, N), bool)
     k = np.zeros((D, N), int)
     prev = np.zeros((D, K), bool)
     in_prof = np.arange(K)[None, :] < klen[:, None]
+    rd_, rj_ = np.nonzero(todo)
     for w in (*windows, np.inf):
+        if len(rd_) == 0:
+            break
         with np.errstate(invalid="ignore"):
             win_iv = mid_dist <= w                                       # (D, K-1)
+        if w == 0:  # the nearest interval alone (the first of equally near ones: the one argmin picks)
+            win_iv = np.zeros_like(win_iv)
+            has = np.any(np.isfinite(mid_dist), axis=1)
+            win_iv[np.nonzero(has)[0], np.nanargmin(np.where(has[:, None], mid_dist, 0.0)[has], axis=1)] = True
         win_s = np.zeros((D, K), bool)
         win_s[:, :-1] |= win_iv
         win_s[:, 1:] |= win_iv
         win_s &= in_prof
-        rows = todo & ~found
-        if not np.any(rows):
-            break
-        fill(rows, win_s & ~prev)
-        k, found = crossings()
+        fill(rd_, rj_, win_s & ~prev)
+        span = np.nonzero(win_iv.any(axis=0))[0]
+        lo, hi = (int(span[0]), int(span[-1]) + 1) if len(span) else (0, 0)
+        Fw = F[rd_, rj_, lo:hi + 1]
+        with np.errstate(invalid="ignore"):
+            up = (Fw[:, :-1] < 0) & (Fw[:, 1:] >= 0)
+        score = np.where(up, mid_dist[rd_, lo:hi], np.inf)
+        kw = np.argmin(score, axis=1) if hi > lo else np.zeros(len(rd_), int)
+        fw = np.isfinite(score[np.arange(len(rd_)), kw]) if hi > lo else np.zeros(len(rd_), bool)
+        k[rd_, rj_] = np.where(fw, kw + lo, 0)
+        found[rd_, rj_] = fw
+        rd_, rj_ = rd_[~fw], rj_[~fw]
         prev = win_s
     ok = found & todo
     fa = np.take_along_axis(F, k[..., None], axis=2)[..., 0]
@@ -625,7 +772,7 @@ def subpixel_edge_points_batch(
         med = _masked_median(np.where(use, st, 0.0), use)
         nominal = np.sqrt(sigma * sigma + 1.0 / 12.0)
         sigma_t = np.where(use.any(axis=1), np.maximum(nominal, med), nominal)
-        off = off + _curvature_shift_batch(c, a_, b_, ang, base, sigma_t)
+        off = off + _curvature_shift_param(a_, b_, cos_t, sin_t, sigma_t)
     off = np.where(ok, off, 0.0)
     return base + off[..., None] * nrm, ok, errors
 
@@ -664,16 +811,24 @@ def _curvature_shift_batch(c: np.ndarray, a: np.ndarray, b: np.ndarray, ang: np.
                            sigma_t: np.ndarray) -> np.ndarray:
     """(D, M) :func:`_curvature_shift` for D ellipses (centres (D, 2), semi-axes a, b (D,), angles (D,)), points
     (D, M, 2) and blur scales (D,)."""
-    global _SHIFT_TABLE
-    if _SHIFT_TABLE is None:
-        _SHIFT_TABLE = _U_TABLE - _half_level_radius(_U_TABLE)
     d = points - c[:, None, :]
     ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
     x = ca * d[..., 0] + sa * d[..., 1]
     y = -sa * d[..., 0] + ca * d[..., 1]
+    t = np.arctan2(y / b[:, None], x / a[:, None])
+    return _curvature_shift_param(a, b, np.cos(t), np.sin(t), sigma_t)
+
+
+def _curvature_shift_param(a: np.ndarray, b: np.ndarray, cos_t: np.ndarray, sin_t: np.ndarray,
+                           sigma_t: np.ndarray) -> np.ndarray:
+    """(D, M) :func:`_curvature_shift` at the points ``(a cos t, b sin t)`` (ellipse frame) of D ellipses with
+    semi-axes a, b (D,) px, given ``cos t``, ``sin t`` (D, M), and blur scales ``sigma_t`` (D,) px."""
+    global _SHIFT_TABLE
+    if _SHIFT_TABLE is None:
+        _SHIFT_TABLE = _U_TABLE - _half_level_radius(_U_TABLE)
     a, b = a[:, None], b[:, None]
-    t = np.arctan2(y / b, x / a)
-    rho = (a * a * np.sin(t) ** 2 + b * b * np.cos(t) ** 2) ** 1.5 / (a * b)  # radius of curvature
+    q = (a * sin_t) ** 2 + (b * cos_t) ** 2
+    rho = q * np.sqrt(q) / (a * b)  # radius of curvature
     u = rho / sigma_t[:, None]
     shift = np.where(u > _U_TABLE[-1], 0.5 / np.maximum(u, 1e-9),
                      np.interp(u, _U_TABLE, _SHIFT_TABLE, left=_SHIFT_TABLE[0]))

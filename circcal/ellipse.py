@@ -19,6 +19,7 @@ __all__ = [
     "conic_params_batch",
     "conic_centers",
     "conic_from_params",
+    "conic_from_params_batch",
     "conic_params",
     "conic_center",
     "sample_ellipse",
@@ -67,7 +68,7 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     m = np.ones(p.shape[:2], bool) if mask is None else np.asarray(mask, bool)
     err = np.zeros(D, int)
     cnt = m.sum(axis=1)
-    finite = np.all(np.isfinite(p), axis=2)
+    finite = np.isfinite(p[..., 0]) & np.isfinite(p[..., 1])
     err[np.any(m & ~finite, axis=1)] = 2
     err[cnt < 5] = 1
     w = (m & finite).astype(np.float64)
@@ -75,7 +76,8 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     n = np.maximum(cnt, 1).astype(np.float64)
     # Hartley normalisation: zero mean, RMS distance sqrt(2) from the origin
     mean = pz.sum(axis=1) / n[:, None]
-    d2 = (((pz - mean[:, None, :]) ** 2).sum(axis=2) * w).sum(axis=1) / n
+    dz = pz - mean[:, None, :]
+    d2 = ((dz[..., 0] ** 2 + dz[..., 1] ** 2) * w).sum(axis=1) / n
     d = np.sqrt(d2)
     s = np.where(d > 0, np.sqrt(2.0) / np.where(d > 0, d, 1.0), 1.0)
     x = (pz[..., 0] * s[:, None] - s[:, None] * mean[:, 0:1]) * w
@@ -146,14 +148,24 @@ def _canonical(Q: np.ndarray) -> np.ndarray:
 def conic_from_params(center: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
     """Conic of the ellipse with ``center`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
     ``a`` axis from the image x axis (towards +y). Returned scaled so that ``x^T Q x = -1`` at the centre."""
-    c = np.asarray(center, dtype=np.float64).reshape(2)
-    a, b = float(axes[0]), float(axes[1])
-    R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-    M = R @ np.diag([1.0 / a ** 2, 1.0 / b ** 2]) @ R.T
-    Q = np.empty((3, 3))
-    Q[:2, :2] = M
-    Q[:2, 2] = Q[2, :2] = -M @ c
-    Q[2, 2] = c @ M @ c - 1.0
+    return conic_from_params_batch(np.asarray(center, dtype=np.float64).reshape(1, 2),
+                                   np.asarray(axes, dtype=np.float64).reshape(1, 2), np.array([float(angle)]))[0]
+
+
+def conic_from_params_batch(centers: np.ndarray, axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Batched :func:`conic_from_params`: centres (D, 2) px, semi-axes (D, 2) ``(a, b)`` px, angles (D,) rad ->
+    conics (D, 3, 3), each scaled so that ``x^T Q x = -1`` at its centre."""
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    ax = np.asarray(axes, dtype=np.float64).reshape(-1, 2)
+    ang = np.asarray(angles, dtype=np.float64).reshape(-1)
+    co, si = np.cos(ang), np.sin(ang)
+    R = np.stack([np.stack([co, -si], axis=1), np.stack([si, co], axis=1)], axis=1)     # (D, 2, 2)
+    M = (R / ax[:, None, :] ** 2) @ R.transpose(0, 2, 1)                                  # R diag(1/a^2, 1/b^2) R^T
+    Mc = (M @ c[:, :, None])[:, :, 0]
+    Q = np.empty((len(c), 3, 3))
+    Q[:, :2, :2] = M
+    Q[:, :2, 2] = Q[:, 2, :2] = -Mc
+    Q[:, 2, 2] = c[:, 0] * Mc[:, 0] + c[:, 1] * Mc[:, 1] - 1.0
     return Q
 
 

@@ -4,7 +4,9 @@ Recognition uses OpenCV's circle-grid finder (``cv2.findCirclesGrid``) as a help
 dots are drawn as clean ellipses on a blank canvas and the finder's blob detector reads them back; each ordered
 position is then matched to our candidate (the centres returned by circcal are always our own sub-pixel ones).
 Clutter (extra dark blobs off the board) is tolerated by the finder's graph search; when the plain search fails,
-OpenCV's clustering variant is tried, then the same on the candidates of the dominant size class.
+OpenCV's clustering variant is tried, then the same on the candidates of the dominant size class. A symmetric board
+whose candidates are exactly its dots (the usual case) is first ordered directly (:func:`_order_lattice`: hull
+corners, one homography, every candidate on its own grid node), which gives the same labelling without the canvas.
 
 Orientation rule (:func:`canonical_order`)
 ------------------------------------------
@@ -75,20 +77,74 @@ def canonical_order(board: Board, centers: np.ndarray) -> np.ndarray:
     """Indices ``idx`` (N,) so that ``centers[idx]`` follows the orientation rule of this module.
 
     ``centers``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
+    One homography is fitted: relabelling by a board symmetry ``S`` composes it with ``S`` (the least-squares fit of
+    the relabelled points is ``H S``), so a labelling's orientation sign is ``orientation_sign(centers) * det S``.
     """
     centers = np.asarray(centers, dtype=np.float64)
+    s0 = orientation_sign(board, centers)
     best, best_d = None, np.inf
-    for p in board_symmetries(board):
+    for p, det in zip(_board_symmetries(board), _symmetry_dets(board)):
         # new labelling: point k of the board is the old point p[k]
-        cand = centers[p]
-        if orientation_sign(board, cand) <= 0:
+        if s0 * det <= 0:
             continue
-        d = np.hypot(*cand[0])
+        d = np.hypot(*centers[p[0]])
         if d < best_d - 1e-9:
             best, best_d = p, d
     if best is None:
         raise ValueError("no labelling of the detected grid is seen from the board's front (mirrored image?)")
-    return best
+    return best.copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _symmetry_dets(board: Board) -> tuple[float, ...]:
+    """Determinant (+1 rotation, -1 reflection) of the linear part of each map of :func:`board_symmetries`."""
+    pts = board.object_points()[:, :2]
+    d = pts - pts.mean(axis=0)
+    out = []
+    for p in _board_symmetries(board):
+        A = np.linalg.lstsq(d, d[p], rcond=None)[0]  # d[p] = d A: the symmetry's linear part (transposed)
+        out.append(float(np.sign(np.linalg.det(A))))
+    return tuple(out)
+
+
+def _order_lattice(board: Board, points: np.ndarray, tol: float = 0.3) -> np.ndarray | None:
+    """Fast ordering of a symmetric board whose candidates are exactly its N dots (no clutter): (N,) indices into
+    ``points`` (N, 2) px in a valid board labelling (not yet canonical), or ``None`` when the candidates do not form
+    the grid unambiguously (the caller then runs OpenCV's grid finder).
+
+    The grid's four corners are the convex-hull vertices with the largest turning angles; the homography from them
+    to the grid's integer coordinates must put every candidate within ``tol`` cells of a distinct grid node. Under
+    perspective this is the grid itself, and exactly the assignment OpenCV's finder returns (up to a symmetry, which
+    :func:`canonical_order` removes); strong lens distortion fails the test and falls back.
+    """
+    N = board.n_points
+    if board.layout != "symmetric" or len(points) != N:
+        return None
+    hull = cv2.convexHull(points.astype(np.float32), returnPoints=False).reshape(-1)
+    if len(hull) < 4:
+        return None
+    P = points[hull]
+    a = P - np.roll(P, 1, axis=0)
+    b = np.roll(P, -1, axis=0) - P
+    turn = np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.sum(a * b, axis=1)))
+    corners = P[np.sort(np.argsort(turn)[-4:])].astype(np.float32)          # (4, 2) in hull order
+    cols, rows = board.cols, board.rows
+    grid = np.array([[0, 0], [cols - 1, 0], [cols - 1, rows - 1], [0, rows - 1]], np.float32)
+    for shift in (0, 1):
+        Hg = cv2.getPerspectiveTransform(corners, np.roll(grid, shift, axis=0))
+        q = cv2.perspectiveTransform(points.reshape(-1, 1, 2), Hg).reshape(-1, 2)
+        if not np.all(np.isfinite(q)):
+            continue
+        r = np.round(q)
+        if np.max(np.abs(q - r)) >= tol or r[:, 0].min() < 0 or r[:, 1].min() < 0 or r[:, 0].max() > cols - 1 \
+                or r[:, 1].max() > rows - 1:
+            continue
+        k = (r[:, 1] * cols + r[:, 0]).astype(int)                          # board index of each candidate
+        idx = np.full(N, -1)
+        idx[k] = np.arange(N)
+        if np.all(idx >= 0):
+            return idx
+    return None
 
 
 def _canvas(points: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -125,6 +181,12 @@ def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape:
         return None
     points = np.asarray(points, np.float64)
     radii = np.asarray(radii, np.float64)
+    idx = _order_lattice(board, points)
+    if idx is not None:
+        try:
+            return idx[canonical_order(board, points[idx])]
+        except ValueError:
+            pass
     # drawn radius: a fraction of the distance to the nearest other candidate, so blobs never merge
     dist = np.linalg.norm(points[:, None] - points[None], axis=-1)
     np.fill_diagonal(dist, np.inf)
