@@ -1,9 +1,9 @@
 """Detector timing on 1920x1080 renders: circcal ``detect`` against ``cv2.findCirclesGrid`` in the same run.
 
-``run() -> dict`` (the lead wires it into ``make bench``): per-image wall time (best of ``repeats`` runs, median over
+``run() -> dict`` (part of ``make bench``): per-image wall time (best of ``repeats`` runs, median over
 views) of both, timed alternately on the same images, the ratio circcal / OpenCV, circcal's time with the
-segmentation forced to full resolution (the path whose centres equal the original per-dot detector to ~1e-10 px),
-and circcal's peak Python-heap memory per image (tracemalloc sees numpy's buffers; OpenCV's own C++ buffers are not
+segmentation forced to full resolution (the path whose centres equal the original per-dot detector to ~1e-7 px,
+float32 smoothing), and circcal's peak Python-heap memory per image (tracemalloc sees numpy's buffers; OpenCV's own C++ buffers are not
 seen).
 """
 from __future__ import annotations
