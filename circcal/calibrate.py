@@ -510,7 +510,8 @@ def _lm_schur(prob: "_Problem", x0: np.ndarray, max_iterations: int) -> tuple[np
     Stopping: once the damping is negligible (lambda <= 1e-5, the step is Gauss-Newton's) and the step's predicted
     decrease of the cost (from the local quadratic model, exact to rounding even where the cost itself is not) is
     below 1e-10 of the cost, the cost can no longer rank steps and the model is trusted: steps that do not raise
-    the cost beyond its rounding are taken until one predicts less than 1e-18 of the cost, which is taken last.
+    the cost beyond its rounding are taken until one predicts less than 1e-18 of the cost (or no less than the step
+    before it: nothing left to gain), which is taken last.
     The parameters then sit ~1e-9 of their own standard deviations from the minimum. A solve that can no
     longer lower the cost otherwise ends "stalled" and is judged by its gradient.
     Returns ``(x, iterations, converged, message)``.
@@ -523,6 +524,7 @@ def _lm_schur(prob: "_Problem", x0: np.ndarray, max_iterations: int) -> tuple[np
     lam = 1e-4
     it = 0
     done = stalled = False
+    last_trusted = np.inf
     while it < max_iterations and not (done or stalled):
         it += 1
         A, gi, B, D, gp = blocks = _normal_blocks(prob, f, Ji, Jp, starts)
@@ -540,12 +542,14 @@ def _lm_schur(prob: "_Problem", x0: np.ndarray, max_iterations: int) -> tuple[np
             # Near the minimum the cost can no longer rank steps (its rounding is ~1e-16 relative) but the
             # quadratic model can: there a step that does not raise the cost beyond rounding is taken.
             trusted = lam <= 1e-5 and predicted <= 1e-10 * cost
-            final = trusted and predicted <= 1e-18 * cost
+            # last step: at rounding level, or the model's decrease stopped shrinking (no progress left to make)
+            final = trusted and (predicted <= 1e-18 * cost or predicted >= last_trusted)
             f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
             cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
             if cost_new < cost or (trusted and cost_new <= cost * (1.0 + 1e-12)):
                 x, f, Ji, Jp, cost = x + step, f_new, Ji_new, Jp_new, cost_new
                 lam = max(lam / 10.0, 1e-12)
+                last_trusted = predicted if trusted else np.inf
                 done = final
                 break
             lam *= 10.0
