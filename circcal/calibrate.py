@@ -34,6 +34,7 @@ __all__ = [
     "CalibrationResult",
     "ImagesCalibration",
     "calibrate",
+    "calibrate_detections",
     "calibrate_images",
     "rotate_jacobian",
     "project_jacobian",
@@ -450,14 +451,9 @@ class _Problem:
     def global_information(self, x: np.ndarray) -> np.ndarray:
         """Schur complement (ng, ng) of the pose blocks in J^T J: the information on the free intrinsics (and board
         coordinates) with the poses marginalised."""
-        _, _, Ji, Jp = self.evaluate(x)
-        S = np.einsum("nka,nkb->ab", Ji, Ji)
-        for v, idx in enumerate(np.split(np.arange(len(self.X)), np.cumsum(self.counts)[:-1])):
-            Jiv = Ji[idx].reshape(-1, self.ng)
-            Jpv = Jp[idx].reshape(-1, 6)
-            B = Jiv.T @ Jpv
-            D = Jpv.T @ Jpv
-            S -= B @ np.linalg.solve(D, B.T)
+        f, _, Ji, Jp = self.evaluate(x)
+        A, _, B, D, _ = _normal_blocks(self, f, Ji, Jp, np.concatenate([[0], np.cumsum(self.counts)[:-1]]))
+        S = _schur_complement(A, B, D)[0]
         return 0.5 * (S + S.T)
 
 
@@ -477,16 +473,22 @@ def _normal_blocks(prob: "_Problem", f: np.ndarray, Ji: np.ndarray, Jp: np.ndarr
     return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
 
 
-def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
-    """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks. Returns (nf + 6V,)."""
-    dA = np.diag(A)
-    dD = np.diagonal(D, axis1=1, axis2=2)
-    Dd = D + lam * dD[:, :, None] * np.eye(6) if lam else D
-    Dinv_Bt = np.linalg.solve(Dd, np.transpose(B, (0, 2, 1)))  # (V, 6, nf)
-    Dinv_g = np.linalg.solve(Dd, gp[:, :, None])[:, :, 0]     # (V, 6)
+def _schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :func:`_normal_blocks`; also returns
+    ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution."""
     ng, V = A.shape[0], len(D)
-    Bf = np.transpose(B, (1, 0, 2)).reshape(ng, 6 * V)                # [B_1 ... B_V]
-    S = A + lam * np.diag(dA) - Bf @ Dinv_Bt.reshape(6 * V, ng)
+    Dinv_Bt = np.linalg.solve(D, np.transpose(B, (0, 2, 1)))
+    Bf = np.transpose(B, (1, 0, 2)).reshape(ng, 6 * V)
+    return A - Bf @ Dinv_Bt.reshape(6 * V, ng), Dinv_Bt, Bf
+
+
+def _schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
+    """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks. Returns (ng + 6V,)."""
+    if lam:
+        A = A + lam * np.diag(np.diag(A))
+        D = D + lam * np.diagonal(D, axis1=1, axis2=2)[:, :, None] * np.eye(6)
+    S, Dinv_Bt, Bf = _schur_complement(A, B, D)
+    Dinv_g = np.linalg.solve(D, gp[:, :, None])[:, :, 0]     # (V, 6)
     r = gi - Bf @ Dinv_g.ravel()
     try:
         di = -np.linalg.solve(S, r)
@@ -863,33 +865,52 @@ def calibrate_images(
         raise CalibrationError(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least 3"
             + "".join(f"\n  {p}: {r}" for p, r in failed))
-    board_pts = board.object_points()
-    names = [Path(paths[i]).name for i in used]
     opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
                 fix_principal_point=fix_principal_point, refine_board=refine_board)
+    result, centers, rounds = calibrate_detections([detections[i] for i in used], board, image_size,
+                                                   max_rounds=max_rounds, tol_px=tol_px, **opts)
+    result.view_names = [Path(paths[i]).name for i in used]
+    return ImagesCalibration(result, paths, detections, used, failed, rounds, centers)
 
-    centers = [np.asarray(detections[i].centers, dtype=np.float64) for i in used]
+
+def calibrate_detections(
+    detections: Sequence[Any],
+    board,
+    image_size: tuple[int, int],
+    *,
+    max_rounds: int = 6,
+    tol_px: float = 1e-4,
+    **options: Any,
+) -> tuple[CalibrationResult, list[np.ndarray], list[dict]]:
+    """The loop of :func:`calibrate_images` on detections already made (``circcal.detect.Detection``, one per view,
+    all found): calibrate, re-correct every centre under the current model (``circcal.detect.recorrect``), recalibrate,
+    until no centre moves more than ``tol_px`` or ``max_rounds`` calibrations were made (then a RuntimeWarning).
+    ``options`` go to :func:`calibrate`. Returns ``(result, centers, rounds)`` as :class:`ImagesCalibration` holds
+    them. Reused for held-out checks: the detector runs without a model, so detections do not depend on other views.
+    """
+    from circcal import detect as det_mod
+
+    board_pts = board.object_points()
+    centers = [np.asarray(d.centers, dtype=np.float64) for d in detections]
     pairs = [_points_of(c, board_pts) for c in centers]
-    result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, **opts)
-    rounds = [{"round": 0, **{k: result.errors[k] for k in ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")},
-               "max_center_shift_px": float("nan")}]
+    result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, **options)
+    stats = ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")
+    rounds = [{"round": 0, **{k: result.errors[k] for k in stats}, "max_center_shift_px": float("nan")}]
     for r in range(1, max_rounds):
-        new = [np.asarray(det_mod.recorrect(detections[i], board, result.camera), dtype=np.float64) for i in used]
+        new = [np.asarray(det_mod.recorrect(d, board, result.camera), dtype=np.float64) for d in detections]
         shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centers))
         centers = new
         pairs = [_points_of(c, board_pts) for c in centers]
-        result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera, **opts)
-        rounds.append({"round": r, **{k: result.errors[k] for k in ("rms_per_point_px", "rms_per_coord_px",
-                                                                     "mean_2d_px")},
-                       "max_center_shift_px": shift})
+        result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera,
+                           **options)
+        rounds.append({"round": r, **{k: result.errors[k] for k in stats}, "max_center_shift_px": shift})
         if shift < tol_px:
             break
     else:
         if max_rounds > 1:
             warnings.warn(f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
-                          f"(last shift {rounds[-1]['max_center_shift_px']:.3g} px)", RuntimeWarning, stacklevel=2)
-    result.view_names = names
-    return ImagesCalibration(result, paths, detections, used, failed, rounds, centers)
+                          f"(last shift {rounds[-1]['max_center_shift_px']:.3g} px)", RuntimeWarning, stacklevel=3)
+    return result, centers, rounds
 
 
 def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:

@@ -382,30 +382,15 @@ def _finite(centres: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _circcal_without(detections: list, keep: list[int], board: Board, size: tuple[int, int], *,
-                     refine_board: bool = False, max_rounds: int = 6, tol_px: float = 1e-4):
-    """circcal's model from the views ``keep`` only: the loop of :func:`circcal.calibrate.calibrate_images`
-    (calibrate, re-correct every centre under the model, recalibrate; ``refine_board`` as there) on its stored
-    detections (the detector runs without a model, so the detections do not depend on the held-out view). Returns
-    the :class:`circcal.calibrate.CalibrationResult` (``board_lookup`` gives the refined board points)."""
-    from circcal.calibrate import calibrate
-    from circcal.detect import recorrect
+                     refine_board: bool = False):
+    """circcal's model from the views ``keep`` only (:func:`circcal.calibrate.calibrate_detections` on the stored
+    detections; ``refine_board`` as there). Returns the :class:`circcal.calibrate.CalibrationResult`
+    (``board_lookup`` gives the refined board points)."""
+    from circcal.calibrate import calibrate_detections
 
-    pts = board.object_points()
-    centres = [np.asarray(detections[i].centers, dtype=np.float64) for i in keep]
-    pairs = [_finite(c, pts) for c in centres]
-    res = calibrate([o for o, _ in pairs], [p for _, p in pairs], size, refine_board=refine_board)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for _ in range(1, max_rounds):
-            new = [np.asarray(recorrect(detections[i], board, res.camera), dtype=np.float64) for i in keep]
-            shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centres))
-            centres = new
-            pairs = [_finite(c, pts) for c in centres]
-            res = calibrate([o for o, _ in pairs], [p for _, p in pairs], size, initial=res.camera,
-                            refine_board=refine_board)
-            if shift < tol_px:
-                break
-    return res
+        return calibrate_detections([detections[i] for i in keep], board, size, refine_board=refine_board)[0]
 
 
 def _board_block(res) -> dict[str, Any]:
