@@ -215,6 +215,15 @@ def _segmentation_scales(height: int, width: int) -> tuple[int, ...]:
     return (2, 1) if min(height, width) >= HALF_RES_MIN_SIDE else (1,)
 
 
+def _shrink2(gray: np.ndarray) -> np.ndarray:
+    """(H // 2, W // 2) pixel-area average of ``gray`` (H, W) (float64 via float32, as :func:`as_gray` gives colour)."""
+    Hh, W = gray.shape
+    g = gray[:Hh // 2 * 2, :W // 2 * 2]
+    if g.dtype not in (np.uint8, np.uint16, np.float32):
+        g = g.astype(np.float32)
+    return cv2.resize(g, (W // 2, Hh // 2), interpolation=cv2.INTER_AREA)
+
+
 def _upscaled(c: Candidate, scale: int) -> Candidate:
     """A candidate found on an image shrunk ``scale`` x (pixel-area averaging) in full-image pixels. The contour
     runs through the centres of the blob's boundary pixels, ~half a pixel inside its edge at either scale: the axes
@@ -242,14 +251,13 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
     _check_camera(camera, W, Hh)
     if board.layout == "checkerboard":
         raise ValueError("circcal detect finds circle grids; the board is a checkerboard")
-    u8 = normalise_u8(gray)
     min_area, max_area = area_limits(board, W, Hh)
     best = 0
     order = cands = None
     seg_name = None
     for scale in _segmentation_scales(Hh, W):
-        img = u8 if scale == 1 else cv2.resize(u8[:Hh // 2 * 2, :W // 2 * 2], (W // 2, Hh // 2),
-                                               interpolation=cv2.INTER_AREA)
+        # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches 4x fewer pixels
+        img = normalise_u8(gray if scale == 1 else _shrink2(gray))
         for name, mask in segmentations(img):
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
             best = max(best, len(cs))

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
 from .ellipse import conic_from_params, conic_params_batch
@@ -214,14 +215,16 @@ class SmoothedImage:
     """A grey image (H, W) and its Gaussian smoothing (``sigma`` px, reflected borders) as cubic B-spline coefficients
     (mirror boundary), computed on demand in one crop per requested box (one box per dot), for sampling edge profiles.
 
-    A crop extends :attr:`margin` px beyond its box (clipped to the image): the Gaussian's radius, the half length of
-    the spline prefilter and the spline's own support, so samples inside the box equal those of smoothing the whole
-    image. The prefilter is the exact recursive B-spline filter written as its (symmetric, exponentially decaying)
-    impulse response truncated at :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both
-    filters run in float32 (values good to ~1e-7 relative, edge points to ~1e-7 px): the crops inside the image as
-    one separable filter (Gaussian and prefilter convolved) on all of them stacked (``cv2.sepFilter2D``), crops at
-    the image border each on their own with the border reflections (``cv2.GaussianBlur`` then the prefilter). The
-    coefficients of all crops are sampled from one stacked atlas (``map_coordinates``). A later box reuses the crop
+    A crop extends beyond its box (clipped to the image) by the reach of its filters plus the spline's own support,
+    so samples inside the box equal those of smoothing the whole image. The prefilter is the exact recursive B-spline
+    filter written as its (symmetric, exponentially decaying) impulse response truncated at
+    :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both filters run in float32 (values
+    good to ~1e-7 relative, edge points to ~1e-7 px): the crops inside the image as one separable filter (Gaussian and
+    prefilter convolved, the product's tails truncated at the same 5e-8 share: :func:`_combined_kernel`, reach
+    :attr:`margin` - 3) on all of them stacked (``cv2.sepFilter2D``), crops at the image border each on their own
+    with the border reflections (``cv2.GaussianBlur`` then the prefilter, reach :attr:`border_margin` - 3). The
+    coefficients of all crops are sampled from one stacked atlas (compiled cubic B-spline evaluation, or
+    ``map_coordinates`` in :meth:`sample`). A later box reuses the crop
     made for the same dot (a crop holding the box, centred within :attr:`REUSE_PX` px of it), so a dot's samples
     depend on that dot alone: measuring all dots at once gives the same points as one at a time. ``gray`` may be any
     real dtype.
@@ -245,7 +248,13 @@ class SmoothedImage:
 
     @property
     def margin(self) -> int:
-        """Pixels a crop extends beyond its box: Gaussian radius + prefilter half length + spline support."""
+        """Pixels a crop inside the image extends beyond its box: combined filter half length + spline support."""
+        return len(_combined_kernel(self.sigma)) // 2 + 3
+
+    @property
+    def border_margin(self) -> int:
+        """Pixels a crop at the image border extends beyond its box: Gaussian radius + prefilter half length +
+        spline support."""
         return _gauss_radius(self.sigma) + PREFILTER_HALF_LENGTH + 3
 
     def crops_for(self, boxes: np.ndarray) -> np.ndarray:
@@ -274,6 +283,9 @@ class SmoothedImage:
             idx, need = idx[~found], need[~found]
         sl = self.SLACK
         new = [(max(0, x0 - sl), max(0, y0 - sl), min(W, x1 + sl), min(H, y1 + sl)) for x0, y0, x1, y1 in need.tolist()]
+        grow = self.border_margin - m   # crops that reach the border are filtered in two steps, reaching further
+        new = [c if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H else
+               (max(0, c[0] - grow), max(0, c[1] - grow), min(W, c[2] + grow), min(H, c[3] + grow)) for c in new]
         # crops inside the image are filtered together, stacked in one array (the filters reach less than the margin,
         # so each crop's box only sees its own pixels; a pixel's arithmetic does not depend on where its crop sits);
         # crops at the image border each on their own, with the borders' reflections
@@ -297,21 +309,30 @@ class SmoothedImage:
             self._atlas = None
         return out
 
-    def sample(self, crop: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Smoothed image at points (x, y) px (1-D arrays) from the crops ``crop`` (same length, indices from
-        :meth:`crops_for`; the points must lie inside their crop's box), cubic B-spline."""
+    def coefficient_atlas(self, crop: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The spline coefficients of all crops stacked (float32 (R, C)), and for the crops ``crop`` (D,) (indices
+        from :meth:`crops_for`; -1 gives zeros) their first atlas row (D,) int and origin (D, 2) float ``x0, y0``:
+        the coefficient of image pixel (x, y) of crop k is ``atlas[rows[k] + y - y0, x - x0]``."""
         if self._atlas is None:
             self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
             first = np.cumsum([0] + [s.shape[0] for s in self._sheets])
-            self._rows = np.array([first[s] + r0 for s, r0 in self._place], int)
-        crop = np.asarray(crop, int)
-        org = np.array(self.crops, np.float64)[crop]
+            self._rows = np.array([first[s] + r0 for s, r0 in self._place], np.int64)
+        crop = np.asarray(crop, np.int64)
+        valid = crop >= 0
+        rows = np.where(valid, self._rows[np.where(valid, crop, 0)] if len(self._rows) else 0, 0)
+        org = np.array(self.crops, np.float64).reshape(-1, 4)[np.where(valid, crop, 0), :2] if self.crops else \
+            np.zeros((len(crop), 2))
+        return self._atlas, rows.astype(np.int64), np.where(valid[:, None], org, 0.0)
+
+    def sample(self, crop: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Smoothed image at points (x, y) px (1-D arrays) from the crops ``crop`` (same length, indices from
+        :meth:`crops_for`; the points must lie inside their crop's box), cubic B-spline."""
+        atlas, rows, org = self.coefficient_atlas(crop)
         coords = np.empty((2, len(crop)))
         np.subtract(y, org[:, 1], out=coords[0])
-        coords[0] += self._rows[crop]
+        coords[0] += rows
         np.subtract(x, org[:, 0], out=coords[1])
-        return ndimage.map_coordinates(self._atlas, coords, order=3, mode="mirror", prefilter=False,
-                                       output=np.float64)
+        return ndimage.map_coordinates(atlas, coords, order=3, mode="mirror", prefilter=False, output=np.float64)
 
 
 PREFILTER_HALF_LENGTH = 13
@@ -333,15 +354,26 @@ def _prefilter_kernel() -> np.ndarray:
     return (k / k.sum()).astype(np.float32)
 
 
+COMBINED_TAIL = 5e-8
+"""Share of the combined (Gaussian * prefilter) kernel's weight its truncation may leave out (as the prefilter's)."""
+
+
 @functools.lru_cache(maxsize=8)
 def _combined_kernel(sigma: float) -> np.ndarray:
-    """(2 (r + L) + 1,) float32: OpenCV's Gaussian kernel of ``sigma`` (radius r, none for 0) convolved with the FIR
-    prefilter (half length L): smoothing and prefiltering in one separable filter (away from the image borders)."""
+    """(2 h + 1,) float32: OpenCV's Gaussian kernel of ``sigma`` (radius r, none for 0) convolved with the FIR
+    prefilter (half length L): smoothing and prefiltering in one separable filter (away from the image borders).
+    The product's tails decay like the prefilter's; they are cut where at most :data:`COMBINED_TAIL` of the weight
+    is left out (h = 11 instead of r + L = 19 for sigma 1.5: 23 taps, not 39) and the rest renormalised to a sum of 1.
+    """
     k = _prefilter_kernel().astype(np.float64)
     r = _gauss_radius(sigma)
     if r:
         k = np.convolve(k, cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_64F)[:, 0])
-    return k.astype(np.float32)
+    n = len(k) // 2
+    tail = np.cumsum(np.abs(k[::-1][:n]))[::-1] * 2.0 / np.abs(k).sum()   # tail[j]: weight beyond half length j
+    h = next((j for j in range(1, n) if tail[j] <= COMBINED_TAIL), n)
+    k = k[n - h:n + h + 1]
+    return (k / k.sum()).astype(np.float32)
 
 
 def _stacked(rois: list[np.ndarray]) -> np.ndarray:
@@ -418,114 +450,211 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
     residuals) to the ring ``edge_px`` .. ``edge_px + max(2, b/2)`` px outside, keeping only pixels brighter than
     halfway between the dark level and the ring median (drops neighbouring dots). Returns ``(dark (D,),
     plane (D, 3), ok (D,) bool)``: bright(x, y) = plane @ (x, y, 1) in image pixels; ``ok`` false where the ring has
-    too few pixels. The medians of a uint8 image come from per-dot histograms (same values as sorting).
+    too few pixels. One compiled pass per dot (:func:`_levels_kernel`); the medians of a uint8 image come from
+    histograms (same values as sorting).
     """
     conics = np.asarray(conics, np.float64)
     D = len(conics)
     c, axes, ang, okc = conic_params_batch(conics)
-    boxes = np.asarray(boxes, int).reshape(D, 4)
+    boxes = np.asarray(boxes, np.int64).reshape(D, 4)
     dark = np.full(D, np.nan)
     plane = np.full((D, 3), np.nan)
     ok = np.zeros(D, bool)
     if D == 0:
         return dark, plane, ok
-    bw = np.maximum(boxes[:, 2] - boxes[:, 0], 0)
-    bh = np.maximum(boxes[:, 3] - boxes[:, 1], 0)
-    Wm, Hm = int(max(1, bw.max())), int(max(1, bh.max()))
-    hist_bins = 256 if gray.dtype == np.uint8 else 0
-    # pixel values of each ROI (padded, in the image's dtype); coordinates NaN outside a ROI so no mask selects them
-    vals = np.zeros((D, Hm, Wm), gray.dtype if hist_bins else np.float64)
-    for d, x0, y0, h, w in zip(np.nonzero(okc)[0].tolist(), boxes[okc, 0].tolist(), boxes[okc, 1].tolist(),
-                               bh[okc].tolist(), bw[okc].tolist()):
-        vals[d, :h, :w] = gray[y0:y0 + h, x0:x0 + w]
-    jj = np.arange(Wm, dtype=np.float64)
-    ii = np.arange(Hm, dtype=np.float64)
-    xs = np.where(jj[None, :] < bw[:, None], boxes[:, 0:1] + jj[None, :], np.nan)   # (D, Wm)
-    ys = np.where(ii[None, :] < bh[:, None], boxes[:, 1:2] + ii[None, :], np.nan)   # (D, Hm)
-    xs[~okc] = np.nan
-    # normalised radius rho (1 on the ellipse) from the separable quadratic form
-    # rho^2 = A dx^2 + B dx dy + C dy^2 (3 operations per pixel)
-    a, b = axes[:, 0], axes[:, 1]
+    gray = np.ascontiguousarray(gray)
+    if gray.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        gray = gray.astype(np.float64)
+    # the ellipse as rho^2 = qa dx^2 + qb dx dy + qc dy^2 (1 on the boundary) and the radii bounding the regions
+    a, b = np.where(okc, axes[:, 0], 1.0), np.where(okc, axes[:, 1], 1.0)
     ca, sa = np.cos(ang), np.sin(ang)
     ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
-    qa = ca * ca * ia2 + sa * sa * ib2
-    qb = 2.0 * ca * sa * (ia2 - ib2)
-    qc = sa * sa * ia2 + ca * ca * ib2
-    dx = xs - c[:, 0:1]
-    dy = ys - c[:, 1:2]
-    with np.errstate(invalid="ignore"):
-        rho2 = (qb[:, None] * dx)[:, None, :] * dy[:, :, None]
-        rho2 += (qa[:, None] * dx * dx)[:, None, :]
-        rho2 += (qc[:, None] * dy * dy)[:, :, None]
-        t_in = 1.0 - edge_px / b
-        t_in = np.where(t_in > 0, t_in * t_in, -1.0)
-        t_lo = (1.0 + edge_px / b) ** 2
-        t_hi = (1.0 + (edge_px + np.maximum(2.0, 0.5 * b)) / b) ** 2
-        inner = rho2 < t_in[:, None, None]
-        ring = (rho2 > t_lo[:, None, None]) & (rho2 < t_hi[:, None, None])
-    vflat = vals.reshape(-1)
-    P = Hm * Wm
-    # the inner pixels' values per dot (flat, grouped by dot)
-    fi = np.flatnonzero(inner)
-    idd = fi // P
-    n_in = np.bincount(idd, minlength=D)
-    dk = (_segment_median_int(vflat[fi], idd, D, hist_bins) if hist_bins else
-          _segment_median(vflat[fi], idd, D))
-    for d in np.nonzero((n_in < 3) & okc)[0]:  # tiny dot: the 3 pixels nearest the centre (as argsort of the ROI)
-        r2 = rho2[d, :bh[d], :bw[d]]
-        v2 = vals[d, :bh[d], :bw[d]].astype(np.float64)
-        dk[d] = float(np.median(v2.ravel()[np.argsort(r2, axis=None)[:3]]))
-    # the ring's pixels (flat, grouped by dot), coordinates centred on the dot (conditioning of the plane fit)
-    fr = np.flatnonzero(ring)
-    grow, col = np.divmod(fr, Wm)          # global row (d * Hm + i) and column of each ring pixel
-    rd = grow // Hm
-    rv_raw = vflat[fr]
-    rv = rv_raw.astype(np.float64)
-    rx = dx.reshape(-1)[rd * Wm + col]
-    ry = dy.reshape(-1)[grow]
-    n_ring = np.bincount(rd, minlength=D)
-    ring_med = (_segment_median_int(rv_raw, rd, D, hist_bins) if hist_bins else _segment_median(rv, rd, D))
-    mid = 0.5 * (dk + ring_med)
-    keep = rv > mid[rd]
-    n_keep = np.bincount(rd[keep], minlength=D)
-    good = okc & (n_ring >= 8) & (n_keep >= 6)
-
-    seg_start = np.cumsum(n_ring) - n_ring
-    has = n_ring > 0
-
-    def fit(wmask):
-        # the normal equations' sums per dot, over contiguous segments of the flat ring arrays
-        rows = np.empty((9, len(rv)))
-        w = rows[5]
-        w[:] = wmask
-        wx, wy = np.multiply(w, rx, out=rows[2]), np.multiply(w, ry, out=rows[4])
-        np.multiply(wx, rx, out=rows[0])
-        np.multiply(wx, ry, out=rows[1])
-        np.multiply(wy, ry, out=rows[3])
-        np.multiply(wx, rv, out=rows[6])
-        np.multiply(wy, rv, out=rows[7])
-        np.multiply(w, rv, out=rows[8])
-        sums = np.zeros((9, D))
-        if rows.shape[1]:
-            sums[:, has] = np.add.reduceat(rows, seg_start[has], axis=1)
-        sxx, sxy, sx, syy, sy, s1, sxv, syv, sv = sums
-        AtA = np.stack([np.stack([sxx, sxy, sx], 1), np.stack([sxy, syy, sy], 1), np.stack([sx, sy, s1], 1)], 1)
-        Atb = np.stack([sxv, syv, sv], axis=1)
-        AtA[~good] = np.eye(3)
-        return np.linalg.solve(AtA, Atb[..., None])[..., 0]
-
-    p = fit(keep)
-    res = np.abs(rv - (p[rd, 0] * rx + p[rd, 1] * ry + p[rd, 2]))
-    s = 1.4826 * _segment_median(res[keep], rd[keep], D) + 1e-12
-    okr = keep & (res < 4 * s[rd])
-    n_ok = np.bincount(rd[okr], minlength=D)
-    refit = good & (n_ok >= 6) & (n_ok < n_keep)
-    if np.any(refit):
-        p = np.where(refit[:, None], fit(np.where(refit[rd], okr, keep)), p)
-    dark[good] = dk[good]
-    plane[good] = np.stack([p[:, 0], p[:, 1], p[:, 2] - p[:, 0] * c[:, 0] - p[:, 1] * c[:, 1]], axis=1)[good]
-    ok[good] = True
+    q = np.stack([ca * ca * ia2 + sa * sa * ib2, 2.0 * ca * sa * (ia2 - ib2), sa * sa * ia2 + ca * ca * ib2], 1)
+    t_in = 1.0 - edge_px / b
+    t = np.stack([np.where(t_in > 0, t_in * t_in, -1.0), (1.0 + edge_px / b) ** 2,
+                  (1.0 + (edge_px + np.maximum(2.0, 0.5 * b)) / b) ** 2], 1)
+    _levels_kernel(gray, np.where(okc[:, None], c, 0.0), q, t, boxes, okc, 256 if gray.dtype == np.uint8 else 0,
+                   dark, plane, ok)
     return dark, plane, ok
+
+
+@njit(cache=True, nogil=True)
+def _median_hist(hist: np.ndarray, m: int) -> float:
+    """Median of ``m`` integer values given by their histogram (the mean of the two middle values for even m)."""
+    lo_i, hi_i = (m - 1) // 2, m // 2
+    lo = hi = -1
+    cum = 0
+    for v in range(len(hist)):
+        cum += hist[v]
+        if lo < 0 and cum > lo_i:
+            lo = v
+        if cum > hi_i:
+            hi = v
+            break
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True, nogil=True)
+def _plane_fit(rx, ry, rv, use, n):
+    """(p0, p1, p2): least-squares plane v = p0 x + p1 y + p2 through the first ``n`` points where ``use``
+    (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled)."""
+    sxx = sxy = sx = syy = sy = s1 = sxv = syv = sv = 0.0
+    for i in range(n):
+        if use[i]:
+            x, y, v = rx[i], ry[i], rv[i]
+            sxx += x * x
+            sxy += x * y
+            sx += x
+            syy += y * y
+            sy += y
+            s1 += 1.0
+            sxv += x * v
+            syv += y * v
+            sv += v
+    c00, c01, c02 = syy * s1 - sy * sy, sy * sx - sxy * s1, sxy * sy - syy * sx
+    det = sxx * c00 + sxy * c01 + sx * c02
+    p0 = (sxv * c00 + syv * c01 + sv * c02) / det
+    p1 = (sxv * c01 + syv * (sxx * s1 - sx * sx) + sv * (sxy * sx - sxx * sy)) / det
+    p2 = (sxv * c02 + syv * (sxy * sx - sxx * sy) + sv * (sxx * syy - sxy * sxy)) / det
+    return p0, p1, p2
+
+
+@njit(cache=True, nogil=True)
+def _median_inplace(a, n):
+    """Median of ``a[:n]`` (the mean of the two middle values for even n), reordering ``a[:n]`` (quickselect)."""
+    k = (n - 1) // 2
+    lo, hi = 0, n - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    m = a[k]
+    if n % 2 == 1:
+        return m
+    nxt = a[k + 1]
+    for i in range(k + 2, n):  # the next order statistic: the smallest of the upper part
+        if a[i] < nxt:
+            nxt = a[i]
+    return 0.5 * (m + nxt)
+
+
+@njit(cache=True, nogil=True)
+def _levels_kernel(gray, c, q, t, boxes, okc, nbins, dark, plane, ok):
+    """The per-pixel work of :func:`dot_levels_batch`, one dot at a time; writes ``dark``, ``plane``, ``ok``."""
+    D = len(c)
+    npx = 1
+    for d in range(D):
+        npx = max(npx, max(boxes[d, 2] - boxes[d, 0], 0) * max(boxes[d, 3] - boxes[d, 1], 0))
+    inner = np.empty(npx)
+    rx = np.empty(npx)
+    ry = np.empty(npx)
+    rv = np.empty(npx)
+    keep = np.zeros(npx, np.bool_)
+    okr = np.zeros(npx, np.bool_)
+    res = np.empty(npx)
+    hist = np.zeros(max(nbins, 1), np.int64)
+    near_r = np.empty(3)
+    near_v = np.empty(3)
+    for d in range(D):
+        if not okc[d]:
+            continue
+        x0, y0, x1, y1 = boxes[d, 0], boxes[d, 1], boxes[d, 2], boxes[d, 3]
+        cx, cy = c[d, 0], c[d, 1]
+        qa, qb, qc = q[d, 0], q[d, 1], q[d, 2]
+        t_in, t_lo, t_hi = t[d, 0], t[d, 1], t[d, 2]
+        n_in = 0
+        n_ring = 0
+        n_near = 0
+        for y in range(y0, y1):
+            dy = y - cy
+            # the columns inside the outer ellipse rho^2 < t_hi (a pixel beyond it is neither inside nor in the ring;
+            # one pixel of slack, the test below decides)
+            disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
+            if disc < 0:
+                continue
+            half = np.sqrt(disc) / (2.0 * qa)
+            mid = cx - qb * dy / (2.0 * qa)
+            for x in range(max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)):
+                dx = x - cx
+                rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
+                v = gray[y, x]
+                if rho2 < t_in:
+                    inner[n_in] = v
+                    n_in += 1
+                elif t_lo < rho2 < t_hi:
+                    rx[n_ring] = dx
+                    ry[n_ring] = dy
+                    rv[n_ring] = v
+                    n_ring += 1
+                # the 3 pixels nearest the centre (for dots too small to have an inside)
+                if n_near < 3 or rho2 < near_r[n_near - 1]:
+                    i = min(n_near, 2)
+                    while i > 0 and near_r[i - 1] > rho2:
+                        near_r[i], near_v[i] = near_r[i - 1], near_v[i - 1]
+                        i -= 1
+                    near_r[i], near_v[i] = rho2, v
+                    n_near = min(n_near + 1, 3)
+        if n_in >= 3:
+            if nbins:
+                hist[:] = 0
+                for i in range(n_in):
+                    hist[int(inner[i])] += 1
+                dk = _median_hist(hist, n_in)
+            else:
+                dk = _median_inplace(inner, n_in)
+        elif n_near:
+            dk = np.median(near_v[:n_near])
+        else:
+            dk = np.nan
+        if n_ring < 8:
+            continue
+        if nbins:
+            hist[:] = 0
+            for i in range(n_ring):
+                hist[int(rv[i])] += 1
+            ring_med = _median_hist(hist, n_ring)
+        else:
+            ring_med = np.median(rv[:n_ring])  # (a copy: rv's order is the ring's)
+        mid = 0.5 * (dk + ring_med)
+        n_keep = 0
+        for i in range(n_ring):
+            keep[i] = rv[i] > mid
+            n_keep += keep[i]
+        if n_keep < 6:
+            continue
+        p0, p1, p2 = _plane_fit(rx, ry, rv, keep, n_ring)
+        m = 0
+        for i in range(n_ring):
+            res[i] = abs(rv[i] - (p0 * rx[i] + p1 * ry[i] + p2))
+            if keep[i]:
+                inner[m] = res[i]   # (the inner values are used up: the buffer holds the kept residuals)
+                m += 1
+        s = 1.4826 * _median_inplace(inner, m) + 1e-12
+        n_ok = 0
+        for i in range(n_ring):
+            okr[i] = keep[i] and res[i] < 4.0 * s
+            n_ok += okr[i]
+        if 6 <= n_ok < n_keep:
+            p0, p1, p2 = _plane_fit(rx, ry, rv, okr, n_ring)
+        if not (np.isfinite(p0) and np.isfinite(p1) and np.isfinite(p2)):  # collinear ring pixels
+            continue
+        dark[d] = dk
+        plane[d, 0], plane[d, 1], plane[d, 2] = p0, p1, p2 - p0 * cx - p1 * cy
+        ok[d] = True
 
 
 _S_CACHE: dict[tuple[float, float], np.ndarray] = {}
@@ -578,16 +707,14 @@ def subpixel_edge_points_batch(
     step: float = 0.2,
     method: str = "level",
     curvature_correction: bool = True,
-    windows: tuple[float, ...] = (0.0, 0.15, 0.35, 0.95),
 ) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
     """Sub-pixel boundary points of many dots at once: :func:`subpixel_edge_points` for each ellipse of
     ``conics`` (D, 3, 3) on ``src`` (the image and its smoothing scale).
 
     Each dot keeps its own region of interest (the pixels its levels come from and the box its profiles must stay
-    inside, as in the one-dot form). For the level method the samples of the intervals within ``windows[0]`` px of
-    the current boundary are interpolated first (a window of 0: the nearest interval alone); a profile is sampled
-    further (to the next window, then whole) only while it has no crossing yet: the crossing nearest to the boundary
-    is the same as with the whole profile sampled.
+    inside, as in the one-dot form). For the level method each profile's intervals are examined nearest to the
+    current boundary first (:func:`_crossings_kernel`), sampling the image only where needed: the first up-crossing
+    met is the nearest one of the whole profile, found from a few samples.
 
     Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
     ``points[d][mask[d]]``; ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all.
@@ -687,74 +814,17 @@ def subpixel_edge_points_batch(
         okl &= live & (bright_c > dark)
     ratio = np.where(okl, dark / np.where(okl, bright_c, 1.0), 0.0)
     halfk = 0.5 * (1.0 + ratio)
-    F = np.full((D, N, K), np.nan)   # profile minus half level, filled where sampled
-    mid_dist = np.abs(0.5 * (S[:, :-1] + S[:, 1:]))  # (D, K-1), NaN past a profile's end
     todo = okl[:, None] & inside
-    # the usual case: every measured dot has the same offsets, so a window's samples form a dense block
-    tdots = np.nonzero(todo.any(axis=1))[0]
-    k0 = int(klen[tdots[0]]) if len(tdots) else 0
-    uniform = len(tdots) > 0 and bool(np.all(klen[tdots] == k0) and np.all(S[tdots, :k0] == S[tdots[0], :k0]))
-
-    def fill(rd_, rj_, cols):
-        """Sample the profiles (rd_[i], rj_[i]) at the offsets k where cols[d, k]."""
-        if uniform:
-            ks = np.nonzero(cols[tdots[0]])[0]
-            if len(ks) == 0:
-                return
-            sv = S[tdots[0], ks][None, :]
-            px = base[rd_, rj_, 0][:, None] + sv * nrm[rd_, rj_, 0][:, None]
-            py = base[rd_, rj_, 1][:, None] + sv * nrm[rd_, rj_, 1][:, None]
-            prof = src.sample(np.repeat(crop[rd_], px.shape[1]), px.ravel(), py.ravel()).reshape(px.shape)
-            pl = plane[rd_]
-            half = (px * pl[:, 0:1] + py * pl[:, 1:2] + pl[:, 2:3]) * halfk[rd_, None]
-            F[rd_[:, None], rj_[:, None], ks[None, :]] = prof - half
-            return
-        rows = np.zeros((D, N), bool)
-        rows[rd_, rj_] = True
-        sd, sj, sk = np.nonzero(rows[:, :, None] & cols[:, None, :])
-        px, py = pts_at(sd, sj, sk)
-        prof = src.sample(crop[sd], px, py)
-        half = (px * plane[sd, 0] + py * plane[sd, 1] + plane[sd, 2]) * halfk[sd]
-        F[sd, sj, sk] = prof - half
-
-    # the samples of the intervals within each window of the current boundary, widening only for the profiles
-    # without a crossing yet: intervals outside a window are all further than those inside, so the nearest
-    # crossing found inside one is the nearest of the whole profile. The nearest up-crossing of a profile just
-    # sampled is searched among the intervals of the window (the others are not sampled yet).
+    # intervals of each profile nearest to the boundary first (ties: the lower index), NaN ones (past the end) last
+    mid_dist = np.abs(0.5 * (S[:, :-1] + S[:, 1:]))  # (D, K-1)
+    rank = np.argsort(np.where(np.isfinite(mid_dist), mid_dist, np.inf), axis=1, kind="stable")
+    atlas, rows, org = src.coefficient_atlas(crop)
+    k = np.zeros((D, N), np.int64)
+    fa = np.zeros((D, N))
+    fb = np.zeros((D, N))
     found = np.zeros((D, N), bool)
-    k = np.zeros((D, N), int)
-    prev = np.zeros((D, K), bool)
-    in_prof = np.arange(K)[None, :] < klen[:, None]
-    rd_, rj_ = np.nonzero(todo)
-    for w in (*windows, np.inf):
-        if len(rd_) == 0:
-            break
-        with np.errstate(invalid="ignore"):
-            win_iv = mid_dist <= w                                       # (D, K-1)
-        if w == 0:  # the nearest interval alone (the first of equally near ones: the one argmin picks)
-            win_iv = np.zeros_like(win_iv)
-            has = np.any(np.isfinite(mid_dist), axis=1)
-            win_iv[np.nonzero(has)[0], np.nanargmin(np.where(has[:, None], mid_dist, 0.0)[has], axis=1)] = True
-        win_s = np.zeros((D, K), bool)
-        win_s[:, :-1] |= win_iv
-        win_s[:, 1:] |= win_iv
-        win_s &= in_prof
-        fill(rd_, rj_, win_s & ~prev)
-        span = np.nonzero(win_iv.any(axis=0))[0]
-        lo, hi = (int(span[0]), int(span[-1]) + 1) if len(span) else (0, 0)
-        Fw = F[rd_, rj_, lo:hi + 1]
-        with np.errstate(invalid="ignore"):
-            up = (Fw[:, :-1] < 0) & (Fw[:, 1:] >= 0)
-        score = np.where(up, mid_dist[rd_, lo:hi], np.inf)
-        kw = np.argmin(score, axis=1) if hi > lo else np.zeros(len(rd_), int)
-        fw = np.isfinite(score[np.arange(len(rd_)), kw]) if hi > lo else np.zeros(len(rd_), bool)
-        k[rd_, rj_] = np.where(fw, kw + lo, 0)
-        found[rd_, rj_] = fw
-        rd_, rj_ = rd_[~fw], rj_[~fw]
-        prev = win_s
+    _crossings_kernel(atlas, rows, org, base, nrm, S, klen - 1, rank, todo, plane, halfk, k, fa, fb, found)
     ok = found & todo
-    fa = np.take_along_axis(F, k[..., None], axis=2)[..., 0]
-    fb = np.take_along_axis(F, (k + 1)[..., None], axis=2)[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         tt = fa / (fa - fb)
     sk = np.take_along_axis(S, k, axis=1)
@@ -775,6 +845,82 @@ def subpixel_edge_points_batch(
         off = off + _curvature_shift_param(a_, b_, cos_t, sin_t, sigma_t)
     off = np.where(ok, off, 0.0)
     return base + off[..., None] * nrm, ok, errors
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bspline3_weights(t: float) -> tuple[float, float, float, float]:
+    """Cubic B-spline weights of the 4 coefficients around a point at fraction ``t`` in [0, 1) past the second."""
+    u = 1.0 - t
+    return (u * u * u / 6.0, (t * t * (t - 2.0) * 3.0 + 4.0) / 6.0, (u * u * (u - 2.0) * 3.0 + 4.0) / 6.0,
+            t * t * t / 6.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _mirror(i: int, n: int) -> int:
+    """Index ``i`` reflected into [0, n) about the end samples (scipy's "mirror")."""
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * (n - 1) - i
+    return i
+
+
+@njit(cache=True, nogil=True)
+def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
+    """Cubic B-spline with coefficients ``atlas`` (float32 (R, C)) at row ``r``, column ``c``: the value of
+    ``scipy.ndimage.map_coordinates(atlas, [[r], [c]], order=3, mode="mirror", prefilter=False)`` (the mirror is
+    never reached for points inside their crop's box)."""
+    R, C = atlas.shape
+    fr, fc = np.floor(r), np.floor(c)
+    wr = _bspline3_weights(r - fr)
+    wc = _bspline3_weights(c - fc)
+    ir, ic = int(fr) - 1, int(fc) - 1
+    out = 0.0
+    for i in range(4):
+        row = _mirror(ir + i, R)
+        acc = 0.0
+        for j in range(4):
+            acc += wc[j] * atlas[row, _mirror(ic + j, C)]
+        out += wr[i] * acc
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _crossings_kernel(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, k_out, fa_out, fb_out,
+                      found_out):
+    """Nearest up-crossing of the half level on each profile ``(d, j)`` where ``todo``.
+
+    Profile samples at ``base[d, j] + S[d, k] nrm[d, j]`` (smoothed image from ``atlas`` rows ``rows[d]`` +, crop
+    origin ``org[d]``) minus the half level ``halfk[d] plane[d] @ (x, y, 1)``; intervals ``(k, k + 1)`` examined in
+    the order ``rank[d, :n_iv[d]]`` (nearest to the boundary first), each sample computed once when first needed.
+    Writes the interval ``k_out``, the values at its ends ``fa_out``, ``fb_out`` and ``found_out``.
+    """
+    D, N = todo.shape
+    F = np.empty(S.shape[1])
+    have = np.zeros(S.shape[1], np.bool_)
+    for d in range(D):
+        p0, p1, p2 = plane[d, 0], plane[d, 1], plane[d, 2]
+        hk = halfk[d]
+        r0, ox, oy = rows[d], org[d, 0], org[d, 1]
+        for j in range(N):
+            if not todo[d, j]:
+                continue
+            bx, by, nx, ny = base[d, j, 0], base[d, j, 1], nrm[d, j, 0], nrm[d, j, 1]
+            have[:] = False
+            for r in range(n_iv[d]):
+                kk = rank[d, r]
+                for q in (kk, kk + 1):
+                    if not have[q]:
+                        px = bx + S[d, q] * nx
+                        py = by + S[d, q] * ny
+                        F[q] = _spline_at(atlas, (py - oy) + r0, px - ox) - (px * p0 + py * p1 + p2) * hk
+                        have[q] = True
+                if F[kk] < 0 and F[kk + 1] >= 0:
+                    k_out[d, j] = kk
+                    fa_out[d, j] = F[kk]
+                    fb_out[d, j] = F[kk + 1]
+                    found_out[d, j] = True
+                    break
 
 
 def _half_level_radius(u: np.ndarray) -> np.ndarray:

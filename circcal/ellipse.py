@@ -12,6 +12,7 @@ The fit is Fitzgibbon's direct ellipse-specific least squares in the numerically
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = [
     "fit_ellipse_direct",
@@ -71,23 +72,7 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     finite = np.isfinite(p[..., 0]) & np.isfinite(p[..., 1])
     err[np.any(m & ~finite, axis=1)] = 2
     err[cnt < 5] = 1
-    w = (m & finite).astype(np.float64)
-    pz = np.where((m & finite)[..., None], p, 0.0)
-    n = np.maximum(cnt, 1).astype(np.float64)
-    # Hartley normalisation: zero mean, RMS distance sqrt(2) from the origin
-    mean = pz.sum(axis=1) / n[:, None]
-    dz = pz - mean[:, None, :]
-    d2 = ((dz[..., 0] ** 2 + dz[..., 1] ** 2) * w).sum(axis=1) / n
-    d = np.sqrt(d2)
-    s = np.where(d > 0, np.sqrt(2.0) / np.where(d > 0, d, 1.0), 1.0)
-    x = (pz[..., 0] * s[:, None] - s[:, None] * mean[:, 0:1]) * w
-    y = (pz[..., 1] * s[:, None] - s[:, None] * mean[:, 1:2]) * w
-    D1 = np.stack([x * x, x * y, y * y], axis=2)   # masked rows are exactly zero
-    D2 = np.stack([x, y, w], axis=2)
-    D1t = D1.transpose(0, 2, 1)
-    S1 = D1t @ D1
-    S2 = D1t @ D2
-    S3 = D2.transpose(0, 2, 1) @ D2
+    mean, s, S1, S2, S3 = _normalised_scatter(p, m & finite)
     good = err == 0
     T = np.full((D, 3, 3), np.nan)
     if np.any(good):
@@ -135,6 +120,72 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     keep = err[gi] == 0
     Q[gi[keep]] = Qg[keep]
     return Q, err
+
+
+@njit(cache=True, nogil=True)
+def _normalised_scatter(p: np.ndarray, use: np.ndarray):
+    """Halir-Flusser scatter matrices of the points ``p[d][use[d]]`` (D, M, 2) in Hartley-normalised coordinates.
+
+    Returns ``(mean (D, 2), s (D,), S1, S2, S3 (D, 3, 3))``: normalised coordinates are ``(x, y) = s (p - mean)``
+    (zero mean, RMS distance sqrt(2) from the origin); with rows ``D1 = (x^2, xy, y^2)`` and ``D2 = (x, y, 1)``,
+    ``S1 = D1^T D1``, ``S2 = D1^T D2``, ``S3 = D2^T D2``. Rows without points give zeros.
+    """
+    D, M = use.shape
+    mean = np.zeros((D, 2))
+    s = np.ones(D)
+    S1 = np.zeros((D, 3, 3))
+    S2 = np.zeros((D, 3, 3))
+    S3 = np.zeros((D, 3, 3))
+    for d in range(D):
+        n = 0
+        mx = my = 0.0
+        for i in range(M):
+            if use[d, i]:
+                mx += p[d, i, 0]
+                my += p[d, i, 1]
+                n += 1
+        nn = max(n, 1)
+        mx /= nn
+        my /= nn
+        d2 = 0.0
+        for i in range(M):
+            if use[d, i]:
+                d2 += (p[d, i, 0] - mx) ** 2 + (p[d, i, 1] - my) ** 2
+        dd = np.sqrt(d2 / nn)
+        sc = np.sqrt(2.0) / dd if dd > 0 else 1.0
+        mean[d, 0], mean[d, 1], s[d] = mx, my, sc
+        # the 15 monomials x^a y^b, a + b <= 4, that the three matrices are made of
+        m00 = m10 = m01 = m20 = m11 = m02 = m30 = m21 = m12 = m03 = m40 = m31 = m22 = m13 = m04 = 0.0
+        for i in range(M):
+            if use[d, i]:
+                x = p[d, i, 0] * sc - sc * mx
+                y = p[d, i, 1] * sc - sc * my
+                xx, xy, yy = x * x, x * y, y * y
+                m00 += 1.0
+                m10 += x
+                m01 += y
+                m20 += xx
+                m11 += xy
+                m02 += yy
+                m30 += xx * x
+                m21 += xx * y
+                m12 += x * yy
+                m03 += yy * y
+                m40 += xx * xx
+                m31 += xx * xy
+                m22 += xx * yy
+                m13 += xy * yy
+                m04 += yy * yy
+        S1[d, 0, 0], S1[d, 0, 1], S1[d, 0, 2] = m40, m31, m22
+        S1[d, 1, 0], S1[d, 1, 1], S1[d, 1, 2] = m31, m22, m13
+        S1[d, 2, 0], S1[d, 2, 1], S1[d, 2, 2] = m22, m13, m04
+        S2[d, 0, 0], S2[d, 0, 1], S2[d, 0, 2] = m30, m21, m20
+        S2[d, 1, 0], S2[d, 1, 1], S2[d, 1, 2] = m21, m12, m11
+        S2[d, 2, 0], S2[d, 2, 1], S2[d, 2, 2] = m12, m03, m02
+        S3[d, 0, 0], S3[d, 0, 1], S3[d, 0, 2] = m20, m11, m10
+        S3[d, 1, 0], S3[d, 1, 1], S3[d, 1, 2] = m11, m02, m01
+        S3[d, 2, 0], S3[d, 2, 1], S3[d, 2, 2] = m10, m01, m00
+    return mean, s, S1, S2, S3
 
 
 def _canonical(Q: np.ndarray) -> np.ndarray:

@@ -300,17 +300,40 @@ def test_batched_levels_equal_the_per_dot_estimate():
         assert np.allclose(plane[k][:2], rp[:2], atol=1e-11)
 
 
-def test_windowed_sampling_and_batching_change_no_edge_point():
+def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, k_out, fa_out, fb_out,
+                             found_out):
+    """Reference for ``edges._crossings_kernel``: every sample of every profile (scipy's map_coordinates), then the
+    up-crossing of the half level nearest to the boundary (ties: the lower index)."""
+    from scipy import ndimage
+
+    for d, j in zip(*np.nonzero(todo)):
+        kk = np.arange(n_iv[d] + 1)
+        px, py = base[d, j, 0] + S[d, kk] * nrm[d, j, 0], base[d, j, 1] + S[d, kk] * nrm[d, j, 1]
+        v = ndimage.map_coordinates(atlas, [(py - org[d, 1]) + rows[d], px - org[d, 0]], order=3, mode="mirror",
+                                    prefilter=False, output=np.float64)
+        F = v - (px * plane[d, 0] + py * plane[d, 1] + plane[d, 2]) * halfk[d]
+        up = np.nonzero((F[:-1] < 0) & (F[1:] >= 0))[0]
+        if len(up):
+            mid = np.abs(0.5 * (S[d, up] + S[d, up + 1]))
+            k = up[np.argmin(mid)]
+            k_out[d, j], fa_out[d, j], fb_out[d, j], found_out[d, j] = k, F[k], F[k + 1], True
+
+
+def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
+    import circcal.edges as edges
     from circcal.detect import EDGE_SIGMA, fit_dot, fit_dots
     from circcal.edges import SmoothedImage, subpixel_edge_points_batch
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
     src = SmoothedImage(img, EDGE_SIGMA)
-    # nearest crossings found from a few samples per profile = from the whole profiles
+    # nearest crossings found from a few samples per profile (compiled spline) = from the whole profiles sampled by
+    # scipy's map_coordinates
     p1, m1, _ = subpixel_edge_points_batch(src, d.conics)
-    p2, m2, _ = subpixel_edge_points_batch(src, d.conics, windows=())
-    assert np.array_equal(m1, m2) and np.array_equal(p1[m1], p2[m2])
+    monkeypatch.setattr(edges, "_crossings_kernel", _whole_profile_crossings)
+    p2, m2, _ = subpixel_edge_points_batch(src, d.conics)
+    assert m1.sum() > 0.9 * m1.size
+    assert np.array_equal(m1, m2) and np.allclose(p1[m1], p2[m2], rtol=0, atol=1e-9)
     # all dots at once = one dot at a time (each then smoothed on its own small window)
     from circcal.ellipse import conic_from_params, conic_params_batch
 
