@@ -3,8 +3,8 @@
 :func:`detect` runs, on one image:
 
 1. grey conversion and segmentation that survives uneven/strong/weak illumination (:mod:`circcal.edges`), on a
-   half-resolution copy first for images of 720 px and more (full resolution when that fails or the dots are
-   small; only the starting ellipses come from it);
+   copy shrunk to a short side of 360-719 px first for images of 720 px and more (full resolution when that fails,
+   a finer scale when the dots are small; only the starting ellipses come from it);
 2. candidate dots from contours, filtered by area (limits scaled to the image and the board's dot density),
    circularity, inertia ratio and convexity;
 3. grid recognition and ordering in OpenCV's object-point order with circcal's orientation rule
@@ -200,28 +200,34 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
     return centres, conics, H
 
 
-HALF_RES_MIN_SIDE = 720
-HALF_RES_MIN_RADIUS = 6.0
+SHRINK_MIN_SIDE = 360
+"""Segmentation starts on the image shrunk by the largest integer factor that leaves its shorter side at least this
+many pixels (factor 2 from 720 px, 3 from 1080 px, ...; none below 720 px)."""
+SHRUNK_MIN_RADIUS = 3.0
+"""Dots smaller than this (px, in the shrunk image) are segmented again at a finer scale."""
 
 
 def _segmentation_scales(height: int, width: int) -> tuple[int, ...]:
-    """Image scales (1 = full, 2 = half) to segment at, in order. Images with a shorter side of at least
-    :data:`HALF_RES_MIN_SIDE` px are segmented at half resolution first (4x fewer pixels to filter; the edges are
-    always measured at full resolution, starting from these contours); full resolution is the fallback, and is used
-    as well when the grid's dots are smaller than :data:`HALF_RES_MIN_RADIUS` px. Only the starting ellipses differ
-    between the two: on the fixtures the centres move by ~1e-4 px (up to ~1e-2 px on strongly blurred images, where
-    the two-pass refinement still depends slightly on its start), with the same accuracy against the truth. Setting
-    ``HALF_RES_MIN_SIDE`` above any image size restores full-resolution segmentation everywhere."""
-    return (2, 1) if min(height, width) >= HALF_RES_MIN_SIDE else (1,)
+    """Image scales (1 = full, s = shrunk s times) to segment at, in order: the working scale
+    ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer pixels to filter),
+    full resolution as the fallback. The edges are always measured at full resolution, starting from these contours:
+    only the starting ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on
+    strongly blurred images, where the two-pass refinement still depends slightly on its start, with the same accuracy
+    against the truth). When the dots found are smaller than :data:`SHRUNK_MIN_RADIUS` at that scale, :func:`detect`
+    goes on at the coarsest scale where they are not. Setting ``SHRINK_MIN_SIDE`` above any image size restores
+    full-resolution segmentation everywhere."""
+    s = min(height, width) // SHRINK_MIN_SIDE
+    return (s, 1) if s >= 2 else (1,)
 
 
-def _shrink2(gray: np.ndarray) -> np.ndarray:
-    """(H // 2, W // 2) pixel-area average of ``gray`` (H, W) (float64 via float32, as :func:`as_gray` gives colour)."""
+def _shrink(gray: np.ndarray, scale: int) -> np.ndarray:
+    """(H // s, W // s) averages of the s x s pixel blocks of ``gray`` (H, W) (float64 via float32, as :func:`as_gray`
+    gives colour)."""
     Hh, W = gray.shape
-    g = gray[:Hh // 2 * 2, :W // 2 * 2]
+    g = gray[:Hh // scale * scale, :W // scale * scale]
     if g.dtype not in (np.uint8, np.uint16, np.float32):
         g = g.astype(np.float32)
-    return cv2.resize(g, (W // 2, Hh // 2), interpolation=cv2.INTER_AREA)
+    return cv2.resize(g, (W // scale, Hh // scale), interpolation=cv2.INTER_AREA)
 
 
 def _upscaled(c: Candidate, scale: int) -> Candidate:
@@ -255,9 +261,11 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
     best = 0
     order = cands = None
     seg_name = None
-    for scale in _segmentation_scales(Hh, W):
-        # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches 4x fewer pixels
-        img = normalise_u8(gray if scale == 1 else _shrink2(gray))
+    scales = list(_segmentation_scales(Hh, W))
+    while scales:
+        scale = scales.pop(0)
+        # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
+        img = normalise_u8(gray if scale == 1 else _shrink(gray, scale))
         for name, mask in segmentations(img):
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
             best = max(best, len(cs))
@@ -268,8 +276,11 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
             pts = np.array([c.center for c in cs])
             radii = np.array([np.sqrt(c.axes[0] * c.axes[1]) for c in cs])
             order = order_grid(board, pts, radii, (Hh, W))
-            if order is not None and scale != 1 and np.min(radii[order]) < HALF_RES_MIN_RADIUS:
-                order = None  # small dots: their contours are worth the full resolution
+            r_min = np.min(radii[order]) if order is not None else np.inf
+            if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
+                # small dots: their contours are worth a finer scale, the coarsest one where they are not small
+                order = None
+                scales = [max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)]
                 break
             if order is not None:
                 cands, seg_name = cs, name if scale == 1 else f"{name}@1/{scale}"

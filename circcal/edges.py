@@ -743,18 +743,7 @@ def subpixel_edge_points_batch(
     n = np.maximum(24, np.ceil(perim / spacing)).astype(int)
     n[~live] = 0
     N = int(n.max())
-    jn = np.arange(N)
-    prof_ok = jn[None, :] < n[:, None]                                   # (D, N)
-    t = jn[None, :] * (2.0 * np.pi / np.maximum(n, 1))[:, None]
-    ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    cos_t, sin_t = np.cos(t), np.sin(t)
-    ex = a_[:, None] * cos_t
-    ey = b_[:, None] * sin_t
-    base = np.stack([c[:, 0:1] + ca * ex - sa * ey, c[:, 1:2] + sa * ex + ca * ey], axis=2)  # (D, N, 2)
-    g = base @ conics[:, :2, :2].transpose(0, 2, 1) + conics[:, None, :2, 2]
-    g = np.where((conics[:, 0, 0] + conics[:, 1, 1] < 0)[:, None, None], -g, g)
-    nrm = g / np.sqrt(g[..., 0] * g[..., 0] + g[..., 1] * g[..., 1])[..., None]   # (reductions over a tiny last
-    # axis are slow in numpy; the same sum, written out)
+    prof_ok = np.arange(N)[None, :] < n[:, None]                         # (D, N)
     # profile offsets (one array per distinct half length, as np.arange gives them)
     svecs = [_profile_offsets(h, step) for h in hw]
     K = max(len(v) for v in svecs)
@@ -762,20 +751,10 @@ def subpixel_edge_points_batch(
     for d, v in enumerate(svecs):
         S[d, :len(v)] = v
     klen = np.array([len(v) for v in svecs])
-    s_first = S[:, 0]
-    s_last = S[np.arange(D), klen - 1]
-    # profiles entirely inside the ROI (a segment is inside a box iff both its ends are)
-    inside = prof_ok.copy()
-    ends = [base + sv[:, None, None] * nrm for sv in (s_first, s_last)]
-    for e in ends:
-        inside &= ((e[..., 0] >= (x0 + 1)[:, None]) & (e[..., 0] <= (x1 - 2)[:, None])
-                   & (e[..., 1] >= (y0 + 1)[:, None]) & (e[..., 1] <= (y1 - 2)[:, None]))
-    # the smoothed image around the profiles that may be sampled, one crop per dot
-    sampled = live[:, None] & (inside if method == "level" else prof_ok)                   # (D, N)
-    s2 = np.concatenate([sampled, sampled], axis=1)
-    ext = np.stack([f(np.where(s2, np.concatenate([e[..., i] for e in ends], axis=1), fill), axis=1)
-                    for f, fill in ((np.min, np.inf), (np.max, -np.inf)) for i in (0, 1)], axis=1)    # (D, 4)
-    ext[~sampled.any(axis=1)] = np.nan
+    # base points and outward normals, profiles entirely inside the ROI, the extent of those to be sampled
+    boxes = np.stack([x0, y0, x1, y1], 1).astype(np.int64)
+    base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
+                                                            S[np.arange(D), klen - 1], boxes, method == "level")
     crop = src.crops_for(ext)
 
     def pts_at(sel_d, sel_j, sel_k):
@@ -808,7 +787,7 @@ def subpixel_edge_points_batch(
         return base + off[..., None] * nrm, ok, errors
 
     # ---- level method
-    dark, plane, okl = dot_levels_batch(src.gray, conics, np.stack([x0, y0, x1, y1], 1))
+    dark, plane, okl = dot_levels_batch(src.gray, conics, boxes)
     bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
     with np.errstate(invalid="ignore"):
         okl &= live & (bright_c > dark)
@@ -845,6 +824,60 @@ def subpixel_edge_points_batch(
         off = off + _curvature_shift_param(a_, b_, cos_t, sin_t, sigma_t)
     off = np.where(ok, off, 0.0)
     return base + off[..., None] * nrm, ok, errors
+
+
+@njit(cache=True, nogil=True)
+def _profiles_kernel(c, a, b, ang, conics, n, N, s_first, s_last, boxes, inside_only):
+    """Geometry of the edge profiles of D ellipses (centres ``c`` (D, 2), semi-axes ``a``, ``b``, angles ``ang``,
+    conics (D, 3, 3)): ``n[d]`` profiles at equal steps of the parameter t, from ``s_first[d]`` to ``s_last[d]`` px
+    along the outward normal.
+
+    Returns ``base`` (D, N, 2) ellipse points, ``nrm`` (D, N, 2) unit outward normals, ``cos_t``, ``sin_t`` (D, N),
+    ``inside`` (D, N): both ends of the profile within the box ``boxes[d]`` (x0, y0, x1, y1; one pixel in from x0,
+    y0 and two from the exclusive ends), and ``ext`` (D, 4) ``xmin, ymin, xmax, ymax`` of the ends of the profiles
+    to be sampled (those ``inside`` when ``inside_only``, else all; NaN when none).
+    """
+    D = len(n)
+    base = np.zeros((D, N, 2))
+    nrm = np.zeros((D, N, 2))
+    cos_t = np.zeros((D, N))
+    sin_t = np.zeros((D, N))
+    inside = np.zeros((D, N), np.bool_)
+    ext = np.full((D, 4), np.nan)
+    for d in range(D):
+        if n[d] == 0:
+            continue
+        w = 2.0 * np.pi / n[d]
+        ca, sa = np.cos(ang[d]), np.sin(ang[d])
+        Q = conics[d]
+        sg = -1.0 if Q[0, 0] + Q[1, 1] < 0 else 1.0
+        xlo, ylo, xhi, yhi = boxes[d, 0] + 1, boxes[d, 1] + 1, boxes[d, 2] - 2, boxes[d, 3] - 2
+        emin_x = emin_y = np.inf
+        emax_x = emax_y = -np.inf
+        for j in range(n[d]):
+            t = j * w
+            ct, st = np.cos(t), np.sin(t)
+            cos_t[d, j], sin_t[d, j] = ct, st
+            ex, ey = a[d] * ct, b[d] * st
+            bx = c[d, 0] + ca * ex - sa * ey
+            by = c[d, 1] + sa * ex + ca * ey
+            gx = sg * (bx * Q[0, 0] + by * Q[0, 1] + Q[0, 2])
+            gy = sg * (bx * Q[1, 0] + by * Q[1, 1] + Q[1, 2])
+            gn = np.sqrt(gx * gx + gy * gy)
+            nx, ny = gx / gn, gy / gn
+            base[d, j, 0], base[d, j, 1], nrm[d, j, 0], nrm[d, j, 1] = bx, by, nx, ny
+            ax, ay = bx + s_first[d] * nx, by + s_first[d] * ny
+            zx, zy = bx + s_last[d] * nx, by + s_last[d] * ny
+            ins = (xlo <= ax <= xhi and ylo <= ay <= yhi and xlo <= zx <= xhi and ylo <= zy <= yhi)
+            inside[d, j] = ins
+            if ins or not inside_only:
+                emin_x = min(emin_x, ax, zx)
+                emin_y = min(emin_y, ay, zy)
+                emax_x = max(emax_x, ax, zx)
+                emax_y = max(emax_y, ay, zy)
+        if emin_x <= emax_x:
+            ext[d, 0], ext[d, 1], ext[d, 2], ext[d, 3] = emin_x, emin_y, emax_x, emax_y
+    return base, nrm, cos_t, sin_t, inside, ext
 
 
 @njit(cache=True, nogil=True, inline="always")

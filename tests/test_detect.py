@@ -348,20 +348,31 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
         assert np.allclose(Qs[k], Q, rtol=0, atol=1e-10)
 
 
-def test_half_resolution_segmentation_agrees_with_full(monkeypatch):
+def test_shrunk_segmentation_agrees_with_full(monkeypatch):
     import circcal.detect as det
 
     cam = Camera(1600, 1200, 2000.0, 2000.0, 799.5, 599.5)
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
     img = cv2.GaussianBlur(img, (0, 0), 1.0) + np.random.default_rng(2).normal(0, 0.01, img.shape)
     half = detect(img, BOARD)
-    assert half.found and half.segmentation.endswith("@1/2")
+    assert half.found and half.segmentation.endswith("@1/3")   # 1200 // 360
     monkeypatch.setattr(det, "_segmentation_scales", lambda h, w: (1,))
     full = detect(img, BOARD)
     assert full.found and "@" not in full.segmentation
     e_half, e_full = matched_errors(BOARD, half.centers, truth), matched_errors(BOARD, full.centers, truth)
-    print(f"\nhalf-res segmentation: RMS {np.sqrt(np.mean(e_half ** 2)):.5f} px; full: "
+    print(f"\nshrunk segmentation: RMS {np.sqrt(np.mean(e_half ** 2)):.5f} px; full: "
           f"{np.sqrt(np.mean(e_full ** 2)):.5f} px; max difference {np.abs(half.centers - full.centers).max():.2e}")
     # only the starting ellipses differ: the same centres to well below the noise-limited accuracy
     assert np.abs(half.centers - full.centers).max() < 2e-3
     assert np.sqrt(np.mean(e_half ** 2)) <= 0.01
+
+
+@pytest.mark.parametrize("radius_px,scale", [(7.5, "@1/2"), (5.0, None)])
+def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(radius_px, scale):
+    # 1920x1080 starts at 1/3; dots of 7.5 px are 2.5 px there (too small), 3.75 px at 1/2; 5 px dots need full size
+    cam = Camera(1920, 1080, 2000.0, 2000.0, 959.5, 539.5)
+    img, truth, *_ = _render(cam, radius_px, 20, target=(900.0, 500.0))
+    d = detect(img, BOARD)
+    assert d.found, d.reason
+    assert d.segmentation.endswith(scale) if scale else "@" not in d.segmentation
+    assert np.sqrt(np.mean(matched_errors(BOARD, d.centers, truth) ** 2)) <= 0.005
