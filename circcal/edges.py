@@ -17,10 +17,12 @@ Pipeline pieces used by :mod:`circcal.detect`:
   the gradient-peak location is not (``method="gradient"`` gives the gradient-peak variant).
 
 All dots are measured at once (:func:`subpixel_edge_points_batch`): the Gaussian smoothing and spline prefilter of
-one crop per dot, all crops filtered by one OpenCV call (:class:`SmoothedImage`), the profiles of all dots sampled
-together with ``map_coordinates`` (first only the interval nearest the current boundary, the rest of a profile only
-where no crossing is found there: the nearest crossing is the same), the levels of all dots estimated together
-(medians of uint8 images from histograms). :func:`subpixel_edge_points` is the one-dot form.
+one crop per dot, all crops filtered by one OpenCV call (:class:`SmoothedImage`); the per-pixel work is compiled
+(numba, cached on disk): the levels of each dot in one pass over its pixels (:func:`_levels_kernel`; medians of uint8
+images from histograms), the profile geometry (:func:`_profiles_kernel`), and the nearest crossing of each profile
+(:func:`_crossings_kernel`: intervals examined nearest the current boundary first, each spline sample computed once
+when first needed; the nearest crossing is the same as with the whole profile sampled). :func:`subpixel_edge_points`
+is the one-dot form.
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
@@ -180,25 +182,9 @@ def find_candidates(
     return out
 
 
-def _segment_median(vals: np.ndarray, seg: np.ndarray, nseg: int) -> np.ndarray:
-    """(nseg,) median of ``vals[seg == k]`` for each k (as ``np.median``: the mean of the two middle values for an
-    even count; NaN for an empty segment). ``seg`` (M,) int must be sorted ascending (as ``np.nonzero`` gives)."""
-    m = np.bincount(seg, minlength=nseg)
-    width = int(max(1, m.max(initial=0)))
-    packed = np.full((nseg, width), np.inf)
-    start = np.cumsum(m) - m
-    packed.reshape(-1)[seg * width + (np.arange(len(seg)) - start[seg])] = vals
-    packed.sort(axis=1)
-    rows = np.arange(nseg)
-    lo = np.clip((m - 1) // 2, 0, width - 1)
-    hi = np.clip(m // 2, 0, width - 1)
-    out = 0.5 * (packed[rows, lo] + packed[rows, hi])
-    return np.where(m > 0, out, np.nan)
-
-
 def _masked_median(vals: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(D,) median of ``vals[d][mask[d]]`` per row of (D, P) arrays (NaN for an empty row; the values of
-    :func:`_segment_median` of the masked values, sorted in place of packing)."""
+    """(D,) median of ``vals[d][mask[d]]`` per row of (D, P) arrays (as ``np.median``: the mean of the two middle
+    values for an even count; NaN for an empty row)."""
     vals = np.asarray(vals, np.float64).reshape(len(mask), -1)
     mask = np.asarray(mask, bool).reshape(vals.shape)
     m = mask.sum(axis=1)
@@ -219,7 +205,7 @@ class SmoothedImage:
     so samples inside the box equal those of smoothing the whole image. The prefilter is the exact recursive B-spline
     filter written as its (symmetric, exponentially decaying) impulse response truncated at
     :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both filters run in float32 (values
-    good to ~1e-7 relative, edge points to ~1e-7 px): the crops inside the image as one separable filter (Gaussian and
+    good to ~1e-7 relative, edge points to ~1e-6 px): the crops inside the image as one separable filter (Gaussian and
     prefilter convolved, the product's tails truncated at the same 5e-8 share: :func:`_combined_kernel`, reach
     :attr:`margin` - 3) on all of them stacked (``cv2.sepFilter2D``), crops at the image border each on their own
     with the border reflections (``cv2.GaussianBlur`` then the prefilter, reach :attr:`border_margin` - 3). The
@@ -426,18 +412,6 @@ def dot_levels(img: np.ndarray, Q: np.ndarray, origin: tuple[int, int], edge_px:
     full[y0:, x0:] = img
     dark, plane, ok = dot_levels_batch(full, np.asarray(Q, np.float64)[None], box, edge_px)
     return (float(dark[0]), plane[0]) if ok[0] else None
-
-
-def _segment_median_int(vals: np.ndarray, seg: np.ndarray, nseg: int, nbins: int) -> np.ndarray:
-    """:func:`_segment_median` for integer ``vals`` (M,) in ``[0, nbins)`` by per-segment histograms (O(M), no
-    sort; the same values: the mean of the two middle values for an even count, NaN for an empty segment)."""
-    hist = np.bincount(seg * nbins + vals, minlength=nseg * nbins).reshape(nseg, nbins)
-    cum = np.cumsum(hist, axis=1)
-    m = cum[:, -1]
-    # the value of sorted element i is the number of bins whose cumulative count is <= i
-    lo = np.count_nonzero(cum <= ((m - 1) // 2)[:, None], axis=1)
-    hi = np.count_nonzero(cum <= (m // 2)[:, None], axis=1)
-    return np.where(m > 0, 0.5 * (lo.astype(np.float64) + hi), np.nan)
 
 
 def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, edge_px: float = 2.0
