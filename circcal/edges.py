@@ -469,6 +469,19 @@ def _median_hist(hist: np.ndarray, m: int) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _median_values(vals, n, hist, scratch):
+    """Median of ``vals[:n]``, leaving ``vals`` as it is: from a histogram when ``hist`` has bins (uint8 values, one
+    bin per value), else by quickselect on a copy in ``scratch``."""
+    if len(hist):
+        hist[:] = 0
+        for i in range(n):
+            hist[int(vals[i])] += 1
+        return _median_hist(hist, n)
+    scratch[:n] = vals[:n]
+    return _median_inplace(scratch, n)
+
+
+@njit(cache=True, nogil=True)
 def _plane_fit(rx, ry, rv, use, n):
     """(p0, p1, p2): least-squares plane v = p0 x + p1 y + p2 through the first ``n`` points where ``use``
     (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled)."""
@@ -540,7 +553,7 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, dark, plane, ok):
     keep = np.zeros(npx, np.bool_)
     okr = np.zeros(npx, np.bool_)
     res = np.empty(npx)
-    hist = np.zeros(max(nbins, 1), np.int64)
+    hist = np.zeros(nbins, np.int64)   # empty: values are not uint8, medians by selection
     near_r = np.empty(3)
     near_v = np.empty(3)
     for d in range(D):
@@ -583,26 +596,14 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, dark, plane, ok):
                     near_r[i], near_v[i] = rho2, v
                     n_near = min(n_near + 1, 3)
         if n_in >= 3:
-            if nbins:
-                hist[:] = 0
-                for i in range(n_in):
-                    hist[int(inner[i])] += 1
-                dk = _median_hist(hist, n_in)
-            else:
-                dk = _median_inplace(inner, n_in)
+            dk = _median_values(inner, n_in, hist, res)
         elif n_near:
             dk = np.median(near_v[:n_near])
         else:
             dk = np.nan
         if n_ring < 8:
             continue
-        if nbins:
-            hist[:] = 0
-            for i in range(n_ring):
-                hist[int(rv[i])] += 1
-            ring_med = _median_hist(hist, n_ring)
-        else:
-            ring_med = np.median(rv[:n_ring])  # (a copy: rv's order is the ring's)
+        ring_med = _median_values(rv, n_ring, hist, res)
         mid = 0.5 * (dk + ring_med)
         n_keep = 0
         for i in range(n_ring):
