@@ -89,9 +89,14 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 
 def normalise_u8(gray: np.ndarray) -> np.ndarray:
     """Stretch the 0.5-99.5 percentile range of ``gray`` (H, W) to uint8 (for thresholding only). Integer images
-    (uint8/uint16, e.g. from :func:`as_gray`) go through a lookup table of the same formula (identical result)."""
-    sub = gray[::4, ::4] if gray.size > 400_000 else gray
-    lo, hi = np.percentile(sub if sub.dtype in (np.uint8, np.uint16) else sub.astype(np.float64), [0.5, 99.5])
+    (uint8/uint16, e.g. from :func:`as_gray`): percentiles of all pixels from their histogram, the stretch through a
+    lookup table of the same formula (identical results); float images: percentiles of every 4th pixel in each
+    direction above 400k pixels."""
+    if gray.dtype in (np.uint8, np.uint16):
+        lo, hi = _histogram_percentiles(gray, (0.5, 99.5))
+    else:
+        sub = gray[::4, ::4] if gray.size > 400_000 else gray
+        lo, hi = np.percentile(sub.astype(np.float64), [0.5, 99.5])
     if hi <= lo:
         hi = lo + 1e-9
     scale = 255.0 / (hi - lo)
@@ -100,6 +105,21 @@ def normalise_u8(gray: np.ndarray) -> np.ndarray:
         lut = lut.astype(np.uint8)
         return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
     return np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
+
+
+def _histogram_percentiles(img: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
+    """``np.percentile(img, q)`` (linear interpolation between order statistics) of an integer image, from its
+    histogram: O(pixels), no sort."""
+    if img.dtype == np.uint8 and img.size < 2 ** 24:   # (float32 counts: exact below 2^24)
+        cum = np.cumsum(cv2.calcHist([img], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64))
+    else:
+        cum = np.cumsum(np.bincount(img.ravel(), minlength=1))
+    n = int(cum[-1])
+    h = (n - 1) * np.asarray(q, np.float64) / 100.0
+    k = np.floor(h).astype(np.int64)
+    lo = np.searchsorted(cum, k, side="right")                          # the k-th smallest value (0-based)
+    hi = np.searchsorted(cum, np.minimum(k + 1, n - 1), side="right")
+    return lo + (h - k) * (hi - lo)
 
 
 def _odd(n: float) -> int:

@@ -376,3 +376,17 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(radius_px, scale
     assert d.found, d.reason
     assert d.segmentation.endswith(scale) if scale else "@" not in d.segmentation
     assert np.sqrt(np.mean(matched_errors(BOARD, d.centers, truth) ** 2)) <= 0.005
+
+
+@pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
+@pytest.mark.parametrize("shape", [(1, 1), (3, 7), (360, 640)])
+def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top, shape):
+    from circcal.edges import _histogram_percentiles, normalise_u8
+
+    rng = np.random.default_rng(shape[0])
+    img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)   # not the full range: the stretch acts
+    q = (0.0, 0.5, 37.0, 99.5, 100.0)
+    assert np.allclose(_histogram_percentiles(img, q), np.percentile(img, q), rtol=0, atol=1e-9)
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    expect = np.clip((img.astype(np.float64) - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+    assert np.array_equal(normalise_u8(img), expect)
