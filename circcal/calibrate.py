@@ -824,13 +824,15 @@ def calibrate_images(
     tol_px: float = 1e-4,
     progress: bool = True,
     image_size: tuple[int, int] | None = None,
+    jobs: int | None = None,
 ) -> ImagesCalibration:
     """Detect the board in every image, calibrate, then re-correct every centre under the current model
     (perspective and distortion aware, ``circcal.detect.recorrect``) and recalibrate, until no centre moves more than
     ``tol_px`` (typically 2-3 rounds) or ``max_rounds`` calibrations were made.
 
     ``board``: :class:`circcal.board.Board`. ``refine_board``: estimate the board's 3-D shape as well (see
-    :func:`calibrate`). Images where the board is not found are left out and listed in
+    :func:`calibrate`). ``jobs``: images detected at once (``circcal.detect.detect_files``; None = one per CPU, the
+    result does not depend on it). Images where the board is not found are left out and listed in
     ``failed`` with the detector's reason. Raises :class:`CalibrationError` when fewer than 3 images remain.
     """
     import cv2
@@ -840,7 +842,7 @@ def calibrate_images(
     paths = [str(p) for p in paths]
     if not paths:
         raise ValueError("no images given")
-    detections = det_mod.detect_files(paths, board, camera=None, progress=progress)
+    detections = det_mod.detect_files(paths, board, camera=None, progress=progress, jobs=jobs)
     failed: list[tuple[str, str]] = []
     used: list[int] = []
     for i, d in enumerate(detections):

@@ -198,15 +198,33 @@ def test_real_data_every_grid_found(folder, grid, layout):
         assert np.median(np.linalg.norm(p - x.centers, axis=1)) < 2.0
 
 
-def test_detect_files_never_raises(tmp_path):
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_detect_files_never_raises(tmp_path, jobs):
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image")
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.full((100, 120), 200, np.uint8))
-    dets = detect_files([bad, tmp_path / "missing.png", blank], BOARD, progress=False)
+    dets = detect_files([bad, tmp_path / "missing.png", blank], BOARD, progress=False, jobs=jobs)
     assert [d.found for d in dets] == [False, False, False]
     assert "unreadable" in dets[0].reason and "not found" in dets[1].reason
     assert "candidate dots" in dets[2].reason
+    with pytest.raises(ValueError, match="jobs"):
+        detect_files([blank], BOARD, progress=False, jobs=0)
+
+
+def test_parallel_detection_gives_the_sequential_results_in_order(tmp_path):
+    paths = []
+    for k, (radius, tilt) in enumerate([(12, 30), (9, 50), (20, 10), (15, 40)]):
+        img, *_ = _render(CAM, radius, tilt)
+        paths.append(tmp_path / f"v{k}.png")
+        cv2.imwrite(str(paths[-1]), to_uint(img, 8))
+    paths.insert(2, tmp_path / "missing.png")
+    seq = detect_files(paths, BOARD, progress=False, jobs=1)
+    par = detect_files(paths, BOARD, progress=False, jobs=4)
+    assert [d.found for d in seq] == [True, True, False, True, True]
+    assert [d.found for d in par] == [d.found for d in seq] and par[2].reason == seq[2].reason
+    for a, b in zip(seq, par):
+        assert (a.centers is None and b.centers is None) or np.array_equal(a.centers, b.centers)
 
 
 def test_input_checks():
@@ -245,6 +263,12 @@ def test_cli_writes_json_and_overlays(tmp_path):
     assert matched_errors(BOARD, np.array(g["centers"]), truth).mean() < 0.01
     assert not b["found"] and b["centers"] is None and "unreadable" in b["reason"]
     assert (tmp_path / "ov" / "good_detect.png").exists()
+    r = subprocess.run([sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4x5", "--json",
+                        str(out), "--jobs", "0"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 2 and "--jobs" in r.stderr and "at least 1" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4by5", "--json",
+                        str(out)], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 2 and "--grid" in r.stderr and "ROWSxCOLS" in r.stderr
 
 
 # ---- the vectorised detector against the per-dot formulation it replaced -------------------------------------

@@ -2,31 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
-_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
-
-
-def parse_length_mm(text: str) -> float:
-    """'10mm', '1cm', '0.01m', '0.5in' or a bare number (mm) -> mm."""
-    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in|)\s*", str(text))
-    if not m:
-        raise argparse.ArgumentTypeError(f"not a length: {text!r} (expected e.g. 10mm, 1.5cm, 0.01m)")
-    value = float(m.group(1)) * _UNITS_MM[m.group(2)]
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"length must be positive, got {text!r}")
-    return value
-
-
-def parse_grid(text: str) -> tuple[int, int]:
-    """'7x7' -> (rows, cols): points per column x points per row."""
-    m = re.fullmatch(r"\s*(\d+)\s*[xX*]\s*(\d+)\s*", str(text))
-    if not m:
-        raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, got {text!r}")
-    return int(m.group(1)), int(m.group(2))
-
+from circcal.commands.args import parse_grid, parse_length_mm, positive_int
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -50,6 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json")
     p.add_argument("--out", type=Path, default=Path("model.json"), help="output model file (default model.json)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--jobs", type=positive_int, default=None,
+                   help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
     p.set_defaults(func=run)
 
 
@@ -113,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,
                                fix_aspect_ratio=args.fix_aspect_ratio, fix_principal_point=args.fix_principal_point,
-                               refine_board=args.refine_board, progress=not args.no_progress)
+                               refine_board=args.refine_board, progress=not args.no_progress, jobs=args.jobs)
     except CalibrationError as exc:
         print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
         return 1

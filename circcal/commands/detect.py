@@ -8,23 +8,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 from pathlib import Path
 
-
-def parse_grid(text: str) -> tuple[int, int]:
-    """'RxC' -> (rows, cols); raises ``ValueError`` naming the expected form."""
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m:
-        raise ValueError(f"--grid must look like RxC (rows x cols of points, e.g. 7x7), got {text!r}")
-    return int(m.group(1)), int(m.group(2))
+from circcal.commands.args import parse_grid, positive_int
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("detect", help="find circle grids and write unbiased centre projections as JSON",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("images", nargs="+", type=Path, help="image files")
-    p.add_argument("--grid", required=True, help="RxC: R rows by C columns of points")
+    p.add_argument("--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points")
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
     p.add_argument("--pitch", type=float, default=10.0, help="board pitch in mm (OpenCV squareSize; default 10)")
     p.add_argument("--diameter", type=float, default=None,
@@ -33,6 +26,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
     p.add_argument("--overlay", type=Path, default=None, help="folder for PNG overlays to check by eye")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--jobs", type=positive_int, default=None,
+                   help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
     p.set_defaults(func=run)
 
 
@@ -41,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.detect import _read_image, detect_files
     from circcal.model import Camera
 
-    rows, cols = parse_grid(args.grid)
+    rows, cols = args.grid
     layout = "asymmetric" if args.asymmetric else "symmetric"
     spacing = args.pitch * (2 ** 0.5 if args.asymmetric else 1.0)
     diameter = args.diameter if args.diameter is not None else 0.5 * spacing
@@ -52,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         if "camera" not in data:
             raise ValueError(f"{args.model} has no 'camera' block")
         camera = Camera.from_dict(data["camera"])
-    dets = detect_files(list(args.images), board, camera, progress=not args.quiet)
+    dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs)
     out = {"board": board.to_dict(), "images": []}
     for path, d in zip(args.images, dets):
         out["images"].append({"image": str(path), "found": bool(d.found),

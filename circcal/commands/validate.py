@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.calibrate import parse_grid, parse_length_mm
+from circcal.commands.args import parse_grid, parse_length_mm
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

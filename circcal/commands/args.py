@@ -1,0 +1,38 @@
+"""Argument types shared by the ``circcal`` subcommands (argparse ``type=`` callables: a bad value exits 2 with the
+usage line and the reason)."""
+from __future__ import annotations
+
+import argparse
+import re
+
+_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
+
+
+def parse_length_mm(text: str) -> float:
+    """'10mm', '1cm', '0.01m', '0.5in' or a bare number (mm) -> mm."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in|)\s*", str(text))
+    if not m:
+        raise argparse.ArgumentTypeError(f"not a length: {text!r} (expected e.g. 10mm, 1.5cm, 0.01m)")
+    value = float(m.group(1)) * _UNITS_MM[m.group(2)]
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"length must be positive, got {text!r}")
+    return value
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """'7x7' -> (rows, cols): points per column x points per row."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX*]\s*(\d+)\s*", str(text))
+    if not m:
+        raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def positive_int(text: str) -> int:
+    """'4' -> 4; at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
