@@ -36,3 +36,19 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
     return value
+
+
+DIAMETER_HELP = "dot diameter, e.g. 5mm (default: half the spacing of nearest dots)"
+
+
+def board_from_args(grid: tuple[int, int], pitch_mm: float, diameter_mm: float | None, asymmetric: bool):
+    """The :class:`circcal.board.Board` of ``--grid``, ``--pitch``, ``--diameter``, ``--asymmetric`` (one rule for
+    every subcommand). Without a diameter: half the spacing of nearest dots, ``pitch / 2`` (symmetric) or
+    ``pitch * sqrt(2) / 2`` (asymmetric: OpenCV's acircles layout puts nearest dots sqrt(2) pitches apart). The
+    detector uses the diameter only to bound the size of candidate dots."""
+    from circcal.board import Board
+
+    layout = "asymmetric" if asymmetric else "symmetric"
+    if diameter_mm is None:
+        diameter_mm = 0.5 * pitch_mm * (2 ** 0.5 if asymmetric else 1.0)
+    return Board(grid[0], grid[1], pitch_mm, diameter_mm, layout)

@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import parse_grid, parse_length_mm, positive_int
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -18,7 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
     p.add_argument("--pitch", type=parse_length_mm, required=True,
                    help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)")
-    p.add_argument("--diameter", type=parse_length_mm, help="dot diameter, e.g. 5mm (default: half the pitch)")
+    p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0")
     p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0")
@@ -66,9 +66,10 @@ def format_summary(cal, *, worst: int = 3) -> str:
                      f"{pv['n_points']} points)")
     if res.board_points is not None:
         d = res.board_points - res.board_nominal
+        sigma = np.median(res.board_std[res.board_std > 0])
         lines.append(f"board shape (refined, gauge points {list(res.board_gauge)} held): largest deviation from the "
                      f"nominal board x {np.max(np.abs(d[:, 0])):.3f}, y {np.max(np.abs(d[:, 1])):.3f}, "
-                     f"z {np.max(np.abs(d[:, 2])):.3f} mm (typical 1-sigma {np.median(res.board_std[res.board_std > 0]):.3f} mm)")
+                     f"z {np.max(np.abs(d[:, 2])):.3f} mm (typical 1-sigma {sigma:.3f} mm)")
     rounds = getattr(cal, "rounds", None)
     if rounds:
         lines.append("re-correction rounds: " + ", ".join(
@@ -82,14 +83,10 @@ def format_summary(cal, *, worst: int = 3) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.board import Board
     from circcal.calibrate import CalibrationError, calibrate_images
     from circcal.formats import detect_format, write_camera
 
-    rows, cols = args.grid
-    layout = "asymmetric" if args.asymmetric else "symmetric"
-    diameter = args.diameter if args.diameter is not None else 0.5 * args.pitch
-    board = Board(rows, cols, args.pitch, diameter, layout)
+    board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
     fmt = detect_format(args.out)  # fail before the work on an unknown extension
     try:
         cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,

@@ -10,7 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
-from circcal.commands.args import parse_grid, positive_int
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
 
 
 def add_parser(subparsers) -> None:
@@ -19,9 +19,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("images", nargs="+", type=Path, help="image files")
     p.add_argument("--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points")
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
-    p.add_argument("--pitch", type=float, default=10.0, help="board pitch in mm (OpenCV squareSize; default 10)")
-    p.add_argument("--diameter", type=float, default=None,
-                   help="dot diameter in mm (default: half the nearest-neighbour spacing)")
+    p.add_argument("--pitch", type=parse_length_mm, default=10.0,
+                   help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)")
+    p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
     p.add_argument("--model", type=Path, default=None, help="model.json with a 'camera' block (distortion-aware)")
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
     p.add_argument("--overlay", type=Path, default=None, help="folder for PNG overlays to check by eye")
@@ -32,15 +32,10 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.board import Board
     from circcal.detect import _read_image, detect_files
     from circcal.model import Camera
 
-    rows, cols = args.grid
-    layout = "asymmetric" if args.asymmetric else "symmetric"
-    spacing = args.pitch * (2 ** 0.5 if args.asymmetric else 1.0)
-    diameter = args.diameter if args.diameter is not None else 0.5 * spacing
-    board = Board(rows, cols, args.pitch, diameter, layout)
+    board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
     camera = None
     if args.model is not None:
         data = json.loads(Path(args.model).read_text())

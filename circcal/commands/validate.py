@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import parse_grid, parse_length_mm
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--images", nargs="+", type=Path, help="your own images (no ground truth)")
     p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, with --images")
     p.add_argument("--pitch", type=parse_length_mm, help="grid pitch, e.g. 10mm, with --images")
-    p.add_argument("--diameter", type=parse_length_mm, help="dot diameter (default: half the pitch)")
+    p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid, with --images")
     p.add_argument("--against", action="append", default=None,
                    help="reference(s): mrcal, opencv, kornia, pycolmap, a plug-in name, or all (repeatable or "
@@ -43,7 +43,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.board import Board
     from fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
     from validators.validate import Bounds, format_table, run_validation, write_report
 
@@ -54,9 +53,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("give a scenario, --fixtures or --images, not several")
         if args.grid is None or args.pitch is None:
             raise ValueError("--images needs --grid ROWSxCOLS and --pitch")
-        rows, cols = args.grid
-        board = Board(rows, cols, args.pitch, args.diameter or args.pitch / 2,
-                      "asymmetric" if args.asymmetric else "symmetric")
+        board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
         paths = sorted(args.images)
         source = {"images": [str(p) for p in paths]}
     else:
