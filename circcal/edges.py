@@ -885,12 +885,13 @@ def _bspline3_weights(t: float) -> tuple[float, float, float, float]:
 
 @njit(cache=True, nogil=True, inline="always")
 def _mirror(i: int, n: int) -> int:
-    """Index ``i`` reflected into [0, n) about the end samples (scipy's "mirror")."""
+    """Index ``i`` reflected into [0, n) about the end samples (scipy's "mirror"; clamped beyond one reflection, so
+    no index ever leaves the array)."""
     if i < 0:
-        return -i
+        i = -i
     if i >= n:
-        return 2 * (n - 1) - i
-    return i
+        i = 2 * (n - 1) - i
+    return min(max(i, 0), n - 1)
 
 
 @njit(cache=True, nogil=True)
@@ -899,6 +900,8 @@ def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
     ``scipy.ndimage.map_coordinates(atlas, [[r], [c]], order=3, mode="mirror", prefilter=False)`` (the mirror is
     never reached for points inside their crop's box)."""
     R, C = atlas.shape
+    if not (np.isfinite(r) and np.isfinite(c)):
+        return np.nan
     fr, fc = np.floor(r), np.floor(c)
     wr = _bspline3_weights(r - fr)
     wc = _bspline3_weights(c - fc)
