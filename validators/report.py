@@ -1299,7 +1299,11 @@ def document(results: dict, captions: dict[str, str], header: str) -> list[tuple
             rows.append(["realdata", c, k, _f(v, ".2f")])
     if "total_compute_s" in tm:
         rows.append(["total", "-", "all computation", _f(tm["total_compute_s"], ".1f")])
-    B.append(("p", "Run times (wall clock, this run; they vary between runs and are not part of report.json):"))
+    B.append(("p", "Run times (wall clock, this run; they vary between runs and are not part of report.json). "
+                   "'circcal' is the whole `circcal calibrate` (detection, calibration, re-correction rounds) with "
+                   f"its default of detecting images in parallel, one thread per CPU ({os.cpu_count()} here); "
+                   "'opencv-pipeline' is findCirclesGrid + calibrateCamera one image at a time; the 'fair' rows are "
+                   "solves on circcal's centres. `make bench` compares the detectors one thread each:"))
     B.append(("table", head, rows))
     return B
 
