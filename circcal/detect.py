@@ -211,14 +211,19 @@ SHRUNK_MIN_RADIUS = 3.0
 def _segmentation_scales(height: int, width: int) -> tuple[int, ...]:
     """Image scales (1 = full, s = shrunk s times) to segment at, in order: the working scale
     ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer pixels to filter),
-    full resolution as the fallback. The edges are always measured at full resolution, starting from these contours:
+    then halving it (rounded up) down to 2 (a grid of small dots in a large image) and full resolution as the
+    fallbacks. The edges are always measured at full resolution, starting from these contours:
     only the starting ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on
     strongly blurred images, where the two-pass refinement still depends slightly on its start, with the same accuracy
     against the truth). When the dots found are smaller than :data:`SHRUNK_MIN_RADIUS` at that scale, :func:`detect`
     goes on at the coarsest scale where they are not. Setting ``SHRINK_MIN_SIDE`` above any image size restores
     full-resolution segmentation everywhere."""
     s = min(height, width) // SHRINK_MIN_SIDE
-    return (s, 1) if s >= 2 else (1,)
+    out = [s] if s >= 2 else []
+    while s > 2:
+        s = (s + 1) // 2
+        out.append(s)
+    return (*out, 1)
 
 
 def _shrink(gray: np.ndarray, scale: int) -> np.ndarray:
@@ -281,7 +286,8 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
             if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
                 # small dots: their contours are worth a finer scale, the coarsest one where they are not small
                 order = None
-                scales = [max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)]
+                finer = max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)
+                scales = [finer, 1] if finer != 1 else [1]
                 break
             if order is not None:
                 cands, seg_name = cs, name if scale == 1 else f"{name}@1/{scale}"

@@ -391,11 +391,13 @@ def test_shrunk_segmentation_agrees_with_full(monkeypatch):
     assert np.sqrt(np.mean(e_half ** 2)) <= 0.01
 
 
-@pytest.mark.parametrize("radius_px,scale", [(7.5, "@1/2"), (5.0, None)])
-def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(radius_px, scale):
-    # 1920x1080 starts at 1/3; dots of 7.5 px are 2.5 px there (too small), 3.75 px at 1/2; 5 px dots need full size
-    cam = Camera(1920, 1080, 2000.0, 2000.0, 959.5, 539.5)
-    img, truth, *_ = _render(cam, radius_px, 20, target=(900.0, 500.0))
+@pytest.mark.parametrize("size,radius_px,scale", [((1920, 1080), 7.5, "@1/2"), ((1920, 1080), 5.0, None),
+                                                   ((3840, 2160), 8.0, "@1/2"), ((3840, 2160), 25.0, "@1/6")])
+def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px, scale):
+    # 1920x1080 starts at 1/3; dots of 7.5 px are 2.5 px there (too small), 3.75 px at 1/2; 5 px dots need full size.
+    # 3840x2160 tries 1/6, 1/3, 1/2: 8 px dots are not found at 1/6 or 1/3.
+    cam = Camera(*size, 2000.0, 2000.0, size[0] / 2 - 0.5, size[1] / 2 - 0.5)
+    img, truth, *_ = _render(cam, radius_px, 20, target=(size[0] * 0.47, size[1] * 0.46))
     d = detect(img, BOARD)
     assert d.found, d.reason
     assert d.segmentation.endswith(scale) if scale else "@" not in d.segmentation
