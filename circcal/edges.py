@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 from scipy import ndimage
 
 from .ellipse import conic_from_params, conic_params_batch
+from .jit import njit
 
 __all__ = ["Candidate", "to_gray", "as_gray", "normalise_u8", "segmentations", "find_candidates",
            "subpixel_edge_points", "subpixel_edge_points_batch", "SmoothedImage", "dot_levels", "dot_levels_batch",

@@ -12,7 +12,8 @@ The fit is Fitzgibbon's direct ellipse-specific least squares in the numerically
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from .jit import njit
 
 __all__ = [
     "fit_ellipse_direct",

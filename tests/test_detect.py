@@ -441,3 +441,24 @@ def test_compiled_spline_equals_scipy_map_coordinates_including_the_mirror():
     ours = np.array([_spline_at(atlas, a, b) for a, b in zip(r, c)])
     assert np.allclose(ours, ref, rtol=0, atol=1e-12)
     assert np.isnan(_spline_at(atlas, np.nan, 1.0)) and np.isfinite(_spline_at(atlas, 1e9, -1e9))  # never out of bounds
+
+
+def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
+    # the compiled loops are ordinary Python too: blocked numba import -> warning, identical centres
+    img, truth, *_ = _render(CAM, 10, 30)
+    np.save(tmp_path / "img.npy", img)
+    code = ("import sys, warnings; sys.modules['numba'] = None\n"
+            "with warnings.catch_warnings(record=True) as w:\n"
+            "    warnings.simplefilter('always')\n"
+            "    import circcal.jit\n"
+            "import numpy as np\n"
+            "from circcal.board import Board\n"
+            "from circcal.detect import detect\n"
+            f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
+            f"np.save({str(tmp_path / 'c.npy')!r}, d.centers)\n"
+            "print(circcal.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["False", "True"]
+    d = detect(img, BOARD)
+    assert np.allclose(np.load(tmp_path / "c.npy"), d.centers, rtol=0, atol=1e-9)
