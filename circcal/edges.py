@@ -507,7 +507,8 @@ def _median_values(vals, n, hist, scratch):
 @njit(cache=True, nogil=True)
 def _plane_fit(rx, ry, rv, use, n):
     """(p0, p1, p2): least-squares plane v = p0 x + p1 y + p2 through the first ``n`` points where ``use``
-    (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled)."""
+    (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled);
+    NaN for collinear points."""
     sxx = sxy = sx = syy = sy = s1 = sxv = syv = sv = 0.0
     for i in range(n):
         if use[i]:
@@ -523,6 +524,8 @@ def _plane_fit(rx, ry, rv, use, n):
             sv += v
     c00, c01, c02 = syy * s1 - sy * sy, sy * sx - sxy * s1, sxy * sy - syy * sx
     det = sxx * c00 + sxy * c01 + sx * c02
+    if det == 0.0:  # collinear points (checked: numba, like Python, raises on a division by zero)
+        return np.nan, np.nan, np.nan
     p0 = (sxv * c00 + syv * c01 + sv * c02) / det
     p1 = (sxv * c01 + syv * (sxx * s1 - sx * sx) + sv * (sxy * sx - sxx * sy)) / det
     p2 = (sxv * c02 + syv * (sxy * sx - sxx * sy) + sv * (sxx * syy - sxy * sxy)) / det
@@ -862,8 +865,11 @@ def _profiles_kernel(c, a, b, ang, conics, n, N, s_first, s_last, boxes, inside_
             gx = sg * (bx * Q[0, 0] + by * Q[0, 1] + Q[0, 2])
             gy = sg * (bx * Q[1, 0] + by * Q[1, 1] + Q[1, 2])
             gn = np.sqrt(gx * gx + gy * gy)
+            base[d, j, 0], base[d, j, 1] = bx, by
+            if not gn > 0:  # (no normal: only at a degenerate conic's centre; the profile is not measured)
+                continue
             nx, ny = gx / gn, gy / gn
-            base[d, j, 0], base[d, j, 1], nrm[d, j, 0], nrm[d, j, 1] = bx, by, nx, ny
+            nrm[d, j, 0], nrm[d, j, 1] = nx, ny
             ax, ay = bx + s_first[d] * nx, by + s_first[d] * ny
             zx, zy = bx + s_last[d] * nx, by + s_last[d] * ny
             ins = (xlo <= ax <= xhi and ylo <= ay <= yhi and xlo <= zx <= xhi and ylo <= zy <= yhi)
