@@ -447,9 +447,14 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
     too few pixels. One compiled pass per dot (:func:`_levels_kernel`); the medians of a uint8 image come from
     histograms (same values as sorting).
     """
-    conics = np.asarray(conics, np.float64)
-    D = len(conics)
-    c, axes, ang, okc = conic_params_batch(conics)
+    return _dot_levels(gray, *conic_params_batch(np.asarray(conics, np.float64)), boxes, edge_px)
+
+
+def _dot_levels(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
+                boxes: np.ndarray, edge_px: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2), semi-axes (D, 2), angles (D,), valid
+    (D,), as :func:`~circcal.ellipse.conic_params_batch` gives them)."""
+    D = len(okc)
     H, W = np.shape(gray)
     boxes = np.asarray(boxes, np.int64).reshape(D, 4).copy()
     np.clip(boxes[:, 0::2], 0, W, out=boxes[:, 0::2])   # (the compiled pass reads only inside the image)
@@ -758,15 +763,12 @@ def subpixel_edge_points_batch(
                                                             S[np.arange(D), klen - 1], boxes, method == "level")
     crop = src.crops_for(ext)
 
-    def pts_at(sel_d, sel_j, sel_k):
-        s_ = S[sel_d, sel_k]
-        return (base[sel_d, sel_j, 0] + s_ * nrm[sel_d, sel_j, 0], base[sel_d, sel_j, 1] + s_ * nrm[sel_d, sel_j, 1])
-
     if method == "gradient":
         prof = np.full((D, N, K), np.nan)
         sd, sj, sk = np.nonzero(live[:, None, None] & prof_ok[:, :, None] & (np.arange(K)[None, None, :] <
                                                                              klen[:, None, None]))
-        px, py = pts_at(sd, sj, sk)
+        px = base[sd, sj, 0] + S[sd, sk] * nrm[sd, sj, 0]
+        py = base[sd, sj, 1] + S[sd, sk] * nrm[sd, sj, 1]
         prof[sd, sj, sk] = src.sample(crop[sd], px, py)
         ok = np.zeros((D, N), bool)
         off = np.zeros((D, N))
@@ -788,7 +790,7 @@ def subpixel_edge_points_batch(
         return base + off[..., None] * nrm, ok, errors
 
     # ---- level method
-    dark, plane, okl = dot_levels_batch(src.gray, conics, boxes)
+    dark, plane, okl = _dot_levels(src.gray, c, np.stack([a_, b_], 1), ang, okc, boxes)
     bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
     with np.errstate(invalid="ignore"):
         okl &= live & (bright_c > dark)
