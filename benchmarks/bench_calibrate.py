@@ -7,7 +7,7 @@ standard deviations, for OpenCV). ``ratio`` = circcal / OpenCV (goal <= 1.0).
 
 Also the whole pipeline on the `paper` scenario (normal light, 14 rendered 1920x1080 views): ``circcal calibrate``'s
 work (detect, calibrate, re-correct, recalibrate until the centres settle) against OpenCV's pipeline on the same
-images (findCirclesGrid + calibrateCameraExtended, validators.opencv), both one image at a time; and circcal with
+images (findCirclesGrid + calibrateCameraExtended, circcal.validators.opencv), both one image at a time; and circcal with
 its images detected in parallel (``jobs=None``: one thread per CPU, what ``circcal calibrate`` does by default).
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 def _problem():
     from circcal.board import Board
     from circcal.model import Camera, project
-    from fixtures.poses import sample_poses
+    from circcal.fixtures.poses import sample_poses
 
     cam = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.2, 0.1, 0.001, -0.0005, -0.02]))
     board = Board(7, 7, 10.0, 5.0)
@@ -44,9 +44,9 @@ def _median_time(fn, repeats: int) -> float:
 
 def _pipeline(repeats: int = 3) -> dict:
     """Whole-pipeline timings on the paper fixture (rendering not timed: cached)."""
-    from circcal.calibrate import calibrate_images
-    from fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
-    from validators.opencv import OpenCVCalibrator
+    from circcal.pipeline import calibrate_images
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.validators.opencv import OpenCVCalibrator
 
     truth = load_truth(fixture_dir(DEFAULT_SCENARIO, "normal"))
     paths = [v.image for v in truth.views]
@@ -69,7 +69,7 @@ def _pipeline(repeats: int = 3) -> dict:
 def run(repeats: int = 15) -> dict:
     import cv2
 
-    from circcal.calibrate import calibrate
+    from circcal.solver import calibrate
 
     obj, img, size = _problem()
     obj64 = [o.astype(np.float64) for o in obj]

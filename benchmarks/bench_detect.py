@@ -20,8 +20,8 @@ import numpy as np
 def _views(n: int = 4):
     from circcal.board import Board
     from circcal.model import Camera
-    from fixtures.poses import sample_poses
-    from fixtures.render import render_view, to_uint
+    from circcal.fixtures.poses import sample_poses
+    from circcal.fixtures.render import render_view, to_uint
 
     cam = Camera(1920, 1080, 4900.0, 4902.5, 963.7, 536.2)  # the paper's camera, 7x7 dots
     board = Board(7, 7, 10.0, 5.0)
@@ -42,7 +42,7 @@ def _alternating(fns, repeats: int) -> list[tuple[float, object]]:
 
 
 def run(n_views: int = 4, repeats: int = 7) -> dict:
-    import circcal.detect as det
+    import circcal.detector.find as det
 
     imgs, board = _views(n_views)
     flags = cv2.CALIB_CB_SYMMETRIC_GRID

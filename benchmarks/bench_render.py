@@ -9,9 +9,9 @@ import numpy as np
 def run(repeats: int = 3) -> dict:
     import cv2
 
-    from fixtures.perturb import apply_perturbations
-    from fixtures.render import render_coverage
-    from fixtures.scenarios import get_scenario
+    from circcal.fixtures.perturb import apply_perturbations
+    from circcal.fixtures.render import render_coverage
+    from circcal.fixtures.scenarios import get_scenario
 
     cv2.setNumThreads(1)
     sc = get_scenario("paper")

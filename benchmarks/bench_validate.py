@@ -6,8 +6,8 @@ import time
 
 
 def run() -> dict:
-    from fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
-    from validators.validate import run_validation
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.validators.validate import run_validation
 
     truth = load_truth(fixture_dir(DEFAULT_SCENARIO))  # rendering is not timed (cached fixture)
     t0 = time.perf_counter()

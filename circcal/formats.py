@@ -7,7 +7,7 @@ hold a given camera exactly is refused with a clear error rather than written lo
 format             file
 =================  ==========================================================================================
 ``json``           circcal model.json: the truth.json ``camera`` block plus ``std``, errors (convention in each
-                   key), per-view poses (see :meth:`circcal.calibrate.CalibrationResult.to_model_json`)
+                   key), per-view poses (see :meth:`circcal.solver.CalibrationResult.to_model_json`)
 ``opencv``         OpenCV ``cv2.FileStorage`` YAML (or .xml): ``camera_matrix``, ``distortion_coefficients``,
                    ``image_width``, ``image_height``
 ``mrcal``          mrcal ``.cameramodel``: a Python dict literal, ``LENSMODEL_OPENCV5`` intrinsics

@@ -29,6 +29,8 @@ import numpy as np
 
 __all__ = [
     "Camera",
+    "DIST_NAMES",
+    "PARAM_NAMES",
     "rodrigues",
     "transform",
     "distort",
@@ -41,7 +43,9 @@ __all__ = [
     "distort_pixels",
 ]
 
-DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
+DIST_NAMES: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
+#: The calibrated parameters in OpenCV's order (:attr:`Camera.intrinsics`); every std dict is keyed by these.
+PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy") + DIST_NAMES
 
 
 @dataclass(frozen=True)

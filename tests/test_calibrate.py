@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.calibrate import (PARAM_NAMES, CalibrationError, DegenerateViewsError, _normal_blocks,
-                               _Problem, _schur_step, calibrate, project_jacobian)
-from circcal.model import Camera, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
-from fixtures.poses import sample_poses
+from circcal.solver.calibrate import (CalibrationError, DegenerateViewsError, _normal_blocks, _Problem, _schur_step,
+                                      calibrate, project_jacobian)
+from circcal.model import PARAM_NAMES, Camera, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
+from circcal.fixtures.poses import sample_poses
 
 BOARD = Board(7, 7, 10.0, 5.0)
 W, H = 1920, 1080
@@ -308,8 +308,8 @@ def test_paper_geometry_monte_carlo(sigma):
     (within 25 %), and the printed distribution of the projection difference to the true camera shows what any
     unbiased calibrator gets on these views. Measured: median 0.019 px (53 % of draws <= 0.02 px) in normal light,
     0.120 px (2 %) in weak light: the issue's 0.02 px bar is a coin toss even for a perfect detector."""
-    from fixtures.scenarios import SCENARIOS
-    from validators.compare import projection_diff
+    from circcal.fixtures.scenarios import SCENARIOS
+    from circcal.validators.compare import projection_diff
 
     sc = SCENARIOS["paper"]
     cam, board = sc.camera, sc.board
@@ -338,10 +338,10 @@ def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     """`circcal calibrate` end to end on the rendered paper setup (normal illumination): the centres settle in a few
     re-correction rounds, the paper's mean 2-D error bar (<= 0.05 px) holds, and the model lies within 4 stated
     sigmas of the true camera."""
-    pytest.importorskip("circcal.detect")
+    pytest.importorskip("circcal.detector")
     from circcal.cli import main
     from circcal.formats import read_camera
-    from fixtures.scenarios import fixture_dir
+    from circcal.fixtures.scenarios import fixture_dir
 
     import json
     d = fixture_dir("paper", "normal")

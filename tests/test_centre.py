@@ -2,8 +2,8 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from circcal.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
-from circcal.ellipse import conic_center, transform_conic
+from circcal.detector.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
+from circcal.detector.ellipse import conic_center, transform_conic
 
 
 def _random_homography(seed: int) -> np.ndarray:
@@ -72,7 +72,7 @@ def test_iterated_correction_recovers_every_centre(seed):
 
 
 def test_batched_poles_equal_single_poles():
-    from circcal.centre import pole_centres
+    from circcal.detector.centre import pole_centres
 
     H = _random_homography(7)
     gx, gy = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)

@@ -6,7 +6,7 @@ import pytest
 
 from circcal.metrics import error_stats
 from circcal.model import Camera, rodrigues
-from validators.compare import (centre_errors, fit_rotation, grid_permutations, match_grid_order, param_diff,
+from circcal.validators.compare import (centre_errors, fit_rotation, grid_permutations, match_grid_order, param_diff,
                                 per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff,
                                 reverse_to_match, unproject)
 

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.detect import Detection, detect, detect_files, recorrect
-from circcal.grid import board_symmetries
+from circcal.detector import Detection, detect, detect_files, recorrect
+from circcal.detector.grid import board_symmetries
 from circcal.model import Camera, project
-from fixtures.poses import pose_looking_at
-from fixtures.render import render_view, to_uint
+from circcal.fixtures.poses import pose_looking_at
+from circcal.fixtures.render import render_view, to_uint
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO / ".." / "shared" / "data" / "realdata"
@@ -142,14 +142,14 @@ def test_noise_within_cramer_rao(cnr):
 
 def _scenario_params(names=("paper", "wide")):
     try:
-        from fixtures.scenarios import SCENARIOS
+        from circcal.fixtures.scenarios import SCENARIOS
     except ImportError:
         return []
     return [(n, v) for n in names if n in SCENARIOS for v in SCENARIOS[n].variants]
 
 
 def _scenario_rate(name, variant, n_views):
-    from fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
 
     tr = load_truth(fixture_dir(name, variant))
     views = tr.views[:n_views]
@@ -275,7 +275,7 @@ def test_cli_writes_json_and_overlays(tmp_path):
 
 def _reference_levels(img, Q, origin, edge_px=2.0):
     """The per-dot level estimate as first written (one ROI, np.median, np.linalg.lstsq)."""
-    from circcal.ellipse import conic_params
+    from circcal.detector.ellipse import conic_params
 
     c, (a, b), ang = conic_params(Q)
     h, w = img.shape
@@ -306,8 +306,8 @@ def _uneven_render():
 
 
 def test_batched_levels_equal_the_per_dot_estimate():
-    from circcal.edges import _roi_boxes, dot_levels_batch
-    from circcal.ellipse import conic_params_batch
+    from circcal.detector.edges import _roi_boxes, dot_levels_batch
+    from circcal.detector.ellipse import conic_params_batch
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -344,9 +344,9 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
 
 
 def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
-    import circcal.edges as edges
-    from circcal.detect import EDGE_SIGMA, fit_dot, fit_dots
-    from circcal.edges import SmoothedImage, subpixel_edge_points_batch
+    import circcal.detector.edges as edges
+    from circcal.detector.find import EDGE_SIGMA, fit_dot, fit_dots
+    from circcal.detector.edges import SmoothedImage, subpixel_edge_points_batch
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -359,7 +359,7 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
     assert m1.sum() > 0.9 * m1.size
     assert np.array_equal(m1, m2) and np.allclose(p1[m1], p2[m2], rtol=0, atol=1e-9)
     # all dots at once = one dot at a time (each then smoothed on its own small window)
-    from circcal.ellipse import conic_from_params, conic_params_batch
+    from circcal.detector.ellipse import conic_from_params, conic_params_batch
 
     c, axes, ang, _ = conic_params_batch(d.conics)                # a slightly wrong start
     cands = np.array([conic_from_params(c[k] + 0.3, axes[k] * 0.97, ang[k] + 0.05) for k in range(len(c))])
@@ -373,7 +373,7 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
 
 
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):
-    import circcal.detect as det
+    import circcal.detector.find as det
 
     cam = Camera(1600, 1200, 2000.0, 2000.0, 799.5, 599.5)
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
@@ -407,7 +407,7 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px,
 @pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
 @pytest.mark.parametrize("shape", [(1, 1), (3, 7), (360, 640)])
 def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top, shape):
-    from circcal.edges import _histogram_percentiles, normalise_u8
+    from circcal.detector.edges import _histogram_percentiles, normalise_u8
 
     rng = np.random.default_rng(shape[0])
     img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)   # not the full range: the stretch acts
@@ -431,7 +431,7 @@ def test_cli_board_rule_is_the_same_for_every_command():
 def test_compiled_spline_equals_scipy_map_coordinates_including_the_mirror():
     from scipy import ndimage
 
-    from circcal.edges import _spline_at
+    from circcal.detector.edges import _spline_at
 
     rng = np.random.default_rng(1)
     atlas = rng.random((12, 9)).astype(np.float32)
@@ -450,13 +450,13 @@ def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
     code = ("import sys, warnings; sys.modules['numba'] = None\n"
             "with warnings.catch_warnings(record=True) as w:\n"
             "    warnings.simplefilter('always')\n"
-            "    import circcal.jit\n"
+            "    import circcal.detector.jit\n"
             "import numpy as np\n"
             "from circcal.board import Board\n"
-            "from circcal.detect import detect\n"
+            "from circcal.detector import detect\n"
             f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
             f"np.save({str(tmp_path / 'c.npy')!r}, d.centers)\n"
-            "print(circcal.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
+            "print(circcal.detector.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["False", "True"]

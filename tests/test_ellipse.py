@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from circcal.ellipse import (algebraic_distance, conic_center, conic_from_params, conic_params, ellipse_normals,
+from circcal.detector.ellipse import (algebraic_distance, conic_center, conic_from_params, conic_params, ellipse_normals,
                              fit_ellipse_direct, sample_ellipse)
 
 ellipses = st.tuples(
@@ -78,7 +78,7 @@ def test_batched_fit_and_params_equal_the_single_versions():
     """The stacked fit (with per-row masks, padding that may hold NaN) gives each row's own fit, equal to the
     per-ellipse Halir-Flusser solve written out below, and the closed-form batched parameters equal an
     eigen-decomposition reference."""
-    from circcal.ellipse import conic_params_batch, fit_ellipses_direct
+    from circcal.detector.ellipse import conic_params_batch, fit_ellipses_direct
 
     rng = np.random.default_rng(3)
     D, M = 12, 80

@@ -9,10 +9,10 @@ import pytest
 
 from circcal.board import Board
 from circcal.model import Camera, project
-from fixtures.perturb import KINDS, apply_perturbations, validate
-from fixtures.poses import pose_looking_at
-from fixtures.render import Levels, render_coverage
-from fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario, load_truth, render_fixture
+from circcal.fixtures.perturb import KINDS, apply_perturbations, validate
+from circcal.fixtures.poses import pose_looking_at
+from circcal.fixtures.render import Levels, render_coverage
+from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario, load_truth, render_fixture
 
 CAM = Camera(320, 240, 300.0, 300.0, 159.5, 119.5, [0, 0, 0, 0, 0])
 ONE_DOT = Board(2, 2, 30.0, 10.0, margin_mm=20.0)
@@ -43,7 +43,7 @@ def _dark_centroid(img: np.ndarray, centre: np.ndarray, r: int, white: float) ->
 def test_blur_does_not_move_dots(single, step):
     """Centred symmetric PSFs keep the dark-weighted centroid of a dot (to 1e-9 px in float before quantisation)."""
     img, mask, centres = single
-    from fixtures import perturb
+    from circcal.fixtures import perturb
 
     kernel_img = {"gaussian_blur": lambda: cv2.GaussianBlur(img, (0, 0), step["sigma_px"]),
                   "defocus": lambda: cv2.filter2D(img, -1, perturb._disk_kernel(step["radius_px"])),

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.grid import board_symmetries, canonical_order, order_grid, orientation_sign
+from circcal.detector.grid import board_symmetries, canonical_order, order_grid, orientation_sign
 
 
 @pytest.mark.parametrize("board,n", [

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from circcal.model import (Camera, distort, distort_jacobian, project, rodrigues, undistort, undistort_pixels,
                            distort_pixels)
-from fixtures.scenarios import SCENARIOS
+from circcal.fixtures.scenarios import SCENARIOS
 
 CAMERAS = {name: s.camera for name, s in SCENARIOS.items()}
 

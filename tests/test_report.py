@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validators import report as rep
+from circcal.report import report as rep
 
 REALDATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "realdata"
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from circcal.cli import main
-from fixtures.scenarios import fixture_dir, load_truth
-from validators import registry
-from validators.base import BaseCalibrator
-from validators.validate import run_validation
+from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.validators import registry
+from circcal.validators.base import BaseCalibrator
+from circcal.validators.validate import run_validation
 
 
 class Broken(BaseCalibrator):
@@ -94,8 +94,8 @@ def test_cli_rejects_unknown_reference(capsys):
 def test_solver_agreement_rule():
     """Within the px bound: pass. Beyond it: pass only for a cost tie (a flat direction double precision cannot
     resolve); a reference with a higher cost, or a lower one (circcal missed the minimum), fails."""
-    from validators.base import ReferenceResult
-    from validators.validate import COST_TIE_REL, solver_agreement
+    from circcal.validators.base import ReferenceResult
+    from circcal.validators.validate import COST_TIE_REL, solver_agreement
 
     def ref(ssr: float) -> ReferenceResult:
         r = np.full((50, 2), np.sqrt(ssr / 100.0))

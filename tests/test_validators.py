@@ -18,9 +18,9 @@ from conftest import skip_unless_available
 
 from circcal.board import Board
 from circcal.model import Camera, project, rodrigues
-from validators import registry
-from validators.base import BaseCalibrator, ReferenceResult, run_safely
-from validators.compare import param_diff, projection_diff
+from circcal.validators import registry
+from circcal.validators.base import BaseCalibrator, ReferenceResult, run_safely
+from circcal.validators.compare import param_diff, projection_diff
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
@@ -86,7 +86,7 @@ def cv_ref(problem):
 
 @pytest.fixture(scope="module")
 def mrcal_results(problem):
-    from validators.mrcal import MrcalCalibrator
+    from circcal.validators.mrcal import MrcalCalibrator
 
     cal = MrcalCalibrator()
     skip_unless_available(cal)
@@ -170,7 +170,7 @@ def test_mrcal_default_measured(cv_ref, mrcal_results):
 
 
 def test_kornia_batch_matches_single_problems(cv_ref, problem):
-    from validators.kornia import KorniaCalibrator
+    from circcal.validators.kornia import KorniaCalibrator
 
     cal = KorniaCalibrator()
     skip_unless_available(cal)
@@ -191,7 +191,7 @@ def test_kornia_batch_matches_single_problems(cv_ref, problem):
 
 def test_circcal_solver_equals_opencv(problem, cv_ref):
     """circcal's own solver (circcal/calibrate.py) against the same yardstick."""
-    calibrate = pytest.importorskip("circcal.calibrate").calibrate
+    calibrate = pytest.importorskip("circcal.solver").calibrate
     res = calibrate(problem["object_points"], problem["image_points"], problem["image_size"])
     ref_cam, ref_std = cv_ref[False]
     d = projection_diff(ref_cam, res.camera)
@@ -219,7 +219,7 @@ def test_opencv_images_reproduce_baseline(realdata, folder, board, n_found, rms,
 
 def test_mrcal_on_real_detections(realdata):
     """OpenCV's detections of the real symmetric 10x8 set: mrcal fair reaches OpenCV's calibration."""
-    from validators.mrcal import MrcalCalibrator
+    from circcal.validators.mrcal import MrcalCalibrator
 
     cal = MrcalCalibrator()
     skip_unless_available(cal)
@@ -247,7 +247,7 @@ def test_no_detector_is_unsupported(name, tmp_path):
 # bad input: a clear status per reference, the others still run
 # ---------------------------------------------------------------------------------------------------------------------
 def test_missing_mrcal_is_unavailable(monkeypatch, problem):
-    from validators.mrcal import NOT_FOUND_MESSAGE, MrcalCalibrator
+    from circcal.validators.mrcal import NOT_FOUND_MESSAGE, MrcalCalibrator
 
     monkeypatch.setenv("CIRCCAL_MRCAL_PYTHON", "/nonexistent")
     cal = MrcalCalibrator()
@@ -263,7 +263,7 @@ def test_missing_mrcal_is_unavailable(monkeypatch, problem):
 
 
 def test_asymmetric_grid_unsupported_by_mrcal():
-    from validators.mrcal import MrcalCalibrator, board_lattice
+    from circcal.validators.mrcal import MrcalCalibrator, board_lattice
 
     board = Board(11, 4, 10.0, 5.0, layout="asymmetric")
     p = make_problem(2, n_views=6, board=board)

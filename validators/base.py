@@ -18,10 +18,9 @@ from typing import Any, Callable, Literal, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from circcal.metrics import error_stats
-from circcal.model import Camera, project
+from circcal.model import PARAM_NAMES, Camera, project
 
 __all__ = [
-    "PARAM_NAMES",
     "STATUSES",
     "MODES",
     "ReferenceResult",
@@ -36,7 +35,6 @@ __all__ = [
     "check_divergence",
 ]
 
-PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 STATUSES: tuple[str, ...] = ("ok", "unavailable", "unsupported", "failed")
 MODES: tuple[str, ...] = ("fair", "default")
 Mode = Literal["fair", "default"]

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal.metrics import error_stats, per_coord_to_per_point, per_point_to_per_coord
-from circcal.model import Camera, distort, normalized_to_pixel, pixel_to_normalized, undistort
+from circcal.model import PARAM_NAMES, Camera, distort, normalized_to_pixel, pixel_to_normalized, undistort
 
 __all__ = [
     "param_diff",
@@ -39,7 +39,6 @@ __all__ = [
     "per_coord_to_per_point",
 ]
 
-PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
 def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
@@ -51,7 +50,7 @@ def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
     """
     va, vb = a.intrinsics, b.intrinsics
     out: dict[str, dict[str, float]] = {}
-    for i, n in enumerate(PARAMS):
+    for i, n in enumerate(PARAM_NAMES):
         s2 = 0.0
         given = False
         for s in (std_a, std_b):

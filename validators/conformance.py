@@ -1,12 +1,12 @@
 """The conformance matrix: every fixture scenario x variant x calibrator, each case checked against ground truth and
-against circcal's solver on identical observations. Plain functions and data; :mod:`validators.pytest_plugin` and
+against circcal's solver on identical observations. Plain functions and data; :mod:`circcal.validators.pytest_plugin` and
 ``tests/conformance`` parametrise pytest over them, and anything else (a script, another test runner) can call them.
 
 A *case* is ``(scenario, variant, reference, mode)`` with a readable id (``paper-normal-circcal``,
-``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``). The expensive part, circcal's :func:`circcal.calibrate.calibrate_images`
+``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``). The expensive part, circcal's :func:`circcal.solver.calibrate_images`
 on one scenario-variant, is done once by :func:`observe`; every reference case of that scenario-variant then fits
 the same observations (circcal's final centres rounded to float32, OpenCV's input type, exactly as
-:func:`validators.validate.run_validation` hands them out) and is compared with circcal's solver run on exactly
+:func:`circcal.validators.validate.run_validation` hands them out) and is compared with circcal's solver run on exactly
 those points.
 
 What a case asserts (bounds below, each with its reason):
@@ -27,7 +27,7 @@ What a case asserts (bounds below, each with its reason):
   reference must answer status "unsupported" with a reason naming the cause; anything else fails.
 
 Reprojection errors name their convention (:mod:`circcal.metrics`); projection differences come from
-:func:`validators.compare.projection_diff` (60-wide pixel grid, corners included).
+:func:`circcal.validators.compare.projection_diff` (60-wide pixel grid, corners included).
 """
 from __future__ import annotations
 
@@ -39,10 +39,10 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from circcal.board import Board
-from circcal.model import Camera
-from validators.base import ReferenceCalibrator, ReferenceResult
-from validators.compare import grid_permutations, param_diff, projection_diff
-from validators.validate import Check, solver_agreement, ssr
+from circcal.model import PARAM_NAMES, Camera
+from circcal.validators.base import ReferenceCalibrator, ReferenceResult
+from circcal.validators.compare import grid_permutations, param_diff, projection_diff
+from circcal.validators.validate import Check, solver_agreement, ssr
 
 __all__ = [
     "CIRCCAL",
@@ -205,9 +205,9 @@ def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
     ``references``: (name, modes) of the built-in/plug-in references (default: every registered one, modes from
     its class). ``user``: (label, modes) of calibrators under test; when given they replace circcal's case and the
     registered references (the suite then tests only them). ``scenarios``: default every one in
-    :data:`fixtures.scenarios.SCENARIOS`. ``fast``: the slice left unmarked by ``slow`` (default :data:`FAST`).
+    :data:`circcal.fixtures.scenarios.SCENARIOS`. ``fast``: the slice left unmarked by ``slow`` (default :data:`FAST`).
     """
-    from fixtures.scenarios import SCENARIOS
+    from circcal.fixtures.scenarios import SCENARIOS
 
     fast = FAST if fast is None else fast
     if references is None and not user:
@@ -236,7 +236,7 @@ def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
 def registered_references() -> list[tuple[str, tuple[str, ...]]]:
     """(name, modes) of every registered reference; one that cannot load gets ("fair",) (its case then fails with
     the load error)."""
-    from validators import registry
+    from circcal.validators import registry
 
     out = []
     for n in registry.names():
@@ -326,12 +326,13 @@ def _matched_centre_errors(centers: Sequence[np.ndarray], truth: Sequence[np.nda
 
 
 def observe(scenario: str, variant: str, *, progress: bool = False) -> Observations:
-    """Render (or fetch) the fixture and run circcal's :func:`~circcal.calibrate.calibrate_images` on it.
+    """Render (or fetch) the fixture and run circcal's :func:`~circcal.solver.calibrate_images` on it.
 
     Never raises for circcal's own failure (status "failed" with the message); fixture problems do raise.
     """
-    from circcal.calibrate import CalibrationError, calibrate, calibrate_images
-    from fixtures.scenarios import fixture_dir, load_truth
+    from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationError, calibrate
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
 
     folder = fixture_dir(scenario, variant, progress=progress)
     truth = load_truth(folder)
@@ -357,7 +358,7 @@ def observe(scenario: str, variant: str, *, progress: bool = False) -> Observati
     obs.centre_errors = _matched_centre_errors(cal.centers, [truth.views[i].centers for i in cal.used],
                                                truth.board)
     obj, img = cal.observations(truth.board)
-    # The convention of validators.validate.run_validation: OpenCV takes float32 points only, and on a weakly
+    # The convention of circcal.validators.validate.run_validation: OpenCV takes float32 points only, and on a weakly
     # conditioned problem that rounding alone moves the answer by ~5e-3 px, so every solver gets the rounded points
     # and circcal's solver runs once more on exactly those.
     obs.object_points = [np.asarray(o, np.float32).astype(np.float64) for o in obj]
@@ -414,8 +415,6 @@ def predicted_truth_rms(camera: Camera, std: dict[str, float], correlation: np.n
     """What the stated covariance predicts for the RMS projection difference to the truth (rotation fitted, as in
     the truth check): ``n`` cameras drawn from N(camera, covariance) against ``camera``; returns
     ``{"p50", "p95", "p99"}`` px. Printed beside the measured value, not asserted."""
-    from circcal.calibrate import PARAM_NAMES
-
     sd = np.array([float(std.get(k, 0.0) or 0.0) for k in PARAM_NAMES])
     corr = np.eye(9) if correlation is None else np.nan_to_num(np.asarray(correlation, dtype=np.float64))
     cov = corr * np.outer(sd, sd)

@@ -23,8 +23,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from circcal.model import Camera
-from validators.base import PARAM_NAMES, BaseCalibrator, ReferenceResult, check_divergence, check_observations
+from circcal.model import PARAM_NAMES, Camera
+from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations
 
 __all__ = ["KorniaCalibrator", "Problem"]
 

@@ -1,6 +1,6 @@
 """mrcal as a reference, run out of process.
 
-mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`validators.mrcal_worker` runs under another
+mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.validators.mrcal_worker` runs under another
 interpreter: ``$CIRCCAL_MRCAL_PYTHON`` if set, else ``/usr/bin/python3`` if it can ``import mrcal`` (Debian's
 ``python3-mrcal``). JSON goes in on stdin and comes back on stdout. The worker uses mrcal's Python API
 (``seed_stereographic``, then staged ``mrcal.optimize``) with ``LENSMODEL_OPENCV5`` = OpenCV's 5 coefficients; it
@@ -32,7 +32,7 @@ import numpy as np
 
 from circcal.metrics import error_stats
 from circcal.model import Camera, project, rodrigues
-from validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations, run_safely, \
+from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations, run_safely, \
     seed_camera
 
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "NOT_FOUND_MESSAGE"]

@@ -8,7 +8,7 @@
 * Detector: a SimpleBlobDetector whose area limits follow the expected dot size (OpenCV's default ``maxArea`` of
   5000 px^2 misses large dots), symmetric/asymmetric flags, and a ``CALIB_CB_CLUSTERING`` retry.
   Symmetric square grids may come back rotated by 90 degrees between views: see
-  :func:`validators.compare.match_grid_order` before comparing centres one by one.
+  :func:`circcal.validators.compare.match_grid_order` before comparing centres one by one.
 """
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from circcal.model import Camera
-from validators.base import PARAM_NAMES, BaseCalibrator, ReferenceResult
+from circcal.model import PARAM_NAMES, Camera
+from circcal.validators.base import BaseCalibrator, ReferenceResult
 
 __all__ = ["OpenCVCalibrator", "make_blob_detector", "find_circles_grid"]
 

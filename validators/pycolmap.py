@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from circcal.model import Camera, project, rodrigues
-from validators.base import PARAM_NAMES, BaseCalibrator, ReferenceResult, seed_camera
+from circcal.model import PARAM_NAMES, Camera, project, rodrigues
+from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
 
 __all__ = ["PycolmapCalibrator", "MODELS"]
 

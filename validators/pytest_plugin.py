@@ -10,18 +10,18 @@ Installed with circcal (``pip install -e .``), it adds::
 
 * a function ``fn(object_points, image_points, image_size)`` with ``object_points``: per view (N_v, 3) float64 mm
   (z = 0), ``image_points``: per view (N_v, 2) float64 px (OpenCV convention: pixel centres at integer
-  coordinates), ``image_size``: (width, height); it returns a :class:`validators.base.ReferenceResult`, or
+  coordinates), ``image_size``: (width, height); it returns a :class:`circcal.validators.base.ReferenceResult`, or
   ``(camera, std)`` or ``(camera, std, rvecs, tvecs)`` with ``camera`` a :class:`circcal.model.Camera`, ``std`` a
   dict of standard deviations keyed fx, fy, cx, cy, k1, k2, p1, p2, k3 or None, rvecs/tvecs (V, 3) board-to-camera
   (without them the poses are solved with cv2.solvePnP for the residuals). It is wrapped into a
-  :class:`validators.base.ReferenceCalibrator` whose calls go through :func:`validators.base.run_safely` (an
+  :class:`circcal.validators.base.ReferenceCalibrator` whose calls go through :func:`circcal.validators.base.run_safely` (an
   exception becomes a failed case with its message, ``NotImplementedError`` an unsupported one);
-* a :class:`~validators.base.ReferenceCalibrator` class, a zero-argument factory returning one, or an instance.
+* a :class:`~circcal.validators.base.ReferenceCalibrator` class, a zero-argument factory returning one, or an instance.
 
 With ``--calibrator`` the conformance cases test only the given calibrator(s) (ids ``<scenario>-<variant>-<label>``,
 label: LABEL, else the calibrator's ``name``, else the function's name); without it they test circcal and every
 registered reference. Any test that takes the ``conformance_case`` argument is parametrised over the matrix of
-:func:`validators.conformance.cases`, slow-marked outside the fast slice. Fixtures: ``conformance_observations``
+:func:`circcal.validators.conformance.cases`, slow-marked outside the fast slice. Fixtures: ``conformance_observations``
 (session: ``get(scenario, variant) -> Observations``, circcal's calibration computed once per scenario-variant and,
 under pytest-xdist, once per run across workers), ``conformance_calibrator`` (``get(case) -> ReferenceCalibrator``).
 A summary of every case (key numbers, including those measured and not asserted) is printed at the end.
@@ -43,7 +43,7 @@ import numpy as np
 import pytest
 
 from circcal.model import Camera
-from validators.base import BaseCalibrator, ReferenceResult
+from circcal.validators.base import BaseCalibrator, ReferenceResult
 
 __all__ = ["FunctionCalibrator", "load_calibrator", "parse_spec"]
 
@@ -57,7 +57,7 @@ _PROPERTY = "circcal_conformance"
 
 class FunctionCalibrator(BaseCalibrator):
     """A plain function ``fn(object_points, image_points, image_size)`` as a
-    :class:`~validators.base.ReferenceCalibrator` (see the module docstring for what ``fn`` may return)."""
+    :class:`~circcal.validators.base.ReferenceCalibrator` (see the module docstring for what ``fn`` may return)."""
 
     modes = ("fair",)
 
@@ -89,14 +89,14 @@ class FunctionCalibrator(BaseCalibrator):
             rvecs, tvecs, poses = out[2], out[3], "returned"
         else:
             rvecs, tvecs = _solve_poses(camera, object_points, image_points)
-            poses = "cv2.solvePnP with the returned intrinsics (circcal.calibrate.fit_pose)"
+            poses = "cv2.solvePnP with the returned intrinsics (circcal.solver.fit_pose)"
         return self.finish(mode, camera, rvecs, tvecs, object_points, image_points, t0, std=std, poses=poses)
 
 
 def _solve_poses(camera: Camera, object_points: list[np.ndarray], image_points: list[np.ndarray]
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-view board poses for given intrinsics (:func:`circcal.calibrate.fit_pose`): (V, 3) rvecs, (V, 3) tvecs."""
-    from circcal.calibrate import fit_pose
+    """Per-view board poses for given intrinsics (:func:`circcal.solver.fit_pose`): (V, 3) rvecs, (V, 3) tvecs."""
+    from circcal.solver import fit_pose
 
     poses = [fit_pose(o, p, camera) for o, p in zip(object_points, image_points)]
     return np.array([r for r, _ in poses]), np.array([t for _, t in poses])
@@ -147,7 +147,7 @@ def load_calibrator(spec: str) -> Any:
             raise ValueError(f"--calibrator {spec!r}: constructing {attr} failed: {type(exc).__name__}: {exc}") from exc
         if not hasattr(obj, "calibrate_observations"):
             raise ValueError(f"--calibrator {spec!r}: {attr}() returned {type(obj).__name__}, which lacks "
-                             "calibrate_observations (see validators.base.ReferenceCalibrator)")
+                             "calibrate_observations (see circcal.validators.base.ReferenceCalibrator)")
     elif not hasattr(obj, "calibrate_observations"):
         if not callable(obj):
             raise ValueError(f"--calibrator {spec!r}: {attr} is a {type(obj).__name__}, not a function or a "
@@ -156,7 +156,7 @@ def load_calibrator(spec: str) -> Any:
     for need in ("name", "available", "calibrate_observations"):
         if not hasattr(obj, need):
             raise ValueError(f"--calibrator {spec!r}: the calibrator lacks {need!r} (see "
-                             "validators.base.ReferenceCalibrator)")
+                             "circcal.validators.base.ReferenceCalibrator)")
     if label:
         obj.label = label
     return obj
@@ -229,7 +229,7 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     if "conformance_case" not in metafunc.fixturenames:
         return
-    from validators import conformance
+    from circcal.validators import conformance
 
     cals = _user(metafunc.config)
     user = [(calibrator_label(c), conformance.reference_modes(c)) for c in cals]
@@ -277,7 +277,7 @@ class ObservationCache:
         self.memory: dict[tuple[str, str], Any] = {}
 
     def __call__(self, scenario: str, variant: str):
-        from validators.conformance import observe
+        from circcal.validators.conformance import observe
 
         key = (scenario, variant)
         if key in self.memory:
@@ -303,7 +303,7 @@ class ObservationCache:
 @pytest.fixture(scope="session")
 def conformance_observations(request: pytest.FixtureRequest,
                              tmp_path_factory: pytest.TempPathFactory) -> ObservationCache:
-    """``get(scenario, variant) -> validators.conformance.Observations`` (circcal's calibration, computed once)."""
+    """``get(scenario, variant) -> circcal.validators.conformance.Observations`` (circcal's calibration, computed once)."""
     shared = None
     if hasattr(request.config, "workerinput"):  # a pytest-xdist worker: basetemp/.. is this run's, shared
         shared = tmp_path_factory.getbasetemp().parent / "circcal-conformance"
@@ -314,7 +314,7 @@ def conformance_observations(request: pytest.FixtureRequest,
 def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], Any]:
     """``get(case) -> ReferenceCalibrator``: the ``--calibrator`` object for a user case, else the registry's
     reference (one instance per name). A reference that cannot be loaded raises ``ImportError`` with the cause."""
-    from validators import registry
+    from circcal.validators import registry
 
     user = {calibrator_label(c): c for c in _user(request.config)}
     made: dict[str, Any] = {}
@@ -332,7 +332,7 @@ def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], An
 @pytest.fixture
 def conformance_record(record_property: Callable[[str, Any], None]) -> Callable[[Any], None]:
     """``record(outcome)``: add a case's one-line summary to the end-of-run table (works under xdist)."""
-    from validators.conformance import summary_line
+    from circcal.validators.conformance import summary_line
 
     def record(outcome: Any) -> None:
         record_property(_PROPERTY, summary_line(outcome))

@@ -6,7 +6,7 @@ A third party registers its calibrator in its own ``pyproject.toml``::
     mycal = "mypackage.mymodule:MyCalibrator"
 
 The target is a class (or any callable) returning an object that follows
-:class:`validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A built-in name
+:class:`circcal.validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A built-in name
 wins over a plug-in of the same name (the clash is reported by :func:`problems`).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import importlib
 import importlib.metadata
 from typing import Any, Callable
 
-from validators.base import ReferenceCalibrator
+from circcal.validators.base import ReferenceCalibrator
 
 __all__ = ["ENTRY_POINT_GROUP", "BUILTINS", "names", "get", "all_available", "problems"]
 
@@ -23,10 +23,10 @@ ENTRY_POINT_GROUP = "circcal.validators"
 
 #: name -> "module:attribute"; imported lazily so a missing optional dependency only affects its own reference.
 BUILTINS: dict[str, str] = {
-    "opencv": "validators.opencv:OpenCVCalibrator",
-    "mrcal": "validators.mrcal:MrcalCalibrator",
-    "kornia": "validators.kornia:KorniaCalibrator",
-    "pycolmap": "validators.pycolmap:PycolmapCalibrator",
+    "opencv": "circcal.validators.opencv:OpenCVCalibrator",
+    "mrcal": "circcal.validators.mrcal:MrcalCalibrator",
+    "kornia": "circcal.validators.kornia:KorniaCalibrator",
+    "pycolmap": "circcal.validators.pycolmap:PycolmapCalibrator",
 }
 
 _problems: dict[str, str] = {}
@@ -73,7 +73,7 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
     obj = factory(**kwargs)
     for attr in ("name", "available", "calibrate_observations"):
         if not hasattr(obj, attr):
-            raise TypeError(f"reference calibrator {name!r} lacks {attr!r}; see validators.base.ReferenceCalibrator")
+            raise TypeError(f"reference calibrator {name!r} lacks {attr!r}; see circcal.validators.base.ReferenceCalibrator")
     return obj
 
 

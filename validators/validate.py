@@ -17,15 +17,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal.board import Board
-from circcal.model import Camera
-from validators import registry
-from validators.base import ReferenceResult, jsonable
-from validators.compare import param_diff, projection_diff
+from circcal.model import PARAM_NAMES, Camera
+from circcal.validators import registry
+from circcal.validators.base import ReferenceResult, jsonable
+from circcal.validators.compare import param_diff, projection_diff
 
 __all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "solver_agreement", "format_table",
            "write_report"]
 
-PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 #: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
 #: squared residuals carry ~1e-13 relative rounding).
@@ -118,7 +117,8 @@ def run_validation(
     ``observations``: "circcal" (every reference gets circcal's final centres) or "own" (a reference's own detector
     where it has one; the others report "unsupported"). Never raises for a reference's failure: it becomes a row.
     """
-    from circcal.calibrate import CalibrationError, calibrate_images
+    from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationError
 
     if observations not in ("circcal", "own"):
         raise ValueError(f"observations must be 'circcal' or 'own', got {observations!r}")
@@ -143,7 +143,7 @@ def run_validation(
         # gets the centres rounded to float32, and circcal's solver is run once more on exactly those.
         img = [p.astype(np.float32).astype(np.float64) for p in img]
         obj = [o.astype(np.float32).astype(np.float64) for o in obj]
-        from circcal.calibrate import calibrate
+        from circcal.solver import calibrate
 
         same = calibrate(obj, img, (res.camera.width, res.camera.height), fix_k3=fix_k3, initial=res.camera)
         image_size = (res.camera.width, res.camera.height)
@@ -298,7 +298,7 @@ def format_table(run: ValidationRun) -> str:
         lines += ["", "circcal parameters vs truth:", "", "| param | truth | circcal | +- sigma | error / sigma |",
                   "|---|---|---|---|---|"]
         pd = run.comparisons[0]["vs_truth"]["params"]
-        for n in PARAMS:
+        for n in PARAM_NAMES:
             lines.append(f"| {n} | {_f(pd[n]['a'], '.6g')} | {_f(pd[n]['b'], '.6g')} | {_f(cc['std'][n], '.3g')} | "
                          f"{_f(pd[n]['diff_sigmas'], '+.2f')} |")
     lines += ["", "checks:"]

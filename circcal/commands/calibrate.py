@@ -35,10 +35,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def format_summary(cal, *, worst: int = 3) -> str:
-    """Human-readable summary of an :class:`circcal.calibrate.ImagesCalibration` (or a CalibrationResult)."""
+    """Human-readable summary of an :class:`circcal.pipeline.ImagesCalibration` (or a CalibrationResult)."""
     import numpy as np
 
-    from circcal.calibrate import PARAM_NAMES
+    from circcal.model import PARAM_NAMES
 
     res = getattr(cal, "result", cal)
     lines = []
@@ -83,7 +83,8 @@ def format_summary(cal, *, worst: int = 3) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.calibrate import CalibrationError, calibrate_images
+    from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationError
     from circcal.formats import detect_format, write_camera
 
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)

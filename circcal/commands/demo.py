@@ -1,13 +1,12 @@
 """``circcal demo``: the main job on the built-in default fixtures (what ``make demo`` runs).
 
 Renders the default scenario (cached), prints what it holds and how large the centre bias is that a blob-centroid
-detector would carry, then runs the parts of the pipeline that are installed: calibration against ground truth and
-``circcal validate`` against every available reference.
+detector would carry, then runs ``circcal validate`` on it against every available reference (calibration against ground truth and
+against each reference on identical observations).
 """
 from __future__ import annotations
 
 import argparse
-import importlib.util
 
 import numpy as np
 
@@ -22,8 +21,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def summarize(name: str) -> None:
     """Print the scenario's camera, board and per-variant geometry: dot sizes, tilts, blob-centroid bias."""
     from circcal.model import project, rodrigues
-    from fixtures.render import area_centroids
-    from fixtures.scenarios import fixture_dir, get_scenario, load_truth
+    from circcal.fixtures.render import area_centroids
+    from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
 
     sc = get_scenario(name)
     cam, board = sc.camera, sc.board
@@ -54,14 +53,12 @@ def summarize(name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fixtures.scenarios import DEFAULT_SCENARIO
+    from circcal.commands import validate
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO
 
     name = args.scenario or DEFAULT_SCENARIO
     summarize(name)
-    if importlib.util.find_spec("circcal.commands.validate") is not None:
-        from circcal.cli import main as cli_main
-
-        print(f"\ncirccal validate {name} --against all")
-        return cli_main(["validate", name, "--against", "all"])
-    print("\n(validation against the reference calibrators is not part of this build yet)")
-    return 0
+    print(f"\ncirccal validate {name} --against all")
+    parser = argparse.ArgumentParser(prog="circcal")
+    validate.add_parser(parser.add_subparsers())
+    return validate.run(parser.parse_args(["validate", name, "--against", "all"]))

@@ -32,7 +32,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.detect import _read_image, detect_files
+    from circcal.detector.find import _read_image, detect_files
     from circcal.model import Camera
 
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         if args.overlay is not None:
             img = _read_image(Path(path)) if Path(path).exists() else None
             if img is not None:
-                from circcal.overlay import write_overlay
+                from circcal.detector.overlay import write_overlay
 
                 write_overlay(Path(args.overlay) / (Path(path).stem + "_detect.png"), img, d)
     args.json_out.parent.mkdir(parents=True, exist_ok=True)

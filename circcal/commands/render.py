@@ -19,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario
+    from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario
 
     if args.list or not args.scenario:
         for s in SCENARIOS.values():

@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validators.report import generate
+    from circcal.report import generate
 
     folder = generate(args.out, quick=args.quick, progress=not args.no_progress)
     print(f"report: {folder / 'index.md'} ({folder / 'index.html'})")

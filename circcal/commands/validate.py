@@ -43,8 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
-    from validators.validate import Bounds, format_table, run_validation, write_report
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
+    from circcal.validators.validate import Bounds, format_table, run_validation, write_report
 
     against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
     truth_cam = None

@@ -7,7 +7,7 @@ import pytest
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    from validators import pytest_plugin
+    from circcal.validators import pytest_plugin
 
     pm = config.pluginmanager
     if not pm.has_plugin("circcal") and not pm.is_registered(pytest_plugin):

@@ -21,9 +21,9 @@ from conftest import skip_unless_available
 
 from circcal.board import Board
 from circcal.model import Camera, project, rodrigues
-from validators import conformance
-from validators.base import ReferenceResult
-from validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator, solver_tolerance
+from circcal.validators import conformance
+from circcal.validators.base import ReferenceResult
+from circcal.validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator, solver_tolerance
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
@@ -54,7 +54,7 @@ def test_conformance(conformance_case, conformance_observations, conformance_cal
 # --------------------------------------------------------------------------------------------------------------------
 
 def test_matrix_covers_every_scenario_variant_with_readable_ids():
-    from fixtures.scenarios import SCENARIOS
+    from circcal.fixtures.scenarios import SCENARIOS
 
     refs = [("opencv", ("fair",)), ("mrcal", ("fair", "default")), ("kornia", ("fair",))]
     cs = conformance.cases(refs)
@@ -118,7 +118,7 @@ def test_load_calibrator_accepts_a_function_a_file_and_a_class():
     assert isinstance(f, FunctionCalibrator) and f.name == "opencv_calibrate"
     g = load_calibrator(f"mine={HERE / 'example_calibrator.py'}:opencv_biased")
     assert isinstance(g, FunctionCalibrator) and g.label == "mine"
-    c = load_calibrator("validators.opencv:OpenCVCalibrator")
+    c = load_calibrator("circcal.validators.opencv:OpenCVCalibrator")
     assert c.name == "opencv" and hasattr(c, "calibrate_observations")
     obj, img, size, truth = _problem()
     res = f.calibrate_observations(obj, img, size)
@@ -132,9 +132,9 @@ def test_load_calibrator_accepts_a_function_a_file_and_a_class():
 
 @pytest.mark.parametrize("spec, words", [
     ("no_colon_here", "expected [LABEL=]package.module:function"),
-    ("validators.no_such_module:fn", "cannot import 'validators.no_such_module'"),
-    ("validators.base:no_such_attr", "has no attribute 'no_such_attr'"),
-    ("validators.base:PARAM_NAMES", "not a function or a ReferenceCalibrator"),
+    ("circcal.validators.no_such_module:fn", "cannot import 'circcal.validators.no_such_module'"),
+    ("circcal.validators.base:no_such_attr", "has no attribute 'no_such_attr'"),
+    ("circcal.validators.base:MODES", "not a function or a ReferenceCalibrator"),
     ("missing/file.py:fn", "no such file"),
 ])
 def test_load_calibrator_says_what_is_wrong(spec, words):
@@ -192,7 +192,7 @@ def test_option_selects_the_calibrator_under_test():
 def test_bad_calibrator_option_is_a_usage_error():
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST") and k != "PYTEST_ADDOPTS"}
     out = subprocess.run([sys.executable, "-m", "pytest", "tests/conformance", "--collect-only", "-q",
-                          "-p", "no:cacheprovider", "--calibrator", "validators.base:nothing"],
+                          "-p", "no:cacheprovider", "--calibrator", "circcal.validators.base:nothing"],
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 4 and "has no attribute 'nothing'" in out.stdout + out.stderr
 

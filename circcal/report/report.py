@@ -10,8 +10,8 @@ updates the index ``reports/README.md``.
 Error conventions (every key names its own): ``mean_2d_px`` = mean of the 2-D error norm (the paper's eq. 22 and its
 tables), ``rms_per_point_px`` = OpenCV's RMS, ``rms_per_coord_px`` = mrcal's. "vs truth" = RMS over a 60-wide pixel
 grid of the projection difference between the true camera and the calibrated one, the implied rotation fitted
-(:func:`validators.compare.projection_diff`); "centre error" = detected centres against the exact projections of the
-true centres (:func:`validators.compare.centre_errors`).
+(:func:`circcal.validators.compare.projection_diff`); "centre error" = detected centres against the exact projections of the
+true centres (:func:`circcal.validators.compare.centre_errors`).
 """
 from __future__ import annotations
 
@@ -32,13 +32,13 @@ import numpy as np
 from circcal import atomic
 from circcal.board import Board
 from circcal.metrics import error_stats
-from circcal.model import Camera, project
-from validators.base import jsonable
+from circcal.model import PARAM_NAMES, Camera, project
+from circcal.validators.base import jsonable
 
 __all__ = ["ReportConfig", "FULL", "QUICK", "PAPER_PUBLISHED", "compute", "write_report", "generate",
            "paper_conditions", "checkerboard_conditions", "bias_study", "realdata_study", "FIGURES"]
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 REALDATA = REPO / ".." / "shared" / "data" / "realdata"
 
 #: Chen et al. 2023, Table 7: mean reprojection error (px) per illumination condition (no "normal" column there).
@@ -48,13 +48,12 @@ PAPER_PUBLISHED: dict[str, dict[str, float]] = {
 }
 
 CONDITIONS = ("normal", "uneven", "strong", "weak")
-PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
 @dataclass(frozen=True)
 class ReportConfig:
     """What a report run covers. ``n_views``: first N views of each fixture (None: all 14); ``references``: names for
-    :func:`validators.validate.run_validation`; ``bias_*``: the clean-render grid of the bias study (tilt in degrees,
+    :func:`circcal.validators.validate.run_validation`; ``bias_*``: the clean-render grid of the bias study (tilt in degrees,
     dot diameter in px at the board centre); ``realdata``: folder names under ``../shared/data/realdata``."""
 
     name: str = "full"
@@ -85,7 +84,7 @@ def _errors3(stats: dict | None) -> dict[str, float] | None:
 
 
 def _vs_truth(truth: Camera, cam: Camera | None) -> dict[str, float] | None:
-    from validators.compare import projection_diff
+    from circcal.validators.compare import projection_diff
 
     if cam is None:
         return None
@@ -100,7 +99,7 @@ def _camera_or_none(d: dict | None) -> Camera | None:
 
 
 def _fixture(scenario: str, variant: str, n_views: int | None, progress: bool):
-    from fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
 
     truth = load_truth(fixture_dir(scenario, variant, progress=progress))
     views = truth.views if n_views is None else truth.views[:n_views]
@@ -124,13 +123,13 @@ def _row(label: str, status: str, message: str, camera: Camera | None, std: dict
 def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, dict]:
     """One illumination condition of the ``paper`` scenario. Returns (numbers, timings).
 
-    circcal and the references on circcal's centres come from :func:`validators.validate.run_validation`; the OpenCV
+    circcal and the references on circcal's centres come from :func:`circcal.validators.validate.run_validation`; the OpenCV
     circle pipeline (findCirclesGrid with its own blob detector, then calibrateCamera) runs on the same images.
     """
-    from circcal.calibrate import calibrate
-    from validators.compare import centre_errors
-    from validators.opencv import OpenCVCalibrator
-    from validators.validate import run_validation
+    from circcal.solver import calibrate
+    from circcal.validators.compare import centre_errors
+    from circcal.validators.opencv import OpenCVCalibrator
+    from circcal.validators.validate import run_validation
 
     truth, views = _fixture("paper", variant, cfg.n_views, progress)
     paths = [str(v.image) for v in views]
@@ -219,8 +218,8 @@ def find_chessboard(gray: np.ndarray, board: Board) -> tuple[np.ndarray | None, 
 def checkerboard_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, float]:
     import cv2
 
-    from validators.compare import centre_errors
-    from validators.opencv import OpenCVCalibrator
+    from circcal.validators.compare import centre_errors
+    from circcal.validators.opencv import OpenCVCalibrator
 
     t0 = time.perf_counter()
     truth, views = _fixture("paper-checkerboard", variant, cfg.n_views, progress)
@@ -279,20 +278,20 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, float
 
     The board (7x7 dots, 20 mm pitch) is centred on the principal point at a fixed distance; the dot diameter (mm) is
     set so that a dot at the board centre spans ``d`` px at tilt 0. Per (tilt, diameter): circcal's detector given
-    the true model (what :func:`circcal.calibrate.calibrate_images` converges to), circcal's detector without a
+    the true model (what :func:`circcal.solver.calibrate_images` converges to), circcal's detector without a
     model (perspective correction only), OpenCV's ``findCirclesGrid`` with a SimpleBlobDetector whose area window is
     fitted to the dot size, and the exact area centroid of each projected dot (a perfect blob detector,
-    :func:`fixtures.render.area_centroids`). Errors against the exact projections of the true centres.
+    :func:`circcal.fixtures.render.area_centroids`). Errors against the exact projections of the true centres.
     """
     import cv2
     from tqdm import tqdm
 
-    from circcal.detect import detect, recorrect
-    from fixtures.perturb import apply_perturbations
-    from fixtures.poses import pose_looking_at
-    from fixtures.render import Levels, area_centroids, render_coverage
-    from validators.compare import match_grid_order
-    from validators.opencv import find_circles_grid
+    from circcal.detector import detect, recorrect
+    from circcal.fixtures.perturb import apply_perturbations
+    from circcal.fixtures.poses import pose_looking_at
+    from circcal.fixtures.render import Levels, area_centroids, render_coverage
+    from circcal.validators.compare import match_grid_order
+    from circcal.validators.opencv import find_circles_grid
 
     t0 = time.perf_counter()
     cam = BIAS_CAMERA
@@ -368,8 +367,8 @@ def realdata_board(folder: Path) -> tuple[Board, dict]:
 
 def _pnp_residual(obj: np.ndarray, img: np.ndarray, cam: Camera) -> np.ndarray:
     """Residual (N, 2) px of ``img`` against the board projected with ``cam`` at the pose fitted to ``img``
-    (:func:`circcal.calibrate.fit_pose`: 6 pose parameters fitted, intrinsics held)."""
-    from circcal.calibrate import fit_pose
+    (:func:`circcal.solver.fit_pose`: 6 pose parameters fitted, intrinsics held)."""
+    from circcal.solver import fit_pose
 
     rvec, tvec = fit_pose(obj, img, cam)
     return np.asarray(img, dtype=np.float64) - project(obj, rvec, tvec, cam)
@@ -383,10 +382,10 @@ def _finite(centres: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def _circcal_without(detections: list, keep: list[int], board: Board, size: tuple[int, int], *,
                      refine_board: bool = False):
-    """circcal's model from the views ``keep`` only (:func:`circcal.calibrate.calibrate_detections` on the stored
-    detections; ``refine_board`` as there). Returns the :class:`circcal.calibrate.CalibrationResult`
+    """circcal's model from the views ``keep`` only (:func:`circcal.solver.calibrate_detections` on the stored
+    detections; ``refine_board`` as there). Returns the :class:`circcal.solver.CalibrationResult`
     (``board_lookup`` gives the refined board points)."""
-    from circcal.calibrate import calibrate_detections
+    from circcal.pipeline import calibrate_detections
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -394,7 +393,7 @@ def _circcal_without(detections: list, keep: list[int], board: Board, size: tupl
 
 
 def _board_block(res) -> dict[str, Any]:
-    """The refined board of a :class:`circcal.calibrate.CalibrationResult`: nominal points and the refined ones'
+    """The refined board of a :class:`circcal.solver.CalibrationResult`: nominal points and the refined ones'
     deviations from them, their standard deviations, the gauge, and how far the sheet is from the nominal board
     (``max_abs_dev_mm``: the largest deviation of one coordinate; ``max_abs_dxy_mm``: the largest in-plane
     displacement; ``median_std_mm``: over the estimated coordinates, the held ones left out)."""
@@ -425,16 +424,17 @@ def _mean_of_views(per: list[dict]) -> dict[str, Any]:
 
 def realdata_set(folder: Path, *, heldout: bool = True, progress: bool = True) -> tuple[dict, dict]:
     """circcal on one real-data folder against OpenCV's baseline (its findCirclesGrid centres, recalibrated here with
-    :class:`validators.opencv.OpenCVCalibrator` so all three conventions and the held-out test use one solver), with
+    :class:`circcal.validators.opencv.OpenCVCalibrator` so all three conventions and the held-out test use one solver), with
     a rigid board and with the board's shape estimated (``refine_board``: circcal on its own centres, and the same
     solver on the baseline's centres put into circcal's point order with
-    :func:`validators.compare.reverse_to_match`)."""
+    :func:`circcal.validators.compare.reverse_to_match`)."""
     from tqdm import tqdm
 
-    from circcal.calibrate import CalibrationError, calibrate, calibrate_images
-    from circcal.detect import recorrect
-    from validators.compare import projection_diff, reverse_to_match
-    from validators.opencv import OpenCVCalibrator
+    from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationError, calibrate
+    from circcal.detector import recorrect
+    from circcal.validators.compare import projection_diff, reverse_to_match
+    from circcal.validators.opencv import OpenCVCalibrator
 
     board, base = realdata_board(folder)
     size = tuple(int(v) for v in base["image_size_wh"])
@@ -605,7 +605,7 @@ def environment() -> dict[str, Any]:
         except Exception as exc:  # noqa: BLE001
             vers[mod] = f"unavailable ({type(exc).__name__})"
     try:
-        from validators import registry
+        from circcal.validators import registry
 
         m = registry.get("mrcal")
         ok, why = m.available()
@@ -803,7 +803,7 @@ def fig_bias_grid(results: dict, path: Path) -> str:
 
 def fig_heatmaps(results: dict, path: Path, condition: str) -> str:
     """Projection difference to the true camera over the image, one panel per calibrator."""
-    from validators.compare import projection_diff
+    from circcal.validators.compare import projection_diff
 
     plt = _plt()
     rows = results["paper"][condition]["rows"]
@@ -927,7 +927,7 @@ def fig_realdata_board(results: dict, path: Path) -> str:
 
 
 def _truth_camera(results: dict) -> Camera:
-    from fixtures.scenarios import get_scenario
+    from circcal.fixtures.scenarios import get_scenario
 
     return get_scenario("paper").camera
 
@@ -1201,7 +1201,7 @@ def document(results: dict, captions: dict[str, str], header: str) -> list[tuple
         head = ["param", "truth"] + [n for n, _ in cols]
         rows = []
         tv = truth.intrinsics
-        for k, p in enumerate(PARAMS):
+        for k, p in enumerate(PARAM_NAMES):
             line = [p, _f(tv[k], ".6g")]
             for _, r in cols:
                 val = Camera.from_dict(r["camera"]).intrinsics[k]

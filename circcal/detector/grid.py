@@ -26,7 +26,7 @@ import functools
 import cv2
 import numpy as np
 
-from .board import Board
+from circcal.board import Board
 
 __all__ = ["board_symmetries", "canonical_order", "order_grid", "orientation_sign"]
 

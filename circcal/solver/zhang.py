@@ -1,6 +1,6 @@
 """Zhang's closed-form calibration: plane homographies -> image of the absolute conic -> intrinsics -> poses.
 
-The initial guess for :func:`circcal.calibrate.calibrate` (Zhang 2000, "A flexible new technique for camera
+The initial guess for :func:`circcal.solver.calibrate` (Zhang 2000, "A flexible new technique for camera
 calibration"), written for a zero-skew camera:
 
 1. per view, a Hartley-normalised DLT homography ``H`` from board-plane coordinates (X, Y) in mm to pixels;

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ellipse import conic_params, conic_params_batch
+from circcal.detector.ellipse import conic_params, conic_params_batch
 
 __all__ = ["vanishing_line", "pole_centre", "pole_centres", "tangent_chord_centre", "fit_homography",
            "correct_centres"]

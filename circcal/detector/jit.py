@@ -1,4 +1,4 @@
-"""``njit`` for the detector's compiled loops (:mod:`circcal.edges`, :mod:`circcal.ellipse`).
+"""``njit`` for the detector's compiled loops (:mod:`circcal.detector.edges`, :mod:`circcal.detector.ellipse`).
 
 numba's ``njit`` when numba can be imported (a dependency of circcal; compiled code is cached on disk). Without it
 (an install with ``--no-deps``, a Python numba does not support yet) the same functions run as plain Python: the

@@ -2,19 +2,19 @@
 
 :func:`detect` runs, on one image:
 
-1. grey conversion and segmentation that survives uneven/strong/weak illumination (:mod:`circcal.edges`), on a
+1. grey conversion and segmentation that survives uneven/strong/weak illumination (:mod:`circcal.detector.edges`), on a
    copy shrunk to a short side of 360-719 px first for images of 720 px and more (full resolution when that fails,
    a finer scale when the dots are small; only the starting ellipses come from it);
 2. candidate dots from contours, filtered by area (limits scaled to the image and the board's dot density),
    circularity, inertia ratio and convexity;
 3. grid recognition and ordering in OpenCV's object-point order with circcal's orientation rule
-   (:mod:`circcal.grid`);
+   (:mod:`circcal.detector.grid`);
 4. sub-pixel edge points on each dot's boundary (half-level crossings along ellipse normals, corrected for edge
-   curvature) and a direct least-squares ellipse fit (:mod:`circcal.ellipse`), for all dots at once
+   curvature) and a direct least-squares ellipse fit (:mod:`circcal.detector.ellipse`), for all dots at once
    (:func:`fit_dots`: one filtering call for the crops around all dots, batched interpolation, stacked 3x3
    solves);
 5. projective centre correction: each centre is the pole of the board's vanishing line w.r.t. its ellipse, the
-   homography re-estimated from the corrected centres until stable (:mod:`circcal.centre`). With a camera model
+   homography re-estimated from the corrected centres until stable (:mod:`circcal.detector.centre`). With a camera model
    the edge points are undistorted first, the correction runs in the undistorted image and the centres are
    distorted back.
 
@@ -32,13 +32,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .board import Board
-from .centre import correct_centres
-from .edges import (Candidate, SmoothedImage, _masked_median, as_gray, find_candidates, normalise_u8,
+from circcal.board import Board
+from circcal.detector.centre import correct_centres
+from circcal.detector.edges import (Candidate, SmoothedImage, _masked_median, as_gray, find_candidates, normalise_u8,
                     segmentations, subpixel_edge_points_batch)
-from .ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
-from .grid import order_grid
-from .model import Camera, distort_pixels, undistort_pixels
+from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
+from circcal.detector.grid import order_grid
+from circcal.model import Camera, distort_pixels, undistort_pixels
 
 __all__ = ["Detection", "detect", "recorrect", "detect_files", "fit_dot", "fit_dots", "area_limits"]
 
@@ -109,7 +109,7 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray, iterations: 
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
     """:func:`fit_dot` for all dots at once (the detector's path): rough ellipses ``conics0`` (D, 3, 3).
 
-    ``gray``: (H, W) grey image, or a :class:`~circcal.edges.SmoothedImage` of it at :data:`EDGE_SIGMA` (reused
+    ``gray``: (H, W) grey image, or a :class:`~circcal.detector.edges.SmoothedImage` of it at :data:`EDGE_SIGMA` (reused
     across calls). Returns ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points
     are ``points[d][mask[d]]`` and ``conics[d]`` the ellipse fitted to exactly them; ``errors[d]`` is ``None`` or
     why the dot could not be measured (then its points and conic are not meaningful).

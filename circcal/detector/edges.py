@@ -1,6 +1,6 @@
 """Pre-processing, segmentation, candidate dots and sub-pixel edge points of dark dots on a bright board.
 
-Pipeline pieces used by :mod:`circcal.detect`:
+Pipeline pieces used by :mod:`circcal.detector`:
 
 * :func:`to_gray` -- any uint8/uint16/float, grey or BGR(A) image -> float64 grey, linear in the input values.
 * :func:`segmentations` -- binary masks (255 = dark) that survive uneven, strong and weak illumination: Otsu on an
@@ -35,8 +35,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .ellipse import conic_from_params, conic_params_batch
-from .jit import njit
+from circcal.detector.ellipse import conic_from_params, conic_params_batch
+from circcal.detector.jit import njit
 
 __all__ = ["Candidate", "to_gray", "as_gray", "normalise_u8", "segmentations", "find_candidates",
            "subpixel_edge_points", "subpixel_edge_points_batch", "SmoothedImage", "dot_levels", "dot_levels_batch",
@@ -453,7 +453,7 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray, ed
 def _dot_levels(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
                 boxes: np.ndarray, edge_px: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2), semi-axes (D, 2), angles (D,), valid
-    (D,), as :func:`~circcal.ellipse.conic_params_batch` gives them)."""
+    (D,), as :func:`~circcal.detector.ellipse.conic_params_batch` gives them)."""
     D = len(okc)
     H, W = np.shape(gray)
     boxes = np.asarray(boxes, np.int64).reshape(D, 4).copy()

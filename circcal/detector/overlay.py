@@ -10,9 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .detect import Detection
-from .edges import normalise_u8, to_gray
-from .ellipse import conic_params, fit_ellipse_direct
+from circcal.detector.find import Detection
+from circcal.detector.edges import normalise_u8, to_gray
+from circcal.detector.ellipse import conic_params, fit_ellipse_direct
 
 __all__ = ["draw_detection", "write_overlay"]
 
