@@ -13,6 +13,7 @@ Conventions
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
@@ -20,6 +21,20 @@ import numpy as np
 
 Layout = Literal["symmetric", "asymmetric", "checkerboard"]
 LAYOUTS: tuple[str, ...] = ("symmetric", "asymmetric", "checkerboard")
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """A rigid map of a board's point set onto itself (a rotation about the grid centre, possibly after a mirror).
+
+    ``perm`` (N,): point ``i`` goes to point ``perm[i]``; for centres ``c`` (N, 2) in some valid board order,
+    ``c[perm]`` is another valid order (the same physical board, relabelled). ``det``: +1 for a rotation, -1 for a
+    reflection. ``label``: ``rot0``, ``rot90``, ``rot180``, ``rot270`` (quarter turns in the board frame), with a
+    ``mirror+`` prefix (``mirror`` alone for x -> -x) for reflections."""
+
+    label: str
+    perm: np.ndarray
+    det: int
 
 
 @dataclass(frozen=True)
@@ -90,9 +105,15 @@ class Board:
         m = self.margin
         return (x0 - m, y0 - m, x1 + m, y1 + m)
 
-    def center_mm(self) -> np.ndarray:
+    def centre_mm(self) -> np.ndarray:
         """(3,) centre of the point grid in board coordinates."""
         return self.object_points().mean(axis=0)
+
+    def symmetries(self, *, reflections: bool = True) -> tuple[Symmetry, ...]:
+        """Every rigid map of the point set onto itself (:class:`Symmetry`), identity first; reflections only when
+        asked. A symmetric grid has 2 rotations (4 when square), an asymmetric one 2 with an even number of rows
+        and only the identity otherwise; each rotation has its mirrored twin."""
+        return tuple(s for s in _symmetries(self) if reflections or s.det > 0)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``board`` block of truth.json / detections JSON."""
@@ -137,3 +158,24 @@ class Board:
                 cxm = j * s
             best = np.minimum(best, np.hypot(x - cxm, y - i * s))
         return best - r
+
+
+@functools.lru_cache(maxsize=64)
+def _symmetries(board: Board) -> tuple[Symmetry, ...]:
+    d = board.object_points()[:, :2]
+    d = d - d.mean(axis=0)
+    out: list[Symmetry] = []
+    for mirror in (False, True):
+        for quarter in range(4):
+            t = d * [-1.0, 1.0] if mirror else d.copy()
+            for _ in range(quarter):
+                t = np.column_stack([-t[:, 1], t[:, 0]])
+            dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
+            j = np.argmin(dist, axis=1)
+            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and len(np.unique(j)) == len(d):
+                label = f"rot{90 * quarter}" if not mirror else ("mirror" if quarter == 0 else
+                                                                 f"mirror+rot{90 * quarter}")
+                if not any(np.array_equal(j, s.perm) for s in out):
+                    j.setflags(write=False)
+                    out.append(Symmetry(label, j, -1 if mirror else 1))
+    return tuple(out)

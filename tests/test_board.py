@@ -47,3 +47,27 @@ def test_signed_distance_is_exact_for_dots():
 def test_invalid_boards_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         Board(**kwargs)
+
+
+@pytest.mark.parametrize("board,n", [
+    (Board(4, 5, 10, 5), 4),                   # rectangle: identity, 180 deg, two mirrors
+    (Board(5, 5, 10, 5), 8),                   # square: dihedral group
+    (Board(5, 4, 10, 5, "asymmetric"), 2),     # odd rows: identity and a mirror only
+    (Board(11, 4, 10, 7, "asymmetric"), 2),
+    (Board(6, 4, 10, 5, "asymmetric"), 2),     # even rows: identity and 180 deg
+])
+def test_board_symmetries(board, n):
+    syms = board.symmetries()
+    assert len(syms) == n
+    obj = board.object_points()[:, :2]
+    assert syms[0].label == "rot0" and np.array_equal(syms[0].perm, np.arange(board.n_points))
+    assert [s.label for s in board.symmetries(reflections=False)] == [s.label for s in syms if s.det > 0]
+    for s in syms:
+        p = s.perm
+        assert sorted(p.tolist()) == list(range(board.n_points))
+        # a rigid map: pairwise distances preserved, and det says whether it is a reflection
+        d0 = np.linalg.norm(obj[:, None] - obj[None], axis=-1)
+        assert np.allclose(d0, d0[np.ix_(p, p)])
+        c = obj - obj.mean(axis=0)
+        A = np.linalg.lstsq(c, c[p], rcond=None)[0]
+        assert np.allclose(c @ A, c[p]) and np.sign(np.linalg.det(A)) == s.det

@@ -357,7 +357,7 @@ def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     assert model["errors"]["mean_2d_px"] <= 0.05
     assert len(model["views"]) == 14 and model["failed_images"][0]["reason"] == "file not found"
     rounds = model["recorrection_rounds"]
-    assert 2 <= len(rounds) <= 4 and rounds[-1]["max_center_shift_px"] < 1e-4
+    assert 2 <= len(rounds) <= 4 and rounds[-1]["max_centre_shift_px"] < 1e-4
     cam, true = read_camera(out), truth["camera"]
     for name in ("fx", "fy", "cx", "cy"):
         assert abs(getattr(cam, name) - true[name]) < 4 * model["std"][name], name

@@ -10,7 +10,7 @@ from circcal.board import Board
 from circcal.pipeline import calibrate_images
 from circcal.solver import calibrate, holdout_errors
 from circcal.fixtures.scenarios import fixture_dir, load_truth
-from circcal.validators.compare import reverse_to_match
+from circcal.validators.compare import match_views
 from circcal.validators.opencv import OpenCVCalibrator
 
 
@@ -37,7 +37,7 @@ def test_paper_reprojection_and_intrinsics(paper):
     for k in ("fx", "fy", "cx", "cy"):
         err = getattr(cal.result.camera, k) - getattr(truth.camera, k)
         assert abs(err) <= 2.0 * cal.result.std[k], f"{variant}: {k} off by {err:+.4f} (sigma {cal.result.std[k]:.4f})"
-    assert cal.rounds[-1]["max_center_shift_px"] < 1e-4 and len(cal.rounds) <= 4
+    assert cal.rounds[-1]["max_centre_shift_px"] < 1e-4 and len(cal.rounds) <= 4
 
 
 def test_paper_projection_difference_is_at_its_cramer_rao_level(paper):
@@ -141,7 +141,7 @@ def test_real_photographs_board_refined(realdata, name):
     h_rigid = _rms(holdout_errors(*rigid.observations(board), size))
     # OpenCV's centres in circcal's point order (the adapter's plain and clustering findCirclesGrid runs number the
     # symmetric grid in opposite directions)
-    theirs_img, _ = reverse_to_match(OpenCVCalibrator().detect(paths, board)["image_points"], cal.centers)
+    theirs_img, _ = match_views(OpenCVCalibrator().detect(paths, board)["image_points"], cal.centres, board)
     theirs_obj = [board.object_points()] * len(theirs_img)
     theirs = calibrate(theirs_obj, theirs_img, size, refine_board=True)
     h_theirs = _rms(holdout_errors(theirs_obj, theirs_img, size, refine_board=True))

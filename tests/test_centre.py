@@ -3,7 +3,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from circcal.detector.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
-from circcal.detector.ellipse import conic_center, transform_conic
+from circcal.detector.ellipse import conic_centre, transform_conic
 
 
 def _random_homography(seed: int) -> np.ndarray:
@@ -48,8 +48,8 @@ def test_affine_view_gives_the_ellipse_centre():
     H = np.array([[900.0, 40, 500], [-30, 700, 300], [0, 0, 1]])  # affine: vanishing line at infinity
     E = transform_conic(_circle(3.0, -2.0, 2.5), H)
     line = vanishing_line(H)
-    assert np.allclose(pole_centre(E, line), conic_center(E), atol=1e-9)
-    assert np.allclose(tangent_chord_centre(E, line), conic_center(E), atol=1e-8)
+    assert np.allclose(pole_centre(E, line), conic_centre(E), atol=1e-9)
+    assert np.allclose(tangent_chord_centre(E, line), conic_centre(E), atol=1e-8)
 
 
 @settings(max_examples=25, deadline=None)
@@ -60,7 +60,7 @@ def test_iterated_correction_recovers_every_centre(seed):
     board = np.column_stack([gx.ravel(), gy.ravel()]) - [30, 25]
     conics = np.array([transform_conic(_circle(x, y, 3.5), H) for x, y in board])
     truth = _project(H, board)
-    biased = np.array([conic_center(E) for E in conics])
+    biased = np.array([conic_centre(E) for E in conics])
     centres, Hf = correct_centres(conics, board)
     scale = np.abs(truth).max() + 1
     assert np.max(np.linalg.norm(centres - truth, axis=1)) < 1e-7 * scale

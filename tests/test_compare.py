@@ -4,11 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from circcal.board import Board
 from circcal.metrics import error_stats
 from circcal.model import Camera, rodrigues
-from circcal.validators.compare import (centre_errors, fit_rotation, grid_permutations, match_grid_order, param_diff,
+from circcal.validators.compare import (centre_errors, fit_rotation, match_grid_order, param_diff,
                                 per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff,
-                                reverse_to_match, unproject)
+                                match_views, unproject)
 
 CAM = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.12, 0.08, 4e-4, -3e-4, -0.02]))
 PINHOLE = Camera(1920, 1080, 1500.0, 1500.0, 959.5, 539.5, np.zeros(5))
@@ -86,32 +87,35 @@ def test_match_grid_order_undoes_rotations(rows, cols, label):
     rng = np.random.default_rng(0)
     truth = np.stack(np.meshgrid(np.arange(cols) * 30.0, np.arange(rows) * 30.0), -1).reshape(-1, 2) + 100.0
     truth = truth + rng.normal(0, 0.5, truth.shape)
-    perm = dict(grid_permutations(rows, cols))[label]
+    board = Board(rows, cols, 30.0, 10.0)
+    perm = {s.label: s.perm for s in board.symmetries()}[label]
     # a detector that returned the grid transformed: det[perm] is in board order, i.e. det = truth[inverse(perm)]
     inv = np.argsort(perm)
     det = truth[inv] + 0.01
-    got, found, rms = match_grid_order(det, truth, rows, cols)
+    got, found, rms = match_grid_order(det, truth, board)
     assert found == label
     assert np.allclose(got, truth + 0.01) and rms == pytest.approx(0.01 * np.sqrt(2))
 
 
 def test_mirror_only_when_asked():
     rows = cols = 5
+    board = Board(rows, cols, 30.0, 10.0)
     truth = np.stack(np.meshgrid(np.arange(cols) * 30.0, np.arange(rows) * 30.0), -1).reshape(-1, 2)
     truth = truth * [1.0, 1.3]  # break the square's diagonal symmetry
     det = truth.reshape(rows, cols, 2)[:, ::-1].reshape(-1, 2)
-    _, label, rms = match_grid_order(det, truth, rows, cols)
+    _, label, rms = match_grid_order(det, truth, board)
     assert rms > 1.0  # no rotation maps a mirror image back
-    got, label, rms = match_grid_order(det, truth, rows, cols, mirror=True)
-    assert label == "flip_lr" and rms < 1e-12
+    got, label, rms = match_grid_order(det, truth, board, mirror=True)
+    assert label == "mirror" and rms < 1e-12
     with pytest.raises(ValueError, match="expected 25 points"):
-        match_grid_order(det[:-1], truth, rows, cols)
+        match_grid_order(det[:-1], truth, board)
 
 
-def test_reverse_to_match_puts_views_in_the_reference_order():
+def test_match_views_puts_views_in_the_reference_order():
     """A second detector's views, some reversed (a symmetric grid's 180-degree ambiguity): reversed back where that
     matches the reference, with NaN in the reference ignored and a view without a reference kept as detected."""
     rows, cols = 8, 10
+    board = Board(rows, cols, 25.0, 10.0)
     base = np.stack(np.meshgrid(np.arange(cols) * 25.0, np.arange(rows) * 25.0), -1).reshape(-1, 2) + 50.0
     rng = np.random.default_rng(2)
     ref = [base + rng.normal(0, 3.0, base.shape) for _ in range(4)]
@@ -119,14 +123,14 @@ def test_reverse_to_match_puts_views_in_the_reference_order():
     det[1], det[3] = det[1][::-1], det[3][::-1]
     ref[3] = ref[3].copy()
     ref[3][:5] = np.nan  # points the reference detector missed
-    got, flipped = reverse_to_match(det, ref)
-    assert flipped == [False, True, False, True]
+    got, labels = match_views(det, ref, board)
+    assert labels == ["rot0", "rot180", "rot0", "rot180"]
     for g, r in zip(got, ref):
         assert np.allclose(g[5:], r[5:] + 0.05)
-    got, flipped = reverse_to_match(det, [ref[0], None, ref[2], ref[3]])
-    assert flipped == [False, False, False, True] and np.array_equal(got[1], det[1])
-    with pytest.raises(ValueError, match="differ in shape"):
-        reverse_to_match([base[:-1]], [base])
+    got, labels = match_views(det, [ref[0], None, ref[2], ref[3]], board)
+    assert labels == ["rot0", "rot0", "rot0", "rot180"] and np.array_equal(got[1], det[1])
+    with pytest.raises(ValueError, match="expected 80 points"):
+        match_views([base[:-1]], [base], board)
 
 
 def test_centre_errors_with_rematching():
@@ -137,7 +141,7 @@ def test_centre_errors_with_rematching():
     errs = [rng.normal(0, 0.05, base.shape) for _ in range(3)]
     detected = [t + e for t, e in zip(truth, errs)]
     detected[1] = detected[1].reshape(rows, cols, 2)[::-1, ::-1].reshape(-1, 2)  # returned rotated by 180 deg
-    out = centre_errors(detected, truth, grid=(rows, cols))
+    out = centre_errors(detected, truth, board=Board(rows, cols, 25.0, 10.0))
     assert out["matched"] == ["rot0", "rot180", "rot0"]
     expected = error_stats(np.concatenate(errs))
     for k, v in expected.items():

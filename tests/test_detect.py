@@ -17,7 +17,6 @@ import pytest
 
 from circcal.board import Board
 from circcal.detector import Detection, detect, detect_files, recorrect
-from circcal.detector.grid import board_symmetries
 from circcal.model import Camera, project
 from circcal.fixtures.poses import pose_looking_at
 from circcal.fixtures.render import render_view, to_uint
@@ -26,11 +25,11 @@ REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO / ".." / "shared" / "data" / "realdata"
 
 
-def matched_errors(board: Board, centers: np.ndarray, truth: np.ndarray) -> np.ndarray:
+def matched_errors(board: Board, centres: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(N,) |detected - true| px under the board symmetry that fits best."""
     best = None
-    for p in board_symmetries(board):
-        e = np.linalg.norm(centers - truth[p], axis=1)
+    for s in board.symmetries():
+        e = np.linalg.norm(centres - truth[s.perm], axis=1)
         if best is None or e.mean() < best.mean():
             best = e
     return best
@@ -61,7 +60,7 @@ def test_clean_perspective_bar(radius_px, tilt):
     img, truth, *_ = _render(CAM, radius_px, tilt)
     d = detect(img, BOARD)
     assert d.found, d.reason
-    e = matched_errors(BOARD, d.centers, truth)
+    e = matched_errors(BOARD, d.centres, truth)
     ocv = opencv_errors(to_uint(img), BOARD, truth)
     ocv_txt = f"{ocv.mean():.4f}/{np.sqrt(np.mean(ocv ** 2)):.4f}" if ocv is not None else "not found"
     print(f"\nR={radius_px} px tilt={tilt} deg: circcal mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e ** 2)):.4f} px "
@@ -77,15 +76,15 @@ def test_distortion_with_true_model(k1, radius_px, tilt):
     img, truth, *_ = _render(cam, radius_px, tilt, target=(900.0, 650.0))
     d = detect(img, BOARD, cam)
     assert d.found, d.reason
-    e = matched_errors(BOARD, d.centers, truth)
-    plain = matched_errors(BOARD, detect(img, BOARD).centers, truth)
+    e = matched_errors(BOARD, d.centres, truth)
+    plain = matched_errors(BOARD, detect(img, BOARD).centres, truth)
     print(f"\nk1={k1} R={radius_px} tilt={tilt}: with model mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e ** 2)):.4f};"
           f" perspective-only {plain.mean():.4f}")
     assert e.mean() <= 0.005 and np.sqrt(np.mean(e ** 2)) <= 0.005
     # cheap re-correction from the stored edge points gives the same centres
-    assert np.allclose(recorrect(d, BOARD, cam), d.centers, atol=1e-9)
+    assert np.allclose(recorrect(d, BOARD, cam), d.centres, atol=1e-9)
     d0 = detect(img, BOARD)
-    assert np.allclose(recorrect(d0, BOARD, cam), d.centers, atol=1e-6)
+    assert np.allclose(recorrect(d0, BOARD, cam), d.centres, atol=1e-6)
 
 
 def _fisher_bound(camera, board_img_fn, truth, sigma_n, eps=0.05):
@@ -131,7 +130,7 @@ def test_noise_within_cramer_rao(cnr):
     for _ in range(6):
         d = detect(img + rng.normal(0, sigma_n, img.shape), BOARD)
         assert d.found, d.reason
-        errs.append(d.centers - truth)
+        errs.append(d.centres - truth)
     errs = np.array(errs)
     rms = np.sqrt(np.mean(errs ** 2, axis=(0, 1)))           # per coordinate (x, y)
     bound = np.sqrt(np.mean(crb ** 2, axis=0))
@@ -164,7 +163,7 @@ def _scenario_rate(name, variant, n_views):
     for v, d in zip(views, dets):
         assert d.found, f"{v.image.name}: {d.reason}"
         # a found grid is the right grid (perspective-only correction here: within 0.5 px of the truth)
-        assert matched_errors(tr.board, d.centers, v.centers).max() < 0.5
+        assert matched_errors(tr.board, d.centres, v.centres).max() < 0.5
 
 
 @pytest.mark.parametrize("name,variant", _scenario_params())
@@ -193,9 +192,9 @@ def test_real_data_every_grid_found(folder, grid, layout):
     assert [p.name for p, x in zip(paths, dets) if not x.found] == []
     # sanity: the homography from our centres explains them to ~a pixel (lens distortion, real prints)
     for x in dets:
-        Hm, _ = cv2.findHomography(board.object_points()[:, :2], x.centers, 0)
+        Hm, _ = cv2.findHomography(board.object_points()[:, :2], x.centres, 0)
         p = cv2.perspectiveTransform(board.object_points()[None, :, :2], Hm)[0]
-        assert np.median(np.linalg.norm(p - x.centers, axis=1)) < 2.0
+        assert np.median(np.linalg.norm(p - x.centres, axis=1)) < 2.0
 
 
 @pytest.mark.parametrize("jobs", [1, 3])
@@ -224,7 +223,7 @@ def test_parallel_detection_gives_the_sequential_results_in_order(tmp_path):
     assert [d.found for d in seq] == [True, True, False, True, True]
     assert [d.found for d in par] == [d.found for d in seq] and par[2].reason == seq[2].reason
     for a, b in zip(seq, par):
-        assert (a.centers is None and b.centers is None) or np.array_equal(a.centers, b.centers)
+        assert (a.centres is None and b.centres is None) or np.array_equal(a.centres, b.centres)
 
 
 def test_input_checks():
@@ -241,8 +240,8 @@ def test_uint16_and_bgr_inputs_agree():
     a = detect(to_uint(img, 16), BOARD)
     b = detect(cv2.cvtColor(to_uint(img, 8), cv2.COLOR_GRAY2BGR), BOARD)
     assert a.found and b.found
-    assert matched_errors(BOARD, a.centers, truth).mean() < 0.005
-    assert matched_errors(BOARD, b.centers, truth).mean() < 0.01
+    assert matched_errors(BOARD, a.centres, truth).mean() < 0.005
+    assert matched_errors(BOARD, b.centres, truth).mean() < 0.01
 
 
 def test_cli_writes_json_and_overlays(tmp_path):
@@ -383,11 +382,11 @@ def test_shrunk_segmentation_agrees_with_full(monkeypatch):
     monkeypatch.setattr(det, "_segmentation_scales", lambda h, w: (1,))
     full = detect(img, BOARD)
     assert full.found and "@" not in full.segmentation
-    e_half, e_full = matched_errors(BOARD, half.centers, truth), matched_errors(BOARD, full.centers, truth)
+    e_half, e_full = matched_errors(BOARD, half.centres, truth), matched_errors(BOARD, full.centres, truth)
     print(f"\nshrunk segmentation: RMS {np.sqrt(np.mean(e_half ** 2)):.5f} px; full: "
-          f"{np.sqrt(np.mean(e_full ** 2)):.5f} px; max difference {np.abs(half.centers - full.centers).max():.2e}")
+          f"{np.sqrt(np.mean(e_full ** 2)):.5f} px; max difference {np.abs(half.centres - full.centres).max():.2e}")
     # only the starting ellipses differ: the same centres to well below the noise-limited accuracy
-    assert np.abs(half.centers - full.centers).max() < 2e-3
+    assert np.abs(half.centres - full.centres).max() < 2e-3
     assert np.sqrt(np.mean(e_half ** 2)) <= 0.01
 
 
@@ -401,7 +400,7 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px,
     d = detect(img, BOARD)
     assert d.found, d.reason
     assert d.segmentation.endswith(scale) if scale else "@" not in d.segmentation
-    assert np.sqrt(np.mean(matched_errors(BOARD, d.centers, truth) ** 2)) <= 0.005
+    assert np.sqrt(np.mean(matched_errors(BOARD, d.centres, truth) ** 2)) <= 0.005
 
 
 @pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
@@ -455,10 +454,10 @@ def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
             "from circcal.board import Board\n"
             "from circcal.detector import detect\n"
             f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
-            f"np.save({str(tmp_path / 'c.npy')!r}, d.centers)\n"
+            f"np.save({str(tmp_path / 'c.npy')!r}, d.centres)\n"
             "print(circcal.detector.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["False", "True"]
     d = detect(img, BOARD)
-    assert np.allclose(np.load(tmp_path / "c.npy"), d.centers, rtol=0, atol=1e-9)
+    assert np.allclose(np.load(tmp_path / "c.npy"), d.centres, rtol=0, atol=1e-9)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from circcal.detector.ellipse import (algebraic_distance, conic_center, conic_from_params, conic_params, ellipse_normals,
+from circcal.detector.ellipse import (algebraic_distance, conic_centre, conic_from_params, conic_params, ellipse_normals,
                              fit_ellipse_direct, sample_ellipse)
 
 ellipses = st.tuples(
@@ -43,7 +43,7 @@ def test_fit_recovers_exact_ellipse(e, n, t0):
 def test_params_roundtrip_and_sampling(e):
     cx, cy, a, ratio, ang = e
     Q = conic_from_params((cx, cy), (a, a * ratio), ang)
-    assert np.allclose(conic_center(Q), [cx, cy], atol=1e-9 * (abs(cx) + abs(cy) + a))
+    assert np.allclose(conic_centre(Q), [cx, cy], atol=1e-9 * (abs(cx) + abs(cy) + a))
     pts = sample_ellipse(Q, 17)
     # sampled points lie on the ellipse: (u/a)^2 + (v/b)^2 = 1 in its own frame
     d = pts - [cx, cy]

@@ -111,7 +111,7 @@ def test_catalogue_has_the_required_sets():
     assert (p.board.rows, p.board.cols, p.board.diameter_mm, p.board.pitch_mm) == (7, 7, 5.0, 10.0)
     assert (p.camera.width, p.camera.height, p.n_views) == (1920, 1080, 14) and abs(p.camera.fx - 4900) < 50
     assert list(p.variants) == ["normal", "uneven", "strong", "weak"]
-    assert SCENARIOS["asymmetric"].board.layout == "asymmetric" and SCENARIOS["asymmetric"].board.pattern_size \
+    assert SCENARIOS["asymmetric"].board.layout == "asymmetric" and SCENARIOS["asymmetric"].board.pattern_size\
         == (4, 11)
     assert SCENARIOS["wide"].camera.dist[0] == pytest.approx(-0.3)
 
@@ -127,7 +127,7 @@ def test_truth_file_is_exact_and_complete(tmp_path):
     t = load_truth(dirs["noisy"])
     for v in t.views:
         assert v.image.exists()
-        assert np.max(np.abs(project(t.board.object_points(), v.rvec, v.tvec, t.camera) - v.centers)) == 0.0
+        assert np.max(np.abs(project(t.board.object_points(), v.rvec, v.tvec, t.camera) - v.centres)) == 0.0
         assert v.visible.all()
         img = cv2.imread(str(v.image), cv2.IMREAD_UNCHANGED)
         assert img.shape == (t.camera.height, t.camera.width) and img.dtype == np.uint8

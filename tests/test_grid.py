@@ -3,25 +3,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.detector.grid import board_symmetries, canonical_order, order_grid, orientation_sign
-
-
-@pytest.mark.parametrize("board,n", [
-    (Board(4, 5, 10, 5), 4),                   # rectangle: identity, 180 deg, two mirrors
-    (Board(5, 5, 10, 5), 8),                   # square: dihedral group
-    (Board(5, 4, 10, 5, "asymmetric"), 2),     # odd rows: identity and a mirror only
-    (Board(11, 4, 10, 7, "asymmetric"), 2),
-    (Board(6, 4, 10, 5, "asymmetric"), 2),     # even rows: identity and 180 deg
-])
-def test_board_symmetries(board, n):
-    syms = board_symmetries(board)
-    assert len(syms) == n
-    obj = board.object_points()[:, :2]
-    for p in syms:
-        assert sorted(p.tolist()) == list(range(board.n_points))
-        # a rigid map: pairwise distances preserved
-        d0 = np.linalg.norm(obj[:, None] - obj[None], axis=-1)
-        assert np.allclose(d0, d0[np.ix_(p, p)])
+from circcal.detector.grid import canonical_order, order_grid, orientation_sign
 
 
 def _view(board, angle_deg, tilt=0.2):
@@ -42,7 +24,7 @@ def _view(board, angle_deg, tilt=0.2):
 def test_canonical_order_is_unique_and_front_facing(board, angle):
     pts = _view(board, angle)
     results = set()
-    for p in board_symmetries(board):  # every equivalent labelling, mirrored ones included
+    for p in (s.perm for s in board.symmetries()):  # every equivalent labelling, mirrored ones included
         lab = pts[p]
         idx = canonical_order(board, lab)
         out = lab[idx]
@@ -51,7 +33,7 @@ def test_canonical_order_is_unique_and_front_facing(board, angle):
     assert len(results) == 1
     out = np.array(next(iter(results))).reshape(-1, 2)
     # the rule: first point nearest to the image's top-left among front-facing labellings
-    cands = [pts[p] for p in board_symmetries(board) if orientation_sign(board, pts[p]) > 0]
+    cands = [pts[s.perm] for s in board.symmetries() if orientation_sign(board, pts[s.perm]) > 0]
     assert np.hypot(*out[0]) == pytest.approx(min(np.hypot(*c[0]) for c in cands))
 
 

@@ -87,7 +87,7 @@ def test_pose_sampler_is_deterministic_and_calibration_like():
     assert all(np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1]) for x, y in zip(a, b))
     assert not np.array_equal(a[0][0], c[0][0])
     assert all(fully_visible(cam, board, r, t) for r, t in a)
-    centres = np.array([project(board.center_mm()[None], r, t, cam)[0] for r, t in a])
+    centres = np.array([project(board.centre_mm()[None], r, t, cam)[0] for r, t in a])
     # centre and all four image quadrants are used
     quads = {(cx > cam.width / 2, cy > cam.height / 2) for cx, cy in centres}
     assert len(quads) == 4

@@ -35,15 +35,17 @@ def make_problem(seed: int = 0, n_views: int = 14, noise: float = 0.05, board: B
     over the image; centres projected with circcal.model.project plus Gaussian noise, rounded to float32."""
     rng = np.random.default_rng(seed)
     P = board.object_points()
-    c = board.center_mm()
+    c = board.centre_mm()
     obj, img, rvecs, tvecs = [], [], [], []
-    for _ in range(n_views):
+    while len(obj) < n_views:
         tilt = np.deg2rad(rng.uniform(-35.0, 35.0, 2))
         r = np.array([tilt[0], tilt[1], rng.uniform(-0.3, 0.3)])
         z = rng.uniform(180.0, 260.0)
         centre = np.array([rng.uniform(-0.5, 0.5) * z * 960 / 1500, rng.uniform(-0.5, 0.5) * z * 540 / 1500, z])
         t = centre - rodrigues(r) @ c
         q = project(P, r, t, camera) + rng.normal(0.0, noise, (len(P), 2))
+        if np.any((q < 0) | (q > [camera.width - 1, camera.height - 1])):
+            continue  # a camera cannot observe a point outside its image (every solver refuses one)
         obj.append(P.astype(np.float32).astype(np.float64))
         img.append(q.astype(np.float32).astype(np.float64))
         rvecs.append(r)

@@ -18,7 +18,8 @@ from typing import Any, Callable, Literal, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from circcal.metrics import error_stats
-from circcal.model import PARAM_NAMES, Camera, project
+from circcal.model import Camera, project
+from circcal.observations import check_observations
 
 __all__ = [
     "STATUSES",
@@ -28,7 +29,6 @@ __all__ = [
     "BaseCalibrator",
     "run_safely",
     "jsonable",
-    "check_observations",
     "residuals_of",
     "DIVERGED_RMS_PX",
     "seed_camera",
@@ -155,49 +155,6 @@ class ReferenceCalibrator(Protocol):
 
     def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
                          mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult: ...
-
-
-def check_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                       image_size: tuple[int, int], *, min_views: int = 3,
-                       planar: bool = True) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
-    """Validate and normalise observations; raises ``ValueError`` saying what is wrong and what was expected.
-
-    Returns float64 copies: object points (N_v, 3) mm, image points (N_v, 2) px, and ``(width, height)``.
-    """
-    if len(object_points) != len(image_points):
-        raise ValueError(f"got {len(object_points)} object-point sets but {len(image_points)} image-point sets; "
-                         "expected one of each per view")
-    if len(object_points) < min_views:
-        raise ValueError(f"need at least {min_views} views to calibrate, got {len(object_points)}")
-    try:
-        w, h = (int(image_size[0]), int(image_size[1]))
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"image_size must be (width, height), got {image_size!r}") from exc
-    if w <= 0 or h <= 0:
-        raise ValueError(f"image_size must be positive (width, height), got {image_size!r}")
-    obj, img = [], []
-    for v, (o, p) in enumerate(zip(object_points, image_points)):
-        o = np.asarray(o, dtype=np.float64)
-        p = np.asarray(p, dtype=np.float64)
-        if o.ndim == 2 and o.shape[1] == 2:
-            o = np.concatenate([o, np.zeros((len(o), 1))], axis=1)
-        if o.ndim != 2 or o.shape[1] != 3:
-            raise ValueError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
-        p = p.reshape(-1, 2) if p.ndim == 3 and p.shape[1] == 1 else p
-        if p.ndim != 2 or p.shape[1] != 2:
-            raise ValueError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
-        if len(o) != len(p):
-            raise ValueError(f"view {v}: {len(o)} object points but {len(p)} image points")
-        if len(o) < 4:
-            raise ValueError(f"view {v}: need at least 4 points, got {len(o)}")
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(p))):
-            raise ValueError(f"view {v}: non-finite coordinates (NaN/inf); drop missing points before calibrating")
-        if planar and np.max(np.abs(o[:, 2])) > 1e-9 * max(1.0, np.max(np.abs(o))):
-            raise ValueError(f"view {v}: board points must lie on z = 0 (planar target), max |z| = "
-                             f"{np.max(np.abs(o[:, 2])):.3g} mm")
-        obj.append(o)
-        img.append(p)
-    return obj, img, (w, h)
 
 
 def residuals_of(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, object_points: Sequence[np.ndarray],

@@ -4,10 +4,10 @@
 * :func:`projection_diff`: pixel difference between two models over a grid of pixels, with or without fitting the
   implied rotation (the idea of ``mrcal.projection_diff``: raw intrinsics differences mislead because a shift of the
   principal point can be absorbed by a small rotation of every pose).
-* :func:`match_grid_order`: undo the 90/180-degree rotations (and, if asked, mirror flips) with which a detector may
-  return a symmetric grid, against a reference set of centres.
-* :func:`reverse_to_match`: put each view of a detector's centres into another detector's point order where the two
-  differ by a reversal (the 180-degree ambiguity of a symmetric grid, resolved per image by each detector).
+* :func:`match_grid_order`: undo the rotations (and, if asked, mirror flips) with which a detector may return a
+  grid, against a reference set of centres (the board's symmetries, :meth:`circcal.board.Board.symmetries`).
+* :func:`match_views`: put each view of a detector's centres into another detector's point order (the rotational
+  ambiguity of a symmetric grid, resolved per image by each detector).
 * :func:`centre_errors`: detected centres against true centre projections, per view and overall.
 * Error-convention conversions come from :mod:`circcal.metrics` (re-exported here).
 
@@ -15,11 +15,11 @@ All projection and unprojection goes through :mod:`circcal.model` (pixel centres
 """
 from __future__ import annotations
 
-import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
+from circcal.board import Board
 from circcal.metrics import error_stats, per_coord_to_per_point, per_point_to_per_coord
 from circcal.model import PARAM_NAMES, Camera, distort, normalized_to_pixel, pixel_to_normalized, undistort
 
@@ -30,9 +30,8 @@ __all__ = [
     "unproject",
     "project_rays",
     "fit_rotation",
-    "grid_permutations",
     "match_grid_order",
-    "reverse_to_match",
+    "match_views",
     "centre_errors",
     "error_stats",
     "per_point_to_per_coord",
@@ -154,82 +153,65 @@ def projection_diff(a: Camera, b: Camera, *, gridn_width: int = 60, distance: fl
     }
 
 
-def grid_permutations(rows: int, cols: int, *, mirror: bool = False) -> list[tuple[str, np.ndarray]]:
-    """Index permutations of a symmetric ``rows x cols`` grid (OpenCV order) that map it onto itself.
-
-    Each entry ``(label, perm)`` means: the detection ``det`` re-ordered as ``det[perm]`` is in board order if the
-    detector returned the grid transformed by ``label``. Rotations by 0/180 degrees always; by 90/270 only for square
-    grids; with ``mirror``, the mirror images as well.
-    """
-    idx = np.arange(rows * cols).reshape(rows, cols)
-    cands = [("rot0", idx), ("rot180", idx[::-1, ::-1])]
-    if rows == cols:
-        cands += [("rot90", np.rot90(idx, 1)), ("rot270", np.rot90(idx, 3))]
-    if mirror:
-        more = [("flip_lr", idx[:, ::-1]), ("flip_ud", idx[::-1, :])]
-        if rows == cols:
-            more += [("transpose", idx.T), ("antitranspose", idx[::-1, ::-1].T)]
-        cands += more
-    return [(label, np.ascontiguousarray(p).ravel()) for label, p in cands]
-
-
-def match_grid_order(detected: np.ndarray, reference: np.ndarray, rows: int, cols: int, *,
+def match_grid_order(detected: np.ndarray, reference: np.ndarray, board: Board, *,
                      mirror: bool = False) -> tuple[np.ndarray, str, float]:
-    """Re-order a detected symmetric grid to the order of ``reference`` (e.g. true centre projections).
+    """Re-order a detected grid to the order of ``reference`` (e.g. true centre projections).
 
-    ``detected``, ``reference``: (rows*cols, 2) px. Tries the grid's symmetries (:func:`grid_permutations`) and keeps
-    the one with the smallest RMS distance. Returns (re-ordered (rows*cols, 2), label, rms distance px).
+    ``detected``, ``reference``: (N, 2) px for ``board``'s N points (NaN rows are left out of the distance). Tries
+    the board's symmetries (:meth:`circcal.board.Board.symmetries`: rotations, and with ``mirror`` reflections too)
+    and keeps the one with the smallest RMS distance. Returns (re-ordered (N, 2), the symmetry's label, rms
+    distance px).
     """
     det = np.asarray(detected, dtype=np.float64).reshape(-1, 2)
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 2)
-    if len(det) != rows * cols or len(ref) != rows * cols:
-        raise ValueError(f"expected {rows * cols} points for a {rows}x{cols} grid, got {len(det)} detected and "
+    n = board.n_points
+    if len(det) != n or len(ref) != n:
+        raise ValueError(f"expected {n} points for a {board.rows}x{board.cols} grid, got {len(det)} detected and "
                          f"{len(ref)} reference")
     best = None
-    for label, perm in grid_permutations(rows, cols, mirror=mirror):
-        cand = det[perm]
-        rms = float(np.sqrt(np.mean(np.sum((cand - ref) ** 2, axis=1))))
+    for sym in board.symmetries(reflections=mirror):
+        cand = det[sym.perm]
+        d2 = np.sum((cand - ref) ** 2, axis=1)
+        d2 = d2[np.isfinite(d2)]
+        rms = float(np.sqrt(np.mean(d2))) if d2.size else float("inf")
         if best is None or rms < best[2]:
-            best = (cand, label, rms)
-    assert best is not None
+            best = (cand, sym.label, rms)
     return best
 
 
-def reverse_to_match(detected: Sequence[np.ndarray], reference: Sequence[np.ndarray | None]
-                     ) -> tuple[list[np.ndarray], list[bool]]:
-    """Each detected view in the point order of ``reference``: reversed where the reversal lies closer to it.
+def match_views(detected: Sequence[np.ndarray], reference: Sequence[np.ndarray | None], board: Board
+                ) -> tuple[list[np.ndarray], list[str]]:
+    """Each detected view in the point order of ``reference`` (:func:`match_grid_order` per view, rotations only).
 
-    ``detected``, ``reference``: per view (N, 2) px, same board; ``reference`` entries may hold NaN for points its
-    detector missed, or be None (that view is kept as detected). The criterion is the largest point distance (NaN
-    ignored), as a reversal moves points by the size of the grid. A symmetric grid has a 180-degree ambiguity that
-    each detector resolves its own way (findCirclesGrid numbers the real 10x8 set in opposite directions in its plain
-    and clustering modes, so a plain-then-clustering fallback reverses 2 of 6 views against circcal): harmless while
-    the board is rigid, since the pose absorbs it, but it mixes up points once each point's position is estimated. Returns (views re-ordered, (N, 2) float64 each; reversed? per view).
+    ``detected``, ``reference``: per view (N, 2) px of ``board``; ``reference`` entries may hold NaN for points its
+    detector missed, or be None (that view is kept as detected, label ``rot0``). A symmetric grid's 180-degree
+    ambiguity (90 degrees when square) is resolved by each detector its own way (findCirclesGrid numbers the real
+    10x8 set in opposite directions in its plain and clustering modes, so a plain-then-clustering fallback reverses 2
+    of 6 views against circcal): harmless while the board is rigid, since the pose absorbs it, but it mixes up points
+    once each point's position is estimated. Returns (views re-ordered, (N, 2) float64 each; the symmetry's label per
+    view, ``rot0`` where the order was kept).
     """
     if len(detected) != len(reference):
         raise ValueError(f"{len(detected)} detected views but {len(reference)} reference views")
-    out, flipped = [], []
+    out, labels = [], []
     for d, r in zip(detected, reference):
         d = np.asarray(d, dtype=np.float64).reshape(-1, 2)
-        flip = False
-        if r is not None:
-            r = np.asarray(r, dtype=np.float64).reshape(-1, 2)
-            if r.shape != d.shape:
-                raise ValueError(f"detected {d.shape} and reference {r.shape} differ in shape")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN reference view: kept as detected
-                flip = bool(np.nanmax(np.linalg.norm(r - d[::-1], axis=1)) < np.nanmax(np.linalg.norm(r - d, axis=1)))
-        out.append(d[::-1].copy() if flip else d)
-        flipped.append(flip)
-    return out, flipped
+        if r is None or not np.isfinite(np.asarray(r, dtype=np.float64)).any():
+            out.append(d)
+            labels.append("rot0")
+            continue
+        matched, label, _ = match_grid_order(d, r, board)
+        out.append(matched)
+        labels.append(label)
+    return out, labels
 
 
-def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, grid: tuple[int, int] | None = None,
+def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, board: Board | None = None,
                   mirror: bool = False) -> dict[str, Any]:
     """Detected centres against true centre projections.
 
-    ``detected``, ``truth``: per view (N_v, 2) px, same order unless ``grid=(rows, cols)`` is given, in which case
-    each detected view is first re-matched with :func:`match_grid_order` (symmetric grids). Returns
+    ``detected``, ``truth``: per view (N_v, 2) px, same order unless ``board`` is given, in which case each
+    detected view is first re-matched with :func:`match_grid_order` (over the board's symmetries). Returns
     ``{"overall": error_stats, "per_view": [error_stats], "errors": [(N_v, 2) detected - truth], "matched":
     [label per view]}``.
     """
@@ -240,8 +222,8 @@ def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *
         d = np.asarray(d, dtype=np.float64).reshape(-1, 2)
         t = np.asarray(t, dtype=np.float64).reshape(-1, 2)
         label = "given"
-        if grid is not None:
-            d, label, _ = match_grid_order(d, t, grid[0], grid[1], mirror=mirror)
+        if board is not None:
+            d, label, _ = match_grid_order(d, t, board, mirror=mirror)
         if d.shape != t.shape:
             raise ValueError(f"detected {d.shape} and truth {t.shape} differ in shape")
         e = d - t

@@ -39,10 +39,14 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from circcal.board import Board
+from circcal.detector import Reason, Rejection
+from circcal.errors import InputError
 from circcal.model import PARAM_NAMES, Camera
 from circcal.validators.base import ReferenceCalibrator, ReferenceResult
-from circcal.validators.compare import grid_permutations, param_diff, projection_diff
-from circcal.validators.validate import Check, solver_agreement, ssr
+from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement, solver_bound,
+                                       truth_checks)
+from circcal.validators.compare import match_grid_order, projection_diff
+from circcal.validators.shared import share
 
 __all__ = [
     "CIRCCAL",
@@ -74,15 +78,6 @@ __all__ = [
 
 CIRCCAL = "circcal"
 
-#: Primary truth check: |estimate - truth| of fx, fy, cx, cy in units of the stated standard deviation. Across the
-#: 28 calibrated scenario-variants circcal's largest is 2.75 (wide-uneven fy); a correct estimator with correct
-#: sigmas exceeds 3 on one of 4 parameters with probability ~1%.
-TRUTH_SIGMAS = 3.0
-#: Agreement of a fair reference (plain least squares) with circcal's solver on identical float32 observations, max
-#: projection difference over the imager, px. The adapters reach ~1e-9-1e-6 (OpenCV's LM ~1e-6 on the paper camera).
-SOLVER_PX = 1e-6
-#: mrcal's solver stops earlier (its own convergence criteria): ~5e-6 px measured, bound 1e-4 px.
-SOLVER_MRCAL_PX = 1e-4
 #: A final centre farther than this from the true centre projection means a mislabelled or wrongly detected point:
 #: a labelling error moves a point by a pitch (>= 10 px in every scenario), while noise and residual bias give at
 #: most 0.13 px (small-noisy very-noisy, the worst measured). Measured with the grid order matched to the truth.
@@ -257,7 +252,8 @@ class Observations:
     """circcal's calibration of one scenario-variant and the observations every reference case reuses.
 
     ``status``: "ok" or "failed" (``message`` then holds circcal's error). ``accounted``: path -> "used" or the
-    reason it was rejected, for every image that circcal accounted for. ``object_points``/``image_points``: per used
+    reason code (:class:`circcal.detector.Reason` value) it was rejected with, for every image that circcal accounted
+    for; ``failed``: the rejections themselves (path, code, words). ``object_points``/``image_points``: per used
     view (N_v, 3) mm / (N_v, 2) px, circcal's final centres rounded to float32 (OpenCV's input type) and back;
     ``solver_camera``/``solver_std``: circcal's solver on exactly those points (what references are compared with).
     ``centre_errors``: (N,) px, |final centre - true projection| over all used points, grid order matched to the
@@ -276,7 +272,7 @@ class Observations:
     correlation: np.ndarray | None = None
     errors: dict[str, float] | None = None
     used: list[int] = field(default_factory=list)
-    failed: list[tuple[str, str]] = field(default_factory=list)
+    failed: list[Rejection] = field(default_factory=list)
     accounted: dict[str, str] = field(default_factory=dict)
     object_points: list[np.ndarray] | None = None
     image_points: list[np.ndarray] | None = None
@@ -295,33 +291,14 @@ class Observations:
         return (self.truth.width, self.truth.height)
 
 
-def _rejections_from_message(message: str, paths: Sequence[str]) -> dict[str, str]:
-    """circcal's "found in k of n images" error lists every rejected image as ``"  <path>: <reason>"``."""
-    out: dict[str, str] = {}
-    for line in message.splitlines():
-        s = line.strip()
-        for p in paths:
-            if s.startswith(p + ":"):
-                out[p] = s[len(p) + 1:].strip()
-    return out
-
-
-def _matched_centre_errors(centers: Sequence[np.ndarray], truth: Sequence[np.ndarray], board: Board) -> np.ndarray:
+def _matched_centre_errors(centres: Sequence[np.ndarray], truth: Sequence[np.ndarray], board: Board) -> np.ndarray:
     """|detected - true| (px) over all finite points; each view's labelling is matched to the truth over the
-    board's index symmetries (a square grid may come back rotated: a valid labelling, not an error)."""
-    perms = grid_permutations(board.rows, board.cols)
+    board's symmetries (a square grid may come back rotated: a valid labelling, not an error)."""
     errs = []
-    for c, t in zip(centers, truth):
-        c = np.asarray(c, dtype=np.float64).reshape(-1, 2)
-        t = np.asarray(t, dtype=np.float64).reshape(-1, 2)
-        best = None
-        for _, perm in perms:
-            d = np.linalg.norm(c[perm] - t, axis=1)
-            d = d[np.isfinite(d)]
-            if d.size and (best is None or np.mean(d ** 2) < np.mean(best ** 2)):
-                best = d
-        if best is not None:
-            errs.append(best)
+    for c, t in zip(centres, truth):
+        c, _, _ = match_grid_order(c, t, board)
+        d = np.linalg.norm(c - np.asarray(t, dtype=np.float64).reshape(-1, 2), axis=1)
+        errs.append(d[np.isfinite(d)])
     return np.concatenate(errs) if errs else np.zeros(0)
 
 
@@ -330,9 +307,8 @@ def observe(scenario: str, variant: str, *, progress: bool = False) -> Observati
 
     Never raises for circcal's own failure (status "failed" with the message); fixture problems do raise.
     """
-    from circcal.pipeline import calibrate_images
-    from circcal.solver import CalibrationError, calibrate
     from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.pipeline import TooFewImagesError, calibrate_images
 
     folder = fixture_dir(scenario, variant, progress=progress)
     truth = load_truth(folder)
@@ -341,30 +317,26 @@ def observe(scenario: str, variant: str, *, progress: bool = False) -> Observati
     t0 = time.perf_counter()
     try:
         cal = calibrate_images(paths, truth.board, progress=progress, image_size=obs.image_size)
-    except (CalibrationError, ValueError, FileNotFoundError) as exc:
+    except InputError as exc:
         obs.status, obs.message = "failed", f"{type(exc).__name__}: {exc}"
-        obs.accounted = _rejections_from_message(str(exc), paths)
+        if isinstance(exc, TooFewImagesError):
+            obs.failed = exc.rejected
+            obs.accounted = {r.path: r.code.value for r in exc.rejected}
         obs.time_s = time.perf_counter() - t0
         return obs
     res = cal.result
     obs.camera, obs.std, obs.errors = res.camera, dict(res.std), dict(res.errors)
     obs.correlation = np.asarray(res.correlation, dtype=np.float64)
-    obs.used, obs.failed = list(cal.used), [(str(p), str(r)) for p, r in cal.failed]
+    obs.used, obs.failed = list(cal.used), list(cal.failed)
     for i in cal.used:
         obs.accounted[paths[i]] = "used"
-    for p, why in obs.failed:
-        if why.strip():
-            obs.accounted.setdefault(p, why.strip())
-    obs.centre_errors = _matched_centre_errors(cal.centers, [truth.views[i].centers for i in cal.used],
+    for r in obs.failed:
+        obs.accounted.setdefault(r.path, r.code.value)
+    obs.centre_errors = _matched_centre_errors(cal.centres, [truth.views[i].centres for i in cal.used],
                                                truth.board)
-    obj, img = cal.observations(truth.board)
-    # The convention of circcal.validators.validate.run_validation: OpenCV takes float32 points only, and on a weakly
-    # conditioned problem that rounding alone moves the answer by ~5e-3 px, so every solver gets the rounded points
-    # and circcal's solver runs once more on exactly those.
-    obs.object_points = [np.asarray(o, np.float32).astype(np.float64) for o in obj]
-    obs.image_points = [np.asarray(p, np.float32).astype(np.float64) for p in img]
-    same = calibrate(obs.object_points, obs.image_points, obs.image_size, initial=res.camera)
-    obs.solver_camera, obs.solver_std, obs.solver_ssr = same.camera, dict(same.std), ssr(same.residuals)
+    shared = share(cal, truth.board)
+    obs.object_points, obs.image_points = shared.object_points, shared.image_points
+    obs.solver_camera, obs.solver_std, obs.solver_ssr = shared.result.camera, dict(shared.result.std), shared.ssr
     obs.time_s = time.perf_counter() - t0
     return obs
 
@@ -398,15 +370,16 @@ def failed_checks(outcome: Outcome) -> list[Check]:
 
 
 def _accounting(obs: Observations) -> Check:
-    missing = [Path(p).name for p in obs.paths if not obs.accounted.get(p)]
-    overlap = sorted(Path(p).name for p, _ in obs.failed if obs.accounted.get(p) == "used")
+    codes = {r.value for r in Reason} | {"used"}
+    missing = [Path(p).name for p in obs.paths if obs.accounted.get(p) not in codes]
+    overlap = sorted(Path(r.path).name for r in obs.failed if obs.accounted.get(r.path) == "used")
     n_used = sum(1 for v in obs.accounted.values() if v == "used")
     note = f"{n_used} used, {len(obs.accounted) - n_used} rejected with a reason, of {len(obs.paths)}"
     if missing:
         note += f"; not accounted for: {', '.join(missing)}"
     if overlap:
         note += f"; both used and rejected: {', '.join(overlap)}"
-    return Check("every image accounted for (used, or rejected with a reason): images unaccounted",
+    return Check("every image accounted for (used, or rejected with a reason code): images unaccounted",
                  float(len(missing) + len(overlap)), 0.0, not missing and not overlap, note)
 
 
@@ -434,26 +407,6 @@ def predicted_truth_rms(camera: Camera, std: dict[str, float], correlation: np.n
     return {f"p{q}": float(np.percentile(r, q)) for q in (50, 95, 99)}
 
 
-def _truth_checks(who: str, camera: Camera, std: dict[str, float] | None, truth: Camera, bounds: ScenarioBounds,
-                  std_note: str = "", *, variant: str = "") -> tuple[list[Check], dict[str, float]]:
-    checks, measured = [], {}
-    pd = param_diff(truth, camera, None, std)
-    for n in ("fx", "fy", "cx", "cy"):
-        v = abs(pd[n]["diff_sigmas"])
-        ok = bool(np.isfinite(v) and v <= TRUTH_SIGMAS)
-        note = (f"{n} {pd[n]['b']:.4f} vs true {pd[n]['a']:.4f} (diff {pd[n]['diff']:+.4f}, sigma "
-                f"{pd[n]['sigma']:.3g}{std_note})")
-        checks.append(Check(f"{who} {n} vs truth, in stated sigmas", v, TRUTH_SIGMAS, ok, note))
-        measured[f"{n}_sigmas"] = float(pd[n]["diff_sigmas"])
-    fit = projection_diff(truth, camera, fit=True)
-    v = fit["rms_px"]
-    bound = bounds.truth_px_for(variant)
-    checks.append(Check(f"{who} vs truth: RMS projection difference (rotation fitted), px", v, bound,
-                        bool(np.isfinite(v) and v <= bound), f"max {fit['max_px']:.4f} px"))
-    measured["truth_rms_px"], measured["truth_max_px"] = v, fit["max_px"]
-    return checks, measured
-
-
 def run_circcal_case(case: Case, obs: Observations) -> Outcome:
     """circcal's own case on its observations (see the module docstring for what is checked)."""
     b = bounds_for(case.scenario)
@@ -476,13 +429,13 @@ def run_circcal_case(case: Case, obs: Observations) -> Outcome:
             out.status = "rejected"
             out.notes.append(f"circcal rejected every view of {case.scenario}-{case.variant}, each with a reason "
                              f"(allowed here); no calibration to check: {obs.message.splitlines()[0]}")
-            for p in obs.paths:
-                out.notes.append(f"  {Path(p).name}: {obs.accounted[p]}")
+            for r in obs.failed:
+                out.notes.append(f"  {Path(r.path).name}: {r.code.value}: {r.reason}")
             return out
         out.checks.append(Check("circcal calibrates", float("nan"), float("nan"), False, obs.message))
         return out
     bound = b.truth_px_for(case.variant)
-    checks, measured = _truth_checks("circcal", obs.camera, obs.std, obs.truth, b, variant=case.variant)
+    checks, measured = truth_checks("circcal", obs.camera, obs.std, obs.truth, rms_px=bound)
     pred = predicted_truth_rms(obs.camera, obs.std, obs.correlation)
     checks[-1].note += (f"; the stated covariance predicts p50 {pred['p50']:.4f}, p99 {pred['p99']:.4f} px "
                         f"(bound {bound:g}: {b.reason})")
@@ -502,8 +455,8 @@ def run_circcal_case(case: Case, obs: Observations) -> Outcome:
                                 f"RMS {float(np.sqrt(np.mean(ce ** 2))):.4f} px over {ce.size} points"))
         out.measured["centre_rms_px"] = float(np.sqrt(np.mean(ce ** 2)))
     out.measured["mean_2d_px"] = m2
-    for p, why in obs.failed:
-        out.notes.append(f"image rejected: {Path(p).name}: {why}")
+    for r in obs.failed:
+        out.notes.append(f"image rejected: {Path(r.path).name}: {r.code.value}: {r.reason}")
     return out
 
 
@@ -550,18 +503,19 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
     std, std_note = res.std, ""
     if not std or not all(np.isfinite(std.get(n, np.nan)) and std.get(n, 0) > 0 for n in ("fx", "fy", "cx", "cy")):
         std, std_note = obs.solver_std, "; circcal's on the same observations"
-    truth_checks, measured = _truth_checks(res.name, res.camera, std, obs.truth, b, std_note, variant=case.variant)
+    found_checks, measured = truth_checks(res.name, res.camera, std, obs.truth, rms_px=b.truth_px_for(case.variant),
+                                          std_note=std_note)
     out.measured.update(measured)
     if case.mode == "default":
         out.status = "measured"
         out.notes.append(f"{label} is a different estimator: its differences are measured and printed, "
                          f"not asserted")
-        for c in truth_checks:
+        for c in found_checks:
             out.notes.append(f"  measured: {c.name}: {c.value:.4g} ({c.note})")
         return out
-    out.checks += truth_checks
+    out.checks += found_checks
     if solver_px is None:
-        solver_px = SOLVER_MRCAL_PX if case.reference == "mrcal" else SOLVER_PX
+        solver_px = solver_bound(case.reference)
     if np.isfinite(solver_px):
         check = solver_agreement(label, res, vs_circcal["max_px"], obs.solver_ssr, solver_px)
         check.note = "; ".join(x for x in (f"RMS {vs_circcal['rms_px']:.3g} px", check.note) if x)

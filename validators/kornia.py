@@ -24,7 +24,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal.model import PARAM_NAMES, Camera
-from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations
+from circcal.observations import check_observations
+from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence
 
 __all__ = ["KorniaCalibrator", "Problem"]
 

@@ -32,7 +32,8 @@ import numpy as np
 
 from circcal.metrics import error_stats
 from circcal.model import Camera, project, rodrigues
-from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, check_observations, run_safely, \
+from circcal.observations import check_observations
+from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, \
     seed_camera
 
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "NOT_FOUND_MESSAGE"]

@@ -17,25 +17,16 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal.board import Board
+from circcal.errors import InputError
 from circcal.model import PARAM_NAMES, Camera
 from circcal.validators import registry
 from circcal.validators.base import ReferenceResult, jsonable
+from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement,
+                                       truth_checks)
 from circcal.validators.compare import param_diff, projection_diff
+from circcal.validators.shared import SharedObservations, share
 
-__all__ = ["Bounds", "Check", "ValidationRun", "run_validation", "solver_agreement", "format_table",
-           "write_report"]
-
-
-#: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
-#: squared residuals carry ~1e-13 relative rounding).
-COST_TIE_REL = 1e-10
-
-
-def ssr(residuals: Sequence[np.ndarray] | None) -> float:
-    """Sum of squared residuals over all views (NaN entries, e.g. rejected outliers, make it NaN)."""
-    if not residuals:
-        return float("nan")
-    return float(sum(np.sum(np.asarray(r, dtype=np.float64) ** 2) for r in residuals))
+__all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -48,19 +39,10 @@ class Bounds:
     centres with 0.003 px noise), which alone moves the image edge by ~0.05 px, so a fixed px bound would test the
     fixture geometry, not the calibrator."""
 
-    solver: float = 1e-6
-    solver_mrcal: float = 1e-4
-    truth_sigmas: float = 3.0
+    solver: float = SOLVER_PX
+    solver_mrcal: float = SOLVER_MRCAL_PX
+    truth_sigmas: float = TRUTH_SIGMAS
     truth: float | None = None
-
-
-@dataclass
-class Check:
-    name: str
-    value: float
-    bound: float
-    passed: bool
-    note: str = ""
 
 
 @dataclass
@@ -74,6 +56,8 @@ class ValidationRun:
     comparisons: list[dict[str, Any]]       # one per calibrator row (circcal first)
     checks: list[Check] = field(default_factory=list)
     observations: str = "circcal"
+    #: what every reference fitted (circcal's centres rounded to float32) and circcal's solver on exactly those
+    shared: SharedObservations | None = None
 
     @property
     def passed(self) -> bool:
@@ -118,7 +102,6 @@ def run_validation(
     where it has one; the others report "unsupported"). Never raises for a reference's failure: it becomes a row.
     """
     from circcal.pipeline import calibrate_images
-    from circcal.solver import CalibrationError
 
     if observations not in ("circcal", "own"):
         raise ValueError(f"observations must be 'circcal' or 'own', got {observations!r}")
@@ -127,31 +110,24 @@ def run_validation(
     names = registry.names() if "all" in against else list(dict.fromkeys(against))
     for n in names:
         if n not in registry.names():
-            raise ValueError(f"unknown reference calibrator {n!r}; known: {', '.join(registry.names())}, all")
+            raise InputError(f"unknown reference calibrator {n!r}; known: {', '.join(registry.names())}, all")
     paths = [str(p) for p in paths]
 
     t0 = time.perf_counter()
     cc: dict[str, Any] = {"status": "ok", "message": "", "camera": None}
-    obj = img = None
+    shared: SharedObservations | None = None
     image_size = (truth.width, truth.height) if truth is not None else None
     try:
         cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size)
-        res = cal.result
-        obj, img = cal.observations(board)
-        # Identical observations for every solver: OpenCV only takes float32 points, and on a weakly conditioned
-        # problem (k3 at a long focal length) that rounding alone moves the corners by ~5e-3 px. So every reference
-        # gets the centres rounded to float32, and circcal's solver is run once more on exactly those.
-        img = [p.astype(np.float32).astype(np.float64) for p in img]
-        obj = [o.astype(np.float32).astype(np.float64) for o in obj]
-        from circcal.solver import calibrate
-
-        same = calibrate(obj, img, (res.camera.width, res.camera.height), fix_k3=fix_k3, initial=res.camera)
-        image_size = (res.camera.width, res.camera.height)
-        cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
-                  n_views=len(cal.used), converged=res.converged, solver_camera=same.camera,
-                  solver_ssr=ssr(same.residuals))
-    except (CalibrationError, ValueError, FileNotFoundError) as exc:
+    except InputError as exc:
         cc.update(status="failed", message=str(exc))
+    else:
+        res = cal.result
+        shared = share(cal, board, fix_k3=fix_k3)
+        image_size = shared.image_size
+        cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
+                  n_views=len(cal.used), converged=res.converged, solver_camera=shared.result.camera,
+                  solver_ssr=shared.ssr)
     cc["time_s"] = time.perf_counter() - t0
     if image_size is None:
         import cv2
@@ -172,10 +148,11 @@ def run_validation(
             for m in supported:
                 refs.append(cal_ref.calibrate_images(paths, board, image_size, mode=m))
             continue
-        if obj is None:
+        if shared is None:
             refs.append(ReferenceResult(n, cal_ref.version if cal_ref.available()[0] else "?", supported[0],
                                         "failed", "no observations: circcal could not calibrate these images"))
             continue
+        obj, img = shared.object_points, shared.image_points
         if hasattr(cal_ref, "calibrate_modes") and len(supported) > 1:
             refs.extend(cal_ref.calibrate_modes(obj, img, image_size, modes=supported))
         else:
@@ -195,15 +172,8 @@ def run_validation(
     if cc["status"] != "ok":
         checks.append(Check("circcal calibrates", float("nan"), float("nan"), False, cc["message"]))
     elif truth is not None:
-        pd = comparisons[0]["vs_truth"]["params"]
-        for n in ("fx", "fy", "cx", "cy"):
-            v = abs(pd[n]["diff_sigmas"])
-            checks.append(Check(f"circcal {n} vs truth, in stated sigmas", v, bounds.truth_sigmas,
-                                bool(v <= bounds.truth_sigmas)))
-        if bounds.truth is not None:
-            v = comparisons[0]["vs_truth"]["rms_px"]
-            checks.append(Check("circcal vs truth: projection RMS (rotation fitted), px", v, bounds.truth,
-                                v <= bounds.truth))
+        checks += truth_checks("circcal", circ_cam, cc["std"], truth, sigmas=bounds.truth_sigmas,
+                               rms_px=bounds.truth)[0]
     for r, row in zip(refs, comparisons[1:]):
         label = f"{r.name} [{r.mode}]"
         if r.status == "failed":
@@ -214,30 +184,7 @@ def run_validation(
             b = bounds.solver_mrcal if r.name == "mrcal" else bounds.solver
             checks.append(solver_agreement(label, r, row["vs_circcal"]["max_px"], cc["solver_ssr"], b))
     return ValidationRun(source or {"images": paths}, board, image_size, truth, cc, refs, comparisons, checks,
-                         observations)
-
-
-def solver_agreement(label: str, ref: ReferenceResult, max_px: float, circcal_ssr: float, bound: float) -> Check:
-    """The identical-observations check: ``ref``'s solve vs circcal's solver on the same points.
-
-    Passes when the max projection difference ``max_px`` is within ``bound``. Beyond it the costs decide: on a flat
-    problem (k3 at a long focal length) two solvers can stop 1e-6..1e-5 px apart with costs equal to ~1e-13
-    relative, which double precision cannot separate, so equal costs (within :data:`COST_TIE_REL`) still pass; any
-    real cost difference fails, and the note says which side missed the minimum.
-    """
-    name = f"{label} vs circcal on identical observations: max projection difference, px"
-    if np.isfinite(max_px) and max_px <= bound:
-        return Check(name, max_px, bound, True)
-    ssr_ref = ssr(ref.residuals)
-    rel = (ssr_ref - circcal_ssr) / circcal_ssr if circcal_ssr > 0 else float("nan")
-    if abs(rel) <= COST_TIE_REL:
-        return Check(name, max_px, bound, True, f"costs equal to {abs(rel):.1g} relative: both at the minimum to "
-                                                f"double precision; the difference lies along a flat direction")
-    if rel < 0:
-        return Check(name, max_px, bound, False, f"{ref.name}'s cost is lower than circcal's by {-rel:.2g} "
-                                                 f"(relative): circcal missed the minimum")
-    return Check(name, max_px, bound, False, f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): "
-                                             f"{ref.name} did not reach the minimum")
+                         observations, shared)
 
 
 def _f(v: Any, spec: str = ".4f") -> str:
@@ -290,8 +237,8 @@ def format_table(run: ValidationRun) -> str:
     notes = [f"- {r.name} [{r.mode}]: {r.status}: {r.message}" for r in run.references if r.status != "ok"]
     if cc["status"] != "ok":
         notes.insert(0, f"- circcal: {cc['status']}: {cc['message']}")
-    for p, why in cc.get("failed") or []:
-        notes.append(f"- image left out by circcal: {Path(p).name}: {why}")
+    for r in cc.get("failed") or []:
+        notes.append(f"- image left out by circcal: {Path(r.path).name}: {r.reason}")
     if notes:
         lines += ["", *notes]
     if cc.get("std") and run.truth is not None and cc.get("camera") is not None:

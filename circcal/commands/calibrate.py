@@ -74,11 +74,11 @@ def format_summary(cal, *, worst: int = 3) -> str:
     if rounds:
         lines.append("re-correction rounds: " + ", ".join(
             f"{r['round']}: RMS/pt {r['rms_per_point_px']:.4f} px"
-            + ("" if r["round"] == 0 else f", centres moved <= {r['max_center_shift_px']:.2g} px") for r in rounds))
+            + ("" if r["round"] == 0 else f", centres moved <= {r['max_centre_shift_px']:.2g} px") for r in rounds))
     failed = getattr(cal, "failed", None)
     if failed:
         lines.append(f"{len(failed)} image(s) left out:")
-        lines += [f"  {p}: {reason}" for p, reason in failed]
+        lines += [f"  {r.path}: {r.reason}" for r in failed]
     return "\n".join(lines)
 
 
@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(cal))
     model = cal.result.to_model_json()
     model["board"] = board.to_dict()
-    model["failed_images"] = [{"path": p, "reason": r} for p, r in cal.failed]
+    model["failed_images"] = [{"path": r.path, "reason_code": r.code.value, "reason": r.reason} for r in cal.failed]
     model["recorrection_rounds"] = cal.rounds
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_camera(args.out, cal.result.camera, fmt, model_json=model)

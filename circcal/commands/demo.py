@@ -44,7 +44,7 @@ def summarize(name: str) -> None:
         tilts.append(np.degrees(np.arccos(abs(R[2, 2]))))
         rim = board.object_points()[:1] + np.array([[board.radius_mm, 0, 0], [-board.radius_mm, 0, 0]])
         sizes.append(np.linalg.norm(np.diff(project(rim, v.rvec, v.tvec, cam), axis=0)))
-        bias.append(np.linalg.norm(area_centroids(cam, board, v.rvec, v.tvec, n=4000) - v.centers, axis=1))
+        bias.append(np.linalg.norm(area_centroids(cam, board, v.rvec, v.tvec, n=4000) - v.centres, axis=1))
     b = np.concatenate(bias)
     print(f"  tilts {min(tilts):.0f}-{max(tilts):.0f} deg to the optical axis; dots {min(sizes):.0f}-"
           f"{max(sizes):.0f} px across")

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     out = {"board": board.to_dict(), "images": []}
     for path, d in zip(args.images, dets):
         out["images"].append({"image": str(path), "found": bool(d.found),
-                              "centers": d.centers.tolist() if d.found else None,
+                              "centers": d.centres.tolist() if d.found else None,
                               "reason": d.reason})
         if args.overlay is not None:
             img = _read_image(Path(path)) if Path(path).exists() else None

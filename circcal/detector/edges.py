@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from circcal.errors import ImageError
 from circcal.detector.ellipse import conic_from_params, conic_params_batch
 from circcal.detector.jit import njit
 
@@ -48,36 +49,36 @@ class Candidate:
     """A dark blob that may be a dot. ``center`` (2,) px area centroid of the contour polygon; ``axes`` (a, b)
     semi-axes (px) and ``angle`` (rad) of the ellipse with the same second moments; ``area`` px^2."""
 
-    center: np.ndarray
+    centre: np.ndarray
     axes: tuple[float, float]
     angle: float
     area: float
 
     @property
     def conic(self) -> np.ndarray:
-        return conic_from_params(self.center, self.axes, self.angle)
+        return conic_from_params(self.centre, self.axes, self.angle)
 
 
 def as_gray(image: np.ndarray) -> np.ndarray:
     """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) grey in its own dtype (colour
-    converted by ``cv2.cvtColor``; float64 colour via float32 as in :func:`to_gray`). Raises ``ValueError`` for other
+    converted by ``cv2.cvtColor``; float64 colour via float32 as in :func:`to_gray`). Raises :class:`~circcal.errors.ImageError` for other
     shapes or dtypes, and for NaN/inf."""
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3:
         if img.shape[2] not in (3, 4):
-            raise ValueError(f"colour image must have 3 (BGR) or 4 (BGRA) channels, got {img.shape[2]}")
+            raise ImageError(f"colour image must have 3 (BGR) or 4 (BGRA) channels, got {img.shape[2]}")
         code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         img = cv2.cvtColor(img.astype(np.float32) if img.dtype == np.float64 else img, code)
     if img.ndim != 2:
-        raise ValueError(f"expected a (H, W) grey or (H, W, 3) BGR image, got shape {np.shape(image)}")
+        raise ImageError(f"expected a (H, W) grey or (H, W, 3) BGR image, got shape {np.shape(image)}")
     if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)) or img.dtype == bool:
-        raise ValueError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
+        raise ImageError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
     if min(img.shape) < 8:
-        raise ValueError(f"image too small: {img.shape[1]}x{img.shape[0]}")
+        raise ImageError(f"image too small: {img.shape[1]}x{img.shape[0]}")
     if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
-        raise ValueError("image contains NaN or inf")
+        raise ImageError("image contains NaN or inf")
     return img
 
 
@@ -326,7 +327,7 @@ class SmoothedImage:
         crop = np.asarray(crop, np.int64)
         valid = crop >= 0
         rows = np.where(valid, self._rows[np.where(valid, crop, 0)] if len(self._rows) else 0, 0)
-        org = np.array(self.crops, np.float64).reshape(-1, 4)[np.where(valid, crop, 0), :2] if self.crops else \
+        org = np.array(self.crops, np.float64).reshape(-1, 4)[np.where(valid, crop, 0), :2] if self.crops else\
             np.zeros((len(crop), 2))
         return self._atlas, rows.astype(np.int64), np.where(valid[:, None], org, 0.0)
 

@@ -3,7 +3,7 @@
 A conic is a symmetric (3, 3) matrix ``Q`` with ``x^T Q x = 0`` for homogeneous image points ``x = (u, v, 1)``
 (pixels, OpenCV convention: integer coordinates are pixel centres). Scale and sign of ``Q`` are arbitrary unless
 stated. The single-conic functions have batched twins working on stacks ``(D, 3, 3)`` of conics at once
-(:func:`fit_ellipses_direct`, :func:`conic_params_batch`, :func:`conic_centers`); the single versions call them, so
+(:func:`fit_ellipses_direct`, :func:`conic_params_batch`, :func:`conic_centres`); the single versions call them, so
 the math exists once.
 
 The fit is Fitzgibbon's direct ellipse-specific least squares in the numerically stable form of Halir & Flusser
@@ -19,11 +19,11 @@ __all__ = [
     "fit_ellipse_direct",
     "fit_ellipses_direct",
     "conic_params_batch",
-    "conic_centers",
+    "conic_centres",
     "conic_from_params",
     "conic_from_params_batch",
     "conic_params",
-    "conic_center",
+    "conic_centre",
     "sample_ellipse",
     "ellipse_normals",
     "transform_conic",
@@ -197,17 +197,17 @@ def _canonical(Q: np.ndarray) -> np.ndarray:
     return Q * sign[..., None, None]
 
 
-def conic_from_params(center: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
+def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
     """Conic of the ellipse with ``center`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
     ``a`` axis from the image x axis (towards +y). Returned scaled so that ``x^T Q x = -1`` at the centre."""
-    return conic_from_params_batch(np.asarray(center, dtype=np.float64).reshape(1, 2),
+    return conic_from_params_batch(np.asarray(centre, dtype=np.float64).reshape(1, 2),
                                    np.asarray(axes, dtype=np.float64).reshape(1, 2), np.array([float(angle)]))[0]
 
 
-def conic_from_params_batch(centers: np.ndarray, axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+def conic_from_params_batch(centres: np.ndarray, axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """Batched :func:`conic_from_params`: centres (D, 2) px, semi-axes (D, 2) ``(a, b)`` px, angles (D,) rad ->
     conics (D, 3, 3), each scaled so that ``x^T Q x = -1`` at its centre."""
-    c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
     ax = np.asarray(axes, dtype=np.float64).reshape(-1, 2)
     ang = np.asarray(angles, dtype=np.float64).reshape(-1)
     co, si = np.cos(ang), np.sin(ang)
@@ -221,12 +221,12 @@ def conic_from_params_batch(centers: np.ndarray, axes: np.ndarray, angles: np.nd
     return Q
 
 
-def conic_center(Q: np.ndarray) -> np.ndarray:
+def conic_centre(Q: np.ndarray) -> np.ndarray:
     """(2,) centre of an ellipse conic."""
     return np.linalg.solve(Q[:2, :2], -Q[:2, 2])
 
 
-def conic_centers(Q: np.ndarray) -> np.ndarray:
+def conic_centres(Q: np.ndarray) -> np.ndarray:
     """(D, 2) centres of the ellipse conics ``Q`` (D, 3, 3) (closed-form 2x2 solve)."""
     Q = np.asarray(Q, dtype=np.float64)
     p, q, r = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
@@ -253,7 +253,7 @@ def conic_params_batch(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     eigen-decomposition of the symmetric 2x2 block."""
     Q = np.asarray(Q, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        c = conic_centers(Q)
+        c = conic_centres(Q)
         # value at the centre as the full quadratic (stationary there: an error in c enters squared; the linear
         # form g.c + F loses ~1e-7 relative for small ellipses far from the origin)
         cx, cy = c[:, 0], c[:, 1]

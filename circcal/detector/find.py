@@ -26,14 +26,15 @@ Pixel convention: OpenCV's (integer coordinates are pixel centres); centres in O
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from circcal.board import Board
+from circcal.errors import ImageError, InputError
 from circcal.detector.centre import correct_centres
+from circcal.detector.detection import Detection, Reason
 from circcal.detector.edges import (Candidate, SmoothedImage, _masked_median, as_gray, find_candidates, normalise_u8,
                     segmentations, subpixel_edge_points_batch)
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
@@ -43,32 +44,6 @@ from circcal.model import Camera, distort_pixels, undistort_pixels
 __all__ = ["Detection", "detect", "recorrect", "detect_files", "fit_dot", "fit_dots", "area_limits"]
 
 MIN_EDGE_POINTS = 10
-
-
-@dataclass
-class Detection:
-    """Result of :func:`detect` on one image.
-
-    ``found``: whether the whole grid was found; ``centers``: (rows*cols, 2) float64 px, images of the circle
-    centres in OpenCV's object-point order (``None`` when not found); ``reason``: ``None`` when found, else why not.
-    For re-correction and overlays: ``edge_points`` (list of (M_k, 2) px sub-pixel boundary points per dot, in board
-    order, in the *distorted* image as observed), ``conics`` ((N, 3, 3) ellipses fitted to them, in the undistorted
-    image when a camera was given), ``ellipse_centers`` ((N, 2) px, the uncorrected ellipse centres, distorted
-    image), ``homography`` (board mm -> undistorted image px), ``candidates`` ((K, 2) px all candidate dots),
-    ``image_size`` (W, H).
-    """
-
-    found: bool
-    centers: np.ndarray | None
-    reason: str | None
-    edge_points: list[np.ndarray] | None = None
-    conics: np.ndarray | None = None
-    ellipse_centers: np.ndarray | None = None
-    homography: np.ndarray | None = None
-    candidates: np.ndarray | None = None
-    image_size: tuple[int, int] | None = None
-    segmentation: str | None = None
-    extra: dict = field(default_factory=dict)
 
 
 def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
@@ -241,13 +216,13 @@ def _upscaled(c: Candidate, scale: int) -> Candidate:
     runs through the centres of the blob's boundary pixels, ~half a pixel inside its edge at either scale: the axes
     get the difference back, so the starting ellipse is as close to the edge as one found at full resolution."""
     off = 0.5 * (scale - 1)
-    return Candidate(c.center * scale + off, (c.axes[0] * scale + off, c.axes[1] * scale + off), c.angle,
+    return Candidate(c.centre * scale + off, (c.axes[0] * scale + off, c.axes[1] * scale + off), c.angle,
                      c.area * scale ** 2)
 
 
 def _check_camera(camera: Camera | None, width: int, height: int) -> None:
     if camera is not None and (camera.width, camera.height) != (width, height):
-        raise ValueError(f"camera model is for {camera.width}x{camera.height} images, image is {width}x{height}")
+        raise ImageError(f"camera model is for {camera.width}x{camera.height} images, image is {width}x{height}")
 
 
 def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Detection:
@@ -262,7 +237,7 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
     Hh, W = gray.shape
     _check_camera(camera, W, Hh)
     if board.layout == "checkerboard":
-        raise ValueError("circcal detect finds circle grids; the board is a checkerboard")
+        raise InputError("circcal detect finds circle grids; the board is a checkerboard")
     min_area, max_area = area_limits(board, W, Hh)
     best = 0
     order = cands = None
@@ -279,7 +254,7 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
                 continue
             if scale != 1:
                 cs = [_upscaled(c, scale) for c in cs]
-            pts = np.array([c.center for c in cs])
+            pts = np.array([c.centre for c in cs])
             radii = np.array([np.sqrt(c.axes[0] * c.axes[1]) for c in cs])
             order = order_grid(board, pts, radii, (Hh, W))
             r_min = np.min(radii[order]) if order is not None else np.inf
@@ -295,26 +270,29 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Det
         if order is not None:
             break
     if order is None:
-        return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not found: at most {best} "
-                                      f"candidate dots, {board.n_points} needed" if best < board.n_points else
-                         f"grid {board.rows}x{board.cols} ({board.layout}) not recognised among {best} candidate "
-                         f"dots", image_size=(W, Hh))
-    Q0 = conic_from_params_batch(np.array([cands[i].center for i in order]), np.array([cands[i].axes for i in order]),
+        if best < board.n_points:
+            return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not found: at most "
+                                          f"{best} candidate dots, {board.n_points} needed",
+                             Reason.TOO_FEW_CANDIDATES, image_size=(W, Hh))
+        return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not recognised among {best} "
+                                      f"candidate dots", Reason.GRID_NOT_RECOGNISED, image_size=(W, Hh))
+    Q0 = conic_from_params_batch(np.array([cands[i].centre for i in order]), np.array([cands[i].axes for i in order]),
                                  np.array([cands[i].angle for i in order]))
     pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
     for k, e in enumerate(errors):
         if e is not None:
-            return Detection(False, None, f"dot {k} of the grid: {e}", image_size=(W, Hh),
-                             candidates=np.array([c.center for c in cands]))
+            return Detection(False, None, f"dot {k} of the grid: {e}", Reason.DOT_UNMEASURABLE, image_size=(W, Hh),
+                             candidates=np.array([c.centre for c in cands]))
     edge_points = [pts[k][mask[k]] for k in range(len(order))]
     try:
         centres, conics, H = _correct(edge_points, board, camera, conics_d)
     except ValueError as exc:
-        return Detection(False, None, f"centre correction failed: {exc}", edge_points=edge_points,
+        return Detection(False, None, f"centre correction failed: {exc}", Reason.CENTRE_CORRECTION_FAILED,
+                         edge_points=edge_points,
                          image_size=(W, Hh))
     ell_c = conic_params_batch(conics_d)[0]
-    return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centers=ell_c,
-                     homography=H, candidates=np.array([c.center for c in cands]), image_size=(W, Hh),
+    return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centres=ell_c,
+                     homography=H, candidates=np.array([c.centre for c in cands]), image_size=(W, Hh),
                      segmentation=seg_name)
 
 
@@ -336,23 +314,32 @@ def _read_image(path: Path) -> np.ndarray | None:
 
 
 def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
-    """:func:`detect` on one image file; never raises (a missing, unreadable or corrupt file, or any failure, gives
-    ``found=False`` with the reason)."""
+    """:func:`detect` on one image file. What a file can legitimately cause (missing, unreadable, undecodable, an
+    image the detector cannot take) gives ``found=False`` with its :class:`Reason`; any other exception is a bug
+    and propagates."""
+    if not path.is_file():
+        return Detection(False, None, "file not found" if not path.exists() else "not a file", Reason.FILE_NOT_FOUND)
     try:
-        if not path.exists():
-            return Detection(False, None, "file not found")
         img = _read_image(path)
-        if img is None:
-            return Detection(False, None, "unreadable file (not an image, or corrupt)")
+    except OSError as exc:  # permission denied, I/O error
+        return Detection(False, None, f"cannot read the file: {exc.strerror or exc}", Reason.UNREADABLE)
+    if img is None:
+        return Detection(False, None, "unreadable file (not an image, or corrupt)", Reason.UNREADABLE)
+    h, w = img.shape[:2]
+    if camera is not None and (camera.width, camera.height) != (w, h):
+        return Detection(False, None, f"image is {w}x{h}, the camera model is for {camera.width}x{camera.height}",
+                         Reason.WRONG_IMAGE_SIZE, image_size=(w, h))
+    try:
         return detect(img, board, camera)
-    except Exception as exc:  # noqa: BLE001 -- one bad image must never stop the others
-        return Detection(False, None, f"{type(exc).__name__}: {exc}")
+    except ImageError as exc:
+        return Detection(False, None, str(exc), Reason.BAD_IMAGE, image_size=(w, h))
 
 
 def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, progress: bool = True,
                  jobs: int | None = None) -> list[Detection]:
-    """:func:`detect` on each image file, in the order given; never raises per image: a missing, unreadable or
-    corrupt file, or any failure, gives ``found=False`` with the reason. Shows a tqdm progress bar when ``progress``.
+    """:func:`detect` on each image file, in the order given. A missing, unreadable or corrupt file, or an image the
+    detector cannot use, gives ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is
+    caught. Shows a tqdm progress bar when ``progress``.
 
     ``jobs``: images processed at once, in threads (decoding, OpenCV and the compiled loops release the GIL); ``None``
     = one per CPU (at most 8). The results do not depend on it: each image is detected on its own.

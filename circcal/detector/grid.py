@@ -21,50 +21,19 @@ the top-left, like OpenCV's object points; asymmetric grids are at most 2-fold a
 """
 from __future__ import annotations
 
-import functools
-
 import cv2
 import numpy as np
 
 from circcal.board import Board
 
-__all__ = ["board_symmetries", "canonical_order", "order_grid", "orientation_sign"]
+__all__ = ["canonical_order", "order_grid", "orientation_sign"]
 
 
-def board_symmetries(board: Board) -> list[np.ndarray]:
-    """Permutations ``p`` (each (N,) int) of the board's object points such that relabelling point k as ``p[k]``
-    is a rigid map (rotation or reflection about the grid centre) of the point set onto itself. Includes identity."""
-    return [p.copy() for p in _board_symmetries(board)]
-
-
-@functools.lru_cache(maxsize=32)
-def _board_symmetries(board: Board) -> tuple[np.ndarray, ...]:
-    pts = board.object_points()[:, :2]
-    c = pts.mean(axis=0)
-    d = pts - c
-    scale = board.pitch_mm
-    perms = []
-    for rot in range(4):
-        for mirror in (False, True):
-            t = d.copy()
-            if mirror:
-                t[:, 0] = -t[:, 0]
-            for _ in range(rot):
-                t = np.column_stack([-t[:, 1], t[:, 0]])
-            # match t to d
-            dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
-            j = np.argmin(dist, axis=1)
-            if np.all(dist[np.arange(len(d)), j] < 1e-6 * scale) and len(np.unique(j)) == len(d):
-                if not any(np.array_equal(j, q) for q in perms):
-                    perms.append(j)
-    return tuple(perms)
-
-
-def orientation_sign(board: Board, centers: np.ndarray) -> float:
-    """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centers``
+def orientation_sign(board: Board, centres: np.ndarray) -> float:
+    """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centres``
     (N, 2) in board order: +1 when the board is seen from the front (see module docstring), -1 mirrored."""
     obj = board.object_points()[:, :2]
-    H, _ = cv2.findHomography(obj, np.asarray(centers, np.float64), 0)
+    H, _ = cv2.findHomography(obj, np.asarray(centres, np.float64), 0)
     if H is None:
         return 0.0
     c = obj.mean(axis=0)
@@ -73,38 +42,26 @@ def orientation_sign(board: Board, centers: np.ndarray) -> float:
     return float(np.sign(np.linalg.det(J)))
 
 
-def canonical_order(board: Board, centers: np.ndarray) -> np.ndarray:
+def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
     """Indices ``idx`` (N,) so that ``centers[idx]`` follows the orientation rule of this module.
 
-    ``centers``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
+    ``centres``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
     One homography is fitted: relabelling by a board symmetry ``S`` composes it with ``S`` (the least-squares fit of
     the relabelled points is ``H S``), so a labelling's orientation sign is ``orientation_sign(centers) * det S``.
     """
-    centers = np.asarray(centers, dtype=np.float64)
-    s0 = orientation_sign(board, centers)
+    centres = np.asarray(centres, dtype=np.float64)
+    s0 = orientation_sign(board, centres)
     best, best_d = None, np.inf
-    for p, det in zip(_board_symmetries(board), _symmetry_dets(board)):
-        # new labelling: point k of the board is the old point p[k]
-        if s0 * det <= 0:
+    for sym in board.symmetries():
+        # new labelling: point k of the board is the old point sym.perm[k]
+        if s0 * sym.det <= 0:
             continue
-        d = np.hypot(*centers[p[0]])
+        d = np.hypot(*centres[sym.perm[0]])
         if d < best_d - 1e-9:
-            best, best_d = p, d
+            best, best_d = sym.perm, d
     if best is None:
         raise ValueError("no labelling of the detected grid is seen from the board's front (mirrored image?)")
     return best.copy()
-
-
-@functools.lru_cache(maxsize=32)
-def _symmetry_dets(board: Board) -> tuple[float, ...]:
-    """Determinant (+1 rotation, -1 reflection) of the linear part of each map of :func:`board_symmetries`."""
-    pts = board.object_points()[:, :2]
-    d = pts - pts.mean(axis=0)
-    out = []
-    for p in _board_symmetries(board):
-        A = np.linalg.lstsq(d, d[p], rcond=None)[0]  # d[p] = d A: the symmetry's linear part (transposed)
-        out.append(float(np.sign(np.linalg.det(A))))
-    return tuple(out)
 
 
 def _order_lattice(board: Board, points: np.ndarray, tol: float = 0.3) -> np.ndarray | None:
@@ -136,7 +93,7 @@ def _order_lattice(board: Board, points: np.ndarray, tol: float = 0.3) -> np.nda
         if not np.all(np.isfinite(q)):
             continue
         r = np.round(q)
-        if np.max(np.abs(q - r)) >= tol or r[:, 0].min() < 0 or r[:, 1].min() < 0 or r[:, 0].max() > cols - 1 \
+        if np.max(np.abs(q - r)) >= tol or r[:, 0].min() < 0 or r[:, 1].min() < 0 or r[:, 0].max() > cols - 1\
                 or r[:, 1].max() > rows - 1:
             continue
         k = (r[:, 1] * cols + r[:, 0]).astype(int)                          # board index of each candidate

@@ -47,8 +47,8 @@ def draw_detection(image: np.ndarray, detection: Detection) -> np.ndarray:
                             (0, 200, 0), 1, cv2.LINE_AA, _SHIFT)
             except ValueError:
                 pass
-    if detection.centers is not None:
-        cs = detection.centers
+    if detection.centres is not None:
+        cs = detection.centres
         for a, b in zip(cs[:-1], cs[1:]):
             cv2.line(vis, _pt(a), _pt(b), (255, 128, 0), 1, cv2.LINE_AA, _SHIFT)
         for k, c in enumerate(cs):

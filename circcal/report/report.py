@@ -134,7 +134,6 @@ def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -
     truth, views = _fixture("paper", variant, cfg.n_views, progress)
     paths = [str(v.image) for v in views]
     board, cam_t = truth.board, truth.camera
-    grid = (board.rows, board.cols)
     run = run_validation(paths, board, truth=cam_t, against=cfg.references, mode="both", progress=progress,
                          source={"scenario": "paper", "variant": variant})
     timings: dict[str, float] = {"circcal": run.circcal["time_s"]}
@@ -142,12 +141,12 @@ def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -
     cc = run.circcal
     # circcal's final centres as every reference received them (float32-rounded, <= 6e-5 px from circcal's own)
     shared = next((r for r in run.references if r.ok and r.image_points is not None), None)
-    failed_paths = {p for p, _ in cc.get("failed") or []}
+    failed_paths = {r.path for r in cc.get("failed") or []}
     used = [i for i, p in enumerate(paths) if p not in failed_paths]
     if cc["status"] == "ok" and shared is not None:
         again = calibrate(shared.object_points, shared.image_points, run.image_size, initial=cc["solver_camera"])
         per_view = [e["mean_2d_px"] for e in again.per_view_errors]
-        ce = centre_errors(shared.image_points, [views[i].centers for i in used], grid=grid)
+        ce = centre_errors(shared.image_points, [views[i].centres for i in used], board=board)
         rows["circcal"] = _row("circcal", "ok", "", cc["camera"], cc["std"], cc["errors"], cam_t,
                                centre=ce["overall"], per_view=per_view, views=used, detector="circcal",
                                observations="own", centre_note="circcal's final centres")
@@ -160,7 +159,7 @@ def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -
     ocv = OpenCVCalibrator().calibrate_images(paths, board, run.image_size)
     timings["opencv-pipeline"] = time.perf_counter() - t0
     if ocv.ok:
-        ce = centre_errors(ocv.image_points, [views[i].centers for i in ocv.views], grid=grid)
+        ce = centre_errors(ocv.image_points, [views[i].centres for i in ocv.views], board=board)
         per_view = [error_stats(r)["mean_2d_px"] for r in ocv.residuals]
         rows["opencv-pipeline"] = _row(f"OpenCV {ocv.version} circle pipeline", "ok", ocv.message, ocv.camera,
                                        ocv.std, ocv.errors, cam_t, centre=ce["overall"], per_view=per_view,
@@ -181,7 +180,7 @@ def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -
     checks = [{"name": c.name, "value": c.value, "bound": c.bound, "passed": c.passed, "note": c.note}
               for c in run.checks]
     return {"n_views": len(paths), "rows": rows, "checks": checks, "validation_passed": run.passed,
-            "failed_images": [[Path(p).name, why] for p, why in cc.get("failed") or []]}, timings
+            "failed_images": [[Path(r.path).name, r.reason] for r in cc.get("failed") or []]}, timings
 
 
 def paper_conditions(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, dict]:
@@ -242,7 +241,7 @@ def checkerboard_condition(variant: str, cfg: ReportConfig, *, progress: bool = 
     res = OpenCVCalibrator().calibrate_observations(obj, img, (cam_t.width, cam_t.height))
     if not res.ok:
         return _row(label, res.status, res.message, None, None, None, cam_t), time.perf_counter() - t0
-    ce = centre_errors(img, [views[i].centers for i in used], grid=(board.rows, board.cols))
+    ce = centre_errors(img, [views[i].centres for i in used], board=board)
     msg = f"missed {len(missed)} of {len(views)} views: {missed}" if missed else ""
     row = _row(label, "ok", msg, res.camera, res.std, res.errors, cam_t, centre=ce["overall"],
                per_view=[error_stats(r)["mean_2d_px"] for r in res.residuals], views=used,
@@ -318,7 +317,7 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, float
         found: dict[str, np.ndarray | None] = {}
         det = detect(image, board, camera=None)
         if det.found:
-            found["circcal_nomodel"] = det.centers
+            found["circcal_nomodel"] = det.centres
             found["circcal"] = recorrect(det, board, cam)
         else:
             notes.append(f"tilt {tilt:g} deg, {d_px:g} px: circcal: {det.reason}")
@@ -334,7 +333,7 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict, float
         for k, c in found.items():
             if c is None:
                 continue
-            c, _, _ = match_grid_order(c, true_c, board.rows, board.cols)
+            c, _, _ = match_grid_order(c, true_c, board)
             e = np.hypot(*(c - true_c).T)
             mean[k][i, j] = float(np.mean(e))
             mx[k][i, j] = float(np.max(e))
@@ -427,13 +426,13 @@ def realdata_set(folder: Path, *, heldout: bool = True, progress: bool = True) -
     :class:`circcal.validators.opencv.OpenCVCalibrator` so all three conventions and the held-out test use one solver), with
     a rigid board and with the board's shape estimated (``refine_board``: circcal on its own centres, and the same
     solver on the baseline's centres put into circcal's point order with
-    :func:`circcal.validators.compare.reverse_to_match`)."""
+    :func:`circcal.validators.compare.match_views`)."""
     from tqdm import tqdm
 
     from circcal.pipeline import calibrate_images
     from circcal.solver import CalibrationError, calibrate
     from circcal.detector import recorrect
-    from circcal.validators.compare import projection_diff, reverse_to_match
+    from circcal.validators.compare import match_views, projection_diff
     from circcal.validators.opencv import OpenCVCalibrator
 
     board, base = realdata_board(folder)
@@ -462,7 +461,7 @@ def realdata_set(folder: Path, *, heldout: bool = True, progress: bool = True) -
         res = cal.result
         out["circcal"] = {"status": "ok", "message": "", "camera": res.camera, "std": res.std,
                           "errors": _errors3(res.errors), "views": [Path(paths[i]).name for i in cal.used],
-                          "failed": [[Path(p).name, why] for p, why in cal.failed],
+                          "failed": [[Path(r.path).name, r.reason] for r in cal.failed],
                           "per_view_mean_2d_px": [e["mean_2d_px"] for e in res.per_view_errors],
                           "rounds": len(cal.rounds)}
         if ocv.ok:
@@ -486,8 +485,9 @@ def realdata_set(folder: Path, *, heldout: bool = True, progress: bool = True) -
     else:
         out["circcal_refined"] = {"status": "failed", "message": "circcal found no calibration to refine"}
     # circcal's final centres (NaN where a point was missed) give the point order for OpenCV's views
-    ours = {} if cal is None else {Path(paths[i]).name: c for i, c in zip(cal.used, cal.centers)}
-    ocv_ordered, flipped = reverse_to_match([c for _, c in ocv_views], [ours.get(n) for n, _ in ocv_views])
+    ours = {} if cal is None else {Path(paths[i]).name: c for i, c in zip(cal.used, cal.centres)}
+    ocv_ordered, labels = match_views([c for _, c in ocv_views], [ours.get(n) for n, _ in ocv_views], board)
+    flipped = [lab != "rot0" for lab in labels]
     ocv_r = None
     try:
         ocv_r = calibrate([pts] * len(ocv_ordered), ocv_ordered, size, refine_board=True)
@@ -516,7 +516,8 @@ def realdata_set(folder: Path, *, heldout: bool = True, progress: bool = True) -
     if board.layout == "symmetric" and ours:
         det = OpenCVCalibrator().detect(paths, board)
         names = [Path(paths[i]).name for i in det["views"]]
-        ordered, rev = reverse_to_match(det["image_points"], [ours.get(n) for n in names])
+        ordered, labels = match_views(det["image_points"], [ours.get(n) for n in names], board)
+        rev = [lab != "rot0" for lab in labels]
         fo: dict[str, Any] = {"views": names, "how": [det["how"][i] for i in det["views"]],
                               "reversed": [n for n, f in zip(names, rev) if f]}
         if len(names) >= 3:
@@ -728,7 +729,7 @@ def fig_per_view(results: dict, path: Path) -> str:
     fig.suptitle("Per-view reprojection error (the paper's Tables 2, 4, 6; mean of |residual|, eq. 22)")
     fig.tight_layout()
     _save(fig, path)
-    return "Per-view mean 2-D reprojection error of circcal and the OpenCV circle pipeline (findCirclesGrid + " \
+    return "Per-view mean 2-D reprojection error of circcal and the OpenCV circle pipeline (findCirclesGrid + "\
            "calibrateCamera), one panel per illumination condition."
 
 

@@ -17,15 +17,16 @@ Entry points: :func:`calibrate` (point correspondences in, :class:`CalibrationRe
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from circcal.metrics import error_stats
+from circcal.observations import check_observations
 from circcal.model import PARAM_NAMES, Camera, distort_jacobian, rodrigues
-from circcal.solver.zhang import CalibrationError, DegenerateViewsError, view_tilts_deg, zhang
+from circcal.errors import CalibrationError, DegenerateViewsError
+from circcal.solver.zhang import view_tilts_deg, zhang
 
 __all__ = [
     "CalibrationError",
@@ -219,58 +220,6 @@ class CalibrationResult:
                 "points_mm": self.board_points.tolist(),
                 "std_mm": self.board_std.tolist()}}),
         }
-
-
-# --------------------------------------------------------------------------------------------------------------------
-# Input checks
-# --------------------------------------------------------------------------------------------------------------------
-
-def _check_inputs(object_points, image_points, image_size) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
-    if len(image_size) != 2 or int(image_size[0]) <= 0 or int(image_size[1]) <= 0:
-        raise ValueError(f"image_size must be (width, height) in pixels, got {image_size!r}")
-    w, h = int(image_size[0]), int(image_size[1])
-    if len(object_points) != len(image_points):
-        raise ValueError(f"got {len(object_points)} object-point views but {len(image_points)} image-point views")
-    obj, img = [], []
-    for v, (o, p) in enumerate(zip(object_points, image_points)):
-        o = np.asarray(o, dtype=np.float64)
-        p = np.asarray(p, dtype=np.float64)
-        if o.ndim == 3 and o.shape[1] == 1:  # OpenCV's (N, 1, 3)
-            o = o[:, 0]
-        if p.ndim == 3 and p.shape[1] == 1:
-            p = p[:, 0]
-        if o.ndim != 2 or o.shape[1] != 3:
-            raise ValueError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
-        if p.ndim != 2 or p.shape[1] != 2:
-            raise ValueError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
-        if len(o) != len(p):
-            raise ValueError(f"view {v}: {len(o)} object points but {len(p)} image points")
-        bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
-        if bad.size:
-            raise CalibrationError(
-                f"view {v}: {bad.size} image point(s) are NaN/inf (indices {bad[:10].tolist()}"
-                f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
-        if not np.all(np.isfinite(o)):
-            raise CalibrationError(f"view {v}: object points contain NaN/inf")
-        out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
-        if out.size:
-            raise CalibrationError(
-                f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
-                f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
-                f"image_size or a bad detection")
-        scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
-        if np.max(np.abs(o[:, 2])) > 1e-9 * scale:
-            raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
-                                   f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
-        if len(o) < 6:
-            raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least 6 (a pose has 6 parameters "
-                                   f"and the homography 8). Remove the view or detect more points")
-        obj.append(o)
-        img.append(p)
-    if len(obj) < 3:
-        raise CalibrationError(f"{len(obj)} usable view(s); calibration needs at least 3 views of the board "
-                               f"(10-20 well-tilted views recommended)")
-    return obj, img, w, h
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -642,7 +591,7 @@ def calibrate(
     6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
     unobservable (e.g. boards nearly parallel to the image plane), naming those views.
     """
-    obj, img, w, h = _check_inputs(object_points, image_points, image_size)
+    obj, img, (w, h) = check_observations(object_points, image_points, image_size)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
     fixed: list[str] = []
     if fix_aspect_ratio:

@@ -25,11 +25,10 @@ from typing import Sequence
 
 import numpy as np
 
+from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.model import Camera
 
 __all__ = [
-    "CalibrationError",
-    "DegenerateViewsError",
     "ZhangResult",
     "homography",
     "homographies",
@@ -39,20 +38,6 @@ __all__ = [
     "view_tilts_deg",
     "zhang",
 ]
-
-
-class CalibrationError(ValueError):
-    """The observations cannot give a trustworthy camera model (the message says why and what is needed)."""
-
-
-class DegenerateViewsError(CalibrationError):
-    """The views leave the focal length (or the principal point) unobservable, e.g. all boards nearly
-    fronto-parallel. ``views`` lists the offending view indices, ``condition`` the condition number measured."""
-
-    def __init__(self, message: str, views: list[int], condition: float):
-        super().__init__(message)
-        self.views = views
-        self.condition = condition
 
 
 @dataclass(frozen=True)

@@ -107,7 +107,7 @@ def _problem(n_views: int = 8, seed: int = 0) -> tuple[list, list, tuple[int, in
     obj, img = [], []
     for _ in range(n_views):
         r = np.array([*np.deg2rad(rng.uniform(-35, 35, 2)), rng.uniform(-0.3, 0.3)])
-        t = np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(250, 350)]) - rodrigues(r) @ board.center_mm()
+        t = np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(250, 350)]) - rodrigues(r) @ board.centre_mm()
         obj.append(P.astype(np.float32).astype(np.float64))
         img.append((project(P, r, t, cam) + rng.normal(0, 0.02, (len(P), 2))).astype(np.float32).astype(np.float64))
     return obj, img, (cam.width, cam.height), cam

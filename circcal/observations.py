@@ -1,0 +1,104 @@
+"""Point correspondences of a planar board, checked once: the rules every solver in circcal (its own and every
+reference adapter's) takes its input under.
+
+Observations are per view: ``object_points`` (N_v, 3) board coordinates in mm with z = 0 (an (N_v, 2) array is
+taken as z = 0; OpenCV's (N_v, 1, 3) is accepted), ``image_points`` (N_v, 2) px in OpenCV's convention (integer
+coordinates are pixel centres; (N_v, 1, 2) accepted), and one ``image_size`` (width, height) in pixels. Views may
+hold different subsets of the board's points.
+"""
+from __future__ import annotations
+
+import numbers
+from typing import Sequence
+
+import numpy as np
+
+from circcal.errors import CalibrationError, InputError
+
+__all__ = ["MIN_VIEWS", "MIN_POINTS_PER_VIEW", "PLANAR_TOL", "check_image_size", "check_observations"]
+
+#: Views a calibration needs at the least: Zhang's closed form needs 2 for the four intrinsics, and a third view is
+#: the least that leaves the distortion and the poses any redundancy (10-20 well-tilted views are what a good
+#: calibration uses).
+MIN_VIEWS = 3
+#: Points a view needs at the least: a pose has 6 parameters and a board homography 8, so with fewer than 6 points a
+#: view adds (almost) nothing to the intrinsics beyond its own pose.
+MIN_POINTS_PER_VIEW = 6
+#: Board points must lie on z = 0 to this fraction of the board's extent (a planar target; the solver's closed-form
+#: start assumes it). 1e-9 leaves room for float rounding of board coordinates only.
+PLANAR_TOL = 1e-9
+
+
+def check_image_size(image_size: object) -> tuple[int, int]:
+    """``(width, height)`` as two positive integers (numpy integers and integral floats accepted; booleans, NaN and
+    fractions refused). Raises :class:`~circcal.errors.InputError` saying what was given."""
+    try:
+        w, h = image_size  # type: ignore[misc]
+    except (TypeError, ValueError):
+        raise InputError(f"image_size must be (width, height) in pixels, got {image_size!r}") from None
+    out = []
+    for v in (w, h):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not np.isfinite(float(v)) \
+                or float(v) != int(v) or int(v) <= 0:
+            raise InputError(f"image_size must be (width, height) as positive integers, got {image_size!r}")
+        out.append(int(v))
+    return out[0], out[1]
+
+
+def check_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                       image_size: object, *, min_views: int = MIN_VIEWS
+                       ) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
+    """Check and normalise observations; raises :class:`~circcal.errors.CalibrationError` (an ``InputError``)
+    naming the view and what is wrong.
+
+    Returns float64 copies: object points (N_v, 3) mm, image points (N_v, 2) px, and ``(width, height)``.
+    Refused: a different number of object- and image-point views, fewer than ``min_views`` views, a view whose two
+    arrays differ in length or shape, fewer than :data:`MIN_POINTS_PER_VIEW` points, NaN/inf, image points outside
+    the image (pixel centres run 0..W-1, so the image spans -0.5..W-0.5), board points off the plane z = 0.
+    """
+    w, h = check_image_size(image_size)
+    if len(object_points) != len(image_points):
+        raise CalibrationError(f"got {len(object_points)} object-point sets but {len(image_points)} image-point "
+                               f"sets; expected one of each per view")
+    obj, img = [], []
+    for v, (o, p) in enumerate(zip(object_points, image_points)):
+        o = np.asarray(o, dtype=np.float64)
+        p = np.asarray(p, dtype=np.float64)
+        if o.ndim == 3 and o.shape[1] == 1:  # OpenCV's (N, 1, 3)
+            o = o[:, 0]
+        if p.ndim == 3 and p.shape[1] == 1:
+            p = p[:, 0]
+        if o.ndim == 2 and o.shape[1] == 2:
+            o = np.concatenate([o, np.zeros((len(o), 1))], axis=1)
+        if o.ndim != 2 or o.shape[1] != 3:
+            raise CalibrationError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise CalibrationError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
+        if len(o) != len(p):
+            raise CalibrationError(f"view {v}: {len(o)} object points but {len(p)} image points")
+        bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+        if bad.size:
+            raise CalibrationError(
+                f"view {v}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
+                f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
+        if not np.all(np.isfinite(o)):
+            raise CalibrationError(f"view {v}: object points contain NaN/inf (non-finite)")
+        if len(o) < MIN_POINTS_PER_VIEW:
+            raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
+                                   f"has 6 parameters and the homography 8). Remove the view or detect more points")
+        out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
+        if out.size:
+            raise CalibrationError(
+                f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
+                f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
+                f"image_size or a bad detection")
+        scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
+        if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
+            raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
+                                   f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
+        obj.append(o)
+        img.append(p)
+    if len(obj) < min_views:
+        raise CalibrationError(f"{len(obj)} usable view(s); calibration needs at least {min_views} views of the "
+                               f"board (10-20 well-tilted views recommended)")
+    return obj, img, (w, h)

@@ -1,0 +1,52 @@
+"""The observations every reference calibrator fits: circcal's final centres, rounded to float32, and circcal's own
+solver run once more on exactly those points (what each reference is compared with).
+
+Why the rounding: OpenCV takes float32 points only, and on a weakly conditioned problem (k3 at a long focal length)
+that rounding alone moves the answer by ~5e-3 px at the image corners. So every solver gets the same rounded points,
+and the identical-observations agreement (1e-6 px) is measured against circcal's solver on those, not against the
+model circcal fitted to its float64 centres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from circcal.solver import CalibrationResult, calibrate
+
+__all__ = ["SharedObservations", "share", "ssr"]
+
+
+def ssr(residuals: list[np.ndarray] | None) -> float:
+    """Sum of squared residuals (px^2) over every view. NaN entries (points a reference dropped as outliers) make it
+    NaN: such a cost is not comparable with a plain least-squares one."""
+    if not residuals:
+        return float("nan")
+    return float(sum(np.sum(np.asarray(r, dtype=np.float64) ** 2) for r in residuals))
+
+
+@dataclass
+class SharedObservations:
+    """``object_points`` (N_v, 3) mm and ``image_points`` (N_v, 2) px per view, float32-rounded and back to
+    float64; ``image_size`` (W, H); ``result``: circcal's solver on exactly these points, started from circcal's
+    final model."""
+
+    object_points: list[np.ndarray]
+    image_points: list[np.ndarray]
+    image_size: tuple[int, int]
+    result: CalibrationResult
+
+    @property
+    def ssr(self) -> float:
+        return ssr(self.result.residuals)
+
+
+def share(cal: Any, board: Any, **options: Any) -> SharedObservations:
+    """The shared observations of a :class:`circcal.pipeline.ImagesCalibration` of ``board``; ``options`` go to
+    :func:`circcal.solver.calibrate` (the same as the calibration's, e.g. ``fix_k3``)."""
+    obj, img = cal.observations(board)
+    obj = [np.asarray(o, np.float32).astype(np.float64) for o in obj]
+    img = [np.asarray(p, np.float32).astype(np.float64) for p in img]
+    size = (cal.result.camera.width, cal.result.camera.height)
+    return SharedObservations(obj, img, size, calibrate(obj, img, size, initial=cal.result.camera, **options))
