@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import ast
 import json
-import math
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from circcal.jsonio import dumps
 from circcal.model import Camera
 
 __all__ = [
@@ -126,7 +126,7 @@ def write_camera(path: str | Path, camera: Camera, fmt: str | None = None, *, mo
     fmt = fmt or detect_format(p)
     if fmt == "json":
         data = model_json if model_json is not None else camera_to_model_json(camera)
-        p.write_text(json.dumps(_json_safe(data), indent=2) + "\n")
+        p.write_text(dumps(data, indent=2) + "\n")
     elif fmt == "opencv":
         write_opencv_yaml(p, camera)
     elif fmt == "mrcal":
@@ -138,20 +138,6 @@ def write_camera(path: str | Path, camera: Camera, fmt: str | None = None, *, mo
     else:
         raise ValueError(f"unknown camera format {fmt!r}; expected one of {', '.join(FORMATS)}")
     return fmt
-
-
-def _json_safe(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 # --------------------------------------------------------------------------------------------------------------------

@@ -19,9 +19,9 @@ from circcal import detector as det_mod
 from circcal.detector import Reason, Rejection
 from circcal.errors import CalibrationError, InputError
 from circcal.observations import MIN_VIEWS
-from circcal.solver import CalibrationResult, calibrate
+from circcal.solver import CalibrationResult, calibrate, leave_one_out
 
-__all__ = ["ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections"]
+__all__ = ["ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections"]
 
 
 class TooFewImagesError(CalibrationError):
@@ -161,3 +161,22 @@ def calibrate_detections(
             warnings.warn(f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
                           f"(last shift {rounds[-1]['max_centre_shift_px']:.3g} px)", RuntimeWarning, stacklevel=3)
     return result, centres, rounds
+
+
+def holdout_detections(detections: Sequence[Any], board, image_size: tuple[int, int], **options: Any
+                       ) -> list[dict[str, Any]]:
+    """Leave-one-view-out prediction through the whole loop: each view k predicted by the model that
+    :func:`calibrate_detections` makes from the other views (``options`` go there, e.g. ``refine_board``), with view
+    k's centres re-corrected under that model (the detector ran without a model, so a detection does not depend on
+    the other views) and its board points that model's (refined) ones. ``detections``: found ones, one per view.
+    See :func:`circcal.solver.leave_one_out` for what comes back."""
+    board_pts = board.object_points()
+
+    def fit(rest: list[int]):
+        return calibrate_detections([detections[i] for i in rest], board, image_size, **options)[0]
+
+    def held_out(k: int, res: CalibrationResult):
+        obj, img = _points_of(det_mod.recorrect(detections[k], board, res.camera), board_pts)
+        return res.board_lookup(obj), img, res.camera
+
+    return leave_one_out(len(detections), fit, held_out)

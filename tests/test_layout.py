@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -50,8 +51,20 @@ def test_import_contract_holds_and_covers_every_module():
 def test_wheel_installs_only_circcal(tmp_path):
     """``pip install .`` installs the import package circcal and nothing else at the top level; the validators and
     fixtures folders arrive as circcal.validators and circcal.fixtures."""
+    # built from a copy of what git would commit (so a build leaves nothing in the checkout, and a file that is
+    # not added cannot make the test pass); links are copied as links
+    src = tmp_path / "src"
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True,
+                           text=True, check=True).stdout.split()
+    for f in files:
+        dest = src / f
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        if (REPO / f).is_symlink():
+            dest.symlink_to(os.readlink(REPO / f))
+        elif (REPO / f).is_file():
+            shutil.copy2(REPO / f, dest)
     run = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
-                          "-w", str(tmp_path), str(REPO)], capture_output=True, text=True, timeout=300,
+                          "-w", str(tmp_path), str(src)], capture_output=True, text=True, timeout=300,
                          cwd=tmp_path)
     assert run.returncode == 0, run.stdout + run.stderr
     (wheel,) = tmp_path.glob("circcal-*.whl")

@@ -17,6 +17,7 @@ from typing import Any, Callable, Literal, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from circcal.jsonio import jsonable
 from circcal.metrics import error_stats
 from circcal.model import Camera, project
 from circcal.observations import check_observations
@@ -28,7 +29,6 @@ __all__ = [
     "ReferenceCalibrator",
     "BaseCalibrator",
     "run_safely",
-    "jsonable",
     "residuals_of",
     "DIVERGED_RMS_PX",
     "seed_camera",
@@ -115,26 +115,6 @@ class ReferenceResult:
             "views": self.views,
             "extra": jsonable(self.extra),
         }
-
-
-def jsonable(x: Any) -> Any:
-    """JSON-ready copy: dicts/lists recursed, numpy arrays and scalars -> Python, non-finite floats -> None (JSON
-    has no NaN), :class:`circcal.model.Camera` -> its ``camera`` block."""
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, Camera):
-        return x.to_dict()
-    if isinstance(x, np.ndarray):
-        return jsonable(x.tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if np.isfinite(x) else None
-    return x
 
 
 @runtime_checkable

@@ -18,9 +18,10 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.errors import InputError
+from circcal.jsonio import jsonable
 from circcal.model import PARAM_NAMES, Camera
 from circcal.validators import registry
-from circcal.validators.base import ReferenceResult, jsonable
+from circcal.validators.base import ReferenceResult
 from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement,
                                        truth_checks)
 from circcal.validators.compare import param_diff, projection_diff

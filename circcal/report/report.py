@@ -31,9 +31,9 @@ import numpy as np
 
 from circcal import atomic
 from circcal.board import Board
+from circcal.jsonio import jsonable
 from circcal.metrics import error_stats
 from circcal.model import PARAM_NAMES, Camera, project
-from circcal.validators.base import jsonable
 
 __all__ = ["ReportConfig", "FULL", "QUICK", "PAPER_PUBLISHED", "compute", "write_report", "generate",
            "paper_conditions", "checkerboard_conditions", "bias_study", "realdata_study", "FIGURES"]

@@ -1,7 +1,8 @@
 """The solver: Zhang's closed form, then Levenberg-Marquardt over intrinsics, distortion and every board pose, with
-the covariance of the result (see :mod:`circcal.solver.calibrate`)."""
+the covariance of the result (:mod:`circcal.solver.calibrate`); held-out prediction (:mod:`circcal.solver.holdout`)."""
 from circcal.errors import CalibrationError, DegenerateViewsError
-from circcal.solver.calibrate import CalibrationResult, calibrate, fit_pose, holdout_errors
+from circcal.solver.calibrate import CalibrationResult, calibrate
+from circcal.solver.holdout import fit_pose, holdout_errors, leave_one_out, prediction_error
 
 __all__ = ["CalibrationError", "CalibrationResult", "DegenerateViewsError", "calibrate", "fit_pose",
-           "holdout_errors"]
+           "holdout_errors", "leave_one_out", "prediction_error"]

@@ -1,0 +1,84 @@
+"""How well a calibration predicts views it was not fitted to: a view's pose fitted with the intrinsics held
+(:func:`fit_pose`), the residual of that prediction (:func:`prediction_error`), and the leave-one-view-out loop
+(:func:`leave_one_out`) that every held-out check in circcal runs through (the solver's own, the images pipeline's
+with re-correction, and any reference calibrator's).
+
+A model that only fits its own views well (over-fitted distortion, a bias absorbed into the intrinsics) predicts
+held-out views worse; the residual of a held-out view has 2N - 6 degrees of freedom (its pose is fitted).
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from circcal.errors import CalibrationError, InputError
+from circcal.metrics import error_stats
+from circcal.model import Camera, project
+from circcal.solver.calibrate import calibrate
+
+__all__ = ["fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
+
+
+def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The board pose that best explains one view with ``camera`` held fixed.
+
+    ``object_points``: (N, 3) mm on the board (z = 0, or the near-planar points of a refined board);
+    ``image_points``: (N, 2) px. IPPE start from the points flattened onto z = 0, then OpenCV's Levenberg-Marquardt
+    refinement with the actual points to convergence. Returns ``rvec`` (3,) rad, ``tvec`` (3,) mm;
+    :class:`~circcal.errors.CalibrationError` when no pose is found.
+    """
+    import cv2
+
+    o = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    flat = o.copy()
+    flat[:, :, 2] = 0.0
+    ok, rvec, tvec = cv2.solvePnP(flat, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
+    rvec, tvec = cv2.solvePnPRefineLM(o, p, camera.K, camera.dist, rvec, tvec,
+                                      (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15))
+    return rvec.reshape(3), tvec.reshape(3)
+
+
+def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> dict[str, float]:
+    """:func:`circcal.metrics.error_stats` of ``image_points`` (N, 2) px against ``object_points`` (N, 3) mm
+    projected with ``camera`` at the pose :func:`fit_pose` finds (6 pose parameters fitted, intrinsics held)."""
+    img = np.asarray(image_points, dtype=np.float64)
+    rvec, tvec = fit_pose(object_points, img, camera)
+    return error_stats(img - project(np.asarray(object_points, dtype=np.float64), rvec, tvec, camera))
+
+
+def leave_one_out(n_views: int, fit: Callable[[list[int]], Any],
+                  held_out: Callable[[int, Any], tuple[np.ndarray, np.ndarray, Camera]]) -> list[dict[str, Any]]:
+    """For each view k of ``n_views``: ``model = fit(every other view's index)``, then ``(object_points,
+    image_points, camera) = held_out(k, model)`` (the held-out view's points as that model sees them, e.g. its
+    centres re-corrected under it and its refined board points) and their :func:`prediction_error`.
+
+    Returns one dict per view: ``{"view": k, **error_stats}``, or ``{"view": k, "failed": why}`` where the other
+    views give no model or the view no pose (an :class:`~circcal.errors.InputError`; anything else propagates).
+    """
+    out: list[dict[str, Any]] = []
+    for k in range(n_views):
+        try:
+            model = fit([i for i in range(n_views) if i != k])
+            obj, img, camera = held_out(k, model)
+            out.append({"view": k, **prediction_error(obj, img, camera)})
+        except InputError as exc:
+            out.append({"view": k, "failed": f"{type(exc).__name__}: {exc}"})
+    return out
+
+
+def holdout_errors(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                   image_size: tuple[int, int], **options: Any) -> list[dict[str, Any]]:
+    """Leave-one-view-out check of :func:`~circcal.solver.calibrate` on fixed observations: each view predicted by
+    the model calibrated on all the others (``options`` go to ``calibrate``; with ``refine_board=True`` the view's
+    board points are that model's refined ones). See :func:`leave_one_out` for what comes back."""
+    def fit(rest: list[int]):
+        return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, **options)
+
+    def held_out(k: int, res) -> tuple[np.ndarray, np.ndarray, Camera]:
+        return res.board_lookup(np.asarray(object_points[k], dtype=np.float64)), image_points[k], res.camera
+
+    return leave_one_out(len(object_points), fit, held_out)
