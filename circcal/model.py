@@ -22,21 +22,28 @@ Conventions
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from circcal.errors import InputError
+from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
+
 __all__ = [
     "Camera",
     "DIST_NAMES",
     "PARAM_NAMES",
-    "rodrigues",
     "transform",
     "distort",
     "distort_jacobian",
     "undistort",
     "project",
+    "project_jacobian",
+    "project_camera",
+    "project_camera_jacobian",
+    "unproject",
     "pixel_to_normalized",
     "normalized_to_pixel",
     "undistort_pixels",
@@ -52,8 +59,10 @@ PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy") + DIST_NAMES
 class Camera:
     """Intrinsics of a pinhole camera with OpenCV 5-coefficient distortion.
 
-    ``width``/``height`` in pixels; ``fx, fy, cx, cy`` in pixels (OpenCV pixel-centre convention);
-    ``dist`` = ``[k1, k2, p1, p2, k3]`` (unitless, on normalised coordinates).
+    ``width``/``height`` in pixels (positive integers); ``fx, fy, cx, cy`` in pixels (OpenCV pixel-centre
+    convention; finite, focal lengths positive); ``dist`` = ``[k1, k2, p1, p2, k3]`` (unitless, on normalised
+    coordinates; finite). Every value is checked on construction (:class:`~circcal.errors.InputError` naming the
+    field): a camera that exists holds only values that project.
     """
 
     width: int
@@ -65,14 +74,30 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
 
     def __post_init__(self) -> None:
-        d = np.asarray(self.dist, dtype=np.float64).reshape(-1)
-        if d.size != 5:
-            raise ValueError(f"dist must hold 5 coefficients [k1, k2, p1, p2, k3], got {d.size}")
-        object.__setattr__(self, "dist", d)
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not _is_number(v) or not np.isfinite(float(v)) or float(v) != int(v) or int(v) <= 0:
+                raise InputError(f"camera {name} must be a positive integer (pixels), got {v!r}")
+            object.__setattr__(self, name, int(v))
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            if not _is_number(v) or not np.isfinite(float(v)):
+                raise InputError(f"camera {name} must be a finite number (pixels), got {v!r}")
+            object.__setattr__(self, name, float(v))
         if not (self.fx > 0 and self.fy > 0):
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+            raise InputError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        raw = self.dist
+        if isinstance(raw, (str, bytes, dict)) or (np.ndim(raw) == 0 and raw is not None):
+            raise InputError(f"camera dist must be a list of {len(DIST_NAMES)} numbers {list(DIST_NAMES)}, "
+                             f"got {raw!r}")
+        items = list(np.ravel(np.asarray(raw, dtype=object))) if raw is not None else None
+        if items is None or len(items) != len(DIST_NAMES):
+            raise InputError(f"camera dist must hold {len(DIST_NAMES)} coefficients {list(DIST_NAMES)}, got "
+                             f"{0 if items is None else len(items)}")
+        for name, v in zip(DIST_NAMES, items):
+            if not _is_number(v) or not np.isfinite(float(v)):
+                raise InputError(f"camera distortion {name} must be a finite number, got {v!r}")
+        object.__setattr__(self, "dist", np.array([float(v) for v in items], dtype=np.float64))
 
     @property
     def K(self) -> np.ndarray:
@@ -104,37 +129,19 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Camera":
-        """Read a ``camera`` block; raises ``ValueError`` naming the missing key."""
+        """Read a ``camera`` block; every value is checked (see the class) and a missing key named
+        (:class:`~circcal.errors.InputError`)."""
+        if not isinstance(d, dict):
+            raise InputError(f"a camera block must be a mapping, got {type(d).__name__}")
         missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy", "dist") if k not in d]
         if missing:
-            raise ValueError(f"camera block lacks {', '.join(missing)}")
-        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]),
-                   float(d["cy"]), np.asarray(d["dist"], dtype=np.float64))
+            raise InputError(f"camera block lacks {', '.join(missing)}")
+        return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], d["dist"])
 
 
-def rodrigues(rvec: np.ndarray) -> np.ndarray:
-    """Rotation matrices from axis-angle vectors.
-
-    ``rvec``: (..., 3) radians. Returns (..., 3, 3). Exact (series form) for tiny angles.
-    """
-    r = np.asarray(rvec, dtype=np.float64)
-    theta2 = np.sum(r * r, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
-    small = theta2 < 1e-16
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    zero = np.zeros(r.shape[:-1])
-    kx = np.stack(
-        [
-            np.stack([zero, -r[..., 2], r[..., 1]], -1),
-            np.stack([r[..., 2], zero, -r[..., 0]], -1),
-            np.stack([-r[..., 1], r[..., 0], zero], -1),
-        ],
-        -2,
-    )
-    eye = np.broadcast_to(np.eye(3), kx.shape)
-    return eye + a * kx + b * (kx @ kx)
+def _is_number(v: Any) -> bool:
+    """A real number that is not a boolean (``True`` is an int in Python, and no camera value)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
 def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
@@ -143,20 +150,33 @@ def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndar
     return np.asarray(points, dtype=np.float64) @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
 
 
+def _brown(x: np.ndarray, y: np.ndarray, dist: np.ndarray, jacobian: bool):
+    """The distortion polynomial, written once: ``(xd, yd)`` of normalised ``(x, y)`` (same-shape arrays), and with
+    ``jacobian`` also ``radial`` and the 2x2 Jacobian ``d(xd, yd)/d(x, y)`` as ``(a, b, c)`` =
+    ``[[a, b], [b, c]]`` (it is symmetric)."""
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xy2 = 2.0 * x * y
+    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    if not jacobian:
+        return xd, yd
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    b = xy2 * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    c = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return xd, yd, radial, a, b, c
+
+
 def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Apply Brown distortion to normalised coordinates.
 
     ``xn``: (..., 2) undistorted normalised coordinates; ``dist``: (5,) k1, k2, p1, p2, k3.
     Returns (..., 2) distorted normalised coordinates.
     """
-    k1, k2, p1, p2, k3 = np.asarray(dist, dtype=np.float64)
-    x = xn[..., 0]
-    y = xn[..., 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xy2 = 2.0 * x * y
-    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    xn = np.asarray(xn, dtype=np.float64)
+    xd, yd = _brown(xn[..., 0], xn[..., 1], np.asarray(dist, dtype=np.float64), False)
     return np.stack([xd, yd], axis=-1)
 
 
@@ -166,20 +186,15 @@ def distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.n
     ``xn``: (..., 2), ``dist``: (5,). Returns ``(xd, J_x, J_d)``: xd (..., 2); ``J_x`` = d xd / d xn, (..., 2, 2);
     ``J_d`` = d xd / d [k1, k2, p1, p2, k3], (..., 2, 5).
     """
-    k1, k2, p1, p2, k3 = np.asarray(dist, dtype=np.float64)
-    x = xn[..., 0]
-    y = xn[..., 1]
+    xn = np.asarray(xn, dtype=np.float64)
+    x, y = xn[..., 0], xn[..., 1]
+    xd, yd, _, a, b, c = _brown(x, y, np.asarray(dist, dtype=np.float64), True)
+    J_x = np.empty(x.shape + (2, 2))
+    J_x[..., 0, 0] = a
+    J_x[..., 0, 1] = J_x[..., 1, 0] = b
+    J_x[..., 1, 1] = c
     r2 = x * x + y * y
     r4 = r2 * r2
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    dradial = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4  # d radial / d r2
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    J_x = np.empty(x.shape + (2, 2))
-    J_x[..., 0, 0] = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
-    J_x[..., 0, 1] = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-    J_x[..., 1, 0] = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-    J_x[..., 1, 1] = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
     J_d = np.empty(x.shape + (2, 5))
     J_d[..., 0, 0] = x * r2
     J_d[..., 0, 1] = x * r4
@@ -194,19 +209,9 @@ def distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.n
     return np.stack([xd, yd], axis=-1), J_x, J_d
 
 
-def _distort_jx(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
-    """Distortion and its 2x2 Jacobian w.r.t. the normalised point, as separate 1-D arrays (Newton's inner loop)."""
-    k1, k2, p1, p2, k3 = dist
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    xy = x * y
-    fx = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
-    fy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
-    off = 2.0 * xy * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
-    d = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
-    return fx, fy, a, off, d
+#: A Newton step of :func:`undistort` that does not lower a point's residual is halved, at most this many times
+#: before the point is declared beyond the lens's fold (NaN).
+_MAX_STEP_HALVINGS = 40
 
 
 def undistort(
@@ -237,7 +242,7 @@ def undistort(
     tx, ty = t[:, 0].copy(), t[:, 1].copy()
     x, y = out[:, 0].copy(), out[:, 1].copy()
     thr = tol * np.maximum(1.0, np.maximum(np.abs(tx), np.abs(ty)))
-    fx, fy, a, b, c = _distort_jx(x, y, d)
+    fx, fy, _, a, b, c = _brown(x, y, d, True)
     rx, ry = fx - tx, fy - ty
     err = np.maximum(np.abs(rx), np.abs(ry))
     for _ in range(max_iter):
@@ -255,9 +260,9 @@ def undistort(
         sx = (c * rx - b * ry) / det
         sy = (a * ry - b * rx) / det
         lam = np.ones_like(x)
-        for _ in range(40):
+        for _ in range(_MAX_STEP_HALVINGS):
             nx, ny = x - lam * sx, y - lam * sy
-            fx, fy, na, nb, nc = _distort_jx(nx, ny, d)
+            fx, fy, _, na, nb, nc = _brown(nx, ny, d, True)
             nrx, nry = fx - tx, fy - ty
             nerr = np.maximum(np.abs(nrx), np.abs(nry))
             worse = ~(nerr <= err)  # also catches NaN
@@ -265,7 +270,7 @@ def undistort(
                 break
             lam = np.where(worse, 0.5 * lam, lam)
         x, y, a, b, c, rx, ry, err = nx, ny, na, nb, nc, nrx, nry, nerr
-        if worse.any():  # no descent even after 40 halvings: no inverse here (the model folds over)
+        if worse.any():  # no descent even after every halving: no inverse here (the model folds over)
             out[idx[worse]] = np.nan
             keep = ~worse
             idx, tx, ty, x, y, thr, a, b, c, rx, ry, err = (
@@ -274,12 +279,60 @@ def undistort(
         out[idx] = np.nan
     # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no
     # inverse of a real lens: report it as NaN.
-    k1, k2, _, _, k3 = d
-    r2 = out[:, 0] ** 2 + out[:, 1] ** 2
-    _, _, a, b, c = _distort_jx(out[:, 0], out[:, 1], d)
-    bad = ((1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) <= 0) | ((a * c - b * b) <= 0)
+    _, _, radial, a, b, c = _brown(out[:, 0], out[:, 1], d, True)
+    bad = (radial <= 0) | ((a * c - b * b) <= 0)
     out[bad] = np.nan
     return out.reshape(shape)
+
+
+def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) -> pixels, with derivatives: the projection of :func:`project` after the pose.
+
+    ``params``: (9,) intrinsics in :data:`PARAM_NAMES` order (:attr:`Camera.intrinsics`). Returns ``(uv (N, 2) px,
+    J_intr (N, 2, 9) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
+    """
+    fx, fy = params[0], params[1]
+    iz = 1.0 / Xc[:, 2]
+    xn = Xc[:, :2] * iz[:, None]
+    xd, Jx, Jd = distort_jacobian(xn, params[4:9])
+    n = len(Xc)
+    uv = np.empty((n, 2))
+    uv[:, 0] = fx * xd[:, 0] + params[2]
+    uv[:, 1] = fy * xd[:, 1] + params[3]
+    Ji = np.zeros((n, 2, 9))
+    Ji[:, 0, 0] = xd[:, 0]
+    Ji[:, 1, 1] = xd[:, 1]
+    Ji[:, 0, 2] = 1.0
+    Ji[:, 1, 3] = 1.0
+    Ji[:, 0, 4:] = fx * Jd[:, 0, :]
+    Ji[:, 1, 4:] = fy * Jd[:, 1, :]
+    # d uv / d Xc = diag(f) Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
+    A = Jx * np.array([fx, fy])[None, :, None]
+    J_X = np.empty((n, 2, 3))
+    J_X[:, :, 0] = A[:, :, 0] * iz[:, None]
+    J_X[:, :, 1] = A[:, :, 1] * iz[:, None]
+    J_X[:, :, 2] = -(A[:, :, 0] * xn[:, 0:1] + A[:, :, 1] * xn[:, 1:2]) * iz[:, None]
+    return uv, Ji, J_X
+
+
+def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`project` with derivatives, for one view.
+
+    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 9) with respect to
+    fx, fy, cx, cy, k1, k2, p1, p2, k3; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
+    """
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
+    uv, Ji, J_X = project_camera_jacobian(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics)
+    return uv, Ji, np.concatenate([rotated_jacobian(J_X, Y) @ left_jacobian(r), J_X], axis=2)
+
+
+def project_camera(P: np.ndarray, camera: Camera) -> np.ndarray:
+    """Camera-frame points or rays (N, 3) -> pixels (N, 2); NaN for points at or behind the camera (z <= 0)."""
+    P = np.asarray(P, dtype=np.float64)
+    z = np.where(P[:, 2] > 0, P[:, 2], np.nan)
+    return normalized_to_pixel(distort(P[:, :2] / z[:, None], camera.dist), camera)
 
 
 def project(
@@ -295,6 +348,13 @@ def project(
     Xc = transform(points, rvec, tvec)
     xn = Xc[:, :2] / Xc[:, 2:3]
     return normalized_to_pixel(distort(xn, camera.dist), camera)
+
+
+def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
+    """Pixels (N, 2) -> rays (N, 3) with z = 1 (undistorted normalised coordinates); NaN where the distortion has no
+    unique inverse (see :func:`undistort`)."""
+    xn = undistort(pixel_to_normalized(uv, camera), camera.dist)
+    return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
 
 
 def pixel_to_normalized(uv: np.ndarray, camera: Camera) -> np.ndarray:

@@ -6,8 +6,8 @@ import pytest
 
 from circcal.board import Board
 from circcal.solver.calibrate import (CalibrationError, DegenerateViewsError, _normal_blocks, _Problem, _schur_step,
-                                      calibrate, project_jacobian)
-from circcal.model import PARAM_NAMES, Camera, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
+                                      calibrate)
+from circcal.model import PARAM_NAMES, Camera, project_jacobian, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
 from circcal.fixtures.poses import sample_poses
 
 BOARD = Board(7, 7, 10.0, 5.0)

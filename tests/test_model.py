@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from circcal.model import (Camera, distort, distort_jacobian, project, rodrigues, undistort, undistort_pixels,
+from circcal.rotation import rodrigues
+from circcal.model import (Camera, distort, distort_jacobian, project, undistort, undistort_pixels,
                            distort_pixels)
 from circcal.fixtures.scenarios import SCENARIOS
 

@@ -91,6 +91,6 @@ def test_pose_sampler_is_deterministic_and_calibration_like():
     # centre and all four image quadrants are used
     quads = {(cx > cam.width / 2, cy > cam.height / 2) for cx, cy in centres}
     assert len(quads) == 4
-    from circcal.model import rodrigues
+    from circcal.rotation import rodrigues
     tilts = [np.degrees(np.arccos(abs(rodrigues(r)[2, 2]))) for r, _ in a]
     assert max(tilts) > 30 and max(tilts) <= 50 + 15  # tilt about the line of sight + off-axis angle

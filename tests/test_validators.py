@@ -17,7 +17,8 @@ import pytest
 from conftest import skip_unless_available
 
 from circcal.board import Board
-from circcal.model import Camera, project, rodrigues
+from circcal.model import Camera, project
+from circcal.rotation import rodrigues
 from circcal.validators import registry
 from circcal.validators.base import BaseCalibrator, ReferenceResult, run_safely
 from circcal.validators.compare import param_diff, projection_diff

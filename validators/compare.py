@@ -21,15 +21,13 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.metrics import error_stats, per_coord_to_per_point, per_point_to_per_coord
-from circcal.model import PARAM_NAMES, Camera, distort, normalized_to_pixel, pixel_to_normalized, undistort
+from circcal.model import PARAM_NAMES, Camera, project_camera, unproject
+from circcal.rotation import fit_rotation
 
 __all__ = [
     "param_diff",
     "projection_diff",
     "pixel_grid",
-    "unproject",
-    "project_rays",
-    "fit_rotation",
     "match_grid_order",
     "match_views",
     "centre_errors",
@@ -75,35 +73,6 @@ def pixel_grid(camera: Camera, gridn_width: int = 60, gridn_height: int | None =
     return np.stack([u.ravel(), v.ravel()], axis=-1)
 
 
-def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Pixels (N, 2) -> rays (N, 3) with z = 1 (undistorted normalised coordinates); NaN where the distortion has no
-    unique inverse (see :func:`circcal.model.undistort`)."""
-    xn = undistort(pixel_to_normalized(uv, camera), camera.dist)
-    return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
-
-
-def project_rays(P: np.ndarray, camera: Camera) -> np.ndarray:
-    """Camera-frame points or rays (N, 3) -> pixels (N, 2) (NaN for points at or behind the camera)."""
-    P = np.asarray(P, dtype=np.float64)
-    z = np.where(P[:, 2] > 0, P[:, 2], np.nan)
-    xn = P[:, :2] / z[:, None]
-    return normalized_to_pixel(distort(xn, camera.dist), camera)
-
-
-def fit_rotation(A: np.ndarray, B: np.ndarray, *, translation: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid alignment ``B ~ R A + t`` (Kabsch). ``A``, ``B``: (N, 3). Without ``translation`` the
-    points are not centred (aligning unit vectors: rotation only) and t = 0. Returns (R (3, 3), t (3,))."""
-    A = np.asarray(A, dtype=np.float64)
-    B = np.asarray(B, dtype=np.float64)
-    ca = A.mean(axis=0) if translation else np.zeros(3)
-    cb = B.mean(axis=0) if translation else np.zeros(3)
-    M = (B - cb).T @ (A - ca)
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ D @ Vt
-    return R, cb - R @ ca
-
-
 def projection_diff(a: Camera, b: Camera, *, gridn_width: int = 60, distance: float | None = None,
                     fit: bool = False, margin_px: float = 0.0) -> dict[str, Any]:
     """Pixel difference between two models over the imager of ``a``.
@@ -136,7 +105,7 @@ def projection_diff(a: Camera, b: Camera, *, gridn_width: int = 60, distance: fl
         # R, t map a's frame into b's: b sees a's point X at R X + t
         R, t = fit_rotation(Pa[good], Pb[good], translation=distance is not None)
         # refine in pixel space would change the criterion; mrcal also fits in 3-D, so stop here
-    qb = project_rays(Pa @ R.T + t, b)
+    qb = project_camera(Pa @ R.T + t, b)
     d = np.linalg.norm(qb - uv, axis=1)
     valid = np.isfinite(d)
     dv = d[valid]

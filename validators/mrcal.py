@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from circcal.metrics import error_stats
-from circcal.model import Camera, project, rodrigues
+from circcal.model import Camera, project
+from circcal.rotation import rodrigues
 from circcal.observations import check_observations
 from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, \
     seed_camera

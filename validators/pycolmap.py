@@ -21,7 +21,8 @@ import time
 
 import numpy as np
 
-from circcal.model import PARAM_NAMES, Camera, project, rodrigues
+from circcal.model import PARAM_NAMES, Camera, project
+from circcal.rotation import rodrigues
 from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
 
 __all__ = ["PycolmapCalibrator", "MODELS"]

@@ -20,7 +20,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def summarize(name: str) -> None:
     """Print the scenario's camera, board and per-variant geometry: dot sizes, tilts, blob-centroid bias."""
-    from circcal.model import project, rodrigues
+    from circcal.model import project
+    from circcal.rotation import rodrigues
     from circcal.fixtures.render import area_centroids
     from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
 

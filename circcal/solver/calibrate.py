@@ -24,7 +24,8 @@ import numpy as np
 
 from circcal.metrics import error_stats
 from circcal.observations import check_observations
-from circcal.model import PARAM_NAMES, Camera, distort_jacobian, rodrigues
+from circcal.model import PARAM_NAMES, Camera, project_camera_jacobian
+from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.solver.zhang import view_tilts_deg, zhang
 
@@ -33,103 +34,12 @@ __all__ = [
     "DegenerateViewsError",
     "CalibrationResult",
     "calibrate",
-    "rotate_jacobian",
-    "project_jacobian",
 ]
 
 #: A free focal length whose standard deviation per 1 px of per-coordinate noise exceeds this fraction of itself is
 #: called unobservable (DegenerateViewsError). Well-spread 14-view sets give ~0.005; boards all within a few degrees
 #: of fronto-parallel 0.5 and more.
 MAX_UNIT_REL_STD_F = 0.2
-
-
-# --------------------------------------------------------------------------------------------------------------------
-# Derivatives
-# --------------------------------------------------------------------------------------------------------------------
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x``."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
-def _left_jacobian(rvec: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3) (..., 3, 3) at axis-angle ``rvec`` (..., 3):
-    ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0)."""
-    r = np.asarray(rvec, dtype=np.float64)
-    t2 = np.sum(r * r, axis=-1)[..., None, None]
-    t = np.sqrt(t2)
-    small = t2 < 1e-10
-    safe = np.where(small, 1.0, t)
-    a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
-    K = _skew(r)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def rotate_jacobian(rvec: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotated points and their derivative with respect to the axis-angle vector.
-
-    ``rvec``: (3,) radians; ``points``: (N, 3). Returns ``(Y, dY)``: ``Y = R(rvec) X`` (N, 3) and
-    ``dY = d Y / d rvec`` (N, 3, 3) = ``-[Y]x J_l(rvec)`` with :func:`_left_jacobian` (the derivative of a rotation
-    perturbed on the left, ``R(r + dr) = Exp(J_l(r) dr) R(r)``).
-    """
-    r = np.asarray(rvec, dtype=np.float64).reshape(3)
-    Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
-    return Y, -_skew(Y) @ _left_jacobian(r)
-
-
-def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`circcal.model.project` with derivatives, for one view.
-
-    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 9) with respect to
-    fx, fy, cx, cy, k1, k2, p1, p2, k3; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
-    """
-    r = np.asarray(rvec, dtype=np.float64).reshape(3)
-    Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
-    uv, Ji, dP = _project_jac(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics)
-    return uv, Ji, np.concatenate([_rotation_block(dP, Y) @ _left_jacobian(r), dP], axis=2)
-
-
-def _rotation_block(dP: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """``dP (-[Y]x)`` (N, 2, 3) for d uv / d Xc ``dP`` (N, 2, 3) and rotated points ``Y`` (N, 3): row k is
-    ``Y x dP_k``. Times the left Jacobian of the view's rvec it is d uv / d rvec (:func:`rotate_jacobian`)."""
-    a0, a1, a2 = dP[:, :, 0], dP[:, :, 1], dP[:, :, 2]
-    y0, y1, y2 = Y[:, 0:1], Y[:, 1:2], Y[:, 2:3]
-    out = np.empty_like(dP)
-    out[:, :, 0] = y1 * a2 - y2 * a1
-    out[:, :, 1] = y2 * a0 - y0 * a2
-    out[:, :, 2] = y0 * a1 - y1 * a0
-    return out
-
-
-def _project_jac(Xc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Camera-frame points (N, 3) -> (uv (N, 2), J_intr (N, 2, 9), dP = d uv / d Xc (N, 2, 3))."""
-    fx, fy = p[0], p[1]
-    iz = 1.0 / Xc[:, 2]
-    xn = Xc[:, :2] * iz[:, None]
-    xd, Jx, Jd = distort_jacobian(xn, p[4:9])
-    n = len(Xc)
-    uv = np.empty((n, 2))
-    uv[:, 0] = fx * xd[:, 0] + p[2]
-    uv[:, 1] = fy * xd[:, 1] + p[3]
-    Ji = np.zeros((n, 2, 9))
-    Ji[:, 0, 0] = xd[:, 0]
-    Ji[:, 1, 1] = xd[:, 1]
-    Ji[:, 0, 2] = 1.0
-    Ji[:, 1, 3] = 1.0
-    Ji[:, 0, 4:] = fx * Jd[:, 0, :]
-    Ji[:, 1, 4:] = fy * Jd[:, 1, :]
-    # d uv / d Xc = diag(f) Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-    A = Jx * np.array([fx, fy])[None, :, None]
-    dP = np.empty((n, 2, 3))
-    dP[:, :, 0] = A[:, :, 0] * iz[:, None]
-    dP[:, :, 1] = A[:, :, 1] * iz[:, None]
-    dP[:, :, 2] = -(A[:, :, 0] * xn[:, 0:1] + A[:, :, 1] * xn[:, 1:2]) * iz[:, None]
-    return uv, Ji, dP
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -358,15 +268,15 @@ class _Problem:
         p = self.intrinsics(x)
         rv, tv = self.poses(x)
         R = rodrigues(rv)
-        Jl = _left_jacobian(rv)
+        Jl = left_jacobian(rv)
         X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
         Y = np.empty_like(X)
         for v, sl in enumerate(self.slices):
             np.matmul(X[sl], R[v].T, out=Y[sl])
         Xc = Y + np.repeat(tv, self.counts, axis=0)
-        uv, Ji, dP = _project_jac(Xc, p)
+        uv, Ji, dP = project_camera_jacobian(Xc, p)
         f = (uv - self.uv).ravel()
-        C = _rotation_block(dP, Y)
+        C = rotated_jacobian(dP, Y)
         Jp = np.empty((len(X), 2, 6))
         for v, sl in enumerate(self.slices):
             np.matmul(C[sl], Jl[v], out=Jp[sl, :, :3])

@@ -26,7 +26,9 @@ from typing import Sequence
 import numpy as np
 
 from circcal.errors import CalibrationError, DegenerateViewsError
-from circcal.model import Camera
+from circcal.metrics import error_stats
+from circcal.model import Camera, normalized_to_pixel, pixel_to_normalized, project, transform, undistort
+from circcal.rotation import rodrigues
 
 __all__ = [
     "ZhangResult",
@@ -232,8 +234,6 @@ def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.n
 
 def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
     """Angle (deg) between each board's normal and the optical axis, (V,) from rvecs (V, 3)."""
-    from circcal.model import rodrigues
-
     R = rodrigues(np.asarray(rvecs, dtype=np.float64).reshape(-1, 3))
     return np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
 
@@ -241,14 +241,12 @@ def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
 def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.ndarray:
     """Linear least-squares (k1, k2) given intrinsics and poses (Zhang 2000, sec. 3.3): observed pixel offsets from
     the ideal projections are ``(u - cx) (k1 r^2 + k2 r^4)``."""
-    from circcal.model import transform
-
     rows, rhs = [], []
     for o, p, r, t in zip(object_points, image_points, rvecs, tvecs):
         Xc = transform(o, r, t)
         xn = Xc[:, :2] / Xc[:, 2:3]
         r2 = np.sum(xn * xn, axis=1)
-        ideal = np.column_stack([camera.fx * xn[:, 0] + camera.cx, camera.fy * xn[:, 1] + camera.cy])
+        ideal = normalized_to_pixel(xn, camera)
         d = ideal - np.array([camera.cx, camera.cy])
         rows.append(np.stack([d * r2[:, None], d * (r2 * r2)[:, None]], axis=-1).reshape(-1, 2))
         rhs.append((np.asarray(p, dtype=np.float64) - ideal).reshape(-1))
@@ -257,11 +255,10 @@ def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.
 
 
 def _rms(object_points, image_points, camera, rvecs, tvecs) -> float:
-    from circcal.model import project
-
+    """RMS reprojection error per coordinate (px); inf when a point does not project."""
     r = np.concatenate([project(o, rv, tv, camera) - p for o, p, rv, tv in
                         zip(object_points, image_points, rvecs, tvecs)])
-    return float(np.sqrt(np.mean(r * r))) if np.all(np.isfinite(r)) else float("inf")
+    return error_stats(r)["rms_per_coord_px"] if np.all(np.isfinite(r)) else float("inf")
 
 
 def zhang(
@@ -289,8 +286,6 @@ def zhang(
     Raises :class:`DegenerateViewsError` when no positive-definite conic exists (e.g. all views fronto-parallel),
     naming the views tilted less than ``min_tilt_deg``.
     """
-    from circcal.model import pixel_to_normalized, undistort
-
     w, h = image_size
     obj = [np.asarray(o, dtype=np.float64) for o in object_points]
     img = [np.asarray(p, dtype=np.float64) for p in image_points]
@@ -307,7 +302,7 @@ def zhang(
             if not np.all(np.isfinite(und)):
                 break
             x_prev = und
-            pts = np.split(np.column_stack([und[:, 0] * cam0.fx + cam0.cx, und[:, 1] * cam0.fy + cam0.cy]), splits)
+            pts = np.split(normalized_to_pixel(und, cam0), splits)
         else:
             pts = img
         try:

@@ -20,7 +20,8 @@ import pytest
 from conftest import skip_unless_available
 
 from circcal.board import Board
-from circcal.model import Camera, project, rodrigues
+from circcal.model import Camera, project
+from circcal.rotation import rodrigues
 from circcal.validators import conformance
 from circcal.validators.base import ReferenceResult
 from circcal.validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator, solver_tolerance

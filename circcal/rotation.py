@@ -1,0 +1,83 @@
+"""Rotations as axis-angle vectors (OpenCV's ``rvec``): the matrix, its derivative, and the best rotation between
+two point sets.
+
+Convention: ``R(rvec)`` is Rodrigues' formula, ``rvec`` in radians (its direction the axis, its length the angle),
+as ``cv2.Rodrigues``. Derivatives perturb a rotation on the left: ``R(r + dr) = Exp(J_l(r) dr) R(r)`` to first
+order, with :func:`left_jacobian` ``J_l``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["rodrigues", "skew", "left_jacobian", "rotated_jacobian", "fit_rotation"]
+
+#: Below this squared angle (rad^2) the closed forms switch to their Taylor series (the division by t^2 loses
+#: precision there; the series terms kept are exact to double precision).
+_SMALL_ANGLE2_ROTATION = 1e-16
+_SMALL_ANGLE2_JACOBIAN = 1e-10
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x`` (``[v]x w = v x w``)."""
+    v = np.asarray(v, dtype=np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def rodrigues(rvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices from axis-angle vectors: ``rvec`` (..., 3) radians -> (..., 3, 3). Exact (series form) for
+    tiny angles. Equals ``cv2.Rodrigues``."""
+    r = np.asarray(rvec, dtype=np.float64)
+    theta2 = np.sum(r * r, axis=-1)[..., None, None]
+    theta = np.sqrt(theta2)
+    small = theta2 < _SMALL_ANGLE2_ROTATION
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    kx = skew(r)
+    eye = np.broadcast_to(np.eye(3), kx.shape)
+    return eye + a * kx + b * (kx @ kx)
+
+
+def left_jacobian(rvec: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) (..., 3, 3) at axis-angle ``rvec`` (..., 3):
+    ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0)."""
+    r = np.asarray(rvec, dtype=np.float64)
+    t2 = np.sum(r * r, axis=-1)[..., None, None]
+    t = np.sqrt(t2)
+    small = t2 < _SMALL_ANGLE2_JACOBIAN
+    safe = np.where(small, 1.0, t)
+    a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
+    K = skew(r)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def rotated_jacobian(J_Y: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``J_Y (-[Y]x)`` (N, k, 3): the derivative of a function of the rotated points ``Y = R X`` (N, 3) with respect
+    to a left perturbation of the rotation, given its derivative ``J_Y`` (N, k, 3) with respect to ``Y``. Row j is
+    ``Y x J_Y[:, j]``. Times :func:`left_jacobian` of the rotation's rvec it is the derivative with respect to rvec."""
+    a0, a1, a2 = J_Y[:, :, 0], J_Y[:, :, 1], J_Y[:, :, 2]
+    y0, y1, y2 = Y[:, 0:1], Y[:, 1:2], Y[:, 2:3]
+    out = np.empty_like(J_Y)
+    out[:, :, 0] = y1 * a2 - y2 * a1
+    out[:, :, 1] = y2 * a0 - y0 * a2
+    out[:, :, 2] = y0 * a1 - y1 * a0
+    return out
+
+
+def fit_rotation(A: np.ndarray, B: np.ndarray, *, translation: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rigid alignment ``B ~ R A + t`` of (N, 3) point sets (Kabsch, through scipy's
+    ``Rotation.align_vectors``). Without ``translation`` the points are not centred (aligning directions: rotation
+    only) and t = 0. Returns ``(R (3, 3), t (3,))``."""
+    from scipy.spatial.transform import Rotation
+
+    A = np.asarray(A, dtype=np.float64)
+    B = np.asarray(B, dtype=np.float64)
+    ca = A.mean(axis=0) if translation else np.zeros(3)
+    cb = B.mean(axis=0) if translation else np.zeros(3)
+    rot, _ = Rotation.align_vectors(B - cb, A - ca)
+    R = rot.as_matrix()
+    return R, cb - R @ ca
