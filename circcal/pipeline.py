@@ -18,6 +18,7 @@ import numpy as np
 from circcal import detector as det_mod
 from circcal.detector import Reason, Rejection
 from circcal.errors import CalibrationError, InputError
+from circcal.formats import model_json
 from circcal.observations import MIN_VIEWS
 from circcal.solver import CalibrationResult, calibrate, leave_one_out
 
@@ -49,6 +50,14 @@ class ImagesCalibration:
     failed: list[Rejection]
     rounds: list[dict] = field(default_factory=list)
     centres: list[np.ndarray] = field(default_factory=list)
+
+    def to_model_json(self, board) -> dict[str, Any]:
+        """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out
+        (path, reason code, reason) and the re-correction rounds."""
+        return model_json(self.result.camera, **self.result.model_sections(), board=board.to_dict(),
+                          failed_images=[{"path": r.path, "reason_code": r.code.value, "reason": r.reason}
+                                         for r in self.failed],
+                          recorrection_rounds=self.rounds)
 
     def observations(self, board) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """(object_points, image_points) per used view: the final centres with their board points (finite only),

@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.solver.calibrate import (CalibrationError, DegenerateViewsError, _normal_blocks, _Problem, _schur_step,
-                                      calibrate)
+from circcal.errors import CalibrationError, DegenerateViewsError
+from circcal.solver import calibrate
+from circcal.solver.lm import normal_blocks, schur_step
+from circcal.solver.problem import Problem
 from circcal.model import PARAM_NAMES, Camera, project_jacobian, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
 from circcal.fixtures.poses import sample_poses
 
@@ -103,12 +105,12 @@ def test_is_the_least_squares_minimum(seed, k1, cv2_single_thread):
     # raw OpenCV is within 1e-5 px everywhere (seed 0 here: 1.9e-6 px at the image corners, k3 3.9e-6 relative off)
     assert max_projection_difference(Camera.from_intrinsics(W, H, ref), res.camera) <= 1e-5
     np.testing.assert_allclose(res.camera.intrinsics[:4], ref[:4], rtol=1e-8)
-    prob = _Problem(obj, img, ref, list(range(9)), None)
+    prob = Problem(obj, img, ref, list(range(9)), None)
     x = prob.pack(ref, rv, tv)
     starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
     for _ in range(4):
         f, _, Ji, Jp = prob.evaluate(x)
-        x = x + _schur_step(*_normal_blocks(prob, f, Ji, Jp, starts), 0.0)
+        x = x + schur_step(*normal_blocks(prob, f, Ji, Jp, starts), 0.0)
     polished = prob.intrinsics(x)
     scale = np.maximum(np.abs(polished), 1e-3)
     assert np.max(np.abs(polished - res.camera.intrinsics) / scale) < 1e-9

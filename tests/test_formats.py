@@ -177,7 +177,7 @@ def test_model_json_keeps_result(tmp_path):
     model = {"format": "circcal-model", "camera": CAM.to_dict(), "std": {"fx": 0.5},
              "errors": {"rms_per_point_px": 0.1}}
     p = tmp_path / "model.json"
-    write_camera(p, CAM, model_json=model)
+    write_camera(p, CAM, document=model)
     assert json.loads(p.read_text())["std"]["fx"] == 0.5
     same(CAM, read_camera(p))
 

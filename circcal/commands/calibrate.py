@@ -97,11 +97,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
         return 1
     print(format_summary(cal))
-    model = cal.result.to_model_json()
-    model["board"] = board.to_dict()
-    model["failed_images"] = [{"path": r.path, "reason_code": r.code.value, "reason": r.reason} for r in cal.failed]
-    model["recorrection_rounds"] = cal.rounds
+    model = cal.to_model_json(board)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_camera(args.out, cal.result.camera, fmt, model_json=model)
+    write_camera(args.out, cal.result.camera, fmt, document=model)
     print(f"wrote {args.out} ({fmt})")
     return 0

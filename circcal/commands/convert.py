@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         # keep the whole model.json (std, errors, poses) when converting json -> json
         if args.input.suffix.lower() == ".json":
             model_json = json.loads(args.input.read_text())
-    fmt = write_camera(args.output, camera, args.to_fmt, model_json=model_json, colmap_model=args.colmap_model)
+    fmt = write_camera(args.output, camera, args.to_fmt, document=model_json, colmap_model=args.colmap_model)
     print(f"{args.input} -> {args.output} ({fmt}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
           f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
     return 0

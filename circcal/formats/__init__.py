@@ -1,0 +1,145 @@
+"""Camera-model files: circcal's model.json and the formats other tools read, one module per format.
+
+Every format here holds the same 5-coefficient OpenCV model (:class:`circcal.model.Camera`); a format that cannot
+hold a given camera exactly is refused with a clear error rather than written lossily.
+
+=================  ==========================================================================================
+format             module and file
+=================  ==========================================================================================
+``json``           :mod:`~circcal.formats.modeljson`: circcal model.json (the truth.json ``camera`` block plus
+                   ``std``, errors, per-view poses, ...)
+``opencv``         :mod:`~circcal.formats.opencv`: OpenCV ``cv2.FileStorage`` YAML (or .xml)
+``mrcal``          :mod:`~circcal.formats.mrcal`: mrcal ``.cameramodel`` (``LENSMODEL_OPENCV5``)
+``colmap``         :mod:`~circcal.formats.colmap`: COLMAP ``cameras.txt`` (``OPENCV`` / ``FULL_OPENCV``; +0.5 px)
+``ros``            :mod:`~circcal.formats.ros`: ROS ``camera_info`` YAML (``plumb_bob``)
+=================  ==========================================================================================
+
+:func:`read_camera` (every command reads models through it) and :func:`write_camera` pick the format from the file
+name and, for reading, its content. Reading checks every value and names the file and the field in its error
+(:class:`~circcal.errors.ModelFileError`); writing is atomic (a temporary file in the same folder, then a rename),
+so a failed write leaves an earlier file as it was.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from circcal import atomic
+from circcal.errors import InputError, ModelFileError
+from circcal.formats.colmap import COLMAP_PIXEL_OFFSET, camera_from_colmap, camera_to_colmap
+from circcal.formats.modeljson import MODEL_FORMAT, MODEL_SECTIONS, MODEL_VERSION, camera_from_json, model_json
+from circcal.formats.mrcal import camera_from_cameramodel, camera_to_cameramodel
+from circcal.formats.opencv import camera_from_K_dist, camera_from_opencv_yaml, opencv_yaml_text
+from circcal.formats.ros import camera_from_ros_yaml, camera_to_ros_yaml
+from circcal.jsonio import dumps
+from circcal.model import Camera
+
+__all__ = [
+    "FORMATS", "detect_format", "read_camera", "read_model", "write_camera", "model_json", "camera_from_json",
+    "MODEL_FORMAT", "MODEL_VERSION", "MODEL_SECTIONS", "COLMAP_PIXEL_OFFSET", "opencv_yaml_text",
+    "camera_from_opencv_yaml", "camera_from_K_dist", "camera_to_cameramodel", "camera_from_cameramodel",
+    "camera_to_colmap", "camera_from_colmap", "camera_to_ros_yaml", "camera_from_ros_yaml",
+]
+
+FORMATS: tuple[str, ...] = ("json", "opencv", "mrcal", "colmap", "ros")
+
+def detect_format(path: str | Path, text: str | None = None) -> str:
+    """Format of a camera file from its name and (when ``text`` is given) its content. Returns one of
+    :data:`FORMATS`; raises :class:`~circcal.errors.InputError` when neither tells."""
+    p = Path(path)
+    ext = p.suffix.lower()
+    name = p.name.lower()
+    if text is not None:
+        head = text.lstrip()
+        if head.startswith("{") and ext != ".cameramodel":
+            try:
+                json.loads(text)
+                return "json"
+            except json.JSONDecodeError:
+                pass
+        if "lensmodel" in text and "intrinsics" in text:
+            return "mrcal"
+        if head.startswith("%YAML") or "opencv-matrix" in text or head.startswith("<?xml"):
+            return "opencv"
+        if re.search(r"^\s*(distortion_model|camera_matrix|K)\s*:", text, re.M):
+            return "ros"
+        if re.search(r"^\s*\d+\s+(OPENCV|FULL_OPENCV|PINHOLE|SIMPLE_PINHOLE|SIMPLE_RADIAL|RADIAL)\s", text, re.M):
+            return "colmap"
+    if ext == ".json":
+        return "json"
+    if ext == ".cameramodel":
+        return "mrcal"
+    if ext == ".txt":
+        return "colmap"
+    if ext == ".xml":
+        return "opencv"
+    if ext in (".yaml", ".yml"):
+        return "ros" if ("camera_info" in name or "ros" in re.split(r"[._\-]", name)) else "opencv"
+    raise InputError(f"cannot tell the camera format of {p.name!r}: use .json (circcal), .yaml/.yml/.xml (OpenCV; "
+                     f"ROS camera_info when the name holds 'camera_info'), .cameramodel (mrcal) or .txt (COLMAP "
+                     f"cameras.txt), or name the format ({', '.join(FORMATS)})")
+
+
+
+
+def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict | None]:
+    """The camera in ``path`` (any supported format: ``fmt``, else from its content and name) and, for a
+    model.json, the whole document (None for the other formats). Errors name the file: a missing or unreadable
+    file, an unknown format, a malformed file or a value outside the model (:class:`~circcal.errors.ModelFileError`,
+    an :class:`~circcal.errors.InputError`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ModelFileError(f"camera file {p}: {'no such file' if not p.exists() else 'not a file'}")
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"camera file {p}: cannot read it ({exc})") from None
+    try:
+        fmt = fmt or detect_format(p, text)
+        if fmt == "json":
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise ModelFileError(f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") \
+                    from None
+            return camera_from_json(data), data
+        readers = {"opencv": camera_from_opencv_yaml, "mrcal": camera_from_cameramodel,
+                   "colmap": camera_from_colmap, "ros": camera_from_ros_yaml}
+        if fmt not in readers:
+            raise InputError(f"unknown camera format {fmt!r}; expected one of {', '.join(FORMATS)}")
+        return readers[fmt](text), None
+    except InputError as exc:  # the reader's and the camera's own checks: say which file
+        raise ModelFileError(f"camera file {p} ({fmt or 'unknown format'}): {exc}") from None
+
+
+def read_camera(path: str | Path, fmt: str | None = None) -> Camera:
+    """The camera in ``path``: :func:`read_model` without the document."""
+    return read_model(path, fmt)[0]
+
+
+def write_camera(path: str | Path, camera: Camera, fmt: str | None = None, *, document: dict | None = None,
+                 colmap_model: str = "auto", name: str = "camera") -> str:
+    """Write ``camera`` to ``path`` in ``fmt`` (default: from the file name), atomically. For ``json``,
+    ``document`` (a :func:`~circcal.formats.modeljson.model_json` document, e.g. from
+    :meth:`circcal.pipeline.ImagesCalibration.to_model_json`) is written when given, its camera block replaced by
+    ``camera``'s, else the bare camera block. ``colmap_model``: ``"auto"`` (OPENCV when k3 = 0, else FULL_OPENCV),
+    ``"OPENCV"`` or ``"FULL_OPENCV"``. Returns the format written."""
+    p = Path(path)
+    fmt = fmt or detect_format(p)
+    if fmt == "json":
+        doc = dict(document) if document is not None else model_json(camera)
+        doc["camera"] = camera.to_dict()
+        text = dumps(doc, indent=2) + "\n"
+    elif fmt == "opencv":
+        text = opencv_yaml_text(camera, xml=p.suffix.lower() == ".xml")
+    elif fmt == "mrcal":
+        text = camera_to_cameramodel(camera)
+    elif fmt == "colmap":
+        text = camera_to_colmap(camera, model=colmap_model)
+    elif fmt == "ros":
+        text = camera_to_ros_yaml(camera, name=name)
+    else:
+        raise InputError(f"unknown camera format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    atomic.write_text(p, text)
+    return fmt
