@@ -19,6 +19,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from circcal.errors import InputError
+
 Layout = Literal["symmetric", "asymmetric", "checkerboard"]
 LAYOUTS: tuple[str, ...] = ("symmetric", "asymmetric", "checkerboard")
 
@@ -51,15 +53,15 @@ class Board:
 
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
-            raise ValueError(f"unknown layout {self.layout!r}; expected one of {', '.join(LAYOUTS)}")
+            raise InputError(f"unknown layout {self.layout!r}; expected one of {', '.join(LAYOUTS)}")
         if self.rows < 2 or self.cols < 2:
-            raise ValueError(f"a grid needs at least 2x2 points, got {self.rows}x{self.cols}")
+            raise InputError(f"a grid needs at least 2x2 points, got {self.rows}x{self.cols}")
         if self.pitch_mm <= 0:
-            raise ValueError(f"pitch must be positive, got {self.pitch_mm} mm")
+            raise InputError(f"pitch must be positive, got {self.pitch_mm} mm")
         if self.layout != "checkerboard":
             spacing = self.pitch_mm * (2 ** 0.5 if self.layout == "asymmetric" else 1.0)
             if not 0 < self.diameter_mm < spacing:
-                raise ValueError(
+                raise InputError(
                     f"dot diameter {self.diameter_mm} mm must be positive and below the nearest-neighbour "
                     f"spacing {spacing:.3g} mm (dots would touch)")
 

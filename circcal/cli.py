@@ -3,14 +3,26 @@
 Each module there exposes ``add_parser(subparsers)``, which registers its subcommand and sets ``func`` (taking the
 parsed ``argparse.Namespace`` and returning an exit code). Modules import their heavy dependencies lazily so
 ``circcal --help`` stays fast.
+
+Exit codes (:mod:`circcal.errors`): 0 done; 1 the job's answer is negative (a check failed, no model, an image
+without its grid); 2 bad input (the message names it); 70 a bug in circcal (the traceback is printed: please
+report it); 130 interrupted.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import sys
+import traceback
 
-# Order shown in --help. A module that is not there yet is skipped.
+from circcal.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERNAL_ERROR,
+    EXIT_INTERRUPTED,
+    InputError,
+)
+
+#: Subcommands, in the order ``--help`` shows them.
 COMMANDS = ("demo", "render", "detect", "calibrate", "convert", "validate", "report")
 
 
@@ -19,16 +31,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog="circcal",
         description="Circle-grid camera calibration with unbiased centres, and cross-validation against "
                     "reference calibrators. Reprojection errors name their convention: per point (2-D, "
-                    "OpenCV's RMS), per coordinate (mrcal's RMS) or mean 2-D (the paper's).")
+                    "OpenCV's RMS), per coordinate (mrcal's RMS) or mean 2-D (the paper's).",
+        epilog="Exit codes: 0 done, 1 negative answer (a check failed, no model), 2 bad input, 70 internal error "
+               "(a bug: the traceback is printed), 130 interrupted.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"circcal.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"circcal.commands.{name}":
-                continue
-            raise
-        module.add_parser(sub)
+        importlib.import_module(f"circcal.commands.{name}").add_parser(sub)
     return parser
 
 
@@ -37,15 +45,21 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_BAD_INPUT
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, FileNotFoundError) as exc:  # user-facing input errors: one clear line, no traceback
-        print(f"circcal {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_INTERRUPTED
+    except (InputError, OSError) as exc:  # what an input can cause: one clear line, no traceback
+        what = f"{exc.filename}: {exc.strerror}" if isinstance(exc, OSError) and exc.filename else str(exc)
+        print(f"circcal {args.command}: error: {what}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception:  # noqa: BLE001 - a bug: keep its traceback, and an exit code of its own
+        traceback.print_exc()
+        print(f"circcal {args.command}: internal error (a bug in circcal, not in your input); please report it "
+              f"with the traceback above", file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
 
 
 if __name__ == "__main__":

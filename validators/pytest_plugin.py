@@ -28,7 +28,6 @@ A summary of every case (key numbers, including those measured and not asserted)
 """
 from __future__ import annotations
 
-import fcntl
 import importlib
 import importlib.util
 import inspect
@@ -41,7 +40,9 @@ from typing import Any, Callable
 
 import numpy as np
 import pytest
+from filelock import FileLock
 
+from circcal import atomic
 from circcal.model import Camera
 from circcal.validators.base import BaseCalibrator, ReferenceResult
 
@@ -287,15 +288,12 @@ class ObservationCache:
         else:
             self.shared.mkdir(parents=True, exist_ok=True)
             f = self.shared / f"{scenario}--{variant}.pkl"
-            with open(self.shared / f"{scenario}--{variant}.lock", "w") as lock:
-                fcntl.flock(lock, fcntl.LOCK_EX)
+            with FileLock(self.shared / f"{scenario}--{variant}.lock"):
                 if f.exists():
                     obs = pickle.loads(f.read_bytes())
                 else:
                     obs = observe(scenario, variant)
-                    tmp = f.with_suffix(".tmp")
-                    tmp.write_bytes(pickle.dumps(obs))
-                    tmp.replace(f)
+                    atomic.write_bytes(f, pickle.dumps(obs))
         self.memory[key] = obs
         return obs
 

@@ -5,6 +5,8 @@ import argparse
 import shutil
 from pathlib import Path
 
+from circcal.errors import InputError
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="render a fixture scenario (images + truth.json)",
@@ -29,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{'':22s}{s.description}")
         return 0 if args.list else 2
     if args.out is None:
-        raise ValueError("--out DIR is required")
+        raise InputError("--out DIR is required")
     sc = get_scenario(args.scenario)
     variants = args.variant or list(sc.variants)
     for v in variants:

@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    board_from_args,
+    parse_grid,
+    parse_length_mm,
+)
+from circcal.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,16 +49,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
-    from circcal.validators.validate import Bounds, format_table, run_validation, write_report
+    from circcal.fixtures.scenarios import (
+        DEFAULT_SCENARIO,
+        fixture_dir,
+        get_scenario,
+        load_truth,
+    )
+    from circcal.validators.validate import (
+        Bounds,
+        format_table,
+        run_validation,
+        write_report,
+    )
 
     against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
     truth_cam = None
     if args.images:
         if args.scenario or args.fixtures:
-            raise ValueError("give a scenario, --fixtures or --images, not several")
+            raise InputError("give a scenario, --fixtures or --images, not several")
         if args.grid is None or args.pitch is None:
-            raise ValueError("--images needs --grid ROWSxCOLS and --pitch")
+            raise InputError("--images needs --grid ROWSxCOLS and --pitch")
         board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
         paths = sorted(args.images)
         source = {"images": [str(p) for p in paths]}
