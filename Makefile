@@ -8,7 +8,7 @@ STAMP   := $(VENV)/.circcal-setup-stamp
 TORCH   := torch==2.13.0
 JOBS    ?= 2
 
-.PHONY: setup demo test bench study conformance mrcal mrcal-2.5 clean
+.PHONY: setup demo test bench study conformance mrcal mrcal-2.5 clean clean-cache
 
 setup: $(STAMP)
 
@@ -59,5 +59,11 @@ conformance: setup
 bench: setup
 	$(VPY) -m benchmarks.run
 
+# The environment and build outputs. The rendered fixtures are cached outside the checkout, where
+# circcal.fixtures.scenarios.cache_root() puts them: `make clean-cache` removes them (they re-render on demand).
+FIXTURE_CACHE = $(or $(CIRCCAL_CACHE),$(HOME)/.cache/circcal)/fixtures
 clean:
-	rm -rf $(VENV) .fixture-cache .pytest_cache build *.egg-info
+	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info
+
+clean-cache:
+	rm -rf "$(FIXTURE_CACHE)"
