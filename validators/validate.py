@@ -24,7 +24,7 @@ from circcal.validators import registry
 from circcal.validators.base import ReferenceResult
 from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement,
                                        truth_checks)
-from circcal.validators.compare import param_diff, projection_diff
+from circcal.validators.compare import GRID_WIDTH, param_diff, projection_diff
 from circcal.validators.shared import SharedObservations, share
 
 __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_report"]
@@ -204,8 +204,8 @@ def format_table(run: ValidationRun) -> str:
     lines.append(f"validation: {src}; board {run.board.rows}x{run.board.cols} {run.board.layout}; "
                  f"observations: {run.observations}")
     lines.append("errors: rms/pt = OpenCV's RMS (2-D per point), rms/coord = mrcal's (per coordinate), mean2d = "
-                 "the paper's mean error; projection differences over a 60-wide pixel grid of the whole image "
-                 "(vs truth: implied rotation fitted; vs circcal: none)")
+                 f"the paper's mean error; projection differences over a {GRID_WIDTH}-wide pixel grid of the whole "
+                 "image (vs truth: implied rotation fitted; vs circcal: none)")
     if run.observations == "circcal":
         lines.append("references fit circcal's final centres rounded to float32 (OpenCV's input type); 'vs circcal' "
                      "compares with circcal's solver on exactly those points")
