@@ -198,7 +198,7 @@ def _canonical(Q: np.ndarray) -> np.ndarray:
 
 
 def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
-    """Conic of the ellipse with ``center`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
+    """Conic of the ellipse with ``centre`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
     ``a`` axis from the image x axis (towards +y). Returned scaled so that ``x^T Q x = -1`` at the centre."""
     return conic_from_params_batch(np.asarray(centre, dtype=np.float64).reshape(1, 2),
                                    np.asarray(axes, dtype=np.float64).reshape(1, 2), np.array([float(angle)]))[0]
@@ -236,7 +236,7 @@ def conic_centres(Q: np.ndarray) -> np.ndarray:
 
 
 def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]:
-    """Inverse of :func:`conic_from_params`: ``(center (2,), (a, b) with a >= b, angle of a in (-pi/2, pi/2])``.
+    """Inverse of :func:`conic_from_params`: ``(centre (2,), (a, b) with a >= b, angle of a in (-pi/2, pi/2])``.
 
     Raises ``ValueError`` if ``Q`` is not a real ellipse.
     """
@@ -247,7 +247,7 @@ def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]
 
 
 def conic_params_batch(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Batched :func:`conic_params` for ``Q`` (D, 3, 3): ``(centers (D, 2), axes (D, 2) as (a, b) with a >= b,
+    """Batched :func:`conic_params` for ``Q`` (D, 3, 3): ``(centres (D, 2), axes (D, 2) as (a, b) with a >= b,
     angles (D,) in (-pi/2, pi/2], ok (D,) bool)``; rows that are not real ellipses have ``ok`` false (and NaN
     values) instead of raising. Closed form: the centre from a 2x2 solve, axes and angle from the closed-form
     eigen-decomposition of the symmetric 2x2 block."""

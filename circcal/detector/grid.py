@@ -28,6 +28,36 @@ from circcal.board import Board
 
 __all__ = ["canonical_order", "order_grid", "orientation_sign"]
 
+LATTICE_TOLERANCE = 0.3
+"""The direct ordering of a symmetric grid (:func:`_order_lattice`) takes a candidate as a grid node's when the
+homography from the hull corners puts it within this many cells of the node (under perspective it lands on its node
+up to noise; at 0.5 a candidate could be taken for either of two nodes; strong distortion fails and falls back)."""
+SIZE_CLASS_FACTOR = 6.0
+"""The dominant size class: candidates whose area is within this factor of the median candidate area either way
+(~2.4x in radius: more than perspective usually makes a board's dots differ)."""
+DRAW_RADIUS_SPACING = 0.35
+"""Dots are drawn on the canvas with their own radius, at most this share of the distance to the nearest other
+candidate, so two drawn blobs never touch."""
+CANVAS_MARGIN_RADII = 3.0
+"""The canvas covers the candidates plus this many drawn radii ..."""
+CANVAS_MARGIN_PX = 20.0
+"""... plus this many px (the blob detector and grid finder see the blobs as on a full-size canvas)."""
+DRAW_SHIFT = 2
+"""Fractional bits of the drawn circles' centres and radii (``cv2.circle`` ``shift``: quarter pixels)."""
+DRAW_MIN_RADIUS_PX = 1.0
+"""The smallest drawn radius (px), so that a tiny candidate still draws a blob."""
+MATCH_MIN_PX = 1.5
+"""A grid-finder position belongs to the candidate nearest it when within ``max(MATCH_MIN_PX, MATCH_RADIUS_SHARE *
+drawn radius)``: OpenCV's blob centres of the drawn disks lie within a fraction of a pixel of ours."""
+MATCH_RADIUS_SHARE = 0.5
+BLOB_THRESHOLDS = (60, 200, 40)
+"""OpenCV blob detector on the binary canvas: thresholds from, to, step (grey levels), ..."""
+BLOB_MIN_REPEATABILITY = 2
+"""... a blob must be seen at this many thresholds (with 1, OpenCV reports the whole canvas as a blob), ..."""
+BLOB_AREA_MARGIN_PX = 2.0
+"""... and may be up to 4x the area of the largest drawn disk grown by this (px): a larger limit lets OpenCV take
+the canvas background for a blob and merge it with a dot."""
+
 
 def orientation_sign(board: Board, centres: np.ndarray) -> float:
     """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centres``
@@ -43,11 +73,11 @@ def orientation_sign(board: Board, centres: np.ndarray) -> float:
 
 
 def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
-    """Indices ``idx`` (N,) so that ``centers[idx]`` follows the orientation rule of this module.
+    """Indices ``idx`` (N,) so that ``centres[idx]`` follows the orientation rule of this module.
 
     ``centres``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
     One homography is fitted: relabelling by a board symmetry ``S`` composes it with ``S`` (the least-squares fit of
-    the relabelled points is ``H S``), so a labelling's orientation sign is ``orientation_sign(centers) * det S``.
+    the relabelled points is ``H S``), so a labelling's orientation sign is ``orientation_sign(centres) * det S``.
     """
     centres = np.asarray(centres, dtype=np.float64)
     s0 = orientation_sign(board, centres)
@@ -64,7 +94,7 @@ def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
     return best.copy()
 
 
-def _order_lattice(board: Board, points: np.ndarray, tol: float = 0.3) -> np.ndarray | None:
+def _order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERANCE) -> np.ndarray | None:
     """Fast ordering of a symmetric board whose candidates are exactly its N dots (no clutter): (N,) indices into
     ``points`` (N, 2) px in a valid board labelling (not yet canonical), or ``None`` when the candidates do not form
     the grid unambiguously (the caller then runs OpenCV's grid finder).
@@ -105,22 +135,27 @@ def _order_lattice(board: Board, points: np.ndarray, tol: float = 0.3) -> np.nda
 
 
 def _canvas(points: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) = ``shape`` uint8 canvas, white, with a black disk of radius ``radii`` (M,) px at each of ``points``
+    (M, 2) px (to :data:`DRAW_SHIFT` fractional bits, at least :data:`DRAW_MIN_RADIUS_PX`)."""
     canvas = np.full(shape, 255, np.uint8)
+    unit = 1 << DRAW_SHIFT
+    r_min = int(DRAW_MIN_RADIUS_PX * unit)
     for (x, y), r in zip(points, radii):
-        cv2.circle(canvas, (int(round(x * 4)), int(round(y * 4))), max(4, int(round(r * 4))), 0, -1,
-                   lineType=cv2.LINE_8, shift=2)
+        cv2.circle(canvas, (int(round(x * unit)), int(round(y * unit))), max(r_min, int(round(r * unit))), 0, -1,
+                   lineType=cv2.LINE_8, shift=DRAW_SHIFT)
     return canvas
 
 
 def _blob_detector(max_radius: float) -> cv2.SimpleBlobDetector:
+    """OpenCV's blob detector set up for the canvas of :func:`_canvas` (black disks of radius up to ``max_radius``
+    px on white): the blob centres the grid finder reads back (:data:`BLOB_THRESHOLDS`,
+    :data:`BLOB_MIN_REPEATABILITY`, :data:`BLOB_AREA_MARGIN_PX`)."""
     p = cv2.SimpleBlobDetector_Params()
-    # the canvas is binary; a single threshold (minRepeatability 1) makes OpenCV report the whole canvas as a blob
-    p.minThreshold, p.maxThreshold, p.thresholdStep = 60, 200, 40
-    p.minRepeatability = 2
+    p.minThreshold, p.maxThreshold, p.thresholdStep = BLOB_THRESHOLDS
+    p.minRepeatability = BLOB_MIN_REPEATABILITY
     p.minDistBetweenBlobs = 0.5
     p.filterByColor, p.blobColor = True, 0
-    # a large maxArea lets OpenCV take the canvas background for a blob and merge it with a dot
-    p.filterByArea, p.minArea, p.maxArea = True, 1.0, 4.0 * np.pi * (max_radius + 2.0) ** 2
+    p.filterByArea, p.minArea, p.maxArea = True, 1.0, 4.0 * np.pi * (max_radius + BLOB_AREA_MARGIN_PX) ** 2
     p.filterByCircularity = p.filterByInertia = p.filterByConvexity = False
     return cv2.SimpleBlobDetector_create(p)
 
@@ -148,10 +183,10 @@ def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape:
     dist = np.linalg.norm(points[:, None] - points[None], axis=-1)
     np.fill_diagonal(dist, np.inf)
     nn = dist.min(axis=1)
-    draw_r = np.minimum(radii, 0.35 * nn)
+    draw_r = np.minimum(radii, DRAW_RADIUS_SPACING * nn)
     # the canvas covers the candidates only (plus a margin): an integer shift of a drawing, so the blob detector
     # and the grid finder see the same shapes as on a full-size canvas, at a fraction of the cost
-    margin = 3.0 * float(draw_r.max()) + 20.0
+    margin = CANVAS_MARGIN_RADII * float(draw_r.max()) + CANVAS_MARGIN_PX
     ox = int(max(0, np.floor(points[:, 0].min() - margin)))
     oy = int(max(0, np.floor(points[:, 1].min() - margin)))
     cw = int(min(image_shape[1], np.ceil(points[:, 0].max() + margin) + 1)) - ox
@@ -165,7 +200,7 @@ def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape:
     # the dominant size class (drops clutter of other sizes)
     area = radii ** 2
     med = np.median(area)
-    keep = np.nonzero((area > med / 6.0) & (area < med * 6.0))[0]
+    keep = np.nonzero((area > med / SIZE_CLASS_FACTOR) & (area < med * SIZE_CLASS_FACTOR))[0]
     if N <= len(keep) < M:
         subsets.append(keep)
     for sub in subsets:
@@ -180,7 +215,8 @@ def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape:
             found = found.reshape(-1, 2).astype(np.float64)
             d = np.linalg.norm(found[:, None] - local[sub][None], axis=-1)
             j = np.argmin(d, axis=1)
-            if len(np.unique(j)) != N or np.any(d[np.arange(N), j] > np.maximum(1.5, 0.5 * draw_r[sub][j])):
+            tol = np.maximum(MATCH_MIN_PX, MATCH_RADIUS_SHARE * draw_r[sub][j])
+            if len(np.unique(j)) != N or np.any(d[np.arange(N), j] > tol):
                 continue
             idx = sub[j]
             try:
