@@ -15,12 +15,7 @@ import importlib
 import sys
 import traceback
 
-from circcal.errors import (
-    EXIT_BAD_INPUT,
-    EXIT_INTERNAL_ERROR,
-    EXIT_INTERRUPTED,
-    InputError,
-)
+from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
 
 #: Subcommands, in the order ``--help`` shows them.
 COMMANDS = ("demo", "render", "detect", "calibrate", "convert", "validate", "report")

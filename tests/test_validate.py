@@ -109,3 +109,51 @@ def test_solver_agreement_rule():
     assert not higher.passed and "did not reach the minimum" in higher.note
     lower = solver_agreement("x", ref(base * (1 - 1e-6)), 4e-6, base, 1e-6)
     assert not lower.passed and "circcal missed the minimum" in lower.note
+
+
+def test_validate_cannot_pass_vacuously(tmp_path):
+    """Zero checks is a failure, not "all checks passed": own images (no truth) against no reference."""
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.validators.validate import run_validation
+
+    truth = load_truth(fixture_dir("small-noisy"))
+    run = run_validation([v.image for v in truth.views], truth.board, against=[], progress=False)
+    assert [c.name for c in run.checks] == ["something was checked"] and not run.passed
+    run = run_validation([v.image for v in truth.views], truth.board, against=["opencv"], observations="own",
+                         progress=False)
+    assert not run.passed and any("nothing was checked" in c.note for c in run.checks)
+
+
+@pytest.mark.parametrize("tol", ["nan", "-1", "0", "inf", "abc"])
+def test_validate_refuses_tolerances_that_decide_nothing(tol, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", "small-noisy", "--against", "opencv", "--solver-tol", tol, "--no-progress"])
+    assert exc.value.code == 2
+    assert "--solver-tol" in capsys.readouterr().err
+
+
+def test_validate_all_fails_when_a_built_in_reference_is_missing(monkeypatch):
+    """Under --against all a built-in reference that is not installed fails the run (make setup installs them all);
+    --allow-missing lists it as skipped instead."""
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.validators import registry
+    from circcal.validators.base import BaseCalibrator
+    from circcal.validators.validate import run_validation
+
+    class Missing(BaseCalibrator):
+        name = "pycolmap"
+        modes = ("fair",)
+
+        def _available(self):
+            return False, "pycolmap is not installed"
+
+    real_get = registry.get
+    monkeypatch.setattr(registry, "get", lambda n, **kw: Missing() if n == "pycolmap" else real_get(n, **kw))
+    monkeypatch.setattr(registry, "names", lambda: ["opencv", "pycolmap"])
+    truth = load_truth(fixture_dir("small-noisy"))
+    paths = [v.image for v in truth.views]
+    run = run_validation(paths, truth.board, truth=truth.camera, against=["all"], progress=False)
+    bad = [c for c in run.checks if not c.passed]
+    assert [c.name for c in bad] == ["pycolmap [fair] is available"] and not run.passed
+    run = run_validation(paths, truth.board, truth=truth.camera, against=["all"], progress=False, allow_missing=True)
+    assert run.passed and run.skipped == ["pycolmap [fair]: pycolmap is not installed"]

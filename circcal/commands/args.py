@@ -3,6 +3,7 @@ usage line and the reason)."""
 from __future__ import annotations
 
 import argparse
+import math
 import re
 
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
@@ -35,6 +36,18 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """'1e-6' -> 1e-06; a finite number above 0 (NaN, inf, 0 and negatives are refused: as a tolerance they would
+    make a check pass or fail whatever was measured)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text!r}")
     return value
 
 
