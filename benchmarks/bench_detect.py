@@ -54,7 +54,7 @@ def run(n_views: int = 4, repeats: int = 7) -> dict:
     default = cv2.getNumThreads()
     res: dict[str, list[float]] = {"ours1": [], "cv1": [], "ours": [], "cv": [], "full": []}
     found_ours = found_cv = 0
-    scales = det._segmentation_scales
+    scales = det.segmentation_scales
     try:
         for img in imgs:
             ours = lambda: det.detect(img, board)  # noqa: E731
@@ -70,11 +70,11 @@ def run(n_views: int = 4, repeats: int = 7) -> dict:
             res["ours"].append(t_o)
             res["cv"].append(t_c)
             cv2.setNumThreads(1)
-            det._segmentation_scales = lambda h, w: (1,)
+            det.segmentation_scales = lambda h, w: (1,)
             res["full"].append(_alternating([ours], max(2, repeats // 2))[0][0])
-            det._segmentation_scales = scales
+            det.segmentation_scales = scales
     finally:
-        det._segmentation_scales = scales
+        det.segmentation_scales = scales
         cv2.setNumThreads(threads)
     tracemalloc.start()
     det.detect(imgs[0], board)

@@ -17,9 +17,9 @@ import pytest
 
 from circcal.board import Board
 from circcal.detector import Detection, detect, detect_files, recorrect
-from circcal.model import Camera, project
 from circcal.fixtures.poses import pose_looking_at
 from circcal.fixtures.render import render_view, to_uint
+from circcal.model import Camera, project
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO / ".." / "shared" / "data" / "realdata"
@@ -305,8 +305,9 @@ def _uneven_render():
 
 
 def test_batched_levels_equal_the_per_dot_estimate():
-    from circcal.detector.edges import _roi_boxes, dot_levels_batch
+    from circcal.detector.edges import _roi_boxes
     from circcal.detector.ellipse import conic_params_batch
+    from circcal.detector.levels import dot_levels_batch
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -343,9 +344,10 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
 
 
 def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
-    import circcal.detector.edges as edges
-    from circcal.detector.find import EDGE_SIGMA, fit_dot, fit_dots
-    from circcal.detector.edges import SmoothedImage, subpixel_edge_points_batch
+    from circcal.detector import edges
+    from circcal.detector.dots import EDGE_SIGMA, fit_dots
+    from circcal.detector.edges import subpixel_edge_points_batch
+    from circcal.detector.smoothing import SmoothedImage
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -365,21 +367,23 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
     P, M, Qs, err = fit_dots(img, cands)
     assert err == [None] * len(cands)
     for k in range(len(cands)):
-        pts, Q = fit_dot(img, cands[k])
+        p_k, m_k, q_k, e_k = fit_dots(img, cands[k:k + 1])
+        assert e_k == [None]
+        pts, Q = p_k[0][m_k[0]], q_k[0]
         assert np.array_equal(M[k].sum(), len(pts))
         assert np.allclose(P[k][M[k]], pts, rtol=0, atol=1e-8)
         assert np.allclose(Qs[k], Q, rtol=0, atol=1e-10)
 
 
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):
-    import circcal.detector.find as det
+    from circcal.detector import find
 
     cam = Camera(1600, 1200, 2000.0, 2000.0, 799.5, 599.5)
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
     img = cv2.GaussianBlur(img, (0, 0), 1.0) + np.random.default_rng(2).normal(0, 0.01, img.shape)
     half = detect(img, BOARD)
     assert half.found and half.segmentation.endswith("@1/3")   # 1200 // 360
-    monkeypatch.setattr(det, "_segmentation_scales", lambda h, w: (1,))
+    monkeypatch.setattr(find, "segmentation_scales", lambda h, w: (1,))
     full = detect(img, BOARD)
     assert full.found and "@" not in full.segmentation
     e_half, e_full = matched_errors(BOARD, half.centres, truth), matched_errors(BOARD, full.centres, truth)
@@ -406,7 +410,7 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px,
 @pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
 @pytest.mark.parametrize("shape", [(1, 1), (3, 7), (360, 640)])
 def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top, shape):
-    from circcal.detector.edges import _histogram_percentiles, normalise_u8
+    from circcal.detector.image import _histogram_percentiles, normalise_u8
 
     rng = np.random.default_rng(shape[0])
     img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)   # not the full range: the stretch acts

@@ -32,7 +32,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.detector.find import _read_image, detect_files
+    from circcal.detector import detect_files, read_image
     from circcal.model import Camera
 
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
                               "centers": d.centres.tolist() if d.found else None,
                               "reason": d.reason})
         if args.overlay is not None:
-            img = _read_image(Path(path)) if Path(path).exists() else None
+            img = read_image(Path(path)) if Path(path).exists() else None
             if img is not None:
                 from circcal.detector.overlay import write_overlay
 

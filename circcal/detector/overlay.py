@@ -10,9 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from circcal.detector.find import Detection
-from circcal.detector.edges import normalise_u8, to_gray
+from circcal.detector.detection import Detection
 from circcal.detector.ellipse import conic_params, fit_ellipse_direct
+from circcal.detector.image import as_gray, normalise_u8
 
 __all__ = ["draw_detection", "write_overlay"]
 
@@ -31,7 +31,7 @@ def draw_detection(image: np.ndarray, detection: Detection) -> np.ndarray:
     corrected centres: red crosses with their index; a line joins the centres in board order (blue) so the
     ordering is visible; a failed detection shows its reason.
     """
-    vis = cv2.cvtColor(normalise_u8(to_gray(image)), cv2.COLOR_GRAY2BGR)
+    vis = cv2.cvtColor(normalise_u8(as_gray(image)), cv2.COLOR_GRAY2BGR)
     scale = max(1.0, max(vis.shape[:2]) / 1000.0)
     if detection.candidates is not None:
         for c in detection.candidates:

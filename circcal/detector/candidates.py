@@ -1,0 +1,107 @@
+"""Candidate dots: dark blobs of a segmentation mask that look like imaged circles, and the area limits that scale
+them to the image and the board.
+
+Pixel convention: OpenCV's (integer coordinates are pixel centres).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from circcal.board import Board
+
+__all__ = ["Candidate", "area_limits", "find_candidates"]
+
+MIN_CIRCULARITY = 0.45
+"""``4 pi S / P^2`` of a kept blob (1 for a disk). On the pixel contour a disk measures ~0.9, an ellipse of axis
+ratio 2 (a dot at 60 deg tilt) ~0.75, of ratio 1:3.8 (75 deg) ~0.5: dots seen up to ~75 deg are kept, lines,
+letters and merged blobs are not."""
+MIN_INERTIA = 0.08
+"""Minor / major second moment (``(b/a)^2``) of a kept blob: axis ratios down to ~1:3.5 (tilts to ~75 deg)."""
+MIN_CONVEXITY = 0.8
+"""Blob area / convex-hull area: a dot is convex; two touching blobs or a dot cut by a shadow is not."""
+MIN_CONTOUR_POINTS = 5
+"""Contours with fewer points are not a measurable blob (and an ellipse needs 5)."""
+MAX_AREA_FACTOR = 4.0
+"""The largest dot may be this many times the area of an average dot of a board filling the whole image
+(perspective makes near dots larger)."""
+MIN_AREA_FRACTION = 1e-5
+"""The smallest dot is this share of the image area (~12 px^2 at 640x480, ~21 px^2 at 1920x1080): below it a
+sub-pixel boundary cannot be measured anyway."""
+MIN_AREA_PX2 = 12.0
+"""... and never below this many px^2 (a disk of radius ~2 px)."""
+MIN_AREA_RANGE = 4.0
+"""The area window spans at least this factor (radii within 2x), however small the board's dots."""
+
+
+@dataclass
+class Candidate:
+    """A dark blob that may be a dot. ``centre`` (2,) px area centroid of the contour polygon; ``axes`` (a, b)
+    semi-axes (px) and ``angle`` (rad, of ``a`` from the image x axis) of the ellipse with the same second moments;
+    ``area`` px^2."""
+
+    centre: np.ndarray
+    axes: tuple[float, float]
+    angle: float
+    area: float
+
+
+def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
+    """(min_area, max_area) px^2 for candidate dots of ``board`` in a ``width`` x ``height`` image: at most
+    :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image, at least :data:`MIN_AREA_FRACTION` of
+    the image and :data:`MIN_AREA_PX2`; the window spans at least :data:`MIN_AREA_RANGE`."""
+    cell = board.pitch_mm ** 2 * (2.0 if board.layout == "asymmetric" else 1.0)
+    dot_frac = np.pi * board.radius_mm ** 2 / cell
+    max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points
+    min_area = max(MIN_AREA_PX2, MIN_AREA_FRACTION * width * height)
+    return min_area, max(max_area, MIN_AREA_RANGE * min_area)
+
+
+def find_candidates(
+    mask: np.ndarray,
+    *,
+    min_area: float,
+    max_area: float,
+    min_circularity: float = MIN_CIRCULARITY,
+    min_inertia: float = MIN_INERTIA,
+    min_convexity: float = MIN_CONVEXITY,
+) -> list[Candidate]:
+    """Dark blobs of ``mask`` (H, W) uint8 (255 = dark) that look like imaged dots.
+
+    Outer contours only (a dot is a filled component); kept when ``min_area <= area <= max_area`` (px^2),
+    circularity ``4 pi S / P^2 >= min_circularity``, inertia ratio (minor/major second moment, ``(b/a)^2``)
+    ``>= min_inertia``, convexity ``S / hull area >= min_convexity``, and the blob does not touch the image border.
+    """
+    H, W = mask.shape
+    contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    out: list[Candidate] = []
+    if hier is None:
+        return out
+    for cnt, h in zip(contours, hier[0]):
+        if h[3] != -1 or len(cnt) < MIN_CONTOUR_POINTS:
+            continue
+        m = cv2.moments(cnt)
+        S = m["m00"]
+        if not (min_area <= S <= max_area):
+            continue
+        x, y, w, hh = cv2.boundingRect(cnt)
+        if x <= 0 or y <= 0 or x + w >= W or y + hh >= H:
+            continue
+        P = cv2.arcLength(cnt, True)
+        if 4.0 * np.pi * S / (P * P) < min_circularity:
+            continue
+        hull = cv2.contourArea(cv2.convexHull(cnt))
+        if hull <= 0 or S / hull < min_convexity:
+            continue
+        mu20, mu02, mu11 = m["mu20"] / S, m["mu02"] / S, m["mu11"] / S
+        tr = mu20 + mu02
+        disc = np.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
+        l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)   # principal second moments; a = 2 sqrt(l1) for an ellipse
+        if l1 <= 0 or l2 / l1 < min_inertia:
+            continue
+        ang = 0.5 * np.arctan2(2 * mu11, mu20 - mu02)
+        c = np.array([m["m10"] / S, m["m01"] / S])
+        out.append(Candidate(c, (2.0 * np.sqrt(l1), 2.0 * np.sqrt(max(l2, 1e-12))), float(ang), float(S)))
+    return out

@@ -1,0 +1,113 @@
+"""Each dot of the grid measured: sub-pixel edge points and the ellipse fitted to them, all dots at once
+(:func:`fit_dots`).
+
+Pixel convention: OpenCV's (integer coordinates are pixel centres).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from circcal.detector.edges import subpixel_edge_points_batch
+from circcal.detector.ellipse import FIT_ERRORS, fit_ellipses_direct
+from circcal.detector.robust import MAD_TO_SIGMA, row_medians
+from circcal.detector.smoothing import SmoothedImage
+
+__all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "fit_dots"]
+
+EDGE_SIGMA = 1.5
+"""Gaussian smoothing (px) for the edge profiles, one for all dots (so the board's window is smoothed once). 1.5 px
+makes the cubic interpolation of the pixel grid accurate to ~1e-3 px even on unblurred (aliased) renders; measured
+best for dots of radius 7-30 px at tilts up to 60 deg (smaller values leave interpolation error, larger ones
+curvature bias). With an optical blur of ~1 px it is also near the noise-optimal (matched) smoothing."""
+MIN_EDGE_POINTS = 10
+"""A dot with fewer edge points is not measured (an ellipse needs 5; the rest give the fit and the outlier rule
+some redundancy)."""
+FIT_PASSES = 2
+"""Passes of measure-and-fit: the edge points of the first are measured along the normals of the starting ellipse,
+those of the next along the previous fit's."""
+OUTLIER_SIGMAS = 4.0
+"""Edge points further from the fitted ellipse (Sampson distance) than this many robust sigmas ..."""
+OUTLIER_MIN_PX = 0.1
+"""... and than this (px: on clean images the robust sigma is tiny) are dropped, and the ellipse refitted once."""
+
+
+def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+    """Sub-pixel edge points and ellipse of each dot, from rough ellipses ``conics0`` (D, 3, 3) (e.g. from the
+    contours).
+
+    ``gray``: (H, W) grey image, or a :class:`~circcal.detector.smoothing.SmoothedImage` of it at
+    :data:`EDGE_SIGMA` (reused across calls). Edge points are measured :data:`FIT_PASSES` times along the normals of
+    the latest ellipse (:func:`~circcal.detector.edges.subpixel_edge_points_batch`), each time fitted (direct least
+    squares) and refitted once without the outliers (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`). Returns
+    ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points are ``points[d][mask[d]]``
+    and ``conics[d]`` the ellipse fitted to exactly them; ``errors[d]`` is ``None`` or why the dot could not be
+    measured (then its points and conic are not meaningful). Each dot's result depends on that dot alone.
+    """
+    src = gray if isinstance(gray, SmoothedImage) else SmoothedImage(gray, EDGE_SIGMA)
+    Q = np.asarray(conics0, np.float64).copy()
+    D = len(Q)
+    errors: list[str | None] = [None] * D
+    pts = np.zeros((D, 0, 2))
+    mask = np.zeros((D, 0), bool)
+    for _ in range(FIT_PASSES):
+        act = np.array([e is None for e in errors])
+        if not np.any(act):
+            break
+        ai = np.nonzero(act)[0]
+        p_a, m_a, err_a = subpixel_edge_points_batch(src, Q[ai])
+        if p_a.shape[1] != pts.shape[1]:
+            width = max(p_a.shape[1], pts.shape[1])
+            pts = np.concatenate([pts, np.zeros((D, width - pts.shape[1], 2))], axis=1)
+            mask = np.concatenate([mask, np.zeros((D, width - mask.shape[1]), bool)], axis=1)
+        pts[ai] = 0.0
+        mask[ai] = False
+        pts[ai, :p_a.shape[1]] = p_a
+        mask[ai, :p_a.shape[1]] = m_a
+        cnt = mask.sum(axis=1)
+        for d, e in zip(ai, err_a):
+            if e is not None:
+                errors[d] = e
+            elif cnt[d] < MIN_EDGE_POINTS:
+                errors[d] = f"only {cnt[d]} sub-pixel edge points"
+        ai = np.array([d for d in ai if errors[d] is None], int)
+        if len(ai) == 0:
+            break
+        Qa, ferr = fit_ellipses_direct(pts[ai], mask[ai])
+        m = mask[ai] & (ferr == 0)[:, None]
+        keep = m & _inliers(_sampson_distances(pts[ai], Qa), m)
+        nk = keep.sum(axis=1)
+        refit = (ferr == 0) & (nk < m.sum(axis=1)) & (nk >= MIN_EDGE_POINTS)
+        if np.any(refit):
+            ri = ai[refit]
+            Qr, rerr = fit_ellipses_direct(pts[ri], keep[refit])
+            mask[ri] = keep[refit]
+            Qa[refit] = Qr
+            ferr = ferr.copy()
+            ferr[refit] = rerr
+        for j, d in enumerate(ai):
+            if ferr[j]:
+                errors[d] = FIT_ERRORS[int(ferr[j])]
+        Q[ai] = Qa
+    return pts, mask, Q, errors
+
+
+def _sampson_distances(points: np.ndarray, conics: np.ndarray) -> np.ndarray:
+    """(D, M) first-order (Sampson) signed distances px ``x^T Q x / |grad(x^T Q x)|`` of ``points`` (D, M, 2) from
+    the conics (D, 3, 3); NaN/inf where the gradient vanishes or a conic is NaN."""
+    h = np.concatenate([points, np.ones((*points.shape[:2], 1))], axis=2)
+    hQ = h @ conics
+    g = 2.0 * hQ[..., :2]
+    with np.errstate(invalid="ignore", divide="ignore"):  # sums over the last axis written out (faster)
+        return ((hQ[..., 0] * h[..., 0] + hQ[..., 1] * h[..., 1]) + hQ[..., 2] * h[..., 2]) / np.sqrt(
+            g[..., 0] * g[..., 0] + g[..., 1] * g[..., 1])
+
+
+def _inliers(dist: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(D, M) bool: the distances ``dist`` (D, M) px, of the points where ``mask`` (D, M), within the outlier rule:
+    ``|dist| <= max(OUTLIER_SIGMAS * robust sigma, OUTLIER_MIN_PX)``, the robust sigma from the median absolute
+    deviation from the median of each row."""
+    med = row_medians(np.where(mask, dist, np.nan))
+    sdev = MAD_TO_SIGMA * row_medians(np.where(mask, np.abs(dist - med[:, None]), np.nan))
+    with np.errstate(invalid="ignore"):
+        return np.abs(dist) <= np.maximum(OUTLIER_SIGMAS * sdev, OUTLIER_MIN_PX)[:, None]

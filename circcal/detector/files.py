@@ -1,0 +1,79 @@
+"""Detection on image files (:func:`detect_files`: in threads, in the order given), with the per-image error rule:
+what an image file can legitimately cause becomes ``found=False`` with its :class:`~circcal.detector.Reason`;
+anything else is a bug and propagates with its traceback."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from circcal.board import Board
+from circcal.detector.detection import Detection, Reason
+from circcal.detector.find import camera_size_mismatch, detect
+from circcal.detector.image import read_image
+from circcal.errors import ImageError
+from circcal.model import Camera
+
+__all__ = ["MAX_DEFAULT_JOBS", "detect_files"]
+
+MAX_DEFAULT_JOBS = 8
+"""Images detected at once by default: one per CPU, at most this many (the default ``--jobs`` documents)."""
+
+
+def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, progress: bool = True,
+                 jobs: int | None = None) -> list[Detection]:
+    """:func:`~circcal.detector.find.detect` on each image file, in the order given. A missing, unreadable or
+    corrupt file, an image the detector cannot take, or one of another size than ``camera``'s, gives
+    ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is caught. Shows a tqdm progress
+    bar when ``progress``.
+
+    ``jobs``: images processed at once, in threads (decoding, OpenCV and the compiled loops release the GIL); ``None``
+    = one per CPU (at most :data:`MAX_DEFAULT_JOBS`). The results do not depend on it: each image is detected on its
+    own. Raises ``ValueError`` for ``jobs < 1``.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tqdm import tqdm
+
+    paths = [Path(p) for p in paths]
+    jobs = min(MAX_DEFAULT_JOBS, os.cpu_count() or 1) if jobs is None else int(jobs)
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    bar = tqdm(total=len(paths), desc="detect", unit="img", disable=not progress)
+    try:
+        if jobs == 1 or len(paths) < 2:
+            out = []
+            for p in paths:
+                out.append(_detect_file(p, board, camera))
+                bar.update()
+            return out
+        with ThreadPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
+            futures = [pool.submit(_detect_file, p, board, camera) for p in paths]
+            for f in futures:
+                f.add_done_callback(lambda _: bar.update())
+            return [f.result() for f in futures]
+    finally:
+        bar.close()
+
+
+def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
+    """:func:`~circcal.detector.find.detect` on one image file. What a file can legitimately cause gives
+    ``found=False`` with its :class:`~circcal.detector.Reason`: missing (``FILE_NOT_FOUND``), unreadable or
+    undecodable (``UNREADABLE``), of another size than the camera model (``WRONG_IMAGE_SIZE``), an image the
+    detector cannot take (:class:`~circcal.errors.ImageError`: ``BAD_IMAGE``). Any other exception is a bug and
+    propagates."""
+    if not path.is_file():
+        return Detection(False, None, "file not found" if not path.exists() else "not a file", Reason.FILE_NOT_FOUND)
+    try:
+        img = read_image(path)
+    except OSError as exc:  # permission denied, I/O error
+        return Detection(False, None, f"cannot read the file: {exc.strerror or exc}", Reason.UNREADABLE)
+    if img is None:
+        return Detection(False, None, "unreadable file (not an image, or corrupt)", Reason.UNREADABLE)
+    h, w = img.shape[:2]
+    why = camera_size_mismatch(camera, w, h)
+    if why is not None:
+        return Detection(False, None, why, Reason.WRONG_IMAGE_SIZE, image_size=(w, h))
+    try:
+        return detect(img, board, camera)
+    except ImageError as exc:
+        return Detection(False, None, str(exc), Reason.BAD_IMAGE, image_size=(w, h))

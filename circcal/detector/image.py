@@ -1,0 +1,97 @@
+"""Images as the detector takes them: an image file read as stored, grey conversion, and the contrast stretch to
+uint8 that the thresholds work on.
+
+Arrays are (H, W) grey or (H, W, 3|4) BGR(A), of dtype uint8, uint16 or float (OpenCV's layout).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from circcal.errors import ImageError
+
+__all__ = ["as_gray", "normalise_u8", "read_image"]
+
+MIN_IMAGE_SIDE = 8
+"""Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""
+STRETCH_PERCENTILES = (0.5, 99.5)
+"""Grey levels (percent of the pixels) stretched to 0 and 255: a few outliers at either end (specular highlights,
+dead pixels, the image border) do not squeeze the board's contrast."""
+FLOAT_SUBSAMPLE_STEP = 4
+"""Float images larger than :data:`FLOAT_SUBSAMPLE_ABOVE` pixels take their stretch percentiles from every 4th pixel
+in each direction (1/16 of the pixels; percentiles of a smooth histogram barely move)."""
+FLOAT_SUBSAMPLE_ABOVE = 400_000
+HIST_EXACT_COUNT = 2 ** 24
+"""``cv2.calcHist`` counts in float32, exact up to 2^24 pixels; larger uint8 images are counted by ``np.bincount``."""
+
+
+def read_image(path: Path) -> np.ndarray | None:
+    """The image stored in the file ``path`` (``cv2.IMREAD_UNCHANGED``: grey, BGR or BGRA, 8 or 16 bit), or ``None``
+    when there is no such file, it is empty, or no decoder can read it. Raises ``OSError`` when the file exists but
+    cannot be read (permissions, I/O)."""
+    path = Path(path)
+    data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
+    if data is None or data.size == 0:
+        return None
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+
+
+def as_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) grey in its own dtype (colour
+    converted by ``cv2.cvtColor``; float64 colour via float32). Raises :class:`~circcal.errors.ImageError` for other
+    shapes or dtypes, a side below :data:`MIN_IMAGE_SIDE`, and for NaN/inf."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3:
+        if img.shape[2] not in (3, 4):
+            raise ImageError(f"colour image must have 3 (BGR) or 4 (BGRA) channels, got {img.shape[2]}")
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        img = cv2.cvtColor(img.astype(np.float32) if img.dtype == np.float64 else img, code)
+    if img.ndim != 2:
+        raise ImageError(f"expected a (H, W) grey or (H, W, 3) BGR image, got shape {np.shape(image)}")
+    if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)) or img.dtype == bool:
+        raise ImageError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
+    if min(img.shape) < MIN_IMAGE_SIDE:
+        raise ImageError(f"image too small: {img.shape[1]}x{img.shape[0]}")
+    if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
+        raise ImageError("image contains NaN or inf")
+    return img
+
+
+def normalise_u8(gray: np.ndarray) -> np.ndarray:
+    """(H, W) uint8: the :data:`STRETCH_PERCENTILES` range of ``gray`` (H, W) stretched to 0..255 (for thresholding
+    only). Integer images (uint8/uint16, e.g. from :func:`as_gray`): percentiles of all pixels from their histogram,
+    the stretch through a lookup table of the same formula (identical results); float images: percentiles of a
+    subsample above :data:`FLOAT_SUBSAMPLE_ABOVE` pixels (:data:`FLOAT_SUBSAMPLE_STEP`)."""
+    if gray.dtype in (np.uint8, np.uint16):
+        lo, hi = _histogram_percentiles(gray, STRETCH_PERCENTILES)
+    else:
+        step = FLOAT_SUBSAMPLE_STEP
+        sub = gray[::step, ::step] if gray.size > FLOAT_SUBSAMPLE_ABOVE else gray
+        lo, hi = np.percentile(sub.astype(np.float64), STRETCH_PERCENTILES)
+    if hi <= lo:   # a flat image: any positive range (everything maps to 0)
+        hi = lo + 1e-9
+    scale = 255.0 / (hi - lo)
+    if gray.dtype in (np.uint8, np.uint16):
+        lut = np.clip((np.arange(np.iinfo(gray.dtype).max + 1, dtype=np.float64) - lo) * scale, 0, 255)
+        lut = lut.astype(np.uint8)
+        return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
+    return np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
+
+
+def _histogram_percentiles(img: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
+    """``np.percentile(img, q)`` (linear interpolation between order statistics) of an integer image, from its
+    histogram: O(pixels), no sort."""
+    if img.dtype == np.uint8 and img.size < HIST_EXACT_COUNT:
+        cum = np.cumsum(cv2.calcHist([img], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64))
+    else:
+        cum = np.cumsum(np.bincount(img.ravel(), minlength=1))
+    n = int(cum[-1])
+    h = (n - 1) * np.asarray(q, np.float64) / 100.0
+    k = np.floor(h).astype(np.int64)
+    lo = np.searchsorted(cum, k, side="right")                          # the k-th smallest value (0-based)
+    hi = np.searchsorted(cum, np.minimum(k + 1, n - 1), side="right")
+    return lo + (h - k) * (hi - lo)

@@ -1,0 +1,268 @@
+"""The grey levels of each dot: its dark level inside and the board's bright level around it, fitted as a plane (so
+an illumination gradient does not move the half level the edges are measured at).
+
+All dots at once, one compiled pass over each dot's pixels (:func:`_levels_kernel`; numba, cached on disk; the
+medians of uint8 images from histograms, others by quickselect: the same values as sorting). Pixel convention:
+OpenCV's (integer coordinates are pixel centres).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from circcal.detector.ellipse import conic_params_batch
+from circcal.detector.jit import njit
+from circcal.detector.robust import MAD_TO_SIGMA
+
+__all__ = ["EDGE_GAP_PX", "dot_levels_batch", "dot_levels_from_params"]
+
+# (the compiled kernels read the constants of this module when they are compiled, and numba's cache sees only this
+# file: values they need from elsewhere are passed as arguments)
+EDGE_GAP_PX = 2.0
+"""Pixels left out on either side of the boundary (the blurred edge's transition): the dark level comes from inside
+the ellipse shrunk by this, the bright ring starts this far outside."""
+RING_MIN_WIDTH_PX = 2.0
+"""The bright ring is ``max(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)`` px wide (b: minor semi-axis): wide enough
+for a plane fit, narrow enough to stay between the dots."""
+RING_WIDTH_PER_MINOR = 0.5
+DARK_MIN_PIXELS = 3
+"""The dark level is the median of the pixels inside; a dot with fewer inside takes the median of its this many
+pixels nearest the centre."""
+RING_MIN_PIXELS = 8
+"""A ring with fewer pixels gives no bright level (the dot is not measured)."""
+PLANE_MIN_PIXELS = 6
+"""The plane is fitted to at least this many bright ring pixels (3 parameters, twice over), else no bright level."""
+PLANE_OUTLIER_SIGMAS = 4.0
+"""Ring pixels further than this many robust sigmas from the first plane are left out of the refit."""
+_HIST_BINS_U8 = 256
+
+
+def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dark level inside each dot and the bright level around it as a plane, for all dots at once.
+
+    ``gray``: (H, W) image; ``conics``: (D, 3, 3) ellipses (px); ``boxes``: (D, 4) int ROIs ``x0, y0, x1, y1``
+    (exclusive ends) whose pixels are used. Dark: median inside the ellipse shrunk by :data:`EDGE_GAP_PX` (the
+    :data:`DARK_MIN_PIXELS` pixels nearest the centre for tiny dots); bright: plane fitted (least squares, refitted
+    once without > :data:`PLANE_OUTLIER_SIGMAS` robust-sigma residuals) to the ring :data:`EDGE_GAP_PX` ..
+    ``EDGE_GAP_PX + max(2, b/2)`` px outside, keeping only pixels brighter than halfway between the dark level and the
+    ring median (drops neighbouring dots). Returns ``(dark (D,), plane (D, 3), ok (D,) bool)``: bright(x, y) =
+    plane @ (x, y, 1) in image pixels; ``ok`` false where the ring has too few pixels.
+    """
+    return dot_levels_from_params(gray, *conic_params_batch(np.asarray(conics, np.float64)), boxes)
+
+
+def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
+                           boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2) px, semi-axes (D, 2) px, angles (D,)
+    rad, valid (D,) bool, as :func:`~circcal.detector.ellipse.conic_params_batch` gives them)."""
+    D = len(okc)
+    H, W = np.shape(gray)
+    boxes = np.asarray(boxes, np.int64).reshape(D, 4).copy()
+    np.clip(boxes[:, 0::2], 0, W, out=boxes[:, 0::2])   # (the compiled pass reads only inside the image)
+    np.clip(boxes[:, 1::2], 0, H, out=boxes[:, 1::2])
+    dark = np.full(D, np.nan)
+    plane = np.full((D, 3), np.nan)
+    ok = np.zeros(D, bool)
+    if D == 0:
+        return dark, plane, ok
+    gray = np.ascontiguousarray(gray)
+    if gray.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        gray = gray.astype(np.float64)
+    # the ellipse as rho^2 = qa dx^2 + qb dx dy + qc dy^2 (1 on the boundary) and the radii bounding the regions
+    a, b = np.where(okc, axes[:, 0], 1.0), np.where(okc, axes[:, 1], 1.0)
+    ca, sa = np.cos(ang), np.sin(ang)
+    ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
+    q = np.stack([ca * ca * ia2 + sa * sa * ib2, 2.0 * ca * sa * (ia2 - ib2), sa * sa * ia2 + ca * ca * ib2], 1)
+    t_in = 1.0 - EDGE_GAP_PX / b
+    t = np.stack([np.where(t_in > 0, t_in * t_in, -1.0), (1.0 + EDGE_GAP_PX / b) ** 2,
+                  (1.0 + (EDGE_GAP_PX + np.maximum(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)) / b) ** 2], 1)
+    _levels_kernel(gray, np.where(okc[:, None], c, 0.0), q, t, boxes, okc,
+                   _HIST_BINS_U8 if gray.dtype == np.uint8 else 0, MAD_TO_SIGMA, dark, plane, ok)
+    return dark, plane, ok
+
+
+@njit(cache=True, nogil=True)
+def _median_hist(hist: np.ndarray, m: int) -> float:
+    """Median of ``m`` integer values given by their histogram (the mean of the two middle values for even m)."""
+    lo_i, hi_i = (m - 1) // 2, m // 2
+    lo = hi = -1
+    cum = 0
+    for v in range(len(hist)):
+        cum += hist[v]
+        if lo < 0 and cum > lo_i:
+            lo = v
+        if cum > hi_i:
+            hi = v
+            break
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True, nogil=True)
+def _median_values(vals, n, hist, scratch):
+    """Median of ``vals[:n]``, leaving ``vals`` as it is: from a histogram when ``hist`` has bins (uint8 values, one
+    bin per value), else by quickselect on a copy in ``scratch``."""
+    if len(hist):
+        hist[:] = 0
+        for i in range(n):
+            hist[int(vals[i])] += 1
+        return _median_hist(hist, n)
+    scratch[:n] = vals[:n]
+    return _median_inplace(scratch, n)
+
+
+@njit(cache=True, nogil=True)
+def _median_inplace(a, n):
+    """Median of ``a[:n]`` (the mean of the two middle values for even n), reordering ``a[:n]`` (quickselect)."""
+    k = (n - 1) // 2
+    lo, hi = 0, n - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    m = a[k]
+    if n % 2 == 1:
+        return m
+    nxt = a[k + 1]
+    for i in range(k + 2, n):  # the next order statistic: the smallest of the upper part
+        if a[i] < nxt:
+            nxt = a[i]
+    return 0.5 * (m + nxt)
+
+
+@njit(cache=True, nogil=True)
+def _plane_fit(rx, ry, rv, use, n):
+    """(p0, p1, p2): least-squares plane v = p0 x + p1 y + p2 through the first ``n`` points where ``use``
+    (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled);
+    NaN for collinear points."""
+    sxx = sxy = sx = syy = sy = s1 = sxv = syv = sv = 0.0
+    for i in range(n):
+        if use[i]:
+            x, y, v = rx[i], ry[i], rv[i]
+            sxx += x * x
+            sxy += x * y
+            sx += x
+            syy += y * y
+            sy += y
+            s1 += 1.0
+            sxv += x * v
+            syv += y * v
+            sv += v
+    c00, c01, c02 = syy * s1 - sy * sy, sy * sx - sxy * s1, sxy * sy - syy * sx
+    det = sxx * c00 + sxy * c01 + sx * c02
+    if det == 0.0:  # collinear points (checked: numba, like Python, raises on a division by zero)
+        return np.nan, np.nan, np.nan
+    p0 = (sxv * c00 + syv * c01 + sv * c02) / det
+    p1 = (sxv * c01 + syv * (sxx * s1 - sx * sx) + sv * (sxy * sx - sxx * sy)) / det
+    p2 = (sxv * c02 + syv * (sxy * sx - sxx * sy) + sv * (sxx * syy - sxy * sxy)) / det
+    return p0, p1, p2
+
+
+@njit(cache=True, nogil=True)
+def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, ok):
+    """The per-pixel work of :func:`dot_levels_batch`, one dot at a time; writes ``dark``, ``plane``, ``ok``.
+
+    ``c`` (D, 2) centres, ``q`` (D, 3) the ellipses as ``rho^2 = q0 dx^2 + q1 dx dy + q2 dy^2``, ``t`` (D, 3) the
+    ``rho^2`` bounds of the inside and of the ring, ``boxes`` (D, 4) the pixels to visit, ``nbins`` histogram bins
+    for the medians (0: by selection), ``mad_to_sigma`` the robust scale factor."""
+    D = len(c)
+    npx = 1
+    for d in range(D):
+        npx = max(npx, max(boxes[d, 2] - boxes[d, 0], 0) * max(boxes[d, 3] - boxes[d, 1], 0))
+    inner = np.empty(npx)
+    rx = np.empty(npx)
+    ry = np.empty(npx)
+    rv = np.empty(npx)
+    keep = np.zeros(npx, np.bool_)
+    okr = np.zeros(npx, np.bool_)
+    res = np.empty(npx)
+    hist = np.zeros(nbins, np.int64)   # empty: values are not uint8, medians by selection
+    near_r = np.empty(DARK_MIN_PIXELS)
+    near_v = np.empty(DARK_MIN_PIXELS)
+    for d in range(D):
+        if not okc[d]:
+            continue
+        x0, y0, x1, y1 = boxes[d, 0], boxes[d, 1], boxes[d, 2], boxes[d, 3]
+        cx, cy = c[d, 0], c[d, 1]
+        qa, qb, qc = q[d, 0], q[d, 1], q[d, 2]
+        t_in, t_lo, t_hi = t[d, 0], t[d, 1], t[d, 2]
+        n_in = 0
+        n_ring = 0
+        n_near = 0
+        for y in range(y0, y1):
+            dy = y - cy
+            # the columns inside the outer ellipse rho^2 < t_hi (a pixel beyond it is neither inside nor in the ring;
+            # one pixel of slack, the test below decides)
+            disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
+            if disc < 0:
+                continue
+            half = np.sqrt(disc) / (2.0 * qa)
+            mid = cx - qb * dy / (2.0 * qa)
+            for x in range(max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)):
+                dx = x - cx
+                rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
+                v = gray[y, x]
+                if rho2 < t_in:
+                    inner[n_in] = v
+                    n_in += 1
+                elif t_lo < rho2 < t_hi:
+                    rx[n_ring] = dx
+                    ry[n_ring] = dy
+                    rv[n_ring] = v
+                    n_ring += 1
+                # the pixels nearest the centre (for dots too small to have an inside), sorted by rho^2
+                if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:
+                    i = min(n_near, DARK_MIN_PIXELS - 1)
+                    while i > 0 and near_r[i - 1] > rho2:
+                        near_r[i], near_v[i] = near_r[i - 1], near_v[i - 1]
+                        i -= 1
+                    near_r[i], near_v[i] = rho2, v
+                    n_near = min(n_near + 1, DARK_MIN_PIXELS)
+        if n_in >= DARK_MIN_PIXELS:
+            dk = _median_values(inner, n_in, hist, res)
+        elif n_near:
+            dk = np.median(near_v[:n_near])
+        else:
+            dk = np.nan
+        if n_ring < RING_MIN_PIXELS:
+            continue
+        ring_med = _median_values(rv, n_ring, hist, res)
+        mid = 0.5 * (dk + ring_med)
+        n_keep = 0
+        for i in range(n_ring):
+            keep[i] = rv[i] > mid
+            n_keep += keep[i]
+        if n_keep < PLANE_MIN_PIXELS:
+            continue
+        p0, p1, p2 = _plane_fit(rx, ry, rv, keep, n_ring)
+        m = 0
+        for i in range(n_ring):
+            res[i] = abs(rv[i] - (p0 * rx[i] + p1 * ry[i] + p2))
+            if keep[i]:
+                inner[m] = res[i]   # (the inner values are used up: the buffer holds the kept residuals)
+                m += 1
+        s = mad_to_sigma * _median_inplace(inner, m) + 1e-12   # (+ a tiny floor: an exact plane has no residuals)
+        n_ok = 0
+        for i in range(n_ring):
+            okr[i] = keep[i] and res[i] < PLANE_OUTLIER_SIGMAS * s
+            n_ok += okr[i]
+        if PLANE_MIN_PIXELS <= n_ok < n_keep:
+            p0, p1, p2 = _plane_fit(rx, ry, rv, okr, n_ring)
+        if not (np.isfinite(p0) and np.isfinite(p1) and np.isfinite(p2)):  # collinear ring pixels
+            continue
+        dark[d] = dk
+        plane[d, 0], plane[d, 1], plane[d, 2] = p0, p1, p2 - p0 * cx - p1 * cy
+        ok[d] = True

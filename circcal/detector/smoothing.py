@@ -1,0 +1,193 @@
+"""The image the edge profiles are sampled from: Gaussian-smoothed and turned into cubic B-spline coefficients, one
+crop around each dot (:class:`SmoothedImage`), all crops filtered by one OpenCV call.
+
+Pixel convention: OpenCV's (integer coordinates are pixel centres).
+"""
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+__all__ = ["COMBINED_TAIL", "PREFILTER_HALF_LENGTH", "SPLINE_SUPPORT", "SmoothedImage"]
+
+PREFILTER_HALF_LENGTH = 13
+"""Taps on either side of the FIR form of the cubic B-spline prefilter (the recursive filter's impulse response
+sqrt(3) z^|k|, z = sqrt(3) - 2, is below 1e-8 of its peak beyond 13 taps; the left-out tail is 5e-8 of its weight)."""
+COMBINED_TAIL = 5e-8
+"""Share of the combined (Gaussian * prefilter) kernel's weight its truncation may leave out (as the prefilter's)."""
+SPLINE_SUPPORT = 3
+"""Pixels a crop reaches beyond its filters for the cubic B-spline evaluation (4 coefficients around a sample point:
+one below its pixel, two above, and one of slack)."""
+
+
+class SmoothedImage:
+    """A grey image (H, W) and its Gaussian smoothing (``sigma`` px, reflected borders) as cubic B-spline coefficients
+    (mirror boundary), computed on demand in one crop per requested box (one box per dot), for sampling edge profiles.
+
+    A crop extends beyond its box (clipped to the image) by the reach of its filters plus the spline's own support,
+    so samples inside the box equal those of smoothing the whole image. The prefilter is the exact recursive B-spline
+    filter written as its (symmetric, exponentially decaying) impulse response truncated at
+    :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both filters run in float32 (values
+    good to ~1e-7 relative, edge points to ~1e-6 px): the crops inside the image as one separable filter (Gaussian and
+    prefilter convolved, the product's tails truncated at the same share, :data:`COMBINED_TAIL`:
+    :func:`_combined_kernel`, reach :attr:`margin` - :data:`SPLINE_SUPPORT`) on all of them stacked
+    (``cv2.sepFilter2D``), crops at the image border each on their own with the border reflections
+    (``cv2.GaussianBlur`` then the prefilter, reach :attr:`border_margin` - :data:`SPLINE_SUPPORT`). The coefficients
+    of all crops are held in one stacked atlas (:meth:`coefficient_atlas`, sampled by the compiled cubic B-spline
+    evaluation of :mod:`circcal.detector.edges`). A later box reuses the crop made for the same dot (a crop holding
+    the box, centred within :attr:`REUSE_PX` px of it), so a dot's samples depend on that dot alone: measuring all
+    dots at once gives the same points as one at a time. ``gray`` may be any real dtype.
+    """
+
+    SLACK = 4
+    """Pixels a new crop extends beyond what its box needs, so the dot's next, slightly moved ellipse fits in it."""
+    REUSE_PX = 4.0
+    """A box reuses a crop that holds it and whose centre is within this many px of the box's (the same dot)."""
+
+    def __init__(self, gray: np.ndarray, sigma: float):
+        self.gray = gray
+        self.sigma = float(sigma)
+        self.crops: list[tuple[int, int, int, int]] = []   # x0, y0, x1, y1 (exclusive) of each crop
+        self._sheets: list[np.ndarray] = []                # float32 coefficients of crops stacked top to bottom
+        self._place: list[tuple[int, int]] = []            # (sheet, first row) of each crop
+        self._atlas: np.ndarray | None = None              # all sheets stacked
+        self._rows = np.zeros(0, int)                      # first atlas row of each crop
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the image."""
+        return self.gray.shape
+
+    @property
+    def margin(self) -> int:
+        """Pixels a crop inside the image extends beyond its box: combined filter half length + spline support."""
+        return len(_combined_kernel(self.sigma)) // 2 + SPLINE_SUPPORT
+
+    @property
+    def border_margin(self) -> int:
+        """Pixels a crop at the image border extends beyond its box: Gaussian radius + prefilter half length +
+        spline support."""
+        return _gauss_radius(self.sigma) + PREFILTER_HALF_LENGTH + SPLINE_SUPPORT
+
+    def crops_for(self, boxes: np.ndarray) -> np.ndarray:
+        """(D,) crop index for each box of ``boxes`` (D, 4) float ``x0, y0, x1, y1`` px (the extent of the points to
+        be sampled; rows with NaN get -1), making the crops that are missing."""
+        H, W = self.gray.shape
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        out = np.full(len(boxes), -1)
+        todo = np.all(np.isfinite(boxes), axis=1)
+        if not np.any(todo):
+            return out
+        m = self.margin
+        f = np.floor(boxes[todo]).astype(int)
+        need = np.stack([np.maximum(0, f[:, 0] - m), np.maximum(0, f[:, 1] - m),
+                         np.minimum(W, f[:, 2] + 1 + m), np.minimum(H, f[:, 3] + 1 + m)], axis=1)   # (T, 4)
+        idx = np.nonzero(todo)[0]
+        if self.crops:
+            have = np.array(self.crops)                                                         # (C, 4)
+            r = 2.0 * self.REUSE_PX
+            hit = ((have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
+                   & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3])
+                   & (np.abs((have[None, :, 0] + have[None, :, 2]) - (need[:, 0] + need[:, 2])[:, None]) <= r)
+                   & (np.abs((have[None, :, 1] + have[None, :, 3]) - (need[:, 1] + need[:, 3])[:, None]) <= r))
+            found = hit.any(axis=1)
+            out[idx[found]] = np.argmax(hit[found], axis=1)
+            idx, need = idx[~found], need[~found]
+        sl = self.SLACK
+        new = [(max(0, x0 - sl), max(0, y0 - sl), min(W, x1 + sl), min(H, y1 + sl)) for x0, y0, x1, y1 in need.tolist()]
+        grow = self.border_margin - m   # crops that reach the border are filtered in two steps, reaching further
+        new = [c if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H else
+               (max(0, c[0] - grow), max(0, c[1] - grow), min(W, c[2] + grow), min(H, c[3] + grow)) for c in new]
+        # crops inside the image are filtered together, stacked in one array (the filters reach less than the margin,
+        # so each crop's box only sees its own pixels; a pixel's arithmetic does not depend on where its crop sits);
+        # crops at the image border each on their own, with the borders' reflections
+        inner = [k for k, c in enumerate(new) if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H]
+        place: dict[int, tuple[int, int]] = {}
+        if inner:
+            stack = _stacked([self.gray[c[1]:c[3], c[0]:c[2]] for c in (new[k] for k in inner)])
+            k1 = _combined_kernel(self.sigma)
+            self._sheets.append(cv2.sepFilter2D(stack, cv2.CV_32F, k1, k1, borderType=cv2.BORDER_REFLECT_101))
+            starts = np.cumsum([0] + [new[k][3] - new[k][1] for k in inner]).tolist()
+            place.update((k, (len(self._sheets) - 1, r0)) for k, r0 in zip(inner, starts))
+        for k, c in enumerate(new):
+            if k not in place:
+                self._sheets.append(_spline_coefficients(self.gray[c[1]:c[3], c[0]:c[2]], self.sigma))
+                place[k] = (len(self._sheets) - 1, 0)
+        for k, (d, c) in enumerate(zip(idx.tolist(), new)):
+            self._place.append(place[k])
+            self.crops.append(c)
+            out[d] = len(self.crops) - 1
+        if new:
+            self._atlas = None
+        return out
+
+    def coefficient_atlas(self, crop: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The spline coefficients of all crops stacked (float32 (R, C)), and for the crops ``crop`` (D,) (indices
+        from :meth:`crops_for`; -1 gives zeros) their first atlas row (D,) int and origin (D, 2) float ``x0, y0``:
+        the coefficient of image pixel (x, y) of crop k is ``atlas[rows[k] + y - y0, x - x0]``."""
+        if self._atlas is None:
+            self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
+            first = np.cumsum([0] + [s.shape[0] for s in self._sheets])
+            self._rows = np.array([first[s] + r0 for s, r0 in self._place], np.int64)
+        crop = np.asarray(crop, np.int64)
+        valid = crop >= 0
+        rows = np.where(valid, self._rows[np.where(valid, crop, 0)] if len(self._rows) else 0, 0)
+        org = np.array(self.crops, np.float64).reshape(-1, 4)[np.where(valid, crop, 0), :2] if self.crops else\
+            np.zeros((len(crop), 2))
+        return self._atlas, rows.astype(np.int64), np.where(valid[:, None], org, 0.0)
+
+
+def _gauss_radius(sigma: float) -> int:
+    """Radius of OpenCV's Gaussian kernel for float images (``ksize = round(8 sigma + 1) | 1``); 0 for no blur."""
+    return (int(round(8.0 * sigma + 1.0)) | 1) // 2 if sigma > 0 else 0
+
+
+@functools.lru_cache(maxsize=1)
+def _prefilter_kernel() -> np.ndarray:
+    """(2 L + 1,) float32 FIR cubic B-spline prefilter (interpolation coefficients from samples), normalised to a sum
+    of 1 (so a constant image keeps its value)."""
+    z = np.sqrt(3.0) - 2.0
+    k = np.sqrt(3.0) * z ** np.abs(np.arange(-PREFILTER_HALF_LENGTH, PREFILTER_HALF_LENGTH + 1))
+    return (k / k.sum()).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _combined_kernel(sigma: float) -> np.ndarray:
+    """(2 h + 1,) float32: OpenCV's Gaussian kernel of ``sigma`` (radius r, none for 0) convolved with the FIR
+    prefilter (half length L): smoothing and prefiltering in one separable filter (away from the image borders).
+    The product's tails decay like the prefilter's; they are cut where at most :data:`COMBINED_TAIL` of the weight
+    is left out (h = 11 instead of r + L = 19 for sigma 1.5: 23 taps, not 39) and the rest renormalised to a sum of 1.
+    """
+    k = _prefilter_kernel().astype(np.float64)
+    r = _gauss_radius(sigma)
+    if r:
+        k = np.convolve(k, cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_64F)[:, 0])
+    n = len(k) // 2
+    tail = np.cumsum(np.abs(k[::-1][:n]))[::-1] * 2.0 / np.abs(k).sum()   # tail[j]: weight beyond half length j
+    h = next((j for j in range(1, n) if tail[j] <= COMBINED_TAIL), n)
+    k = k[n - h:n + h + 1]
+    return (k / k.sum()).astype(np.float32)
+
+
+def _stacked(rois: list[np.ndarray]) -> np.ndarray:
+    """The images ``rois`` (each (h_k, w_k)) stacked top to bottom, left-aligned, zero-padded on the right, as one
+    (sum h_k, max w_k) array (uint8 kept, other dtypes as float32)."""
+    dt = np.uint8 if all(r.dtype == np.uint8 for r in rois) else np.float32
+    out = np.zeros((sum(r.shape[0] for r in rois), max(r.shape[1] for r in rois)), dt)
+    r0 = 0
+    for r in rois:
+        out[r0:r0 + r.shape[0], :r.shape[1]] = r
+        r0 += r.shape[0]
+    return out
+
+
+def _spline_coefficients(roi: np.ndarray, sigma: float) -> np.ndarray:
+    """(h, w) float32 cubic B-spline coefficients of ``roi`` (h, w) smoothed by a Gaussian of ``sigma`` px (reflected
+    border, as ``cv2.GaussianBlur``), with the prefilter's mirror boundary (OpenCV's ``BORDER_REFLECT_101``)."""
+    img = roi.astype(np.float32)
+    if sigma > 0:
+        img = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    k = _prefilter_kernel()
+    return cv2.sepFilter2D(img, cv2.CV_32F, k, k, borderType=cv2.BORDER_REFLECT_101)
