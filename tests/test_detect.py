@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.detector import Detection, detect, detect_files, recorrect
+from circcal.detector import Detection, Reason, detect, detect_files, recorrect
 from circcal.fixtures.poses import pose_looking_at
 from circcal.fixtures.render import render_view, to_uint
 from circcal.model import Camera, project
@@ -209,6 +209,84 @@ def test_detect_files_never_raises(tmp_path, jobs):
     assert "candidate dots" in dets[2].reason
     with pytest.raises(ValueError, match="jobs"):
         detect_files([blank], BOARD, progress=False, jobs=0)
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_detect_files_gives_each_file_problem_its_reason_code(tmp_path, jobs):
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.full((5, 5), 200, np.uint8))
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((100, 120), 200, np.uint8))
+    paths = [corrupt, tmp_path / "missing.png", tmp_path, empty, tiny, blank]
+    dets = detect_files(paths, BOARD, progress=False, jobs=jobs)
+    assert [d.code for d in dets] == [Reason.UNREADABLE, Reason.FILE_NOT_FOUND, Reason.FILE_NOT_FOUND,
+                                      Reason.UNREADABLE, Reason.BAD_IMAGE, Reason.TOO_FEW_CANDIDATES]
+    assert not any(d.found for d in dets) and "not a file" in dets[2].reason and "too small" in dets[4].reason
+    (wrong,) = detect_files([blank], BOARD, CAM, progress=False, jobs=jobs)
+    assert wrong.code == Reason.WRONG_IMAGE_SIZE and "1280x960" in wrong.reason and wrong.image_size == (120, 100)
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+@pytest.mark.parametrize("error", [RuntimeError, ValueError])
+def test_a_bug_inside_detection_propagates_out_of_detect_files(tmp_path, monkeypatch, jobs, error):
+    # only what a file can cause becomes found=False; an exception from inside the detector (here a plain
+    # ValueError too, which is not an ImageError) is a bug and reaches the caller with its traceback
+    from circcal.detector import find
+
+    img, *_ = _render(CAM, 12, 30)
+    paths = [tmp_path / f"v{k}.png" for k in range(3)]
+    for path in paths:
+        cv2.imwrite(str(path), to_uint(img, 8))
+    paths.insert(1, tmp_path / "missing.png")
+    assert all(d.found for k, d in enumerate(detect_files(paths, BOARD, progress=False, jobs=jobs)) if k != 1)
+
+    def broken_fit(*args, **kwargs):
+        raise error("a bug in the edge fit")
+
+    monkeypatch.setattr(find, "fit_dots", broken_fit)
+    with pytest.raises(error, match="a bug in the edge fit") as raised:
+        detect_files(paths, BOARD, progress=False, jobs=jobs)
+    assert raised.traceback[-1].name == "broken_fit"
+
+
+def test_row_medians_are_numpys_medians_of_the_values_left_in():
+    import warnings
+
+    from circcal.detector.robust import row_medians
+
+    rng = np.random.default_rng(4)
+    vals = rng.normal(size=(7, 10))
+    keep = rng.random((7, 10)) < 0.6
+    keep[2] = False                                   # a row without values: NaN, and no warning
+    keep[3] = np.arange(10) < 4                       # even and odd counts
+    keep[4] = np.arange(10) < 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = row_medians(np.where(keep, vals, np.nan))
+    expect = [np.median(v[k]) if k.any() else np.nan for v, k in zip(vals, keep)]
+    assert np.array_equal(got, expect, equal_nan=True)
+
+
+def test_shared_tables_are_computed_once_and_read_only():
+    # detect_files runs images in threads: nothing global is mutated per call
+    from circcal.detector.curvature import _shift_table
+    from circcal.detector.edges import _profile_offsets
+
+    assert _profile_offsets(2.0, 0.2) is _profile_offsets(2.0, 0.2) and _shift_table() is _shift_table()
+    for table in (_profile_offsets(2.0, 0.2), _shift_table()):
+        assert not table.flags.writeable
+
+
+def test_importing_the_detector_does_not_load_scipy_ndimage_or_special():
+    code = ("import sys\nimport circcal.detector, circcal.detector.overlay\n"
+            "print([m for m in ('scipy.ndimage', 'scipy.special') if m in sys.modules])\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
 
 
 def test_parallel_detection_gives_the_sequential_results_in_order(tmp_path):
