@@ -23,6 +23,12 @@ from circcal.errors import InputError
 
 Layout = Literal["symmetric", "asymmetric", "checkerboard"]
 LAYOUTS: tuple[str, ...] = ("symmetric", "asymmetric", "checkerboard")
+#: Lengths a printed board can have (mm): finer than 1 um is no print, larger than 100 m no calibration target; a
+#: value outside is a unit mix-up, and (1e-300 mm, say) would underflow the detector's area limits.
+MIN_LENGTH_MM = 1e-3
+MAX_LENGTH_MM = 1e5
+#: Points per board side at most (a 1000 x 1000 grid is 10^6 dots; more is a typo).
+MAX_GRID_SIDE = 1000
 
 
 @dataclass(frozen=True)
@@ -54,10 +60,25 @@ class Board:
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
             raise InputError(f"unknown layout {self.layout!r}; expected one of {', '.join(LAYOUTS)}")
-        if self.rows < 2 or self.cols < 2:
-            raise InputError(f"a grid needs at least 2x2 points, got {self.rows}x{self.cols}")
+        for name in ("rows", "cols"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise InputError(f"board {name} must be an integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if not (2 <= self.rows <= MAX_GRID_SIDE and 2 <= self.cols <= MAX_GRID_SIDE):
+            raise InputError(f"a grid needs at least 2x2 points (and at most {MAX_GRID_SIDE} per side), got "
+                             f"{self.rows}x{self.cols}")
+        for name in ("pitch_mm", "diameter_mm") + (("margin_mm",) if self.margin_mm is not None else ()):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                    or not np.isfinite(v):
+                raise InputError(f"board {name} must be a finite number (mm), got {v!r}")
+            object.__setattr__(self, name, float(v))
         if self.pitch_mm <= 0:
             raise InputError(f"pitch must be positive, got {self.pitch_mm} mm")
+        if not MIN_LENGTH_MM <= self.pitch_mm <= MAX_LENGTH_MM:
+            raise InputError(f"pitch must lie between {MIN_LENGTH_MM:g} and {MAX_LENGTH_MM:g} mm, got "
+                             f"{self.pitch_mm:g} mm (a unit mix-up? lengths take mm, cm, m or in)")
         if self.layout != "checkerboard":
             spacing = self.pitch_mm * (2 ** 0.5 if self.layout == "asymmetric" else 1.0)
             if not 0 < self.diameter_mm < spacing:

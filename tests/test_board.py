@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
+from circcal.errors import InputError
 
 
 def test_symmetric_order_matches_opencv():
@@ -71,3 +72,17 @@ def test_board_symmetries(board, n):
         c = obj - obj.mean(axis=0)
         A = np.linalg.lstsq(c, c[p], rcond=None)[0]
         assert np.allclose(c @ A, c[p]) and np.sign(np.linalg.det(A)) == s.det
+
+
+@pytest.mark.parametrize("args, message", [
+    ((7, 7, 1e-300, 0.5e-300), "between 0.001 and 100000 mm"),   # was ZeroDivisionError deep in the detector
+    ((7, 7, 2e5, 1e5), "between 0.001 and 100000 mm"),
+    ((7, 7, float("nan"), 5.0), "finite number"),
+    ((7, 7, 10.0, float("inf")), "finite number"),
+    ((True, 7, 10.0, 5.0), "rows must be an integer"),
+    ((7, 7.5, 10.0, 5.0), "cols must be an integer"),
+    ((7, 1001, 10.0, 5.0), "at most 1000"),
+])
+def test_board_values_are_checked(args, message):
+    with pytest.raises(InputError, match=message):
+        Board(*args)

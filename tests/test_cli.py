@@ -56,3 +56,63 @@ def test_every_command_is_registered():
     parser = cli.build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     assert set(sub.choices) == set(cli.COMMANDS)
+
+
+def test_outputs_are_checked_before_the_work(tmp_path, capsys):
+    """An output that is a folder, or in a folder that cannot be written, is refused at once (exit 2, one line)
+    instead of with a traceback after the whole calibration."""
+    from circcal.cli import main
+
+    model = tmp_path / "model.json"
+    model.write_text('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, '
+                     '"dist": [0, 0, 0, 0, 0]}}')
+    out_dir = tmp_path / "adir"
+    out_dir.mkdir()
+    assert main(["convert", str(model), str(out_dir)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    assert main(["calibrate", "nonexistent.png", "--grid", "7x7", "--pitch", "10mm", "--out", str(out_dir)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    assert main(["convert", str(model), str(model / "inside" / "x.yaml")]) == 2  # a file where a folder must be
+    assert "is not a folder" in capsys.readouterr().err
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        import os
+        if os.access(locked, os.W_OK):  # running as root: permissions are not enforced
+            pytest.skip("permissions are not enforced for this user (root)")
+        assert main(["convert", str(model), str(locked / "x.yaml")]) == 2
+        assert "not writable" in capsys.readouterr().err
+    finally:
+        locked.chmod(0o700)
+
+
+@pytest.mark.parametrize("content, field", [
+    ('{"camera": {"width": 640, "height": 480, "fx": true, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+     "fx"),
+    ('{"camera": {"width": 640, "height": 480, "fx": NaN, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+     "fx"),
+    ('{"camera": {"width": 640.5, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+     "width"),
+    ('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": null, "cy": 240, "dist": [0,0,0,0,0]}}',
+     "cx"),
+    ('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0, 0]}}',
+     "dist"),
+    ('{"camera": {"width": 640, "height": 480, "fx": -5, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+     "focal lengths must be positive"),
+    ('{"views": []}', "lacks"),
+    ('{"camera": ', "not valid JSON"),
+])
+def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, capsys, content, field):
+    """NaN, inf, booleans, null, non-integer sizes and distortion of the wrong length never pass into another file;
+    the message names the file and the field; an earlier output is left as it was."""
+    from circcal.cli import main
+
+    src = tmp_path / "bad.json"
+    src.write_text(content)
+    out = tmp_path / "camera.yaml"
+    out.write_text("previous content\n")
+    assert main(["convert", str(src), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(src) in err and field in err
+    assert out.read_text() == "previous content\n"

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
+from pathlib import Path
+
+from circcal.errors import InputError
 
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
 
@@ -49,6 +53,29 @@ def positive_float(text: str) -> float:
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text!r}")
     return value
+
+
+def check_output(path: Path, *, folder: bool = False) -> Path:
+    """Refuse, before any work, an output that cannot be written: a file output that is an existing folder (or a
+    folder output that is a file), or a place whose nearest existing parent folder is not writable. Missing parent
+    folders are fine (they are made when the output is written). Raises :class:`~circcal.errors.InputError` naming
+    the path; returns it."""
+    path = Path(path)
+    if path.exists():
+        if folder and not path.is_dir():
+            raise InputError(f"output folder {path} is a file")
+        if not folder and path.is_dir():
+            raise InputError(f"output file {path} is a folder")
+        if not os.access(path, os.W_OK):
+            raise InputError(f"output {path} is not writable (permission denied)")
+    parent = path.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"cannot write {path}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write {path}: folder {parent} is not writable (permission denied)")
+    return path
 
 
 DIAMETER_HELP = "dot diameter, e.g. 5mm (default: half the spacing of nearest dots)"

@@ -5,7 +5,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
+from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
+                                   positive_int)
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -88,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     from circcal.formats import detect_format, write_camera
 
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
-    fmt = detect_format(args.out)  # fail before the work on an unknown extension
+    check_output(args.out)  # fail before the work on an unwritable place or an unknown extension
+    fmt = detect_format(args.out)
     try:
         cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,
                                fix_aspect_ratio=args.fix_aspect_ratio, fix_principal_point=args.fix_principal_point,

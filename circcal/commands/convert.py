@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from circcal.commands.args import check_output
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from circcal.formats import FORMATS
@@ -24,17 +26,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    from circcal.formats import detect_format, read_model, write_camera
 
-    from circcal.formats import read_camera, write_camera
-
-    camera = read_camera(args.input, args.from_fmt)
-    model_json = None
-    if (args.to_fmt or "") == "json" or (args.to_fmt is None and args.output.suffix.lower() == ".json"):
-        # keep the whole model.json (std, errors, poses) when converting json -> json
-        if args.input.suffix.lower() == ".json":
-            model_json = json.loads(args.input.read_text())
-    fmt = write_camera(args.output, camera, args.to_fmt, document=model_json, colmap_model=args.colmap_model)
+    check_output(args.output)
+    to_fmt = args.to_fmt or detect_format(args.output)
+    camera, document = read_model(args.input, args.from_fmt)
+    # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
+    fmt = write_camera(args.output, camera, to_fmt, document=document if to_fmt == "json" else None,
+                       colmap_model=args.colmap_model)
     print(f"{args.input} -> {args.output} ({fmt}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
           f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
     return 0

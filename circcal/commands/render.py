@@ -5,6 +5,7 @@ import argparse
 import shutil
 from pathlib import Path
 
+from circcal.commands.args import check_output
 from circcal.errors import InputError
 
 
@@ -32,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
         return 0 if args.list else 2
     if args.out is None:
         raise InputError("--out DIR is required")
+    check_output(args.out, folder=True)
     sc = get_scenario(args.scenario)
     variants = args.variant or list(sc.variants)
     for v in variants:

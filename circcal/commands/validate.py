@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_float
+from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
+                                   positive_float)
 from circcal.errors import InputError
 from circcal.validators.checks import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
@@ -51,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
     from circcal.validators.validate import Bounds, format_table, run_validation, write_report
 
+    if args.report:
+        check_output(args.report, folder=True)
     against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
     truth_cam = None
     if args.images:
