@@ -7,6 +7,9 @@
 """
 from __future__ import annotations
 
+import hashlib
+import os
+import stat
 import warnings
 from collections import Counter
 from dataclasses import dataclass, field
@@ -16,13 +19,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal import detector as det_mod
-from circcal.detector import Reason, Rejection
+from circcal.detector import Detection, Reason, Rejection
 from circcal.errors import CalibrationError, InputError
 from circcal.formats import model_json
 from circcal.observations import MIN_VIEWS
 from circcal.solver import CalibrationResult, calibrate, leave_one_out
 
-__all__ = ["ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections"]
+__all__ = ["ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections",
+           "duplicates_of"]
 
 
 class TooFewImagesError(CalibrationError):
@@ -75,6 +79,37 @@ def _points_of(centres: np.ndarray, board_points: np.ndarray) -> tuple[np.ndarra
     return board_points[ok], c[ok]
 
 
+def duplicates_of(paths: Sequence[str]) -> dict[int, tuple[int, str]]:
+    """Images given more than once: ``{i: (j, how)}`` for each path ``i`` that is the same file as an earlier path
+    ``j`` (``how`` = "same file as"), or holds the same bytes ("identical content to"). Files that cannot be read
+    are left to the detector (it reports them)."""
+    seen_file: dict[tuple[int, int], int] = {}
+    seen_bytes: dict[str, int] = {}
+    out: dict[int, tuple[int, str]] = {}
+    for i, p in enumerate(paths):
+        try:
+            st = os.stat(p)
+            if not stat.S_ISREG(st.st_mode):
+                continue
+            key = (st.st_dev, st.st_ino)
+            if key in seen_file:
+                out[i] = (seen_file[key], "same file as")
+                continue
+            seen_file[key] = i
+            h = hashlib.sha256()
+            with open(p, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+            digest = h.hexdigest()
+        except OSError:
+            continue
+        if digest in seen_bytes:
+            out[i] = (seen_bytes[digest], "identical content to")
+        else:
+            seen_bytes[digest] = i
+    return out
+
+
 def calibrate_images(
     paths: Sequence[str | Path],
     board,
@@ -104,7 +139,14 @@ def calibrate_images(
     paths = [str(p) for p in paths]
     if not paths:
         raise InputError("no images given")
-    detections = det_mod.detect_files(paths, board, camera=None, progress=progress, jobs=jobs)
+    first = duplicates_of(paths)
+    unique = [i for i in range(len(paths)) if i not in first]
+    found_unique = det_mod.detect_files([paths[i] for i in unique], board, camera=None, progress=progress, jobs=jobs)
+    detections: list[Detection] = [None] * len(paths)  # type: ignore[list-item]
+    for i, d in zip(unique, found_unique):
+        detections[i] = d
+    for i, (j, how) in first.items():
+        detections[i] = Detection(False, None, f"{how} {paths[j]} (given earlier): counted once", Reason.DUPLICATE)
     found = [i for i, d in enumerate(detections) if d.found]
     if image_size is None and found:
         # one calibration is one camera mode: the size most images share (the first such on a tie)

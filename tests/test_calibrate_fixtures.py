@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -155,3 +156,23 @@ def test_real_photographs_board_refined(realdata, name):
     assert rms <= 1.03 * theirs.errors["rms_per_point_px"] and h_refined <= 1.03 * h_theirs
     std = cal.result.board_std
     assert 5.0 * np.median(std[std > 0]) <= dev.max() <= 3.0  # a significant deformation, of printed-sheet size
+
+
+def test_duplicate_images_are_counted_once(tmp_path):
+    """The same image given twice, or a copy under another name, would shrink the stated sigmas without adding
+    information: it is reported (reason code "duplicate", naming the first) and the model is the one of the unique
+    images."""
+    from circcal.detector import Reason
+
+    truth = load_truth(fixture_dir("small-noisy"))
+    paths = [str(v.image) for v in truth.views]
+    copy = tmp_path / "copy_of_first.png"
+    shutil.copy(paths[0], copy)
+    cal = calibrate_images(paths + [paths[1], str(copy)], truth.board, progress=False, image_size=(640, 480))
+    once = calibrate_images(paths, truth.board, progress=False, image_size=(640, 480))
+    assert len(cal.used) == len(paths)
+    assert [(r.path, r.code) for r in cal.failed] == [(paths[1], Reason.DUPLICATE), (str(copy), Reason.DUPLICATE)]
+    assert "same file as" in cal.failed[0].reason and paths[1] in cal.failed[0].reason
+    assert "identical content to" in cal.failed[1].reason and paths[0] in cal.failed[1].reason
+    np.testing.assert_array_equal(cal.result.camera.intrinsics, once.result.camera.intrinsics)
+    assert cal.result.std == once.result.std

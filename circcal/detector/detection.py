@@ -30,6 +30,9 @@ class Reason(str, enum.Enum):
     CENTRE_CORRECTION_FAILED = "centre-correction-failed"
     #: the image's size differs from the camera model's (or from the other images of a calibration)
     WRONG_IMAGE_SIZE = "wrong-image-size"
+    #: the same file (or a file with identical content) was given before: counted once, or the views it adds
+    #: would shrink the stated uncertainty without adding information
+    DUPLICATE = "duplicate"
 
 
 @dataclass
