@@ -116,3 +116,56 @@ def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, ca
     err = capsys.readouterr().err
     assert str(src) in err and field in err
     assert out.read_text() == "previous content\n"
+
+
+def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatch, capsys):
+    """detections.json is written as results come in: a bug (or an interruption) at the third image leaves the
+    first two on disk, marked incomplete; the bug keeps its traceback (exit 70)."""
+    import json
+
+    import circcal.commands.detect as detect_cmd
+    import circcal.detector.files as files
+    from circcal.cli import main
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+
+    truth = load_truth(fixture_dir("small-noisy"))
+    paths = [str(v.image) for v in truth.views[:4]]
+    real = files.detect
+    calls = []
+
+    def flaky(img, board, camera=None):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("a bug in the third image")
+        return real(img, board, camera)
+
+    monkeypatch.setattr(files, "detect", flaky)
+    monkeypatch.setattr(detect_cmd, "SAVE_EVERY_S", 0.0)
+    out = tmp_path / "detections.json"
+    b = truth.board
+    code = main(["detect", *paths, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm", "--diameter",
+                 f"{b.diameter_mm}mm", "--json", str(out), "--jobs", "1", "--quiet"])
+    assert code == 70 and "a bug in the third image" in capsys.readouterr().err
+    doc = json.loads(out.read_text())
+    assert doc["complete"] is False and [e["image"] for e in doc["images"]] == paths[:2]
+    assert all(e["found"] for e in doc["images"])
+
+
+def test_detect_reads_the_model_in_any_format(tmp_path):
+    """--model takes an OpenCV YAML (or any format convert reads), not only model.json."""
+    import json
+
+    from circcal.cli import main
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.formats import write_camera
+
+    truth = load_truth(fixture_dir("small-noisy"))
+    model = tmp_path / "camera.yaml"
+    write_camera(model, truth.camera)
+    out = tmp_path / "d.json"
+    board = truth.board
+    code = main(["detect", str(truth.views[0].image), "--grid", f"{board.rows}x{board.cols}", "--pitch",
+                 f"{board.pitch_mm}mm", "--diameter", f"{board.diameter_mm}mm", "--model", str(model), "--json",
+                 str(out), "--quiet"])
+    doc = json.loads(out.read_text())
+    assert code == 0 and doc["complete"] and doc["images"][0]["found"] and doc["images"][0]["reason_code"] is None

@@ -1,16 +1,24 @@
-"""``circcal detect IMAGES... --grid RxC [--asymmetric] [--model model.json] --json OUT [--overlay DIR]``.
+"""``circcal detect IMAGES... --grid RxC [--asymmetric] [--model MODEL] --json OUT [--overlay DIR]``.
 
-Writes ``{"board": board.to_dict(), "images": [{"image": path, "found": bool, "centers": [[x, y], ...] | null,
-"reason": null | "why not"}]}``. ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)).
-A failed image never stops the others and always says why.
+Writes ``{"board": board.to_dict(), "complete": bool, "images": [{"image": path, "found": bool,
+"centers": [[x, y], ...] | null, "reason": null | "why not", "reason_code": null | code}]}``, images in the order
+given. The file is rewritten (atomically) as results come in, at most every few seconds and once at the end, so an
+interruption or a failure loses nothing already done; ``"complete": false`` marks a partial file (images still
+missing are left out). ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)). ``--model``: a
+camera in any format circcal reads (model.json, OpenCV YAML, mrcal, COLMAP, ROS) for the distortion-aware centre
+correction. A failed image never stops the others and always says why.
 """
 from __future__ import annotations
 
 import argparse
-import json
+import time
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
+from circcal.commands.args import DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm, \
+    positive_int
+
+#: The partial detections.json is rewritten at most this often (s): an interruption loses at most this much work.
+SAVE_EVERY_S = 2.0
 
 
 def add_parser(subparsers) -> None:
@@ -22,7 +30,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--pitch", type=parse_length_mm, default=10.0,
                    help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)")
     p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
-    p.add_argument("--model", type=Path, default=None, help="model.json with a 'camera' block (distortion-aware)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="camera model (any format circcal reads) for the distortion-aware centre correction")
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
     p.add_argument("--overlay", type=Path, default=None, help="folder for PNG overlays to check by eye")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -31,31 +40,52 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from circcal.detector import detect_files, read_image
-    from circcal.model import Camera
+def _entry(path: Path, d) -> dict:
+    return {"image": str(path), "found": bool(d.found), "centers": d.centres.tolist() if d.found else None,
+            "reason": d.reason, "reason_code": None if d.code is None else d.code.value}
 
+
+def run(args: argparse.Namespace) -> int:
+    from circcal import atomic
+    from circcal.detector import detect_files, read_image
+    from circcal.formats import read_camera
+    from circcal.jsonio import dumps
+
+    check_output(args.json_out)
+    if args.overlay is not None:
+        check_output(args.overlay, folder=True)
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
-    camera = None
-    if args.model is not None:
-        data = json.loads(Path(args.model).read_text())
-        if "camera" not in data:
-            raise ValueError(f"{args.model} has no 'camera' block")
-        camera = Camera.from_dict(data["camera"])
-    dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs)
-    out = {"board": board.to_dict(), "images": []}
-    for path, d in zip(args.images, dets):
-        out["images"].append({"image": str(path), "found": bool(d.found),
-                              "centers": d.centres.tolist() if d.found else None,
-                              "reason": d.reason})
-        if args.overlay is not None:
-            img = read_image(Path(path)) if Path(path).exists() else None
+    camera = read_camera(args.model) if args.model is not None else None
+    entries: dict[int, dict] = {}
+    last_save = [time.monotonic()]
+
+    def save(complete: bool) -> None:
+        doc = {"board": board.to_dict(), "complete": complete,
+               "images": [entries[i] for i in sorted(entries)]}
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        atomic.write_text(args.json_out, dumps(doc, indent=1) + "\n")
+        last_save[0] = time.monotonic()
+
+    def on_result(i: int, d) -> None:
+        path = Path(args.images[i])
+        entries[i] = _entry(path, d)
+        if args.overlay is not None and path.is_file():
+            img = read_image(path)
             if img is not None:
                 from circcal.detector.overlay import write_overlay
 
-                write_overlay(Path(args.overlay) / (Path(path).stem + "_detect.png"), img, d)
-    args.json_out.parent.mkdir(parents=True, exist_ok=True)
-    args.json_out.write_text(json.dumps(out, indent=1))
+                write_overlay(Path(args.overlay) / (path.stem + "_detect.png"), img, d)
+        if time.monotonic() - last_save[0] >= SAVE_EVERY_S:
+            save(complete=False)
+
+    try:
+        dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs,
+                            on_result=on_result)
+    except BaseException:
+        if entries:
+            save(complete=False)  # keep what is done: an interruption or a failure in a later image
+        raise
+    save(complete=True)
     n = sum(d.found for d in dets)
     print(f"circcal detect: grid found in {n} of {len(dets)} images -> {args.json_out}")
     for path, d in zip(args.images, dets):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Callable
 
 from circcal.board import Board
 from circcal.detector.detection import Detection, Reason
@@ -20,7 +21,8 @@ MAX_DEFAULT_JOBS = 8
 
 
 def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, progress: bool = True,
-                 jobs: int | None = None) -> list[Detection]:
+                 jobs: int | None = None, on_result: Callable[[int, Detection], None] | None = None
+                 ) -> list[Detection]:
     """:func:`~circcal.detector.find.detect` on each image file, in the order given. A missing, unreadable or
     corrupt file, an image the detector cannot take, or one of another size than ``camera``'s, gives
     ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is caught. Shows a tqdm progress
@@ -28,9 +30,11 @@ def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, 
 
     ``jobs``: images processed at once, in threads (decoding, OpenCV and the compiled loops release the GIL); ``None``
     = one per CPU (at most :data:`MAX_DEFAULT_JOBS`). The results do not depend on it: each image is detected on its
-    own. Raises ``ValueError`` for ``jobs < 1``.
+    own. ``on_result(i, detection)`` is called (in the calling thread) as soon as image ``i`` is done, in the order
+    they finish: a caller can save each result as it comes, so an interruption loses nothing already done. Raises
+    ``ValueError`` for ``jobs < 1``.
     """
-    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import ThreadPoolExecutor, as_completed
 
     from tqdm import tqdm
 
@@ -40,17 +44,28 @@ def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, 
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     bar = tqdm(total=len(paths), desc="detect", unit="img", disable=not progress)
     try:
+        out: list[Detection | None] = [None] * len(paths)
+
+        def done(i: int, d: Detection) -> None:
+            out[i] = d
+            bar.update()
+            if on_result is not None:
+                on_result(i, d)
+
         if jobs == 1 or len(paths) < 2:
-            out = []
-            for p in paths:
-                out.append(_detect_file(p, board, camera))
-                bar.update()
-            return out
+            for i, p in enumerate(paths):
+                done(i, _detect_file(p, board, camera))
+            return out  # type: ignore[return-value]
         with ThreadPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
-            futures = [pool.submit(_detect_file, p, board, camera) for p in paths]
-            for f in futures:
-                f.add_done_callback(lambda _: bar.update())
-            return [f.result() for f in futures]
+            futures = {pool.submit(_detect_file, p, board, camera): i for i, p in enumerate(paths)}
+            try:
+                for f in as_completed(futures):
+                    done(futures[f], f.result())
+            except BaseException:
+                for f in futures:  # an interruption or a bug: do not start the images still queued
+                    f.cancel()
+                raise
+        return out  # type: ignore[return-value]
     finally:
         bar.close()
 

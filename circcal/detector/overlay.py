@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from circcal import atomic
+
 from circcal.detector.detection import Detection
 from circcal.detector.ellipse import conic_params, fit_ellipse_direct
 from circcal.detector.image import as_gray, normalise_u8
@@ -63,9 +65,11 @@ def draw_detection(image: np.ndarray, detection: Detection) -> np.ndarray:
 
 
 def write_overlay(path: Path, image: np.ndarray, detection: Detection) -> Path:
-    """Write :func:`draw_detection` as PNG to ``path`` (parent folders created). Returns the path."""
+    """Write :func:`draw_detection` as PNG to ``path``, atomically (parent folders created). Returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), draw_detection(image, detection)):
-        raise ValueError(f"could not write overlay {path}")
+    ok, png = cv2.imencode(".png", draw_detection(image, detection))
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode the overlay for {path}")
+    atomic.write_bytes(path, png.tobytes())
     return path
