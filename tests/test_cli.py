@@ -169,3 +169,49 @@ def test_detect_reads_the_model_in_any_format(tmp_path):
                  str(out), "--quiet"])
     doc = json.loads(out.read_text())
     assert code == 0 and doc["complete"] and doc["images"][0]["found"] and doc["images"][0]["reason_code"] is None
+
+
+def test_sigterm_unwinds_cleanly(monkeypatch, capsys):
+    """A stop request (SIGTERM) unwinds like Ctrl-C: finally blocks run, exit 130, one line."""
+    import os
+    import signal
+
+    cleaned = []
+
+    def stopped(args):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            import time
+            time.sleep(5)  # the handler raises before this returns
+        finally:
+            cleaned.append(True)
+
+    _with_command(monkeypatch, stopped)
+    old = signal.getsignal(signal.SIGTERM)
+    try:
+        assert cli.main(["x"]) == 130
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert cleaned == [True] and capsys.readouterr().err.strip() == "terminated"
+
+
+def test_pycolmap_import_leaves_sigterm_alone():
+    """pycolmap/pyceres bring glog, whose failure handler printed a native stack dump on SIGTERM (seen when a
+    validate run was stopped): the adapter imports them without letting glog keep SIGTERM."""
+    import subprocess
+    import sys
+
+    code = ("import os, signal\n"
+            "from circcal.validators.pycolmap import PycolmapCalibrator\n"
+            "ok, why = PycolmapCalibrator().available()\n"
+            "assert ok, why\n"
+            "os.kill(os.getpid(), signal.SIGTERM)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == -signal_number("SIGTERM"), (run.returncode, run.stderr[-2000:])
+    assert "stack trace" not in run.stderr and "*** SIGTERM" not in run.stderr
+
+
+def signal_number(name: str) -> int:
+    import signal
+
+    return int(getattr(signal, name))

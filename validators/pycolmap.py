@@ -31,6 +31,24 @@ MODELS = ("FULL_OPENCV", "OPENCV")
 COLMAP_OFFSET = 0.5  # COLMAP pixel = OpenCV pixel + 0.5
 
 
+
+def _import(name: str):
+    """Import pycolmap or pyceres without letting their glog take over SIGTERM: glog installs a failure handler that
+    prints a native stack dump when the process is merely asked to stop. The handler in place before the import
+    (Python's, or the CLI's clean-shutdown one) is put back; glog keeps its handlers for real crashes."""
+    import importlib
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():  # signal handlers belong to the main thread
+        return importlib.import_module(name)
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        return importlib.import_module(name)
+    finally:
+        if before is not None:
+            signal.signal(signal.SIGTERM, before)
+
 class PycolmapCalibrator(BaseCalibrator):
     """Reference: pycolmap's Ceres bundle adjustment. ``model``: "FULL_OPENCV" (k4-k6 fixed at 0) or "OPENCV"
     (no k3: k3 = 0). ``max_iterations``: Ceres iterations (tolerances are set tight)."""
@@ -45,18 +63,18 @@ class PycolmapCalibrator(BaseCalibrator):
         self.max_iterations = int(max_iterations)
 
     def _version(self) -> str:
-        import pycolmap
+        pycolmap = _import("pycolmap")
 
         return pycolmap.__version__
 
     def _available(self) -> tuple[bool, str]:
         try:
-            import pycolmap  # noqa: F401
+            pycolmap = _import("pycolmap")  # noqa: F841
         except ImportError as exc:
             return False, f"pycolmap not importable ({exc}); pip install pycolmap pyceres"
         if self.model == "FULL_OPENCV":
             try:
-                import pyceres  # noqa: F401
+                pyceres = _import("pyceres")  # noqa: F841
             except ImportError as exc:
                 return False, (f"pyceres not importable ({exc}): needed to hold k4-k6 fixed in FULL_OPENCV; "
                                "pip install pyceres, or use model='OPENCV'")
@@ -64,7 +82,7 @@ class PycolmapCalibrator(BaseCalibrator):
 
     def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
                    image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
-        import pycolmap
+        pycolmap = _import("pycolmap")
 
         t0 = time.perf_counter()
         w, h = image_size
@@ -132,7 +150,7 @@ class PycolmapCalibrator(BaseCalibrator):
         fixed: list[str]
         manifold = None
         if self.model == "FULL_OPENCV":
-            import pyceres
+            pyceres = _import("pyceres")
 
             # keep a Python reference: Ceres does not own the manifold, and a collected temporary segfaults the solve
             manifold = pyceres.SubsetManifold(12, [9, 10, 11])  # k4, k5, k6 (index 8 is k3: it stays free)
