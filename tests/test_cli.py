@@ -215,3 +215,31 @@ def signal_number(name: str) -> int:
     import signal
 
     return int(getattr(signal, name))
+
+
+def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
+    """A write that fails half way (disk full, quota: here a 4 KiB file-size limit, as `ulimit -f 4`) leaves the
+    previous output as it was and no temporary file behind; the error is one line (exit 2)."""
+    import json
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    big = tmp_path / "model.json"
+    doc = {"camera": {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0,
+                      "dist": [0.0] * 5}, "views": [{"rvec": [0.1, 0.2, 0.3], "tvec_mm": [1.0, 2.0, 300.0]}] * 200}
+    big.write_text(json.dumps(doc))
+    out = tmp_path / "previous.json"
+    out.write_text('{"previous": true}\n')
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write then fails with EFBIG instead of a kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+    run = subprocess.run([sys.executable, "-m", "circcal.cli", "convert", str(big), str(out)], capture_output=True,
+                         text=True, timeout=120, preexec_fn=limit)
+    assert run.returncode == 2, run.stderr
+    assert "File too large" in run.stderr and "Traceback" not in run.stderr
+    assert out.read_text() == '{"previous": true}\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "previous.json"]
