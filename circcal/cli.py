@@ -16,6 +16,7 @@ import signal
 import sys
 import threading
 import traceback
+import warnings
 
 from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
 
@@ -52,8 +53,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_BAD_INPUT
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _terminate)
+    main_thread = threading.current_thread() is threading.main_thread()
+    old_sigterm = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
+    old_show = warnings.showwarning
+
+    def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+        # a warning is part of the answer (e.g. "did not converge"): one readable line, not a source location
+        print(f"circcal {args.command}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show_warning
     try:
         return int(args.func(args) or 0)
     except (KeyboardInterrupt, Terminated) as exc:
@@ -68,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"circcal {args.command}: internal error (a bug in circcal, not in your input); please report it "
               f"with the traceback above", file=sys.stderr)
         return EXIT_INTERNAL_ERROR
+    finally:
+        warnings.showwarning = old_show
+        if main_thread:
+            signal.signal(signal.SIGTERM, old_sigterm)
 
 
 if __name__ == "__main__":

@@ -243,3 +243,16 @@ def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
     assert "File too large" in run.stderr and "Traceback" not in run.stderr
     assert out.read_text() == '{"previous": true}\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "previous.json"]
+
+
+def test_warnings_are_one_readable_line(monkeypatch, capsys):
+    import warnings
+
+    def warns(args):
+        warnings.warn("calibration did not converge (iteration limit 200 reached)", RuntimeWarning)
+        return 0
+
+    _with_command(monkeypatch, warns)
+    assert cli.main(["x"]) == 0
+    assert capsys.readouterr().err.strip() == (
+        "circcal x: warning: calibration did not converge (iteration limit 200 reached)")
