@@ -11,8 +11,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "report", help="write the comparison report (markdown + self-contained HTML + figures + report.json)",
         description="Run circcal and the reference calibrators on the paper's rendered fixtures (four illumination "
                     "conditions, plus a rendered checkerboard), a centre-bias study on clean renders and the real "
-                    "photographs in ../shared/data/realdata, and write OUT/latest/ (index.md, index.html, PNG "
-                    "figures, report.json) atomically, plus the index OUT/README.md. Takes ~10 minutes on 2 cores; "
+                    "photographs in ../shared/data/realdata ($CIRCCAL_REALDATA overrides; a set not found is "
+                    "marked missing), and write OUT/latest/ (index.md, index.html, PNG figures, report.json, "
+                    "timings.json) atomically, plus the index OUT/README.md. Takes ~10-15 minutes on 2 cores; "
                     "--quick runs a reduced set in well under a minute (not the published numbers).")
     p.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports/)")
     p.add_argument("--quick", action="store_true",

@@ -1,0 +1,130 @@
+"""The whole report: :func:`compute` gathers every number (deterministic: fixed fixtures, fixed seeds, no clocks in
+the numbers; run times kept apart in ``timings``); :func:`write_report` turns them into ``index.md``, a
+self-contained ``index.html``, the PNG figures, ``report.json`` and ``timings.json``, written atomically (a temporary
+folder beside the target, renamed into place: a failure leaves the previous report untouched); :func:`generate`
+does both and updates the index ``README.md`` of the reports folder.
+
+The document and the figures are drawn from report.json's tree as written (read back), plus the run times, so the
+published text holds nothing report.json and timings.json do not.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from circcal import atomic
+from circcal.jsonio import jsonable
+from circcal.report import render
+from circcal.report.bias import bias_study
+from circcal.report.capture import study_warnings
+from circcal.report.checkerboard import checkerboard_condition
+from circcal.report.config import FULL, PAPER_PUBLISHED, QUICK, ReportConfig
+from circcal.report.document import TITLE, document
+from circcal.report.environment import environment
+from circcal.report.figures import make_figures
+from circcal.report.paper import paper_condition
+from circcal.report.precision import CHECK_QUANTUM, precision_note, quantise, round_sig
+from circcal.report.prose import header_line, headline
+from circcal.report.realdata import realdata_entry
+from circcal.report.rendered import fixture_summary
+
+__all__ = ["compute", "generate", "published_results", "write_report"]
+
+
+def _each(names: tuple[str, ...], study: Callable[[str], tuple[Any, Any]], prefix: str, log: dict, desc: str,
+          progress: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``study(name)`` -> (numbers, run times) for every name, each under its own warning capture
+    (``log["<prefix>/<name>"]``)."""
+    from tqdm import tqdm
+
+    out, times = {}, {}
+    for name in tqdm(names, desc=f"report: {desc}", unit=desc.split()[-1], disable=not progress):
+        with study_warnings(log, f"{prefix}/{name}"):
+            out[name], times[name] = study(name)
+    return out, times
+
+
+def _trim_checks(paper: dict[str, Any]) -> None:
+    """Agreement values of 1e-12..1e-6 px move between runs (threaded reductions in the solvers) and a passing
+    check's note says which side of the px bound it landed: quantise them, and keep them only when a check fails."""
+    for condition in paper.values():
+        for ch in condition["checks"]:
+            ch["value"] = quantise(ch["value"], CHECK_QUANTUM)
+            if ch["passed"]:
+                ch.pop("value")
+                ch.pop("note")
+
+
+def compute(cfg: ReportConfig = FULL, *, progress: bool = True) -> dict[str, Any]:
+    """Every number of the report (JSON-ready, :data:`~circcal.report.precision.SIG_DIGITS` significant digits).
+    ``result["warnings"]`` holds what each study warned (:func:`~circcal.report.capture.study_warnings`);
+    ``result["timings"]`` holds run times (s) and is the only part that changes from run to run:
+    :func:`write_report` keeps it out of ``report.json``."""
+    log: dict[str, list] = {}
+    timings: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    paper, timings["paper"] = _each(cfg.conditions, lambda v: paper_condition(v, cfg, progress=False), "paper", log,
+                                    "paper conditions", progress)
+    cb, timings["checkerboard"] = _each(cfg.checkerboard_conditions,
+                                        lambda v: checkerboard_condition(v, cfg, progress=False), "checkerboard",
+                                        log, "checkerboard conditions", progress)
+    with study_warnings(log, "bias"):
+        bias, timings["bias"] = bias_study(cfg, progress=progress)
+    real, timings["realdata"] = _each(cfg.realdata, lambda n: realdata_entry(n, cfg), "realdata", log,
+                                      "real sets", progress)
+    timings["total_compute_s"] = time.perf_counter() - t0
+    _trim_checks(paper)
+    fixtures = {s: fixture_summary(s) for s in ("paper", "paper-checkerboard")}
+    numbers = round_sig(jsonable({"config": asdict(cfg), "fixtures": fixtures, "paper": paper, "checkerboard": cb,
+                                  "paper_published": PAPER_PUBLISHED, "bias": bias, "realdata": real,
+                                  "warnings": log, "environment": environment()}))
+    numbers["precision"] = precision_note()
+    numbers["timings"] = jsonable(timings)
+    return numbers
+
+
+def _report_json(results: dict[str, Any]) -> str:
+    """report.json: every number but the run times, keys sorted (the file is the same for the same numbers)."""
+    return json.dumps({k: v for k, v in results.items() if k != "timings"}, indent=1, sort_keys=True) + "\n"
+
+
+def published_results(report_json: str, timings: dict[str, Any]) -> dict[str, Any]:
+    """The results as the document is drawn from them: report.json's tree read back, with the run times of
+    timings.json (``{"date", "timings"}``)."""
+    return {**json.loads(report_json), "timings": timings.get("timings")}
+
+
+def write_report(results: dict[str, Any], out_dir: str | Path, *, name: str = "latest",
+                 header: str | None = None, date: str | None = None) -> Path:
+    """Write ``out_dir/name/`` (index.md, index.html, *.png, report.json, timings.json) atomically, then update
+    ``out_dir/README.md``. ``header``: the line under the title (default: when and by which command); ``date``: when
+    the numbers were computed (default: now; give timings.json's to re-render a report with the current code)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()) if date is None else date
+    stamped = {"date": date, "timings": results.get("timings")}
+    text = _report_json(results)
+    published = published_results(text, stamped)
+    kind = published["config"]["name"]
+    header = header_line(kind, date) if header is None else header
+    with atomic.folder(out_dir / name) as tmp:
+        (tmp / "report.json").write_text(text)
+        (tmp / "timings.json").write_text(json.dumps(stamped, indent=1) + "\n")
+        files = make_figures(published, tmp)
+        blocks = document(published, header)
+        (tmp / "index.md").write_text(render.to_markdown(blocks))
+        images = {f: (tmp / f).read_bytes() for f in files}
+        (tmp / "index.html").write_text(render.to_html(blocks, images, title=TITLE))
+    atomic.write_text(out_dir / "README.md", render.readme(name=name, date=date, kind=kind,
+                                                           headline=headline(published)))
+    return out_dir / name
+
+
+def generate(out: str | Path = "reports", *, quick: bool = False, progress: bool = True,
+             config: ReportConfig | None = None) -> Path:
+    """Compute and write the report into ``out/latest``; returns that folder."""
+    return write_report(compute(config or (QUICK if quick else FULL), progress=progress), out)
