@@ -13,7 +13,7 @@ import numpy as np
 
 from circcal.errors import InputError
 
-__all__ = ["jsonable", "dumps", "read_json"]
+__all__ = ["jsonable", "dumps", "read_text", "parse_json", "read_json"]
 
 
 def jsonable(x: Any) -> Any:
@@ -46,17 +46,31 @@ def dumps(x: Any, **kwargs: Any) -> str:
     return json.dumps(jsonable(x), allow_nan=False, **kwargs)
 
 
-def read_json(path: str | Path, what: str = "JSON file") -> Any:
-    """The data in ``path``; :class:`~circcal.errors.InputError` naming the file for a missing, unreadable or
-    malformed one (with the line and column of a syntax error). ``what`` names the kind of file in messages."""
+def read_text(path: str | Path, what: str = "file") -> str:
+    """The text in ``path``; :class:`~circcal.errors.InputError` naming the file (as ``what``) when it is missing,
+    not a file, or cannot be read or decoded."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} {p}: {'no such file' if not p.exists() else 'not a file'}")
     try:
-        text = p.read_text()
+        return p.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{what} {p}: cannot read it ({exc})") from None
+
+
+def parse_json(text: str) -> Any:
+    """``json.loads(text)``; :class:`~circcal.errors.InputError` with the line and column of a syntax error."""
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{what} {p}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+        raise InputError(f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+
+
+def read_json(path: str | Path, what: str = "JSON file") -> Any:
+    """The data in ``path``; :class:`~circcal.errors.InputError` naming the file for a missing, unreadable or
+    malformed one. ``what`` names the kind of file in messages."""
+    text = read_text(path, what)
+    try:
+        return parse_json(text)
+    except InputError as exc:
+        raise InputError(f"{what} {path}: {exc}") from None

@@ -32,7 +32,7 @@ from circcal.formats.modeljson import MODEL_FORMAT, MODEL_SECTIONS, MODEL_VERSIO
 from circcal.formats.mrcal import camera_from_cameramodel, camera_to_cameramodel
 from circcal.formats.opencv import camera_from_K_dist, camera_from_opencv_yaml, opencv_yaml_text
 from circcal.formats.ros import camera_from_ros_yaml, camera_to_ros_yaml
-from circcal.jsonio import dumps
+from circcal.jsonio import dumps, parse_json, read_text
 from circcal.model import Camera
 
 __all__ = [
@@ -81,28 +81,20 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
                      f"cameras.txt), or name the format ({', '.join(FORMATS)})")
 
 
-
-
 def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict | None]:
     """The camera in ``path`` (any supported format: ``fmt``, else from its content and name) and, for a
     model.json, the whole document (None for the other formats). Errors name the file: a missing or unreadable
     file, an unknown format, a malformed file or a value outside the model (:class:`~circcal.errors.ModelFileError`,
     an :class:`~circcal.errors.InputError`)."""
     p = Path(path)
-    if not p.is_file():
-        raise ModelFileError(f"camera file {p}: {'no such file' if not p.exists() else 'not a file'}")
     try:
-        text = p.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelFileError(f"camera file {p}: cannot read it ({exc})") from None
+        text = read_text(p, "camera file")
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     try:
         fmt = fmt or detect_format(p, text)
         if fmt == "json":
-            try:
-                data = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise ModelFileError(f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") \
-                    from None
+            data = parse_json(text)
             return camera_from_json(data), data
         readers = {"opencv": camera_from_opencv_yaml, "mrcal": camera_from_cameramodel,
                    "colmap": camera_from_colmap, "ros": camera_from_ros_yaml}
