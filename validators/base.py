@@ -117,6 +117,16 @@ class ReferenceResult:
         }
 
 
+#: What the suite calls on a reference calibrator (the rest of :class:`ReferenceCalibrator` has defaults in
+#: :class:`BaseCalibrator`).
+REQUIRED_MEMBERS: tuple[str, ...] = ("name", "available", "calibrate_observations")
+
+
+def missing_members(obj: Any) -> list[str]:
+    """The members of :data:`REQUIRED_MEMBERS` that ``obj`` lacks (empty: it can be used as a reference)."""
+    return [m for m in REQUIRED_MEMBERS if not hasattr(obj, m)]
+
+
 @runtime_checkable
 class ReferenceCalibrator(Protocol):
     """What the registry hands out. Third-party plug-ins implement this (subclassing :class:`BaseCalibrator` is the

@@ -44,7 +44,7 @@ from filelock import FileLock
 
 from circcal import atomic
 from circcal.model import Camera
-from circcal.validators.base import BaseCalibrator, ReferenceResult
+from circcal.validators.base import BaseCalibrator, ReferenceResult, missing_members
 
 __all__ = ["FunctionCalibrator", "load_calibrator", "parse_spec"]
 
@@ -154,10 +154,10 @@ def load_calibrator(spec: str) -> Any:
             raise ValueError(f"--calibrator {spec!r}: {attr} is a {type(obj).__name__}, not a function or a "
                              "ReferenceCalibrator")
         obj = FunctionCalibrator(obj, label or attr)
-    for need in ("name", "available", "calibrate_observations"):
-        if not hasattr(obj, need):
-            raise ValueError(f"--calibrator {spec!r}: the calibrator lacks {need!r} (see "
-                             "circcal.validators.base.ReferenceCalibrator)")
+    missing = missing_members(obj)
+    if missing:
+        raise ValueError(f"--calibrator {spec!r}: the calibrator lacks {missing[0]!r} (see "
+                         "circcal.validators.base.ReferenceCalibrator)")
     if label:
         obj.label = label
     return obj

@@ -15,7 +15,7 @@ import importlib
 import importlib.metadata
 from typing import Any, Callable
 
-from circcal.validators.base import ReferenceCalibrator
+from circcal.validators.base import ReferenceCalibrator, missing_members
 
 __all__ = ["ENTRY_POINT_GROUP", "BUILTINS", "names", "get", "all_available", "problems"]
 
@@ -71,9 +71,10 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
     except Exception as exc:  # noqa: BLE001
         raise ImportError(f"reference calibrator {name!r} could not be loaded: {type(exc).__name__}: {exc}") from exc
     obj = factory(**kwargs)
-    for attr in ("name", "available", "calibrate_observations"):
-        if not hasattr(obj, attr):
-            raise TypeError(f"reference calibrator {name!r} lacks {attr!r}; see circcal.validators.base.ReferenceCalibrator")
+    missing = missing_members(obj)
+    if missing:
+        raise TypeError(f"reference calibrator {name!r} lacks {missing[0]!r}; see "
+                        "circcal.validators.base.ReferenceCalibrator")
     return obj
 
 
