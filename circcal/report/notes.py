@@ -51,20 +51,23 @@ def bias_notes(results: dict[str, Any]) -> list[str]:
     return list(results["bias"].get("notes") or []) + warning_notes(results, "bias")
 
 
+def _model_difference(name: str, what: str, diff: dict[str, Any] | None) -> list[str]:
+    """The projection difference (px, rotation fitted) between two models of one set, if measured."""
+    if not diff:
+        return []
+    return [(f"{name}: {what}, projection difference (rotation fitted): RMS {fmt_number(diff['rms_px'])} px, max "
+             f"{fmt_number(diff['max_px'])} px")]
+
+
 def _set_notes(name: str, s: dict[str, Any]) -> list[str]:
     out = []
     for who, label in REALDATA_ROWS:
         r = s.get(who) or {}
         if r.get("status") not in (None, "ok"):
             out.append(f"{name}: {label} {r.get('status')}: {r.get('message')}")
-    vo = dig(s, "circcal", "vs_opencv")
-    if vo:
-        out.append(f"{name}: circcal's model vs OpenCV's, projection difference (rotation fitted): RMS "
-                   f"{fmt_number(vo['rms_px'])} px, max {fmt_number(vo['max_px'])} px")
-    vo = dig(s, "opencv_refined", "vs_circcal")
-    if vo:
-        out.append(f"{name}: board refined, circcal's model vs the one from OpenCV's centres, projection difference "
-                   f"(rotation fitted): RMS {fmt_number(vo['rms_px'])} px, max {fmt_number(vo['max_px'])} px")
+    out += _model_difference(name, "circcal's model vs OpenCV's", dig(s, "circcal", "vs_opencv"))
+    out += _model_difference(name, "board refined, circcal's model vs the one from OpenCV's centres",
+                             dig(s, "opencv_refined", "vs_circcal"))
     for who, label in REALDATA_ROWS:
         out += [f"{name}: held-out {label} {p['view']}: {p['failed']}"
                 for p in dig(s, "heldout", who, "per_view") or [] if "failed" in p]
