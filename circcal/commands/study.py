@@ -1,0 +1,61 @@
+"""``circcal study SPEC --out DIR``: a Monte-Carlo study or conformance matrix on Dask (an embedded cluster, or any
+cluster given its scheduler); resumable, one Parquet row per run, summary tables and figures in DIR."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from circcal import atomic
+from circcal.commands.args import check_output, positive_int
+from circcal.errors import EXIT_FAILED, EXIT_OK
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "study", help="run a study (scenarios x variants x seeds x calibrators x lens models) on Dask",
+        description="Run every missing run of a study spec (YAML, see circcal.study.spec) and write one Parquet row "
+                    "per run under OUT/rows, then OUT/summary.md, summary.json and figures. Runs already stored are "
+                    "skipped, so an interrupted study finishes by running the same command again. Exit status 1 "
+                    "when some tasks failed (their runs are missing: rerun), 2 on bad input.")
+    p.add_argument("spec", type=Path, help="study spec, e.g. studies/paper-2000.yaml")
+    p.add_argument("--out", type=Path, required=True, help="results folder (created; reused to resume)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler, e.g. tcp://host:8786 (default: an embedded LocalCluster)")
+    p.add_argument("--workers", type=positive_int,
+                   help="embedded: worker processes (default one per core, one thread each); with --scheduler: "
+                        "workers to wait for before starting")
+    p.add_argument("--summary-only", action="store_true", help="write the summary of the rows stored, run nothing")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from circcal.study import load_spec, run_study, write_summary
+
+    spec = load_spec(args.spec)
+    check_output(args.out, folder=True)
+    if args.summary_only:
+        if not (args.out / "study.yaml").exists():
+            args.out.mkdir(parents=True, exist_ok=True)
+            atomic.write_text(args.out / "study.yaml", spec.source)
+        print(f"summary: {write_summary(args.out)}")
+        return EXIT_OK
+    print(f"study {spec.name}: {spec.n_runs} runs in {len(spec.cells)} cells -> {args.out}")
+    res = run_study(spec, args.out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    if res.n_done_before < res.n_runs:
+        rate = res.n_computed / res.wall_s if res.wall_s > 0 else float("nan")
+        print(f"computed {res.n_computed} runs in {res.wall_s:.1f} s on {res.workers} workers ({rate:.3g} runs/s; "
+              f"cluster start {res.startup_s:.1f} s); {res.n_done_before} were done before")
+    else:
+        print(f"nothing to run: all {res.n_runs} runs were done before")
+    for line in res.errors:
+        print(f"task failed: {line}")
+    if res.complete:
+        from circcal.study.store import RowStore
+
+        RowStore(args.out).compact()
+    print(f"summary: {write_summary(args.out)}")
+    if res.errors:
+        print(f"{len(res.errors)} tasks failed: their runs are missing; run the same command again to finish them")
+        return EXIT_FAILED
+    return EXIT_OK

@@ -1,0 +1,167 @@
+"""Running a study on Dask: an embedded LocalCluster by default, any Dask cluster when given its scheduler.
+
+:func:`run_study` plans the runs (:mod:`circcal.study.plan`), drops those already stored
+(:mod:`circcal.study.store`: resumable), submits the remaining tasks with ``Client.map`` and writes rows as tasks
+finish, in batches, from the client only. Dask does all the scheduling, the placement and the recovery: a task
+whose worker dies is re-run elsewhere by the scheduler (``distributed.scheduler.allowed-failures``), and a task
+that fails is reported, its runs left missing for the next run of the same spec. Nothing here retries or queues.
+
+Embedded: ``LocalCluster(n_workers=N, threads_per_worker=1, processes=True)``, N = ``workers`` or one per core.
+Its workers start with one BLAS/OpenMP thread each (Dask's ``distributed.nanny.pre-spawn-environ``), as
+``dask worker`` processes do on a cluster, so both give the same rows.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from circcal import atomic
+from circcal.errors import InputError
+from circcal.study.plan import Task, plan
+from circcal.study.spec import StudySpec
+from circcal.study.store import RowStore
+
+__all__ = ["FLUSH_ROWS", "FLUSH_S", "StudyRun", "run_study", "study_keys"]
+
+#: Rows held in the client before they are written as one Parquet part, and the most seconds a finished row waits:
+#: a part costs ~5 ms, so 500 rows (a few seconds of work on a cluster) keep writing negligible, and 10 s bounds what
+#: a killed client loses (nothing finished before the last write).
+FLUSH_ROWS = 500
+FLUSH_S = 10.0
+#: Seconds to wait for the workers asked for on an external cluster before giving up.
+WORKER_WAIT_S = 120.0
+#: Seconds to keep trying to reach a scheduler before "cannot connect" (a cluster's scheduler answers in well under
+#: a second once up; Dask retries within this time).
+CONNECT_TIMEOUT_S = 30.0
+
+
+@dataclass
+class StudyRun:
+    """What :func:`run_study` did. ``n_runs``: runs in the spec; ``n_done_before``: already stored; ``n_computed``:
+    rows written now; ``errors``: one line per task that failed (its runs are still missing); ``wall_s``: seconds
+    from submitting the first task to the last row written (cluster start-up not included: ``startup_s``);
+    ``workers``: Dask workers when the tasks were submitted."""
+
+    spec: StudySpec
+    folder: Path
+    n_runs: int
+    n_done_before: int
+    n_computed: int = 0
+    errors: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+    startup_s: float = 0.0
+    workers: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return self.n_done_before + self.n_computed >= self.n_runs and not self.errors
+
+
+def study_keys(spec: StudySpec) -> set[str]:
+    """The run keys of ``spec``."""
+    return {r.key for t in plan(spec) for r in t.runs}
+
+
+@contextmanager
+def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({type(exc).__name__}: {exc})") from None
+        try:
+            if workers:
+                client.wait_for_workers(workers, timeout=WORKER_WAIT_S)
+            yield client
+        finally:
+            client.close()
+        return
+    n = workers or os.cpu_count() or 1
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+def _pending(spec: StudySpec, done: set[str]) -> list[Task]:
+    """The tasks still to run: each less its stored runs, and less runs an earlier task already carries (two cells
+    may name the same run)."""
+    seen = set(done)
+    out = []
+    for task in plan(spec):
+        t = task.without(seen)
+        seen.update(r.key for r in t.runs)
+        if t.runs:
+            out.append(t)
+    return out
+
+
+def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = None, workers: int | None = None,
+              progress: bool = True, flush_rows: int = FLUSH_ROWS, flush_s: float = FLUSH_S) -> StudyRun:
+    """Run every missing run of ``spec`` and store its row under ``folder`` (see the module docstring).
+
+    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); None starts an embedded cluster of ``workers``
+    processes (default one per core). With a scheduler, ``workers`` is how many workers to wait for before
+    submitting. ``flush_rows``/``flush_s``: rows per Parquet part / longest wait before a part is written.
+    Interrupting (Ctrl-C) writes the rows received so far, then re-raises.
+    """
+    from dask.distributed import as_completed
+    from tqdm import tqdm
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if spec.source:
+        atomic.write_text(folder / "study.yaml", spec.source)
+    store = RowStore(folder)
+    done = store.done_keys() & study_keys(spec)
+    out = StudyRun(spec, folder, spec.n_runs, len(done))
+    tasks = _pending(spec, done)
+    if not tasks:
+        return out
+    from circcal.study.execute import execute
+
+    t_start = time.perf_counter()
+    buffer: list[dict[str, Any]] = []
+    last_write = time.perf_counter()
+
+    def flush() -> None:
+        nonlocal last_write
+        store.append(buffer)
+        out.n_computed += len(buffer)
+        buffer.clear()
+        last_write = time.perf_counter()
+
+    with _client(scheduler, workers) as client:
+        out.workers = len(client.nthreads())
+        out.startup_s = time.perf_counter() - t_start
+        t0 = time.perf_counter()
+        futures = client.map(execute, tasks, key=[t.key for t in tasks])
+        by_key = {t.key: t for t in tasks}
+        bar = tqdm(total=sum(len(t.runs) for t in tasks), unit="run", desc=f"study {spec.name}",
+                   disable=not progress, smoothing=0.05)
+        try:
+            for fut in as_completed(futures):
+                if fut.status == "finished":
+                    rows = fut.result()
+                    buffer.extend(rows)
+                    bar.update(len(rows))
+                else:
+                    exc = fut.exception()
+                    task = by_key[fut.key]
+                    out.errors.append(f"task {fut.key} ({len(task.runs)} runs, cell {task.cell.index}, "
+                                      f"{task.cell.scenario} seed {task.runs[0].seed}): {type(exc).__name__}: {exc}")
+                fut.release()
+                if len(buffer) >= flush_rows or (buffer and time.perf_counter() - last_write >= flush_s):
+                    flush()
+        finally:
+            flush()
+            bar.close()
+        out.wall_s = time.perf_counter() - t0
+    return out
