@@ -81,12 +81,15 @@ class UnsupportedLayout(NotImplementedError):
     pass
 
 
-def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6) -> dict[str, Any]:
+def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False
+                  ) -> dict[str, Any]:
     """Map per-view board points (N_v, 3) mm onto mrcal's rectangular lattice.
 
     Returns ``{"spacing", "origin" (3,), "width_n", "height_n", "ij": [(N_v, 2) int (row i, column j)]}``.
-    Raises :class:`UnsupportedLayout` (a ``NotImplementedError``) for points off a square lattice or a staggered
-    (asymmetric) grid, ``ValueError`` for duplicated points in a view.
+    Raises :class:`UnsupportedLayout` (a ``NotImplementedError``) for points off a square lattice or, unless
+    ``staggered``, a staggered (asymmetric) grid, ``ValueError`` for duplicated points in a view. With ``staggered``
+    an asymmetric grid maps onto the full lattice with every other point missing (the export of optimisation inputs
+    uses it: mrcal leaves missing points out exactly; a calibration by mrcal is not seeded from such boards here).
     """
     allp = np.concatenate(object_points)
     xs = np.unique(np.round(allp[:, 0], 9))
@@ -112,7 +115,7 @@ def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6) -> 
             raise ValueError(f"view {v}: duplicated board points")
         ij.append(a)
     cat = np.concatenate(ij)
-    if len(np.unique(cat, axis=0)) > 4 and np.all((cat.sum(axis=1) % 2) == 0):
+    if not staggered and len(np.unique(cat, axis=0)) > 4 and np.all((cat.sum(axis=1) % 2) == 0):
         raise UnsupportedLayout(
             "asymmetric (staggered) circle grid: mrcal's board model needs a full rectangular W x H lattice; "
             "only symmetric grids are supported by the mrcal reference")

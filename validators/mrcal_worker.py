@@ -7,6 +7,9 @@ Protocol: one JSON object on stdin, one JSON object on stdout; exit status 0 on 
 
 ``python mrcal_worker.py --probe`` prints ``{"version": ..., "api": ...}`` and exits.
 
+A request with ``"command": "export"`` or ``"command": "uncertainty"`` runs :func:`export` or :func:`uncertainty`
+(see there); without ``"command"`` it is a calibration (below).
+
 Request::
 
     {"modes": ["fair", "default"],          # each solved from the same seed
@@ -156,6 +159,103 @@ def solve(req: dict) -> dict:
     return {"version": version, "version_source": vsrc, "api": api, "results": results}
 
 
+def _export_inputs(req: dict, api: str) -> dict:
+    """mrcal.optimize() inputs at a given solution (no optimisation run): LENSMODEL_OPENCV5 (OPENCV4 when k3 is held
+    at 0), the board lattice observations, the frames, and the fair-mode switches (no warp, no regularisation, no
+    outlier rejection: circcal's estimator, whose optimum this is)."""
+    import numpy as np
+
+    k_ext, k_frames = _names(api)
+    W, H = int(req["width_n"]), int(req["height_n"])
+    obs = np.ascontiguousarray(np.asarray(req["observations"], dtype=np.float64).reshape(-1, H, W, 3))
+    nf = obs.shape[0]
+    intr = np.asarray(req["intrinsics"], dtype=np.float64).reshape(1, 9)
+    lensmodel = "LENSMODEL_OPENCV5"
+    if req.get("opencv4"):
+        lensmodel, intr = "LENSMODEL_OPENCV4", intr[:, :8]
+    inputs = dict(intrinsics=np.ascontiguousarray(intr), lensmodel=lensmodel, points=None, observations_board=obs,
+                  indices_frame_camintrinsics_camextrinsics=np.array([[i, 0, -1] for i in range(nf)],
+                                                                      dtype=np.int32),
+                  observations_point=None, indices_point_camintrinsics_camextrinsics=None,
+                  imagersizes=np.array([req["imagersize"]], dtype=np.int32),
+                  calibration_object_spacing=float(req["spacing"]), calobject_warp=None,
+                  do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
+                  do_optimize_extrinsics=True, do_optimize_frames=True, do_optimize_calobject_warp=False,
+                  do_apply_outlier_rejection=False, do_apply_regularization=False, verbose=False)
+    inputs[k_ext] = np.zeros((0, 6))
+    inputs[k_frames] = np.ascontiguousarray(np.asarray(req["frames_rt_toref"], dtype=np.float64).reshape(nf, 6))
+    return inputs
+
+
+def _uncertainty_at(mrcal, model, uv, distance, sigma):
+    """mrcal.projection_uncertainty (worst-direction stdev, px) at pixels ``uv`` (N, 2), ``distance`` along each
+    ray (None: infinity) and per-coordinate noise ``sigma`` (None: mrcal's estimate from the residuals)."""
+    import numpy as np
+
+    q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    v = mrcal.unproject(q, *model.intrinsics(), normalize=True)
+    p = v if distance is None else v * float(distance)
+    s = mrcal.projection_uncertainty(p, model=model, atinfinity=distance is None, what="worstdirection-stdev",
+                                     observed_pixel_uncertainty=sigma)
+    return np.asarray(s, dtype=np.float64).reshape(-1).tolist()
+
+
+def export(req: dict) -> dict:
+    """A ``.cameramodel`` carrying mrcal's optimisation inputs, built from circcal's observations and solution.
+
+    Request: ``{"command": "export", "width_n", "height_n", "spacing", "observations" (Nframes, H, W, 3) with
+    w = 1 observed and -1 missing, "imagersize", "intrinsics" (9,), "frames_rt_toref" (Nframes, 6) in mrcal's
+    board frame, "opencv4": bool (k3 held at 0), "note": str, "uncertainty": null | {"uv", "distance",
+    "observed_pixel_uncertainty"}}``. Reply: ``{"version", "api", "cameramodel" (the file's text),
+    "rms_per_coord_px" (mrcal's, from its own residuals at this state), "max_abs_gradient" (of mrcal's cost in its
+    packed state: ~0 at an optimum), "uncertainty_stdev" (px, when asked)}``."""
+    import io
+
+    import numpy as np
+
+    import mrcal
+
+    api = _api(mrcal)
+    version, vsrc = _version(mrcal)
+    inputs = _export_inputs(req, api)
+    cb = mrcal.optimizer_callback(**inputs)
+    x, J = np.asarray(cb[1], dtype=np.float64), cb[2]
+    nobs = int(np.sum(inputs["observations_board"][..., 2] > 0))
+    model = mrcal.cameramodel(optimization_inputs=inputs, icam_intrinsics=0)
+    f = io.StringIO()
+    model.write(f, note=req.get("note"))
+    out = {"version": version, "version_source": vsrc, "api": api, "cameramodel": f.getvalue(),
+           "rms_per_coord_px": float(np.sqrt(np.sum(x * x) / (2 * nobs))),
+           "max_abs_gradient": float(np.max(np.abs(J.T @ x)))}
+    if req.get("uncertainty"):
+        u = req["uncertainty"]
+        out["uncertainty_stdev"] = _uncertainty_at(mrcal, model, u["uv"], u.get("distance"),
+                                                   u.get("observed_pixel_uncertainty"))
+    return out
+
+
+def uncertainty(req: dict) -> dict:
+    """mrcal's projection uncertainty of a ``.cameramodel`` with optimisation inputs. Request: ``{"command":
+    "uncertainty", "cameramodel": text, "uv": (N, 2), "distance": mm | null, "observed_pixel_uncertainty": px |
+    null}``. Reply: ``{"version", "api", "stdev" (N,) px, "lensmodel", "imagersize"}``; ``{"error"}`` when the model
+    has no optimisation inputs."""
+    import io
+
+    import mrcal
+
+    version, _ = _version(mrcal)
+    model = mrcal.cameramodel(io.StringIO(req["cameramodel"]))
+    if model.optimization_inputs() is None:
+        raise ValueError("the model has no optimization_inputs: mrcal cannot compute its uncertainty")
+    return {"version": version, "api": _api(mrcal), "lensmodel": model.intrinsics()[0],
+            "imagersize": [int(v) for v in model.imagersize()],
+            "stdev": _uncertainty_at(mrcal, model, req["uv"], req.get("distance"),
+                                     req.get("observed_pixel_uncertainty"))}
+
+
+COMMANDS = {"export": export, "uncertainty": uncertainty}
+
+
 def main(argv: list[str]) -> int:
     if "--probe" in argv:
         try:
@@ -168,7 +268,7 @@ def main(argv: list[str]) -> int:
         return 0
     try:
         req = json.loads(sys.stdin.read())
-        out = solve(req)
+        out = COMMANDS[req["command"]](req) if "command" in req else solve(req)
     except Exception as exc:  # noqa: BLE001
         import traceback
 

@@ -18,7 +18,7 @@ covariance. The images pipeline (detect -> calibrate -> re-correct) is :mod:`cir
 from __future__ import annotations
 
 import warnings
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -26,10 +26,14 @@ from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.metrics import error_stats
 from circcal.model import PARAM_NAMES, Camera, pixel_to_normalized, undistort
 from circcal.observations import check_observations
+from circcal.solver.covariance import state_covariance
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.problem import Problem, board_model
 from circcal.solver.result import CalibrationResult
 from circcal.solver.zhang import homographies, poses_from_homographies, view_tilts_deg, zhang
+
+if TYPE_CHECKING:  # annotations only
+    from circcal.solver.outliers import OutlierRule
 
 __all__ = [
     "CalibrationError",
@@ -68,6 +72,7 @@ def calibrate(
     image_size: tuple[int, int],
     *,
     fix_k3: bool = False,
+    fix_k2: bool = False,
     fix_tangential: bool = False,
     fix_aspect_ratio: bool = False,
     fix_principal_point: bool = False,
@@ -76,13 +81,14 @@ def calibrate(
     board_gauge: tuple[int, int, int] | None = None,
     max_iterations: int = 200,
     solver: str = "schur",
+    outlier_rule: "OutlierRule | None" = None,
 ) -> CalibrationResult:
     """Calibrate a camera from planar-board correspondences.
 
     ``object_points``: per view (N_v, 3) board coordinates in mm with z = 0; ``image_points``: per view (N_v, 2)
     pixels (OpenCV convention); views may hold different points (partial boards), N_v >= 6; ``image_size``:
-    (width, height). ``fix_k3`` / ``fix_tangential`` hold k3 / (p1, p2) at their initial values (``initial``'s, else
-    0); ``fix_principal_point`` holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
+    (width, height). ``fix_k3`` / ``fix_k2`` / ``fix_tangential`` hold k3 / k2 / (p1, p2) at their initial values
+    (``initial``'s, else 0; all three together leave the one-coefficient radial model k1); ``fix_principal_point`` holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
     ``fix_aspect_ratio`` holds fx / fy at ``initial``'s ratio or 1. ``initial``: start from this camera
     (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form. ``max_iterations``: Jacobian evaluations
     allowed; reaching it warns and returns ``converged=False``. ``solver``: ``"schur"`` (default) is
@@ -100,10 +106,22 @@ def calibrate(
     from the line through both. Points seen in fewer than 3 views are held. The refined points come back in
     ``CalibrationResult.board_points``.
 
+    ``outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule` to reject outlying points and views (each
+    rejection listed in ``CalibrationResult.outliers``, the solve repeated until none is left); None (the default)
+    fits every observation given, as every reference calibrator does.
+
     Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
     6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
     unobservable (e.g. boards nearly parallel to the image plane), naming those views.
     """
+    if outlier_rule is not None:
+        from circcal.solver.outliers import calibrate_rejecting
+
+        return calibrate_rejecting(object_points, image_points, image_size, outlier_rule, fix_k3=fix_k3,
+                                   fix_k2=fix_k2, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
+                                   fix_principal_point=fix_principal_point, initial=initial,
+                                   refine_board=refine_board, board_gauge=board_gauge,
+                                   max_iterations=max_iterations, solver=solver)
     obj, img, (w, h) = check_observations(object_points, image_points, image_size)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
     fixed: list[str] = []
@@ -111,6 +129,8 @@ def calibrate(
         fixed.append("aspect_ratio")
     if fix_principal_point:
         fixed += ["cx", "cy"]
+    if fix_k2:
+        fixed.append("k2")
     if fix_tangential:
         fixed += ["p1", "p2"]
     if fix_k3:
@@ -125,6 +145,8 @@ def calibrate(
         start = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
         if fix_principal_point:
             start[2:4] = centre
+        if fix_k2:
+            start[5] = 0.0
         if aspect is not None:
             start[0] = aspect * start[1]
         return start, z.rvecs, z.tvecs
@@ -228,4 +250,6 @@ def calibrate(
         n_iterations=int(n_iter), converged=bool(converged),
         fixed=tuple(fixed), n_params=int(prob.n),
         board_nominal=None if board is None else board.nominal, board_points=board_points, board_std=board_std,
-        board_gauge=None if board is None else board.gauge)
+        board_gauge=None if board is None else board.gauge,
+        covariance=state_covariance(prob, x, cov_global_unit, float(np.sqrt(sigma2))),
+        object_points=obj, image_points=img)

@@ -9,6 +9,7 @@ import numpy as np
 
 from circcal.formats import model_json
 from circcal.model import PARAM_NAMES, Camera
+from circcal.solver.covariance import StateCovariance
 
 __all__ = ["CalibrationResult"]
 
@@ -29,6 +30,11 @@ class CalibrationResult:
     (``calibrate(refine_board=True)``): ``board_nominal`` (P, 3) mm the distinct board points in order of first
     appearance, ``board_points`` (P, 3) mm their estimated positions, ``board_std`` (P, 3) mm standard deviations (0
     for held coordinates), ``board_gauge`` the three points that fix the board frame; all None otherwise.
+    ``covariance``: the first-order covariance of the whole state (intrinsics, board coordinates, every pose;
+    :class:`circcal.solver.covariance.StateCovariance`), None when the information matrix is singular: projection
+    uncertainty (:mod:`circcal.solver.uncertainty`) needs it. ``object_points`` / ``image_points``: per view (N_v, 3)
+    mm / (N_v, 2) px, the observations the model was fitted to (after any outlier rejection). ``outliers``: what
+    outlier rejection left out (:class:`circcal.solver.outliers.Rejections`), None when it did not run.
     """
 
     camera: Camera
@@ -49,6 +55,10 @@ class CalibrationResult:
     board_points: np.ndarray | None = None
     board_std: np.ndarray | None = None
     board_gauge: tuple[int, int, int] | None = None
+    covariance: StateCovariance | None = None
+    object_points: list[np.ndarray] | None = None
+    image_points: list[np.ndarray] | None = None
+    outliers: Any = None
 
     def board_lookup(self, object_points: np.ndarray) -> np.ndarray:
         """Nominal board points (N, 3) mm -> the refined ones (N, 3) mm (unchanged without board refinement).

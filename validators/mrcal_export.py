@@ -1,0 +1,154 @@
+"""circcal's calibrations as mrcal ``.cameramodel`` files that carry mrcal's optimisation inputs, so that
+``mrcal-show-projection-uncertainty``, ``mrcal-show-residuals`` and ``mrcal-show-projection-diff`` work on them; and
+mrcal's own projection uncertainty of such a file.
+
+The inputs are built by the out-of-process worker (:mod:`circcal.validators.mrcal_worker`, command ``export``) from
+circcal's observations (per view, the board points on mrcal's lattice: :func:`circcal.validators.mrcal.board_lattice`,
+an asymmetric grid with every other lattice point missing) and circcal's solution: intrinsics, and each view's pose
+as mrcal's frame (``frames_rt_toref``; mrcal's board frame starts at the lattice origin). The switches are circcal's
+estimator: no board warp, no regularisation, no outlier rejection (points circcal rejected are left out). The state
+is circcal's optimum, not re-solved by mrcal: the worker reports mrcal's own residual RMS and cost gradient there as
+the check. ``LENSMODEL_OPENCV5`` (``OPENCV4`` when k3 is held at 0).
+
+What mrcal's inputs cannot hold, and what happens then (:class:`ExportError`, the caller writes the plain model and
+says why): a refined board (mrcal models a board warp of 2 parameters, not every point), points off a square
+lattice. Parameters circcal held other than k3 = 0 (p1 p2, aspect ratio, principal point) are free in mrcal's
+inputs: the file says so in its note, and mrcal's uncertainty then treats them as estimated.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from circcal.errors import InputError
+from circcal.model import Camera
+from circcal.rotation import rodrigues
+from circcal.validators.mrcal import WORKER, UnsupportedLayout, board_lattice, mrcal_python
+
+__all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "has_optimization_inputs",
+           "WORKER_TIMEOUT_S"]
+
+#: Limit for one worker run (s): building and serialising the inputs takes well under a second; the first import of
+#: mrcal a few.
+WORKER_TIMEOUT_S = 120.0
+
+
+class ExportError(RuntimeError):
+    """The optimisation inputs cannot be written (no mrcal, a layout or model mrcal's inputs cannot hold); the
+    message says why."""
+
+
+@dataclass
+class ExportedModel:
+    """A ``.cameramodel`` with optimisation inputs: ``text`` (the file), ``info`` (mrcal's version and API, its
+    residual RMS per coordinate and max cost gradient at circcal's state, the notes written into the file)."""
+
+    text: str
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def has_optimization_inputs(text: str) -> bool:
+    """Whether ``.cameramodel`` text carries an ``optimization_inputs`` entry (no mrcal needed)."""
+    import ast
+
+    try:
+        d = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return False
+    return isinstance(d, dict) and bool(d.get("optimization_inputs"))
+
+
+def _run_worker(req: dict[str, Any], python: str | None) -> dict[str, Any]:
+    """One worker run; raises :class:`ExportError` with mrcal's words when it fails."""
+    if python is None:
+        python, why, _ = mrcal_python()
+        if python is None:
+            raise ExportError(why)
+    try:
+        proc = subprocess.run([python, str(WORKER)], input=json.dumps(req), capture_output=True, text=True,
+                              timeout=WORKER_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise ExportError(f"mrcal worker ran past {WORKER_TIMEOUT_S:g} s") from None
+    try:
+        reply = json.loads(proc.stdout)
+    except json.JSONDecodeError:
+        raise ExportError(f"mrcal worker crashed (exit {proc.returncode}): "
+                          f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
+    if proc.returncode != 0 or "error" in reply:
+        raise ExportError(f"mrcal: {reply.get('error', f'exit {proc.returncode}')}")
+    return reply
+
+
+def export_cameramodel(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray,
+                       object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], *,
+                       fixed: Sequence[str] = (), refined_board: bool = False, note: str | None = None,
+                       uncertainty: dict[str, Any] | None = None, python: str | None = None) -> ExportedModel:
+    """The ``.cameramodel`` of ``camera`` with mrcal's optimisation inputs for the observations it was fitted to.
+
+    ``rvecs``/``tvecs``: (V, 3) board -> camera (rad / mm) of the solve; ``object_points``: per view (N_v, 3) mm on
+    the nominal board; ``image_points``: per view (N_v, 2) px (OpenCV's pixel convention, which is mrcal's);
+    ``fixed``: the names circcal held (:attr:`CalibrationResult.fixed`); ``refined_board``: the solve estimated the
+    board's shape (refused: mrcal's inputs cannot hold it). ``uncertainty``: optionally ``{"uv" (N, 2), "distance"
+    mm | None, "observed_pixel_uncertainty" px | None}``: mrcal's projection uncertainty of the written model there
+    comes back in ``info["uncertainty_stdev"]``. Raises :class:`ExportError` (see the module) when the inputs cannot
+    be written."""
+    if refined_board:
+        raise ExportError("the board's shape was estimated (--refine-board): mrcal's optimisation inputs model a "
+                          "rigid board (with a 2-parameter warp), so they would not reproduce this calibration")
+    rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
+    tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
+    if not (len(rvecs) == len(tvecs) == len(object_points) == len(image_points)):
+        raise InputError(f"{len(rvecs)} poses for {len(object_points)} views of object points and "
+                         f"{len(image_points)} of image points")
+    try:
+        lat = board_lattice([np.asarray(o, dtype=np.float64) for o in object_points], staggered=True)
+    except UnsupportedLayout as exc:
+        raise ExportError(str(exc)) from None
+    W, H, origin = lat["width_n"], lat["height_n"], lat["origin"]
+    obs = np.zeros((len(rvecs), H, W, 3))
+    obs[..., 2] = -1.0
+    for v, (ij, q) in enumerate(zip(lat["ij"], image_points)):
+        obs[v, ij[:, 0], ij[:, 1], :2] = np.asarray(q, dtype=np.float64)
+        obs[v, ij[:, 0], ij[:, 1], 2] = 1.0
+    # ours: X_cam = R (origin + X_mrcal) + t, so mrcal's frame translation is t + R origin
+    frames = np.column_stack([rvecs, tvecs + np.einsum("vij,j->vi", rodrigues(rvecs), origin)])
+    opencv4 = "k3" in fixed and camera.dist[4] == 0.0
+    freed = [n for n in fixed if not (n == "k3" and opencv4)]
+    notes = ["generated by circcal: optimisation inputs at circcal's solution (no warp, no regularisation, "
+             "no outlier rejection)"]
+    if freed:
+        notes.append(f"circcal held {', '.join(freed)}; mrcal's inputs cannot hold them, so mrcal treats them as "
+                     f"estimated (its uncertainty is then larger than circcal's)")
+    if note:
+        notes.append(note)
+    req = {"command": "export", "width_n": W, "height_n": H, "spacing": float(lat["spacing"]),
+           "observations": obs.tolist(), "imagersize": [int(camera.width), int(camera.height)],
+           "intrinsics": camera.intrinsics.tolist(), "frames_rt_toref": frames.tolist(), "opencv4": bool(opencv4),
+           "note": "; ".join(notes), "uncertainty": None}
+    if uncertainty is not None:
+        req["uncertainty"] = {"uv": np.asarray(uncertainty["uv"], dtype=np.float64).tolist(),
+                              "distance": uncertainty.get("distance"),
+                              "observed_pixel_uncertainty": uncertainty.get("observed_pixel_uncertainty")}
+    reply = _run_worker(req, python)
+    info = {k: reply[k] for k in ("version", "api", "rms_per_coord_px", "max_abs_gradient") if k in reply}
+    info["lensmodel"] = "LENSMODEL_OPENCV4" if opencv4 else "LENSMODEL_OPENCV5"
+    info["notes"] = notes
+    info["lattice"] = {"width_n": W, "height_n": H, "spacing_mm": float(lat["spacing"]), "origin_mm": origin.tolist()}
+    if "uncertainty_stdev" in reply:
+        info["uncertainty_stdev"] = reply["uncertainty_stdev"]
+    return ExportedModel(reply["cameramodel"], info)
+
+
+def mrcal_uncertainty(cameramodel_text: str, uv: np.ndarray, *, distance: float | None = None,
+                      observed_pixel_uncertainty: float | None = None, python: str | None = None) -> np.ndarray:
+    """mrcal's projection uncertainty (worst-direction standard deviation, px) of a ``.cameramodel`` with
+    optimisation inputs at pixels ``uv`` (N, 2), ``distance`` mm along each ray (None: infinity). Raises
+    :class:`ExportError` without mrcal or without optimisation inputs."""
+    reply = _run_worker({"command": "uncertainty", "cameramodel": cameramodel_text,
+                         "uv": np.asarray(uv, dtype=np.float64).reshape(-1, 2).tolist(), "distance": distance,
+                         "observed_pixel_uncertainty": observed_pixel_uncertainty}, python)
+    return np.asarray(reply["stdev"], dtype=np.float64)
