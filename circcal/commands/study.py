@@ -24,6 +24,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=positive_int,
                    help="embedded: worker processes (default one per core, one thread each); with --scheduler: "
                         "workers to wait for before starting")
+    p.add_argument("--flush-rows", type=positive_int, default=None, metavar="N",
+                   help="rows per Parquet part written as runs finish (default 500, or every 10 s); a killed client "
+                        "loses only rows not yet written, and a rerun computes them again")
     p.add_argument("--summary-only", action="store_true", help="write the summary of the rows stored, run nothing")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -41,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"summary: {write_summary(args.out)}")
         return EXIT_OK
     print(f"study {spec.name}: {spec.n_runs} runs in {len(spec.cells)} cells -> {args.out}")
-    res = run_study(spec, args.out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    res = run_study(spec, args.out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
+                    **({} if args.flush_rows is None else {"flush_rows": args.flush_rows}))
     if res.n_done_before < res.n_runs:
         rate = res.n_computed / res.wall_s if res.wall_s > 0 else float("nan")
         print(f"computed {res.n_computed} runs in {res.wall_s:.1f} s on {res.workers} workers ({rate:.3g} runs/s; "
