@@ -12,7 +12,7 @@ import subprocess
 import sys
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import pytest
@@ -62,21 +62,23 @@ def external_cluster(logs: Path, n_workers: int = 2):
     """``(address, worker processes)`` of a scheduler and ``n_workers`` single-threaded workers on localhost."""
     address = f"tcp://127.0.0.1:{_free_port()}"
     logs.mkdir(parents=True, exist_ok=True)
-    procs = [subprocess.Popen([str(DASK), "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
-                               "--no-dashboard"], cwd=REPO, start_new_session=True,
-                              stdout=open(logs / "scheduler.log", "w"), stderr=subprocess.STDOUT)]
-    workers = []
-    try:
-        for i in range(n_workers):
-            workers.append(subprocess.Popen(
-                [str(DASK), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name",
-                 f"w{i}"], cwd=REPO, start_new_session=True, stdout=open(logs / f"worker{i}.log", "w"),
-                stderr=subprocess.STDOUT))
-        procs += workers
-        yield address, workers
-    finally:
-        for p in reversed(procs):
-            _stop(p)
+    procs: list[subprocess.Popen] = []
+    with ExitStack() as files:
+        def start(args: list[str], log: str) -> subprocess.Popen:
+            out = files.enter_context(open(logs / log, "w"))
+            procs.append(subprocess.Popen([str(DASK), *args], cwd=REPO, start_new_session=True, stdout=out,
+                                          stderr=subprocess.STDOUT))
+            return procs[-1]
+
+        try:
+            start(["scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--no-dashboard"],
+                  "scheduler.log")
+            workers = [start(["worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name",
+                              f"w{i}"], f"worker{i}.log") for i in range(n_workers)]
+            yield address, workers
+        finally:
+            for p in reversed(procs):
+                _stop(p)
 
 
 def _rows_by_key(folder: Path) -> dict[str, dict]:
@@ -140,15 +142,16 @@ def test_killing_the_study_mid_way_keeps_its_rows_and_a_rerun_finishes_the_rest(
     spec_file.write_text(f"name: kill-client\ncells:\n- kind: observations\n  scenario: paper\n  noise_px: [0.0146]\n"
                          f"  seeds: 24\n  batch: 1\n  calibrators: [{{plugin: '{SLOW_PLUGIN}'}}]\n")
     folder, store = tmp_path / "study", RowStore(tmp_path / "study")
-    proc = subprocess.Popen([str(Path(sys.executable).with_name("circcal")), "study", str(spec_file), "--out",
-                             str(folder), "--workers", "2", "--flush-rows", "1", "--no-progress"], cwd=REPO,
-                            start_new_session=True, stdout=open(tmp_path / "study.log", "w"), stderr=subprocess.STDOUT)
-    try:
-        _wait_for_rows(store, 4, lambda: proc.poll() is None)
-        os.killpg(proc.pid, signal.SIGKILL)  # the client and its embedded cluster, mid-study
-        proc.wait(30)
-    finally:
-        _stop(proc)
+    with open(tmp_path / "study.log", "w") as log:
+        proc = subprocess.Popen([str(Path(sys.executable).with_name("circcal")), "study", str(spec_file), "--out",
+                                 str(folder), "--workers", "2", "--flush-rows", "1", "--no-progress"], cwd=REPO,
+                                start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            _wait_for_rows(store, 4, lambda: proc.poll() is None)
+            os.killpg(proc.pid, signal.SIGKILL)  # the client and its embedded cluster, mid-study
+            proc.wait(30)
+        finally:
+            _stop(proc)
     kept = _rows_by_key(folder)
     assert 4 <= len(kept) < 24
     from circcal.study import load_spec
