@@ -8,7 +8,8 @@ STAMP   := $(VENV)/.circcal-setup-stamp
 TORCH   := torch==2.13.0
 JOBS    ?= 2
 
-.PHONY: setup demo test bench study conformance mrcal mrcal-2.5 clean clean-cache
+.PHONY: setup demo test bench study study-reports study-paper-2000 study-paper-2000-subset conformance mrcal mrcal-2.5 clean \
+        clean-cache
 
 setup: $(STAMP)
 
@@ -52,6 +53,23 @@ test: setup
 
 study: setup
 	$(VPY) -m pytest -n $(JOBS) -q -m slow --ignore=tests/conformance
+
+# The 2,000-run study (studies/paper-2000.yaml: `paper` normal and weak, circcal and OpenCV's pipeline, 500 seeds
+# each) on an embedded Dask cluster of $(JOBS) workers; resumable (rerun to finish). Hours on 2 cores: the subset
+# (its first 8 seeds, the same run keys) measures the rate. On a cluster:
+#   circcal study studies/paper-2000.yaml --scheduler tcp://HOST:8786 --out reports/studies/paper-2000
+study-paper-2000: setup
+	$(VENV)/bin/circcal study studies/paper-2000.yaml --workers $(JOBS) --out reports/studies/paper-2000
+
+study-paper-2000-subset: setup
+	$(VENV)/bin/circcal study studies/paper-2000-subset.yaml --workers $(JOBS) --out reports/studies/paper-2000-subset
+
+# The published study summaries under reports/studies/ (minutes on 2 cores; resumable like every study).
+STUDY_REPORTS := monte-carlo solver-batched
+study-reports: setup
+	@for s in $(STUDY_REPORTS); do \
+	  $(VENV)/bin/circcal study studies/$$s.yaml --workers $(JOBS) --no-progress --out reports/studies/$$s || exit 1; \
+	done
 
 conformance: setup
 	$(VPY) -m pytest -n $(JOBS) -q -m 'slow or not slow' tests/conformance

@@ -18,7 +18,7 @@ from pathlib import Path
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(var, "1")
 
-MODULES = ("bench_render", "bench_detect", "bench_calibrate", "bench_validate")
+MODULES = ("bench_render", "bench_detect", "bench_calibrate", "bench_validate", "bench_study")
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
 

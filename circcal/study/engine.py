@@ -69,9 +69,12 @@ def study_keys(spec: StudySpec) -> set[str]:
 
 
 @contextmanager
-def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
+def _client(scheduler: str | None, workers: int | None, client: Any = None) -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
+    if client is not None:  # the caller's: left open
+        yield client
+        return
     if scheduler:
         try:
             client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
@@ -104,12 +107,14 @@ def _pending(spec: StudySpec, done: set[str]) -> list[Task]:
 
 
 def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              progress: bool = True, flush_rows: int = FLUSH_ROWS, flush_s: float = FLUSH_S) -> StudyRun:
+              progress: bool = True, flush_rows: int = FLUSH_ROWS, flush_s: float = FLUSH_S,
+              client: Any = None) -> StudyRun:
     """Run every missing run of ``spec`` and store its row under ``folder`` (see the module docstring).
 
     ``scheduler``: a Dask scheduler address (``tcp://host:8786``); None starts an embedded cluster of ``workers``
     processes (default one per core). With a scheduler, ``workers`` is how many workers to wait for before
-    submitting. ``flush_rows``/``flush_s``: rows per Parquet part / longest wait before a part is written.
+    submitting. ``client``: a ``dask.distributed.Client`` of the caller's to use instead (left open).
+    ``flush_rows``/``flush_s``: rows per Parquet part / longest wait before a part is written.
     Interrupting (Ctrl-C) writes the rows received so far, then re-raises.
     """
     from dask.distributed import as_completed
@@ -138,7 +143,7 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
         buffer.clear()
         last_write = time.perf_counter()
 
-    with _client(scheduler, workers) as client:
+    with _client(scheduler, workers, client) as client:
         out.workers = len(client.nthreads())
         out.startup_s = time.perf_counter() - t_start
         t0 = time.perf_counter()
