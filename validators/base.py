@@ -52,8 +52,8 @@ class ReferenceResult:
     ``camera``: the calibrated :class:`circcal.model.Camera` (None unless ok). ``std``: standard deviations keyed by
     :data:`PARAM_NAMES` (a fixed parameter has 0.0), or None when the reference offers none.
     ``rvecs``, ``tvecs``: (V, 3) board-to-camera poses (rad; mm). ``residuals``: list of (N_v, 2) px,
-    observed - projected (NaN for points a reference dropped as outliers). ``errors``: :func:`circcal.metrics.error_stats`
-    of all residuals. ``object_points``/``image_points``: the observations actually used (per view; (N_v, 3) mm and
+    observed - projected (NaN for points a reference dropped as outliers). ``errors``:
+    :func:`circcal.metrics.error_stats` of all residuals. ``object_points``/``image_points``: the observations actually used (per view; (N_v, 3) mm and
     (N_v, 2) px). ``views``: indices (into the caller's views/images) of the views used. ``extra``: reference-specific
     facts (fixed parameters, flags, mrcal statistics, seeds) that a report should show.
     """

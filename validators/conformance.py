@@ -1,10 +1,11 @@
 """The conformance matrix: every fixture scenario x variant x calibrator, each case checked against ground truth and
-against circcal's solver on identical observations. Plain functions and data; :mod:`circcal.validators.pytest_plugin` and
-``tests/conformance`` parametrise pytest over them, and anything else (a script, another test runner) can call them.
+against circcal's solver on identical observations. Plain functions and data; :mod:`circcal.validators.pytest_plugin`
+and ``tests/conformance`` parametrise pytest over them, and anything else (a script, another test runner) can call
+them.
 
 A *case* is ``(scenario, variant, reference, mode)`` with a readable id (``paper-normal-circcal``,
-``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``). The expensive part, circcal's :func:`circcal.solver.calibrate_images`
-on one scenario-variant, is done once by :func:`observe`; every reference case of that scenario-variant then fits
+``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``). The expensive part, circcal's
+:func:`circcal.pipeline.calibrate_images` on one scenario-variant, is done once by :func:`observe`; every reference case of that scenario-variant then fits
 the same observations (circcal's final centres rounded to float32, OpenCV's input type, exactly as
 :func:`circcal.validators.validate.run_validation` hands them out) and is compared with circcal's solver run on exactly
 those points.
@@ -41,6 +42,7 @@ import numpy as np
 from circcal.board import Board
 from circcal.detector import Reason, Rejection
 from circcal.errors import InputError
+from circcal.formatting import fmt_number
 from circcal.model import PARAM_NAMES, Camera
 from circcal.validators.base import ReferenceCalibrator, ReferenceResult
 from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement, solver_bound,
@@ -527,10 +529,6 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
 # Reporting
 # --------------------------------------------------------------------------------------------------------------------
 
-def _g(v: float) -> str:
-    return "-" if v is None or not np.isfinite(v) else f"{v:.4g}"
-
-
 def format_outcome(outcome: Outcome) -> str:
     """Multi-line text of a case: every check with value and bound, measured numbers, notes."""
     lines = [f"{outcome.case.id}: {outcome.status}"]
@@ -538,10 +536,10 @@ def format_outcome(outcome: Outcome) -> str:
         lines.append(f"  {outcome.result.summary()}")
     for c in outcome.checks:
         bound = "" if not np.isfinite(c.bound) else f" (bound {c.bound:g})"
-        lines.append(f"  {'PASS' if c.passed else 'FAIL'} {c.name}: {_g(c.value)}{bound}"
+        lines.append(f"  {'PASS' if c.passed else 'FAIL'} {c.name}: {fmt_number(c.value, '.4g')}{bound}"
                      f"{(' - ' + c.note) if c.note else ''}")
     if outcome.measured:
-        lines.append("  measured: " + ", ".join(f"{k}={_g(v)}" for k, v in outcome.measured.items()))
+        lines.append("  measured: " + ", ".join(f"{k}={fmt_number(v, '.4g')}" for k, v in outcome.measured.items()))
     lines += [f"  {n}" for n in outcome.notes]
     if outcome.skip_reason:
         lines.append(f"  skipped: {outcome.skip_reason}")
@@ -554,7 +552,8 @@ def summary_line(outcome: Outcome) -> str:
     keys = [("images_used", "images used"), ("truth_rms_px", "vs truth rms px"),
             ("truth_rms_pred_p99_px", "(p99 predicted px"), ("vs_circcal_max_px", "vs circcal max px"),
             ("mean_2d_px", "mean2d px"), ("fx_sigmas", "fx/sigma"), ("cx_sigmas", "cx/sigma")]
-    parts = [f"{name} {_g(m[k])}" + (")" if name.startswith("(") else "") for k, name in keys if k in m]
+    parts = [f"{name} {fmt_number(m[k], '.4g')}" + (")" if name.startswith("(") else "")
+             for k, name in keys if k in m]
     if "images_used" in m:
         parts[0] += f"/{m.get('images', 0):.0f}"
     bad = failed_checks(outcome)

@@ -14,8 +14,9 @@ Installed with circcal (``pip install -e .``), it adds::
   ``(camera, std)`` or ``(camera, std, rvecs, tvecs)`` with ``camera`` a :class:`circcal.model.Camera`, ``std`` a
   dict of standard deviations keyed fx, fy, cx, cy, k1, k2, p1, p2, k3 or None, rvecs/tvecs (V, 3) board-to-camera
   (without them the poses are solved with cv2.solvePnP for the residuals). It is wrapped into a
-  :class:`circcal.validators.base.ReferenceCalibrator` whose calls go through :func:`circcal.validators.base.run_safely` (an
-  exception becomes a failed case with its message, ``NotImplementedError`` an unsupported one);
+  :class:`circcal.validators.base.ReferenceCalibrator` whose calls go through
+  :func:`circcal.validators.base.run_safely` (an exception becomes a failed case with its message,
+  ``NotImplementedError`` an unsupported one);
 * a :class:`~circcal.validators.base.ReferenceCalibrator` class, a zero-argument factory returning one, or an instance.
 
 With ``--calibrator`` the conformance cases test only the given calibrator(s) (ids ``<scenario>-<variant>-<label>``,
@@ -301,7 +302,8 @@ class ObservationCache:
 @pytest.fixture(scope="session")
 def conformance_observations(request: pytest.FixtureRequest,
                              tmp_path_factory: pytest.TempPathFactory) -> ObservationCache:
-    """``get(scenario, variant) -> circcal.validators.conformance.Observations`` (circcal's calibration, computed once)."""
+    """``get(scenario, variant) -> circcal.validators.conformance.Observations`` (circcal's calibration, computed
+    once)."""
     shared = None
     if hasattr(request.config, "workerinput"):  # a pytest-xdist worker: basetemp/.. is this run's, shared
         shared = tmp_path_factory.getbasetemp().parent / "circcal-conformance"

@@ -6,8 +6,8 @@ A third party registers its calibrator in its own ``pyproject.toml``::
     mycal = "mypackage.mymodule:MyCalibrator"
 
 The target is a class (or any callable) returning an object that follows
-:class:`circcal.validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A built-in name
-wins over a plug-in of the same name (the clash is reported by :func:`problems`).
+:class:`circcal.validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A
+built-in name wins over a plug-in of the same name (the clash is reported by :func:`problems`).
 """
 from __future__ import annotations
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.errors import InputError
+from circcal.formatting import fmt_number
 from circcal.jsonio import jsonable
 from circcal.model import PARAM_NAMES, Camera
 from circcal.validators import registry
@@ -215,15 +216,6 @@ def run_validation(
                          observations, shared, skipped)
 
 
-def _f(v: Any, spec: str = ".4f") -> str:
-    if v is None:
-        return "-"
-    try:
-        return "-" if not np.isfinite(v) else format(v, spec)
-    except TypeError:
-        return str(v)
-
-
 def format_table(run: ValidationRun) -> str:
     """The side-by-side table ``circcal validate`` prints (markdown-compatible)."""
     lines = []
@@ -253,14 +245,14 @@ def format_table(run: ValidationRun) -> str:
         err = err or {}
         vals = [label, status]
         if cam is not None:
-            vals += [_f(cam.fx, ".3f"), _f(cam.fy, ".3f"), _f(cam.cx, ".3f"), _f(cam.cy, ".3f"), _f(cam.dist[0], ".5f"),
-                     _f(cam.dist[1], ".4f")]
+            vals += [fmt_number(v, spec) for v, spec in ((cam.fx, ".3f"), (cam.fy, ".3f"), (cam.cx, ".3f"),
+                                                         (cam.cy, ".3f"), (cam.dist[0], ".5f"), (cam.dist[1], ".4f"))]
         else:
             vals += ["-"] * 6
-        vals += [_f(err.get("rms_per_point_px")), _f(err.get("rms_per_coord_px")), _f(err.get("mean_2d_px"))]
+        vals += [fmt_number(err.get(k)) for k in ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")]
         vc = (comp or {}).get("vs_circcal", {})
         vt = (comp or {}).get("vs_truth", {})
-        vals += [_f(vc.get("max_px"), ".2e"), _f(vt.get("rms_px"), ".4f"), _f(t, ".3f")]
+        vals += [fmt_number(vc.get("max_px"), ".2e"), fmt_number(vt.get("rms_px"), ".4f"), fmt_number(t, ".3f")]
         lines.append("| " + " | ".join(vals) + " |")
     notes = [f"- {r.name} [{r.mode}]: {r.status}: {r.message}" for r in run.references if r.status != "ok"]
     if cc["status"] != "ok":
@@ -276,13 +268,14 @@ def format_table(run: ValidationRun) -> str:
                   "|---|---|---|---|---|"]
         pd = run.comparisons[0]["vs_truth"]["params"]
         for n in PARAM_NAMES:
-            lines.append(f"| {n} | {_f(pd[n]['a'], '.6g')} | {_f(pd[n]['b'], '.6g')} | {_f(cc['std'][n], '.3g')} | "
-                         f"{_f(pd[n]['diff_sigmas'], '+.2f')} |")
+            cells = (fmt_number(pd[n]["a"], ".6g"), fmt_number(pd[n]["b"], ".6g"), fmt_number(cc["std"][n], ".3g"),
+                     fmt_number(pd[n]["diff_sigmas"], "+.2f"))
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "checks:"]
     for c in run.checks:
         mark = "PASS" if c.passed else "FAIL"
         bound = "" if not np.isfinite(c.bound) else f" (bound {c.bound:g})"
-        lines.append(f"- {mark} {c.name}: {_f(c.value, '.3g')}{bound}{(' - ' + c.note) if c.note else ''}")
+        lines.append(f"- {mark} {c.name}: {fmt_number(c.value, '.3g')}{bound}{(' - ' + c.note) if c.note else ''}")
     return "\n".join(lines)
 
 

@@ -1,8 +1,8 @@
 """``circcal demo``: the main job on the built-in default fixtures (what ``make demo`` runs).
 
 Renders the default scenario (cached), prints what it holds and how large the centre bias is that a blob-centroid
-detector would carry, then runs ``circcal validate`` on it against every available reference (calibration against ground truth and
-against each reference on identical observations).
+detector would carry, then runs ``circcal validate`` on it against every available reference (calibration against
+ground truth and against each reference on identical observations).
 """
 from __future__ import annotations
 

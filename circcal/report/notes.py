@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from circcal.report.formatting import fmt_number
+from circcal.formatting import fmt_number
 from circcal.report.results import dig, paper_conditions, realdata_sets
 from circcal.report.tables import REALDATA_ROWS
 

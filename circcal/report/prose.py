@@ -14,7 +14,7 @@ from circcal.model import PARAM_NAMES
 from circcal.report import config
 from circcal.report.environment import VERSION_ORDER
 from circcal.report.figures import gauge_counts, refined_boards
-from circcal.report.formatting import fmt_number, fmt_scientific
+from circcal.formatting import fmt_number, fmt_scientific
 from circcal.report.results import calibrator_keys, dig, paper_conditions, realdata_sets
 from circcal.validators.checks import solver_bound
 

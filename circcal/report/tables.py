@@ -8,7 +8,7 @@ from typing import Any
 from circcal.model import PARAM_NAMES, Camera
 from circcal.report.blocks import Table
 from circcal.report.config import PAPER_PUBLISHED
-from circcal.report.formatting import fmt_number
+from circcal.formatting import fmt_number
 from circcal.report.results import all_conditions, calibrator_keys, dig, paper_conditions, realdata_sets
 
 __all__ = ["REALDATA_ROWS", "bias_table", "condition_table", "parameter_table", "realdata_table", "timings_table"]

@@ -1,4 +1,5 @@
-"""Numbers as the report prints them, so a missing or non-finite value reads "-" everywhere."""
+"""Numbers as circcal prints them (tables of validate, conformance and the reports), so a missing or non-finite
+value reads "-" everywhere."""
 from __future__ import annotations
 
 import math
@@ -8,7 +9,7 @@ __all__ = ["fmt_number", "fmt_scientific"]
 
 
 def fmt_number(value: Any, spec: str = ".4f") -> str:
-    """``value`` formatted with ``spec`` (default: 4 decimals, px in the report's tables); "-" for None, NaN or
+    """``value`` formatted with ``spec`` (default: 4 decimals, px in the tables); "-" for None, NaN or
     infinity; anything that is not a number as ``str``."""
     if value is None:
         return "-"
