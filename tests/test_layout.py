@@ -72,7 +72,8 @@ def test_wheel_installs_only_circcal(tmp_path):
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith((".dist-info", ".data"))} == {"circcal"}, sorted(top)
     for sub in ("circcal/validators/base.py", "circcal/fixtures/scenarios.py", "circcal/report/__init__.py",
-                "circcal/detector/__init__.py", "circcal/solver/__init__.py"):
+                "circcal/detector/__init__.py", "circcal/solver/__init__.py", "circcal/report/templates/report.md.j2",
+                "circcal/report/templates/report.html.j2"):
         assert sub in names
     info = next(n for n in names if n.endswith(".dist-info/top_level.txt"))
     assert zipfile.ZipFile(wheel).read(info).decode().split() == ["circcal"]
