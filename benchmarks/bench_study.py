@@ -54,7 +54,7 @@ def _throughput() -> dict:
     try:
         for n in (1, 2):
             t0 = time.perf_counter()
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=40)
             client = Client(cluster)
             startup[n] = time.perf_counter() - t0

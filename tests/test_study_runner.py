@@ -3,6 +3,8 @@ nothing), rows written atomically in batches, summary and figures, the CLI; and 
 run (rendered images and observations-only) without a cluster."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -110,3 +112,28 @@ def test_cli_study_and_summary_only(tmp_path, capsys, monkeypatch):
     assert main(["study", str(spec), "--out", str(tmp_path / "o2"), "--scheduler", "tcp://127.0.0.1:1",
                  "--no-progress"]) == 2
     assert "cannot connect" in capsys.readouterr().err
+
+
+class Broken:
+    """A user's calibrator with a bug that escapes it (no run_safely around it): its task fails."""
+
+    name = "broken"
+    version = "0"
+
+    def available(self):
+        return True, ""
+
+    def calibrate_observations(self, *args, **kwargs):
+        raise RuntimeError("a bug in the calibrator")
+
+
+def test_a_failing_task_is_reported_and_the_other_runs_are_kept(tmp_path):
+    plugin = f"{Path(__file__).resolve()}:Broken"
+    spec = parse_spec({"name": "broken", "cells": [
+        {**OBS, "noise_px": [0.0146], "seeds": 2, "calibrators": ["circcal", {"plugin": plugin}]}]})
+    res = run_study(spec, tmp_path, workers=1, progress=False)
+    assert not res.complete and res.n_computed == 2 and len(res.errors) == 1
+    assert "RuntimeError: a bug in the calibrator" in res.errors[0]
+    assert {r["calibrator"] for r in RowStore(tmp_path).read().to_pylist()} == {"circcal"}
+    again = run_study(spec, tmp_path, workers=1, progress=False)  # the failed runs are retried, the rest skipped
+    assert again.n_done_before == 2 and again.n_computed == 0 and len(again.errors) == 1

@@ -43,7 +43,7 @@ CONNECT_TIMEOUT_S = 30.0
 
 @dataclass
 class StudyRun:
-    """What :func:`run_study` did. ``n_runs``: runs in the spec; ``n_done_before``: already stored; ``n_computed``:
+    """What :func:`run_study` did. ``n_runs``: distinct runs in the spec; ``n_done_before``: already stored; ``n_computed``:
     rows written now; ``errors``: one line per task that failed (its runs are still missing); ``wall_s``: seconds
     from submitting the first task to the last row written (cluster start-up not included: ``startup_s``);
     ``workers``: Dask workers when the tasks were submitted."""
@@ -88,7 +88,8 @@ def _client(scheduler: str | None, workers: int | None, client: Any = None) -> I
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+    # dashboard_address ":0": its HTTP server (health, metrics) on a free port, so two studies on one machine coexist
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 
@@ -125,8 +126,9 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
     if spec.source:
         atomic.write_text(folder / "study.yaml", spec.source)
     store = RowStore(folder)
-    done = store.done_keys() & study_keys(spec)
-    out = StudyRun(spec, folder, spec.n_runs, len(done))
+    keys = study_keys(spec)  # two cells may name the same run: it is one row
+    done = store.done_keys() & keys
+    out = StudyRun(spec, folder, len(keys), len(done))
     tasks = _pending(spec, done)
     if not tasks:
         return out
@@ -143,11 +145,11 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
         buffer.clear()
         last_write = time.perf_counter()
 
-    with _client(scheduler, workers, client) as client:
-        out.workers = len(client.nthreads())
+    with _client(scheduler, workers, client) as dask_client:
+        out.workers = len(dask_client.nthreads())
         out.startup_s = time.perf_counter() - t_start
         t0 = time.perf_counter()
-        futures = client.map(execute, tasks, key=[t.key for t in tasks])
+        futures = dask_client.map(execute, tasks, key=[t.key for t in tasks])
         by_key = {t.key: t for t in tasks}
         bar = tqdm(total=sum(len(t.runs) for t in tasks), unit="run", desc=f"study {spec.name}",
                    disable=not progress, smoothing=0.05)
@@ -157,11 +159,14 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
                     rows = fut.result()
                     buffer.extend(rows)
                     bar.update(len(rows))
-                else:
-                    exc = fut.exception()
+                else:  # "error" (the task raised, or its workers kept dying: KilledWorker) or "cancelled"
                     task = by_key[fut.key]
+                    why = fut.status
+                    if fut.status == "error":
+                        exc = fut.exception()
+                        why = f"{type(exc).__name__}: {exc}"
                     out.errors.append(f"task {fut.key} ({len(task.runs)} runs, cell {task.cell.index}, "
-                                      f"{task.cell.scenario} seed {task.runs[0].seed}): {type(exc).__name__}: {exc}")
+                                      f"{task.cell.scenario} seed {task.runs[0].seed}): {why}")
                 fut.release()
                 if len(buffer) >= flush_rows or (buffer and time.perf_counter() - last_write >= flush_s):
                     flush()
