@@ -124,6 +124,7 @@ def calibrate_images(
     progress: bool = True,
     image_size: tuple[int, int] | None = None,
     jobs: int | None = None,
+    outlier_rule=None,
 ) -> ImagesCalibration:
     """Detect the board in every image, calibrate, then re-correct every centre under the current model
     (perspective and distortion aware, ``circcal.detector.recorrect``) and recalibrate, until no centre moves more than
@@ -133,7 +134,10 @@ def calibrate_images(
     :func:`calibrate`). ``jobs``: images detected at once (``circcal.detector.detect_files``; None = one per CPU, the
     result does not depend on it). ``image_size``: (width, height) of the camera mode to calibrate (default: the
     size most images share). Images where the board is not found, or of another size, are left out and listed in
-    ``failed`` with their reason. Raises :class:`TooFewImagesError` when fewer than
+    ``failed`` with their reason. ``outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule`: the dots the
+    detector can tell are bad (:mod:`circcal.dotcheck`) are left out of every solve and each solve rejects outlying
+    points and views (listed in ``result.outliers``; a dropped view's image goes to ``failed``, reason code
+    ``outlier-view``); None fits every detected centre. Raises :class:`TooFewImagesError` when fewer than
     :data:`~circcal.observations.MIN_VIEWS` images remain.
     """
     paths = [str(p) for p in paths]
@@ -170,8 +174,19 @@ def calibrate_images(
             + "".join(f"\n  {r.path}: {r.reason}" for r in failed), failed)
     opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
                 fix_principal_point=fix_principal_point, refine_board=refine_board)
+    exclude = None
+    if outlier_rule is not None:
+        from circcal.dotcheck import bad_dot_rejections
+
+        opts["outlier_rule"] = outlier_rule
+        exclude, bad = bad_dot_rejections([detections[i] for i in used], board)
     result, centres, rounds = calibrate_detections([detections[i] for i in used], board, image_size,
-                                                   max_rounds=max_rounds, tol_px=tol_px, **opts)
+                                                   max_rounds=max_rounds, tol_px=tol_px, exclude=exclude, **opts)
+    if result.outliers is not None:
+        result.outliers.items[:0] = bad
+        kept = result.outliers.kept_views
+        failed += [Rejection(paths[used[r.view]], r.reason, r.detail) for r in result.outliers.dropped_views]
+        used, centres = [used[i] for i in kept], result.outliers.kept_centres(centres, board.object_points())
     result.view_names = [Path(paths[i]).name for i in used]
     return ImagesCalibration(result, paths, detections, used, failed, rounds, centres)
 
@@ -183,17 +198,29 @@ def calibrate_detections(
     *,
     max_rounds: int = 6,
     tol_px: float = 1e-4,
+    exclude: Sequence[Sequence[int]] | None = None,
     **options: Any,
 ) -> tuple[CalibrationResult, list[np.ndarray], list[dict]]:
     """The loop of :func:`calibrate_images` on detections already made (``circcal.detector.Detection``, one per view,
     all found): calibrate, re-correct every centre under the current model (``circcal.detector.recorrect``), recalibrate,
     until no centre moves more than ``tol_px`` or ``max_rounds`` calibrations were made (then a RuntimeWarning).
-    ``options`` go to :func:`calibrate`. Returns ``(result, centers, rounds)`` as :class:`ImagesCalibration` holds
-    them. Reused for held-out checks: the detector runs without a model, so detections do not depend on other views.
+    ``options`` go to :func:`calibrate`. ``exclude``: per detection, indices of dots (board order) left out of every
+    solve (the detector's bad dots). Returns ``(result, centers, rounds)`` as :class:`ImagesCalibration` holds
+    them (with outlier rejection, ``result``'s views are ``result.outliers.kept_views`` of the detections; the
+    centres stay one per detection). Reused for held-out checks: the detector runs without a model, so detections do not depend on other views.
     """
     board_pts = board.object_points()
+
+    def left_out(cs: list[np.ndarray]) -> list[np.ndarray]:
+        if exclude is None:
+            return cs
+        out = [c.copy() for c in cs]
+        for c, ex in zip(out, exclude):
+            c[list(ex)] = np.nan
+        return out
+
     centres = [np.asarray(d.centres, dtype=np.float64) for d in detections]
-    pairs = [_points_of(c, board_pts) for c in centres]
+    pairs = [_points_of(c, board_pts) for c in left_out(centres)]
     result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, **options)
     stats = ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")
     rounds = [{"round": 0, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": float("nan")}]
@@ -201,7 +228,7 @@ def calibrate_detections(
         new = [np.asarray(det_mod.recorrect(d, board, result.camera), dtype=np.float64) for d in detections]
         shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centres))
         centres = new
-        pairs = [_points_of(c, board_pts) for c in centres]
+        pairs = [_points_of(c, board_pts) for c in left_out(centres)]
         result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera,
                            **options)
         rounds.append({"round": r, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": shift})

@@ -29,8 +29,8 @@ from circcal.model import Camera
 from circcal.rotation import rodrigues
 from circcal.validators.mrcal import WORKER, UnsupportedLayout, board_lattice, mrcal_python
 
-__all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "has_optimization_inputs",
-           "WORKER_TIMEOUT_S"]
+__all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "result_views", "document_views",
+           "cameramodel_text", "WORKER_TIMEOUT_S"]
 
 #: Limit for one worker run (s): building and serialising the inputs takes well under a second; the first import of
 #: mrcal a few.
@@ -49,17 +49,6 @@ class ExportedModel:
 
     text: str
     info: dict[str, Any] = field(default_factory=dict)
-
-
-def has_optimization_inputs(text: str) -> bool:
-    """Whether ``.cameramodel`` text carries an ``optimization_inputs`` entry (no mrcal needed)."""
-    import ast
-
-    try:
-        d = ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return False
-    return isinstance(d, dict) and bool(d.get("optimization_inputs"))
 
 
 def _run_worker(req: dict[str, Any], python: str | None) -> dict[str, Any]:
@@ -152,3 +141,51 @@ def mrcal_uncertainty(cameramodel_text: str, uv: np.ndarray, *, distance: float 
                          "uv": np.asarray(uv, dtype=np.float64).reshape(-1, 2).tolist(), "distance": distance,
                          "observed_pixel_uncertainty": observed_pixel_uncertainty}, python)
     return np.asarray(reply["stdev"], dtype=np.float64)
+
+
+def result_views(result: Any) -> dict[str, Any]:
+    """What :func:`export_cameramodel` needs from a :class:`circcal.solver.CalibrationResult`: its poses, the
+    observations it was fitted to, the names it held and whether it refined the board."""
+    return {"rvecs": result.rvecs, "tvecs": result.tvecs, "object_points": result.object_points,
+            "image_points": result.image_points, "fixed": tuple(result.fixed),
+            "refined_board": result.board_points is not None}
+
+
+def document_views(document: dict[str, Any] | None) -> dict[str, Any] | None:
+    """:func:`result_views` read back from a model.json document (its ``views``: ``rvec``, ``tvec_mm``,
+    ``object_mm``, ``image_px``); None when the document holds no observations (a model.json written before they
+    were, or a bare camera). Raises :class:`~circcal.errors.InputError` naming the view for a malformed entry."""
+    views = (document or {}).get("views")
+    if not views or not all(isinstance(v, dict) and "object_mm" in v and "image_px" in v for v in views):
+        return None
+    try:
+        rv = np.array([v["rvec"] for v in views], dtype=np.float64).reshape(-1, 3)
+        tv = np.array([v["tvec_mm"] for v in views], dtype=np.float64).reshape(-1, 3)
+        obj = [np.asarray(v["object_mm"], dtype=np.float64).reshape(-1, 3) for v in views]
+        img = [np.asarray(v["image_px"], dtype=np.float64).reshape(-1, 2) for v in views]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"model.json views: {type(exc).__name__}: {exc} (each view holds rvec, tvec_mm, object_mm, "
+                         f"image_px)") from None
+    if any(len(o) != len(p) for o, p in zip(obj, img)):
+        raise InputError("model.json views: object_mm and image_px differ in length")
+    return {"rvecs": rv, "tvecs": tv, "object_points": obj, "image_points": img,
+            "fixed": tuple(document.get("fixed") or ()), "refined_board": "board_refinement" in document}
+
+
+def cameramodel_text(camera: Camera, views: dict[str, Any] | None, *, note: str | None = None
+                     ) -> tuple[str, dict[str, Any]]:
+    """The ``.cameramodel`` text to write for ``camera``: with mrcal's optimisation inputs when ``views``
+    (:func:`result_views` / :func:`document_views`) are given and mrcal can build them, else the plain model
+    (:func:`circcal.formats.camera_to_cameramodel`). Returns ``(text, info)``: ``info["optimization_inputs"]`` says
+    which, ``info["why"]`` why not (no observations, no mrcal, a refined board, ...)."""
+    from circcal.formats import camera_to_cameramodel
+
+    if views is None:
+        return camera_to_cameramodel(camera), {"optimization_inputs": False,
+                                               "why": "no observations to build mrcal's optimisation inputs from"}
+    try:
+        ex = export_cameramodel(camera, views["rvecs"], views["tvecs"], views["object_points"], views["image_points"],
+                                fixed=views["fixed"], refined_board=views["refined_board"], note=note)
+    except ExportError as exc:
+        return camera_to_cameramodel(camera), {"optimization_inputs": False, "why": str(exc)}
+    return ex.text, {"optimization_inputs": True, "why": None, **ex.info}

@@ -11,7 +11,7 @@ from circcal.errors import ModelFileError
 from circcal.formats.opencv import camera_from_K_dist
 from circcal.model import Camera
 
-__all__ = ["camera_to_cameramodel", "camera_from_cameramodel"]
+__all__ = ["camera_to_cameramodel", "camera_from_cameramodel", "cameramodel_has_optimization_inputs"]
 
 
 def camera_to_cameramodel(camera: Camera) -> str:
@@ -55,3 +55,11 @@ def camera_from_cameramodel(text: str) -> Camera:
     return camera_from_K_dist(w, h, K, p[4:], model)
 
 
+def cameramodel_has_optimization_inputs(text: str) -> bool:
+    """Whether ``.cameramodel`` text carries mrcal's ``optimization_inputs`` (what mrcal-show-projection-uncertainty
+    and mrcal-show-residuals need); read with ``ast.literal_eval``, no mrcal needed."""
+    try:
+        d = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return False
+    return isinstance(d, dict) and bool(d.get("optimization_inputs"))

@@ -76,7 +76,8 @@ class CalibrationResult:
     def model_sections(self) -> dict[str, Any]:
         """This result's sections of model.json (:func:`circcal.formats.model_json`): ``std``, ``fixed``,
         ``parameter_order``, ``correlation`` (NaN -> null), ``errors`` (overall, convention in each key), ``sigma_px``,
-        solver facts, one entry per view (name, pose and errors) and, with board refinement, the refined board."""
+        solver facts, one entry per view (name, pose, errors, the observations it contributed and the points outlier
+        rejection left out of it) and, with board refinement, the refined board."""
         views = []
         for i in range(len(self.rvecs)):
             entry: dict[str, Any] = {}
@@ -85,6 +86,13 @@ class CalibrationResult:
             entry["rvec"] = [float(v) for v in self.rvecs[i]]
             entry["tvec_mm"] = [float(v) for v in self.tvecs[i]]
             entry["errors"] = dict(self.per_view_errors[i])
+            if self.object_points is not None and self.image_points is not None:
+                # the observations this view contributed: what mrcal's optimisation inputs, a later uncertainty or
+                # a re-solve need (board points nominal, mm; pixels OpenCV's)
+                entry["object_mm"] = np.asarray(self.object_points[i], dtype=np.float64).tolist()
+                entry["image_px"] = np.asarray(self.image_points[i], dtype=np.float64).tolist()
+            if self.outliers is not None:
+                entry["outliers"] = self.outliers.view_entries(i)
             views.append(entry)
         return {
             "std": {k: float(v) for k, v in self.std.items()},
