@@ -1,7 +1,8 @@
 """The checks that ``circcal validate`` gates on and the conformance suite asserts, written once: agreement with
 circcal's solver on identical observations, and agreement with the true camera in stated sigmas.
 
-A :class:`Check` holds a value, its bound and the verdict; the bounds' defaults live here, each with its reason.
+A :class:`Check` holds a value, its bound and the verdict; the bounds' defaults, each with its reason, are
+:mod:`circcal.validators.bounds`.
 """
 from __future__ import annotations
 
@@ -11,24 +12,13 @@ from typing import Any
 import numpy as np
 
 from circcal.model import Camera
+from circcal.validators.bounds import COST_TIE_REL, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 from circcal.validators.compare import param_diff, projection_diff
 from circcal.validators.shared import ssr
 
 __all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",
            "solver_bound", "solver_agreement", "truth_checks"]
 
-#: Agreement of a fair reference (plain least squares) with circcal's solver on identical float32 observations, max
-#: projection difference over the imager, px. The adapters reach ~1e-9-1e-6 (OpenCV's LM ~1e-6 on the paper camera).
-SOLVER_PX = 1e-6
-#: mrcal's solver stops earlier (its own convergence criteria): ~5e-6 px measured, bound 1e-4 px.
-SOLVER_MRCAL_PX = 1e-4
-#: Primary truth check: |estimate - truth| of fx, fy, cx, cy in units of the stated standard deviation. Across the
-#: 28 calibrated scenario-variants circcal's largest is 2.75 (wide-uneven fy); a correct estimator with correct
-#: sigmas exceeds 3 on one of 4 parameters with probability ~1%.
-TRUTH_SIGMAS = 3.0
-#: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
-#: squared residuals carry ~1e-13 relative rounding).
-COST_TIE_REL = 1e-10
 #: The parameters the truth check holds to their stated sigmas (distortion terms are correlated with each other
 #: and with the focal length; their individual sigmas are not a useful bar).
 TRUTH_PARAMS = ("fx", "fy", "cx", "cy")

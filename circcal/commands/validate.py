@@ -8,7 +8,7 @@ from pathlib import Path
 from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
                                    positive_float)
 from circcal.errors import InputError
-from circcal.validators.checks import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
+from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -1,0 +1,45 @@
+"""What a one-image ``circcal detect`` costs as a whole process, start-up included (imports, numba's cached code,
+the first detection), against a plain Python script that imports cv2 and runs findCirclesGrid on the same image;
+alternated (benchmarks/timing.py), with each process's peak resident memory. Goals (issue "Speed that holds on any
+machine"): <= 0.6 s wall and <= 120 MiB."""
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+from benchmarks.timing import alternate_processes, ratio, summary
+
+OPENCV_SCRIPT = """\
+import sys
+import cv2
+img = cv2.imread(sys.argv[3], cv2.IMREAD_GRAYSCALE)
+ok, c = cv2.findCirclesGrid(img, (int(sys.argv[2]), int(sys.argv[1])), flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+print(ok)
+"""
+
+
+def run(repeats: int = 9) -> dict:
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+
+    out: dict = {}
+    for scenario, variant in (("small-noisy", "noisy"), ("paper", "normal")):
+        truth = load_truth(fixture_dir(scenario, variant))
+        b, image = truth.board, str(truth.views[0].image)
+        circcal = Path(sys.executable).with_name("circcal")
+        with tempfile.TemporaryDirectory() as tmp:
+            script = Path(tmp) / "opencv_detect.py"
+            script.write_text(OPENCV_SCRIPT)
+            t = alternate_processes({
+                "circcal": [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch",
+                            f"{b.pitch_mm}mm", "--diameter", f"{b.diameter_mm}mm", "--quiet", "--json",
+                            str(Path(tmp) / "d.json")],
+                "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image]}, repeats=repeats)
+        key = f"detect_one_{truth.camera.width}x{truth.camera.height}"
+        out.update({f"{key}_circcal_s": summary(t["circcal"]["wall_s"]),
+                    f"{key}_opencv_s": summary(t["opencv"]["wall_s"]),
+                    f"{key}_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
+                    f"{key}_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
+                    f"{key}_opencv_peak_mib": summary(t["opencv"]["peak_mib"])})
+    out["goals"] = "circcal detect of one image: <= 0.6 s wall, <= 120 MiB"
+    return out
