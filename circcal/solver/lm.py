@@ -43,18 +43,23 @@ GRADIENT_FLOOR = 1e-12
 
 
 def normal_blocks(prob: Problem, f: np.ndarray, Ji: np.ndarray, Jp: np.ndarray, starts: np.ndarray):
-    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6); one matrix product
-    per view (each view's rows touch only the global block and its own pose)."""
+    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6). Each view's rows touch
+    only the global block and its own pose, so each view's (ng + 6)-square block is one product; views with the same
+    number of points are stacked and multiplied in one batched call (no Python loop over views)."""
     ng = Ji.shape[2]
-    Jc = np.concatenate([Ji, Jp], axis=2).reshape(-1, ng + 6)         # (2N, ng + 6)
-    ends = np.append(starts[1:], len(Ji))
+    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, ng + 6)
+    fc = f.reshape(-1, 2)
+    counts = np.diff(np.append(starts, len(Ji)))
     V = len(starts)
     G = np.empty((V, ng + 6, ng + 6))
     g = np.empty((V, ng + 6))
-    for v in range(V):
-        Jv = Jc[2 * starts[v]: 2 * ends[v]]
-        np.matmul(Jv.T, Jv, out=G[v])
-        np.matmul(Jv.T, f[2 * starts[v]: 2 * ends[v]], out=g[v])
+    for c in np.unique(counts):
+        views = np.flatnonzero(counts == c)
+        rows = (starts[views][:, None] + np.arange(c)[None, :]).ravel()
+        Jv = Jc[rows].reshape(len(views), 2 * c, ng + 6)
+        Jt = np.transpose(Jv, (0, 2, 1))
+        G[views] = Jt @ Jv
+        g[views] = (Jt @ fc[rows].reshape(len(views), 2 * c, 1))[:, :, 0]
     return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
 
 
