@@ -2,9 +2,10 @@
 (a dot partly occluded, merged with clutter, cut by a shadow or a glare edge), or an area out of line with its grid
 neighbours' (a blob that is not the printed dot).
 
-A :class:`circcal.detector.Detection` that carries per-dot flags of its own (``dot_flags``: (N,) bool, with
-``dot_flag_reasons``) is taken at its word; otherwise the flags come from the stored edge points and the ellipses fitted
-to them (the model-free detection's conics, in the image as observed):
+A :class:`circcal.detector.Detection` that says which dots it dropped itself (``dropped``: board point -> reason;
+those centres are NaN already, so no solve sees them) is taken at its word and its drops are listed; the dots it
+kept are checked here too, from the stored edge points and the ellipses fitted to them (the model-free detection's
+conics, in the image as observed):
 
 * **fit**: the RMS geometric distance of a dot's edge points from its ellipse (first order: ``|x^T Q x| / |grad|``)
   above :data:`FIT_RATIO` times the median over the image's dots and above :data:`FIT_FLOOR_PX`;
@@ -71,21 +72,22 @@ def bad_dots(detection, rows: int, cols: int) -> list[BadDot]:
     """The dots of a found ``detection`` (a :class:`circcal.detector.Detection` of a ``rows`` x ``cols`` grid, board
     order) the detector can tell are bad (see the module); [] when there are none or the detection holds no edge
     points."""
-    flags = getattr(detection, "dot_flags", None)
-    if flags is not None:
-        reasons = getattr(detection, "dot_flag_reasons", None) or ["flagged by the detector"] * len(flags)
-        return [BadDot(int(i), float("nan"), "detector", str(reasons[i])) for i in np.flatnonzero(flags)]
+    dropped = getattr(detection, "dropped", None) or {}
+    out: list[BadDot] = [BadDot(int(i), float("nan"), "detector", str(why)) for i, why in sorted(dropped.items())]
     if detection.edge_points is None or detection.conics is None:
-        return []
+        return out
     res = fit_residuals(detection.edge_points, detection.conics)
+    res[list(dropped)] = np.nan
+    if not np.isfinite(res).any():
+        return out
     med = float(np.nanmedian(res))
-    out: list[BadDot] = []
     for k in np.flatnonzero(res > max(FIT_RATIO * med, FIT_FLOOR_PX)):
         out.append(BadDot(int(k), float(res[k]), "fit", f"its ellipse misses its edge points by {res[k]:.2f} px RMS "
                           f"({res[k] / med:.0f}x the image's median dot)"))
     area = _areas(detection.conics)
     if len(area) == rows * cols:
         grid = area.reshape(rows, cols)
+        area[list(dropped)] = np.nan
         flagged = {b.index for b in out}
         for i in range(rows):
             for j in range(cols):

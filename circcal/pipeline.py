@@ -184,6 +184,7 @@ def calibrate_images(
                                                    max_rounds=max_rounds, tol_px=tol_px, exclude=exclude, **opts)
     if result.outliers is not None:
         result.outliers.items[:0] = bad
+        result.outliers.view_names = [Path(paths[i]).name for i in used]
         kept = result.outliers.kept_views
         failed += [Rejection(paths[used[r.view]], r.reason, r.detail) for r in result.outliers.dropped_views]
         used, centres = [used[i] for i in kept], result.outliers.kept_centres(centres, board.object_points())

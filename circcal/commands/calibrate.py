@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
-                                   positive_int)
+                                   positive_float, positive_int)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +33,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
+    g = p.add_argument_group("is it right? (outliers, uncertainty, cross-validation, report)")
+    g.add_argument("--no-outlier-rejection", action="store_true",
+                   help="fit every detected centre (default: leave out the detector's bad dots and every point "
+                        "whose residual exceeds --outlier-k sigma, re-solving until stable; each one is listed)")
+    g.add_argument("--outlier-k", type=positive_float, default=None,
+                   help="outlier threshold in standard deviations (default 5, mrcal's)")
+    g.add_argument("--cross-validate", action="store_true",
+                   help="also calibrate two disjoint halves of the views and weigh their difference against their "
+                        "combined uncertainty, and predict every view from the others (needs 6 views)")
+    g.add_argument("--split", choices=("alternate", "random"), default="alternate",
+                   help="how --cross-validate halves the views (default: alternate; random: seeded by --seed)")
+    g.add_argument("--seed", type=int, default=0, help="seed of --split random (default 0)")
+    g.add_argument("--distance", type=positive_float, default=None,
+                   help="distance (mm) along each pixel's ray at which uncertainty and cross-validation are "
+                        "evaluated (default: infinity, as mrcal)")
+    g.add_argument("--report", type=Path, default=None,
+                   help="write a self-contained HTML + Markdown report of this calibration into this folder")
     p.set_defaults(func=run)
 
 
@@ -89,19 +106,48 @@ def run(args: argparse.Namespace) -> int:
     from circcal.solver import CalibrationError
     from circcal.formats import detect_format, write_camera
 
+    from circcal.crossval.assess import assess
+    from circcal.errors import InputError
+    from circcal.solver.outliers import DEFAULT_K, OutlierRule
+
     board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
     check_output(args.out)  # fail before the work on an unwritable place or an unknown extension
+    if args.report is not None:
+        check_output(args.report, folder=True)
+    if args.no_outlier_rejection and args.outlier_k is not None:
+        raise InputError("--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
+                         "off: give one of them")
     fmt = detect_format(args.out)
+    rule = None if args.no_outlier_rejection else OutlierRule(k=args.outlier_k or DEFAULT_K)
+    opts = dict(fix_k3=args.fix_k3, fix_tangential=args.fix_tangential, fix_aspect_ratio=args.fix_aspect_ratio,
+                fix_principal_point=args.fix_principal_point, refine_board=args.refine_board)
     try:
-        cal = calibrate_images(args.images, board, fix_k3=args.fix_k3, fix_tangential=args.fix_tangential,
-                               fix_aspect_ratio=args.fix_aspect_ratio, fix_principal_point=args.fix_principal_point,
-                               refine_board=args.refine_board, progress=not args.no_progress, jobs=args.jobs)
+        cal = calibrate_images(args.images, board, progress=not args.no_progress, jobs=args.jobs, outlier_rule=rule,
+                               **opts)
     except CalibrationError as exc:
         print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
         return 1
     print(format_summary(cal))
+    assessment = assess(cal, board, distance=args.distance, cross_validate=args.cross_validate, split=args.split,
+                        seed=args.seed, outlier_rule=rule, **opts)
+    print("\n".join(assessment.lines()))
     model = cal.to_model_json(board)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_camera(args.out, cal.result.camera, fmt, document=model)
-    print(f"wrote {args.out} ({fmt})")
+    if fmt == "mrcal":
+        from circcal import atomic
+        from circcal.validators.mrcal_export import cameramodel_text, result_views
+
+        text, info = cameramodel_text(cal.result.camera, result_views(cal.result))
+        atomic.write_text(args.out, text)
+        print(f"wrote {args.out} ({fmt}, " + ("with mrcal's optimisation inputs: mrcal-show-projection-uncertainty "
+                                              "and mrcal-show-residuals work on it)" if info["optimization_inputs"]
+                                              else f"without optimisation inputs: {info['why']})"))
+    else:
+        write_camera(args.out, cal.result.camera, fmt, document=model)
+        print(f"wrote {args.out} ({fmt})")
+    if args.report is not None:
+        from circcal.calreport import write_report
+
+        index = write_report(assessment, args.report)
+        print(f"wrote the report {index}")
     return 0

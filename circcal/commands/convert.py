@@ -31,9 +31,20 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output)
     to_fmt = args.to_fmt or detect_format(args.output)
     camera, document = read_model(args.input, args.from_fmt)
-    # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
-    fmt = write_camera(args.output, camera, to_fmt, document=document if to_fmt == "json" else None,
-                       colmap_model=args.colmap_model)
-    print(f"{args.input} -> {args.output} ({fmt}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
+    note = ""
+    if to_fmt == "mrcal":  # with mrcal's optimisation inputs, built from the model.json's views' observations
+        from circcal import atomic
+        from circcal.validators.mrcal_export import cameramodel_text, document_views
+
+        text, info = cameramodel_text(camera, document_views(document))
+        atomic.write_text(args.output, text)
+        fmt = "mrcal"
+        note = " with mrcal's optimisation inputs" if info["optimization_inputs"] else \
+            f" without optimisation inputs ({info['why']})"
+    else:
+        # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
+        fmt = write_camera(args.output, camera, to_fmt, document=document if to_fmt == "json" else None,
+                           colmap_model=args.colmap_model)
+    print(f"{args.input} -> {args.output} ({fmt}{note}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
           f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
     return 0

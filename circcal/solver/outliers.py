@@ -114,7 +114,8 @@ class Rejected:
 class Rejections:
     """What outlier rejection left out of one calibration. ``items``: every :class:`Rejected`; ``kept_views``: the
     given views' indices that remain, in order (view i of the result is given view ``kept_views[i]``);
-    ``n_views``/``n_points``: how many were given; ``rounds``: solves made; ``rule``."""
+    ``n_views``/``n_points``: how many were given; ``rounds``: solves made; ``rule``; ``view_names``: the given
+    views' names when the caller knows them (image files)."""
 
     rule: OutlierRule
     kept_views: list[int]
@@ -122,6 +123,7 @@ class Rejections:
     n_points: int
     rounds: int = 0
     items: list[Rejected] = field(default_factory=list)
+    view_names: list[str] | None = None
 
     @property
     def dropped_views(self) -> list[Rejected]:

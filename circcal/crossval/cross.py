@@ -1,0 +1,270 @@
+"""Cross-validation of a calibration on the user's own images, the way mrcal validates one: split the views into two
+disjoint halves, calibrate each with the same settings, and weigh the projection difference of the two models
+(:func:`circcal.crossval.diff.model_diff`, implied transformation fitted) against their combined predicted
+uncertainty (:mod:`circcal.solver.uncertainty`, sigma_A + sigma_B per pixel). With a right model and unbiased data the
+difference stays within about 2x of it: the verdict is **consistent** when it does over at least 95% of the image,
+else a **model or data problem** (a lens model too simple, biased centres, a board that is not what was said),
+with the image regions where it is exceeded.
+
+Beside it, leave-one-view-out: each view is predicted by the model of all the others (its pose fitted, the
+intrinsics held; :func:`circcal.solver.holdout.leave_one_out`), and a view is flagged when it disagrees with the
+rest: its held-out prediction error is more than :data:`HELDOUT_RATIO` times the views' median, or leaving it out
+moves a parameter by more than :data:`INFLUENCE_SIGMAS` of its standard deviations (the view carries information
+no other view has, e.g. the only board in a corner, or it is wrong: a typical view moves them by ~1/sqrt(V) sigma).
+The verdict is consistent only when the halves agree and no view is flagged: a bias common to every view (a
+centroid detector on tilted dots) makes the halves agree with each other, yet shows as single views that pull the
+model far beyond its stated uncertainty. The leave-one-out models refit the full model's
+final observations from its camera (no re-correction of the centres: their change under a model of one view less is
+~1e-3 px).
+
+Errors name their convention (``rms_per_coord_px`` mrcal's, per coordinate). At least :data:`MIN_VIEWS` views are
+needed (3 per half, the solver's minimum); with fewer the cross-validation says why and the calibration stands.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from circcal.errors import InputError
+from circcal.model import PARAM_NAMES
+from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
+from circcal.crossval.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
+
+__all__ = ["CrossValidation", "ViewCheck", "split_views", "cross_validate", "cross_validate_observations",
+           "cross_validate_detections", "MIN_VIEWS", "HELDOUT_RATIO", "INFLUENCE_SIGMAS", "SPLITS"]
+
+#: Two halves of at least the solver's minimum of views each.
+MIN_VIEWS = 2 * SOLVER_MIN_VIEWS
+#: A view whose held-out prediction error (RMS per coordinate) exceeds this many times the views' median disagrees
+#: with the rest (a right model predicts every view about as well as it fits them; a view that the others' model
+#: must extrapolate to reaches ~3x on the fixtures).
+HELDOUT_RATIO = 5.0
+#: ... or whose removal moves a parameter by more than this many of its standard deviations (the full solve's; on
+#: every fixture with unbiased centres the largest move is 2.2 sigma).
+INFLUENCE_SIGMAS = 3.0
+#: How the views are split into halves.
+SPLITS = ("alternate", "random")
+
+
+def split_views(n: int, how: str = "alternate", seed: int = 0) -> tuple[list[int], list[int]]:
+    """Two disjoint halves of views 0..n-1: ``"alternate"`` (even, odd: both halves span the capture session) or
+    ``"random"`` (a seeded permutation cut in two)."""
+    if how == "alternate":
+        return list(range(0, n, 2)), list(range(1, n, 2))
+    if how == "random":
+        perm = np.random.default_rng(seed).permutation(n)
+        return sorted(int(i) for i in perm[: (n + 1) // 2]), sorted(int(i) for i in perm[(n + 1) // 2:])
+    raise InputError(f"unknown split {how!r}; expected one of {', '.join(SPLITS)}")
+
+
+@dataclass
+class ViewCheck:
+    """Leave-one-view-out for one view: ``heldout_rms_per_coord_px`` its prediction error by the others' model
+    (NaN when it failed), ``ratio`` to the views' median, ``shift_sigmas`` the largest parameter move on leaving it
+    out (in the full solve's standard deviations) and ``shift_param`` which, ``flagged`` and ``why``."""
+
+    view: int
+    name: str
+    heldout_rms_per_coord_px: float
+    ratio: float
+    shift_sigmas: float
+    shift_param: str
+    flagged: bool
+    why: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class CrossValidation:
+    """The outcome. ``status``: ``"ok"``, ``"too-few-views"`` or ``"failed"`` (a half could not be calibrated);
+    ``message``: in words; ``split``/``seed``; ``halves``: the two views lists (indices of the full model's views);
+    ``models``: the halves' :class:`~circcal.solver.CalibrationResult`; ``diff``: :class:`ModelDiff` of B against A
+    with both uncertainties; ``verdict``: ``"consistent"`` or ``"model-or-data-problem"`` (None unless ok);
+    ``views``: :class:`ViewCheck` per view; ``distance_mm`` (None: infinity)."""
+
+    status: str
+    message: str
+    split: str = "alternate"
+    seed: int = 0
+    halves: tuple[list[int], list[int]] = ([], [])
+    models: list[Any] = field(default_factory=list)
+    diff: ModelDiff | None = None
+    verdict: str | None = None
+    views: list[ViewCheck] = field(default_factory=list)
+    distance_mm: float | None = None
+
+    @property
+    def flagged_views(self) -> list[ViewCheck]:
+        return [v for v in self.views if v.flagged]
+
+    def lines(self) -> list[str]:
+        """The console summary."""
+        out = [f"cross-validation ({self.split} halves): {self.message}"]
+        for v in self.flagged_views:
+            out.append(f"  view {v.name} disagrees with the rest: {v.why}")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "message": self.message, "split": self.split, "seed": self.seed,
+                "halves": [list(h) for h in self.halves], "verdict": self.verdict, "distance_mm": self.distance_mm,
+                "diff": None if self.diff is None else self.diff.summary(),
+                "half_models": [{"camera": m.camera.to_dict(), "errors": dict(m.errors)} for m in self.models],
+                "views": [v.to_dict() for v in self.views]}
+
+
+def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
+    share = 100.0 * d.share_within
+    base = (f"the halves differ by {d.rms_px:.3g} px RMS (p95 {d.p95_px:.3g}, max {d.max_px:.3g}, centre "
+            f"{d.centre_px:.3g} px), within {CONSISTENT_RATIO:g}x their combined uncertainty over {share:.1f}% of the "
+            f"image")
+    flagged = [v.name for v in views if v.flagged]
+    if d.consistent and not flagged:
+        return "consistent", (f"consistent: {base} (>= {100 * CONSISTENT_SHARE:g}% needed), and every view agrees "
+                              f"with the rest")
+    parts = []
+    if not d.consistent:
+        where = ", ".join(f"{r} ({100 * s:.0f}%)" for r, s in d.where[:4]) or "spread over the image"
+        parts.append(f"{base}, less than {100 * CONSISTENT_SHARE:g}%; exceeded in the {where}")
+    else:
+        parts.append(f"{base}")
+    if flagged:
+        parts.append(f"{len(flagged)} view(s) disagree with the rest ({', '.join(flagged)})")
+    return "model-or-data-problem", ("a model or data problem: " + "; ".join(parts) + ". Likely: a lens model too "
+                                     "simple for the lens, biased centres, or a board unlike the one given")
+
+
+def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, Any]) -> list[ViewCheck]:
+    from circcal.solver import calibrate, leave_one_out
+
+    obj, img = full.object_points, full.image_points
+    size = (full.camera.width, full.camera.height)
+    models: dict[int, Any] = {}
+
+    def fit(rest: list[int]):
+        (k,) = set(range(len(obj))) - set(rest)
+        res = calibrate([obj[i] for i in rest], [img[i] for i in rest], size, initial=full.camera,
+                        **solver_options)
+        models[k] = res
+        return res
+
+    def held_out(k: int, res: Any):
+        return res.board_lookup(np.asarray(obj[k], dtype=np.float64)), img[k], res.camera
+
+    rows = leave_one_out(len(obj), fit, held_out)
+    rms = np.array([r.get("rms_per_coord_px", np.nan) for r in rows], dtype=np.float64)
+    med = float(np.nanmedian(rms)) if np.isfinite(rms).any() else float("nan")
+    std = np.array([full.std[n] for n in PARAM_NAMES])
+    out = []
+    for k, r in enumerate(rows):
+        shift, which, zmax = float("nan"), "", float("nan")
+        if k in models:
+            free = std > 0
+            delta = np.abs(models[k].camera.intrinsics - full.camera.intrinsics)[free]
+            z = delta / std[free]
+            j = int(np.argmax(z))
+            shift, which = float(z[j]), [n for n, f in zip(PARAM_NAMES, free) if f][j]
+            std_k = np.array([models[k].std[n] for n in PARAM_NAMES])[free] / models[k].sigma_px * full.sigma_px
+            zn = delta / np.sqrt(np.maximum(std_k ** 2 - std[free] ** 2, 1e-300))
+            zmax = float(np.max(zn))
+        ratio = rms[k] / med if med > 0 else float("nan")
+        why = []
+        if "failed" in r:
+            why.append(f"the other views give no model or it no pose ({r['failed']})")
+        if np.isfinite(ratio) and ratio > HELDOUT_RATIO:
+            why.append(f"predicted by the others' model to {rms[k]:.3g} px RMS per coordinate, {ratio:.1f}x the "
+                       f"views' median {med:.3g} px")
+        if np.isfinite(shift) and shift > INFLUENCE_SIGMAS:
+            why.append(f"leaving it out moves {which} by {shift:.1f} sigma: it holds information no other view has "
+                       f"(e.g. the only observations in part of the image), or it is wrong")
+        out.append(ViewCheck(k, names[k], float(rms[k]), float(ratio), shift, which, bool(why), "; ".join(why)))
+    return out
+
+
+def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], *, names: Sequence[str] | None = None,
+                   split: str = "alternate", seed: int = 0, distance: float | None = None,
+                   solver_options: dict[str, Any] | None = None) -> CrossValidation:
+    """Cross-validate the calibration ``full`` (a :class:`~circcal.solver.CalibrationResult` of V views):
+    ``fit_half(view indices)`` calibrates a subset of its views with the same settings. ``solver_options``: the
+    solver's keywords (fix_k3, refine_board, ...) for the leave-one-out refits. See the module."""
+    n = len(full.rvecs)
+    names = list(names) if names is not None else [f"view {i}" for i in range(n)]
+    if n < MIN_VIEWS:
+        return CrossValidation("too-few-views", f"not done: {n} views; two independent halves need at least "
+                               f"{MIN_VIEWS} ({SOLVER_MIN_VIEWS} each, the least a calibration takes). The "
+                               f"calibration above stands; take more views to check it", split, seed,
+                               distance_mm=distance)
+    from circcal.solver.uncertainty import result_projection_stdev
+
+    halves = split_views(n, split, seed)
+    models = []
+    for h in halves:
+        try:
+            models.append(fit_half(h))
+        except InputError as exc:
+            return CrossValidation("failed", f"not done: the half {[names[i] for i in h]} gives no model "
+                                   f"({exc})", split, seed, halves, distance_mm=distance)
+    a, b = models
+    if a.covariance is None or b.covariance is None:
+        return CrossValidation("failed", "not done: a half's information matrix is singular (no uncertainty)",
+                               split, seed, halves, models, distance_mm=distance)
+    d = model_diff(a.camera, b.camera, distance=distance,
+                   uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
+                   uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance))
+    views = _leave_one_out(full, names, solver_options or {})
+    verdict, message = _verdict(d, views)
+    return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance)
+
+
+#: Solver keywords a cross-validation passes to its leave-one-out refits (outlier rejection is not among them: they
+#: refit the full model's observations, already free of outliers).
+_SOLVER_KEYS = ("fix_k3", "fix_k2", "fix_tangential", "fix_aspect_ratio", "fix_principal_point", "refine_board")
+
+
+def cross_validate_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                                image_size: tuple[int, int], *, full: Any = None, names: Sequence[str] | None = None,
+                                split: str = "alternate", seed: int = 0, distance: float | None = None,
+                                **options: Any) -> tuple[Any, CrossValidation]:
+    """Calibrate fixed observations (per view (N_v, 3) mm, (N_v, 2) px; ``options`` go to
+    :func:`circcal.solver.calibrate`) and cross-validate (``full``: that calibration, if already made). Returns
+    ``(full, CrossValidation)``; with outlier rejection the halves are drawn from the views it kept."""
+    from circcal.solver import calibrate
+
+    if full is None:
+        full = calibrate(object_points, image_points, image_size, **options)
+    kept = full.outliers.kept_views if full.outliers is not None else list(range(len(object_points)))
+    obj = [object_points[i] for i in kept]
+    img = [image_points[i] for i in kept]
+
+    def fit_half(h: list[int]):
+        return calibrate([obj[i] for i in h], [img[i] for i in h], image_size, **options)
+
+    return full, cross_validate(full, fit_half, names=[(names[i] if names else f"view {i}") for i in kept],
+                                split=split, seed=seed, distance=distance,
+                                solver_options={k: v for k, v in options.items() if k in _SOLVER_KEYS})
+
+
+def cross_validate_detections(cal: Any, board: Any, *, split: str = "alternate", seed: int = 0,
+                              distance: float | None = None, **options: Any) -> CrossValidation:
+    """Cross-validate an :class:`circcal.pipeline.ImagesCalibration`: each half through the whole loop
+    (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct, recalibrate) from its views' detections,
+    with the same ``options`` (fix_k3, refine_board, outlier_rule, ...)."""
+    from circcal.pipeline import calibrate_detections
+
+    full = cal.result
+    dets = [cal.detections[i] for i in cal.used]
+    size = (full.camera.width, full.camera.height)
+
+    def fit_half(h: list[int]):
+        exclude = None
+        if options.get("outlier_rule") is not None:  # the detector's bad dots stay out, as in the full model
+            from circcal.dotcheck import bad_dot_rejections
+
+            exclude = bad_dot_rejections([dets[i] for i in h], board)[0]
+        return calibrate_detections([dets[i] for i in h], board, size, exclude=exclude, **options)[0]
+
+    return cross_validate(full, fit_half, names=full.view_names, split=split, seed=seed, distance=distance,
+                          solver_options={k: v for k, v in options.items() if k in _SOLVER_KEYS})

@@ -1,0 +1,91 @@
+"""A camera model read from any file circcal reads (:func:`circcal.formats.read_model`), with its projection
+uncertainty where the file carries what it takes:
+
+* a circcal model.json with the observations of its views (what ``circcal calibrate`` writes): the solve is made
+  again from them, with the parameters the file says were held, from the file's camera (it lands on the same
+  optimum: the file's camera to 1e-6 px, checked), and circcal's uncertainty is that solve's
+  (:mod:`circcal.solver.uncertainty`);
+* an mrcal ``.cameramodel`` with optimisation inputs: mrcal's own ``projection_uncertainty`` through the worker
+  (:func:`circcal.validators.mrcal_export.mrcal_uncertainty`), when mrcal is installed;
+* anything else: no uncertainty (``LoadedModel.uncertainty`` is None, ``note`` says why).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from circcal.formats import read_model
+from circcal.formats.mrcal import cameramodel_has_optimization_inputs
+from circcal.model import Camera
+
+__all__ = ["LoadedModel", "load_model", "resolve_document", "RESOLVE_TOL_PX"]
+
+#: The re-solve from a model.json's observations must reproduce its camera to this (px, projection difference over
+#: the image): the file's numbers are the optimum's to ~1e-9 relative.
+RESOLVE_TOL_PX = 1e-6
+
+#: model.json "fixed" names -> circcal.solver.calibrate keywords.
+_FIX_OPTIONS = {"k3": "fix_k3", "k2": "fix_k2", "p1": "fix_tangential", "p2": "fix_tangential",
+                "cx": "fix_principal_point", "cy": "fix_principal_point", "aspect_ratio": "fix_aspect_ratio"}
+
+
+@dataclass
+class LoadedModel:
+    """``camera``; ``uncertainty``: pixels (N, 2) -> worst-direction projection standard deviation (N,) px at
+    ``distance`` mm (None: infinity), or None; ``note``: where the uncertainty comes from, or why there is none."""
+
+    path: Path
+    camera: Camera
+    uncertainty: Callable[[np.ndarray, float | None], np.ndarray] | None
+    note: str
+
+
+def resolve_document(camera: Camera, document: dict):
+    """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module), or None
+    when it holds none or the solve does not land on its camera."""
+    from circcal.errors import InputError
+    from circcal.solver import calibrate
+    from circcal.validators.compare import projection_diff
+    from circcal.validators.mrcal_export import document_views
+
+    views = document_views(document)
+    if views is None:
+        return None
+    opts = {_FIX_OPTIONS[n]: True for n in views["fixed"] if n in _FIX_OPTIONS}
+    try:
+        res = calibrate(views["object_points"], views["image_points"], (camera.width, camera.height),
+                        initial=camera, refine_board=views["refined_board"], **opts)
+    except InputError:
+        return None
+    if projection_diff(camera, res.camera)["max_px"] > RESOLVE_TOL_PX or res.covariance is None:
+        return None
+    return res
+
+
+def load_model(path: str | Path) -> LoadedModel:
+    """Read ``path`` (any format; :class:`~circcal.errors.ModelFileError` naming the file when it cannot be read)
+    and find its uncertainty (see the module)."""
+    from circcal.solver.uncertainty import result_projection_stdev
+
+    p = Path(path)
+    camera, document = read_model(p)
+    if document is not None:
+        res = resolve_document(camera, document)
+        if res is not None:
+            return LoadedModel(p, camera, lambda uv, d: result_projection_stdev(res, uv, distance=d),
+                               f"circcal's, from the {len(res.rvecs)} views' observations in the file")
+        return LoadedModel(p, camera, None, "the model.json holds no observations of its views")
+    text = p.read_text()
+    if cameramodel_has_optimization_inputs(text):
+        from circcal.validators.mrcal import mrcal_python
+        from circcal.validators.mrcal_export import mrcal_uncertainty
+
+        py, why, info = mrcal_python()
+        if py is None:
+            return LoadedModel(p, camera, None, f"it has mrcal optimisation inputs, but {why}")
+        return LoadedModel(p, camera, lambda uv, d: mrcal_uncertainty(text, uv, distance=d, python=py),
+                           f"mrcal {info.get('version', '')}'s, from the file's optimisation inputs")
+    return LoadedModel(p, camera, None, "the file holds no optimisation inputs or observations")
