@@ -9,7 +9,7 @@ TORCH   := torch==2.13.0
 JOBS    ?= 2
 
 .PHONY: setup demo test bench study study-reports study-paper-2000 study-paper-2000-subset conformance mrcal mrcal-2.5 clean \
-        clean-cache
+        clean-cache chromium
 
 setup: $(STAMP)
 
@@ -20,6 +20,7 @@ $(STAMP): pyproject.toml Makefile
 	$(VPY) -m pip install -q $(TORCH)
 	$(VPY) -m pip install -q -e '.[all]'
 	@$(MAKE) --no-print-directory mrcal
+	@$(MAKE) --no-print-directory chromium
 	@touch $(STAMP)
 
 # mrcal cannot import beside numpy 2 on Python 3.11: it runs out of process under Debian's /usr/bin/python3.
@@ -35,9 +36,24 @@ mrcal:
 	  echo "       or point CIRCCAL_MRCAL_PYTHON at a Python that can 'import mrcal' (e.g. PyPI mrcal 2.5 on 3.12)"; \
 	fi
 
+# The calibration report's browser test (tests/test_calreport.py) loads the report in Debian's chromium, headless;
+# without chromium that test skips and says why.
+chromium:
+	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then \
+	  echo "chromium: $$( (chromium --version || chromium-browser --version) 2>/dev/null | head -1)"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "chromium: installing Debian's chromium for the report's browser test (about 1 minute)"; \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null \
+	    || echo "chromium: apt-get install failed; the report's browser test will skip and say why"; \
+	else \
+	  echo "chromium: not installed (the report's browser test skips). As root run: apt-get install -y chromium"; \
+	fi
+
 # Optional: PyPI's mrcal 2.5 in its own Python 3.12 venv (its GUI dependency pyfltk is not needed and not built).
 # Then: CIRCCAL_MRCAL_PYTHON=$(CURDIR)/.venv-mrcal25/bin/python circcal validate --against mrcal
-PY312 ?= $(shell command -v python3.12 || ls /root/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | head -1)
+# (the first python3.12 that runs: a pyenv shim on PATH may exist without 3.12 selected)
+PY312 ?= $(shell for p in $$(command -v python3.12) /root/.pyenv/versions/3.12*/bin/python3.12; do \
+           "$$p" -c '' >/dev/null 2>&1 && { echo "$$p"; break; }; done)
 mrcal-2.5:
 	@test -n "$(PY312)" || { echo "mrcal-2.5 needs python3.12"; exit 1; }
 	$(PY312) -m venv .venv-mrcal25

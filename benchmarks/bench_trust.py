@@ -1,0 +1,60 @@
+"""What "is my calibration right?" costs beside a plain calibration of the same images (the 14 rendered 1920x1080
+`paper` views, normal light; rendering not timed: cached).
+
+Timed alternately in one process, one thread: ``plain`` = what ``circcal calibrate`` does (detect, calibrate with
+outlier rejection, re-correct, recalibrate, and the projection-uncertainty map and coverage it prints);
+``cross_validation`` = ``--cross-validate`` on top (two halves through the whole loop, their uncertainties and
+difference, leave-one-view-out refits); ``report`` = ``--report`` (every figure, both renderings, the failed-image
+overlays, report.json). Bars: plain + cross-validation <= 3x plain; the report <= 10 s for the 14 views.
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from benchmarks.timing import alternate, pinned, ratio, summary
+
+#: The bars of the issue.
+CROSSVAL_RATIO_BAR = 3.0
+REPORT_BAR_S = 10.0
+
+
+def run(repeats: int = 9) -> dict:
+    from circcal.calreport import write_report
+    from circcal.crossval.assess import assess
+    from circcal.crossval.cross import cross_validate_detections
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.pipeline import calibrate_images
+    from circcal.solver.outliers import OutlierRule
+
+    truth = load_truth(fixture_dir(DEFAULT_SCENARIO, "normal"))
+    paths = [v.image for v in truth.views]
+    rule = OutlierRule()
+    held: dict = {}
+
+    def plain() -> None:
+        cal = calibrate_images(paths, truth.board, progress=False, jobs=1, outlier_rule=rule)
+        held["cal"] = cal
+        held["assessment"] = assess(cal, truth.board, outlier_rule=rule)
+
+    def crossval() -> None:
+        held["cv"] = cross_validate_detections(held["cal"], truth.board, outlier_rule=rule)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        def report() -> None:
+            a = held["assessment"]
+            a.crossval = held["cv"]
+            write_report(a, Path(tmp) / "report")
+
+        with pinned(1) as threads:
+            t = alternate({"plain": plain, "cross_validation": crossval, "report": report}, repeats=repeats)
+    total = [p + c for p, c in zip(t["plain"], t["cross_validation"])]
+    r = ratio(total, t["plain"])
+    rep = summary(t["report"])
+    return {"threads": threads, "views": len(paths),
+            "plain_calibrate_s": summary(t["plain"]), "cross_validation_s": summary(t["cross_validation"]),
+            "calibrate_with_cross_validation_ratio": r,
+            "cross_validation_bar": f"<= {CROSSVAL_RATIO_BAR:g}x plain: {'met' if r['median'] <= CROSSVAL_RATIO_BAR else 'MISSED'}",
+            "report_s": rep,
+            "report_bar": f"<= {REPORT_BAR_S:g} s for {len(paths)} views: {'met' if rep['median'] <= REPORT_BAR_S else 'MISSED'}",
+            "cross_validation_verdict": held["cv"].verdict}
