@@ -9,7 +9,7 @@ TORCH   := torch==2.13.0
 JOBS    ?= 2
 
 .PHONY: setup demo test bench study study-reports study-paper-2000 study-paper-2000-subset conformance mrcal mrcal-2.5 clean \
-        clean-cache chromium
+        clean-cache chromium realdata-reports
 
 setup: $(STAMP)
 
@@ -35,6 +35,18 @@ mrcal:
 	  echo "mrcal: not installed. As root run: apt-get install -y mrcal python3-mrcal"; \
 	  echo "       or point CIRCCAL_MRCAL_PYTHON at a Python that can 'import mrcal' (e.g. PyPI mrcal 2.5 on 3.12)"; \
 	fi
+
+# The calibration reports of the real photographs (reports/realdata/<set>[-refine-board]/), published with README.md.
+REALDATA ?= ../shared/data/realdata
+realdata-reports: setup
+	@for rb in "" "--refine-board"; do sfx=$${rb:+-refine-board}; \
+	  $(VENV)/bin/circcal calibrate $(REALDATA)/boofcv_sony_hx5v_circle_regular_10x8/image*.jpg --grid 8x10 \
+	    --pitch 25mm --diameter 15mm --no-progress --cross-validate $$rb --out /tmp/circcal-realdata-10x8.json \
+	    --report reports/realdata/boofcv_sony_hx5v_circle_regular_10x8$$sfx || exit 1; \
+	  $(VENV)/bin/circcal calibrate $(REALDATA)/boofcv_sony_hx5v_circle_asym_4x5/image*.jpg --grid 5x4 --asymmetric \
+	    --pitch 30mm --diameter 20mm --no-progress --cross-validate $$rb --out /tmp/circcal-realdata-4x5.json \
+	    --report reports/realdata/boofcv_sony_hx5v_circle_asym_4x5$$sfx || exit 1; \
+	done
 
 # The calibration report's browser test (tests/test_calreport.py) loads the report in Debian's chromium, headless;
 # without chromium that test skips and says why.
