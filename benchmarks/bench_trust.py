@@ -54,7 +54,9 @@ def run(repeats: int = 9) -> dict:
     return {"threads": threads, "views": len(paths),
             "plain_calibrate_s": summary(t["plain"]), "cross_validation_s": summary(t["cross_validation"]),
             "calibrate_with_cross_validation_ratio": r,
-            "cross_validation_bar": f"<= {CROSSVAL_RATIO_BAR:g}x plain: {'met' if r['median'] <= CROSSVAL_RATIO_BAR else 'MISSED'}",
+            "cross_validation_bar": f"<= {CROSSVAL_RATIO_BAR:g}x plain: "
+                                    f"{'met' if r['median'] <= CROSSVAL_RATIO_BAR else 'MISSED'}",
             "report_s": rep,
-            "report_bar": f"<= {REPORT_BAR_S:g} s for {len(paths)} views: {'met' if rep['median'] <= REPORT_BAR_S else 'MISSED'}",
+            "report_bar": f"<= {REPORT_BAR_S:g} s for {len(paths)} views: "
+                          f"{'met' if rep['median'] <= REPORT_BAR_S else 'MISSED'}",
             "cross_validation_verdict": held["cv"].verdict}

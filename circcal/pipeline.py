@@ -208,7 +208,8 @@ def calibrate_detections(
     ``options`` go to :func:`calibrate`. ``exclude``: per detection, indices of dots (board order) left out of every
     solve (the detector's bad dots). Returns ``(result, centers, rounds)`` as :class:`ImagesCalibration` holds
     them (with outlier rejection, ``result``'s views are ``result.outliers.kept_views`` of the detections; the
-    centres stay one per detection). Reused for held-out checks: the detector runs without a model, so detections do not depend on other views.
+    centres stay one per detection). Reused for held-out checks: the detector runs without a model, so detections
+    do not depend on other views.
     """
     board_pts = board.object_points()
 

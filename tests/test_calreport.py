@@ -5,7 +5,6 @@ uncertainty, outliers, the cross-validation map, failed images with overlays), c
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -75,8 +74,9 @@ def _browser_check(page: Path, width: int, tmp: Path) -> dict:
     probe = page.with_name(f".probe-{width}.html")
     script = ("<script>window.addEventListener('load', function () {"
               "var imgs = Array.from(document.images);"
-              "var info = {n: imgs.length, loaded: imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; })"
-              ".length, scroll: document.documentElement.scrollWidth, inner: window.innerWidth,"
+              "var info = {n: imgs.length, loaded: imgs.filter(function (i) {"
+              "return i.complete && i.naturalWidth > 0; }).length,"
+              "scroll: document.documentElement.scrollWidth, inner: window.innerWidth,"
               "wide: Array.from(document.querySelectorAll('body *')).filter(function (e) {"
               "return e.getBoundingClientRect().right > window.innerWidth + 1; }).map(function (e) {"
               "return e.tagName; }).slice(0, 5)};"
@@ -85,8 +85,9 @@ def _browser_check(page: Path, width: int, tmp: Path) -> dict:
     try:
         run = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
                               "--disable-background-networking", "--no-first-run", f"--user-data-dir={tmp}",
-                              f"--window-size={width},900", "--virtual-time-budget=10000", "--allow-file-access-from-files",
-                              "--dump-dom", probe.as_uri()], capture_output=True, text=True,
+                              f"--window-size={width},900", "--virtual-time-budget=10000",
+                              "--allow-file-access-from-files", "--dump-dom", probe.as_uri()],
+                             capture_output=True, text=True,
                              timeout=BROWSER_TIMEOUT_S)
     finally:
         probe.unlink()

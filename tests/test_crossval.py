@@ -105,9 +105,8 @@ def test_fewer_than_six_views_says_why_and_the_calibration_stands(tmp_path):
 
     t = load_truth(fixture_dir("wide", "clean"))
     out = tmp_path / "m.json"
-    args = ["calibrate"] + [str(v.image) for v in t.views[:MIN_VIEWS - 1]] + ["--grid", "6x8", "--pitch", "25mm", "--diameter",
-                                                              "12mm", "--no-progress", "--cross-validate",
-                                                              "--out", str(out)]
+    args = ["calibrate", *[str(v.image) for v in t.views[:MIN_VIEWS - 1]], "--grid", "6x8", "--pitch", "25mm",
+            "--diameter", "12mm", "--no-progress", "--cross-validate", "--out", str(out)]
     assert main(args) == 0
     assert out.is_file()
     cal = calibrate_images([v.image for v in t.views[:MIN_VIEWS - 1]], t.board, progress=False)

@@ -37,7 +37,7 @@ from circcal.observations import check_observations
 from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, \
     seed_camera
 
-__all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "NOT_FOUND_MESSAGE"]
+__all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE"]
 
 WORKER = Path(__file__).with_name("mrcal_worker.py")
 ENV_VAR = "CIRCCAL_MRCAL_PYTHON"
@@ -75,6 +75,24 @@ def mrcal_python() -> tuple[str | None, str, dict]:
             return DEFAULT_PYTHON, "", info
         return None, f"{NOT_FOUND_MESSAGE} ({DEFAULT_PYTHON}: {why})", {}
     return None, NOT_FOUND_MESSAGE, {}
+
+
+def run_worker(python: str, request: dict[str, Any], timeout_s: float) -> dict[str, Any]:
+    """One run of :mod:`circcal.validators.mrcal_worker` under ``python``: ``request`` as JSON on stdin, the JSON
+    reply. Raises ``RuntimeError`` with the worker's (mrcal's) words when it times out, crashes or fails."""
+    try:
+        proc = subprocess.run([python, str(WORKER)], input=json.dumps(request), capture_output=True, text=True,
+                              timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"mrcal worker ran past {timeout_s:g} s") from None
+    try:
+        reply = json.loads(proc.stdout)
+    except json.JSONDecodeError:
+        raise RuntimeError(f"mrcal worker crashed (exit {proc.returncode}): "
+                           f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
+    if proc.returncode != 0 or "error" in reply:
+        raise RuntimeError(f"mrcal failed: {reply.get('error', proc.returncode)}")
+    return reply
 
 
 class UnsupportedLayout(NotImplementedError):
@@ -191,18 +209,7 @@ class MrcalCalibrator(BaseCalibrator):
                "imagersize": [int(image_size[0]), int(image_size[1])],
                "focal_estimate": float(0.5 * (seed.fx + seed.fy)),
                "seed_intrinsics": None if initial is None else initial.intrinsics.tolist()}
-        try:
-            proc = subprocess.run([py, str(WORKER)], input=json.dumps(req), capture_output=True, text=True,
-                                  timeout=self.timeout_s)
-        except subprocess.TimeoutExpired:
-            raise RuntimeError(f"mrcal worker ran past {self.timeout_s:g} s") from None
-        try:
-            reply = json.loads(proc.stdout)
-        except json.JSONDecodeError:
-            raise RuntimeError(f"mrcal worker crashed (exit {proc.returncode}): "
-                               f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
-        if proc.returncode != 0 or "error" in reply:
-            raise RuntimeError(f"mrcal failed: {reply.get('error', proc.returncode)}")
+        reply = run_worker(py, req, self.timeout_s)
         wall = time.perf_counter() - t0
         out = []
         for r in reply["results"]:

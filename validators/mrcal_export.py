@@ -17,8 +17,6 @@ inputs: the file says so in its note, and mrcal's uncertainty then treats them a
 """
 from __future__ import annotations
 
-import json
-import subprocess
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -27,7 +25,7 @@ import numpy as np
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.rotation import rodrigues
-from circcal.validators.mrcal import WORKER, UnsupportedLayout, board_lattice, mrcal_python
+from circcal.validators.mrcal import UnsupportedLayout, board_lattice, mrcal_python, run_worker
 
 __all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "result_views", "document_views",
            "cameramodel_text", "WORKER_TIMEOUT_S"]
@@ -52,24 +50,16 @@ class ExportedModel:
 
 
 def _run_worker(req: dict[str, Any], python: str | None) -> dict[str, Any]:
-    """One worker run; raises :class:`ExportError` with mrcal's words when it fails."""
+    """One worker run (:func:`circcal.validators.mrcal.run_worker`); :class:`ExportError` with mrcal's words when
+    there is no mrcal or it fails."""
     if python is None:
         python, why, _ = mrcal_python()
         if python is None:
             raise ExportError(why)
     try:
-        proc = subprocess.run([python, str(WORKER)], input=json.dumps(req), capture_output=True, text=True,
-                              timeout=WORKER_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        raise ExportError(f"mrcal worker ran past {WORKER_TIMEOUT_S:g} s") from None
-    try:
-        reply = json.loads(proc.stdout)
-    except json.JSONDecodeError:
-        raise ExportError(f"mrcal worker crashed (exit {proc.returncode}): "
-                          f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
-    if proc.returncode != 0 or "error" in reply:
-        raise ExportError(f"mrcal: {reply.get('error', f'exit {proc.returncode}')}")
-    return reply
+        return run_worker(python, req, WORKER_TIMEOUT_S)
+    except RuntimeError as exc:
+        raise ExportError(str(exc)) from None
 
 
 def export_cameramodel(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray,

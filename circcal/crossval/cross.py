@@ -160,16 +160,12 @@ def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, An
     std = np.array([full.std[n] for n in PARAM_NAMES])
     out = []
     for k, r in enumerate(rows):
-        shift, which, zmax = float("nan"), "", float("nan")
+        shift, which = float("nan"), ""
         if k in models:
             free = std > 0
-            delta = np.abs(models[k].camera.intrinsics - full.camera.intrinsics)[free]
-            z = delta / std[free]
+            z = np.abs(models[k].camera.intrinsics - full.camera.intrinsics)[free] / std[free]
             j = int(np.argmax(z))
             shift, which = float(z[j]), [n for n, f in zip(PARAM_NAMES, free) if f][j]
-            std_k = np.array([models[k].std[n] for n in PARAM_NAMES])[free] / models[k].sigma_px * full.sigma_px
-            zn = delta / np.sqrt(np.maximum(std_k ** 2 - std[free] ** 2, 1e-300))
-            zmax = float(np.max(zn))
         ratio = rms[k] / med if med > 0 else float("nan")
         why = []
         if "failed" in r:
