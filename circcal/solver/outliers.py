@@ -84,8 +84,9 @@ class OutlierRule:
 
 @dataclass
 class Rejected:
-    """One observation left out. ``view``: index of the view as given; ``point``: index of the point within that
-    view's given points (None for a whole view); ``object_mm`` (3,) / ``image_px`` (2,) the point (None for a view);
+    """One observation left out. ``view``: index of the view as given; ``point``: index of the point among that
+    view's points as given to the solve (for a bad dot, flagged before any solve: its index in the board's order;
+    None for a whole view; ``object_mm`` names the board point either way); ``object_mm`` (3,) / ``image_px`` (2,) the point (None for a view);
     ``residual_px``: (2,) observed - projected when it was left out (for a view: the RMS per coordinate of its points,
     one number); ``sigma_px``: the noise level the test used; ``round``: the solve after which it was left out (0 =
     before any solve: a bad dot); ``reason``; ``detail``: in words."""
