@@ -10,6 +10,29 @@ Conventions
   ``((2j + i % 2) * pitch, i * pitch, 0)``; ``pitch`` is OpenCV's ``squareSize``, half the spacing within a row.
 * Checkerboard: ``rows x cols`` inner corners at ``(j*pitch, i*pitch, 0)``; squares of side ``pitch``; the square
   whose top-left corner is ``(a*pitch, b*pitch)`` for a, b in [-1, cols-1] x [-1, rows-1] is black when ``a + b`` is even.
+* Lattice coordinates: the object points divided by the pitch, integers (``Board.lattice_coords``): ``(j, i)`` on a
+  symmetric grid, ``(2j + i % 2, i)`` on an asymmetric one (only the nodes with ``x + y`` even are dots).
+
+Marker boards
+-------------
+A circle grid may carry *markers*: dots of a larger diameter (``marker_diameter_mm``) at the points listed in
+``markers`` (indices in OpenCV's order). They fix the board's orientation and origin, so a symmetric grid loses its
+rotational ambiguity, every point keeps its ID across views, and a view that shows only part of the board can still
+be labelled. Two designs (:func:`with_markers`):
+
+* ``origin``: ROS-Industrial's "modified circle grid": one dot of twice the diameter at the origin. ROS-I's finder
+  numbers the points in reading order from the top-left with the big dot at the bottom-left, so the marker is point
+  ``(rows - 1) * cols``: circcal's point numbers are ROS-I's. The whole board must be in view (one marker cannot
+  tell which part of a board is seen unless that part holds it).
+* ``pattern`` (circcal's own, :func:`marker_pattern`): about one dot in seven is 1.5x larger, placed so that every
+  4 x 4 window of the grid (3 x 3 on boards with a side under 5) shows a marker pattern that differs, in at least
+  two dots, from the pattern of every other window position and rotation of the board. So a partial view that
+  holds one such window is labelled uniquely, and one marker misread (a dot shrunk by a shadow, a marker cut by
+  the image border) cannot make a wrong labelling fit: it leaves no labelling that fits, and the view is rejected
+  rather than mislabelled. Markers are never neighbours (the gaps between printed dots stay wide). 1.5x (2.25x
+  the area) keeps the gap to the neighbours at half a pitch or more for dots up to 0.6 pitch and is told apart
+  from a normal dot by its area alone: perspective changes the area ratio of neighbouring dots by a few percent,
+  threshold blur by ~10 %.
 """
 from __future__ import annotations
 
@@ -29,6 +52,37 @@ MIN_LENGTH_MM = 1e-3
 MAX_LENGTH_MM = 1e5
 #: Points per board side at most (a 1000 x 1000 grid is 10^6 dots; more is a typo).
 MAX_GRID_SIDE = 1000
+#: Marker designs (:func:`with_markers`).
+MARKER_STYLES: tuple[str, ...] = ("origin", "pattern")
+#: ROS-Industrial's modified circle grid: the origin dot has twice the diameter of the others.
+ORIGIN_MARKER_SCALE = 2.0
+#: circcal's pattern markers are this many times the diameter of the other dots (see the module docstring).
+PATTERN_MARKER_SCALE = 1.5
+#: Printed dots must keep this share of the nearest-dot spacing free between their rims (markers included): a
+#: narrower gap merges neighbouring dots under blur or a coarse segmentation.
+MIN_GAP_SHARE = 0.15
+#: circcal's marker pattern: every window of k x k points is unique on the board, k the smallest side for which the
+#: search succeeds, from this + 1 up (boards with a side of at most this + 1 use their whole short side; 3 x 3
+#: windows were never found on boards of 4 x 5 and more; measured: 4 on 5x5 to 9x6, 5 on 8x10 to 20x20).
+PATTERN_SMALL_WINDOW = 3
+#: ... unique by at least this many marker differences (one misread marker cannot make another placement fit).
+PATTERN_MIN_DISTANCE = 2
+#: ... starting from about this share of the dots as markers (the search adds and removes them).
+PATTERN_DENSITY = 0.15
+#: ... found by a seeded simulated annealing of at most this many single changes per window side (deterministic:
+#: the same board always gets the same pattern, and the pattern is written into truth.json, model.json and the
+#: printed margin), cooling by this factor per change down to this temperature (in units of the shortfall).
+PATTERN_TRIES = 6000
+PATTERN_COOLING = 0.9995
+PATTERN_MIN_TEMPERATURE = 0.05
+PATTERN_SEED = 20240601
+#: Boards with a side longer than this start at windows of PATTERN_SMALL_WINDOW + 2 (4 x 4 windows were never made
+#: unique on 8x10, 9x9 or 10x10 boards; the failed search costs seconds).
+PATTERN_LARGE_FROM = 9
+#: A window side is given up when the shortfall has not fallen for this many changes.
+PATTERN_PATIENCE = 1500
+#: Boards with more dots than this get no pattern (the search's memory grows with the square of the dot count).
+PATTERN_MAX_POINTS = 400
 
 
 @dataclass(frozen=True)
@@ -48,7 +102,9 @@ class Symmetry:
 @dataclass(frozen=True)
 class Board:
     """A planar target. ``pitch_mm`` and ``diameter_mm`` in mm (``diameter_mm`` is 0 for a checkerboard);
-    ``margin_mm``: white border around the outermost features (defaults to one pitch)."""
+    ``margin_mm``: white border around the outermost features (defaults to one pitch). ``markers``: indices
+    (OpenCV's order) of the dots printed with the larger diameter ``marker_diameter_mm`` (see the module docstring;
+    empty and 0 for a board without markers)."""
 
     rows: int
     cols: int
@@ -56,6 +112,8 @@ class Board:
     diameter_mm: float = 0.0
     layout: Layout = "symmetric"
     margin_mm: float | None = None
+    markers: tuple[int, ...] = ()
+    marker_diameter_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
@@ -85,6 +143,48 @@ class Board:
                 raise InputError(
                     f"dot diameter {self.diameter_mm} mm must be positive and below the nearest-neighbour "
                     f"spacing {spacing:.3g} mm (dots would touch)")
+        self._check_markers()
+
+    def _check_markers(self) -> None:
+        """Markers: distinct integer indices of this board's points, on a circle grid, with a diameter above the
+        dots' that leaves :data:`MIN_GAP_SHARE` of the spacing free to the nearest dot (and marker)."""
+        m = self.markers
+        if isinstance(m, (str, bytes)) or not hasattr(m, "__iter__"):
+            raise InputError(f"board markers must be a list of point indices, got {m!r}")
+        idx = []
+        for v in m:
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise InputError(f"board marker indices must be integers, got {v!r}")
+            idx.append(int(v))
+        object.__setattr__(self, "markers", tuple(sorted(set(idx))))
+        v = self.marker_diameter_mm
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                or not np.isfinite(v):
+            raise InputError(f"board marker_diameter_mm must be a finite number (mm), got {v!r}")
+        object.__setattr__(self, "marker_diameter_mm", float(v))
+        if not self.markers:
+            if self.marker_diameter_mm != 0.0:
+                raise InputError("a marker diameter without markers (give the marker points, or no diameter)")
+            return
+        if self.layout == "checkerboard":
+            raise InputError("a checkerboard has no dots to make markers of")
+        if len(idx) != len(self.markers):
+            raise InputError(f"board markers repeat a point: {sorted(idx)}")
+        bad = [i for i in self.markers if not 0 <= i < self.n_points]
+        if bad:
+            raise InputError(f"board markers {bad} are not points of a {self.rows}x{self.cols} grid "
+                             f"(indices 0..{self.n_points - 1})")
+        spacing = self.spacing_mm
+        if not self.diameter_mm < self.marker_diameter_mm:
+            raise InputError(f"marker diameter {self.marker_diameter_mm:g} mm must exceed the dot diameter "
+                             f"{self.diameter_mm:g} mm")
+        gap = spacing - 0.5 * (self.marker_diameter_mm + self.diameter_mm)
+        if gap < MIN_GAP_SHARE * spacing:
+            raise InputError(f"marker diameter {self.marker_diameter_mm:g} mm leaves {gap:.3g} mm to the nearest "
+                             f"dot, less than {MIN_GAP_SHARE:.0%} of the spacing {spacing:.3g} mm (dots would merge)")
+        if self.marker_diameter_mm > (1.0 - MIN_GAP_SHARE) * spacing and _adjacent_markers(self):
+            raise InputError(f"two markers of {self.marker_diameter_mm:g} mm are neighbours at {spacing:.3g} mm "
+                             "spacing: they would touch")
 
     @property
     def n_points(self) -> int:
@@ -98,6 +198,37 @@ class Board:
     @property
     def radius_mm(self) -> float:
         return 0.5 * self.diameter_mm
+
+    @property
+    def spacing_mm(self) -> float:
+        """Distance between nearest dots (mm): the pitch, or sqrt(2) pitches on an asymmetric grid."""
+        return self.pitch_mm * (2 ** 0.5 if self.layout == "asymmetric" else 1.0)
+
+    @property
+    def has_markers(self) -> bool:
+        return bool(self.markers)
+
+    def is_marker(self) -> np.ndarray:
+        """(N,) bool: which points are markers (OpenCV's order)."""
+        out = np.zeros(self.n_points, bool)
+        out[list(self.markers)] = True
+        return out
+
+    def radii_mm(self) -> np.ndarray:
+        """(N,) printed radius of every dot (mm): markers have ``marker_diameter_mm / 2``."""
+        r = np.full(self.n_points, self.radius_mm)
+        r[list(self.markers)] = 0.5 * self.marker_diameter_mm
+        return r
+
+    @property
+    def marker_scale(self) -> float:
+        """Marker diameter over dot diameter (1 without markers)."""
+        return self.marker_diameter_mm / self.diameter_mm if self.markers else 1.0
+
+    def lattice_coords(self) -> np.ndarray:
+        """(N, 2) int64 integer lattice coordinates of the points (the object points' x, y over the pitch): ``(j, i)``
+        on a symmetric grid, ``(2j + i % 2, i)`` on an asymmetric one; checkerboard corners as a symmetric grid."""
+        return np.rint(self.object_points()[:, :2] / self.pitch_mm).astype(np.int64)
 
     @property
     def margin(self) -> float:
@@ -115,12 +246,13 @@ class Board:
         return np.stack([x, i * self.pitch_mm, np.zeros_like(x)], axis=-1)
 
     def feature_extent_mm(self) -> tuple[float, float, float, float]:
-        """(xmin, ymin, xmax, ymax) of the printed features (dot rims or squares), mm."""
+        """(xmin, ymin, xmax, ymax) of the printed features (dot rims or squares, markers included), mm."""
         p = self.object_points()
         if self.layout == "checkerboard":
             return (-self.pitch_mm, -self.pitch_mm, self.cols * self.pitch_mm, self.rows * self.pitch_mm)
-        r = self.radius_mm
-        return (p[:, 0].min() - r, p[:, 1].min() - r, p[:, 0].max() + r, p[:, 1].max() + r)
+        r = self.radii_mm()
+        return (float((p[:, 0] - r).min()), float((p[:, 1] - r).min()), float((p[:, 0] + r).max()),
+                float((p[:, 1] + r).max()))
 
     def extent_mm(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the white board including its margin, mm."""
@@ -135,19 +267,24 @@ class Board:
     def symmetries(self, *, reflections: bool = True) -> tuple[Symmetry, ...]:
         """Every rigid map of the point set onto itself (:class:`Symmetry`), identity first; reflections only when
         asked. A symmetric grid has 2 rotations (4 when square), an asymmetric one 2 with an even number of rows
-        and only the identity otherwise; each rotation has its mirrored twin."""
+        and only the identity otherwise; each rotation has its mirrored twin. Markers must map onto markers (a
+        marker board usually has the identity alone)."""
         return tuple(s for s in _symmetries(self) if reflections or s.det > 0)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``board`` block of truth.json / detections JSON."""
+        """The ``board`` block of truth.json, model.json and detections JSON: rows, cols, pitch_mm, diameter_mm,
+        layout, margin_mm, markers (point indices, OpenCV's order; [] for none), marker_diameter_mm (0 for none)."""
         d = asdict(self)
         d["margin_mm"] = self.margin
+        d["markers"] = list(self.markers)
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Board":
+    def from_dict(cls, d: dict[str, Any]) -> Board:
+        """The board of a ``board`` block (:meth:`to_dict`); the marker fields may be absent (no markers)."""
         return cls(int(d["rows"]), int(d["cols"]), float(d["pitch_mm"]), float(d.get("diameter_mm", 0.0)),
-                   d.get("layout", "symmetric"), d.get("margin_mm"))
+                   d.get("layout", "symmetric"), d.get("margin_mm"), tuple(d.get("markers") or ()),
+                   float(d.get("marker_diameter_mm") or 0.0))
 
     def signed_distance_mm(self, xy: np.ndarray) -> np.ndarray:
         """Signed distance (mm) from board points ``xy`` (..., 2) to the nearest feature edge; negative on dark
@@ -171,6 +308,18 @@ class Board:
         r = self.radius_mm
         best = np.full(x.shape, np.inf)
         i_near = np.round(y / s)
+        if self.markers:  # dots of two sizes: the nearest rim may belong to a neighbouring column's marker
+            radii = self.radii_mm()
+            for di in (-1.0, 0.0, 1.0):
+                i = np.clip(i_near + di, 0, self.rows - 1)
+                odd = i % 2 if self.layout == "asymmetric" else 0.0
+                step = 2.0 if self.layout == "asymmetric" else 1.0
+                j0 = np.round((x / s - odd) / step)
+                for dj in (-1.0, 0.0, 1.0):
+                    j = np.clip(j0 + dj, 0, self.cols - 1)
+                    k = (i * self.cols + j).astype(np.int64)
+                    best = np.minimum(best, np.hypot(x - (step * j + odd) * s, y - i * s) - radii[k])
+            return best
         for di in (-1.0, 0.0, 1.0):
             i = np.clip(i_near + di, 0, self.rows - 1)
             if self.layout == "asymmetric":
@@ -195,10 +344,242 @@ def _symmetries(board: Board) -> tuple[Symmetry, ...]:
                 t = np.column_stack([-t[:, 1], t[:, 0]])
             dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
             j = np.argmin(dist, axis=1)
-            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and len(np.unique(j)) == len(d):
+            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and len(np.unique(j)) == len(d) \
+                    and np.array_equal(board.is_marker()[j], board.is_marker()):  # markers onto markers
                 label = f"rot{90 * quarter}" if not mirror else ("mirror" if quarter == 0 else
                                                                  f"mirror+rot{90 * quarter}")
                 if not any(np.array_equal(j, s.perm) for s in out):
                     j.setflags(write=False)
                     out.append(Symmetry(label, j, -1 if mirror else 1))
     return tuple(out)
+
+
+#: The four rotations of the integer lattice (quarter turns, x right and y down as in the board frame): rotation
+#: ``q`` maps lattice coordinates ``xy`` to ``xy @ LATTICE_ROTATIONS[q].T``.
+LATTICE_ROTATIONS: tuple[np.ndarray, ...] = tuple(
+    np.linalg.matrix_power(np.array([[0, -1], [1, 0]], np.int64), q) for q in range(4))
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One way to lay observed lattice points onto a board: rotation ``quarter`` (index into
+    :data:`LATTICE_ROTATIONS`), translation ``shift`` (2,) int, ``points`` (K,) the board point of each observed
+    point, ``mismatches``: observed marker flags that disagree with the board's."""
+
+    quarter: int
+    shift: tuple[int, int]
+    points: np.ndarray
+    mismatches: int
+
+
+def placements(board: Board, xy: np.ndarray, flags: np.ndarray | None = None, *, max_mismatches: int = 0
+               ) -> list[Placement]:
+    """Every placement of the observed lattice points ``xy`` (K, 2) int onto ``board``'s points by a rotation and
+    an integer translation (no reflection: ``xy`` must have the board frame's handedness) that puts every observed
+    point on a board point and has at most ``max_mismatches`` marker disagreements. ``flags`` (K,) int: 1 for a
+    dot seen as a marker, 0 for a dot seen as a plain dot, -1 for unknown (not compared); ``None``: all unknown.
+    Cost: O(translations x K) per rotation, vectorised (translations: the ways the observed bounding box fits in
+    the board's)."""
+    xy = np.asarray(xy, np.int64).reshape(-1, 2)
+    K = len(xy)
+    flags = np.full(K, -1, np.int64) if flags is None else np.asarray(flags, np.int64).reshape(K)
+    occ, mk, origin = _lattice_grid(board)
+    Hh, Ww = occ.shape
+    known = flags >= 0
+    out: list[Placement] = []
+    for q, R in enumerate(LATTICE_ROTATIONS):
+        G = xy @ R.T - origin
+        lo = -G.min(axis=0)
+        hi = np.array([Ww - 1, Hh - 1]) - G.max(axis=0)
+        if np.any(hi < lo):
+            continue
+        tx, ty = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+        T = np.stack([tx.ravel(), ty.ravel()], -1)
+        for c in range(0, len(T), max(1, (1 << 20) // max(K, 1))):   # bounded memory
+            Tc = T[c:c + (1 << 20) // max(K, 1)]
+            P = G[None] + Tc[:, None]
+            idx = occ[P[..., 1], P[..., 0]]
+            ok = np.all(idx >= 0, axis=1)
+            if not np.any(ok):
+                continue
+            miss = np.sum(known[None] & (mk[P[..., 1], P[..., 0]].astype(np.int64) != flags[None]), axis=1)
+            for t in np.nonzero(ok & (miss <= max_mismatches))[0]:
+                sh = Tc[t] + origin
+                out.append(Placement(q, (int(sh[0]), int(sh[1])), idx[t].copy(), int(miss[t])))
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _lattice_grid(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(occupancy (H, W) int: board point index or -1, markers (H, W) bool, origin (2,) int) over the bounding box
+    of the board's lattice coordinates."""
+    L = board.lattice_coords()
+    origin = L.min(axis=0)
+    W, H = (L.max(axis=0) - origin + 1)
+    occ = np.full((H, W), -1, np.int64)
+    occ[L[:, 1] - origin[1], L[:, 0] - origin[0]] = np.arange(len(L))
+    mk = np.zeros((H, W), bool)
+    mk[L[:, 1] - origin[1], L[:, 0] - origin[0]] = board.is_marker()
+    occ.setflags(write=False)
+    mk.setflags(write=False)
+    return occ, mk, origin
+
+
+def _adjacent_markers(board: Board) -> bool:
+    """Whether two markers are nearest neighbours on the board."""
+    L = board.lattice_coords()[list(board.markers)].astype(np.float64)
+    if len(L) < 2:
+        return False
+    d = np.linalg.norm(L[:, None] - L[None], axis=-1) * board.pitch_mm
+    np.fill_diagonal(d, np.inf)
+    return bool(np.any(d < 1.01 * board.spacing_mm))
+
+
+def _windows(board: Board, k: int) -> list[np.ndarray]:
+    """Point indices of every ``k`` x ``k`` window of rows and columns (indices, OpenCV's order) of ``board``."""
+    idx = np.arange(board.n_points).reshape(board.rows, board.cols)
+    return [idx[i:i + k, j:j + k].ravel() for i in range(board.rows - k + 1) for j in range(board.cols - k + 1)]
+
+
+def _window_pairs(board: Board, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every ``k`` x ``k`` window of ``board`` against every other placement of its points on the board (markers
+    ignored): ``(A, B)``, each (P, k*k) int32 point indices, window point ``A[p, j]`` lands on ``B[p, j]``."""
+    L = board.lattice_coords()
+    plain = Board(board.rows, board.cols, board.pitch_mm, board.diameter_mm, board.layout, board.margin_mm)
+    A, B = [], []
+    for w in _windows(board, k):
+        for p in placements(plain, L[w]):
+            if not np.array_equal(p.points, w):
+                A.append(w)
+                B.append(p.points)
+    if not A:
+        return np.zeros((0, k * k), np.int32), np.zeros((0, k * k), np.int32)
+    return np.asarray(A, np.int32), np.asarray(B, np.int32)
+
+
+def window_conflicts(board: Board, k: int, min_distance: int = PATTERN_MIN_DISTANCE) -> int:
+    """How many (window, other placement) pairs break the marker pattern's promise: for every ``k`` x ``k`` window
+    of ``board`` seen on its own, every placement of it other than the true one must disagree with the markers it
+    shows in at least ``min_distance`` dots. 0 = the promise holds."""
+    A, B = _window_pairs(board, k)
+    m = board.is_marker()
+    return int(np.sum(np.sum(m[A] != m[B], axis=1) < min_distance))
+
+
+def pattern_window(rows: int, cols: int) -> int:
+    """The smallest window side (points) for which :func:`marker_pattern` finds a pattern (it tries sides from
+    :data:`PATTERN_SMALL_WINDOW` up)."""
+    return _pattern(rows, cols, "symmetric")[1]
+
+
+@functools.lru_cache(maxsize=32)
+def _pattern(rows: int, cols: int, layout: str) -> tuple[tuple[int, ...], int]:
+    probe = Board(rows, cols, 10.0, 5.0 if layout != "asymmetric" else 7.0, layout)   # geometry only
+    if probe.n_points > PATTERN_MAX_POINTS:
+        raise InputError(f"circcal's marker pattern is made for boards of up to {PATTERN_MAX_POINTS} dots, not "
+                         f"{rows}x{cols}: use --markers origin")
+    L = probe.lattice_coords().astype(np.float64)
+    near = (np.linalg.norm(L[:, None] - L[None], axis=-1) * probe.pitch_mm) < 1.01 * probe.spacing_mm
+    np.fill_diagonal(near, False)
+    first = min(rows, cols, PATTERN_SMALL_WINDOW + 1 if max(rows, cols) <= PATTERN_LARGE_FROM
+                else PATTERN_SMALL_WINDOW + 2)
+    for k in range(first, min(rows, cols) + 1):
+        m = _search_pattern(probe, k, near, np.random.default_rng(PATTERN_SEED + 1000 * rows + cols + 97 * k
+                                                                  + (7 if layout == "asymmetric" else 0)))
+        if m is not None:
+            return tuple(int(i) for i in np.nonzero(m)[0]), k
+    raise InputError(f"no marker pattern found for a {rows}x{cols} {layout} grid: use --markers origin")
+
+
+def _search_pattern(board: Board, k: int, near: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
+    """Markers (N,) bool with no window conflict (:func:`window_conflicts`) for windows of side ``k``, or None after
+    :data:`PATTERN_TRIES` single changes. Simulated annealing on the total shortfall ``sum max(0, d - distance)``
+    over all window pairs, kept up to date per changed dot (only the pairs that hold it)."""
+    A, B = _window_pairs(board, k)
+    N = board.n_points
+    m = np.zeros(N, bool)
+    for i in rng.permutation(N)[:max(1, round(PATTERN_DENSITY * N))]:
+        if not np.any(near[i] & m):
+            m[i] = True
+    if len(A) == 0:
+        return m
+    d = PATTERN_MIN_DISTANCE
+    # occurrences of each point in A or B (not both in the same slot: a point mapped onto itself never differs)
+    slot_p, slot_j = np.nonzero(A != B)
+    pts = np.concatenate([A[slot_p, slot_j], B[slot_p, slot_j]])
+    pair = np.concatenate([slot_p, slot_p])
+    col = np.concatenate([slot_j, slot_j])
+    order = np.argsort(pts, kind="stable")
+    pts, pair, col = pts[order], pair[order], col[order]
+    bounds = np.searchsorted(pts, np.arange(N + 1))
+    mis = np.sum(m[A] != m[B], axis=1)
+
+    shortfall = np.maximum(0, d - mis)
+
+    def flip(i: int) -> int:
+        """Change dot ``i``; returns the change of the total shortfall."""
+        lo, hi = bounds[i], bounds[i + 1]
+        p, j = pair[lo:hi], col[lo:hi]
+        step = np.where(m[A[p, j]] != m[B[p, j]], -1, 1)
+        m[i] = not m[i]
+        np.add.at(mis, p, step)
+        u = np.unique(p)
+        new = np.maximum(0, d - mis[u])
+        delta = int(new.sum() - shortfall[u].sum())
+        shortfall[u] = new
+        return delta
+
+    cost = int(shortfall.sum())
+    best, since = cost, 0
+    temperature = 1.0
+    for _ in range(PATTERN_TRIES):
+        if cost == 0:
+            return m.copy()
+        since += 1
+        if cost < best:
+            best, since = cost, 0
+        elif since > PATTERN_PATIENCE:
+            return None
+        i = int(rng.integers(N))
+        changed = [i] + ([int(j) for j in np.nonzero(near[i] & m)[0]] if not m[i] else [])
+        delta = sum(flip(c) for c in changed)
+        if delta <= 0 or rng.random() < np.exp(-delta / temperature):
+            cost += delta
+        else:
+            for c in reversed(changed):
+                flip(c)
+        temperature = max(PATTERN_MIN_TEMPERATURE, temperature * PATTERN_COOLING)
+    return m.copy() if cost == 0 else None
+
+
+def marker_pattern(rows: int, cols: int, layout: str = "symmetric") -> tuple[int, ...]:
+    """circcal's marker pattern for a ``rows`` x ``cols`` circle grid (module docstring): point indices (OpenCV's
+    order) such that every window of :func:`pattern_window` points per side differs from every other window
+    position and rotation in at least :data:`PATTERN_MIN_DISTANCE` markers; markers are never nearest neighbours.
+    Deterministic: a seeded search (:func:`_search_pattern`) for the smallest window side it can make unique, from
+    :data:`PATTERN_SMALL_WINDOW` up. Raises :class:`~circcal.errors.InputError` for a board on which none was
+    found or with more than :data:`PATTERN_MAX_POINTS` dots."""
+    return _pattern(int(rows), int(cols), layout)[0]
+
+
+def with_markers(board: Board, style: str, marker_diameter_mm: float | None = None) -> Board:
+    """``board`` with the markers of ``style`` (:data:`MARKER_STYLES`; ``"none"`` removes them): ``origin``
+    (ROS-Industrial's modified circle grid, the marker at point ``(rows - 1) * cols``, :data:`ORIGIN_MARKER_SCALE`)
+    or ``pattern`` (:func:`marker_pattern`, :data:`PATTERN_MARKER_SCALE`). ``marker_diameter_mm`` overrides the
+    marker diameter."""
+    from dataclasses import replace
+
+    if style == "none":
+        return replace(board, markers=(), marker_diameter_mm=0.0)
+    if style not in MARKER_STYLES:
+        raise InputError(f"unknown marker style {style!r}; expected one of none, {', '.join(MARKER_STYLES)}")
+    if board.layout == "checkerboard":
+        raise InputError("a checkerboard has no dots to make markers of")
+    if style == "origin":
+        markers: tuple[int, ...] = ((board.rows - 1) * board.cols,)
+        scale = ORIGIN_MARKER_SCALE
+    else:
+        markers = marker_pattern(board.rows, board.cols, board.layout)
+        scale = PATTERN_MARKER_SCALE
+    d = scale * board.diameter_mm if marker_diameter_mm is None else float(marker_diameter_mm)
+    return replace(board, markers=markers, marker_diameter_mm=d)

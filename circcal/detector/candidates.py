@@ -34,27 +34,34 @@ MIN_AREA_PX2 = 12.0
 """... and never below this many px^2 (a disk of radius ~2 px)."""
 MIN_AREA_RANGE = 4.0
 """The area window spans at least this factor (radii within 2x), however small the board's dots."""
+SHORTEST_CONTOUR_SHARE = 0.5
+"""Contours with fewer points than this share of a disk of ``min_area``'s perimeter are passed over unmeasured (an
+8-connected pixel contour of a disk has about 0.9 points per pixel of perimeter; half leaves room for
+CHAIN_APPROX_NONE's diagonal steps)."""
 
 
 @dataclass
 class Candidate:
     """A dark blob that may be a dot. ``centre`` (2,) px area centroid of the contour polygon; ``axes`` (a, b)
     semi-axes (px) and ``angle`` (rad, of ``a`` from the image x axis) of the ellipse with the same second moments;
-    ``area`` px^2."""
+    ``area`` px^2; ``cut``: the blob touches the image border (a dot cut by it: it shows where the lattice goes on,
+    and is never measured)."""
 
     centre: np.ndarray
     axes: tuple[float, float]
     angle: float
     area: float
+    cut: bool = False
 
 
 def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
     """(min_area, max_area) px^2 for candidate dots of ``board`` in a ``width`` x ``height`` image: at most
-    :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image, at least :data:`MIN_AREA_FRACTION` of
-    the image and :data:`MIN_AREA_PX2`; the window spans at least :data:`MIN_AREA_RANGE`."""
+    :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image (times the markers' area ratio on a
+    marker board), at least :data:`MIN_AREA_FRACTION` of the image and :data:`MIN_AREA_PX2`; the window spans at
+    least :data:`MIN_AREA_RANGE`."""
     cell = board.pitch_mm ** 2 * (2.0 if board.layout == "asymmetric" else 1.0)
     dot_frac = np.pi * board.radius_mm ** 2 / cell
-    max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points
+    max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points * board.marker_scale ** 2
     min_area = max(MIN_AREA_PX2, MIN_AREA_FRACTION * width * height)
     return min_area, max(max_area, MIN_AREA_RANGE * min_area)
 
@@ -72,23 +79,28 @@ def find_candidates(
 
     Outer contours only (a dot is a filled component); kept when ``min_area <= area <= max_area`` (px^2),
     circularity ``4 pi S / P^2 >= min_circularity``, inertia ratio (minor/major second moment, ``(b/a)^2``)
-    ``>= min_inertia``, convexity ``S / hull area >= min_convexity``, and the blob does not touch the image border.
+    ``>= min_inertia``, convexity ``S / hull area >= min_convexity``. A blob that touches the image border is
+    kept with ``cut=True`` (a dot cut by the border: never measured, but it shows where the board goes on).
+    Contours too short to enclose ``min_area`` (a closed pixel contour of P points encloses at most
+    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them.
     """
     H, W = mask.shape
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     out: list[Candidate] = []
     if hier is None:
         return out
-    for cnt, h in zip(contours, hier[0]):
-        if h[3] != -1 or len(cnt) < MIN_CONTOUR_POINTS:
+    shortest = max(MIN_CONTOUR_POINTS, int(np.sqrt(4.0 * np.pi * min_area) * SHORTEST_CONTOUR_SHARE))
+    outer = hier[0][:, 3] == -1
+    for k in np.nonzero(outer)[0]:
+        cnt = contours[k]
+        if len(cnt) < shortest:
             continue
         m = cv2.moments(cnt)
         S = m["m00"]
         if not (min_area <= S <= max_area):
             continue
         x, y, w, hh = cv2.boundingRect(cnt)
-        if x <= 0 or y <= 0 or x + w >= W or y + hh >= H:
-            continue
+        cut = x <= 0 or y <= 0 or x + w >= W or y + hh >= H
         P = cv2.arcLength(cnt, True)
         if 4.0 * np.pi * S / (P * P) < min_circularity:
             continue
@@ -103,5 +115,5 @@ def find_candidates(
             continue
         ang = 0.5 * np.arctan2(2 * mu11, mu20 - mu02)
         c = np.array([m["m10"] / S, m["m01"] / S])
-        out.append(Candidate(c, (2.0 * np.sqrt(l1), 2.0 * np.sqrt(max(l2, 1e-12))), float(ang), float(S)))
+        out.append(Candidate(c, (2.0 * np.sqrt(l1), 2.0 * np.sqrt(max(l2, 1e-12))), float(ang), float(S), cut))
     return out

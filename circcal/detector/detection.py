@@ -3,7 +3,7 @@ was not used (beside the human text; nothing parses the text)."""
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -24,6 +24,20 @@ class Reason(str, enum.Enum):
     TOO_FEW_CANDIDATES = "too-few-candidates"
     #: enough candidates, but no arrangement of them is the board's grid
     GRID_NOT_RECOGNISED = "grid-not-recognised"
+    #: a dot lattice is there, but it is not a ``--grid`` board: it continues beyond it (the board has more dots),
+    #: it is complete and smaller, or the transposed grid fits it (the reason says which)
+    GRID_MISMATCH = "grid-mismatch"
+    #: the marker dots seen match no part of the board's marker layout
+    MARKERS_INCONSISTENT = "markers-inconsistent"
+    #: part of the board is seen, but which part is ambiguous (a board without markers, or no telling markers in
+    #: view): rejected rather than guessed
+    AMBIGUOUS_VIEW = "ambiguous-view"
+    #: too few dots of the board seen (or left after dropping the bad ones) for a view
+    TOO_FEW_POINTS = "too-few-points"
+    #: the dots sit on a lattice but fail the checks a board passes (regular spacing, elliptic edges, dot sizes)
+    IRREGULAR_GRID = "irregular-grid"
+    #: the image took longer than its time budget (dense texture, thousands of blobs)
+    TIME_BUDGET = "time-budget-exceeded"
     #: a dot of the grid gives too few sub-pixel edge points, or no ellipse fits them
     DOT_UNMEASURABLE = "dot-unmeasurable"
     #: the projective centre correction found no consistent board homography
@@ -39,14 +53,19 @@ class Reason(str, enum.Enum):
 class Detection:
     """Result of :func:`circcal.detector.detect` on one image.
 
-    ``found``: whether the whole grid was found; ``centres``: (rows*cols, 2) float64 px, images of the circle
-    centres in OpenCV's object-point order (``None`` when not found); ``reason``: ``None`` when found, else why not,
-    in words; ``code``: the same as a :class:`Reason`. For re-correction and overlays: ``edge_points`` (list of
-    (M_k, 2) px sub-pixel boundary points per dot, in board order, in the *distorted* image as observed),
-    ``conics`` ((N, 3, 3) ellipses fitted to them, in the undistorted image when a camera was given),
-    ``ellipse_centres`` ((N, 2) px, the uncorrected ellipse centres, distorted image), ``homography`` (board mm ->
-    undistorted image px), ``candidates`` ((K, 2) px all candidate dots), ``image_size`` (W, H), ``segmentation``
-    (which threshold, at which scale, found the candidates).
+    ``found``: whether the board was found (whole, or a part labelled without ambiguity); ``centres``:
+    (rows*cols, 2) float64 px, images of the circle centres in OpenCV's object-point order, NaN for points not seen
+    (out of frame, occluded, or dropped as bad dots) (``None`` when not found); ``reason``: ``None`` when found,
+    else why not, in words; ``code``: the same as a :class:`Reason`. For re-correction and overlays:
+    ``edge_points`` (list of N (M_k, 2) px sub-pixel boundary points per dot, in board order, in the *distorted*
+    image as observed; (0, 2) for a point not seen), ``conics`` ((N, 3, 3) ellipses fitted to them, in the
+    undistorted image when a camera was given; NaN where not seen), ``ellipse_centres`` ((N, 2) px, the
+    uncorrected ellipse centres, distorted image), ``homography`` (board mm -> undistorted image px),
+    ``candidates`` ((K, 2) px all candidate dots), ``image_size`` (W, H), ``segmentation`` (which threshold, at
+    which scale, found the candidates). ``complete``: the view shows the board's whole extent (every point, up to
+    dropped dots); ``dropped``: why each dot of the board that was seen was left out (board point -> reason:
+    cut by the image border, an edge fit that is no ellipse, a size or shape unlike its neighbours'), so they do
+    not bias the solve; ``notes``: what else the image shows (another board, a larger dot grid), in words.
     """
 
     found: bool
@@ -60,6 +79,19 @@ class Detection:
     candidates: np.ndarray | None = None
     image_size: tuple[int, int] | None = None
     segmentation: str | None = None
+    complete: bool = True
+    dropped: dict[int, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def seen(self) -> np.ndarray | None:
+        """(N,) bool: the board points with a centre (``None`` when not found)."""
+        return None if self.centres is None else np.all(np.isfinite(self.centres), axis=1)
+
+    @property
+    def n_dropped(self) -> int:
+        """How many dots of the board were seen but left out as bad (:attr:`dropped`)."""
+        return len(self.dropped)
 
     def __post_init__(self) -> None:
         if self.found == (self.code is not None):

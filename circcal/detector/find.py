@@ -30,15 +30,17 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.board import Board
+from circcal.detector.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
 from circcal.detector.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.centre import correct_centres
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
-from circcal.detector.grid import order_grid
 from circcal.detector.image import as_gray, normalise_u8
+from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
 from circcal.detector.segment import SHRUNK_MIN_RADIUS, segmentation_scales, segmentations, shrink, upscaled
 from circcal.detector.smoothing import SmoothedImage
+from circcal.detector.trust import bad_dots, check_grid
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
@@ -60,108 +62,212 @@ def _check_camera(camera: Camera | None, width: int, height: int) -> None:
         raise ImageError(why)
 
 
-def detect(image: np.ndarray, board: Board, camera: Camera | None = None) -> Detection:
+def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
+           time_budget_s: float | None = DEFAULT_TIME_BUDGET_S) -> Detection:
     """Find ``board``'s circle grid in ``image`` and return the images of the circle centres.
 
     ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board. ``camera``: optional
-    model; when given, the centre correction accounts for its lens distortion. Never raises for a grid that is not
-    there (``found=False`` with a reason); raises :class:`~circcal.errors.ImageError` for an image it cannot take
-    (wrong shape/dtype, camera for another image size) and :class:`~circcal.errors.InputError` for a checkerboard.
+    model; when given, the centre correction accounts for its lens distortion. ``time_budget_s``: seconds this image
+    may take (:data:`~circcal.detector.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
+    found with :attr:`Reason.TIME_BUDGET`. The board may be partly out of frame or occluded: the dots seen are
+    labelled when that is unambiguous (a marker board, or the board's whole extent in view), the others are NaN.
+    Never raises for a grid that is not there (``found=False`` with a reason); raises
+    :class:`~circcal.errors.ImageError` for an image it cannot take (wrong shape/dtype, camera for another image
+    size) and :class:`~circcal.errors.InputError` for a checkerboard.
     """
+    deadline = Deadline(time_budget_s)
     gray = as_gray(image)
     H, W = gray.shape
     _check_camera(camera, W, H)
     if board.layout == "checkerboard":
         raise InputError("circcal detect finds circle grids; the board is a checkerboard")
-    cands, order, seg_name, best = _segment_and_order(gray, board)
-    if order is None:
-        if best < board.n_points:
-            return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not found: at most "
-                                          f"{best} candidate dots, {board.n_points} needed",
-                             Reason.TOO_FEW_CANDIDATES, image_size=(W, H))
-        return Detection(False, None, f"grid {board.rows}x{board.cols} ({board.layout}) not recognised among {best} "
-                                      f"candidate dots", Reason.GRID_NOT_RECOGNISED, image_size=(W, H))
-    Q0 = conic_from_params_batch(np.array([cands[i].centre for i in order]), np.array([cands[i].axes for i in order]),
-                                 np.array([cands[i].angle for i in order]))
-    pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
-    for k, e in enumerate(errors):
-        if e is not None:
-            return Detection(False, None, f"dot {k} of the grid: {e}", Reason.DOT_UNMEASURABLE, image_size=(W, H),
-                             candidates=np.array([c.centre for c in cands]))
-    edge_points = [pts[k][mask[k]] for k in range(len(order))]
     try:
-        centres, conics, Hb = _correct(edge_points, board, camera, conics_d)
+        return _detect(gray, board, camera, deadline)
+    except BudgetExceeded:
+        return Detection(False, None, f"not found: time budget exceeded ({deadline.budget_s:g} s; the image has "
+                                      f"dense dot-like texture?)", Reason.TIME_BUDGET, image_size=(W, H))
+
+
+def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, deadline: Deadline) -> Detection:
+    """The Detection of an image without the board: the recognition's reason, a hint for an inverted board."""
+    H, W = gray.shape
+    grid = f"grid {board.rows}x{board.cols} ({board.layout})"
+    if rec.code == Reason.TOO_FEW_CANDIDATES or best < min(board.n_points, MIN_PARTIAL_POINTS):
+        code = Reason.TOO_FEW_CANDIDATES
+        msg = f"{grid} not found: at most {best} candidate dots, {min(board.n_points, MIN_PARTIAL_POINTS)} needed"
+    else:
+        code = rec.code or Reason.GRID_NOT_RECOGNISED
+        msg = f"{grid} not found: {rec.message}" if rec.message else f"{grid} not recognised among {best} " \
+                                                                      f"candidate dots"
+        if code == Reason.GRID_NOT_RECOGNISED and "candidate dots" not in msg:
+            msg += f" ({best} candidate dots)"
+    if code in (Reason.TOO_FEW_CANDIDATES, Reason.GRID_NOT_RECOGNISED) and _inverted(gray, board, deadline):
+        msg += ("; the image holds a grid of bright dots on a dark ground: an inverted board? (circcal expects dark "
+                "dots on a bright board; invert the image)")
+    return Detection(False, None, msg, code, image_size=(W, H), notes=list(rec.notes))
+
+
+def _inverted(gray: np.ndarray, board: Board, deadline: Deadline) -> bool:
+    """Whether the inverted image shows the board (whole or in part): the hint for white dots on black."""
+    inv = gray.max() - gray if np.issubdtype(gray.dtype, np.integer) else -gray
+    try:
+        rec, *_ = _segment_and_recognise(inv, board, deadline, first_only=True)
+    except BudgetExceeded:
+        return False
+    return rec.order is not None
+
+
+def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline) -> Detection:
+    H, W = gray.shape
+    rec, cands, seg_name, best = _segment_and_recognise(gray, board, deadline)
+    if rec.order is None:
+        return _not_found(board, rec, best, gray, deadline)
+    N = board.n_points
+    seen = rec.order >= 0
+    dropped = {int(k): "cut by the image border" for k in np.nonzero(seen & rec.cut)[0]}
+    todo = np.nonzero(seen & ~rec.cut)[0]
+    Q0 = conic_from_params_batch(np.array([cands[rec.order[k]].centre for k in todo]),
+                                 np.array([cands[rec.order[k]].axes for k in todo]),
+                                 np.array([cands[rec.order[k]].angle for k in todo]))
+    pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
+    deadline.check()
+    dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H)))
+    keep = np.array([int(k) not in dropped for k in todo], bool)
+    used = todo[keep]
+    cand_xy = np.array([c.centre for c in cands])
+    need = min(N, MIN_PARTIAL_POINTS)
+    if len(used) < need:
+        return Detection(False, None, f"grid {board.rows}x{board.cols} found, but only {len(used)} of its "
+                                      f"{int(seen.sum())} dots in view are measurable ({need} needed; "
+                                      f"{len(dropped)} left out: " + _why(dropped) + ")",
+                         Reason.TOO_FEW_POINTS, image_size=(W, H), candidates=cand_xy, dropped=dropped,
+                         notes=list(rec.notes))
+    ell_c = conic_params_batch(conics_d[keep])[0]
+    why = check_grid(board, used, ell_c, conics_d[keep])
+    if why is not None:
+        return Detection(False, None, f"grid {board.rows}x{board.cols} not trusted: {why}", Reason.IRREGULAR_GRID,
+                         image_size=(W, H), candidates=cand_xy, dropped=dropped, notes=list(rec.notes))
+    edge_points = [np.zeros((0, 2)) for _ in range(N)]
+    for k, i in enumerate(todo):
+        if keep[k]:
+            edge_points[i] = pts[k][mask[k]]
+    try:
+        centres, conics, Hb = _correct(edge_points, board, camera, conics_d[keep], used)
     except ValueError as exc:
         return Detection(False, None, f"centre correction failed: {exc}", Reason.CENTRE_CORRECTION_FAILED,
                          edge_points=edge_points, image_size=(W, H))
-    ell_c = conic_params_batch(conics_d)[0]
-    return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centres=ell_c,
-                     homography=Hb, candidates=np.array([c.centre for c in cands]), image_size=(W, H),
-                     segmentation=seg_name)
+    ellipse_centres = np.full((N, 2), np.nan)
+    ellipse_centres[used] = ell_c
+    return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centres=ellipse_centres,
+                     homography=Hb, candidates=cand_xy, image_size=(W, H), segmentation=seg_name,
+                     complete=rec.complete, dropped=dict(sorted(dropped.items())), notes=list(rec.notes))
 
 
-def _segment_and_order(gray: np.ndarray, board: Board
-                       ) -> tuple[list[Candidate] | None, np.ndarray | None, str | None, int]:
-    """Candidate dots of ``gray`` (H, W) in which ``board``'s grid is recognised, trying the segmentations at each
-    scale of :func:`~circcal.detector.segment.segmentation_scales` in turn (candidates in full-image pixels).
+def _why(dropped: dict[int, str]) -> str:
+    """The reasons of dropped dots, counted: "3 cut by the image border, 1 edge found on 60% of its rim"."""
+    counts: dict[str, int] = {}
+    for r in dropped.values():
+        key = r.split(" (")[0]
+        counts[key] = counts.get(key, 0) + 1
+    return ", ".join(f"{n} {r}" for r, n in counts.items()) or "none"
 
-    Returns ``(candidates, order, segmentation name, most candidates seen)``: ``order`` (N,) indexes the candidates
-    in board order; ``candidates``, ``order`` and the name are ``None`` when no segmentation gave the grid. A grid of
-    dots smaller than :data:`~circcal.detector.segment.SHRUNK_MIN_RADIUS` at a shrunk scale sends the search on to
-    the coarsest scale where they are not."""
+
+def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *, first_only: bool = False
+                           ) -> tuple[Recognition, list[Candidate], str | None, int]:
+    """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
+    :func:`~circcal.detector.segment.segmentation_scales` in turn (candidates in full-image pixels).
+
+    The first segmentation in which the whole board is recognised wins; otherwise the one with the largest part of
+    the board labelled (a partial view); otherwise the most telling refusal (a lattice larger than the board, an
+    ambiguous part, before "not recognised"). Returns ``(recognition, candidates, segmentation name, most
+    candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.segment.SHRUNK_MIN_RADIUS` at a shrunk
+    scale sends the search on to the coarsest scale where they are not. ``first_only``: the first segmentation at
+    the first scale only (the inverted-board hint)."""
     H, W = gray.shape
     min_area, max_area = area_limits(board, W, H)
     best = 0
+    need = min(board.n_points, MIN_PARTIAL_POINTS)
     scales = list(segmentation_scales(H, W))
+    partial: tuple[Recognition, list[Candidate], str] | None = None
+    refusal: tuple[Recognition, list[Candidate], str] | None = None
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
         img = normalise_u8(gray if scale == 1 else shrink(gray, scale))
         for name, mask in segmentations(img):
+            deadline.check()
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
-            best = max(best, len(cs))
-            if len(cs) < board.n_points:
+            n_whole = sum(not c.cut for c in cs)
+            best = max(best, n_whole)
+            if n_whole < need:
+                if first_only:
+                    return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), cs, None, best
                 continue
             if scale != 1:
                 cs = [upscaled(c, scale) for c in cs]
-            pts = np.array([c.centre for c in cs])
-            radii = np.array([np.sqrt(c.axes[0] * c.axes[1]) for c in cs])
-            order = order_grid(board, pts, radii, (H, W))
-            r_min = np.min(radii[order]) if order is not None else np.inf
-            if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
-                # small dots: their contours are worth a finer scale, the coarsest one where they are not small
-                finer = max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)
-                scales = [finer, 1] if finer != 1 else [1]
-                break
-            if order is not None:
-                return cs, order, name if scale == 1 else f"{name}@1/{scale}", best
-    return None, None, None, best
+            rec = recognise(board, cs, (W, H), deadline)
+            label = name if scale == 1 else f"{name}@1/{scale}"
+            if rec.order is not None:
+                seen = rec.order[rec.order >= 0]
+                radii = np.array([np.sqrt(cs[i].axes[0] * cs[i].axes[1]) for i in seen])
+                r_min = float(np.min(radii))
+                if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
+                    # small dots: their contours are worth a finer scale, the coarsest one where they are not small
+                    finer = max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)
+                    scales = [finer, 1] if finer != 1 else [1]
+                    partial = refusal = None
+                    break
+                if rec.complete:
+                    return rec, cs, label, best
+                if partial is None or np.sum(rec.order >= 0) > np.sum(partial[0].order >= 0):
+                    partial = (rec, cs, label)
+            elif refusal is None or _telling(rec) > _telling(refusal[0]):
+                refusal = (rec, cs, label)
+            if first_only:
+                return rec, cs, label, best
+    if partial is not None:
+        return partial[0], partial[1], partial[2], best
+    if refusal is not None:
+        return refusal[0], refusal[1], None, best
+    return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
+
+
+def _telling(rec: Recognition) -> int:
+    """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
+    markers, then an ambiguous view, then too few points, then not recognised."""
+    return {Reason.GRID_MISMATCH: 4, Reason.MARKERS_INCONSISTENT: 3, Reason.AMBIGUOUS_VIEW: 2,
+            Reason.TOO_FEW_POINTS: 1}.get(rec.code, 0)
 
 
 def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.ndarray:
     """(N, 2) centres of a found ``detection`` corrected with ``camera`` (its distortion), from the stored edge
-    points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back."""
+    points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back.
+    Points not seen (no edge points) stay NaN."""
     if not detection.found or detection.edge_points is None:
         raise ValueError(f"cannot re-correct a detection that was not found ({detection.reason})")
     if detection.image_size is not None:
         _check_camera(camera, *detection.image_size)
-    return _correct(detection.edge_points, board, camera)[0]
+    used = np.array([k for k, p in enumerate(detection.edge_points) if len(p)], np.int64)
+    return _correct(detection.edge_points, board, camera, None, used)[0]
 
 
 def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
-             conics: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centres (N, 2) in the observed image, conics (N, 3, 3) in the undistorted image, H board -> undistorted
-    image, from the ``edge_points`` (N lists of (M_k, 2) px, board order, observed image). ``conics``: the ellipses
-    already fitted to ``edge_points`` (observed image), reused when there is no distortion to remove. Raises
-    ``ValueError`` when an ellipse cannot be fitted or no board homography fits the centres."""
-    obj = board.object_points()[:, :2]
+             conics: np.ndarray | None, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (N, 2) in the observed image (NaN for points not in ``used``), conics (N, 3, 3) in the undistorted
+    image (NaN likewise), H board -> undistorted image, from the ``edge_points`` (N lists of (M_k, 2) px, board
+    order, observed image) of the board points ``used`` (K,). ``conics``: (K, 3, 3) the ellipses already fitted
+    to those edge points (observed image), reused when there is no distortion to remove. Raises ``ValueError`` when
+    an ellipse cannot be fitted or no board homography fits the centres."""
+    N = board.n_points
+    obj = board.object_points()[used, :2]
     distorted = camera is not None and np.any(camera.dist)
     if conics is None or distorted:
-        counts = [len(p) for p in edge_points]
+        sub = [edge_points[k] for k in used]
+        counts = [len(p) for p in sub]
         width = max(counts) if counts else 0
-        P = np.zeros((len(edge_points), width, 2))
-        M = np.zeros((len(edge_points), width), bool)
-        for i, p in enumerate(edge_points):
+        P = np.zeros((len(sub), width, 2))
+        M = np.zeros((len(sub), width), bool)
+        for i, p in enumerate(sub):
             P[i, :len(p)] = p
             M[i, :len(p)] = True
         if distorted:
@@ -172,7 +278,11 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
             i = int(np.argmax(err != 0))
             msg = FIT_ERRORS[int(err[i])]
             raise ValueError(f"{msg}, got {int(M[i].sum())}" if err[i] == 1 else msg)
-    centres, H = correct_centres(conics, obj)
+    c, H = correct_centres(conics, obj)
     if distorted:
-        centres = distort_pixels(centres, camera)
-    return centres, conics, H
+        c = distort_pixels(c, camera)
+    centres = np.full((N, 2), np.nan)
+    centres[used] = c
+    all_conics = np.full((N, 3, 3), np.nan)
+    all_conics[used] = conics
+    return centres, all_conics, H

@@ -1,12 +1,10 @@
 """Grid recognition and ordering of candidate dot centres, with one documented orientation rule.
 
-Recognition uses OpenCV's circle-grid finder (``cv2.findCirclesGrid``) as a helper for *ordering only*: the candidate
-dots are drawn as clean ellipses on a blank canvas and the finder's blob detector reads them back; each ordered
-position is then matched to our candidate (the centres returned by circcal are always our own sub-pixel ones).
-Clutter (extra dark blobs off the board) is tolerated by the finder's graph search; when the plain search fails,
-OpenCV's clustering variant is tried, then the same on the candidates of the dominant size class. A symmetric board
-whose candidates are exactly its dots (the usual case) is first ordered directly (:func:`_order_lattice`: hull
-corners, one homography, every candidate on its own grid node), which gives the same labelling without the canvas.
+Recognition itself lives in :mod:`circcal.detector.recognise` (lattice patches grown among the candidates,
+:mod:`circcal.detector.lattice`, in time about linear in their number). Here: the direct ordering of a symmetric
+board whose candidates are exactly its dots (the usual clean case: :func:`order_lattice`, hull corners, one
+homography, every candidate on its own grid node), :func:`order_grid` (recognition of the whole board from bare
+centres and radii), and the one orientation rule every labelling follows.
 
 Orientation rule (:func:`canonical_order`)
 ------------------------------------------
@@ -26,44 +24,24 @@ import numpy as np
 
 from circcal.board import Board
 
-__all__ = ["canonical_order", "order_grid", "orientation_sign"]
+__all__ = ["canonical_order", "order_grid", "order_lattice", "orient", "orientation_sign"]
 
 LATTICE_TOLERANCE = 0.3
-"""The direct ordering of a symmetric grid (:func:`_order_lattice`) takes a candidate as a grid node's when the
+"""The direct ordering of a symmetric grid (:func:`order_lattice`) takes a candidate as a grid node's when the
 homography from the hull corners puts it within this many cells of the node (under perspective it lands on its node
 up to noise; at 0.5 a candidate could be taken for either of two nodes; strong distortion fails and falls back)."""
-SIZE_CLASS_FACTOR = 6.0
-"""The dominant size class: candidates whose area is within this factor of the median candidate area either way
-(~2.4x in radius: more than perspective usually makes a board's dots differ)."""
-DRAW_RADIUS_SPACING = 0.35
-"""Dots are drawn on the canvas with their own radius, at most this share of the distance to the nearest other
-candidate, so two drawn blobs never touch."""
-CANVAS_MARGIN_RADII = 3.0
-"""The canvas covers the candidates plus this many drawn radii ..."""
-CANVAS_MARGIN_PX = 20.0
-"""... plus this many px (the blob detector and grid finder see the blobs as on a full-size canvas)."""
-DRAW_SHIFT = 2
-"""Fractional bits of the drawn circles' centres and radii (``cv2.circle`` ``shift``: quarter pixels)."""
-DRAW_MIN_RADIUS_PX = 1.0
-"""The smallest drawn radius (px), so that a tiny candidate still draws a blob."""
-MATCH_MIN_PX = 1.5
-"""A grid-finder position belongs to the candidate nearest it when within ``max(MATCH_MIN_PX, MATCH_RADIUS_SHARE *
-drawn radius)``: OpenCV's blob centres of the drawn disks lie within a fraction of a pixel of ours."""
-MATCH_RADIUS_SHARE = 0.5
-BLOB_THRESHOLDS = (60, 200, 40)
-"""OpenCV blob detector on the binary canvas: thresholds from, to, step (grey levels), ..."""
-BLOB_MIN_REPEATABILITY = 2
-"""... a blob must be seen at this many thresholds (with 1, OpenCV reports the whole canvas as a blob), ..."""
-BLOB_AREA_MARGIN_PX = 2.0
-"""... and may be up to 4x the area of the largest drawn disk grown by this (px): a larger limit lets OpenCV take
-the canvas background for a blob and merge it with a dot."""
 
 
 def orientation_sign(board: Board, centres: np.ndarray) -> float:
     """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centres``
-    (N, 2) in board order: +1 when the board is seen from the front (see module docstring), -1 mirrored."""
+    (N, 2) in board order (NaN rows: points not seen, left out): +1 when the board is seen from the front (see
+    module docstring), -1 mirrored."""
     obj = board.object_points()[:, :2]
-    H, _ = cv2.findHomography(obj, np.asarray(centres, np.float64), 0)
+    centres = np.asarray(centres, np.float64)
+    seen = np.all(np.isfinite(centres), axis=1)
+    if seen.sum() < 4:
+        return 0.0
+    H, _ = cv2.findHomography(obj[seen], centres[seen], 0)
     if H is None:
         return 0.0
     c = obj.mean(axis=0)
@@ -94,7 +72,36 @@ def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
     return best.copy()
 
 
-def _order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERANCE) -> np.ndarray | None:
+def orient(board: Board, centres: np.ndarray, order: np.ndarray) -> np.ndarray | None:
+    """``order`` (N,) (candidate index per board point, -1 where not seen) relabelled by the orientation rule of
+    this module, given the points' ``centres`` (N, 2) px in that order (NaN where not seen); ``None`` when no
+    labelling is seen from the board's front. With every point seen this is :func:`canonical_order`; otherwise
+    the image of point 0 of each labelling comes from the homography of the points seen."""
+    centres = np.asarray(centres, np.float64)
+    order = np.asarray(order, np.int64)
+    if np.all(np.isfinite(centres)):
+        try:
+            return order[canonical_order(board, centres)]
+        except ValueError:
+            return None
+    seen = np.all(np.isfinite(centres), axis=1)
+    obj = board.object_points()[:, :2]
+    H, _ = cv2.findHomography(obj[seen], centres[seen], 0)
+    if H is None:
+        return None
+    s0 = orientation_sign(board, centres)
+    best, best_d = None, np.inf
+    for sym in board.symmetries():
+        if s0 * sym.det <= 0:
+            continue
+        q = H @ np.array([*obj[sym.perm[0]], 1.0])
+        d = float(np.hypot(q[0] / q[2], q[1] / q[2]))
+        if d < best_d - 1e-9:
+            best, best_d = sym.perm, d
+    return None if best is None else order[best]
+
+
+def order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERANCE) -> np.ndarray | None:
     """Fast ordering of a symmetric board whose candidates are exactly its N dots (no clutter): (N,) indices into
     ``points`` (N, 2) px in a valid board labelling (not yet canonical), or ``None`` when the candidates do not form
     the grid unambiguously (the caller then runs OpenCV's grid finder).
@@ -134,93 +141,22 @@ def _order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERA
     return None
 
 
-def _canvas(points: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) = ``shape`` uint8 canvas, white, with a black disk of radius ``radii`` (M,) px at each of ``points``
-    (M, 2) px (to :data:`DRAW_SHIFT` fractional bits, at least :data:`DRAW_MIN_RADIUS_PX`)."""
-    canvas = np.full(shape, 255, np.uint8)
-    unit = 1 << DRAW_SHIFT
-    r_min = int(DRAW_MIN_RADIUS_PX * unit)
-    for (x, y), r in zip(points, radii):
-        cv2.circle(canvas, (int(round(x * unit)), int(round(y * unit))), max(r_min, int(round(r * unit))), 0, -1,
-                   lineType=cv2.LINE_8, shift=DRAW_SHIFT)
-    return canvas
-
-
-def _blob_detector(max_radius: float) -> cv2.SimpleBlobDetector:
-    """OpenCV's blob detector set up for the canvas of :func:`_canvas` (black disks of radius up to ``max_radius``
-    px on white): the blob centres the grid finder reads back (:data:`BLOB_THRESHOLDS`,
-    :data:`BLOB_MIN_REPEATABILITY`, :data:`BLOB_AREA_MARGIN_PX`)."""
-    p = cv2.SimpleBlobDetector_Params()
-    p.minThreshold, p.maxThreshold, p.thresholdStep = BLOB_THRESHOLDS
-    p.minRepeatability = BLOB_MIN_REPEATABILITY
-    p.minDistBetweenBlobs = 0.5
-    p.filterByColor, p.blobColor = True, 0
-    p.filterByArea, p.minArea, p.maxArea = True, 1.0, 4.0 * np.pi * (max_radius + BLOB_AREA_MARGIN_PX) ** 2
-    p.filterByCircularity = p.filterByInertia = p.filterByConvexity = False
-    return cv2.SimpleBlobDetector_create(p)
-
-
 def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]
                ) -> np.ndarray | None:
-    """Recognise the board among candidate dots and order it.
+    """Recognise the whole board among candidate dots and order it (:func:`circcal.detector.recognise.recognise`
+    on round candidates).
 
-    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px (for drawing); ``image_shape``:
-    (H, W). Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None``.
+    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px; ``image_shape``: (H, W).
+    Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None`` when the
+    whole board is not among them.
     """
-    N = board.n_points
-    M = len(points)
-    if M < N:
+    from circcal.detector.candidates import Candidate
+    from circcal.detector.recognise import recognise
+
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    radii = np.asarray(radii, np.float64).reshape(-1)
+    cands = [Candidate(p, (float(r), float(r)), 0.0, float(np.pi * r * r)) for p, r in zip(points, radii)]
+    rec = recognise(board, cands, (int(image_shape[1]), int(image_shape[0])))
+    if rec.order is None or not rec.complete or np.any(rec.order < 0):
         return None
-    points = np.asarray(points, np.float64)
-    radii = np.asarray(radii, np.float64)
-    idx = _order_lattice(board, points)
-    if idx is not None:
-        try:
-            return idx[canonical_order(board, points[idx])]
-        except ValueError:
-            pass
-    # drawn radius: a fraction of the distance to the nearest other candidate, so blobs never merge
-    dist = np.linalg.norm(points[:, None] - points[None], axis=-1)
-    np.fill_diagonal(dist, np.inf)
-    nn = dist.min(axis=1)
-    draw_r = np.minimum(radii, DRAW_RADIUS_SPACING * nn)
-    # the canvas covers the candidates only (plus a margin): an integer shift of a drawing, so the blob detector
-    # and the grid finder see the same shapes as on a full-size canvas, at a fraction of the cost
-    margin = CANVAS_MARGIN_RADII * float(draw_r.max()) + CANVAS_MARGIN_PX
-    ox = int(max(0, np.floor(points[:, 0].min() - margin)))
-    oy = int(max(0, np.floor(points[:, 1].min() - margin)))
-    cw = int(min(image_shape[1], np.ceil(points[:, 0].max() + margin) + 1)) - ox
-    ch = int(min(image_shape[0], np.ceil(points[:, 1].max() + margin) + 1)) - oy
-    shape = (max(ch, 1), max(cw, 1))
-    local = points - [ox, oy]
-    canvas = _canvas(local, draw_r, shape)
-    det = _blob_detector(float(draw_r.max()))
-    base = cv2.CALIB_CB_ASYMMETRIC_GRID if board.layout == "asymmetric" else cv2.CALIB_CB_SYMMETRIC_GRID
-    subsets = [np.arange(M)]
-    # the dominant size class (drops clutter of other sizes)
-    area = radii ** 2
-    med = np.median(area)
-    keep = np.nonzero((area > med / SIZE_CLASS_FACTOR) & (area < med * SIZE_CLASS_FACTOR))[0]
-    if N <= len(keep) < M:
-        subsets.append(keep)
-    for sub in subsets:
-        cv_ = canvas if len(sub) == M else _canvas(local[sub], draw_r[sub], shape)
-        for flags in (base, base | cv2.CALIB_CB_CLUSTERING):
-            try:
-                ok, found = cv2.findCirclesGrid(cv_, board.pattern_size, flags=flags, blobDetector=det)
-            except cv2.error:
-                ok, found = False, None
-            if not ok or found is None:
-                continue
-            found = found.reshape(-1, 2).astype(np.float64)
-            d = np.linalg.norm(found[:, None] - local[sub][None], axis=-1)
-            j = np.argmin(d, axis=1)
-            tol = np.maximum(MATCH_MIN_PX, MATCH_RADIUS_SHARE * draw_r[sub][j])
-            if len(np.unique(j)) != N or np.any(d[np.arange(N), j] > tol):
-                continue
-            idx = sub[j]
-            try:
-                return idx[canonical_order(board, points[idx])]
-            except ValueError:
-                continue
-    return None
+    return rec.order

@@ -107,4 +107,4 @@ def upscaled(c: Candidate, scale: int) -> Candidate:
     get the difference back, so the starting ellipse is as close to the edge as one found at full resolution."""
     off = 0.5 * (scale - 1)
     return Candidate(c.centre * scale + off, (c.axes[0] * scale + off, c.axes[1] * scale + off), c.angle,
-                     c.area * scale ** 2)
+                     c.area * scale ** 2, c.cut)

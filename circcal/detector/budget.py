@@ -1,0 +1,43 @@
+"""The time budget of one image: a deadline the detector's loops check, so that no image, however hostile (dense
+texture, thousands of dot-like blobs), holds a batch for longer than the budget.
+
+The detector's search is about linear in the number of candidate dots (:mod:`circcal.detector.lattice`), so the
+budget is a backstop, not the design: past it an image is reported not found with
+:attr:`~circcal.detector.Reason.TIME_BUDGET`.
+"""
+from __future__ import annotations
+
+import time
+
+__all__ = ["DEFAULT_TIME_BUDGET_S", "BudgetExceeded", "Deadline"]
+
+DEFAULT_TIME_BUDGET_S = 10.0
+"""Seconds one image may take by default: ~500x a clean 1920x1080 image (~17 ms) and ~20x the most hostile images
+measured (2,000 dot-like blobs, dense stripes: ~0.3-0.5 s), so it only ends a search that went wrong, on a slow or
+heavily shared machine included."""
+
+
+class BudgetExceeded(Exception):
+    """The image's time budget ran out (caught by :func:`circcal.detector.detect`, never seen by a caller)."""
+
+
+class Deadline:
+    """A point in time ``budget_s`` seconds from construction (monotonic clock). ``None`` or ``inf``: no limit."""
+
+    def __init__(self, budget_s: float | None = DEFAULT_TIME_BUDGET_S) -> None:
+        if budget_s is not None and not budget_s > 0:
+            raise ValueError(f"time budget must be positive (s), got {budget_s!r}")
+        self.budget_s = float("inf") if budget_s is None else float(budget_s)
+        self.start = time.monotonic()
+        self.end = self.start + self.budget_s
+
+    def expired(self) -> bool:
+        return time.monotonic() > self.end
+
+    def check(self) -> None:
+        """Raise :class:`BudgetExceeded` when the deadline has passed."""
+        if time.monotonic() > self.end:
+            raise BudgetExceeded(f"time budget of {self.budget_s:g} s exceeded")
+
+    def elapsed(self) -> float:
+        return time.monotonic() - self.start

@@ -1,0 +1,160 @@
+"""Which board points a lattice patch shows: the placements of the patch on the board (rotation and shift, markers
+agreeing), and what the detector may claim from them.
+
+A patch (:class:`~circcal.detector.lattice.Lattice`) has integer coordinates of its own; the board's points have
+lattice coordinates too (:meth:`circcal.board.Board.lattice_coords`: ``(j, i)`` symmetric, ``(2j + i % 2, i)``
+asymmetric). A symmetric grid's lattice steps are the board's rows and columns (patch coordinates are board
+coordinates up to a rotation and shift); an asymmetric grid's nearest neighbours are its diagonals, so patch
+``(a, b)`` is board ``(a + b, b - a)`` (a right-handed map). :func:`circcal.board.placements` lists every rotation
+and shift that lays the patch on board points; :func:`label_patch` decides:
+
+* exactly one placement, up to a symmetry of the board: the patch is labelled (the whole board, or part of it);
+* none, because the patch does not fit: the lattice continues beyond the board (``--grid`` smaller than the board,
+  "the board has more dots than 6x6: 7x7?"), or the transposed board would fit (an asymmetric ``RxC`` given for a
+  ``CxR`` board);
+* none, because markers disagree: a different marker layout, or markers misread;
+* several that no board symmetry relates: the patch could be several parts of the board (a partial view of a board
+  without markers, or one whose visible markers do not tell): rejected, never guessed.
+
+The orientation rule of :mod:`circcal.detector.grid` picks among placements related by a board symmetry (an
+unmarked board seen whole); with markers there is one placement and every point keeps its ID across views.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from circcal.board import Board, Placement, placements
+
+__all__ = ["Labelling", "ASYMMETRIC_FROM_PATCH", "board_frame", "label_patch", "seed_score_needed",
+           "patch_grid_text"]
+
+ASYMMETRIC_FROM_PATCH = np.array([[1, 1], [-1, 1]], np.int64)
+"""Patch coordinates -> board lattice coordinates of an asymmetric grid: ``u`` (the patch's first step, a
+diagonal) -> (1, -1), ``v`` -> (1, 1); determinant +2 > 0 keeps the handedness."""
+
+
+@dataclass
+class Labelling:
+    """What a patch is. ``status``: ``"labelled"`` (``points`` (K,) the board point of each patch dot, in the
+    patch's order; ``complete`` when every board point is in it), ``"larger"`` (the lattice continues beyond the
+    board), ``"transposed"`` (the transposed grid fits), ``"markers"`` (markers disagree with every placement),
+    ``"smaller"`` (a complete grid smaller than the board, nothing around it) or ``"ambiguous"`` (several
+    placements). ``message``: the words for a person; ``size``: (rows, cols) of the
+    patch's bounding box in board terms (for the messages); ``placements``: how many distinct labellings fit."""
+
+    status: str
+    message: str
+    points: np.ndarray | None = None
+    complete: bool = False
+    size: tuple[int, int] = (0, 0)
+    placements: int = 0
+
+
+def board_frame(board: Board, ab: np.ndarray) -> np.ndarray:
+    """(K, 2) int board lattice coordinates (up to a rotation and shift) of patch coordinates ``ab`` (K, 2)."""
+    ab = np.asarray(ab, np.int64).reshape(-1, 2)
+    return ab @ ASYMMETRIC_FROM_PATCH.T if board.layout == "asymmetric" else ab.copy()
+
+
+def seed_score_needed(board: Board) -> int:
+    """How many of its 8 patch neighbours (``+-u, +-v, +-u+-v``) the best-placed dot of ``board`` has: what a seed
+    must show (8 on any grid with 3 rows and columns and more; fewer on 2 x C grids and thin asymmetric ones)."""
+    L = board.lattice_coords()
+    occ = {tuple(p) for p in L.tolist()}
+    offs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [-1, -1], [1, -1], [-1, 1]], np.int64)
+    offs = board_frame(board, offs)
+    return int(max(sum((x + dx, y + dy) in occ for dx, dy in offs.tolist()) for x, y in L.tolist()))
+
+
+def patch_grid_text(board: Board, xy: np.ndarray) -> tuple[int, int]:
+    """(rows, cols) in ``--grid`` terms of the bounding box of board-frame lattice points ``xy`` (K, 2), in the
+    rotation that best matches ``board``'s orientation (rows along y)."""
+    span = xy.max(axis=0) - xy.min(axis=0)
+    if board.layout == "asymmetric":
+        rows, cols = int(span[1]) + 1, int(span[0]) // 2 + 1
+        alt = (int(span[0]) + 1, int(span[1]) // 2 + 1)
+    else:
+        rows, cols = int(span[1]) + 1, int(span[0]) + 1
+        alt = (cols, rows)
+    a = abs(rows - board.rows) + abs(cols - board.cols)
+    b = abs(alt[0] - board.rows) + abs(alt[1] - board.cols)
+    return (rows, cols) if a <= b else alt
+
+
+def _classes(board: Board, fits: list[Placement]) -> list[list[Placement]]:
+    """Placements grouped by the labelling they give up to a rotation of the board onto itself."""
+    syms = [s.perm for s in board.symmetries(reflections=False)]
+    groups: list[list[Placement]] = []
+    for p in fits:
+        for g in groups:
+            if any(np.array_equal(perm[g[0].points], p.points) for perm in syms):
+                g.append(p)
+                break
+        else:
+            groups.append([p])
+    return groups
+
+
+def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *, closed: bool = False
+                ) -> Labelling:
+    """Label a patch with coordinates ``ab`` (K, 2) on ``board`` (module docstring). ``flags`` (K,) int: 1 a dot
+    seen as a marker, 0 a plain dot, -1 unknown; ``None`` = all unknown (a board without markers ignores them).
+    ``closed``: every lattice position around the patch lies in the image and holds no dot (so a complete patch
+    smaller than the board is a whole, smaller board rather than a partial view).
+    The ``points`` of a labelled patch follow one labelling; for an unmarked board seen whole that is one of the
+    board's symmetric labellings (the caller applies the orientation rule)."""
+    xy = board_frame(board, ab)
+    K = len(xy)
+    rows, cols = patch_grid_text(board, xy)
+    grid = f"{board.rows}x{board.cols}"
+    geometric = placements(board, xy)
+    if not geometric:
+        if _fits(board, xy, transposed=True):
+            return Labelling("transposed", f"--grid {grid} does not match the dots, but {board.cols}x{board.rows} "
+                                           f"does: the board is {board.cols}x{board.rows}?", size=(rows, cols))
+        bigger = rows >= board.rows and cols >= board.cols or rows >= board.cols and cols >= board.rows
+        if bigger or rows * cols > board.n_points or K > board.n_points:
+            return Labelling("larger", f"the board has more dots than {grid}: {rows}x{cols}?", size=(rows, cols))
+        return Labelling("larger", f"the dots form a {rows}x{cols} lattice that does not fit a {grid} grid",
+                         size=(rows, cols))
+    if not board.has_markers:
+        flags = None
+    fits = placements(board, xy, flags) if flags is not None else geometric
+    if not fits:
+        n_mk = int(np.sum(np.asarray(flags) == 1))
+        return Labelling("markers", f"the {n_mk} marker dots seen match no part of the board's marker layout "
+                                    f"(another marker layout, or a marker misread)", size=(rows, cols))
+    classes = _classes(board, fits)
+    complete = K == board.n_points
+    if len(classes) > 1:
+        if closed and K == _nodes_in_box(board, xy):
+            return Labelling("smaller", f"the dots form a complete {rows}x{cols} grid with none around it: the board "
+                                        f"is {rows}x{cols}, not {grid}?", size=(rows, cols), placements=len(classes))
+        why = ("a board without markers: a marker board (circcal board --markers pattern) labels partial views"
+               if not board.has_markers else "its markers in view do not tell which part of the board this is")
+        return Labelling("ambiguous", f"{K} of {board.n_points} dots seen ({rows}x{cols}): {len(classes)} "
+                                      f"parts of the board fit them ({why}); view rejected rather than guessed",
+                         size=(rows, cols), placements=len(classes))
+    p = classes[0][0]
+    return Labelling("labelled", "", p.points.copy(), complete, (rows, cols), 1)
+
+
+def _nodes_in_box(board: Board, xy: np.ndarray) -> int:
+    """Lattice nodes of ``board``'s kind (asymmetric: same parity as the patch's) in the bounding box of ``xy``."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    if board.layout != "asymmetric":
+        return int(gx.size)
+    return int(np.sum((gx + gy) % 2 == (xy[0, 0] + xy[0, 1]) % 2))
+
+
+def _fits(board: Board, xy: np.ndarray, *, transposed: bool) -> bool:
+    """Whether the patch fits the transposed board (rows and columns swapped; only differs for asymmetric grids,
+    where ``RxC`` and ``CxR`` are different boards)."""
+    if not transposed or board.layout != "asymmetric" or board.rows == board.cols:
+        return False
+    t = Board(board.cols, board.rows, board.pitch_mm, board.diameter_mm, board.layout, board.margin_mm)
+    return bool(placements(t, xy))
+

@@ -1,0 +1,205 @@
+"""Grid recognition on candidate dots: the board found among the lattice patches of the candidates, its dots
+labelled with board point numbers, and what the image shows besides (another board, a lattice larger than the
+board), in words.
+
+:func:`recognise` takes the candidates of one segmentation and
+
+1. for an unmarked symmetric board whose candidates are exactly its dots (the common clean case) orders them
+   directly (:func:`circcal.detector.grid.order_lattice`: hull corners, one homography);
+2. otherwise finds the lattice patches (:func:`circcal.detector.lattice.find_lattices`, about linear in the number
+   of candidates), reads each patch dot's marker flag from its area against the local lattice cell
+   (:func:`marker_flags`), and labels the largest patches (:func:`circcal.detector.labels.label_patch`);
+3. keeps the patch that is the whole board (several: the largest, the others named in ``notes``), else the largest
+   part of the board that is labelled unambiguously (a partial view), else says why not: the board has more dots
+   than ``--grid``, the transposed grid fits, the markers disagree, or which part of the board is seen is ambiguous.
+
+Pixels: OpenCV's convention.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from circcal.board import Board
+from circcal.detector.budget import Deadline
+from circcal.detector.candidates import Candidate
+from circcal.detector.detection import Reason
+from circcal.detector.grid import order_lattice, orient
+from circcal.detector.labels import Labelling, label_patch, seed_score_needed
+from circcal.detector.lattice import Lattice, find_lattices
+
+__all__ = ["Recognition", "recognise", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
+
+MAX_LABELLED = 4
+"""Patches labelled per segmentation, largest first: the board, a second board, a printed logo and one more; the
+rest are smaller than any of them and are only counted."""
+MIN_PARTIAL_POINTS = 8
+"""A partial view is used with at least this many labelled dots (the solver needs 6 per view; 8 leave a little
+redundancy for the pose), spanning at least :data:`MIN_PARTIAL_LINES` rows and columns."""
+MIN_PARTIAL_LINES = 3
+"""... (three rows and three columns: the homography of the centre correction and the pose are well posed)."""
+MARKER_SPLIT = (0.35, 0.65)
+"""Marker flags: ``x = log(area ratio) / log(marker area ratio)`` is ~0 for a plain dot and ~1 for a marker
+(area ratio: the dot's area over the local lattice cell, over the patch's median); below the first value a dot is
+plain, above the second a marker, between them unknown (not used as evidence): a misread marker then cannot make a
+wrong placement fit."""
+NOTE_MIN_DOTS = 6
+"""Other dot lattices in view are named in the notes when they have at least this many dots ..."""
+NOTE_MIN_SHARE = 0.25
+"""... and at least this share of the board's dots (a printed logo, a second board; not a few aligned specks)."""
+
+
+@dataclass
+class Recognition:
+    """The board among the candidates. ``order`` (N,) candidate index of each board point, -1 where not seen
+    (``None`` when not found); ``complete``: the patch covers the whole board; ``code``/``message``: why not found
+    (``None``/"" when found); ``cut`` (N,) bool: board points whose candidate touches the image border;
+    ``notes``: what else the image shows, in words; ``patches``: how many lattice patches were found."""
+
+    order: np.ndarray | None
+    complete: bool = False
+    code: Reason | None = None
+    message: str = ""
+    cut: np.ndarray | None = None
+    notes: list[str] = field(default_factory=list)
+    patches: int = 0
+
+
+def cell_areas(board: Board, lat: Lattice, points: np.ndarray) -> np.ndarray:
+    """(K,) area (px^2) of one board lattice cell (pitch x pitch) at each dot of patch ``lat``, from the local
+    lattice steps (central differences where both neighbours are in the patch, one-sided otherwise; NaN for a dot
+    with no neighbour along an axis)."""
+    pos = {tuple(q): k for k, q in enumerate(lat.ab.tolist())}
+    P = points[lat.index]
+    out = np.full(len(P), np.nan)
+    for k, (a, b) in enumerate(lat.ab.tolist()):
+        steps = []
+        for da, db in ((1, 0), (0, 1)):
+            f, r = pos.get((a + da, b + db)), pos.get((a - da, b - db))
+            if f is not None and r is not None:
+                steps.append(0.5 * (P[f] - P[r]))
+            elif f is not None:
+                steps.append(P[f] - P[k])
+            elif r is not None:
+                steps.append(P[k] - P[r])
+        if len(steps) == 2:
+            out[k] = abs(steps[0][0] * steps[1][1] - steps[0][1] * steps[1][0])
+    if board.layout == "asymmetric":
+        out /= 2.0      # the patch's steps are the diagonals: a patch cell is two board cells
+    return out
+
+
+def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.ndarray, cut: np.ndarray
+                 ) -> np.ndarray:
+    """(K,) int flags of the patch's dots: 1 marker, 0 plain, -1 unknown (:data:`MARKER_SPLIT`; cut dots and dots
+    without a local cell are unknown). ``dot_areas`` (M,) px^2 of all candidates, ``cut`` (M,) bool."""
+    cell = cell_areas(board, lat, points)
+    q = dot_areas[lat.index] / cell
+    ok = np.isfinite(q) & ~cut[lat.index]
+    flags = np.full(len(q), -1, np.int64)
+    if not np.any(ok) or not board.has_markers:
+        return flags
+    x = np.log(q / np.median(q[ok])) / np.log(board.marker_scale ** 2)
+    flags[ok & (x < MARKER_SPLIT[0])] = 0
+    flags[ok & (x > MARKER_SPLIT[1])] = 1
+    return flags
+
+
+def _closed(lat: Lattice) -> bool:
+    """Every 4-neighbour of the patch was looked at inside the image and holds no dot."""
+    occ = {tuple(q) for q in lat.ab.tolist()}
+    for a, b in occ:
+        for q in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)):
+            if q not in occ and q not in lat.misses:
+                return False
+    return True
+
+
+def _spans(board: Board, points: np.ndarray) -> bool:
+    """The labelled board points span :data:`MIN_PARTIAL_LINES` rows and columns (or all of a smaller board's)."""
+    i, j = np.divmod(points, board.cols)
+    return (len(np.unique(i)) >= min(MIN_PARTIAL_LINES, board.rows)
+            and len(np.unique(j)) >= min(MIN_PARTIAL_LINES, board.cols))
+
+
+def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
+              deadline: Deadline | None = None) -> Recognition:
+    """The board among the candidates ``cands`` (module docstring); ``image_size`` (W, H)."""
+    M = len(cands)
+    N = board.n_points
+    if M == 0:
+        return Recognition(None, code=Reason.TOO_FEW_CANDIDATES, message="no candidate dots")
+    pts = np.array([c.centre for c in cands], np.float64)
+    axes = np.array([c.axes for c in cands], np.float64)
+    ang = np.array([c.angle for c in cands], np.float64)
+    area = np.pi * axes[:, 0] * axes[:, 1]
+    cut = np.array([c.cut for c in cands], bool)
+    if board.layout == "symmetric" and not board.has_markers and M == N and not cut.any():
+        idx = order_lattice(board, pts)
+        if idx is not None:
+            o = orient(board, pts[idx], idx)
+            if o is not None:
+                return Recognition(o, True, cut=np.zeros(N, bool))
+    patches = find_lattices(pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board),
+                            deadline=deadline)
+    if not patches:
+        return Recognition(None, code=Reason.GRID_NOT_RECOGNISED,
+                           message=f"not recognised among {M} candidate dots (no lattice of dots)")
+    labelled: list[tuple[Lattice, Labelling]] = []
+    for lat in patches[:MAX_LABELLED]:
+        if deadline is not None:
+            deadline.check()
+        flags = marker_flags(board, lat, pts, area, cut) if board.has_markers else None
+        labelled.append((lat, label_patch(board, lat.ab, flags, closed=_closed(lat))))
+    whole = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and lab.complete]
+    part = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and not lab.complete
+            and _spans(board, lab.points) and int(np.sum(~cut[lat.index])) >= MIN_PARTIAL_POINTS]
+    chosen = whole[0] if whole else (part[0] if part else None)
+    notes = _notes(board, labelled, chosen, pts, bool(whole))
+    if chosen is None:
+        lat, lab = labelled[0]
+        code = {"larger": Reason.GRID_MISMATCH, "transposed": Reason.GRID_MISMATCH, "smaller": Reason.GRID_MISMATCH,
+                "markers": Reason.MARKERS_INCONSISTENT, "ambiguous": Reason.AMBIGUOUS_VIEW}.get(
+                    lab.status, Reason.TOO_FEW_POINTS)
+        msg = lab.message or (f"only {int(np.sum(~cut[lat.index]))} dots of the board seen "
+                              f"(a partial view needs {MIN_PARTIAL_POINTS}, over {MIN_PARTIAL_LINES} rows and "
+                              "columns)")
+        return Recognition(None, code=code, message=msg, notes=notes, patches=len(patches))
+    lat, lab = chosen
+    order = np.full(N, -1, np.int64)
+    order[lab.points] = lat.index
+    cut_pts = np.zeros(N, bool)
+    cut_pts[lab.points] = cut[lat.index]
+    if not board.has_markers:
+        order = orient(board, np.where((order >= 0)[:, None], pts[np.maximum(order, 0)], np.nan), order)
+        if order is None:
+            return Recognition(None, code=Reason.GRID_NOT_RECOGNISED, message="no labelling of the grid is seen "
+                               "from the board's front (a mirrored image?)", notes=notes, patches=len(patches))
+        cut_pts = np.where(order >= 0, cut[np.maximum(order, 0)], False)
+    return Recognition(order, lab.complete, cut=cut_pts, notes=notes, patches=len(patches))
+
+
+def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts: np.ndarray, whole: bool
+           ) -> list[str]:
+    """Other lattices in view, in words (module docstring)."""
+    notes = []
+    least = max(NOTE_MIN_DOTS, int(np.ceil(NOTE_MIN_SHARE * board.n_points)))
+    others = [(lat, lab) for lat, lab in labelled if chosen is None or lat is not chosen[0]]
+    for lat, lab in others:
+        if len(lat) < least:
+            continue
+        c = pts[lat.index].mean(axis=0)
+        what = {"labelled": "another board like this one" if lab.complete else "another part of a board",
+                "larger": "a larger dot grid", "transposed": "a dot grid of the transposed size",
+                "smaller": "a smaller dot grid", "ambiguous": "a dot grid that could be part of the board",
+                "markers": "a dot grid with other markers"}.get(lab.status, "a dot grid")
+        rows, cols = lab.size
+        notes.append(f"{what} ({len(lat)} dots, {rows}x{cols}) in view around ({c[0]:.0f}, {c[1]:.0f}) px: not used")
+    if chosen is not None and notes:
+        c = pts[chosen[0].index].mean(axis=0)
+        two = any(lab.status == "labelled" and lab.complete and len(lat) >= least for lat, lab in others)
+        notes.insert(0, f"{'two boards' if two else 'more than one dot grid'} in view: used the "
+                        f"{len(chosen[0])} dots around ({c[0]:.0f}, {c[1]:.0f}) px"
+                        f"{' (the larger board)' if two else ''}")
+    return notes

@@ -1,0 +1,231 @@
+"""What a found grid must pass before it is reported, and the bad dots left out of it.
+
+Bad dots (:func:`bad_dots`): a dot cut by the image border or by an occluder gives a biased ellipse, so it is left
+out of the solve (its centre NaN, the reason counted in ``Detection.dropped``) rather than measured:
+
+* its edge fit failed, or it touches the image border (:data:`BORDER_PX`);
+* too few of its normal profiles found an edge (:data:`MIN_COVERAGE`: an occluder hides part of the rim), or the
+  edge points fit no ellipse (:data:`RESIDUAL_FLOOR_PX`, :data:`RESIDUAL_SHARE`, :data:`RESIDUAL_FACTOR`: a
+  straight cut);
+* pulled back to the board through the local lattice steps its ellipse is not round (:data:`MAX_ROUNDNESS`: every
+  printed dot is a circle), or its area over the local lattice cell is unlike its neighbours' (:data:`SIZE_LIMITS`:
+  a dot shrunk by a cut or a shadow; markers are compared with markers).
+
+Trust checks (:func:`check_grid`): the measured dots together must look like the board, or nothing is reported:
+the ellipse centres lie on a lattice (a homography from the board explains them to :data:`MAX_LATTICE_RESIDUAL` of
+a lattice step, with a quadratic term for lens distortion on larger grids), and the dots fill their lattice cells
+as the board's printed dots do (:data:`DIAMETER_FACTOR`). Noise specks that happen to line up pass neither.
+
+Pixels: OpenCV's convention. Lattice steps: one pitch along the board's x and y (:meth:`Board.lattice_coords`).
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from circcal.board import Board
+from circcal.detector.ellipse import conic_params_batch
+
+__all__ = ["bad_dots", "check_grid", "local_steps", "sampson_rms"]
+
+BORDER_PX = 1.0
+"""A dot with an edge point within this many px of the image's outer pixel centres is cut by the border."""
+MIN_COVERAGE = 0.7
+"""At least this share of a dot's normal profiles (one per px of its perimeter) must give an edge point: >= 0.9 of
+them do on renders (blur, noise, JPEG, weak light), >= 0.84 on the real 640x480 JPEGs (measured); an occluder over
+a third of the rim leaves less (smaller cuts are caught by the residual and the shape)."""
+RESIDUAL_FLOOR_PX = 0.1
+"""The edge points' RMS (Sampson) distance from their ellipse may be up to this many px, ..."""
+RESIDUAL_SHARE = 0.01
+"""... or this share of the ellipse's minor semi-axis (the ellipse model of a distorted circle errs more on large
+dots), ..."""
+RESIDUAL_FACTOR = 5.0
+"""... or this many times the grid's median RMS (the image's own edge noise), whichever is largest. Measured on
+renders (clean, noisy, blurred, JPEG, weak light) and the real 640x480 JPEGs: RMS <= 0.16 px, <= 3x the median of
+its view; a 32 px dot with a grey occluder over a tenth of its rim: 0.9 px."""
+MAX_ROUNDNESS = 1.2
+"""Pulled back to the board by the local lattice steps, a dot's ellipse has an axis ratio of at most this plus
+:data:`ROUNDNESS_PX` over its minor semi-axis (1 for a circle; central differences over two pitches err by a few
+percent under perspective and distortion, <= 1.12 measured on dots of 5 px and more; the ellipse of a noisy 2 px
+dot errs by ~0.15 more; a dot with a fifth cut away: ~1.3)."""
+ROUNDNESS_PX = 0.6
+SIZE_LIMITS = (0.75, 1.33)
+"""A dot's area over its local lattice cell, divided by the median of the grid's dots of its kind (markers with
+markers), lies in this range widened by :data:`SIZE_PX` over its minor semi-axis: perspective and blur change it by
+<= 12 % on dots of 5 px and more (measured), the noise of a 2 px dot's ellipse by tens of percent; a cut or
+occluded dot is smaller (a dot larger than its neighbours on a board without declared markers is a marker the user
+did not declare: kept)."""
+SIZE_PX = 1.0
+MAX_LATTICE_RESIDUAL = 0.06
+"""The RMS residual of the lattice fit (below) is at most this share of the local lattice step: <= 0.01 on renders
+without distortion, <= 0.03 with k1 = -0.3 and on real 640x480 photographs (measured); aligned noise specks: > 0.1."""
+QUADRATIC_FROM = 20
+"""Grids of at least this many dots are fitted with a homography plus a quadratic term in board coordinates (lens
+distortion bends rows over a large board); smaller ones with the homography alone (8 parameters: enough)."""
+DIAMETER_FACTOR = 2.5
+"""The dots' diameter measured against the lattice (median dot area over cell area, as a diameter over the pitch)
+lies within this factor of the board's stated diameter either way: the default diameter is half the dot spacing,
+and printed boards use 0.2-0.8 of it. Noise specks that line up are far smaller than their spacing."""
+
+
+def sampson_rms(points: np.ndarray, mask: np.ndarray, conics: np.ndarray) -> np.ndarray:
+    """(D,) RMS Sampson distance (px) of each dot's edge points ``points`` (D, M, 2) where ``mask`` (D, M) from its
+    conic (D, 3, 3); NaN for a dot without points."""
+    h = np.concatenate([points, np.ones((*points.shape[:2], 1))], axis=2)
+    hQ = h @ conics
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.einsum("dmi,dmi->dm", hQ, h) / np.sqrt(4.0 * (hQ[..., 0] ** 2 + hQ[..., 1] ** 2))
+        d = np.where(mask, d, 0.0)
+        n = mask.sum(axis=1)
+        return np.where(n > 0, np.sqrt(np.sum(d * d, axis=1) / np.maximum(n, 1)), np.nan)
+
+
+def _steps(board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """The two nearest-neighbour lattice steps (2,) of ``board`` in lattice coordinates, and the (2, 2) matrix whose
+    inverse maps image derivatives along them to derivatives along the board's x and y."""
+    if board.layout == "asymmetric":
+        M = np.array([[1, 1], [-1, 1]], np.float64)     # columns: the diagonal steps (1, -1) and (1, 1)
+    else:
+        M = np.eye(2)
+    return M, np.linalg.inv(M)
+
+
+def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(K, 2, 2) image Jacobian (px per pitch; columns: along board x, along board y) at each of the board points
+    ``points`` (K,) with image positions ``centres`` (K, 2), from the neighbours among them (central differences,
+    one-sided at the grid's edge; NaN where an axis has no neighbour). Vectorised over a grid of the lattice."""
+    points = np.asarray(points, np.int64)
+    K = len(points)
+    J = np.full((K, 2, 2), np.nan)
+    if K == 0:
+        return J
+    L = board.lattice_coords()[points]
+    M, Minv = _steps(board)
+    lo = L.min(axis=0) - 2
+    shape = tuple((L.max(axis=0) - lo + 3)[::-1])
+    grid = np.full(shape, -1, np.int64)
+    grid[L[:, 1] - lo[1], L[:, 0] - lo[0]] = np.arange(K)
+    cols = []
+    for st in M.T.astype(np.int64):
+        f = grid[L[:, 1] - lo[1] + st[1], L[:, 0] - lo[0] + st[0]]
+        r = grid[L[:, 1] - lo[1] - st[1], L[:, 0] - lo[0] - st[0]]
+        fc = np.where((f >= 0)[:, None], centres[np.maximum(f, 0)], np.nan)
+        rc = np.where((r >= 0)[:, None], centres[np.maximum(r, 0)], np.nan)
+        both = 0.5 * (fc - rc)
+        col = np.where(((f >= 0) & (r >= 0))[:, None], both,
+                       np.where((f >= 0)[:, None], fc - centres, rc * 0 + centres - rc))
+        cols.append(col)
+    Jp = np.stack(cols, axis=2)                       # columns: derivatives along the two nearest-neighbour steps
+    return Jp @ Minv
+
+
+def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.ndarray, conics: np.ndarray,
+             errors: list[str | None], image_size: tuple[int, int]) -> dict[int, str]:
+    """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
+    of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
+    :func:`~circcal.detector.dots.fit_dots`; ``image_size`` (W, H)."""
+    W, H = image_size
+    out: dict[int, str] = {}
+    D = len(points)
+    for k, e in enumerate(errors):
+        if e is not None:
+            out[int(points[k])] = f"unmeasurable: {e}"
+    ok = np.array([e is None for e in errors], bool)
+    if not np.any(ok):
+        return out
+    c, axes, ang, okc = conic_params_batch(np.where(ok[:, None, None], conics, np.eye(3)))
+    ok &= okc
+    for k in np.nonzero(~okc & np.array([e is None for e in errors]))[0]:
+        out[int(points[k])] = "unmeasurable: no real ellipse"
+    with np.errstate(invalid="ignore"):
+        xs, ys = np.where(mask, edge_pts[..., 0], np.nan), np.where(mask, edge_pts[..., 1], np.nan)
+        near = (np.nanmin(xs, axis=1, initial=np.inf) < BORDER_PX) | (np.nanmin(ys, axis=1, initial=np.inf)
+                                                                       < BORDER_PX) \
+            | (np.nanmax(xs, axis=1, initial=-np.inf) > W - 1 - BORDER_PX) \
+            | (np.nanmax(ys, axis=1, initial=-np.inf) > H - 1 - BORDER_PX)
+    a, b = axes[:, 0], axes[:, 1]
+    hab = ((a - b) / np.maximum(a + b, 1e-12)) ** 2
+    perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
+    coverage = mask.sum(axis=1) / np.maximum(np.ceil(perim), 1.0)
+    rms = sampson_rms(edge_pts, mask, np.where(ok[:, None, None], conics, np.eye(3)))
+    med_rms = float(np.median(rms[ok & np.isfinite(rms)])) if np.any(ok & np.isfinite(rms)) else 0.0
+    res_limit = np.maximum.reduce([np.full(D, RESIDUAL_FLOOR_PX), RESIDUAL_SHARE * b,
+                                   np.full(D, RESIDUAL_FACTOR * med_rms)])
+    round_limit = MAX_ROUNDNESS + ROUNDNESS_PX / np.maximum(b, 1e-9)
+    size_lo = SIZE_LIMITS[0] - SIZE_PX / np.maximum(b, 1e-9)
+    size_hi = SIZE_LIMITS[1] + SIZE_PX / np.maximum(b, 1e-9)
+    J = local_steps(board, points[ok], c[ok])
+    round_ = np.full(D, np.nan)
+    fill = np.full(D, np.nan)
+    okJ = np.all(np.isfinite(J), axis=(1, 2))
+    okJ[okJ] = np.abs(np.linalg.det(J[okJ])) > 0
+    if np.any(okJ):
+        E = np.zeros((D, 2, 2))
+        cs, sn = np.cos(ang), np.sin(ang)
+        R = np.stack([np.stack([cs, -sn], -1), np.stack([sn, cs], -1)], 1)
+        E[:] = R @ (np.eye(2)[None] * np.stack([a * a, b * b], -1)[:, None, :]) @ R.transpose(0, 2, 1)
+        oi = np.nonzero(ok)[0][okJ]
+        Jinv = np.linalg.inv(J[okJ])
+        C = Jinv @ E[oi] @ Jinv.transpose(0, 2, 1)          # the dot on the board (pitch units)
+        w = np.linalg.eigvalsh(C)
+        round_[oi] = np.sqrt(np.maximum(w[:, 1], 1e-300) / np.maximum(w[:, 0], 1e-300))
+        fill[oi] = np.pi * a[oi] * b[oi] / np.abs(np.linalg.det(J[okJ]))
+    marker = board.is_marker()[points]
+    rel = np.full(D, np.nan)
+    for kind in (False, True):
+        sel = ok & np.isfinite(fill) & (marker == kind)
+        if np.any(sel):
+            rel[sel] = fill[sel] / np.median(fill[sel])
+    for k in np.nonzero(ok)[0]:
+        p = int(points[k])
+        if near[k]:
+            out[p] = "cut by the image border"
+        elif coverage[k] < MIN_COVERAGE:
+            out[p] = f"edge found on {coverage[k]:.0%} of its rim (occluded?)"
+        elif rms[k] > res_limit[k]:
+            out[p] = f"edge points fit no ellipse (RMS {rms[k]:.2f} px: cut or occluded?)"
+        elif np.isfinite(round_[k]) and round_[k] > round_limit[k]:
+            out[p] = f"not round on the board (axis ratio {round_[k]:.2f}: cut or occluded?)"
+        elif np.isfinite(rel[k]) and rel[k] < size_lo[k]:
+            out[p] = f"{rel[k]:.0%} of its neighbours' size (cut or shadowed?)"
+        elif np.isfinite(rel[k]) and rel[k] > size_hi[k] and board.has_markers:
+            out[p] = f"{rel[k]:.0%} of the size of dots of its kind"
+    return out
+
+
+def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray) -> str | None:
+    """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
+    (K, 3, 3)) are not trusted to be the board, or ``None`` (module docstring)."""
+    K = len(points)
+    if K < 4:
+        return f"only {K} dots measured"
+    obj = board.object_points()[points, :2] / board.pitch_mm
+    H, _ = cv2.findHomography(obj, centres, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return "no homography from the board explains the dots"
+    q = cv2.perspectiveTransform(obj.reshape(-1, 1, 2), H).reshape(-1, 2)
+    res = centres - q
+    if K >= QUADRATIC_FROM:                       # lens distortion: a quadratic term in board coordinates
+        x, y = (obj - obj.mean(axis=0)).T / max(float(np.ptp(obj)), 1.0)
+        A = np.column_stack([np.ones(K), x, y, x * x, x * y, y * y])
+        coef, *_ = np.linalg.lstsq(A, res, rcond=None)
+        res = res - A @ coef
+    J = local_steps(board, points, centres)
+    finite = np.all(np.isfinite(J), axis=(1, 2))
+    step = float(np.median(np.sqrt(np.abs(np.linalg.det(J[finite]))))) if np.any(finite) else np.nan
+    if not np.isfinite(step) or step <= 0:
+        return "the dots have no lattice neighbours"
+    rel = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) / step
+    if rel > MAX_LATTICE_RESIDUAL:
+        return (f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
+                f"{MAX_LATTICE_RESIDUAL:g})")
+    _, axes, _, ok = conic_params_batch(conics)
+    plain = ok & ~board.is_marker()[points] & finite
+    if np.any(plain):
+        fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(np.linalg.det(J[plain]))
+        d_rel = float(np.sqrt(np.median(fill) / np.pi)) * 2.0      # measured diameter / pitch
+        stated = board.diameter_mm / board.pitch_mm
+        if not stated / DIAMETER_FACTOR <= d_rel <= stated * DIAMETER_FACTOR:
+            return (f"the dots measure {d_rel:.2f} pitches across, the board's are {stated:.2f} (--diameter, "
+                    f"--pitch): not this board")
+    return None
