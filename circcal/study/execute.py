@@ -168,7 +168,8 @@ _VIEWS: dict[str, tuple[Any, list[np.ndarray], list[np.ndarray]]] = {}
 
 
 def _views(cell: CellSpec) -> tuple[Any, list[np.ndarray], list[np.ndarray]]:
-    """(camera, object points per view, perfect centres per view) of an observations cell, once per worker."""
+    """(camera, object points per view, perfect centres per view) of an observations cell: every board point that
+    projects inside the image (pixel centres 0..W-1, 0..H-1)."""
     from circcal.board import Board
     from circcal.fixtures.poses import sample_poses
     from circcal.fixtures.scenarios import get_scenario
@@ -183,7 +184,13 @@ def _views(cell: CellSpec) -> tuple[Any, list[np.ndarray], list[np.ndarray]]:
         sc = get_scenario(cell.scenario)
         cam, board, poses = sc.camera, sc.board, sc.poses()
     obj = board.object_points()
-    return cam, [obj] * len(poses), [project(obj, r, t, cam) for r, t in poses]
+    objs, ideal = [], []
+    for r, t in poses:  # a point the camera does not see is not observed (views partly out of frame)
+        q = project(obj, r, t, cam)
+        seen = (q[:, 0] >= 0) & (q[:, 0] <= cam.width - 1) & (q[:, 1] >= 0) & (q[:, 1] <= cam.height - 1)
+        objs.append(obj[seen])
+        ideal.append(q[seen])
+    return cam, objs, ideal
 
 
 def _observations(task: Task) -> list[dict[str, Any]]:

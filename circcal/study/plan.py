@@ -70,15 +70,14 @@ class Task:
 
 
 def geometry_identity(cell: CellSpec) -> dict[str, Any]:
-    """What decides the fixed views of an observations cell: its inline geometry, or its scenario's camera, board
-    and pose sampling."""
+    """What decides the fixed views of an observations cell: its inline geometry, or its scenario's spec (camera,
+    board, pose sampling; everything but the variants)."""
     if cell.geometry is not None:
         return cell.geometry.identity()
     from circcal.fixtures.scenarios import get_scenario
 
     spec = get_scenario(cell.scenario).spec()
-    return {k: spec[k] for k in ("camera", "board", "n_views", "seed", "max_tilt_deg", "min_tilt_deg", "fill",
-                                 "require_visible")}
+    return {k: v for k, v in spec.items() if k != "variants"}  # the variants decide pixels, not these points
 
 
 def _base(cell: CellSpec, cal: CalibratorSpec, lens: str) -> dict[str, Any]:
