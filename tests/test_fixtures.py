@@ -63,12 +63,24 @@ def test_every_kind_applies_and_is_seeded(single):
                  {"kind": "defocus", "radius_px": 1.5}, {"kind": "motion_blur", "length_px": 3.0},
                  {"kind": "noise", "sigma": 0.01, "full_well": 1000}, {"kind": "occlusion", "fraction": 0.2,
                                                                         "side": "left"}]
-    assert {s["kind"] for s in all_steps} | {"jpeg"} == set(KINDS)
+    scene = [{"kind": "bar", "width_frac": 0.05}, {"kind": "hand", "side": "right", "size_frac": 0.2},
+             {"kind": "second_board", "rows": 2, "cols": 2, "pitch_px": 8.0, "diameter_px": 4.0},
+             {"kind": "logo", "n": 5, "radius_px": 6.0, "dot_px": 3.0}]
+    assert {s["kind"] for s in all_steps + scene} | {"jpeg"} == set(KINDS)
     a, occ, jpg = apply_perturbations(img, all_steps, 5, board_mask=mask)
     b, _, _ = apply_perturbations(img, all_steps, 5, board_mask=mask)
     c, _, _ = apply_perturbations(img, all_steps, 6, board_mask=mask)
     assert a.dtype == np.uint8 and np.array_equal(a, b) and not np.array_equal(a, c) and jpg is None
     assert occ is not None and occ[:, 0].all() and not occ[:, -1].any()
+    for step in scene:                       # each scene object is drawn, seeded; occluders say what they hide
+        one, occ1, _ = apply_perturbations(img, [step], 3, board_mask=mask)
+        assert np.array_equal(one, apply_perturbations(img, [step], 3, board_mask=mask)[0])
+        changed = one != apply_perturbations(img, [], 3)[0]
+        assert changed.any()
+        if step["kind"] in ("bar", "hand"):
+            assert occ1 is not None and (occ1 & mask).any() and not (changed & ~occ1).any()
+        else:                                # drawn off the board
+            assert occ1 is None and not (changed & mask).any()
     j, _, jpg = apply_perturbations(img, [{"kind": "jpeg", "quality": 60}], 0)
     assert jpg[:2] == b"\xff\xd8" and np.array_equal(cv2.imdecode(np.frombuffer(jpg, np.uint8), 0), j)
     s16, _, _ = apply_perturbations(img, [], 0, bits=16)
@@ -136,12 +148,37 @@ def test_truth_file_is_exact_and_complete(tmp_path):
         assert (dirs["noisy"] / f).read_bytes() == (again["noisy"] / f).read_bytes()
 
 
-def test_partial_scenario_marks_hidden_points(tmp_path):
-    sc = SCENARIOS["partial"]
-    dirs = render_fixture(sc, tmp_path, ["occlusion"], progress=False)
-    t = load_truth(dirs["occlusion"])
+def test_partial_scenario_marks_hidden_points():
+    t = load_truth(fixture_dir("partial", "occlusion"))
     hidden = sum(int((~v.visible).sum()) for v in t.views)
     assert 0 < hidden < sum(len(v.visible) for v in t.views)
+
+
+def test_marker_scenarios_keep_the_printed_pattern():
+    # the patterns are written into the scenarios (a printed board keeps its pattern): they are circcal's own
+    from circcal.board import PATTERN_MARKER_SCALE, marker_pattern
+
+    for name in ("partial", "markers", "occluded", "distractors"):
+        b = SCENARIOS[name].board
+        assert b.markers == marker_pattern(b.rows, b.cols, b.layout), name
+        assert b.marker_diameter_mm == pytest.approx(PATTERN_MARKER_SCALE * b.diameter_mm)
+    o = SCENARIOS["origin"].board
+    assert o.markers == ((o.rows - 1) * o.cols,) and o.marker_diameter_mm == 2 * o.diameter_mm
+
+
+def test_corner_views_are_partly_out_of_frame():
+    from circcal.fixtures.poses import out_of_frame_share
+
+    sc = SCENARIOS["markers"]
+    poses = sc.poses()
+    assert len(poses) == sc.n_views + sc.corner_views and sc.view_kind(sc.n_views) == "corner"
+    shares = [out_of_frame_share(sc.camera, sc.board, *p) for p in poses]
+    assert all(s == 0.0 for s in shares[:sc.n_views])
+    # the drawn share, to the sampling of the measure (1/24 of a side)
+    assert all(sc.corner_out[0] - 0.01 <= s <= sc.corner_out[1] + 0.01 for s in shares[sc.n_views:]), shares
+    t = load_truth(fixture_dir("markers", "clean"))
+    assert [v.kind for v in t.views] == ["full"] * sc.n_views + ["corner"] * sc.corner_views
+    assert all(not v.visible.all() for v in t.views[sc.n_views:])
 
 
 def test_fixture_cache_hits(tmp_path, monkeypatch):

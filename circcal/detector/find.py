@@ -131,7 +131,7 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
                                  np.array([cands[rec.order[k]].angle for k in todo]))
     pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
     deadline.check()
-    dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H)))
+    dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H), gray))
     keep = np.array([int(k) not in dropped for k in todo], bool)
     used = todo[keep]
     cand_xy = np.array([c.centre for c in cands])

@@ -7,6 +7,8 @@ out of the solve (its centre NaN, the reason counted in ``Detection.dropped``) r
 * too few of its normal profiles found an edge (:data:`MIN_COVERAGE`: an occluder hides part of the rim), or the
   edge points fit no ellipse (:data:`RESIDUAL_FLOOR_PX`, :data:`RESIDUAL_SHARE`, :data:`RESIDUAL_FACTOR`: a
   straight cut);
+* a dark object lies right next to its rim (:data:`CLEARANCE_PX`: the edge of an occluder, a bar), whose shade
+  moves the dot's edge;
 * pulled back to the board through the local lattice steps its ellipse is not round (:data:`MAX_ROUNDNESS`: every
   printed dot is a circle), or its area over the local lattice cell is unlike its neighbours' (:data:`SIZE_LIMITS`:
   a dot shrunk by a cut or a shadow; markers are compared with markers).
@@ -34,8 +36,9 @@ MIN_COVERAGE = 0.7
 """At least this share of a dot's normal profiles (one per px of its perimeter) must give an edge point: >= 0.9 of
 them do on renders (blur, noise, JPEG, weak light), >= 0.84 on the real 640x480 JPEGs (measured); an occluder over
 a third of the rim leaves less (smaller cuts are caught by the residual and the shape)."""
-RESIDUAL_FLOOR_PX = 0.1
-"""The edge points' RMS (Sampson) distance from their ellipse may be up to this many px, ..."""
+RESIDUAL_FLOOR_PX = 0.2
+"""The edge points' RMS (Sampson) distance from their ellipse may be up to this many px (dots seen at 55-70 deg of
+tilt, 3 px across their minor axis, measure up to 0.14 px on clean renders), ..."""
 RESIDUAL_SHARE = 0.01
 """... or this share of the ellipse's minor semi-axis (the ellipse model of a distorted circle errs more on large
 dots), ..."""
@@ -56,6 +59,28 @@ markers), lies in this range widened by :data:`SIZE_PX` over its minor semi-axis
 occluded dot is smaller (a dot larger than its neighbours on a board without declared markers is a marker the user
 did not declare: kept)."""
 SIZE_PX = 1.0
+CLEARANCE_PX = 3.5
+"""A dark object (an occluder's edge, a bar) within this many px of a dot's rim darkens the outer half of its edge
+profiles (the edge smoothing of 1.5 px and the optics' blur reach ~3 sigma) and moves its edge: the ring around the
+rim is sampled at half and at the whole of this (or of half the gap to the nearest dot, when narrower) ..."""
+CLEARANCE_LEVEL = 0.3
+"""... and a sample counts as dark when it lies this share of the dot's contrast (ring median - dot centre) below
+the ring's median (the noise of the weak-light renders is ~5 % of their contrast) ..."""
+CLEARANCE_SHARE = 0.02
+"""... and the dot is left out when more than this share of the ring's samples are dark (2 of the 96: an occluder
+next to the rim darkens an arc, and one touching 4 % of the ring of a 37 px marker moved it by 0.2 px; noise at
+6 sigma darkens none)."""
+LEVEL_RING_PX = (2.0, 2.0, 0.5)
+"""The dot's white level is a plane fitted to the pixels from 2 px to 2 + max(2 px, half its minor semi-axis) px
+outside its rim (:mod:`circcal.detector.levels`), dark pixels (neighbouring dots, a dark occluder) left out; a grey
+occluder there (neither white nor dark) is kept and tilts the plane: a 37 px marker with one 4 px below its rim
+moved by 0.2 px."""
+GREY_SHARE = 0.05
+"""A dot is left out when more than this share of the samples on that ring are grey (between the dot's dark and the
+board's white by :data:`CLEARANCE_LEVEL` of the contrast either way): the rim of a neighbouring dot crossing the
+ring gives a few such samples, an occluder an arc of them."""
+CLEARANCE_ANGLES = 48
+"""Samples per ring (one per 7.5 deg)."""
 MAX_LATTICE_RESIDUAL = 0.06
 """The RMS residual of the lattice fit (below) is at most this share of the local lattice step: <= 0.01 on renders
 without distortion, <= 0.03 with k1 = -0.3 and on real 640x480 photographs (measured); aligned noise specks: > 0.1."""
@@ -119,11 +144,62 @@ def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.nda
     return Jp @ Minv
 
 
+def _rings(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray, radii: np.ndarray
+           ) -> np.ndarray:
+    """(D, R * CLEARANCE_ANGLES) grey values on the ellipses grown by ``radii`` (D, R) px (bilinear)."""
+    th = np.linspace(0.0, 2.0 * np.pi, CLEARANCE_ANGLES, endpoint=False)
+    cs, sn = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    xs, ys = [], []
+    for r in radii.T:
+        a = axes[:, 0:1] + r[:, None]
+        b = axes[:, 1:2] + r[:, None]
+        xs.append(centres[:, 0:1] + a * np.cos(th) * cs - b * np.sin(th) * sn)
+        ys.append(centres[:, 1:2] + a * np.cos(th) * sn + b * np.sin(th) * cs)
+    return cv2.remap(g, np.concatenate(xs, axis=1).astype(np.float32), np.concatenate(ys, axis=1).astype(np.float32),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+
+
+def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Per dot (D,), the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`), and
+    the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white level is
+    measured on (:data:`LEVEL_RING_PX`); ``gray`` (H, W), ellipses ``centres`` (D, 2), ``axes`` (D, 2),
+    ``angle`` (D,). Both rings end half-way to the nearest dot."""
+    D = len(centres)
+    if D == 0:
+        return np.zeros(0), np.zeros(0)
+    g = np.asarray(gray)
+    if g.dtype not in (np.uint8, np.uint16, np.float32):
+        g = g.astype(np.float32)
+    gap = np.full(D, np.inf)
+    if D > 1:
+        d = np.linalg.norm(centres[:, None] - centres[None], axis=-1) - axes[:, None, 0] - axes[None, :, 0]
+        np.fill_diagonal(d, np.inf)
+        gap = d.min(axis=1)
+    inner = cv2.remap(g, centres[:, 0:1].astype(np.float32), centres[:, 1:2].astype(np.float32),
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)[:, 0]
+    near = np.minimum(CLEARANCE_PX, 0.5 * gap)
+    ring = _rings(g, centres, axes, angle, np.stack([0.5 * near, near], 1))
+    far = np.minimum(LEVEL_RING_PX[0] + np.maximum(LEVEL_RING_PX[1], LEVEL_RING_PX[2] * axes[:, 1]), 0.5 * gap)
+    level = _rings(g, centres, axes, angle, np.stack([np.minimum(LEVEL_RING_PX[0], far), 0.5 * (
+        np.minimum(LEVEL_RING_PX[0], far) + far), far], 1))
+    white = np.median(np.concatenate([ring, level], axis=1), axis=1)
+    contrast = white - inner
+    dark = ring < (white - CLEARANCE_LEVEL * contrast)[:, None]
+    mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
+                                                                               * contrast)[:, None])
+    ok = contrast > 0
+    return (np.where(ok & (near >= 1.0), dark.mean(axis=1), 0.0),
+            np.where(ok & (far > near), mid.mean(axis=1), 0.0))
+
+
 def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.ndarray, conics: np.ndarray,
-             errors: list[str | None], image_size: tuple[int, int]) -> dict[int, str]:
+             errors: list[str | None], image_size: tuple[int, int], gray: np.ndarray | None = None
+             ) -> dict[int, str]:
     """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
     of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
-    :func:`~circcal.detector.dots.fit_dots`; ``image_size`` (W, H)."""
+    :func:`~circcal.detector.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
+    objects next to a dot (:func:`dark_neighbourhood`; not checked without it)."""
     W, H = image_size
     out: dict[int, str] = {}
     D = len(points)
@@ -170,6 +246,10 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
         w = np.linalg.eigvalsh(C)
         round_[oi] = np.sqrt(np.maximum(w[:, 1], 1e-300) / np.maximum(w[:, 0], 1e-300))
         fill[oi] = np.pi * a[oi] * b[oi] / np.abs(np.linalg.det(J[okJ]))
+    shade = np.zeros(D)
+    grey = np.zeros(D)
+    if gray is not None and np.any(ok):
+        shade[ok], grey[ok] = dark_neighbourhood(gray, c[ok], axes[ok], ang[ok])
     marker = board.is_marker()[points]
     rel = np.full(D, np.nan)
     for kind in (False, True):
@@ -184,6 +264,10 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
             out[p] = f"edge found on {coverage[k]:.0%} of its rim (occluded?)"
         elif rms[k] > res_limit[k]:
             out[p] = f"edge points fit no ellipse (RMS {rms[k]:.2f} px: cut or occluded?)"
+        elif shade[k] > CLEARANCE_SHARE:
+            out[p] = f"a dark object touches it ({shade[k]:.0%} of the ring around it: an occluder's edge?)"
+        elif grey[k] > GREY_SHARE:
+            out[p] = f"something grey lies around it ({grey[k]:.0%} of the ring its white level comes from)"
         elif np.isfinite(round_[k]) and round_[k] > round_limit[k]:
             out[p] = f"not round on the board (axis ratio {round_[k]:.2f}: cut or occluded?)"
         elif np.isfinite(rel[k]) and rel[k] < size_lo[k]:
