@@ -190,11 +190,14 @@ def test_real_data_every_grid_found(folder, grid, layout):
     paths = sorted(d.glob("*.jpg"))
     dets = detect_files(paths, board, progress=False)
     assert [p.name for p, x in zip(paths, dets) if not x.found] == []
-    # sanity: the homography from our centres explains them to ~a pixel (lens distortion, real prints)
+    # sanity: the homography from our centres explains them to ~a pixel (lens distortion, real prints); dots left
+    # out (image00005: the edge of a hand's shadow across eight dots) are NaN
     for x in dets:
-        Hm, _ = cv2.findHomography(board.object_points()[:, :2], x.centres, 0)
-        p = cv2.perspectiveTransform(board.object_points()[None, :, :2], Hm)[0]
-        assert np.median(np.linalg.norm(p - x.centres, axis=1)) < 2.0
+        seen = x.seen
+        assert seen.sum() >= 0.9 * board.n_points and x.n_dropped == board.n_points - seen.sum()
+        Hm, _ = cv2.findHomography(board.object_points()[seen, :2], x.centres[seen], 0)
+        p = cv2.perspectiveTransform(board.object_points()[None, seen, :2], Hm)[0]
+        assert np.median(np.linalg.norm(p - x.centres[seen], axis=1)) < 2.0
 
 
 @pytest.mark.parametrize("jobs", [1, 3])

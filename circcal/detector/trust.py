@@ -66,10 +66,10 @@ rim is sampled at half and at the whole of this (or of half the gap to the neare
 CLEARANCE_LEVEL = 0.3
 """... and a sample counts as dark when it lies this share of the dot's contrast (ring median - dot centre) below
 the ring's median (the noise of the weak-light renders is ~5 % of their contrast) ..."""
-CLEARANCE_SHARE = 0.02
-"""... and the dot is left out when more than this share of the ring's samples are dark (2 of the 96: an occluder
+CLEARANCE_SHARE = 0.035
+"""... and the dot is left out when more than this share of the ring's samples are dark (3 of the 96: an occluder
 next to the rim darkens an arc, and one touching 4 % of the ring of a 37 px marker moved it by 0.2 px; noise at
-6 sigma darkens none)."""
+6 sigma darkens none; the rim of a close neighbour under 60 deg of tilt touches 2)."""
 LEVEL_RING_PX = (2.0, 2.0, 0.5)
 """The dot's white level is a plane fitted to the pixels from 2 px to 2 + max(2 px, half its minor semi-axis) px
 outside its rim (:mod:`circcal.detector.levels`), dark pixels (neighbouring dots, a dark occluder) left out; a grey
