@@ -70,6 +70,14 @@ def test_mrcal_tools_work_on_circcals_cameramodel(label, python, tools, tmp_path
     assert "WARNING" not in out  # both models carry uncertainties: none of mrcal's fallbacks
     for png in ("u.png", "r--histogram.png", "r--vectorfield.png", "d.png"):
         assert (tmp_path / png).stat().st_size > 1000, png
+    # circcal diff reads the uncertainty of such files through mrcal
+    js_out = tmp_path / "diff.json"
+    assert main(["diff", str(model), str(other), "--json", str(js_out)]) == 0
+    import json
+
+    doc = json.loads(js_out.read_text())
+    assert doc["uncertainty_a"].startswith("mrcal") and doc["uncertainty_b"].startswith("mrcal")
+    assert doc["max_px"] < 1e-6 and doc["consistent"] is True   # the same calibration twice
 
 
 @pytest.mark.parametrize("label,python,tools", _versions())
