@@ -21,7 +21,7 @@ import warnings
 from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
 
 #: Subcommands, in the order ``--help`` shows them.
-COMMANDS = ("demo", "render", "detect", "calibrate", "convert", "diff", "validate", "report", "study")
+COMMANDS = ("demo", "render", "board", "detect", "calibrate", "convert", "diff", "validate", "report", "study")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -57,8 +57,14 @@ class ImagesCalibration:
 
     def to_model_json(self, board) -> dict[str, Any]:
         """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out
-        (path, reason code, reason) and the re-correction rounds."""
-        return model_json(self.result.camera, **self.result.model_sections(), board=board.to_dict(),
+        (path, reason code, reason) and the re-correction rounds. Each view says which board points it used
+        (``points``: indices, OpenCV's order; a partial view uses some) and which dots of it the detector left out
+        as bad (``dots_dropped``: index -> reason, e.g. cut by the image border)."""
+        sections = self.result.model_sections()
+        for entry, i, c in zip(sections.get("views", []), self.used, self.centres):
+            entry["points"] = np.nonzero(np.all(np.isfinite(c), axis=1))[0].tolist()
+            entry["dots_dropped"] = {str(k): r for k, r in getattr(self.detections[i], "dropped", {}).items()}
+        return model_json(self.result.camera, **sections, board=board.to_dict(),
                           failed_images=[{"path": r.path, "reason_code": r.code.value, "reason": r.reason}
                                          for r in self.failed],
                           recorrection_rounds=self.rounds)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
                                    positive_float, positive_int)
+from circcal.commands.board import add_marker_arguments, board_with_markers
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,6 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)")
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
+    add_marker_arguments(p)
     p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0")
     p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0")
     p.add_argument("--fix-aspect-ratio", action="store_true", help="hold fx = fy")
@@ -94,11 +96,34 @@ def format_summary(cal, *, worst: int = 3) -> str:
         lines.append("re-correction rounds: " + ", ".join(
             f"{r['round']}: RMS/pt {r['rms_per_point_px']:.4f} px"
             + ("" if r["round"] == 0 else f", centres moved <= {r['max_centre_shift_px']:.2g} px") for r in rounds))
+    lines += _detection_lines(cal)
     failed = getattr(cal, "failed", None)
     if failed:
         lines.append(f"{len(failed)} image(s) left out:")
         lines += [f"  {r.path}: {r.reason}" for r in failed]
     return "\n".join(lines)
+
+
+def _detection_lines(cal) -> list[str]:
+    """What the detector says about the used views: partial views (points per view), dots it left out as bad (cut
+    by the image border, occluded) per view, and what else the images show (another board, a larger grid)."""
+    dets, used, paths = getattr(cal, "detections", None), getattr(cal, "used", None), getattr(cal, "paths", None)
+    if dets is None or used is None or paths is None:
+        return []
+    lines = []
+    partial = [(Path(paths[i]).name, int(dets[i].seen.sum())) for i in used if not dets[i].complete]
+    if partial:
+        lines.append(f"{len(partial)} partial view(s) used (board points seen): "
+                     + ", ".join(f"{n}: {k}" for n, k in partial))
+    dropped = [(Path(paths[i]).name, dets[i].n_dropped) for i in used if dets[i].dropped]
+    if dropped:
+        lines.append(f"dots left out by the detector as bad (cut by the image border or an occluder, a shadow's "
+                     f"edge): {sum(k for _, k in dropped)} in {len(dropped)} view(s): "
+                     + ", ".join(f"{n}: {k}" for n, k in dropped))
+    for i, d in enumerate(dets):
+        for note in getattr(d, "notes", None) or []:
+            lines.append(f"  {Path(paths[i]).name}: {note}")
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.errors import InputError
     from circcal.solver.outliers import DEFAULT_K, OutlierRule
 
-    board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
+    board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     check_output(args.out)  # fail before the work on an unwritable place or an unknown extension
     if args.report is not None:
         check_output(args.report, folder=True)

@@ -1,8 +1,9 @@
 """``circcal detect IMAGES... --grid RxC [--asymmetric] [--model MODEL] --json OUT [--overlay DIR]``.
 
 Writes ``{"board": board.to_dict(), "complete": bool, "images": [{"image": path, "found": bool,
-"centers": [[x, y], ...] | null, "reason": null | "why not", "reason_code": null | code}]}``, images in the order
-given. The file is rewritten (atomically) as results come in, at most every few seconds and once at the end, so an
+"centers": [[x, y] | null, ...] | null, "reason": null | "why not", "reason_code": null | code, "complete": bool,
+"points_seen": n, "dots_dropped": {index: why}, "notes": [...]}]}``, images in the order given: a point not seen
+(out of frame, occluded, a dot left out as bad) has a null centre; ``--markers`` labels partial views. The file is rewritten (atomically) as results come in, at most every few seconds and once at the end, so an
 interruption or a failure loses nothing already done; ``"complete": false`` marks a partial file (images still
 missing are left out). ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)). ``--model``: a
 camera in any format circcal reads (model.json, OpenCV YAML, mrcal, COLMAP, ROS) for the distortion-aware centre
@@ -16,6 +17,7 @@ from pathlib import Path
 
 from circcal.commands.args import DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm, \
     positive_int
+from circcal.commands.board import add_marker_arguments, board_with_markers
 
 #: The partial detections.json is rewritten at most this often (s): an interruption loses at most this much work.
 SAVE_EVERY_S = 2.0
@@ -30,6 +32,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--pitch", type=parse_length_mm, default=10.0,
                    help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)")
     p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
+    add_marker_arguments(p)
     p.add_argument("--model", type=Path, default=None,
                    help="camera model (any format circcal reads) for the distortion-aware centre correction")
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
@@ -41,8 +44,14 @@ def add_parser(subparsers) -> None:
 
 
 def _entry(path: Path, d) -> dict:
+    """One image's record: centres (null for a point not seen: out of frame, occluded, or dropped), whether the
+    view shows the whole board (``complete``), the dots left out as bad (``dots_dropped``: index -> reason) and
+    what else the image shows (``notes``)."""
     return {"image": str(path), "found": bool(d.found), "centers": d.centres.tolist() if d.found else None,
-            "reason": d.reason, "reason_code": None if d.code is None else d.code.value}
+            "reason": d.reason, "reason_code": None if d.code is None else d.code.value,
+            "complete": bool(d.complete) if d.found else None,
+            "points_seen": int(d.seen.sum()) if d.found else 0,
+            "dots_dropped": {str(k): r for k, r in d.dropped.items()}, "notes": list(d.notes)}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.json_out)
     if args.overlay is not None:
         check_output(args.overlay, folder=True)
-    board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
+    board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     camera = read_camera(args.model) if args.model is not None else None
     entries: dict[int, dict] = {}
     last_save = [time.monotonic()]
@@ -91,4 +100,10 @@ def run(args: argparse.Namespace) -> int:
     for path, d in zip(args.images, dets):
         if not d.found:
             print(f"  {path}: {d.reason}")
+        elif not d.complete or d.dropped:
+            print(f"  {path}: {int(d.seen.sum())} of {board.n_points} points"
+                  + ("" if d.complete else " (partial view)")
+                  + (f", {d.n_dropped} dot(s) left out as bad" if d.dropped else ""))
+        for note in d.notes:
+            print(f"  {path}: {note}")
     return 0 if n == len(dets) else 1
