@@ -10,7 +10,7 @@ from typing import Callable
 from circcal.board import Board
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.find import camera_size_mismatch, detect
-from circcal.detector.image import read_image
+from circcal.detector.image import read_image_messages
 from circcal.errors import ImageError
 from circcal.model import Camera
 
@@ -75,15 +75,25 @@ def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
     ``found=False`` with its :class:`~circcal.detector.Reason`: missing (``FILE_NOT_FOUND``), unreadable or
     undecodable (``UNREADABLE``), of another size than the camera model (``WRONG_IMAGE_SIZE``), an image the
     detector cannot take (:class:`~circcal.errors.ImageError`: ``BAD_IMAGE``). Any other exception is a bug and
-    propagates."""
+    propagates. What the decoder prints about a corrupt file goes into the reason (or the notes), not onto the
+    console."""
     if not path.is_file():
         return Detection(False, None, "file not found" if not path.exists() else "not a file", Reason.FILE_NOT_FOUND)
     try:
-        img = read_image(path)
+        img, said = read_image_messages(path)
     except OSError as exc:  # permission denied, I/O error
         return Detection(False, None, f"cannot read the file: {exc.strerror or exc}", Reason.UNREADABLE)
     if img is None:
-        return Detection(False, None, "unreadable file (not an image, or corrupt)", Reason.UNREADABLE)
+        return Detection(False, None, "unreadable file (not an image, or corrupt" + (f": {said[0]}" if said else "")
+                         + ")", Reason.UNREADABLE)
+    d = _detect_image(img, board, camera)
+    if said:   # decoded, but the decoder found the file damaged: say so with the result
+        d.notes = [*d.notes, "the file is damaged (the decoder said: " + "; ".join(said[:3]) + ")"]
+    return d
+
+
+def _detect_image(img, board: Board, camera: Camera | None) -> Detection:
+    """The decoded image ``img``: its size checked against ``camera``, then detected."""
     h, w = img.shape[:2]
     why = camera_size_mismatch(camera, w, h)
     if why is not None:

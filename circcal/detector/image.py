@@ -5,6 +5,11 @@ Arrays are (H, W) grey or (H, W, 3|4) BGR(A), of dtype uint8, uint16 or float (O
 """
 from __future__ import annotations
 
+import os
+import re
+import sys
+import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -12,7 +17,7 @@ import numpy as np
 
 from circcal.errors import ImageError
 
-__all__ = ["as_gray", "normalise_u8", "read_image"]
+__all__ = ["as_gray", "decode_image", "normalise_u8", "read_image", "read_image_messages"]
 
 MIN_IMAGE_SIDE = 8
 """Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""
@@ -27,15 +32,58 @@ HIST_EXACT_COUNT = 2 ** 24
 """``cv2.calcHist`` counts in float32, exact up to 2^24 pixels; larger uint8 images are counted by ``np.bincount``."""
 
 
-def read_image(path: Path) -> np.ndarray | None:
-    """The image stored in the file ``path`` (``cv2.IMREAD_UNCHANGED``: grey, BGR or BGRA, 8 or 16 bit), or ``None``
-    when there is no such file, it is empty, or no decoder can read it. Raises ``OSError`` when the file exists but
-    cannot be read (permissions, I/O)."""
+DECODER_NOISE = re.compile(r"^(libpng (warning|error)|Corrupt JPEG data|Premature end of JPEG|Invalid SOS|"
+                           r"\[ ?WARN:.*grfmt_|\[ ?WARN:.*imgcodecs|Warning: unknown JFIF|libtiff|TIFFRead)")
+"""Lines the image decoders (libpng, libjpeg, libtiff, OpenCV's codec layer) print on stderr about a corrupt or odd
+file: caught while decoding and handed to the caller (a detection's reason or notes), never left on the console.
+Anything else written to stderr meanwhile is passed on untouched."""
+_DECODE_LOCK = threading.Lock()
+"""Decoding swaps the process's stderr (file descriptor 2) for a buffer: one decode at a time (detection itself
+runs in parallel; decoding is a few ms of it)."""
+
+
+def decode_image(data: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
+    """``cv2.imdecode(data, IMREAD_UNCHANGED)`` with what the decoders print about the file caught: ``(image or
+    None, messages)``, messages the lines matching :data:`DECODER_NOISE` (other stderr output is written on)."""
+    with _DECODE_LOCK:
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError, OSError):   # no usable sys.stderr (closed, replaced): decode plainly
+            return cv2.imdecode(data, cv2.IMREAD_UNCHANGED), []
+        with tempfile.TemporaryFile() as buf:
+            saved = os.dup(2)
+            os.dup2(buf.fileno(), 2)
+            try:
+                img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            buf.seek(0)
+            text = buf.read().decode("utf-8", errors="replace")
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    noise = [re.sub(r"^\[ ?WARN:[^\]]*\]\s*global\s+\S+\s+\S+\s+", "", ln.strip())
+             for ln in lines if DECODER_NOISE.search(ln.strip())]
+    other = [ln for ln in lines if not DECODER_NOISE.search(ln.strip())]
+    if other:
+        sys.stderr.write("\n".join(other) + "\n")
+    return img, noise
+
+
+def read_image_messages(path: Path) -> tuple[np.ndarray | None, list[str]]:
+    """:func:`read_image` and what the decoder said about the file (:func:`decode_image`)."""
     path = Path(path)
     data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
     if data is None or data.size == 0:
-        return None
-    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        return None, []
+    return decode_image(data)
+
+
+def read_image(path: Path) -> np.ndarray | None:
+    """The image stored in the file ``path`` (``cv2.IMREAD_UNCHANGED``: grey, BGR or BGRA, 8 or 16 bit), or ``None``
+    when there is no such file, it is empty, or no decoder can read it. Raises ``OSError`` when the file exists but
+    cannot be read (permissions, I/O). The decoders' complaints about a corrupt file are not printed
+    (:func:`read_image_messages` returns them)."""
+    return read_image_messages(path)[0]
 
 
 def as_gray(image: np.ndarray) -> np.ndarray:
