@@ -137,7 +137,7 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
     cand_xy = np.array([c.centre for c in cands])
     need = min(N, MIN_PARTIAL_POINTS)
     if len(used) < need:
-        return Detection(False, None, f"grid {board.rows}x{board.cols} found, but only {len(used)} of its "
+        return Detection(False, None, f"grid {board.rows}x{board.cols} recognised, but only {len(used)} of its "
                                       f"{int(seen.sum())} dots in view are measurable ({need} needed; "
                                       f"{len(dropped)} left out: " + _why(dropped) + ")",
                          Reason.TOO_FEW_POINTS, image_size=(W, H), candidates=cand_xy, dropped=dropped,

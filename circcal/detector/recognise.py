@@ -44,6 +44,19 @@ MARKER_SPLIT = (0.35, 0.65)
 (area ratio: the dot's area over the local lattice cell, over the patch's median); below the first value a dot is
 plain, above the second a marker, between them unknown (not used as evidence): a misread marker then cannot make a
 wrong placement fit."""
+PATCH_RESIDUAL = 0.1
+"""A patch counts as a lattice only when a homography from its lattice coordinates (with a quadratic term from
+:data:`~circcal.detector.trust.QUADRATIC_FROM` dots on, for lens distortion) explains its candidates' rough centres
+to this share of a lattice step (RMS): contour centroids of real dots err by a few hundredths of a step (perspective
+bias of large dots included); chance alignments of blobs, which growth accepts within a quarter of a step, by a
+tenth and more."""
+PATCH_FILL_SPREAD = 0.35
+"""... and when its dots' areas over their local lattice cells agree: relative spread (MAD over median) at most
+this, markers apart (a board's dots agree within a few percent)."""
+CLAIM_MIN_DOTS = 9
+"""What a lattice that is not the board says about it (larger than the board, transposed, ambiguous) is only
+claimed for a lattice of at least this many dots grown from a seed with all 8 neighbours (a 3 x 3 block at the
+least): a few blobs that line up by chance (seeds of a 2 x 2 board need only 3 neighbours) claim nothing."""
 NOTE_MIN_DOTS = 6
 """Other dot lattices in view are named in the notes when they have at least this many dots ..."""
 NOTE_MIN_SHARE = 0.25
@@ -106,6 +119,39 @@ def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.n
     return flags
 
 
+def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -> bool:
+    """Whether patch ``lat`` looks like a printed lattice (:data:`PATCH_RESIDUAL`, :data:`PATCH_FILL_SPREAD`)."""
+    import cv2
+
+    from circcal.detector.trust import QUADRATIC_FROM
+
+    ab = lat.ab.astype(np.float64)
+    P = points[lat.index]
+    if len(P) < 5:
+        return True                       # 4 dots fix a homography exactly: nothing to test
+    H, _ = cv2.findHomography(ab, P, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return False
+    res = P - cv2.perspectiveTransform(ab.reshape(-1, 1, 2), H).reshape(-1, 2)
+    if len(P) >= QUADRATIC_FROM:
+        x, y = (ab - ab.mean(axis=0)).T / max(float(np.ptp(ab)), 1.0)
+        A = np.column_stack([np.ones(len(P)), x, y, x * x, x * y, y * y])
+        coef, *_ = np.linalg.lstsq(A, res, rcond=None)
+        res = res - A @ coef
+    cell = cell_areas(board, lat, points) * (2.0 if board.layout == "asymmetric" else 1.0)  # per patch cell
+    ok = np.isfinite(cell) & (cell > 0)
+    if not np.any(ok):
+        return False
+    step = float(np.sqrt(np.median(cell[ok])))
+    if float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) > PATCH_RESIDUAL * step:
+        return False
+    fill = area[lat.index][ok] / cell[ok]
+    if board.has_markers:            # markers apart: the dots nearer the smaller mode
+        fill = fill[fill < np.median(fill) * board.marker_scale]
+    med = float(np.median(fill))
+    return bool(np.median(np.abs(fill - med)) <= PATCH_FILL_SPREAD * med)
+
+
 def _closed(lat: Lattice) -> bool:
     """Every 4-neighbour of the patch was looked at inside the image and holds no dot."""
     occ = {tuple(q) for q in lat.ab.tolist()}
@@ -146,6 +192,10 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
     if not patches:
         return Recognition(None, code=Reason.GRID_NOT_RECOGNISED,
                            message=f"not recognised among {M} candidate dots (no lattice of dots)")
+    patches = [p for p in patches if _regular(board, p, pts, area)]
+    if not patches:
+        return Recognition(None, code=Reason.GRID_NOT_RECOGNISED,
+                           message=f"not recognised among {M} candidate dots (no regular lattice of dots)")
     labelled: list[tuple[Lattice, Labelling]] = []
     for lat in patches[:MAX_LABELLED]:
         if deadline is not None:
@@ -159,6 +209,10 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
     notes = _notes(board, labelled, chosen, pts, bool(whole))
     if chosen is None:
         lat, lab = labelled[0]
+        if lab.status != "labelled" and (len(lat) < CLAIM_MIN_DOTS or lat.seed_score < 8):
+            return Recognition(None, code=Reason.GRID_NOT_RECOGNISED, notes=notes, patches=len(patches),
+                               message=f"not recognised among {M} candidate dots (the only lattice, of "
+                                       f"{len(lat)} dots, is too small to say more)")
         code = {"larger": Reason.GRID_MISMATCH, "transposed": Reason.GRID_MISMATCH, "smaller": Reason.GRID_MISMATCH,
                 "markers": Reason.MARKERS_INCONSISTENT, "ambiguous": Reason.AMBIGUOUS_VIEW}.get(
                     lab.status, Reason.TOO_FEW_POINTS)
