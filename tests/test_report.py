@@ -406,3 +406,29 @@ def test_cli_registers_report():
 
     args = build_parser().parse_args(["report", "--quick", "--out", "x"])
     assert args.quick and args.out == Path("x") and callable(args.func)
+
+
+def test_study_section_shows_the_finished_studies(quick):
+    """The report's studies section holds each finished study's cells as summary.json has them (the quick run reads
+    the committed reports/studies), with the study's figures; a study that has not been run is named missing."""
+    from circcal.report.config import studies_root
+
+    results, folder, _, _ = quick
+    assert set(results["studies"]) == set(QUICK.studies)
+    md = (folder / "index.md").read_text()
+    assert "## 8. Studies at scale (`circcal study`)" in md
+    for name, entry in results["studies"].items():
+        summary = studies_root() / name / "summary.json"
+        if not summary.is_file():
+            assert entry["status"] == "missing" and f"Study `{name}`" in md
+            continue
+        cells = json.loads(summary.read_text())
+        assert entry["status"] == "ok" and len(entry["cells"]) == len(cells)
+        first = cells[0]
+        ratio = first["params"]["fx"]["ratio"]
+        label = f"{first['scenario']}/{first['variant']}/{first['calibrator']}"
+        section = md.split(f"### Study `{name}`")[1].split("### Study")[0]
+        line = next(ln for ln in section.splitlines() if ln.startswith(f"| {label} |"))
+        assert f"{ratio:.3f}" in line  # the sigma-honesty table's first row, fx column
+        for kind in ("ratio", "bias", "pass_rate"):
+            assert (folder / f"study_{name}_{kind}.png").is_file()

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = ["CONDITIONS", "FULL", "PAPER_PUBLISHED", "PROJECTION_GRID_WIDTH", "QUICK", "REALDATA_ENV", "ReportConfig",
-           "realdata_root"]
+           "STUDIES_ENV", "realdata_root", "studies_root"]
 
 #: The paper's four illumination conditions, in the order its tables use (the ``paper`` scenario's variants).
 CONDITIONS = ("normal", "uneven", "strong", "weak")
@@ -24,6 +24,8 @@ PROJECTION_GRID_WIDTH = 60
 
 #: Environment variable naming the folder of real photographs (one sub-folder per set).
 REALDATA_ENV = "CIRCCAL_REALDATA"
+#: Environment variable naming the folder of finished studies (``circcal study ... --out DIR/<name>``).
+STUDIES_ENV = "CIRCCAL_STUDIES"
 
 
 @dataclass(frozen=True)
@@ -31,7 +33,8 @@ class ReportConfig:
     """What a report run covers. ``n_views``: first N views of each fixture (None: all of them); ``references``:
     names for :func:`circcal.validators.validate.run_validation`; ``bias_*``: the clean-render grid of the bias
     study (tilt in degrees, dot diameter in px at the board centre); ``realdata``: folder names under
-    :func:`realdata_root`; ``heldout``: run the leave-one-view-out checks on the real photographs."""
+    :func:`realdata_root`; ``heldout``: run the leave-one-view-out checks on the real photographs; ``studies``:
+    folder names under :func:`studies_root` of finished studies (``circcal study``) whose summaries the report shows."""
 
     name: str = "full"
     conditions: tuple[str, ...] = CONDITIONS
@@ -42,6 +45,7 @@ class ReportConfig:
     bias_diameters_px: tuple[float, ...] = (14.0, 20.0, 30.0, 45.0, 60.0)
     realdata: tuple[str, ...] = ("boofcv_sony_hx5v_circle_asym_4x5", "boofcv_sony_hx5v_circle_regular_10x8")
     heldout: bool = True
+    studies: tuple[str, ...] = ("monte-carlo", "paper-2000-subset", "solver-batched")
 
 
 FULL = ReportConfig()
@@ -58,3 +62,12 @@ def realdata_root() -> Path:
     if env:
         return Path(env).expanduser()
     return Path(__file__).resolve().parents[2].parent / "shared" / "data" / "realdata"
+
+
+def studies_root() -> Path:
+    """The folder of finished studies: ``$CIRCCAL_STUDIES`` when set, else ``reports/studies`` of the repository
+    this package was loaded from (where ``make study-reports`` writes them)."""
+    env = os.environ.get(STUDIES_ENV)
+    if env:
+        return Path(env).expanduser()
+    return Path(__file__).resolve().parents[2] / "reports" / "studies"

@@ -9,7 +9,8 @@ from circcal.report.blocks import Block, Bullets, Heading, Image, Paragraph
 from circcal.report.figures import figure_files
 from circcal.report.notes import bias_notes, paper_notes, realdata_notes
 from circcal.report.results import dig, paper_conditions, realdata_sets
-from circcal.report.tables import bias_table, condition_table, parameter_table, realdata_table, timings_table
+from circcal.report.tables import (bias_table, condition_table, parameter_table, realdata_table, study_tables,
+                                   timings_table)
 
 __all__ = ["document"]
 
@@ -61,6 +62,25 @@ def _realdata_section(results: dict[str, Any], caption: dict[str, str]) -> list[
     return out
 
 
+def _studies_section(results: dict[str, Any], caption: dict[str, str]) -> list[Block]:
+    studies = results.get("studies") or {}
+    if not studies:
+        return []
+    out: list[Block] = [Heading(2, "8. Studies at scale (`circcal study`)"), Paragraph(prose.studies_intro(results))]
+    for name, entry in studies.items():
+        out.append(Heading(3, f"Study `{name}`"))
+        if entry.get("status") != "ok":
+            out.append(Paragraph(f"Not included: {entry.get('message', entry.get('status'))}."))
+            continue
+        ratio, bias, passes = study_tables(entry)
+        out += [Paragraph(prose.study_summary(entry)),
+                Paragraph("Sigma honesty: empirical spread / mean stated sigma (1 = honest; [95 % interval])."),
+                ratio, Paragraph("Bias: mean error in stated sigmas (0 = unbiased; [95 % interval])."), bias,
+                Paragraph("Truth check (fx, fy, cx, cy within the stated sigmas of the truth) per cell:"), passes]
+        out += [Image(f, caption[f]) for f in caption if f.startswith(f"study_{name}_")]
+    return out
+
+
 def document(results: dict[str, Any], header: str) -> list[Block]:
     """Every block of the report, in order. ``results``: report.json's tree with ``timings`` (run times, s)
     added; ``header``: the line under the title (:func:`circcal.report.prose.header_line`)."""
@@ -82,4 +102,5 @@ def document(results: dict[str, Any], header: str) -> list[Block]:
     out += _realdata_section(results, caption)
     out += [Heading(2, "7. Run times and environment"), Paragraph(prose.machine(results)),
             Paragraph(prose.run_times_intro(results)), timings_table(results)]
+    out += _studies_section(results, caption)
     return out

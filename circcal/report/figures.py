@@ -292,7 +292,27 @@ def _drawers(results: dict) -> dict[str, Callable[[dict, Path], None]]:
         out[f"heatmap_{c}.png"] = lambda r, p, c=c: fig_heatmaps(r, p, c)
     if refined_boards(results):
         out["realdata_board.png"] = fig_realdata_board
+    for name, entry in (results.get("studies") or {}).items():
+        if entry.get("status") == "ok" and entry.get("cells"):
+            for kind in STUDY_FIGURES:
+                out[f"study_{name}_{kind}.png"] = lambda r, p, n=name, k=kind: fig_study(r, p, n, k)
     return out
+
+
+#: The figures of a study summary (:func:`circcal.study.figures.draw_figures`), by file stem.
+STUDY_FIGURES = ("ratio", "bias", "pass_rate")
+
+
+def fig_study(results: dict, path: Path, name: str, kind: str) -> None:
+    """One figure of the finished study ``name``: drawn by the study package from the cells the results hold."""
+    import tempfile
+
+    from circcal.report.studies import study_cells
+    from circcal.study.figures import draw_figures
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = {p.stem: p for p in draw_figures(study_cells(results["studies"][name]), tmp).values()}
+        Path(path).write_bytes(files[kind].read_bytes())
 
 
 def figure_files(results: dict) -> list[str]:

@@ -14,6 +14,7 @@ from circcal.model import PARAM_NAMES
 from circcal.report import config
 from circcal.report.environment import VERSION_ORDER
 from circcal.report.figures import gauge_counts, refined_boards
+from circcal.validators import checks
 from circcal.formatting import fmt_number, fmt_scientific
 from circcal.report.results import calibrator_keys, dig, paper_conditions, realdata_sets
 from circcal.validators.checks import solver_bound
@@ -354,7 +355,39 @@ def captions(results: dict[str, Any], files: list[str]) -> dict[str, str]:
             "fitted (mrcal's projection_diff idea). Each panel has its own colour scale.")
     if "realdata_board.png" in files:
         out["realdata_board.png"] = _board_caption(results)
+    study_captions = {"ratio": "empirical spread / mean stated sigma per cell and parameter with its 95 % interval "
+                               "(1 = honest)",
+                      "bias": "mean error / mean stated sigma per cell and parameter with its 95 % interval "
+                              "(0 = unbiased)",
+                      "pass_rate": f"share of runs whose fx, fy, cx, cy all lie within {checks.TRUTH_SIGMAS:g} stated "
+                                   "sigmas of the truth, with Wilson's 95 % interval, beside an honest estimator's"}
+    for f in files:
+        for name in results.get("studies") or {}:
+            for kind, text in study_captions.items():
+                if f == f"study_{name}_{kind}.png":
+                    out[f] = f"Study `{name}`: {text}."
     return {f: out.get(f, "") for f in files}
+
+
+def studies_intro(results: dict[str, Any]) -> str:
+    """What the studies section shows, and where its numbers come from."""
+    return ("Monte-Carlo studies run by `circcal study` (scenarios x variants x seeds x calibrators on a Dask "
+            "cluster; one Parquet row per run, resumable) and summarised per cell (one scenario, variant, "
+            "calibrator and lens model over its seeds): whether the stated standard deviations are honest (the "
+            "empirical spread of the estimates over their mean stated sigma), whether the estimates are biased "
+            f"(mean error in stated sigmas), and how often the truth check (fx, fy, cx, cy within "
+            f"{checks.TRUTH_SIGMAS:g} stated sigmas) passes. Each study's rows and its own summary are in "
+            "`reports/studies/<name>/`; the numbers below are its summary.json as the study wrote it.")
+
+
+def study_summary(entry: dict[str, Any]) -> str:
+    """One study's description and run counts."""
+    cells = entry.get("cells") or []
+    n_runs = sum(c.get("n_runs", 0) for c in cells)
+    n_ok = sum(c.get("n_ok", 0) for c in cells)
+    text = entry.get("description") or ""
+    return (f"{text.rstrip('.')}. " if text else "") + (f"{n_runs} runs in {len(cells)} cells, {n_ok} calibrated "
+                                                         f"(status ok).")
 
 
 def _headline_condition(results: dict[str, Any], c: str) -> str:

@@ -29,6 +29,7 @@ from circcal.report.figures import make_figures
 from circcal.report.paper import paper_condition
 from circcal.report.precision import CHECK_QUANTUM, precision_note, quantise, round_sig
 from circcal.report.prose import header_line, headline
+from circcal.report.studies import study_results
 from circcal.report.realdata import realdata_entry
 from circcal.report.rendered import fixture_summary
 
@@ -81,7 +82,7 @@ def compute(cfg: ReportConfig = FULL, *, progress: bool = True) -> dict[str, Any
     fixtures = {s: fixture_summary(s) for s in ("paper", "paper-checkerboard")}
     numbers = round_sig(jsonable({"config": asdict(cfg), "fixtures": fixtures, "paper": paper, "checkerboard": cb,
                                   "paper_published": PAPER_PUBLISHED, "bias": bias, "realdata": real,
-                                  "warnings": log, "environment": environment()}))
+                                  "studies": study_results(cfg), "warnings": log, "environment": environment()}))
     numbers["precision"] = precision_note()
     numbers["timings"] = jsonable(timings)
     return numbers

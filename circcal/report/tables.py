@@ -11,7 +11,8 @@ from circcal.report.config import PAPER_PUBLISHED
 from circcal.formatting import fmt_number
 from circcal.report.results import all_conditions, calibrator_keys, dig, paper_conditions, realdata_sets
 
-__all__ = ["REALDATA_ROWS", "bias_table", "condition_table", "parameter_table", "realdata_table", "timings_table"]
+__all__ = ["REALDATA_ROWS", "bias_table", "condition_table", "parameter_table", "realdata_table", "study_tables",
+           "timings_table"]
 
 #: The computed rows of the real-data table: key in a real-data set's results -> label.
 REALDATA_ROWS = (("circcal", "circcal"), ("opencv", "OpenCV (baseline centres)"),
@@ -136,3 +137,36 @@ def timings_table(results: dict[str, Any]) -> Table:
     if "total_compute_s" in tm:
         rows.append(("total", "-", "all computation", fmt_number(tm["total_compute_s"], ".1f")))
     return Table(("part", "condition / set", "what", "time [s]"), tuple(rows))
+
+
+def _interval(value: Any, ci: Any, spec: str = ".3f") -> str:
+    """``value [low, high]`` of a study summary (an interval is a pair)."""
+    lo, hi = (ci or (None, None))[:2]
+    return f"{fmt_number(value, spec)} [{fmt_number(lo, spec)}, {fmt_number(hi, spec)}]"
+
+
+def study_tables(entry: dict[str, Any]) -> list[Table]:
+    """The tables of one finished study (a :mod:`circcal.report.studies` entry): sigma honesty (empirical spread
+    over the mean stated sigma, 1 = honest) and bias (mean error in stated sigmas, 0 = unbiased) of each parameter
+    per cell with 95 % intervals, and the truth-check pass rate beside an honest estimator's."""
+    from circcal.study.summary import TABLE_PARAMS
+
+    cells = entry.get("cells") or []
+
+    def label(c: dict[str, Any]) -> str:
+        return f"{c['scenario']}/{c['variant']}/{c['calibrator']}" + (
+            "" if c["lens_model"] == "opencv5" else f"/{c['lens_model']}")
+
+    head = ("cell", "ok / runs", *TABLE_PARAMS)
+    ratio = tuple((label(c), f"{c['n_ok']} / {c['n_runs']}",
+                   *(_interval(dig(c, "params", p, "ratio"), dig(c, "params", p, "ratio_ci")) for p in TABLE_PARAMS))
+                  for c in cells)
+    bias = tuple((label(c), f"{c['n_ok']} / {c['n_runs']}",
+                  *(_interval(dig(c, "params", p, "bias_sigmas"), dig(c, "params", p, "bias_sigmas_ci"))
+                    for p in TABLE_PARAMS)) for c in cells)
+    passes = tuple((label(c), f"{c['n_ok']} / {c['n_runs']}", _interval(c.get("pass_rate"), c.get("pass_ci")),
+                    fmt_number(c.get("pass_expected"), ".3f"), fmt_number(c.get("truth_rms_median_px"), ".4f"))
+                   for c in cells)
+    return [Table(head, ratio), Table(head, bias),
+            Table(("cell", "ok / runs", "truth check passed [95 %]", "honest estimator", "median RMS vs truth, px"),
+                  passes)]

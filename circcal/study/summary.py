@@ -83,6 +83,15 @@ class CellSummary:
     time_median_s: float = float("nan")
     statuses: dict[str, int] = field(default_factory=dict)
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "CellSummary":
+        """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists)."""
+        def params(v: dict[str, Any]) -> ParamSummary:
+            return ParamSummary(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})
+
+        fields = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k != "params"}
+        return cls(**fields, params={k: params(v) for k, v in (d.get("params") or {}).items()})
+
     @property
     def label(self) -> str:
         return f"{self.scenario}/{self.variant}/{self.calibrator}" + (
