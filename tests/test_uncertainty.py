@@ -54,12 +54,30 @@ def test_full_covariance_holds_the_solvers_standard_deviations():
     _, obj, img, size = _problem("wide")
     res = calibrate(obj, img, size, fix_k3=True)
     cov = res.covariance
-    C, sl = cov.without_board()
-    cov9 = cov.intrinsics_map @ C[sl, sl] @ cov.intrinsics_map.T * cov.sigma_px ** 2
+    C = cov.unit
+    nf = cov.n_intrinsics
+    cov9 = cov.intrinsics_map @ C[:nf, :nf] @ cov.intrinsics_map.T * cov.sigma_px ** 2
     for k, name in enumerate(PARAM_NAMES):
         assert np.sqrt(cov9[k, k]) == pytest.approx(res.std[name], rel=1e-9, abs=1e-15), name
     assert cov.unit.shape == (res.n_params, res.n_params)
     assert np.allclose(cov.unit, cov.unit.T)
+
+
+def test_factored_covariance_equals_the_dense_inverse():
+    """G C G^T from the Schur factors equals it with the dense (J^T J)^-1, with and without board refinement
+    (board coordinates marginalised)."""
+    from circcal.solver.uncertainty import projection_state_jacobian
+
+    _, obj, img, size = _problem("wide")
+    for refine in (False, True):
+        res = calibrate(obj, img, size, refine_board=refine)
+        cov = res.covariance
+        uv = _probe_pixels(*size)
+        Gg, Gp = projection_state_jacobian(res.camera, res.rvecs, res.tvecs, cov, uv, distance=1000.0)
+        G = np.concatenate([Gg, Gp.reshape(len(uv), 2, -1)], axis=2)
+        dense = np.einsum("nai,ij,nbj->nab", G, cov.unit, G)
+        assert np.allclose(cov.quadratic(Gg, Gp), dense, rtol=1e-9, atol=0.0)
+        assert cov.unit.shape == (res.n_params, res.n_params) and cov.n_board == (cov.n_global - cov.n_intrinsics)
 
 
 def test_reprojection_of_a_solve_onto_itself_is_the_identity():
@@ -107,10 +125,11 @@ def test_pose_uncertainty_matters():
     res = calibrate(obj, img, size)
     uv = _probe_pixels(*size)
     full = worst_direction_stdev(projection_covariance(res.camera, res.rvecs, res.tvecs, res.covariance, uv))
-    C, sl = res.covariance.without_board()
+    C = res.covariance.unit
+    nf = res.covariance.n_intrinsics
     _, Ji, _ = project_camera_jacobian(unproject(uv, res.camera), res.camera.intrinsics)
     Gi = Ji @ res.covariance.intrinsics_map
-    intr_only = worst_direction_stdev(res.sigma_px ** 2 * np.einsum("nai,ij,nbj->nab", Gi, C[sl, sl], Gi))
+    intr_only = worst_direction_stdev(res.sigma_px ** 2 * np.einsum("nai,ij,nbj->nab", Gi, C[:nf, :nf], Gi))
     assert np.max(np.abs(intr_only / full - 1.0)) > 0.1
 
 

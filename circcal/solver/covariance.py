@@ -2,13 +2,18 @@
 intrinsics block: what projection uncertainty needs (:mod:`circcal.solver.uncertainty`), since a pose's noise moves
 the board frames through which a pixel's ray is followed back into the image.
 
-State layout (:class:`circcal.solver.problem.Problem`): the ``nf`` free intrinsics, the ``nb`` free board coordinates
-(board refinement only), then 6 pose parameters per view (rvec rad, tvec mm). With per-coordinate noise sigma the
-first-order covariance of the least-squares estimate is ``sigma^2 (J^T J)^-1`` (no regularisation: every residual is
-an observation, mrcal's simple case ``Var(b) = sigma^2 inv(J^T J)``). It is assembled from the Schur blocks the solver
-already forms: with ``C_gg = S^-1`` (S the Schur complement of the pose blocks)::
+State layout (:class:`circcal.solver.problem.Problem`): the ``ng`` global parameters (the ``nf`` free intrinsics,
+then the ``nb`` free board coordinates of board refinement), then 6 pose parameters per view (rvec rad, tvec mm).
+With per-coordinate noise sigma the first-order covariance of the least-squares estimate is ``sigma^2 (J^T J)^-1``
+(no regularisation: every residual is an observation, mrcal's simple case ``Var(b) = sigma^2 inv(J^T J)``). It is
+kept in the factored form the solver's Schur blocks give, never as a dense (ng + 6V)^2 matrix (1000 views would
+make that 290 MB): with ``S`` the Schur complement of the pose blocks ``D_v`` and ``M_v = D_v^-1 B_v^T`` (6, ng)::
 
-    C_gp_v = -C_gg B_v D_v^-1,   C_pp_vw = delta_vw D_v^-1 + D_v^-1 B_v^T C_gg B_w D_w^-1
+    C_gg = S^-1,   C_gp_v = -S^-1 M_v^T,   C_pp_vw = delta_vw D_v^-1 + M_v S^-1 M_w^T
+
+so that for any linear function ``G = [G_g, G_p]`` of the state (:meth:`StateCovariance.quadratic`)::
+
+    G C G^T = (G_g - sum_v G_pv M_v) S^-1 (G_g - sum_v G_pv M_v)^T + sum_v G_pv D_v^-1 G_pv^T
 """
 from __future__ import annotations
 
@@ -27,19 +32,20 @@ __all__ = ["StateCovariance", "state_covariance"]
 
 @dataclass(frozen=True)
 class StateCovariance:
-    """First-order covariance of a solve's whole state, per unit of per-coordinate noise.
+    """First-order covariance of a solve's whole state, per unit of per-coordinate noise, in factored form.
 
-    ``unit``: (n, n) ``(J^T J)^-1`` over the state (free intrinsics, free board coordinates, 6 per view: rvec rad,
-    tvec mm); multiply by ``sigma_px^2`` for the covariance. ``intrinsics_map``: (9, nf), d(fx..k3) / d(free
-    intrinsics) (a held parameter has a zero row; a held aspect ratio puts ``a`` in fx's row). ``n_board``: free
-    board coordinates (0 without board refinement). ``n_views``: views. ``sigma_px``: the per-coordinate noise
-    estimate of the solve, sqrt(SSR / (2N - n)).
+    ``S_inv``: (ng, ng) the global block ``S^-1``; ``M``: (V, 6, ng) ``D_v^-1 B_v^T``; ``D_inv``: (V, 6, 6);
+    ``intrinsics_map``: (9, nf), d(fx..k3) / d(free intrinsics) (a held parameter has a zero row; a held aspect
+    ratio puts ``a`` in fx's row); ``n_board``: free board coordinates (0 without board refinement); ``sigma_px``:
+    the per-coordinate noise estimate of the solve, sqrt(SSR / (2N - n)). Multiply by ``sigma_px^2`` for the
+    covariance.
     """
 
-    unit: np.ndarray
+    S_inv: np.ndarray
+    M: np.ndarray
+    D_inv: np.ndarray
     intrinsics_map: np.ndarray
     n_board: int
-    n_views: int
     sigma_px: float
 
     @property
@@ -48,15 +54,35 @@ class StateCovariance:
         return int(self.intrinsics_map.shape[1])
 
     @property
-    def pose_start(self) -> int:
-        """Index of the first pose parameter in the state."""
-        return self.n_intrinsics + self.n_board
+    def n_views(self) -> int:
+        return int(self.M.shape[0])
 
-    def without_board(self) -> tuple[np.ndarray, slice]:
-        """The unit covariance of (free intrinsics, poses) with the board coordinates marginalised (rows and columns
-        dropped: the marginal of a Gaussian), (nf + 6V, nf + 6V); and the slice of the intrinsics in it."""
-        keep = np.r_[0:self.n_intrinsics, self.pose_start:self.unit.shape[0]]
-        return self.unit[np.ix_(keep, keep)], slice(0, self.n_intrinsics)
+    @property
+    def n_global(self) -> int:
+        """Global parameters (ng = nf + nb)."""
+        return int(self.S_inv.shape[0])
+
+    def quadratic(self, G_global: np.ndarray, G_pose: np.ndarray) -> np.ndarray:
+        """``G C_unit G^T`` (N, k, k) for N linear functions of the state with derivatives ``G_global`` (N, k, ng)
+        and ``G_pose`` (N, k, V, 6) (see the module); cost O(N k V ng), no dense state matrix."""
+        H = G_global - np.einsum("nkvj,vjg->nkg", G_pose, self.M)
+        return (np.einsum("nag,gh,nbh->nab", H, self.S_inv, H)
+                + np.einsum("navi,vij,nbvj->nab", G_pose, self.D_inv, G_pose))
+
+    @property
+    def unit(self) -> np.ndarray:
+        """The dense (n, n) ``(J^T J)^-1`` (for inspection and tests; O(n^2) memory)."""
+        ng, V = self.n_global, self.n_views
+        Mf = self.M.reshape(6 * V, ng)
+        C = np.empty((ng + 6 * V, ng + 6 * V))
+        C[:ng, :ng] = self.S_inv
+        C[:ng, ng:] = -self.S_inv @ Mf.T
+        C[ng:, :ng] = C[:ng, ng:].T
+        C_pp = Mf @ self.S_inv @ Mf.T
+        for v in range(V):
+            C_pp[6 * v: 6 * v + 6, 6 * v: 6 * v + 6] += self.D_inv[v]
+        C[ng:, ng:] = C_pp
+        return 0.5 * (C + C.T)
 
 
 def state_covariance(prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, sigma_px: float
@@ -68,18 +94,6 @@ def state_covariance(prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, 
     f, _, Ji, Jp = prob.evaluate(x)
     starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
     _, _, B, D, _ = normal_blocks(prob, f, Ji, Jp, starts)
-    ng, V = prob.ng, prob.n_views
-    Dinv = np.linalg.inv(D)                                                     # (V, 6, 6)
-    M = (Dinv @ np.transpose(B, (0, 2, 1))).reshape(6 * V, ng)                  # D_v^-1 B_v^T stacked
-    C = np.empty((prob.n, prob.n))
-    C[:ng, :ng] = cov_global_unit
-    C_gp = -cov_global_unit @ M.T                                               # (ng, 6V)
-    C[:ng, ng:] = C_gp
-    C[ng:, :ng] = C_gp.T
-    C_pp = M @ cov_global_unit @ M.T
-    for v in range(V):
-        C_pp[6 * v: 6 * v + 6, 6 * v: 6 * v + 6] += Dinv[v]
-    C[ng:, ng:] = C_pp
-    C = 0.5 * (C + C.T)
-    return StateCovariance(unit=C, intrinsics_map=prob.T.copy(), n_board=int(prob.nb), n_views=int(V),
-                           sigma_px=float(sigma_px))
+    D_inv = np.linalg.inv(D)                                                    # (V, 6, 6)
+    return StateCovariance(S_inv=cov_global_unit, M=D_inv @ np.transpose(B, (0, 2, 1)), D_inv=D_inv,
+                           intrinsics_map=prob.T.copy(), n_board=int(prob.nb), sigma_px=float(sigma_px))

@@ -36,11 +36,11 @@ __all__ = ["projection_state_jacobian", "projection_covariance", "worst_directio
 
 
 def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, cov: StateCovariance,
-                              uv: np.ndarray, *, distance: float | None = None) -> np.ndarray:
-    """``G = d q^+ / d b`` (N, 2, nf + 6V): the derivative of the mean-frames reprojection of pixels ``uv`` (N, 2) px
-    with respect to the free intrinsics and every pose (rvec rad, tvec mm), in the order of
-    :meth:`StateCovariance.without_board`. ``distance``: mm along each pixel's ray (None: at infinity, rotations
-    only). Pixels whose ray cannot be unprojected (beyond the lens's fold) give NaN rows."""
+                              uv: np.ndarray, *, distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``G = d q^+ / d b`` of the mean-frames reprojection of pixels ``uv`` (N, 2) px, split as the state is:
+    ``(G_global (N, 2, ng), G_pose (N, 2, V, 6))``, with respect to the free intrinsics (board coordinates do not
+    enter: zero columns) and every pose (rvec rad, tvec mm). ``distance``: mm along each pixel's ray (None: at
+    infinity, rotations only). Pixels whose ray cannot be unprojected (beyond the lens's fold) give NaN rows."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     rays = unproject(uv, camera)                                                    # (N, 3), z = 1
     if distance is None:
@@ -56,30 +56,29 @@ def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarr
     if V != cov.n_views:
         raise ValueError(f"{V} poses for a covariance of {cov.n_views} views")
     nf = cov.n_intrinsics
-    G = np.zeros((len(uv), 2, nf + 6 * V))
-    G[:, :, :nf] = J_intr @ cov.intrinsics_map
+    G_global = np.zeros((len(uv), 2, cov.n_global))
+    G_global[:, :, :nf] = J_intr @ cov.intrinsics_map
+    G_pose = np.zeros((len(uv), 2, V, 6))
     Jl = left_jacobian(rv)                                                           # (V, 3, 3)
     for v in range(V):
         # p_ref_v = R_v p_frame_v + t_v with p_frame_v fixed: d/d rvec = -[R_v p_frame_v]x J_l, d/d t = I; the
         # rotated point R_v p_frame_v is p - t_v (a direction at infinity: p itself)
         Y = p if distance is None else p - tv[v]
-        col = nf + 6 * v
-        G[:, :, col: col + 3] = rotated_jacobian(J_p, Y) @ Jl[v] / V
+        G_pose[:, :, v, :3] = rotated_jacobian(J_p, Y) @ Jl[v] / V
         if distance is not None:
-            G[:, :, col + 3: col + 6] = J_p / V
-    return G
+            G_pose[:, :, v, 3:] = J_p / V
+    return G_global, G_pose
 
 
 def projection_covariance(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, cov: StateCovariance,
                           uv: np.ndarray, *, distance: float | None = None, sigma_px: float | None = None
                           ) -> np.ndarray:
     """First-order covariance (N, 2, 2) px^2 of the projection of pixels ``uv`` (N, 2) (see the module):
-    ``sigma^2 G C G^T`` with ``C`` the unit covariance of intrinsics and poses. ``sigma_px``: the per-coordinate
-    observation noise (default: the solve's estimate ``cov.sigma_px``)."""
-    G = projection_state_jacobian(camera, rvecs, tvecs, cov, uv, distance=distance)
-    C, _ = cov.without_board()
+    ``sigma^2 G C G^T`` with ``C`` the unit covariance of the whole state (:meth:`StateCovariance.quadratic`).
+    ``sigma_px``: the per-coordinate observation noise (default: the solve's estimate ``cov.sigma_px``)."""
+    G_global, G_pose = projection_state_jacobian(camera, rvecs, tvecs, cov, uv, distance=distance)
     s = cov.sigma_px if sigma_px is None else float(sigma_px)
-    return s * s * np.einsum("nai,ij,nbj->nab", G, C, G)
+    return s * s * cov.quadratic(G_global, G_pose)
 
 
 def worst_direction_stdev(cov2: np.ndarray) -> np.ndarray:
