@@ -1,12 +1,21 @@
-"""Detector timing on 1920x1080 renders: circcal ``detect`` against ``cv2.findCirclesGrid`` in the same run.
+"""Detector timing: circcal ``detect`` against ``cv2.findCirclesGrid`` on the same images (benchmarks/timing.py:
+alternated, at least 9 repeats, median [min-max], threads pinned and stated).
 
-``run() -> dict`` (part of ``make bench``): per-image wall time (best of ``repeats`` runs, the two detectors timed
-alternately on the same image so a change of machine load hits both, median over views), the ratio circcal /
-OpenCV, with OpenCV's thread pool at one thread (the fair per-core comparison; circcal's compiled loops are
-single-threaded) and at its default size (what a user gets; circcal's OpenCV calls use it too); circcal's time with
-the segmentation forced to full resolution, and circcal's peak Python-heap memory per image (tracemalloc sees
-numpy's buffers; OpenCV's own C++ buffers and numba's are not seen). The first call in a fresh process also pays
-numba's compile or cache load: reported separately, not in the per-image time.
+``run() -> dict`` (part of ``make bench``):
+
+* ``paper``: 1920x1080 renders of the paper's 7x7 board: per-image time of each detector and the per-round ratio
+  circcal / OpenCV, with OpenCV at one thread (the fair per-core comparison; circcal's compiled loops are
+  single-threaded) and at its default pool (what a user gets; circcal's OpenCV calls use it too); circcal with the
+  segmentation forced to full resolution; circcal's peak Python-heap memory per image (tracemalloc sees numpy's
+  buffers, not OpenCV's or numba's); the first call in a fresh process (numba's compile or cache load), apart.
+  Bar: circcal <= 1.0x findCirclesGrid.
+* ``variants``: the same on the clutter and partial-view fixtures (OpenCV finds no partial view; it is timed all
+  the same), each with how many views each detector found.
+* ``scaling``: 1920x1080 images of n random dark dots (n = 10 ... 2,000, no board): circcal's whole detection and
+  its grid search alone (recognition on the candidates of the first segmentation) against findCirclesGrid, with
+  the growth exponents fitted over n >= 100 (time ~ n^e). findCirclesGrid grows about cubically (7 s at 1,000
+  dots, 33 s at 2,000 measured): it is timed once per n up to :data:`OPENCV_MAX_DOTS`.
+* ``hostile``: the images the issue named: 1,500 random dots and a 45 x 45 dot lattice (before: past 90 s).
 """
 from __future__ import annotations
 
@@ -16,12 +25,29 @@ import tracemalloc
 import cv2
 import numpy as np
 
+from benchmarks.timing import MIN_REPEATS, alternate, pinned, ratio, summary
 
-def _views(n: int = 4):
+SCALING_DOTS = (10, 30, 100, 300, 1000, 2000)
+"""Dots per scaling image."""
+OPENCV_MAX_DOTS = 1000
+"""findCirclesGrid is timed up to this many dots (once: 7 s at 1,000, 33 s at 2,000; cubic)."""
+EXPONENT_FROM = 100
+"""The growth exponent is fitted over images of at least this many dots (below, the per-image baseline of
+segmentation dominates)."""
+SCALING_REPEATS = MIN_REPEATS
+VARIANTS = (("wide", "clutter"), ("distractors", "clutter"), ("partial", "out-of-frame"), ("partial", "occlusion"),
+            ("markers", "clean"), ("occluded", "hand"))
+"""(scenario, variant) timed beside the paper images: clutter, and partial views (the markers set's last 8 views
+are its corner views)."""
+VARIANT_VIEWS = 6
+"""Views per variant timed (the corner views of ``markers`` are its last ones: they are taken from the end)."""
+
+
+def _paper_views(n: int = 4):
     from circcal.board import Board
-    from circcal.model import Camera
     from circcal.fixtures.poses import sample_poses
     from circcal.fixtures.render import render_view, to_uint
+    from circcal.model import Camera
 
     cam = Camera(1920, 1080, 4900.0, 4902.5, 963.7, 536.2)  # the paper's camera, 7x7 dots
     board = Board(7, 7, 10.0, 5.0)
@@ -29,74 +55,166 @@ def _views(n: int = 4):
     return imgs, board
 
 
-def _alternating(fns, repeats: int) -> list[tuple[float, object]]:
-    """Best wall time and last result of each of ``fns``, timed in turn ``repeats`` times."""
-    best = [np.inf] * len(fns)
-    out = [None] * len(fns)
-    for _ in range(repeats):
-        for i, fn in enumerate(fns):
-            t0 = time.perf_counter()
-            out[i] = fn()
-            best[i] = min(best[i], time.perf_counter() - t0)
-    return list(zip(best, out))
+def _flags(board) -> int:
+    return cv2.CALIB_CB_ASYMMETRIC_GRID if board.layout == "asymmetric" else cv2.CALIB_CB_SYMMETRIC_GRID
 
 
-def run(n_views: int = 4, repeats: int = 7) -> dict:
-    import circcal.detector.find as det
+def _pair(imgs, board, det, repeats: int = MIN_REPEATS) -> dict:
+    """Alternated per-image timings of circcal and findCirclesGrid over ``imgs`` (each round: every image once by
+    each), the ratio per round, and how many images each found."""
+    found = {"circcal": 0, "opencv": 0}
 
-    imgs, board = _views(n_views)
-    flags = cv2.CALIB_CB_SYMMETRIC_GRID
+    def ours():
+        return [det.detect(im, board) for im in imgs]
+
+    def theirs():
+        return [cv2.findCirclesGrid(im, board.pattern_size, flags=_flags(board)) for im in imgs]
+
+    found["circcal"] = sum(d.found for d in ours())
+    found["opencv"] = sum(bool(ok) for ok, _ in theirs())
+    t = alternate({"circcal": ours, "opencv": theirs}, repeats=repeats)
+    n = len(imgs)
+    return {"circcal_s_per_image": summary([x / n for x in t["circcal"]]),
+            "opencv_s_per_image": summary([x / n for x in t["opencv"]]),
+            "ratio_circcal_over_opencv": ratio(t["circcal"], t["opencv"]),
+            "found": found, "images": n}
+
+
+def _paper(det) -> dict:
+    imgs, board = _paper_views()
     t0 = time.perf_counter()
     det.detect(imgs[0], board)  # first call: numba's compile (or cache load), imports, tables
     first_call = time.perf_counter() - t0
-    threads = cv2.getNumThreads()   # restored afterwards (another benchmark may have set one thread)
-    cv2.setNumThreads(-1)           # OpenCV's default pool
-    default = cv2.getNumThreads()
-    res: dict[str, list[float]] = {"ours1": [], "cv1": [], "ours": [], "cv": [], "full": []}
-    found_ours = found_cv = 0
-    scales = det.segmentation_scales
-    try:
-        for img in imgs:
-            ours = lambda: det.detect(img, board)  # noqa: E731
-            cvf = lambda: cv2.findCirclesGrid(img, board.pattern_size, flags=flags)  # noqa: E731
-            cv2.setNumThreads(1)
-            (t_o, d), (t_c, (ok, _)) = _alternating([ours, cvf], repeats)
-            res["ours1"].append(t_o)
-            res["cv1"].append(t_c)
-            found_ours += d.found
-            found_cv += bool(ok)
-            cv2.setNumThreads(default)
-            (t_o, _), (t_c, _) = _alternating([ours, cvf], repeats)
-            res["ours"].append(t_o)
-            res["cv"].append(t_c)
-            cv2.setNumThreads(1)
-            det.segmentation_scales = lambda h, w: (1,)
-            res["full"].append(_alternating([ours], max(2, repeats // 2))[0][0])
+    out: dict = {"image": "1920x1080 uint8, 7x7 symmetric grid (paper setup)", "views": len(imgs),
+                 "circcal_first_call_s": first_call}
+    with pinned(1) as threads:
+        out["one_thread"] = _pair(imgs, board, det)
+        out["threads"] = threads
+        scales = det.segmentation_scales
+        det.segmentation_scales = lambda h, w: (1,)
+        try:
+            full = alternate({"full": lambda: [det.detect(im, board) for im in imgs]})["full"]
+        finally:
             det.segmentation_scales = scales
+        out["circcal_fullres_segmentation_s_per_image"] = summary([x / len(imgs) for x in full])
+    default = cv2.getNumThreads()
+    cv2.setNumThreads(-1)
+    try:
+        out["opencv_default_threads"] = cv2.getNumThreads()
+        out["default_threads"] = _pair(imgs, board, det)
     finally:
-        det.segmentation_scales = scales
-        cv2.setNumThreads(threads)
+        cv2.setNumThreads(default)
     tracemalloc.start()
     det.detect(imgs[0], board)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    med = {k: float(np.median(v)) for k, v in res.items()}
-    return {
-        "image": "1920x1080 uint8, 7x7 symmetric grid (paper setup)",
-        "views": len(imgs),
-        "circcal_detect_s_per_image": med["ours1"],
-        "opencv_findCirclesGrid_s_per_image": med["cv1"],
-        "ratio_circcal_over_opencv": med["ours1"] / med["cv1"],
-        "opencv_default_threads": default,
-        "circcal_detect_s_per_image_default_threads": med["ours"],
-        "opencv_findCirclesGrid_s_per_image_default_threads": med["cv"],
-        "ratio_circcal_over_opencv_default_threads": med["ours"] / med["cv"],
-        "circcal_detect_fullres_segmentation_s_per_image": med["full"],
-        "circcal_first_call_s": first_call,
-        "circcal_found": int(found_ours),
-        "opencv_found": int(found_cv),
-        "circcal_peak_python_memory_mb": peak / 2 ** 20,
-    }
+    out["circcal_peak_python_memory_mb"] = peak / 2 ** 20
+    out["bar"] = "circcal <= 1.0x findCirclesGrid (one_thread and default_threads ratio medians)"
+    return out
+
+
+def _variants(det) -> dict:
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+
+    out = {}
+    with pinned(1):
+        for name, variant in VARIANTS:
+            tr = load_truth(fixture_dir(name, variant))
+            views = tr.views[-VARIANT_VIEWS:]
+            imgs = [cv2.imread(str(v.image), cv2.IMREAD_UNCHANGED) for v in views]
+            out[f"{name}-{variant}"] = _pair(imgs, tr.board, det)
+    return out
+
+
+def _dots(n: int, seed: int, size: tuple[int, int] = (1080, 1920)) -> np.ndarray:
+    """(H, W) uint8: ``n`` dark anti-aliased dots of radius 4-9 px at random on a bright ground."""
+    from circcal.fixtures.fuzz import _fine, _pt
+
+    rng = np.random.default_rng(seed)
+    h, w = size
+
+    def draw(c, S):
+        for _ in range(n):
+            cv2.circle(c, _pt(rng.uniform(0, w), rng.uniform(0, h), S), int(rng.uniform(4, 9) * S), 255, -1)
+    return np.clip(np.rint(_fine(draw, h, w, 0.85, 0.1) * 255), 0, 255).astype(np.uint8)
+
+
+def _lattice(rows: int, cols: int, pitch_px: float, size: tuple[int, int] = (1080, 1920)) -> np.ndarray:
+    """(H, W) uint8: a ``rows`` x ``cols`` lattice of dark dots (radius a quarter of the pitch), slightly rotated."""
+    from circcal.fixtures.fuzz import _fine, _pt
+
+    h, w = size
+    a = np.deg2rad(7.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+    def draw(c, S):
+        for i in range(rows):
+            for j in range(cols):
+                p = R @ (np.array([j - (cols - 1) / 2, i - (rows - 1) / 2]) * pitch_px) + [w / 2, h / 2]
+                cv2.circle(c, _pt(*p, S), int(0.25 * pitch_px * S), 255, -1)
+    return np.clip(np.rint(_fine(draw, h, w, 0.85, 0.1) * 255), 0, 255).astype(np.uint8)
+
+
+def _exponent(ns, ts) -> float:
+    ns, ts = np.asarray(ns, float), np.asarray(ts, float)
+    keep = ns >= EXPONENT_FROM
+    return float(np.polyfit(np.log(ns[keep]), np.log(ts[keep]), 1)[0]) if keep.sum() >= 2 else float("nan")
+
+
+def _scaling(det) -> dict:
+    from circcal.board import Board
+    from circcal.detector.candidates import area_limits, find_candidates
+    from circcal.detector.image import normalise_u8
+    from circcal.detector.recognise import recognise
+    from circcal.detector.segment import segmentations, shrink, upscaled
+
+    board = Board(7, 7, 10.0, 5.0)
+    rows = []
+    with pinned(1) as threads:
+        for k, n in enumerate(SCALING_DOTS):
+            img = _dots(n, 1000 + k)
+            H, W = img.shape
+            lo, hi = area_limits(board, W, H)
+            s = 3
+            mask = next(segmentations(normalise_u8(shrink(img, s))))[1]
+            cands = [upscaled(c, s) for c in find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2)]
+            t = alternate({"detect": lambda: det.detect(img, board),
+                           "grid_search": lambda: recognise(board, cands, (W, H))}, repeats=SCALING_REPEATS)
+            row = {"dots": n, "candidates": len(cands), "circcal_detect_s": summary(t["detect"]),
+                   "circcal_grid_search_s": summary(t["grid_search"])}
+            if n <= OPENCV_MAX_DOTS:
+                t0 = time.perf_counter()
+                cv2.findCirclesGrid(img, board.pattern_size, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+                row["opencv_findCirclesGrid_s_once"] = time.perf_counter() - t0
+            rows.append(row)
+    ns = [r["dots"] for r in rows]
+    cv = [(r["dots"], r["opencv_findCirclesGrid_s_once"]) for r in rows if "opencv_findCirclesGrid_s_once" in r]
+    return {"threads": threads, "rows": rows,
+            "exponent_circcal_detect": _exponent(ns, [r["circcal_detect_s"]["median"] for r in rows]),
+            "exponent_circcal_grid_search": _exponent(ns, [r["circcal_grid_search_s"]["median"] for r in rows]),
+            "exponent_opencv": _exponent([a for a, _ in cv], [b for _, b in cv]),
+            "note": f"time ~ dots^exponent fitted over dots >= {EXPONENT_FROM}; findCirclesGrid timed once per "
+                    f"image up to {OPENCV_MAX_DOTS} dots"}
+
+
+def _hostile(det) -> dict:
+    from circcal.board import Board
+
+    board = Board(7, 7, 10.0, 5.0)
+    out = {}
+    with pinned(1):
+        for name, img in (("1500 random dots", _dots(1500, 7)), ("45x45 dot lattice", _lattice(45, 45, 22.0))):
+            d = det.detect(img, board)
+            t = alternate({"d": lambda: det.detect(img, board)})["d"]
+            out[name] = {"circcal_detect_s": summary(t), "found": bool(d.found),
+                         "reason": d.reason, "was": "past 90 s before the bounded grid search"}
+    return out
+
+
+def run() -> dict:
+    import circcal.detector.find as det
+
+    return {"paper": _paper(det), "variants": _variants(det), "scaling": _scaling(det), "hostile": _hostile(det)}
 
 
 if __name__ == "__main__":

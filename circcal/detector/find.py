@@ -178,7 +178,9 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     :func:`~circcal.detector.segment.segmentation_scales` in turn (candidates in full-image pixels).
 
     The first segmentation in which the whole board is recognised wins; otherwise the one with the largest part of
-    the board labelled (a partial view); otherwise the most telling refusal (a lattice larger than the board, an
+    the board labelled at the first scale that labels a part (a partial view: finer scales see no more of a board
+    whose dots they resolve already); a lattice that continues beyond the board ends the search at once; otherwise
+    the most telling refusal (a lattice larger than the board, an
     ambiguous part, before "not recognised"). Returns ``(recognition, candidates, segmentation name, most
     candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.segment.SHRUNK_MIN_RADIUS` at a shrunk
     scale sends the search on to the coarsest scale where they are not. ``first_only``: the first segmentation at
@@ -221,10 +223,16 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
                     return rec, cs, label, best
                 if partial is None or np.sum(rec.order >= 0) > np.sum(partial[0].order >= 0):
                     partial = (rec, cs, label)
-            elif refusal is None or _telling(rec) > _telling(refusal[0]):
-                refusal = (rec, cs, label)
+            else:
+                if refusal is None or _telling(rec) > _telling(refusal[0]):
+                    refusal = (rec, cs, label)
+                if rec.decisive:           # the dots continue beyond the board: no threshold changes that
+                    return rec, cs, None, best
             if first_only:
                 return rec, cs, label, best
+        else:
+            if partial is not None:        # a part of the board at this scale: the other scales see no more of it
+                break
     if partial is not None:
         return partial[0], partial[1], partial[2], best
     if refusal is not None:

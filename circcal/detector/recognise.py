@@ -68,7 +68,9 @@ class Recognition:
     """The board among the candidates. ``order`` (N,) candidate index of each board point, -1 where not seen
     (``None`` when not found); ``complete``: the patch covers the whole board; ``code``/``message``: why not found
     (``None``/"" when found); ``cut`` (N,) bool: board points whose candidate touches the image border;
-    ``notes``: what else the image shows, in words; ``patches``: how many lattice patches were found."""
+    ``notes``: what else the image shows, in words; ``patches``: how many lattice patches were found;
+    ``decisive``: a refusal no other segmentation would change (the dots continue beyond the board, or the
+    transposed grid fits them)."""
 
     order: np.ndarray | None
     complete: bool = False
@@ -77,6 +79,7 @@ class Recognition:
     cut: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     patches: int = 0
+    decisive: bool = False
 
 
 def cell_areas(board: Board, lat: Lattice, points: np.ndarray) -> np.ndarray:
@@ -219,7 +222,8 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
         msg = lab.message or (f"only {int(np.sum(~cut[lat.index]))} dots of the board seen "
                               f"(a partial view needs {MIN_PARTIAL_POINTS}, over {MIN_PARTIAL_LINES} rows and "
                               "columns)")
-        return Recognition(None, code=code, message=msg, notes=notes, patches=len(patches))
+        return Recognition(None, code=code, message=msg, notes=notes, patches=len(patches),
+                           decisive=lab.status in ("larger", "transposed"))
     lat, lab = chosen
     order = np.full(N, -1, np.int64)
     order[lab.points] = lat.index
