@@ -5,6 +5,7 @@ every result is bit-identical to the plain solve."""
 from __future__ import annotations
 
 import glob
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -98,12 +99,16 @@ def test_threshold_is_configurable():
         OutlierRule(k=0.0)
 
 
-def _unchanged(paths, board, *, against_plain: bool = True, **options):
-    """Nothing rejected, and (``against_plain``) the very numbers of the solve without rejection (with nothing
-    rejected the rule returns its first solve, which is that one: the comparison is then a check of the code path,
-    skipped where the solve is slow)."""
+def _unchanged(paths, board, *, against_plain: bool = True, bad_dots: dict[int, int] | None = None, **options):
+    """Nothing rejected by the rule, and (``against_plain``) the very numbers of the solve without rejection (with
+    nothing rejected the rule returns its first solve, which is that one: the comparison is then a check of the code
+    path, skipped where the solve is slow). ``bad_dots``: view -> how many dots the detector left out as bad before
+    any solve (carried in the same list with their own reason; they are not the rule's rejections)."""
     robust = calibrate_images(paths, board, progress=False, outlier_rule=OutlierRule(), **options)
-    assert robust.result.outliers.items == []
+    items = robust.result.outliers.items
+    assert [r for r in items if r.reason is not OutlierReason.BAD_DOT] == []
+    got = Counter(r.view for r in items if r.reason is OutlierReason.BAD_DOT)
+    assert dict(got) == (bad_dots or {})
     assert robust.result.outliers.rounds == 1
     if against_plain:
         plain = calibrate_images(paths, board, progress=False, **options)
@@ -114,16 +119,19 @@ def _unchanged(paths, board, *, against_plain: bool = True, **options):
 
 @pytest.mark.parametrize("refine_board", [False, True])
 def test_real_photographs_keep_every_point(realdata, refine_board):
-    """The README's numbers hold with outlier rejection on (the default of `circcal calibrate`)."""
+    """The README's numbers hold with outlier rejection on (the default of `circcal calibrate`): the rule rejects
+    nothing; the detector leaves out the 8 dots of the 10x8 set's image00005 that the edge of a hand's shadow
+    crosses (looked at: their rims are half in shadow, so a level-based edge is biased there)."""
     from circcal.report.realdata import realdata_board
 
     expected = {("boofcv_sony_hx5v_circle_asym_4x5", False): 0.185, ("boofcv_sony_hx5v_circle_asym_4x5", True): 0.071,
-                ("boofcv_sony_hx5v_circle_regular_10x8", False): 0.476,
-                ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.059}
+                ("boofcv_sony_hx5v_circle_regular_10x8", False): 0.475,
+                ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.052}
+    bad_dots = {"boofcv_sony_hx5v_circle_asym_4x5": {}, "boofcv_sony_hx5v_circle_regular_10x8": {5: 8}}
     for folder in sorted(p for p in realdata.iterdir() if p.is_dir()):
         board, _ = realdata_board(folder)
         cal = _unchanged(sorted(glob.glob(str(folder / "image*.jpg"))), board, against_plain=not refine_board,
-                         refine_board=refine_board)
+                         bad_dots=bad_dots[folder.name], refine_board=refine_board)
         assert round(cal.result.errors["rms_per_point_px"], 3) == expected[(folder.name, refine_board)]
 
 
