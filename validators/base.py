@@ -33,11 +33,18 @@ __all__ = [
     "DIVERGED_RMS_PX",
     "seed_camera",
     "check_divergence",
+    "DEFAULT_LENSES",
+    "lens_support",
 ]
 
 STATUSES: tuple[str, ...] = ("ok", "unavailable", "unsupported", "failed")
 MODES: tuple[str, ...] = ("fair", "default")
 Mode = Literal["fair", "default"]
+
+#: The lens models (:data:`circcal.model.LENS_MODELS` names) a reference fits when it does not say: OpenCV's five
+#: coefficients. A reference that fits more lists them in its ``lenses`` attribute and takes ``lens=`` in its
+#: constructor (``registry.get(name, lens="rational")``); for the others it may say why in ``unsupported_lenses``.
+DEFAULT_LENSES: tuple[str, ...] = ("opencv5",)
 
 #: A solve whose RMS per point exceeds this (px) is reported as diverged (status "failed").
 DIVERGED_RMS_PX = 100.0
@@ -50,7 +57,7 @@ class ReferenceResult:
     ``status``: "ok" | "unavailable" (reference not installed) | "unsupported" (input it cannot handle, e.g. an
     asymmetric grid for mrcal) | "failed" (crash, divergence, bad input); ``message`` says why.
     ``camera``: the calibrated :class:`circcal.model.Camera` (None unless ok). ``std``: standard deviations keyed by
-    :data:`PARAM_NAMES` (a fixed parameter has 0.0), or None when the reference offers none.
+    ``circcal.model.param_names(camera.lens)`` (a fixed parameter has 0.0), or None when the reference offers none.
     ``rvecs``, ``tvecs``: (V, 3) board-to-camera poses (rad; mm). ``residuals``: list of (N_v, 2) px,
     observed - projected (NaN for points a reference dropped as outliers). ``errors``:
     :func:`circcal.metrics.error_stats` of all residuals. ``object_points``/``image_points``: the observations actually used (per view; (N_v, 3) mm and
@@ -147,6 +154,18 @@ class ReferenceCalibrator(Protocol):
                          mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult: ...
 
 
+def lens_support(cal: Any, lens: str) -> tuple[bool, str]:
+    """Whether reference ``cal`` (any :class:`ReferenceCalibrator`, plug-ins included) fits lens model ``lens``, and
+    the reason when it does not (the reference's own words from ``unsupported_lenses``, else a generic one). A
+    reference without a ``lenses`` attribute fits :data:`DEFAULT_LENSES` only."""
+    lenses = tuple(getattr(cal, "lenses", DEFAULT_LENSES))
+    if lens in lenses:
+        return True, ""
+    why = dict(getattr(cal, "unsupported_lenses", {}) or {}).get(lens)
+    name = getattr(cal, "name", type(cal).__name__)
+    return False, why or f"{name} fits the lens models {', '.join(lenses)} only, not {lens!r}"
+
+
 def residuals_of(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, object_points: Sequence[np.ndarray],
                  image_points: Sequence[np.ndarray]) -> list[np.ndarray]:
     """Per-view residuals ``observed - projected`` (N_v, 2) px, projected with :func:`circcal.model.project`."""
@@ -161,6 +180,11 @@ class BaseCalibrator:
     name: str = "base"
     #: modes this reference distinguishes; others give the same estimator for both.
     modes: tuple[str, ...] = MODES
+    #: lens models this reference fits (:data:`circcal.model.LENS_MODELS` names); ``lens``: the one it fits now
+    #: (subclasses take ``lens=`` in their constructor); ``unsupported_lenses``: lens -> why not, for the others.
+    lenses: tuple[str, ...] = DEFAULT_LENSES
+    lens: str = "opencv5"
+    unsupported_lenses: dict[str, str] = {}
 
     # -- to implement ---------------------------------------------------------------------------------------------
     def _version(self) -> str:
@@ -201,6 +225,7 @@ class BaseCalibrator:
         cv2.calibrateCamera) or "default" (what the reference's users get out of the box)."""
 
         def go() -> ReferenceResult:
+            self._check_lens()
             obj, img, size = check_observations(object_points, image_points, image_size)
             return self._calibrate(obj, img, size, mode=mode, initial=initial)
 
@@ -209,11 +234,21 @@ class BaseCalibrator:
     def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
                          mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult:
         """Detect with the reference's own detector, then calibrate. ``board``: :class:`circcal.board.Board`."""
-        return run_safely(lambda: self._calibrate_images(list(paths), board, image_size, mode=mode,
-                                                         initial=initial),
+        def go() -> ReferenceResult:
+            self._check_lens()
+            return self._calibrate_images(list(paths), board, image_size, mode=mode, initial=initial)
+
+        return run_safely(go,
                           name=self.name, version=lambda: self.version, mode=mode, available=self.available)
 
     # -- helpers for subclasses -----------------------------------------------------------------------------------
+    def _check_lens(self) -> None:
+        """``NotImplementedError`` (status "unsupported", the reason as message) when ``self.lens`` is not one of
+        ``self.lenses``."""
+        ok, why = lens_support(self, self.lens)
+        if not ok:
+            raise NotImplementedError(why)
+
     def result(self, mode: str, status: str, message: str = "", **kw: Any) -> ReferenceResult:
         return ReferenceResult(name=self.name, version=self.version, mode=mode, status=status, message=message, **kw)
 
@@ -294,10 +329,12 @@ def run_safely(fn: Callable[[], ReferenceResult], *, name: str, version: str | C
 
 
 def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                image_size: tuple[int, int]) -> Camera:
+                image_size: tuple[int, int], lens: str = "opencv5") -> Camera:
     """A rough pinhole seed (no distortion) from ``cv2.initCameraMatrix2D`` (Zhang with the principal point at the
     image centre), for references that need a starting focal length (mrcal's ``focal_estimate``, pycolmap's camera).
-    Only a starting point: each reference then solves its own least-squares problem."""
+    Only a starting point: each reference then solves its own least-squares problem. ``lens``: the model of the
+    returned camera (its distortion all zero; for "fisheye" that is the equidistant projection with the pinhole
+    seed's focal length, which the references refine)."""
     import cv2
 
     K = cv2.initCameraMatrix2D([np.asarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points],
@@ -307,4 +344,8 @@ def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.n
     fx, fy = float(K[0, 0]), float(K[1, 1])
     if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
         fx = fy = float(max(w, h))
-    return Camera(w, h, fx, fy, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(5))
+    if lens == "opencv5":
+        return Camera(w, h, fx, fy, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(5))
+    from circcal.model import LENS_MODELS
+
+    return Camera(w, h, fx, fy, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(len(LENS_MODELS[lens].dist_names)), lens=lens)
