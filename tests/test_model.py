@@ -116,3 +116,182 @@ def test_camera_block_round_trip_and_errors():
         Camera(10, 10, 1, 1, 0, 0, [0, 0, 0])
     with pytest.raises(ValueError, match="positive"):
         Camera(10, 10, -1, 1, 0, 0)
+
+
+# --- the lens models beyond opencv5 -----------------------------------------------------------------------------
+
+from circcal.model.fisheye import theta_distort  # noqa: E402
+from circcal.model import (LENS_MODELS, param_names, project_camera, project_camera_jacobian,  # noqa: E402
+                           project_jacobian, theta_max, unproject)
+
+#: Wide-angle cameras as OpenCV users fit them (coefficients of the size calibrateCamera returns for such lenses).
+LENS_CAMERAS = {
+    "rational": Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
+                       [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1], "rational"),
+    "thin-prism": Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
+                         [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1, 1e-3, -2e-6, -8e-4, 3e-6],
+                         "thin-prism"),
+    # a 1280x1024 fisheye whose corners see ~85 deg off axis (cv2.fisheye projects only z > 0)
+    "fisheye": Camera(1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -1e-4], "fisheye"),
+    # a 190-deg lens: the image circle holds rays beyond 90 deg
+    "fisheye-190": Camera(1280, 1024, 310.0, 310.0, 639.5, 511.5, [-0.012, 0.003, -6e-4, 5e-5], "fisheye"),
+}
+
+
+def _pixel_grid(cam: Camera, n=(61, 41)) -> np.ndarray:
+    u, v = np.meshgrid(np.linspace(-0.5, cam.width - 0.5, n[0]), np.linspace(-0.5, cam.height - 0.5, n[1]))
+    return np.stack([u.ravel(), v.ravel()], -1)
+
+
+def _frame_board_points(cam: Camera, rvec, tvec) -> np.ndarray:
+    """Board-frame points whose projections cover the whole frame (corners included), at depths 300-3000 mm."""
+    rays = unproject(_pixel_grid(cam), cam)
+    assert np.all(np.isfinite(rays))
+    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    Xc = rays * np.linspace(300.0, 3000.0, len(rays))[:, None]
+    return (Xc - tvec) @ rodrigues(rvec)
+
+
+@pytest.mark.parametrize("name", ["rational", "thin-prism"])
+def test_pinhole_lens_models_equal_opencv_full_frame(name):
+    """8- and 12-coefficient projection equals cv2.projectPoints to 1e-9 px over the whole frame."""
+    cam = LENS_CAMERAS[name]
+    assert len(cam.dist) == len(LENS_MODELS[name].dist_names) == {"rational": 8, "thin-prism": 12}[name]
+    rvec, tvec = np.array([0.2, -0.3, 0.1]), np.array([15.0, -20.0, 40.0])
+    P = _frame_board_points(cam, rvec, tvec)
+    ours = project(P, rvec, tvec, cam)
+    ref = cv2.projectPoints(P, rvec, tvec, cam.K, cam.dist)[0][:, 0]
+    assert np.max(np.abs(ours - ref)) <= 1e-9
+    assert np.max(np.abs(ours - _pixel_grid(cam))) <= 1e-9       # and the grid came back
+    assert ours[:, 0].min() < 0 and ours[:, 0].max() > cam.width - 1
+
+
+def test_fisheye_equals_cv2_fisheye_full_frame():
+    cam = LENS_CAMERAS["fisheye"]
+    rvec, tvec = np.array([0.2, -0.3, 0.1]), np.array([15.0, -20.0, 40.0])
+    P = _frame_board_points(cam, rvec, tvec)
+    Xc = P @ rodrigues(rvec).T + tvec
+    theta = np.degrees(np.arctan2(np.hypot(Xc[:, 0], Xc[:, 1]), Xc[:, 2]))
+    assert 80 < theta.max() < 90                                   # the frame's corners, all in front
+    ours = project(P, rvec, tvec, cam)
+    ref = cv2.fisheye.projectPoints(P[:, None, :], rvec, tvec, cam.K, cam.dist)[0][:, 0]
+    assert np.max(np.abs(ours - ref)) <= 1e-9
+    assert np.max(np.abs(ours - _pixel_grid(cam))) <= 1e-9
+    # on the optical axis too (cv2's special case r < 1e-8)
+    on_axis = np.array([[0.0, 0.0, 500.0], [1e-9, -1e-9, 500.0]])
+    ref = cv2.fisheye.projectPoints(on_axis[:, None, :], np.zeros(3), np.zeros(3), cam.K, cam.dist)[0][:, 0]
+    assert np.max(np.abs(project_camera(on_axis, cam) - ref)) <= 1e-9
+
+
+@pytest.mark.parametrize("name", sorted(LENS_CAMERAS))
+def test_unproject_round_trips_every_pixel(name):
+    """pixel -> ray -> pixel to 1e-9 px over a dense grid of the whole image, edges and corners included."""
+    cam = LENS_CAMERAS[name]
+    uv = _pixel_grid(cam, (193, 111))
+    rays = unproject(uv, cam)
+    assert np.all(np.isfinite(rays))
+    assert np.max(np.abs(project_camera(rays, cam) - uv)) <= 1e-9
+    if not cam.model.pinhole:
+        assert np.allclose(np.linalg.norm(rays, axis=1), 1.0, atol=1e-14, rtol=0)
+
+
+@pytest.mark.parametrize("name", ["fisheye", "fisheye-190"])
+def test_fisheye_round_trips_over_its_whole_field(name):
+    """Rays at every angle up to the lens's one-to-one limit (theta_max, here pi or the fold) -> pixels -> the same
+    rays, and pixels -> rays -> pixels, to 1e-9 px; beyond 90 deg included; past the fold NaN."""
+    cam = LENS_CAMERAS[name]
+    tmax = theta_max(cam.dist)
+    theta, phi = np.meshgrid(np.linspace(0.0, tmax * (1 - 1e-6), 400), np.linspace(-np.pi, np.pi, 73))
+    theta, phi = theta.ravel(), phi.ravel()
+    rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    uv = project_camera(rays, cam)
+    back = unproject(uv, cam)
+    assert np.all(np.isfinite(back))
+    assert np.max(np.abs(project_camera(back, cam) - uv)) <= 1e-9
+    # the same rays: the angle between them, times the pixels per radian there (d theta_d / d theta f), <= 1e-9 px
+    ang = np.linalg.norm(np.cross(back, rays), axis=1)
+    px_per_rad = cam.fx * theta_distort(theta, cam.dist, True)[1]
+    assert np.max(ang * px_per_rad) <= 1e-9
+    assert theta.max() > np.radians(95)
+    # the 190-deg lens: a pixel on the image circle at 95 deg gives a ray behind the camera
+    if name == "fisheye-190":
+        assert np.any(back[:, 2] < -0.05)
+
+
+def test_theta_max_is_the_fold():
+    d = np.array([-0.05, 0.0, 0.0, 0.0])         # theta_d' = 1 - 0.15 t^2 = 0 at t = sqrt(1/0.15) > pi? no: 2.58
+    assert theta_max(d) == pytest.approx(np.sqrt(1 / 0.15), rel=1e-12)
+    assert theta_max(np.zeros(4)) == np.pi
+    cam = Camera(800, 800, 200.0, 200.0, 400.0, 400.0, d, "fisheye")
+    beyond = 200.0 * float(theta_distort(np.array(theta_max(d)), d)) * 1.01
+    assert np.all(np.isnan(unproject(np.array([[400.0 + beyond, 400.0]]), cam)))
+
+
+def _fd_check(f, x, J, rel=1e-7, scale_by_norm=False):
+    """Central differences of ``f`` at ``x`` (n,) against ``J`` (..., n): each column to ``rel`` of its size. Steps
+    1e-6 of each entry (``scale_by_norm``: of the vector's norm, for a point's coordinates)."""
+    for j in range(len(x)):
+        h = 1e-6 * max(1.0, float(np.linalg.norm(x)) if scale_by_norm else abs(x[j]))
+        e = np.zeros_like(x)
+        e[j] = h
+        fd = (f(x + e) - f(x - e)) / (2 * h)
+        col = J[..., j]
+        scale = np.max(np.abs(col)) or np.max(np.abs(J))   # a column that is 0 (on the axis) against J's size
+        assert np.max(np.abs(fd - col)) <= rel * scale, (j, np.max(np.abs(fd - col)) / scale)
+
+
+@pytest.mark.parametrize("name", ["opencv5", "rational", "thin-prism", "fisheye", "fisheye-190"])
+def test_analytic_jacobians_equal_finite_differences(name):
+    """d uv / d intrinsics, d uv / d camera point and d uv / d pose agree with central differences to 1e-7
+    relative over the frame (for the 190-deg fisheye also beyond 90 deg)."""
+    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0,
+                                           [-0.3, 0.12, 1e-3, -2e-3, -0.02])
+    rays = unproject(_pixel_grid(cam, (9, 7)), cam)
+    rng = np.random.default_rng(3)
+    Xc = rays / np.linalg.norm(rays, axis=1, keepdims=True) * rng.uniform(200, 2000, (len(rays), 1))
+    p = cam.intrinsics
+    uv, Ji, JX = project_camera_jacobian(Xc, p, cam.lens)
+    assert Ji.shape == (len(Xc), 2, 4 + len(cam.dist)) and JX.shape == (len(Xc), 2, 3)
+    assert np.max(np.abs(uv - project_camera(Xc, cam))) <= 1e-9
+    _fd_check(lambda q: project_camera_jacobian(Xc, q, cam.lens)[0], p, Ji)
+    for i in range(len(Xc)):
+        _fd_check(lambda X: project_camera_jacobian(X[None], p, cam.lens)[0][0], Xc[i], JX[i], scale_by_norm=True)
+    rvec, tvec = np.array([0.1, -0.2, 0.05]), np.array([5.0, -3.0, 20.0])
+    pts = (Xc - tvec) @ rodrigues(rvec)
+    uv, Ji2, Jpose = project_jacobian(pts, rvec, tvec, cam)
+    assert np.allclose(Ji2, Ji, rtol=1e-9, atol=1e-9)
+
+    def by_pose(q):
+        return project(pts, q[:3], q[3:], cam)
+
+    _fd_check(by_pose, np.concatenate([rvec, tvec]), Jpose)
+
+
+def test_fisheye_jacobian_on_the_axis_is_the_limit():
+    cam = LENS_CAMERAS["fisheye"]
+    _, _, JX = project_camera_jacobian(np.array([[0.0, 0.0, 400.0], [1e-7, 0.0, 400.0]]), cam.intrinsics, "fisheye")
+    assert np.allclose(JX[0], JX[1], rtol=0, atol=1e-9)
+    assert JX[0, 0, 0] == pytest.approx(cam.fx / 400.0) and JX[0, 1, 1] == pytest.approx(cam.fy / 400.0)
+
+
+def test_lens_camera_api():
+    assert param_names("opencv5") == PARAM_NAMES_OPENCV5
+    assert param_names("fisheye") == ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
+    assert param_names("thin-prism")[-4:] == ("s1", "s2", "s3", "s4")
+    for name, cam in LENS_CAMERAS.items():
+        d = cam.to_dict()
+        assert d["lens"] == cam.lens
+        back = Camera.from_dict(d)
+        assert back.lens == cam.lens and np.array_equal(back.intrinsics, cam.intrinsics)
+        assert np.array_equal(Camera.from_intrinsics(cam.width, cam.height, cam.intrinsics, cam.lens).dist, cam.dist)
+    assert "lens" not in CAMERAS["paper"].to_dict()              # old files and content hashes unchanged
+    assert Camera(10, 10, 1, 1, 0, 0, lens="fisheye").dist.shape == (4,)
+    with pytest.raises(ValueError, match="unknown lens model 'kb8'"):
+        Camera(10, 10, 1, 1, 0, 0, lens="kb8")
+    with pytest.raises(ValueError, match="8 coefficients"):
+        Camera(10, 10, 1, 1, 0, 0, np.zeros(5), "rational")
+    with pytest.raises(ValueError, match="4 coefficients"):
+        Camera.from_dict({**LENS_CAMERAS["fisheye"].to_dict(), "dist": [0.0] * 5})
+
+
+PARAM_NAMES_OPENCV5 = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")

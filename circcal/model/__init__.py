@@ -1,7 +1,8 @@
-"""The one camera model of circcal: pinhole + OpenCV's 5-coefficient Brown distortion.
+"""The one camera model of circcal: a pinhole with OpenCV's distortion (5, 8 or 12 coefficients) or cv2.fisheye's
+equidistant Kannala-Brandt lens.
 
-Every part of the project (renderer, detector, solver, metrics, validators) projects through these functions, so a
-convention fixed here holds everywhere.
+Every part of the project (renderer, detector, solver, uncertainty, metrics, validators) projects through these
+functions, so a convention fixed here holds everywhere.
 
 Conventions
 -----------
@@ -10,15 +11,15 @@ Conventions
 * Camera frame: x right, y down, z forward (OpenCV). A pose ``(rvec, tvec)`` maps board/world points into the camera
   frame, ``X_cam = R(rvec) @ X_board + tvec``; ``rvec`` is an axis-angle vector in radians, ``tvec`` in the board's
   length unit (mm throughout circcal).
-* Distortion vector ``dist = [k1, k2, p1, p2, k3]`` in OpenCV's order, applied to normalised coordinates
-  ``x = X/Z, y = Y/Z``::
+* Lens models (:data:`LENS_MODELS`; ``Camera.lens``), each ``u = fx xd + cx, v = fy yd + cy`` (no skew) of the
+  distorted normalised coordinates ``(xd, yd)``:
 
-      r2 = x^2 + y^2,  radial = 1 + k1 r2 + k2 r2^2 + k3 r2^3
-      xd = x radial + 2 p1 x y + p2 (r2 + 2 x^2)
-      yd = y radial + p1 (r2 + 2 y^2) + 2 p2 x y
-      u = fx xd + cx,  v = fy yd + cy
+  ``opencv5``    ``dist = [k1, k2, p1, p2, k3]``: ``cv2.projectPoints`` with a 5-vector (:mod:`.brown`)
+  ``rational``   ``[k1, k2, p1, p2, k3, k4, k5, k6]``: OpenCV's 8-vector, ``CALIB_RATIONAL_MODEL``
+  ``thin-prism`` ``[k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``: OpenCV's 12-vector, ``CALIB_THIN_PRISM_MODEL``
+  ``fisheye``    ``[k1, k2, k3, k4]``: ``cv2.fisheye`` (theta polynomial, skew alpha 0; :mod:`.fisheye`)
 
-  This is exactly ``cv2.projectPoints`` with a 5-element distortion vector (tested to 1e-9 px).
+  Each equals its OpenCV projection to 1e-9 px (tests/test_model.py).
 """
 from __future__ import annotations
 
@@ -29,16 +30,24 @@ from typing import Any
 import numpy as np
 
 from circcal.errors import InputError
+from circcal.model.brown import distort, distort_jacobian, undistort
+from circcal.model.fisheye import fisheye_distort, fisheye_distort_jacobian, fisheye_rays, theta_max
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
 __all__ = [
     "Camera",
+    "LensModel",
+    "LENS_MODELS",
+    "DEFAULT_LENS",
     "DIST_NAMES",
     "PARAM_NAMES",
+    "param_names",
+    "lens_model",
     "transform",
     "distort",
     "distort_jacobian",
     "undistort",
+    "theta_max",
     "project",
     "project_jacobian",
     "project_camera",
@@ -50,19 +59,69 @@ __all__ = [
     "distort_pixels",
 ]
 
-DIST_NAMES: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
-#: The calibrated parameters in OpenCV's order (:attr:`Camera.intrinsics`); every std dict is keyed by these.
-PARAM_NAMES: tuple[str, ...] = ("fx", "fy", "cx", "cy") + DIST_NAMES
+
+@dataclass(frozen=True)
+class LensModel:
+    """One lens model: its ``name`` (``Camera.lens``), its distortion coefficients' names in the order of
+    ``Camera.dist`` (OpenCV's order), and ``pinhole``: True when the image is a distorted perspective projection
+    (z > 0 only; :func:`undistort` inverts it), False for the fisheye (any direction, theta up to pi)."""
+
+    name: str
+    dist_names: tuple[str, ...]
+    pinhole: bool
+    description: str
+
+    @property
+    def n_dist(self) -> int:
+        return len(self.dist_names)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """fx, fy, cx, cy, then :attr:`dist_names`: the order of :attr:`Camera.intrinsics`."""
+        return ("fx", "fy", "cx", "cy") + self.dist_names
+
+
+DEFAULT_LENS = "opencv5"
+#: The lens models by name (see the module docstring for the formulas).
+LENS_MODELS: dict[str, LensModel] = {m.name: m for m in (
+    LensModel("opencv5", ("k1", "k2", "p1", "p2", "k3"), True,
+              "OpenCV pinhole + 5 distortion coefficients [k1, k2, p1, p2, k3]"),
+    LensModel("rational", ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), True,
+              "OpenCV rational model (CALIB_RATIONAL_MODEL) [k1, k2, p1, p2, k3, k4, k5, k6]"),
+    LensModel("thin-prism", ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"), True,
+              "OpenCV rational + thin prism (CALIB_THIN_PRISM_MODEL) [k1, ..., k6, s1, s2, s3, s4]"),
+    LensModel("fisheye", ("k1", "k2", "k3", "k4"), False,
+              "cv2.fisheye equidistant Kannala-Brandt theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)"),
+)}
+
+DIST_NAMES: tuple[str, ...] = LENS_MODELS[DEFAULT_LENS].dist_names
+#: The calibrated parameters of the default ``opencv5`` model in OpenCV's order (kept for callers that know only
+#: that model); :func:`param_names` gives every model's.
+PARAM_NAMES: tuple[str, ...] = LENS_MODELS[DEFAULT_LENS].param_names
+
+
+def lens_model(name: str) -> LensModel:
+    """The :class:`LensModel` called ``name``; :class:`~circcal.errors.InputError` listing the known ones
+    otherwise."""
+    if not isinstance(name, str) or name not in LENS_MODELS:
+        raise InputError(f"unknown lens model {name!r}; known: {', '.join(LENS_MODELS)}")
+    return LENS_MODELS[name]
+
+
+def param_names(lens: str = DEFAULT_LENS) -> tuple[str, ...]:
+    """The names of :attr:`Camera.intrinsics` for ``lens``: fx, fy, cx, cy, then the distortion coefficients."""
+    return lens_model(lens).param_names
 
 
 @dataclass(frozen=True)
 class Camera:
-    """Intrinsics of a pinhole camera with OpenCV 5-coefficient distortion.
+    """Intrinsics of a camera: pinhole ``K`` (no skew) and one lens model's distortion.
 
     ``width``/``height`` in pixels (positive integers); ``fx, fy, cx, cy`` in pixels (OpenCV pixel-centre
-    convention; finite, focal lengths positive); ``dist`` = ``[k1, k2, p1, p2, k3]`` (unitless, on normalised
-    coordinates; finite). Every value is checked on construction (:class:`~circcal.errors.InputError` naming the
-    field): a camera that exists holds only values that project.
+    convention; finite, focal lengths positive); ``dist``: the coefficients of ``lens`` in
+    ``LENS_MODELS[lens].dist_names`` order (unitless; finite; default all 0); ``lens``: a :data:`LENS_MODELS` name
+    (default ``opencv5``: ``[k1, k2, p1, p2, k3]``). Every value is checked on construction
+    (:class:`~circcal.errors.InputError` naming the field): a camera that exists holds only values that project.
     """
 
     width: int
@@ -71,9 +130,11 @@ class Camera:
     fy: float
     cx: float
     cy: float
-    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    dist: np.ndarray = field(default=None)  # type: ignore[assignment]
+    lens: str = DEFAULT_LENS
 
     def __post_init__(self) -> None:
+        model = lens_model(self.lens)
         for name in ("width", "height"):
             v = getattr(self, name)
             if not _is_number(v) or not np.isfinite(float(v)) or float(v) != int(v) or int(v) <= 0:
@@ -86,18 +147,24 @@ class Camera:
             object.__setattr__(self, name, float(v))
         if not (self.fx > 0 and self.fy > 0):
             raise InputError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-        raw = self.dist
-        if isinstance(raw, (str, bytes, dict)) or (np.ndim(raw) == 0 and raw is not None):
-            raise InputError(f"camera dist must be a list of {len(DIST_NAMES)} numbers {list(DIST_NAMES)}, "
+        names = model.dist_names
+        raw = np.zeros(len(names)) if self.dist is None else self.dist
+        if isinstance(raw, (str, bytes, dict)) or np.ndim(raw) == 0:
+            raise InputError(f"camera dist must be a list of {len(names)} numbers {list(names)} ({model.name}), "
                              f"got {raw!r}")
-        items = list(np.ravel(np.asarray(raw, dtype=object))) if raw is not None else None
-        if items is None or len(items) != len(DIST_NAMES):
-            raise InputError(f"camera dist must hold {len(DIST_NAMES)} coefficients {list(DIST_NAMES)}, got "
-                             f"{0 if items is None else len(items)}")
-        for name, v in zip(DIST_NAMES, items):
+        items = list(np.ravel(np.asarray(raw, dtype=object)))
+        if len(items) != len(names):
+            raise InputError(f"camera dist must hold {len(names)} coefficients {list(names)} (lens {model.name}), "
+                             f"got {len(items)}")
+        for name, v in zip(names, items):
             if not _is_number(v) or not np.isfinite(float(v)):
                 raise InputError(f"camera distortion {name} must be a finite number, got {v!r}")
         object.__setattr__(self, "dist", np.array([float(v) for v in items], dtype=np.float64))
+
+    @property
+    def model(self) -> LensModel:
+        """The :class:`LensModel` of :attr:`lens`."""
+        return LENS_MODELS[self.lens]
 
     @property
     def K(self) -> np.ndarray:
@@ -106,18 +173,22 @@ class Camera:
 
     @property
     def intrinsics(self) -> np.ndarray:
-        """The 9 calibrated parameters in OpenCV's order: fx, fy, cx, cy, k1, k2, p1, p2, k3."""
+        """The calibrated parameters (4 + n_dist,) in :func:`param_names` order: fx, fy, cx, cy, then ``dist``."""
         return np.concatenate([[self.fx, self.fy, self.cx, self.cy], self.dist])
 
     @classmethod
-    def from_intrinsics(cls, width: int, height: int, params: np.ndarray) -> "Camera":
-        """Inverse of :attr:`intrinsics`: ``params`` = (9,) fx, fy, cx, cy, k1, k2, p1, p2, k3."""
+    def from_intrinsics(cls, width: int, height: int, params: np.ndarray, lens: str = DEFAULT_LENS) -> "Camera":
+        """Inverse of :attr:`intrinsics`: ``params`` = (4 + n_dist,) fx, fy, cx, cy, then ``lens``'s coefficients."""
         p = np.asarray(params, dtype=np.float64)
-        return cls(int(width), int(height), float(p[0]), float(p[1]), float(p[2]), float(p[3]), p[4:9].copy())
+        n = lens_model(lens).n_dist
+        return cls(int(width), int(height), float(p[0]), float(p[1]), float(p[2]), float(p[3]),
+                   p[4:4 + n].copy(), lens)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``camera`` block of truth.json / model.json."""
-        return {
+        """The ``camera`` block of truth.json / model.json. ``lens`` is written for every model but the default
+        ``opencv5``, where it is left out: files (and fixture content hashes) of 5-coefficient cameras stay as
+        they were, and readers take a missing ``lens`` as ``opencv5``."""
+        d: dict[str, Any] = {
             "width": int(self.width),
             "height": int(self.height),
             "fx": float(self.fx),
@@ -126,17 +197,23 @@ class Camera:
             "cy": float(self.cy),
             "dist": [float(v) for v in self.dist],
         }
+        if self.lens != DEFAULT_LENS:
+            d["lens"] = self.lens
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Camera":
-        """Read a ``camera`` block; every value is checked (see the class) and a missing key named
-        (:class:`~circcal.errors.InputError`)."""
+        """Read a ``camera`` block (``lens`` optional, default ``opencv5``); every value is checked (see the class)
+        and a missing key named (:class:`~circcal.errors.InputError`)."""
         if not isinstance(d, dict):
             raise InputError(f"a camera block must be a mapping, got {type(d).__name__}")
         missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy", "dist") if k not in d]
         if missing:
             raise InputError(f"camera block lacks {', '.join(missing)}")
-        return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], d["dist"])
+        if d["dist"] is None:
+            raise InputError("camera dist must be a list of numbers, got None")
+        return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], d["dist"],
+                   d.get("lens", DEFAULT_LENS))
 
 
 def _is_number(v: Any) -> bool:
@@ -150,168 +227,42 @@ def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndar
     return np.asarray(points, dtype=np.float64) @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
 
 
-def _brown(x: np.ndarray, y: np.ndarray, dist: np.ndarray, jacobian: bool):
-    """The distortion polynomial, written once: ``(xd, yd)`` of normalised ``(x, y)`` (same-shape arrays), and with
-    ``jacobian`` also ``radial`` and the 2x2 Jacobian ``d(xd, yd)/d(x, y)`` as ``(a, b, c)`` =
-    ``[[a, b], [b, c]]`` (it is symmetric)."""
-    k1, k2, p1, p2, k3 = dist
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xy2 = 2.0 * x * y
-    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
-    if not jacobian:
-        return xd, yd
-    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
-    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
-    b = xy2 * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-    c = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
-    return xd, yd, radial, a, b, c
+def _is_pinhole(lens: str) -> bool:
+    return lens_model(lens).pinhole
 
 
-def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply Brown distortion to normalised coordinates.
-
-    ``xn``: (..., 2) undistorted normalised coordinates; ``dist``: (5,) k1, k2, p1, p2, k3.
-    Returns (..., 2) distorted normalised coordinates.
-    """
-    xn = np.asarray(xn, dtype=np.float64)
-    xd, yd = _brown(xn[..., 0], xn[..., 1], np.asarray(dist, dtype=np.float64), False)
-    return np.stack([xd, yd], axis=-1)
-
-
-def distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distortion with its derivatives.
-
-    ``xn``: (..., 2), ``dist``: (5,). Returns ``(xd, J_x, J_d)``: xd (..., 2); ``J_x`` = d xd / d xn, (..., 2, 2);
-    ``J_d`` = d xd / d [k1, k2, p1, p2, k3], (..., 2, 5).
-    """
-    xn = np.asarray(xn, dtype=np.float64)
-    x, y = xn[..., 0], xn[..., 1]
-    xd, yd, _, a, b, c = _brown(x, y, np.asarray(dist, dtype=np.float64), True)
-    J_x = np.empty(x.shape + (2, 2))
-    J_x[..., 0, 0] = a
-    J_x[..., 0, 1] = J_x[..., 1, 0] = b
-    J_x[..., 1, 1] = c
-    r2 = x * x + y * y
-    r4 = r2 * r2
-    J_d = np.empty(x.shape + (2, 5))
-    J_d[..., 0, 0] = x * r2
-    J_d[..., 0, 1] = x * r4
-    J_d[..., 0, 2] = 2.0 * x * y
-    J_d[..., 0, 3] = r2 + 2.0 * x * x
-    J_d[..., 0, 4] = x * r4 * r2
-    J_d[..., 1, 0] = y * r2
-    J_d[..., 1, 1] = y * r4
-    J_d[..., 1, 2] = r2 + 2.0 * y * y
-    J_d[..., 1, 3] = 2.0 * x * y
-    J_d[..., 1, 4] = y * r4 * r2
-    return np.stack([xd, yd], axis=-1), J_x, J_d
-
-
-#: A Newton step of :func:`undistort` that does not lower a point's residual is halved, at most this many times
-#: before the point is declared beyond the lens's fold (NaN).
-_MAX_STEP_HALVINGS = 40
-
-
-def undistort(
-    xd: np.ndarray,
-    dist: np.ndarray,
-    *,
-    x0: np.ndarray | None = None,
-    tol: float = 1e-15,
-    max_iter: int = 60,
-) -> np.ndarray:
-    """Invert :func:`distort` by a vectorised, damped Newton iteration.
-
-    ``xd``: (..., 2) distorted normalised coordinates; ``dist``: (5,); ``x0``: optional (..., 2) initial guess (e.g. a
-    neighbouring solution: two Newton steps then suffice). Stops when every residual ``|distort(x) - xd|`` (max norm,
-    normalised units) is below ``tol`` (relative to ``|xd|`` beyond 1); 1e-15 normalised is ~1e-11 px for f up to
-    10^4 px. A step that does not reduce a point's residual is halved (guards strong barrel distortion).
-    Returns (..., 2) undistorted normalised coordinates. Points where the model folds over (no unique inverse,
-    far outside a sensible field of view) come back as NaN rather than a wrong value.
-    """
-    xd = np.asarray(xd, dtype=np.float64)
-    d = np.asarray(dist, dtype=np.float64)
-    if not np.any(d):
-        return xd.copy()
-    shape = xd.shape
-    t = xd.reshape(-1, 2)
-    out = (t.copy() if x0 is None else np.asarray(x0, dtype=np.float64).reshape(-1, 2).copy())
-    idx = np.arange(t.shape[0])                     # points still iterating
-    tx, ty = t[:, 0].copy(), t[:, 1].copy()
-    x, y = out[:, 0].copy(), out[:, 1].copy()
-    thr = tol * np.maximum(1.0, np.maximum(np.abs(tx), np.abs(ty)))
-    fx, fy, _, a, b, c = _brown(x, y, d, True)
-    rx, ry = fx - tx, fy - ty
-    err = np.maximum(np.abs(rx), np.abs(ry))
-    for _ in range(max_iter):
-        done = err <= thr
-        if done.any():
-            out[idx[done], 0] = x[done]
-            out[idx[done], 1] = y[done]
-            keep = ~done
-            idx, tx, ty, x, y, thr, a, b, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, c, rx, ry, err))
-        if idx.size == 0:
-            break
-        det = a * c - b * b
-        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-        sx = (c * rx - b * ry) / det
-        sy = (a * ry - b * rx) / det
-        lam = np.ones_like(x)
-        for _ in range(_MAX_STEP_HALVINGS):
-            nx, ny = x - lam * sx, y - lam * sy
-            fx, fy, _, na, nb, nc = _brown(nx, ny, d, True)
-            nrx, nry = fx - tx, fy - ty
-            nerr = np.maximum(np.abs(nrx), np.abs(nry))
-            worse = ~(nerr <= err)  # also catches NaN
-            if not worse.any():
-                break
-            lam = np.where(worse, 0.5 * lam, lam)
-        x, y, a, b, c, rx, ry, err = nx, ny, na, nb, nc, nrx, nry, nerr
-        if worse.any():  # no descent even after every halving: no inverse here (the model folds over)
-            out[idx[worse]] = np.nan
-            keep = ~worse
-            idx, tx, ty, x, y, thr, a, b, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, c, rx, ry, err))
-    if idx.size:
-        out[idx] = np.nan
-    # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no
-    # inverse of a real lens: report it as NaN.
-    _, _, radial, a, b, c = _brown(out[:, 0], out[:, 1], d, True)
-    bad = (radial <= 0) | ((a * c - b * b) <= 0)
-    out[bad] = np.nan
-    return out.reshape(shape)
-
-
-def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFAULT_LENS
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) -> pixels, with derivatives: the projection of :func:`project` after the pose.
 
-    ``params``: (9,) intrinsics in :data:`PARAM_NAMES` order (:attr:`Camera.intrinsics`). Returns ``(uv (N, 2) px,
-    J_intr (N, 2, 9) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
+    ``params``: (4 + n_dist,) intrinsics in :func:`param_names` order (:attr:`Camera.intrinsics`) of ``lens``.
+    Returns ``(uv (N, 2) px, J_intr (N, 2, 4 + n_dist) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
     """
+    params = np.asarray(params, dtype=np.float64)
     fx, fy = params[0], params[1]
-    iz = 1.0 / Xc[:, 2]
-    xn = Xc[:, :2] * iz[:, None]
-    xd, Jx, Jd = distort_jacobian(xn, params[4:9])
     n = len(Xc)
+    if _is_pinhole(lens):
+        iz = 1.0 / Xc[:, 2]
+        xn = Xc[:, :2] * iz[:, None]
+        xd, Jx, Jd = distort_jacobian(xn, params[4:])
+        # d xd / d Xc = Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
+        JP = np.empty((n, 2, 3))
+        JP[:, :, 0] = Jx[:, :, 0] * iz[:, None]
+        JP[:, :, 1] = Jx[:, :, 1] * iz[:, None]
+        JP[:, :, 2] = -(Jx[:, :, 0] * xn[:, 0:1] + Jx[:, :, 1] * xn[:, 1:2]) * iz[:, None]
+    else:
+        xd, JP, Jd = fisheye_distort_jacobian(Xc, params[4:])
     uv = np.empty((n, 2))
     uv[:, 0] = fx * xd[:, 0] + params[2]
     uv[:, 1] = fy * xd[:, 1] + params[3]
-    Ji = np.zeros((n, 2, 9))
+    Ji = np.zeros((n, 2, len(params)))
     Ji[:, 0, 0] = xd[:, 0]
     Ji[:, 1, 1] = xd[:, 1]
     Ji[:, 0, 2] = 1.0
     Ji[:, 1, 3] = 1.0
     Ji[:, 0, 4:] = fx * Jd[:, 0, :]
     Ji[:, 1, 4:] = fy * Jd[:, 1, :]
-    # d uv / d Xc = diag(f) Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-    A = Jx * np.array([fx, fy])[None, :, None]
-    J_X = np.empty((n, 2, 3))
-    J_X[:, :, 0] = A[:, :, 0] * iz[:, None]
-    J_X[:, :, 1] = A[:, :, 1] * iz[:, None]
-    J_X[:, :, 2] = -(A[:, :, 0] * xn[:, 0:1] + A[:, :, 1] * xn[:, 1:2]) * iz[:, None]
+    J_X = JP * np.array([fx, fy])[None, :, None]
     return uv, Ji, J_X
 
 
@@ -319,20 +270,29 @@ def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, cam
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`project` with derivatives, for one view.
 
-    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 9) with respect to
-    fx, fy, cx, cy, k1, k2, p1, p2, k3; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
+    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 4 + n_dist) with
+    respect to :attr:`Camera.intrinsics`; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
     """
     r = np.asarray(rvec, dtype=np.float64).reshape(3)
     Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
-    uv, Ji, J_X = project_camera_jacobian(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics)
+    uv, Ji, J_X = project_camera_jacobian(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics,
+                                          camera.lens)
     return uv, Ji, np.concatenate([rotated_jacobian(J_X, Y) @ left_jacobian(r), J_X], axis=2)
 
 
+def _distorted_normalised(P: np.ndarray, camera: Camera) -> np.ndarray:
+    """Camera-frame points (N, 3) -> distorted normalised coordinates (N, 2); pinhole models: NaN for z <= 0."""
+    if camera.model.pinhole:
+        z = np.where(P[:, 2] > 0, P[:, 2], np.nan)
+        return distort(P[:, :2] / z[:, None], camera.dist)
+    return fisheye_distort(P, camera.dist)
+
+
 def project_camera(P: np.ndarray, camera: Camera) -> np.ndarray:
-    """Camera-frame points or rays (N, 3) -> pixels (N, 2); NaN for points at or behind the camera (z <= 0)."""
+    """Camera-frame points or rays (N, 3) -> pixels (N, 2). Pinhole models: NaN for points at or behind the camera
+    (z <= 0); fisheye: any direction (theta = atan2(|xy|, z) up to pi; NaN only straight behind)."""
     P = np.asarray(P, dtype=np.float64)
-    z = np.where(P[:, 2] > 0, P[:, 2], np.nan)
-    return normalized_to_pixel(distort(P[:, :2] / z[:, None], camera.dist), camera)
+    return normalized_to_pixel(_distorted_normalised(P, camera), camera)
 
 
 def project(
@@ -343,18 +303,24 @@ def project(
 ) -> np.ndarray:
     """Project board points into the image: (N, 3) board coordinates -> (N, 2) pixels (OpenCV convention).
 
-    Equals ``cv2.projectPoints(points, rvec, tvec, camera.K, camera.dist)``.
+    Equals ``cv2.projectPoints(points, rvec, tvec, camera.K, camera.dist)`` for the pinhole models and
+    ``cv2.fisheye.projectPoints`` for ``fisheye`` (points in front of the camera; see :func:`project_camera`).
     """
     Xc = transform(points, rvec, tvec)
-    xn = Xc[:, :2] / Xc[:, 2:3]
-    return normalized_to_pixel(distort(xn, camera.dist), camera)
+    if camera.model.pinhole:  # OpenCV divides by z whatever its sign
+        return normalized_to_pixel(distort(Xc[:, :2] / Xc[:, 2:3], camera.dist), camera)
+    return normalized_to_pixel(fisheye_distort(Xc, camera.dist), camera)
 
 
 def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Pixels (N, 2) -> rays (N, 3) with z = 1 (undistorted normalised coordinates); NaN where the distortion has no
-    unique inverse (see :func:`undistort`)."""
-    xn = undistort(pixel_to_normalized(uv, camera), camera.dist)
-    return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
+    """Pixels (N, 2) -> rays (N, 3). Pinhole models: z = 1 (undistorted normalised coordinates), NaN where the
+    distortion has no unique inverse (see :func:`undistort`). Fisheye: unit-norm rays (theta up to pi, z < 0 beyond
+    90 deg), NaN beyond the lens's one-to-one field (:func:`theta_max`)."""
+    xd = pixel_to_normalized(uv, camera)
+    if not camera.model.pinhole:
+        return fisheye_rays(xd, camera.dist)
+    xn = undistort(xd, camera.dist)
+    return np.concatenate([xn, np.ones(xn.shape[:-1] + (1,))], axis=-1)
 
 
 def pixel_to_normalized(uv: np.ndarray, camera: Camera) -> np.ndarray:
@@ -370,10 +336,20 @@ def normalized_to_pixel(xn: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def undistort_pixels(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Distorted pixels (..., 2) -> ideal pinhole pixels (..., 2) with the same K (distortion removed)."""
-    return normalized_to_pixel(undistort(pixel_to_normalized(uv, camera), camera.dist), camera)
+    """Distorted pixels (..., 2) -> ideal pinhole pixels (..., 2) with the same K (distortion removed). For the
+    fisheye the perspective image exists only in front of the camera: NaN for rays at or beyond 90 deg."""
+    if camera.model.pinhole:
+        return normalized_to_pixel(undistort(pixel_to_normalized(uv, camera), camera.dist), camera)
+    rays = unproject(uv, camera)
+    z = np.where(rays[..., 2] > 0, rays[..., 2], np.nan)
+    return normalized_to_pixel(rays[..., :2] / z[..., None], camera)
 
 
 def distort_pixels(uv: np.ndarray, camera: Camera) -> np.ndarray:
     """Ideal pinhole pixels (..., 2) -> distorted pixels (..., 2); inverse of :func:`undistort_pixels`."""
-    return normalized_to_pixel(distort(pixel_to_normalized(uv, camera), camera.dist), camera)
+    xn = pixel_to_normalized(uv, camera)
+    if camera.model.pinhole:
+        return normalized_to_pixel(distort(xn, camera.dist), camera)
+    shape = xn.shape
+    rays = np.concatenate([xn.reshape(-1, 2), np.ones((xn.size // 2, 1))], axis=1)
+    return normalized_to_pixel(fisheye_distort(rays, camera.dist), camera).reshape(shape)
