@@ -1,30 +1,299 @@
 """``njit`` for the detector's compiled loops (:mod:`circcal.detector.edges`, :mod:`circcal.detector.levels`,
-:mod:`circcal.detector.ellipse`).
+:mod:`circcal.detector.ellipse`): compiled ahead of time at install, numba's JIT where that build is missing or
+stale, plain Python where numba is missing too.
 
-numba's ``njit`` when numba can be imported (a dependency of circcal; compiled code is cached on disk). Without it
-(an install with ``--no-deps``, a Python numba does not support yet) the same functions run as plain Python: the
-same results, the detector ~50x slower (~1 s for a 1920x1080 image); a warning says so once, on import.
+Why ahead of time: numba costs a process ~0.3 s to import (it pulls in scipy) and ~0.45 s more at the first call of
+a kernel it has cached on disk (its type registries load then), which alone broke the 0.6 s a one-image
+``circcal detect`` may take. ``make setup`` therefore runs :func:`build` (``python -c "import circcal.detector.jit
+as j; j.build()"``), which compiles every kernel module with ``numba.pycc`` into an extension under
+``circcal/detector/_aot/``. Loading it needs neither numba nor scipy (~1 ms), and its code is numba's own for the
+same source and the same argument types (the same results to the bit and the same speed, measured: benchmarks/
+bench_startup.py). Alternatives measured against it: numba's on-disk cache (~0.75 s of fixed cost, above), Cython or
+vectorised numpy (the loops written a second time, in a module the detector does not own, and slower for
+quickselect and per-profile early exits).
 
-Compiled with ``cache=True``: numba keys its on-disk cache on the kernel's own source file only, so a kernel calls
-only kernels of its own module and reads only that module's constants (anything else it needs comes as an
-argument); a change elsewhere would otherwise leave a stale cached kernel.
+* Signatures: :func:`build` runs the detector on synthetic boards (uint8, uint16 and float32 images) under numba and
+  exports every signature numba compiled for each kernel; a call whose arguments match none of them (checked here,
+  in Python: pycc's wrappers do not check types and would crash) runs under numba instead, never wrongly.
+* Staleness: an extension is named after a hash of its kernel module's source, of this file and of numpy's version,
+  so an edited kernel module loads no old code: until the next build it runs under numba's JIT (the rule numba's
+  own cache follows: a kernel calls only kernels of its own module and reads only that module's constants).
+* The GIL is released inside compiled kernels (``nogil``), as under numba, so threaded detection stays parallel.
+* ``CIRCCAL_AOT=0`` ignores the ahead-of-time build (numba's JIT, as before it existed).
+
+``numba.pycc`` is pending deprecation in numba 0.68 (its replacement is not released yet); when it goes, the build
+fails loudly and the detector runs under numba's JIT as before: slower to start, the same results.
 """
 from __future__ import annotations
 
+import hashlib
+import importlib.util
+import json
+import os
+import sys
+import tempfile
+import threading
 import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
 
-__all__ = ["njit", "COMPILED"]
+import numpy as np
 
-try:
-    from numba import njit
-    COMPILED = True
-except ImportError:  # pragma: no cover - exercised by tests/test_detect.py in a subprocess
-    COMPILED = False
+if TYPE_CHECKING:  # annotations only
+    from circcal.board import Board
+
+__all__ = ["njit", "COMPILED", "Kernel", "build", "aot_status", "synthetic_board"]
+
+#: Where :func:`build` writes the compiled kernel modules (one extension + its signatures per kernel module).
+AOT_DIR = Path(__file__).resolve().parent / "_aot"
+#: Set to "0" to ignore the ahead-of-time build (numba's JIT only).
+AOT_ENV = "CIRCCAL_AOT"
+
+_HAVE_NUMBA = importlib.util.find_spec("numba") is not None
+#: True when the kernels run compiled (ahead of time or by numba); False: plain Python (~50x slower).
+COMPILED = _HAVE_NUMBA or (os.environ.get(AOT_ENV) != "0" and AOT_DIR.is_dir() and any(AOT_DIR.glob("*.json")))
+if not COMPILED:  # pragma: no cover - exercised by tests/test_detect.py in a subprocess
     warnings.warn("numba is not installed: circcal's detector runs its per-pixel loops in plain Python (same "
                   "results, ~50x slower); `pip install numba` restores the speed", RuntimeWarning, stacklevel=2)
 
-    def njit(*args, **kwargs):
-        """Identity decorator with numba's signature (``@njit`` and ``@njit(...)``)."""
-        if len(args) == 1 and callable(args[0]) and not kwargs:
-            return args[0]
-        return lambda fn: fn
+_lock = threading.RLock()
+#: module name -> its kernels, in the order they were decorated
+_registry: dict[str, list["Kernel"]] = {}
+#: module name -> {kernel name: [(argument specs, compiled function)]}, loaded once per module
+_aot_cache: dict[str, dict[str, list[tuple[list, Callable]]]] = {}
+
+
+def _module_key(module: str) -> str:
+    """Hash (16 hex) naming a kernel module's compiled build: its source file, this file and numpy's version."""
+    h = hashlib.sha256()
+    for path in (sys.modules[module].__file__, __file__):
+        h.update(Path(path).read_bytes())
+    h.update(np.__version__.encode())
+    return h.hexdigest()[:16]
+
+
+def _aot_name(module: str) -> str:
+    return f"{module.rsplit('.', 1)[-1]}_{_module_key(module)}"
+
+
+def _load_aot(module: str) -> dict[str, list[tuple[list, Callable]]]:
+    """The ahead-of-time kernels of ``module`` built from its current source ({} if none)."""
+    with _lock:
+        if module in _aot_cache:
+            return _aot_cache[module]
+        table: dict[str, list[tuple[list, Callable]]] = {}
+        name = _aot_name(module)
+        manifest = AOT_DIR / f"{name}.json"
+        if os.environ.get(AOT_ENV) != "0" and manifest.is_file():
+            exports = json.loads(manifest.read_text())
+            ext = next(AOT_DIR.glob(f"{name}.*.so"), None) or next(AOT_DIR.glob(f"{name}.*.pyd"), None)
+            if ext is not None:
+                spec = importlib.util.spec_from_file_location(name, ext)
+                mod = importlib.util.module_from_spec(spec)
+                spec.loader.exec_module(mod)
+                for kernel, entries in exports.items():
+                    table[kernel] = [(e["args"], getattr(mod, e["symbol"])) for e in entries]
+        _aot_cache[module] = table
+        return table
+
+
+def _matches(specs: list, args: tuple) -> bool:
+    """Whether ``args`` have exactly the types one compiled signature was built for (see :func:`_spec_of`)."""
+    if len(specs) != len(args):
+        return False
+    for s, a in zip(specs, args):
+        kind = s[0]
+        if kind == "array":
+            if not (isinstance(a, np.ndarray) and a.dtype.str == s[1] and a.ndim == s[2]
+                    and a.flags.aligned and a.flags.writeable == s[4]):
+                return False
+            if s[3] == "C" and not a.flags.c_contiguous:
+                return False
+        elif kind == "int":
+            if isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer)):
+                return False
+        elif kind == "float":
+            if not isinstance(a, (float, np.floating)):
+                return False
+        elif kind == "bool":
+            if not isinstance(a, (bool, np.bool_)):
+                return False
+        else:
+            return False
+    return True
+
+
+class Kernel:
+    """One detector kernel: called from Python it runs the ahead-of-time build for its arguments' types, else
+    numba's JIT (imported on the first such call), else the plain Python function. ``py_func`` is the source."""
+
+    def __init__(self, fn: Callable, options: dict[str, Any]):
+        self.py_func = fn
+        self.options = options
+        self.module = fn.__module__
+        self.__name__ = fn.__name__
+        self.__doc__ = fn.__doc__
+        self.__wrapped__ = fn
+        self._aot: list[tuple[list, Callable]] | None = None
+        self._jit: Callable | None = None
+
+    def __call__(self, *args):
+        if self._jit is None:
+            if self._aot is None:
+                self._aot = _load_aot(self.module).get(self.__name__, [])
+            for specs, fn in self._aot:
+                if _matches(specs, args):
+                    return fn(*args)
+        return self.jitted()(*args)
+
+    def jitted(self) -> Callable:
+        """numba's dispatcher for this kernel (the plain function without numba). The first call turns every kernel
+        of the module into numba dispatchers at once and rebinds the module's names to them, since a kernel calling
+        another is compiled by numba only if that name is numba's."""
+        if self._jit is None:
+            _jit_module(self.module)
+        return self._jit  # type: ignore[return-value]
+
+
+def _jit_module(module: str) -> None:
+    with _lock:
+        kernels = _registry[module]
+        if all(k._jit is not None for k in kernels):
+            return
+        if _HAVE_NUMBA:
+            import numba
+
+            for k in kernels:
+                k._jit = numba.njit(**k.options)(k.py_func)
+        else:
+            for k in kernels:
+                k._jit = k.py_func
+        namespace = sys.modules[module].__dict__
+        for k in kernels:
+            if namespace.get(k.__name__) is k:
+                namespace[k.__name__] = k._jit
+
+
+def njit(*args, **kwargs):
+    """numba's ``njit`` signature (``@njit`` and ``@njit(...)``), returning a :class:`Kernel`."""
+    if len(args) == 1 and callable(args[0]) and not kwargs:
+        return njit()(args[0])
+
+    def wrap(fn: Callable) -> Kernel:
+        k = Kernel(fn, kwargs)
+        with _lock:
+            _registry.setdefault(k.module, []).append(k)
+        return k
+
+    return wrap
+
+
+def aot_status() -> dict[str, bool]:
+    """Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable."""
+    return {m: bool(_load_aot(m)) for m in _registry}
+
+
+def _spec_of(t) -> list | None:
+    """A numba argument type as a check :func:`_matches` can run without numba: ``["array", dtype.str, ndim,
+    layout, writeable]``, ``["int"]``, ``["float"]``, ``["bool"]``; None for a type not exported."""
+    from numba.core import types
+
+    if isinstance(t, types.Array):
+        if t.layout not in ("C", "A"):
+            return None
+        return ["array", np.dtype(str(t.dtype) if str(t.dtype) != "bool" else np.bool_).str, t.ndim, t.layout,
+                bool(t.mutable)]
+    if isinstance(t, types.Boolean):
+        return ["bool"]
+    if isinstance(t, types.Integer) and t.bitwidth == 64 and t.signed:
+        return ["int"]
+    if isinstance(t, types.Float) and t.bitwidth == 64:
+        return ["float"]
+    return None
+
+
+def synthetic_board() -> tuple[np.ndarray, "Board"]:
+    """A 640x480 uint8 image of a 5x6 symmetric board (dots 5 mm on a 10 mm pitch) in perspective, drawn at 8x and
+    area-averaged: what :func:`build` runs the detector on."""
+    import cv2
+
+    from circcal.board import Board
+
+    board = Board(5, 6, 10.0, 5.0)
+    obj = board.object_points()[:, :2]
+    w, h = obj.max(axis=0) + 10.0
+    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]),
+                                    np.float32([[180, 120], [470, 140], [450, 380], [170, 360]]))
+    big = np.full((480 * 8, 640 * 8), 230, np.uint8)
+    for x, y in obj:
+        px, py = cv2.perspectiveTransform(np.float64([[[x + 5.0, y + 5.0]]]), H)[0, 0]
+        cv2.circle(big, (int(px * 8), int(py * 8)), int(2.5 * 290.0 / w * 8), 30, -1)
+    return cv2.resize(big, (640, 480), interpolation=cv2.INTER_AREA), board
+
+
+def _exercise() -> None:
+    """Run the detector on :func:`synthetic_board` as uint8, uint16 and float32 images, so that numba compiles each
+    kernel for the argument types detection gives it."""
+    from circcal.detector.find import detect
+
+    img, board = synthetic_board()
+    for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):
+        d = detect(im, board)
+        if not d.found:
+            raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
+
+
+def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
+    """Compile every kernel module ahead of time into ``out_dir`` (see the module docstring), skipping those whose
+    current source is built already (unless ``force``); builds of older sources are removed. Returns module -> the
+    kernels exported (or ``["(current)"]``). Needs numba and a C compiler (pycc compiles the module's C glue)."""
+    import numba.pycc.compiler as pycc_compiler
+    from numba.pycc import CC
+
+    import circcal.detector.find  # noqa: F401 - registers every kernel module the detector uses
+
+    for module in list(_registry):
+        _jit_module(module)
+    _exercise()
+
+    class _NoGilFlags(pycc_compiler.Flags):  # pycc's wrappers would hold the GIL; numba's nogil kernels do not
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            self.release_gil = True
+
+    pycc_compiler.Flags = _NoGilFlags
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done: dict[str, list[str]] = {}
+    for module, kernels in _registry.items():
+        name = _aot_name(module)
+        if not force and out_dir == AOT_DIR and (out_dir / f"{name}.json").is_file():
+            done[module] = ["(current)"]
+            continue
+        cc = CC(name)
+        cc.verbose = False
+        manifest: dict[str, list] = {}
+        for k in kernels:
+            for i, sig in enumerate(k._jit.signatures):
+                specs = [_spec_of(t) for t in sig]
+                if any(s is None for s in specs):
+                    continue
+                symbol = f"{k.__name__}__{i}"
+                ret = k._jit.overloads[sig].signature.return_type
+                cc.export(symbol, ret(*sig))(k.py_func)
+                manifest.setdefault(k.__name__, []).append({"symbol": symbol, "args": specs})
+        if not manifest:
+            continue
+        with tempfile.TemporaryDirectory(dir=out_dir) as tmp:  # moved in whole: a reader never sees half a build
+            cc.output_dir = tmp
+            with warnings.catch_warnings():  # pycc's own pending-deprecation notice: stated in the module docstring
+                warnings.simplefilter("ignore")
+                cc.compile()
+            for old in out_dir.glob(f"{module.rsplit('.', 1)[-1]}_*"):
+                old.unlink()
+            for f in Path(tmp).iterdir():
+                os.replace(f, out_dir / f.name)
+            manifest_tmp = Path(tmp) / "manifest"
+            manifest_tmp.write_text(json.dumps(manifest, indent=1) + "\n")
+            os.replace(manifest_tmp, out_dir / f"{name}.json")
+        done[module] = sorted(manifest)
+    return done

@@ -1,0 +1,85 @@
+"""The detector's kernels compiled ahead of time (circcal/detector/jit.py): loaded without numba, the same results
+as numba's JIT to the bit, and a call with other argument types runs under numba instead of crashing."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from circcal.detector import jit
+from circcal.detector.find import detect
+
+REPO = Path(__file__).resolve().parents[1]
+BUILT = all(jit.aot_status().values()) and bool(jit.aot_status())
+needs_build = pytest.mark.skipif(not BUILT, reason="no ahead-of-time build of the current kernel sources "
+                                                   "(make setup builds it; a failed build falls back to numba)")
+
+
+def _run(code: str, **env: str) -> str:
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=600,
+                       env={**os.environ, **env})
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+@needs_build
+def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy_linalg(tmp_path):
+    code = ("import sys, numpy as np\n"
+            "from circcal.detector import jit\n"
+            "from circcal.detector.find import detect\n"
+            "img, board = jit.synthetic_board()\n"
+            "for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):\n"
+            "    d = detect(im, board)\n"
+            "    assert d.found\n"
+            f"np.save({str(tmp_path / 'aot.npy')!r}, d.centres)\n"
+            "print('numba' in sys.modules, 'scipy.linalg' in sys.modules)\n")
+    assert _run(code).split() == ["False", "False"]
+    # the same centres as numba's JIT, to the bit
+    _run(code.replace("aot.npy", "jit.npy").replace("print(", "# "), CIRCCAL_AOT="0")
+    assert np.array_equal(np.load(tmp_path / "aot.npy"), np.load(tmp_path / "jit.npy"))
+
+
+@needs_build
+def test_other_argument_types_run_under_numba_not_the_built_code():
+    code = ("import sys, numpy as np\n"
+            "from circcal.detector import ellipse\n"
+            "p = np.random.default_rng(0).normal(size=(3, 12, 2)); use = np.ones((3, 12), bool)\n"
+            "a = ellipse._normalised_scatter(p, use)\n"
+            "before = 'numba' in sys.modules\n"
+            "b = ellipse._normalised_scatter(p.astype(np.float32)[:, ::-1], use)\n"  # float32, not contiguous
+            "print(before, 'numba' in sys.modules, np.allclose(a[1], b[1]))\n")
+    assert _run(code).split() == ["False", "True", "True"]
+
+
+def test_argument_checks():
+    arr = ["array", "<f8", 2, "C", True]
+    x = np.zeros((3, 2))
+    assert jit._matches([arr, ["int"], ["float"], ["bool"]], (x, 3, 1.5, True))
+    assert jit._matches([arr, ["int"]], (x, np.int64(3)))
+    assert not jit._matches([arr], (x.astype(np.float32),))
+    assert not jit._matches([arr], (x.T,))                       # not C-contiguous
+    assert jit._matches([["array", "<f8", 2, "A", True]], (x.T,))
+    assert not jit._matches([arr], (np.zeros(3),))                # ndim
+    ro = x.copy()
+    ro.flags.writeable = False
+    assert not jit._matches([arr], (ro,))
+    assert not jit._matches([arr, ["int"]], (x, True))            # a bool is not an int64
+    assert not jit._matches([arr, ["int"]], (x, 2.0))
+    assert not jit._matches([arr], (x, 1))
+
+
+def test_the_build_is_named_after_the_kernel_source():
+    # an edited kernel module loads no old build: its name carries the hash of the module's source
+    key = jit._module_key("circcal.detector.edges")
+    assert len(key) == 16 and jit._aot_name("circcal.detector.edges") == f"edges_{key}"
+    assert key != jit._module_key("circcal.detector.levels")
+
+
+def test_synthetic_board_is_found():
+    img, board = jit.synthetic_board()
+    d = detect(img, board)
+    assert d.found and d.centres.shape == (board.n_points, 2)
