@@ -27,6 +27,7 @@ BUILTINS: dict[str, str] = {
     "mrcal": "circcal.validators.mrcal:MrcalCalibrator",
     "kornia": "circcal.validators.kornia:KorniaCalibrator",
     "pycolmap": "circcal.validators.pycolmap:PycolmapCalibrator",
+    "lensboy": "circcal.validators.lensboy:LensboyCalibrator",
 }
 
 _problems: dict[str, str] = {}
