@@ -3,8 +3,13 @@
 mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.validators.mrcal_worker` runs under another
 interpreter: ``$CIRCCAL_MRCAL_PYTHON`` if set, else ``/usr/bin/python3`` if it can ``import mrcal`` (Debian's
 ``python3-mrcal``). JSON goes in on stdin and comes back on stdout. The worker uses mrcal's Python API
-(``seed_stereographic``, then staged ``mrcal.optimize``) with ``LENSMODEL_OPENCV5`` = OpenCV's 5 coefficients; it
-supports the 2.2 and 2.5 APIs.
+(``seed_stereographic``, then staged ``mrcal.optimize``); it supports the 2.2 and 2.5 APIs.
+
+Lens models: ``LENSMODEL_OPENCV5`` / ``OPENCV8`` / ``OPENCV12`` for circcal's ``opencv5`` / ``rational`` /
+``thin-prism``: intrinsics [fx, fy, cx, cy] + OpenCV's distortion vector in OpenCV's order (k1, k2, p1, p2, k3,
+k4, k5, k6, s1, s2, s3, s4; mrcal's ``lensmodel_num_params`` 9 / 12 / 16; ``mrcal.project`` equals
+``cv2.projectPoints`` for them). ``fisheye`` is unsupported: mrcal 2.2's ``supported_lensmodels()`` has no
+equidistant (Kannala-Brandt) model.
 
 Modes
 -----
@@ -37,7 +42,11 @@ from circcal.observations import check_observations
 from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, \
     seed_camera
 
-__all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE"]
+__all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE", "LENSMODELS"]
+
+#: circcal lens -> mrcal lens model (the same parameters in the same order: OpenCV's)
+LENSMODELS: dict[str, str] = {"opencv5": "LENSMODEL_OPENCV5", "rational": "LENSMODEL_OPENCV8",
+                              "thin-prism": "LENSMODEL_OPENCV12"}
 
 WORKER = Path(__file__).with_name("mrcal_worker.py")
 ENV_VAR = "CIRCCAL_MRCAL_PYTHON"
@@ -142,13 +151,20 @@ def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, sta
 
 
 class MrcalCalibrator(BaseCalibrator):
-    """Reference: mrcal (out of process). ``python``: interpreter to use (default: ``$CIRCCAL_MRCAL_PYTHON`` or
-    ``/usr/bin/python3``). ``timeout_s``: limit for one worker run."""
+    """Reference: mrcal (out of process). ``lens``: the circcal lens model fitted (:data:`LENSMODELS`).
+    ``python``: interpreter to use (default: ``$CIRCCAL_MRCAL_PYTHON`` or ``/usr/bin/python3``). ``timeout_s``:
+    limit for one worker run."""
 
     name = "mrcal"
     modes = ("fair", "default")
+    lenses = tuple(LENSMODELS)
+    unsupported_lenses = {
+        "fisheye": "mrcal has no equidistant (Kannala-Brandt) fisheye model: mrcal 2.2's supported_lensmodels() are "
+                   "PINHOLE, STEREOGRAPHIC, LONLAT, LATLON, OPENCV4/5/8/12, CAHVOR, CAHVORE and "
+                   "SPLINED_STEREOGRAPHIC, none of them cv2.fisheye's theta polynomial"}
 
-    def __init__(self, *, python: str | None = None, timeout_s: float = 300.0) -> None:
+    def __init__(self, *, lens: str = "opencv5", python: str | None = None, timeout_s: float = 300.0) -> None:
+        self.lens = lens
         self.python = python
         self.timeout_s = float(timeout_s)
 
@@ -177,6 +193,7 @@ class MrcalCalibrator(BaseCalibrator):
         holder: dict[str, list[ReferenceResult]] = {}
 
         def go() -> ReferenceResult:
+            self._check_lens()
             obj, img, size = check_observations(object_points, image_points, image_size)
             holder["r"] = self._run(obj, img, size, list(modes), initial)
             return holder["r"][0]
@@ -204,17 +221,20 @@ class MrcalCalibrator(BaseCalibrator):
         for v, (ij, q) in enumerate(zip(lat["ij"], image_points)):
             obs[v, ij[:, 0], ij[:, 1], :2] = q
             obs[v, ij[:, 0], ij[:, 1], 2] = 1.0
+        if initial is not None and initial.lens != self.lens:
+            raise ValueError(f"initial camera has lens {initial.lens!r}, this reference fits {self.lens!r}")
         seed = initial if initial is not None else seed_camera(object_points, image_points, image_size)
+        lensmodel = LENSMODELS[self.lens]
         req = {"modes": modes, "width_n": W, "height_n": H, "spacing": s, "observations": obs.tolist(),
                "imagersize": [int(image_size[0]), int(image_size[1])],
-               "focal_estimate": float(0.5 * (seed.fx + seed.fy)),
+               "focal_estimate": float(0.5 * (seed.fx + seed.fy)), "lensmodel": lensmodel,
                "seed_intrinsics": None if initial is None else initial.intrinsics.tolist()}
         reply = run_worker(py, req, self.timeout_s)
         wall = time.perf_counter() - t0
         out = []
         for r in reply["results"]:
             intr = np.asarray(r["intrinsics"], dtype=np.float64)
-            cam = Camera.from_intrinsics(image_size[0], image_size[1], intr)
+            cam = Camera.from_intrinsics(image_size[0], image_size[1], intr, lens=self.lens)
             rt = np.asarray(r["frames_rt_toref"], dtype=np.float64).reshape(nf, 6)
             rvecs = rt[:, :3]
             # mrcal's board frame starts at the lattice origin: ours is shifted by `origin`
@@ -232,7 +252,7 @@ class MrcalCalibrator(BaseCalibrator):
                          calobject_warp=r["calobject_warp"], seed_focal_px=req["focal_estimate"],
                          seed_from="cv2.initCameraMatrix2D focal (mrcal needs a focal estimate)"
                          if initial is None else "initial camera", worker_wall_s=wall,
-                         lensmodel="LENSMODEL_OPENCV5")
+                         lensmodel=lensmodel, lens=self.lens)
             if r["mode"] == "fair":
                 res = self.finish(r["mode"], cam, rvecs, tvecs, object_points, image_points, t0, **extra)
                 # mrcal's own residuals agree with ours (flat board, same model): record the check

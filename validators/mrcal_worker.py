@@ -18,12 +18,13 @@ Request::
      "observations": [[[[x, y, w], ...]]],  # (Nframes, H, W, 3); w = 1 observed, -1 missing
      "imagersize": [width, height],
      "focal_estimate": f,                   # seed focal length (px)
-     "seed_intrinsics": null | [fx, fy, cx, cy, k1, k2, p1, p2, k3]}
+     "lensmodel": "LENSMODEL_OPENCV5",      # or OPENCV8 / OPENCV12 (OpenCV's 8- and 12-vectors, OpenCV's order)
+     "seed_intrinsics": null | [fx, fy, cx, cy, *distortion of lensmodel]}
 
 Reply::
 
     {"version": "2.2-4+b1", "version_source": "...", "api": "2.2" | "2.5",
-     "results": [{"mode", "intrinsics" (9,), "frames_rt_toref" (Nframes, 6), "rms_per_coord_px",
+     "results": [{"mode", "intrinsics" (4 + n,), "frames_rt_toref" (Nframes, 6), "rms_per_coord_px",
                   "x_board" (Nframes, H, W, 2) mrcal's residuals projected - observed (0 for outliers/missing),
                   "weights" (Nframes, H, W) after outlier rejection, "n_outliers", "calobject_warp" | null,
                   "stats_keys"}]}
@@ -110,11 +111,13 @@ def solve(req: dict) -> dict:
         inputs[k_ext] = extrinsics
         inputs[k_frames] = frames
         mrcal.optimize(**inputs)
+    lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
+    n_intr = int(mrcal.lensmodel_num_params(lensmodel))
     if req.get("seed_intrinsics") is not None:
-        seed_intr = np.asarray(req["seed_intrinsics"], dtype=np.float64).reshape(1, 9)
+        seed_intr = np.asarray(req["seed_intrinsics"], dtype=np.float64).reshape(1, n_intr)
     else:
         rng = np.random.default_rng(0)  # tiny non-zero distortion seed, as the CLI does (deterministic here)
-        seed_intr = np.concatenate([intrinsics, (rng.random((1, 5)) - 0.5) * 2e-6], axis=1)
+        seed_intr = np.concatenate([intrinsics, (rng.random((1, n_intr - 4)) - 0.5) * 2e-6], axis=1)
     seed_frames = frames.copy()
 
     results = []
@@ -123,7 +126,7 @@ def solve(req: dict) -> dict:
         intr = seed_intr.copy()
         fr = seed_frames.copy()
         ext = np.zeros((0, 6))
-        base = dict(common, observations_board=obs, intrinsics=intr, lensmodel="LENSMODEL_OPENCV5",
+        base = dict(common, observations_board=obs, intrinsics=intr, lensmodel=lensmodel,
                     do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
                     do_optimize_extrinsics=True, do_optimize_frames=True)
         base[k_ext] = ext
@@ -147,6 +150,7 @@ def solve(req: dict) -> dict:
         n_out = stats.get("Noutliers_board", stats.get("Noutliers", 0))
         results.append({
             "mode": mode,
+            "lensmodel": lensmodel,
             "intrinsics": intr.reshape(-1).tolist(),
             "frames_rt_toref": fr.tolist(),
             "rms_per_coord_px": float(stats["rms_reproj_error__pixels"]),
@@ -160,8 +164,8 @@ def solve(req: dict) -> dict:
 
 
 def _export_inputs(req: dict, api: str) -> dict:
-    """mrcal.optimize() inputs at a given solution (no optimisation run): LENSMODEL_OPENCV5 (OPENCV4 when k3 is held
-    at 0), the board lattice observations, the frames, and the fair-mode switches (no warp, no regularisation, no
+    """mrcal.optimize() inputs at a given solution (no optimisation run): ``req["lensmodel"]`` (default
+    LENSMODEL_OPENCV5; OPENCV4 when k3 is held at 0), the board lattice observations, the frames, and the fair-mode switches (no warp, no regularisation, no
     outlier rejection: circcal's estimator, whose optimum this is)."""
     import numpy as np
 
@@ -169,8 +173,8 @@ def _export_inputs(req: dict, api: str) -> dict:
     W, H = int(req["width_n"]), int(req["height_n"])
     obs = np.ascontiguousarray(np.asarray(req["observations"], dtype=np.float64).reshape(-1, H, W, 3))
     nf = obs.shape[0]
-    intr = np.asarray(req["intrinsics"], dtype=np.float64).reshape(1, 9)
-    lensmodel = "LENSMODEL_OPENCV5"
+    intr = np.asarray(req["intrinsics"], dtype=np.float64).reshape(1, -1)
+    lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
     if req.get("opencv4"):
         lensmodel, intr = "LENSMODEL_OPENCV4", intr[:, :8]
     inputs = dict(intrinsics=np.ascontiguousarray(intr), lensmodel=lensmodel, points=None, observations_board=obs,
@@ -204,7 +208,8 @@ def export(req: dict) -> dict:
     """A ``.cameramodel`` carrying mrcal's optimisation inputs, built from circcal's observations and solution.
 
     Request: ``{"command": "export", "width_n", "height_n", "spacing", "observations" (Nframes, H, W, 3) with
-    w = 1 observed and -1 missing, "imagersize", "intrinsics" (9,), "frames_rt_toref" (Nframes, 6) in mrcal's
+    w = 1 observed and -1 missing, "imagersize", "lensmodel" (optional, default LENSMODEL_OPENCV5), "intrinsics"
+    (4 + n,), "frames_rt_toref" (Nframes, 6) in mrcal's
     board frame, "opencv4": bool (k3 held at 0), "note": str, "uncertainty": null | {"uv", "distance",
     "observed_pixel_uncertainty"}}``. Reply: ``{"version", "api", "cameramodel" (the file's text),
     "rms_per_coord_px" (mrcal's, from its own residuals at this state), "max_abs_gradient" (of mrcal's cost in its

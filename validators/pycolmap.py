@@ -5,11 +5,19 @@ The calibration is posed as a bundle adjustment: the world frame is the board, e
 gauge; no extra gauge fixing). Intrinsics are refined with ``refine_principal_point=True`` (COLMAP's default is
 False).
 
-Models
+Models (COLMAP's parameter order, as ``pycolmap.Camera.params_info`` of pycolmap 4.2.1 lists it and COLMAP's
+``src/colmap/sensor/models.h`` defines it)
 ------
-* ``"FULL_OPENCV"`` (default): fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 with k4-k6 held at 0 by a
-  ``pyceres.SubsetManifold`` = OpenCV's 5-coefficient model.
-* ``"OPENCV"``: fx, fy, cx, cy, k1, k2, p1, p2; k3 is fixed at 0 (compare with OpenCV's ``CALIB_FIX_K3``).
+* lens ``opencv5``: ``"FULL_OPENCV"`` (default): fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 with k4-k6 held at 0
+  by a ``pyceres.SubsetManifold`` = OpenCV's 5-coefficient model; or ``"OPENCV"``: fx, fy, cx, cy, k1, k2, p1, p2;
+  k3 is fixed at 0 (compare with OpenCV's ``CALIB_FIX_K3``).
+* lens ``rational``: ``"FULL_OPENCV"`` with every parameter free: OpenCV's rational model, the radial factor
+  (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6); COLMAP's order already is OpenCV's 8-vector's.
+* lens ``fisheye``: ``"OPENCV_FISHEYE"``: fx, fy, cx, cy, k1, k2, k3, k4; theta = atan(r) of the point on the z = 1
+  plane (COLMAP rejects a point with z < epsilon: nothing at or beyond 90 deg), theta_d = theta (1 + k1 theta^2 +
+  k2 theta^4 + k3 theta^6 + k4 theta^8): cv2.fisheye's model without its skew.
+* lens ``thin-prism``: unsupported. COLMAP has no pinhole model with OpenCV's s1-s4: ``THIN_PRISM_FISHEYE``
+  (k1, k2, p1, p2, k3, k4, sx1, sy1) and ``RAD_TAN_THIN_PRISM_FISHEYE`` are equidistant fisheye models.
 
 COLMAP puts the top-left pixel centre at (0.5, 0.5) (OpenCV: (0, 0)); observations are shifted by +0.5 on the way
 in and cx, cy by -0.5 on the way out. Standard deviations: ``pycolmap.estimate_ba_covariance`` (unit-noise
@@ -21,13 +29,23 @@ import time
 
 import numpy as np
 
-from circcal.model import PARAM_NAMES, Camera, project
+from circcal.model import Camera, param_names, project
 from circcal.rotation import rodrigues
 from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
 
 __all__ = ["PycolmapCalibrator", "MODELS"]
 
-MODELS = ("FULL_OPENCV", "OPENCV")
+MODELS = ("FULL_OPENCV", "OPENCV", "OPENCV_FISHEYE")
+#: circcal lens -> the COLMAP model fitting it, and the COLMAP models a lens may be given
+LENS_TO_MODEL: dict[str, str] = {"opencv5": "FULL_OPENCV", "rational": "FULL_OPENCV", "fisheye": "OPENCV_FISHEYE"}
+_LENS_MODELS: dict[str, tuple[str, ...]] = {"opencv5": ("FULL_OPENCV", "OPENCV"), "rational": ("FULL_OPENCV",),
+                                           "fisheye": ("OPENCV_FISHEYE",)}
+#: COLMAP's parameter names per model (``pycolmap.Camera.params_info``)
+MODEL_PARAMS: dict[str, tuple[str, ...]] = {
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+}
 COLMAP_OFFSET = 0.5  # COLMAP pixel = OpenCV pixel + 0.5
 
 
@@ -49,17 +67,54 @@ def _import(name: str):
         if before is not None:
             signal.signal(signal.SIGTERM, before)
 
+def to_colmap_params(camera: Camera, model: str) -> np.ndarray:
+    """COLMAP parameters (its order, :data:`MODEL_PARAMS`) of ``camera`` for ``model``: circcal's names map one to
+    one; the principal point shifted by +0.5 px (COLMAP's pixel convention); a COLMAP parameter the camera's lens
+    lacks (k4-k6 of FULL_OPENCV for opencv5) is 0. ``ValueError`` when the camera has a coefficient ``model`` lacks
+    and it is not 0 (k3 in OPENCV)."""
+    values = dict(zip(param_names(camera.lens), np.asarray(camera.intrinsics, dtype=np.float64)))
+    values["cx"] += COLMAP_OFFSET
+    values["cy"] += COLMAP_OFFSET
+    names = MODEL_PARAMS[model]
+    lost = [n for n, v in values.items() if n not in names and v != 0.0]
+    if lost:
+        raise ValueError(f"COLMAP's {model} has no {', '.join(lost)}")
+    return np.array([values.get(n, 0.0) for n in names])
+
+
+def from_colmap_params(params: np.ndarray, model: str, lens: str, width: int, height: int) -> Camera:
+    """The circcal camera of ``lens`` from COLMAP ``model`` parameters (the inverse of :func:`to_colmap_params`).
+    ``ValueError`` when a COLMAP parameter the lens lacks is not 0."""
+    values = dict(zip(MODEL_PARAMS[model], np.asarray(params, dtype=np.float64)))
+    values["cx"] -= COLMAP_OFFSET
+    values["cy"] -= COLMAP_OFFSET
+    names = param_names(lens)
+    lost = [n for n, v in values.items() if n not in names and v != 0.0]
+    if lost:
+        raise ValueError(f"lens {lens!r} has no {', '.join(lost)} (COLMAP {model})")
+    return Camera.from_intrinsics(width, height, np.array([values.get(n, 0.0) for n in names]), lens=lens)
+
+
 class PycolmapCalibrator(BaseCalibrator):
-    """Reference: pycolmap's Ceres bundle adjustment. ``model``: "FULL_OPENCV" (k4-k6 fixed at 0) or "OPENCV"
-    (no k3: k3 = 0). ``max_iterations``: Ceres iterations (tolerances are set tight)."""
+    """Reference: pycolmap's Ceres bundle adjustment. ``lens``: the circcal lens model fitted (see the module
+    docstring); ``model``: the COLMAP model, default the one of :data:`LENS_TO_MODEL`; for ``opencv5`` also
+    "OPENCV" (no k3: k3 = 0). ``max_iterations``: Ceres iterations (tolerances are set tight)."""
 
     name = "pycolmap"
     modes = ("fair",)
+    lenses = tuple(LENS_TO_MODEL)
+    unsupported_lenses = {
+        "thin-prism": "COLMAP has no pinhole model with OpenCV's thin-prism terms s1-s4 (its THIN_PRISM_FISHEYE and "
+                      "RAD_TAN_THIN_PRISM_FISHEYE are equidistant fisheye models)"}
 
-    def __init__(self, *, model: str = "FULL_OPENCV", max_iterations: int = 500) -> None:
-        if model not in MODELS:
+    def __init__(self, *, lens: str = "opencv5", model: str | None = None, max_iterations: int = 500) -> None:
+        if model is not None and model not in MODELS:
             raise ValueError(f"unknown pycolmap model {model!r}; expected one of {', '.join(MODELS)}")
-        self.model = model
+        if lens in _LENS_MODELS and model is not None and model not in _LENS_MODELS[lens]:
+            raise ValueError(f"COLMAP model {model} does not fit lens {lens!r}; it needs "
+                             f"{' or '.join(_LENS_MODELS[lens])}")
+        self.lens = lens
+        self.model = model if model is not None else LENS_TO_MODEL.get(lens, "FULL_OPENCV")
         self.max_iterations = int(max_iterations)
 
     def _version(self) -> str:
@@ -72,7 +127,7 @@ class PycolmapCalibrator(BaseCalibrator):
             pycolmap = _import("pycolmap")  # noqa: F841
         except ImportError as exc:
             return False, f"pycolmap not importable ({exc}); pip install pycolmap pyceres"
-        if self.model == "FULL_OPENCV":
+        if self.model == "FULL_OPENCV" and self.lens == "opencv5":
             try:
                 pyceres = _import("pyceres")  # noqa: F841
             except ImportError as exc:
@@ -86,15 +141,12 @@ class PycolmapCalibrator(BaseCalibrator):
 
         t0 = time.perf_counter()
         w, h = image_size
-        seed = initial if initial is not None else seed_camera(object_points, image_points, image_size)
+        lens = self.lens
+        if initial is not None and initial.lens != lens:
+            raise ValueError(f"initial camera has lens {initial.lens!r}, this reference fits {lens!r}")
+        seed = initial if initial is not None else seed_camera(object_points, image_points, image_size, lens=lens)
         cam = pycolmap.Camera.create_from_model_name(1, self.model, float(seed.fx), int(w), int(h))
-        n_par = 12 if self.model == "FULL_OPENCV" else 8
-        p = np.zeros(n_par)
-        p[:4] = [seed.fx, seed.fy, seed.cx + COLMAP_OFFSET, seed.cy + COLMAP_OFFSET]
-        p[4:8] = seed.dist[:4]
-        if self.model == "FULL_OPENCV":
-            p[8] = seed.dist[4]
-        cam.params = p
+        cam.params = to_colmap_params(seed, self.model)
         rec = pycolmap.Reconstruction()
         rec.add_camera_with_trivial_rig(cam)
 
@@ -147,27 +199,22 @@ class PycolmapCalibrator(BaseCalibrator):
         so.num_threads = 1
         ba = pycolmap.create_default_ceres_bundle_adjuster(opts, cfg, rec)
         cam_ref = rec.cameras[1]
-        fixed: list[str]
+        fixed: list[str] = []  # COLMAP parameters held at 0 (a k3 absent from OPENCV counts as fixed)
         manifold = None
-        if self.model == "FULL_OPENCV":
+        if self.model == "FULL_OPENCV" and lens == "opencv5":
             pyceres = _import("pyceres")
 
             # keep a Python reference: Ceres does not own the manifold, and a collected temporary segfaults the solve
             manifold = pyceres.SubsetManifold(12, [9, 10, 11])  # k4, k5, k6 (index 8 is k3: it stays free)
             ba.problem.set_manifold(cam_ref.params, manifold)
             fixed = ["k4", "k5", "k6"]
-        else:
+        elif self.model == "OPENCV":
             fixed = ["k3"]
         summary = ba.solve()
         cp = np.asarray(rec.cameras[1].params, dtype=np.float64)
-        dist = np.zeros(5)
-        dist[:4] = cp[4:8]
-        if self.model == "FULL_OPENCV":
-            dist[4] = cp[8]
-            if np.any(cp[9:12] != 0):
-                raise RuntimeError(f"k4-k6 moved off zero ({cp[9:12]}): SubsetManifold not applied")
-        camera = Camera(int(w), int(h), float(cp[0]), float(cp[1]), float(cp[2] - COLMAP_OFFSET),
-                        float(cp[3] - COLMAP_OFFSET), dist)
+        if manifold is not None and np.any(cp[9:12] != 0):
+            raise RuntimeError(f"k4-k6 moved off zero ({cp[9:12]}): SubsetManifold not applied")
+        camera = from_colmap_params(cp, self.model, lens, int(w), int(h))
         import cv2
 
         rvecs, tvecs = [], []
@@ -200,20 +247,19 @@ class PycolmapCalibrator(BaseCalibrator):
                     ssr += float(np.sum((project(o, r, t, camera) - q) ** 2))
                 sigma2 = ssr / max(n_obs - n_free, 1)
                 sd = np.sqrt(np.clip(np.diag(C), 0, None) * sigma2)
-                # tangent order: the free parameters in COLMAP's order (fx fy cx cy k1 k2 p1 p2 [k3])
-                names = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"] + (["k3"] if self.model == "FULL_OPENCV"
-                                                                           else [])
+                # tangent order: the free parameters in COLMAP's order
+                names = [n for n in MODEL_PARAMS[self.model] if n not in fixed]
                 if len(names) != n_free_intr:
                     std_note = f"unexpected covariance size {n_free_intr} for {self.model}"
                 else:
-                    std = {n: 0.0 for n in PARAM_NAMES}
+                    std = {n: 0.0 for n in param_names(lens)}
                     std.update({n: float(s) for n, s in zip(names, sd)})
         except Exception as exc:  # noqa: BLE001
             std_note = f"covariance failed: {type(exc).__name__}: {exc}"
         del manifold  # only now may the manifold go (the adjuster and covariance are done with it)
         term = str(getattr(summary, "termination_type", ""))
         return self.finish(mode, camera, rvecs_a, tvecs_a, object_points, image_points, t0, std=std,
-                           fixed=fixed, model=self.model, ceres_termination=term,
+                           fixed=fixed, model=self.model, lens=lens, ceres_termination=term,
                            ceres_iterations=int(getattr(summary, "num_iterations", -1))
                            if hasattr(summary, "num_iterations") else None,
                            std_note=std_note, seed_fx=float(seed.fx),
