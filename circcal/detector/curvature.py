@@ -56,11 +56,16 @@ def _shift_table() -> np.ndarray:
 
 
 def curvature_shift(a: np.ndarray, b: np.ndarray, cos_t: np.ndarray, sin_t: np.ndarray,
-                    sigma_t: np.ndarray) -> np.ndarray:
+                    sigma_t: np.ndarray, unmodelled: bool = False
+                    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """(D, M) outward shift (px) from the half-level contour to the true edge at the points ``(a cos t, b sin t)``
     (ellipse frame) of D ellipses with semi-axes ``a``, ``b`` (D,) px, given ``cos t``, ``sin t`` (D, M), and blur
     scales ``sigma_t`` (D,) px: the edge modelled locally by its osculating circle blurred by a Gaussian of
-    ``sigma_t``, faded out where that model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`)."""
+    ``sigma_t``, faded out where that model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`).
+
+    ``unmodelled``: also return the (D, M) part of the modelled shift (px) that the fade leaves out, the size of the
+    error an edge point may carry there (the tight ends of thin ellipses: up to ~0.5 px), as ``(shift, unmodelled)``.
+    """
     table = _shift_table()
     a, b = a[:, None], b[:, None]
     q = (a * sin_t) ** 2 + (b * cos_t) ** 2
@@ -68,4 +73,6 @@ def curvature_shift(a: np.ndarray, b: np.ndarray, cos_t: np.ndarray, sin_t: np.n
     u = rho / sigma_t[:, None]
     shift = np.where(u > U_TABLE[-1], 0.5 / np.maximum(u, 1e-9), np.interp(u, U_TABLE, table, left=table[0]))
     fade = np.clip((u - MODEL_FROM_U) / (MODEL_FULL_U - MODEL_FROM_U), 0.0, 1.0)
+    if unmodelled:
+        return sigma_t[:, None] * shift * fade, sigma_t[:, None] * shift * (1.0 - fade)
     return sigma_t[:, None] * shift * fade

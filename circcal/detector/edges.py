@@ -55,8 +55,8 @@ PIXEL_BOX_VARIANCE = 1.0 / 12.0
 """Variance (px^2) of a pixel's unit box: the blur that area sampling adds to every edge, whatever the optics."""
 
 
-def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray
-                               ) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
+def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slack: bool = False
+                               ) -> tuple[np.ndarray, ...]:
     """Sub-pixel boundary points of the dark dots near the ellipses ``conics`` (D, 3, 3) on ``src`` (the image and its
     smoothing scale ``sigma``).
 
@@ -71,7 +71,10 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray
 
     Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
     ``points[d][mask[d]]`` (profiles without a clear edge are left out; there may be few, the caller decides);
-    ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all.
+    ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all. ``with_slack``: a fourth array ``slack``
+    (D, Nmax) px, the curvature shift left uncorrected at each point where the osculating-circle model fades out
+    (:func:`~circcal.detector.curvature.curvature_shift`; 0 elsewhere): how far that point may lie off the true
+    edge without being an outlier.
     """
     conics = np.asarray(conics, np.float64)
     D = len(conics)
@@ -128,8 +131,10 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray
     sk = np.take_along_axis(S, k, axis=1)
     off = sk + tt * step
     sigma_t = _edge_blur(base + sk[..., None] * nrm, fb - fa, plane, ratio, ok, src.sigma)
-    off = off + curvature_shift(a_, b_, cos_t, sin_t, sigma_t)
-    off = np.where(ok, off, 0.0)
+    shift, slack = curvature_shift(a_, b_, cos_t, sin_t, sigma_t, unmodelled=True)
+    off = np.where(ok, off + shift, 0.0)
+    if with_slack:
+        return base + off[..., None] * nrm, ok, errors, np.where(ok, slack, 0.0)
     return base + off[..., None] * nrm, ok, errors
 
 

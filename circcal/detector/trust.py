@@ -79,6 +79,10 @@ GREY_SHARE = 0.05
 """A dot is left out when more than this share of the samples on that ring are grey (between the dot's dark and the
 board's white by :data:`CLEARANCE_LEVEL` of the contrast either way): the rim of a neighbouring dot crossing the
 ring gives a few such samples, an occluder an arc of them."""
+CLEARANCE_MIN_PX = 2.0
+"""The clearance rings are only sampled when the nearer one lies at least half this far (px) outside the rim: nearer,
+bilinear samples of the dot's own anti-aliased edge read dark (a dot of a 70 deg-tilted asymmetric grid 2 px from its
+neighbour was dropped so), and a dot that close to its neighbours leaves no room for an occluder anyway."""
 CLEARANCE_ANGLES = 48
 """Samples per ring (one per 7.5 deg; the tables _COS, _SIN below)."""
 MAX_LATTICE_RESIDUAL = 0.06
@@ -193,7 +197,7 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
     mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
                                                                                * contrast)[:, None])
     ok = contrast > 0
-    return (np.where(ok & (near >= 1.0), dark.mean(axis=1), 0.0),
+    return (np.where(ok & (near >= CLEARANCE_MIN_PX), dark.mean(axis=1), 0.0),
             np.where(ok & (far > near), mid.mean(axis=1), 0.0))
 
 
