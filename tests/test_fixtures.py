@@ -200,3 +200,54 @@ def test_cli_render(tmp_path, monkeypatch, capsys):
     assert main(["render", "bogus", "--out", str(tmp_path / "x")]) == 2
     assert "known scenarios: paper" in capsys.readouterr().err
     assert main(["render", "--list"]) == 0
+
+
+def test_lens_model_scenarios():
+    """fisheye: a ~170 deg equidistant lens, boards out to 64 deg (centre) / 80 deg (farthest dot), every dot in
+    frame and in front; rational-wide: a lens OpenCV's 5 coefficients cannot fit (0.39 px RMS on exact
+    projections of its views) and the rational model can (float32 rounding)."""
+    from circcal.rotation import rodrigues
+
+    fe = SCENARIOS["fisheye"]
+    assert fe.camera.lens == "fisheye" and set(fe.variants) == {"clean", "perturbed"}
+    centre_deg, far_deg = [], []
+    for rvec, tvec in fe.poses():
+        P = fe.board.object_points() @ rodrigues(rvec).T + tvec
+        deg = np.degrees(np.arctan2(np.hypot(P[:, 0], P[:, 1]), P[:, 2]))
+        c = P.mean(axis=0)
+        centre_deg.append(np.degrees(np.arctan2(np.hypot(c[0], c[1]), c[2])))
+        far_deg.append(deg.max())
+        q = project(fe.board.object_points(), rvec, tvec, fe.camera)
+        assert np.all(q >= 0) and np.all(q[:, 0] <= fe.camera.width - 1) and np.all(q[:, 1] <= fe.camera.height - 1)
+    assert 60.0 < max(centre_deg) < 70.0 and 78.0 < max(far_deg) < 85.0
+    # the lens sees ~170 deg across the image's width
+    from circcal.model import unproject
+
+    edge = unproject(np.array([[0.0, fe.camera.cy], [fe.camera.width - 1.0, fe.camera.cy]]), fe.camera)
+    across = np.degrees(np.arccos(np.clip(edge[0] @ edge[1], -1, 1)))
+    assert 160.0 < across < 180.0
+
+    rw = SCENARIOS["rational-wide"]
+    assert rw.camera.lens == "rational" and set(rw.variants) == {"clean", "perturbed"}
+    obj = [rw.board.object_points().astype(np.float32)] * len(rw.poses())
+    img = [project(rw.board.object_points(), rv, tv, rw.camera).astype(np.float32) for rv, tv in rw.poses()]
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    rms5 = cv2.calibrateCamera(obj, img, (rw.camera.width, rw.camera.height), None, None, criteria=crit)[0]
+    rms8 = cv2.calibrateCamera(obj, img, (rw.camera.width, rw.camera.height), None, None,
+                               flags=cv2.CALIB_RATIONAL_MODEL, criteria=crit)[0]
+    assert rms5 > 0.3 and rms8 < 1e-3
+
+
+def test_truth_json_names_the_lens(tmp_path):
+    """truth.json carries the lens of a camera other than opencv5, and load_truth reads it back."""
+    sc = SCENARIOS["fisheye"]
+    import dataclasses
+
+    one = dataclasses.replace(sc, n_views=1)
+    dirs = render_fixture(one, tmp_path, ["clean"], progress=False)
+    truth = json.loads((dirs["clean"] / "truth.json").read_text())
+    assert truth["camera"]["lens"] == "fisheye" and len(truth["camera"]["dist"]) == 4
+    t = load_truth(dirs["clean"])
+    assert t.camera.lens == "fisheye" and np.array_equal(t.camera.intrinsics, sc.camera.intrinsics)
+    v = t.views[0]
+    assert np.max(np.abs(project(t.board.object_points(), v.rvec, v.tvec, t.camera) - v.centres)) == 0.0
