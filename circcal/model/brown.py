@@ -152,8 +152,8 @@ def undistort(
     ``|distort(x) - xd|`` (max norm, normalised units) is below ``tol`` (relative to ``|xd|`` beyond 1); 1e-15
     normalised is ~1e-11 px for f up to 10^4 px. A step that does not reduce a point's residual is halved (guards
     strong barrel distortion). Returns (..., 2) undistorted normalised coordinates. Points where the model folds
-    over (no unique inverse, far outside a sensible field of view: the radial factor or its denominator not
-    positive, or the map orientation-reversing) come back as NaN rather than a wrong value.
+    over (no unique inverse, far outside a sensible field of view: the radial factor not positive, or the map
+    orientation-reversing) come back as NaN rather than a wrong value.
     """
     xd = np.asarray(xd, dtype=np.float64)
     d = check_dist(dist)
@@ -201,9 +201,10 @@ def undistort(
                 v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err))
     if idx.size:
         out[idx] = np.nan
-    # A root on the far side of the fold (radial factor or its denominator <= 0, or the map locally
-    # orientation-reversing) is no inverse of a real lens: report it as NaN.
-    _, _, radial, den, a, b, e, c = _brown(out[:, 0], out[:, 1], d, True)
-    bad = (radial <= 0) | (np.asarray(den) <= 0) | ((a * c - b * e) <= 0)
+    # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no
+    # inverse of a real lens: report it as NaN. (The rational denominator alone may cross 0 where its numerator
+    # does too: a fitted pole-zero pair that cancels is a smooth lens.)
+    _, _, radial, _, a, b, e, c = _brown(out[:, 0], out[:, 1], d, True)
+    bad = (radial <= 0) | ((a * c - b * e) <= 0)
     out[bad] = np.nan
     return out.reshape(shape)

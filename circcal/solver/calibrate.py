@@ -1,7 +1,7 @@
 """Calibration solver: Zhang's closed form, then Levenberg-Marquardt over intrinsics, distortion and all board poses.
 
-Model and conventions are :mod:`circcal.model`'s (OpenCV's pinhole + ``[k1, k2, p1, p2, k3]``, pixel centres at
-integer coordinates). The refinement minimises the sum of squared reprojection errors (px) with an analytic
+Model and conventions are :mod:`circcal.model`'s (``lens``: OpenCV's pinhole + ``[k1, k2, p1, p2, k3]`` by default,
+the rational and thin-prism models, or cv2.fisheye's; pixel centres at integer coordinates). The refinement minimises the sum of squared reprojection errors (px) with an analytic
 Jacobian that is sparse by construction: each view's residuals depend only on the intrinsics and that view's six
 pose parameters (a dense intrinsic block beside a block-diagonal pose part). The default solver
 (:func:`circcal.solver.lm.levenberg_marquardt`) is Levenberg-Marquardt that solves each damped step exactly by eliminating the 6x6 pose blocks
@@ -24,9 +24,10 @@ import numpy as np
 
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.metrics import error_stats
-from circcal.model import PARAM_NAMES, Camera, pixel_to_normalized, undistort
+from circcal.model import Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
 from circcal.solver.covariance import state_covariance
+from circcal.solver.fisheye_start import fisheye_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.problem import Problem, board_model
 from circcal.solver.result import CalibrationResult
@@ -59,7 +60,13 @@ RESTART_DISTORTION_ROUNDS = 10
 
 
 def initial_poses(obj, img, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Poses from homographies of the undistorted, normalised observations under ``camera``."""
+    """Poses from homographies of the undistorted, normalised observations under ``camera`` (fisheye: of their
+    rays, :func:`circcal.solver.fisheye_start.poses_from_rays`)."""
+    if not camera.model.pinhole:
+        rays = [unproject(p, camera) for p in img]
+        if not all(np.all(np.isfinite(r)) for r in rays):
+            raise CalibrationError("some observed points lie beyond the initial fisheye camera's field")
+        return poses_from_rays(obj, rays)
     xn = [undistort(pixel_to_normalized(p, camera), camera.dist) for p in img]
     if not all(np.all(np.isfinite(x)) for x in xn):
         raise CalibrationError("the initial camera's distortion cannot be inverted at some observed points")
@@ -82,6 +89,7 @@ def calibrate(
     max_iterations: int = 200,
     solver: str = "schur",
     outlier_rule: "OutlierRule | None" = None,
+    lens: str | None = None,
 ) -> CalibrationResult:
     """Calibrate a camera from planar-board correspondences.
 
@@ -110,6 +118,12 @@ def calibrate(
     rejection listed in ``CalibrationResult.outliers``, the solve repeated until none is left); None (the default)
     fits every observation given, as every reference calibrator does.
 
+    ``lens``: the lens model fitted (a :data:`circcal.model.LENS_MODELS` name; default ``initial``'s, else
+    ``opencv5``); the ``fix_*`` options hold the coefficients of those names the model has (fisheye: k1-k4, no p1,
+    p2). Pinhole models start from Zhang's closed form with ``k1, k2`` (every other coefficient 0), as
+    ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal length is searched for
+    (:func:`circcal.solver.fisheye_start.fisheye_start`).
+
     Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
     6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
     unobservable (e.g. boards nearly parallel to the image plane), naming those views.
@@ -121,7 +135,13 @@ def calibrate(
                                    fix_k2=fix_k2, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
                                    fix_principal_point=fix_principal_point, initial=initial,
                                    refine_board=refine_board, board_gauge=board_gauge,
-                                   max_iterations=max_iterations, solver=solver)
+                                   max_iterations=max_iterations, solver=solver, lens=lens)
+    if lens is None:
+        lens = initial.lens if initial is not None else "opencv5"
+    model = lens_model(lens)
+    if initial is not None and initial.lens != lens:
+        raise ValueError(f"initial camera has lens {initial.lens!r} but lens={lens!r}")
+    names = model.param_names
     obj, img, (w, h) = check_observations(object_points, image_points, image_size)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
     fixed: list[str] = []
@@ -138,18 +158,38 @@ def calibrate(
     aspect = (initial.fx / initial.fy if initial is not None else 1.0) if fix_aspect_ratio else None
 
     def zhang_start(distortion_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Intrinsics (9,) and poses from Zhang's closed form, honouring the fixed principal point / aspect."""
-        z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect,
-                  distortion_rounds=distortion_rounds)
-        c = z.camera
-        start = np.array([c.fx, c.fy, c.cx, c.cy, c.dist[0], c.dist[1], 0.0, 0.0, 0.0])
+        """Intrinsics (4 + n_dist,) and poses from Zhang's closed form (fisheye: the equidistant start),
+        honouring the fixed principal point / aspect."""
+        start = np.zeros(len(names))
+        c = None
+        if model.pinhole:
+            try:
+                z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None,
+                          aspect_ratio=aspect, distortion_rounds=distortion_rounds)
+            except DegenerateViewsError as e:
+                # a wide lens (rational, thin prism) can defeat the distortion-free closed form where no view is
+                # flat: start from the equidistant lens instead, its radial profile atan(r) / r in the rational
+                # model's Pade form (1 + 4/15 r^2) / (1 + 3/5 r^2)
+                if model.n_dist < 8 or e.views:
+                    raise
+            else:
+                c, rvecs, tvecs = z.camera, z.rvecs, z.tvecs
+                start[4:6] = c.dist[0], c.dist[1]
+                if fix_k2:
+                    start[5] = 0.0
+            if c is None:
+                c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
+                                                else None, aspect_ratio=aspect)
+                start[names.index("k1")], start[names.index("k4")] = 4.0 / 15.0, 3.0 / 5.0
+        else:
+            c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
+                                            else None, aspect_ratio=aspect)
+        start[:4] = c.fx, c.fy, c.cx, c.cy
         if fix_principal_point:
             start[2:4] = centre
-        if fix_k2:
-            start[5] = 0.0
         if aspect is not None:
             start[0] = aspect * start[1]
-        return start, z.rvecs, z.tvecs
+        return start, rvecs, tvecs
 
     if initial is None:
         intr, rvecs, tvecs = zhang_start(0)
@@ -161,19 +201,20 @@ def calibrate(
     if aspect is not None:
         intr[0] = aspect * intr[1]
 
-    free = [k for k, name in enumerate(PARAM_NAMES) if name not in fixed and not (aspect is not None and k == 0)]
+    fixed = [name for name in fixed if name in names or name == "aspect_ratio"]
+    free = [k for k, name in enumerate(names) if name not in fixed and not (aspect is not None and k == 0)]
     board = board_model(obj, board_gauge) if refine_board else None
     if board is not None and board.held_unseen:
         warnings.warn(f"board refinement: {len(board.held_unseen)} point(s) seen in fewer than 3 views are held at "
                       f"their nominal positions (indices {board.held_unseen[:10]})", RuntimeWarning, stacklevel=2)
-    prob = Problem(obj, img, intr, free, aspect, board)
+    prob = Problem(obj, img, intr, free, aspect, board, lens)
     x0 = prob.pack(intr, rvecs, tvecs)
 
     x, n_iter, converged, message = solve(prob, x0, max_iterations, solver)
-    if initial is None and not is_sane(prob, x, converged):
+    if initial is None and model.pinhole and not is_sane(prob, x, converged):
         # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
         intr, rvecs, tvecs = zhang_start(RESTART_DISTORTION_ROUNDS)
-        prob = Problem(obj, img, intr, free, aspect, board)
+        prob = Problem(obj, img, intr, free, aspect, board, lens)
         x, n_iter2, converged, message = solve(prob, prob.pack(intr, rvecs, tvecs), max_iterations, solver)
         n_iter += n_iter2
     f, Xc, _, _ = prob.evaluate(x)
@@ -184,14 +225,20 @@ def calibrate(
     if p[0] <= 0 or p[1] <= 0:
         raise CalibrationError(f"the solver diverged to a non-positive focal length (fx={p[0]:.4g}, fy={p[1]:.4g}); "
                                f"check the point correspondences and the views")
-    if np.any(Xc[:, 2] <= 0):
-        bad = sorted(set(prob.view[Xc[:, 2] <= 0].tolist()))
-        raise CalibrationError(f"the solver diverged: board points behind the camera in view(s) {bad}")
+    if model.pinhole:
+        outside = Xc[:, 2] <= 0
+        where = "behind the camera"
+    else:
+        outside = np.arctan2(np.hypot(Xc[:, 0], Xc[:, 1]), Xc[:, 2]) > theta_max(p[4:])
+        where = "beyond the fisheye's one-to-one field"
+    if np.any(outside):
+        bad = sorted(set(prob.view[outside].tolist()))
+        raise CalibrationError(f"the solver diverged: board points {where} in view(s) {bad}")
     if not converged:
         warnings.warn(f"calibration did not converge ({message}); the model may be inaccurate", RuntimeWarning,
                       stacklevel=2)
 
-    camera = Camera.from_intrinsics(w, h, p)
+    camera = Camera.from_intrinsics(w, h, p, lens)
     rv, tv = prob.poses(x)
     m = 2 * len(prob.X)
     dof = m - prob.n
@@ -229,7 +276,7 @@ def calibrate(
         corr = cov9 / np.outer(std_arr, std_arr)
     corr[std_arr == 0, :] = np.nan
     corr[:, std_arr == 0] = np.nan
-    std = {name: float(s) for name, s in zip(PARAM_NAMES, std_arr)}
+    std = {name: float(s) for name, s in zip(names, std_arr)}
 
     board_points = board_std = None
     if board is not None:
@@ -242,7 +289,7 @@ def calibrate(
     errors = error_stats(np.concatenate(residuals))
     if errors["rms_per_coord_px"] > LARGE_RESIDUAL_PX:
         warnings.warn(f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
-                      f"coordinate): outliers, wrong board geometry or a lens the 5-coefficient model cannot fit",
+                      f"coordinate): outliers, wrong board geometry or a lens the {lens} model cannot fit",
                       RuntimeWarning, stacklevel=2)
     return CalibrationResult(
         camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,

@@ -35,10 +35,10 @@ class StateCovariance:
     """First-order covariance of a solve's whole state, per unit of per-coordinate noise, in factored form.
 
     ``S_inv``: (ng, ng) the global block ``S^-1``; ``M``: (V, 6, ng) ``D_v^-1 B_v^T``; ``D_inv``: (V, 6, 6);
-    ``intrinsics_map``: (9, nf), d(fx..k3) / d(free intrinsics) (a held parameter has a zero row; a held aspect
-    ratio puts ``a`` in fx's row); ``n_board``: free board coordinates (0 without board refinement); ``sigma_px``:
-    the per-coordinate noise estimate of the solve, sqrt(SSR / (2N - n)). Multiply by ``sigma_px^2`` for the
-    covariance.
+    ``intrinsics_map``: (4 + n_dist, nf), d(intrinsics) / d(free intrinsics) (a held parameter has a zero row; a
+    held aspect ratio puts ``a`` in fx's row); ``n_board``: free board coordinates (0 without board refinement);
+    ``sigma_px``: the per-coordinate noise estimate of the solve, sqrt(SSR / (2N - n)). Multiply by
+    ``sigma_px^2`` for the covariance.
     """
 
     S_inv: np.ndarray

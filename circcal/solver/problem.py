@@ -91,7 +91,7 @@ class Problem:
     """
 
     def __init__(self, obj, img, base: np.ndarray, free: list[int], aspect: float | None,
-                 board: BoardModel | None = None):
+                 board: BoardModel | None = None, lens: str = "opencv5"):
         self.counts = np.array([len(o) for o in obj])
         self.view = np.repeat(np.arange(len(obj)), self.counts)
         self.X = np.concatenate(obj)
@@ -103,14 +103,16 @@ class Problem:
             self.base[0] = 0.0
         self.free = free
         self.aspect = aspect
-        # intrinsics (9,) = base + T @ x_intr
-        self.T = np.zeros((9, len(free)))
+        self.lens = lens
+        # intrinsics (4 + n_dist,) = base + T @ x_intr
+        n_intr = len(self.base)
+        self.T = np.zeros((n_intr, len(free)))
         for j, k in enumerate(free):
             self.T[k, j] = 1.0
             if aspect is not None and k == 1:
                 self.T[0, j] = aspect
         self.nf = len(free)
-        self.T_is_identity = self.T.shape == (9, 9) and bool(np.all(self.T == np.eye(9)))
+        self.T_is_identity = self.T.shape == (n_intr, n_intr) and bool(np.all(self.T == np.eye(n_intr)))
         ends = np.cumsum(self.counts)
         self.slices = [slice(a, b) for a, b in zip(ends - self.counts, ends)]
         self.board = board
@@ -164,7 +166,7 @@ class Problem:
         for v, sl in enumerate(self.slices):
             np.matmul(X[sl], R[v].T, out=Y[sl])
         Xc = Y + np.repeat(tv, self.counts, axis=0)
-        uv, Ji, dP = project_camera_jacobian(Xc, p)
+        uv, Ji, dP = project_camera_jacobian(Xc, p, self.lens)
         f = (uv - self.uv).ravel()
         C = rotated_jacobian(dP, Y)
         Jp = np.empty((len(X), 2, 6))

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from circcal.formats import model_json
-from circcal.model import PARAM_NAMES, Camera
+from circcal.model import Camera
 from circcal.solver.covariance import StateCovariance
 
 __all__ = ["CalibrationResult"]
@@ -18,9 +18,10 @@ __all__ = ["CalibrationResult"]
 class CalibrationResult:
     """A calibrated camera with its uncertainty and fit statistics.
 
-    ``std``: standard deviation of each of fx, fy, cx, cy, k1, k2, p1, p2, k3 (px / unitless) from
-    ``sigma_px^2 (J^T J)^-1`` with the poses marginalised; 0.0 for a parameter held fixed (listed in ``fixed``); with a
-    fixed aspect ratio fx = a * fy, fx's std is a * std(fy). ``correlation``: (9, 9), NaN in the rows and columns of
+    ``std``: standard deviation of each of the camera's parameters (``camera.model.param_names``: fx, fy, cx, cy in
+    px, then the distortion coefficients, unitless) from ``sigma_px^2 (J^T J)^-1`` with the poses marginalised; 0.0
+    for a parameter held fixed (listed in ``fixed``); with a fixed aspect ratio fx = a * fy, fx's std is a * std(fy).
+    ``correlation``: (4 + n_dist, 4 + n_dist), NaN in the rows and columns of
     fixed parameters. ``rvecs``/``tvecs``: (V, 3) board -> camera (radians / mm). ``residuals``: per view (N_v, 2)
     px, observed - projected. ``errors``: :func:`circcal.metrics.error_stats` over all points (keys name the
     convention: rms_per_point_px = OpenCV's RMS, rms_per_coord_px = mrcal's, mean_2d_px = the paper's eq. 22);
@@ -97,7 +98,7 @@ class CalibrationResult:
         return {
             "std": {k: float(v) for k, v in self.std.items()},
             "fixed": list(self.fixed),
-            "parameter_order": list(PARAM_NAMES),
+            "parameter_order": list(self.camera.model.param_names),
             "correlation": self.correlation,
             "errors": dict(self.errors),
             "sigma_px": float(self.sigma_px),

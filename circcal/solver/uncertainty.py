@@ -42,14 +42,14 @@ def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarr
     enter: zero columns) and every pose (rvec rad, tvec mm). ``distance``: mm along each pixel's ray (None: at
     infinity, rotations only). Pixels whose ray cannot be unprojected (beyond the lens's fold) give NaN rows."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    rays = unproject(uv, camera)                                                    # (N, 3), z = 1
+    rays = unproject(uv, camera)                                  # (N, 3), z = 1 (fisheye: unit rays)
     if distance is None:
         p = rays                                                                    # a direction
     else:
         if not (np.isfinite(distance) and distance > 0):
             raise InputError(f"distance must be a positive number of mm (or None: infinity), got {distance!r}")
         p = rays / np.linalg.norm(rays, axis=1, keepdims=True) * float(distance)
-    _, J_intr, J_p = project_camera_jacobian(p, camera.intrinsics)                  # (N,2,9), (N,2,3)
+    _, J_intr, J_p = project_camera_jacobian(p, camera.intrinsics, camera.lens)     # (N,2,4+nd), (N,2,3)
     rv = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
     tv = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
     V = len(rv)

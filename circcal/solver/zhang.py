@@ -203,18 +203,20 @@ def intrinsics_from_homographies(
     return K / K[2, 2], condition
 
 
-def poses_from_homographies(Hs: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def poses_from_homographies(Hs: np.ndarray, K: np.ndarray, *, signed: bool = False
+                            ) -> tuple[np.ndarray, np.ndarray]:
     """Board poses from homographies ``Hs`` (V, 3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
 
     ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in
-    front of the camera, ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvecs`` (V, 3) radians, ``tvecs``
-    (V, 3) mm.
+    front of the camera (``signed``: the sign ``Hs`` carries, for homographies onto rays in any direction),
+    ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvecs`` (V, 3) radians, ``tvecs`` (V, 3) mm.
     """
     import cv2
 
     M = np.linalg.solve(K, np.asarray(Hs, dtype=np.float64).reshape(-1, 3, 3))
     s = 2.0 / (np.linalg.norm(M[:, :, 0], axis=1) + np.linalg.norm(M[:, :, 1], axis=1))
-    s = np.where(M[:, 2, 2] < 0, -s, s)
+    if not signed:
+        s = np.where(M[:, 2, 2] < 0, -s, s)
     r1, r2, t = s[:, None] * M[:, :, 0], s[:, None] * M[:, :, 1], s[:, None] * M[:, :, 2]
     R = np.stack([r1, r2, np.cross(r1, r2)], axis=2)
     U, _, Vt = np.linalg.svd(R)
