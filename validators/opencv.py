@@ -1,8 +1,14 @@
-"""OpenCV as a reference: ``cv2.findCirclesGrid`` (blob centroids) and ``cv2.calibrateCameraExtended``.
+"""OpenCV as a reference: ``cv2.findCirclesGrid`` (blob centroids), ``cv2.calibrateCameraExtended`` and
+``cv2.fisheye.calibrate``.
 
-* Solver: 5 distortion coefficients (k1, k2, p1, p2, k3), optionally k3 fixed (``fix_k3=True``), tight criteria.
-  OpenCV takes float32 points: the observations are rounded to float32 and the result records the rounded values it
-  actually used (feed float32-representable centres when comparing solvers to 1e-6 px).
+* Solver, by lens model (``lens=``): ``opencv5`` 5 distortion coefficients (k1, k2, p1, p2, k3; OpenCV's default),
+  ``rational`` ``CALIB_RATIONAL_MODEL`` (8), ``thin-prism`` ``CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL`` (12),
+  all through calibrateCameraExtended (standard deviations from it); ``fisheye`` ``cv2.fisheye.calibrate`` with
+  ``CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW`` (k1-k4, skew held 0; it gives no standard deviations). Optionally
+  k3 fixed (``fix_k3=True``, ``CALIB_FIX_K3``), tight criteria. calibrateCamera takes float32 points: the
+  observations are rounded to float32 and the result records the rounded values it actually used (feed
+  float32-representable centres when comparing solvers to 1e-6 px); cv2.fisheye takes float64 ``(1, N, 3)``
+  arrays (``(N, 1, 3)`` raises a size error in OpenCV 5.0), given the same float32-rounded values.
   ``CALIB_DISABLE_SCHUR_COMPLEMENT`` is never used: in OpenCV 5 it equals ``CALIB_TILTED_MODEL``.
 * "fair" and "default" are the same estimator here (OpenCV has no regularisation, warp or outlier rejection).
 * Detector: a SimpleBlobDetector whose area limits follow the expected dot size (OpenCV's default ``maxArea`` of
@@ -18,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from circcal.model import PARAM_NAMES, Camera
+from circcal.model import LENS_MODELS, Camera, param_names
 from circcal.validators.base import BaseCalibrator, ReferenceResult
 
 __all__ = ["OpenCVCalibrator", "make_blob_detector", "find_circles_grid"]
@@ -97,17 +103,38 @@ def find_circles_grid(image: np.ndarray, board: Any, *, detector: Any = None,
     return None, "grid not found (plain and clustering; default, sized and permissive blob detectors)"
 
 
-class OpenCVCalibrator(BaseCalibrator):
-    """Reference: OpenCV's calibrateCameraExtended (5 coefficients) and findCirclesGrid.
+#: circcal's lens model -> the calibrateCamera flags that fit it (fisheye: cv2.fisheye.calibrate's).
+LENS_FLAGS: dict[str, str] = {
+    "opencv5": "0 (the default 5 coefficients)",
+    "rational": "CALIB_RATIONAL_MODEL",
+    "thin-prism": "CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL",
+    "fisheye": "cv2.fisheye.calibrate with CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW",
+}
 
-    ``fix_k3``: hold k3 at its initial value (0 unless ``initial`` says otherwise) (``CALIB_FIX_K3``).
+
+def _lens_flags(lens: str) -> int:
+    cv2 = _cv2()
+    return {"opencv5": 0, "rational": cv2.CALIB_RATIONAL_MODEL,
+            "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+            "fisheye": cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW}[lens]
+
+
+class OpenCVCalibrator(BaseCalibrator):
+    """Reference: OpenCV's calibrateCameraExtended / cv2.fisheye.calibrate and findCirclesGrid.
+
+    ``lens``: the lens model fitted (every circcal model; :data:`LENS_FLAGS`). ``fix_k3``: hold k3 at its initial
+    value (0 unless ``initial`` says otherwise) (``CALIB_FIX_K3``; the fisheye's k3 is its theta^6 coefficient).
     ``criteria``: cv2 termination criteria (default: 500 iterations, eps 1e-16).
     """
 
     name = "opencv"
     modes = ("fair",)
+    lenses = tuple(LENS_FLAGS)
 
-    def __init__(self, *, fix_k3: bool = False, criteria: tuple | None = None) -> None:
+    def __init__(self, *, lens: str = "opencv5", fix_k3: bool = False, criteria: tuple | None = None) -> None:
+        if lens not in LENS_MODELS:
+            raise ValueError(f"unknown lens model {lens!r}; expected one of {', '.join(LENS_MODELS)}")
+        self.lens = lens
         self.fix_k3 = bool(fix_k3)
         self.criteria = criteria
 
@@ -125,40 +152,57 @@ class OpenCVCalibrator(BaseCalibrator):
                    image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
         cv2 = _cv2()
         t0 = time.perf_counter()
+        lens = self.lens
+        n_dist = len(LENS_MODELS[lens].dist_names)
         obj32 = [np.ascontiguousarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points]
         img32 = [np.ascontiguousarray(p, dtype=np.float32).reshape(-1, 1, 2) for p in image_points]
-        flags = 0
+        flags = _lens_flags(lens)
         K0, d0 = None, None
         if initial is not None:
+            if initial.lens != lens:
+                raise ValueError(f"initial camera has lens {initial.lens!r}, this reference fits {lens!r}")
             flags |= cv2.CALIB_USE_INTRINSIC_GUESS
-            K0, d0 = initial.K.copy(), initial.dist.copy().reshape(1, 5)
+            K0, d0 = initial.K.copy(), initial.dist.copy().reshape(1, n_dist)
         fixed = []
         if self.fix_k3:
             flags |= cv2.CALIB_FIX_K3
             fixed.append("k3")
         criteria = self.criteria or _tight_criteria()
+        size = (int(image_size[0]), int(image_size[1]))
         # one thread: with several, OpenCV's parallel sums make the result vary run to run by ~2e-7 px
         n_threads = cv2.getNumThreads()
         cv2.setNumThreads(1)
         try:
-            rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
-                obj32, img32, (int(image_size[0]), int(image_size[1])), K0, d0, flags=flags, criteria=criteria)
+            if lens == "fisheye":
+                if K0 is None:
+                    K0, d0 = np.eye(3), np.zeros((4, 1))
+                rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+                    [o.reshape(1, -1, 3).astype(np.float64) for o in obj32],
+                    [p.reshape(1, -1, 2).astype(np.float64) for p in img32], size, K0, d0.reshape(4, 1),
+                    flags=flags, criteria=criteria)
+                std_in = per_view = None
+            else:
+                rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
+                    obj32, img32, size, K0, d0, flags=flags, criteria=criteria)
         finally:
             cv2.setNumThreads(n_threads)
-        dist = np.asarray(dist, dtype=np.float64).reshape(-1)[:5]
-        cam = Camera(int(image_size[0]), int(image_size[1]), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-                     float(K[1, 2]), dist)
-        std_v = np.asarray(std_in, dtype=np.float64).reshape(-1)
-        std = {n: float(std_v[i]) for i, n in enumerate(PARAM_NAMES)}
+        dist = np.asarray(dist, dtype=np.float64).reshape(-1)[:n_dist]
+        cam = Camera(size[0], size[1], float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), dist, lens)
+        std = None
+        if std_in is not None:
+            std_v = np.asarray(std_in, dtype=np.float64).reshape(-1)
+            std = {n: float(std_v[i]) for i, n in enumerate(param_names(lens))}
         used_obj = [o.reshape(-1, 3).astype(np.float64) for o in obj32]
         used_img = [p.reshape(-1, 2).astype(np.float64) for p in img32]
         rv = np.array([np.asarray(r, dtype=np.float64).reshape(3) for r in rvecs])
         tv = np.array([np.asarray(t, dtype=np.float64).reshape(3) for t in tvecs])
+        extra = {} if per_view is None else {
+            "per_view_rms_px": np.asarray(per_view, dtype=float).reshape(-1).tolist()}
         return self.finish(mode, cam, rv, tv, used_obj, used_img, t0, std=std, fixed=fixed, flags=int(flags),
-                           rms_opencv_per_point_px=float(rms),
-                           per_view_rms_px=np.asarray(per_view, dtype=float).reshape(-1).tolist(),
+                           lens_flags=LENS_FLAGS[lens], rms_opencv_per_point_px=float(rms), **extra,
                            criteria=list(criteria),
-                           note="OpenCV has no regularisation/warp/outlier rejection: fair == default")
+                           note="OpenCV has no regularisation/warp/outlier rejection: fair == default"
+                           + ("; cv2.fisheye.calibrate gives no standard deviations" if std is None else ""))
 
     def detect(self, paths: Sequence[Any], board: Any, *, detector: Any = None) -> dict[str, Any]:
         """Run findCirclesGrid on every image. Returns ``{"image_points": [...], "views": [indices found],
