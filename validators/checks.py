@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 
 from circcal.model import Camera
-from circcal.validators.bounds import COST_TIE_REL, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
+from circcal.validators.bounds import COST_TIE_REL, SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 from circcal.validators.compare import param_diff, projection_diff
 from circcal.validators.shared import ssr
 
-__all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",
+__all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",
            "solver_bound", "solver_agreement", "truth_checks"]
 
 #: The parameters the truth check holds to their stated sigmas (distortion terms are correlated with each other
@@ -37,8 +37,9 @@ class Check:
 
 
 def solver_bound(reference: str) -> float:
-    """The identical-observations bound for a reference (mrcal's solver stops earlier than the others)."""
-    return SOLVER_MRCAL_PX if reference == "mrcal" else SOLVER_PX
+    """The identical-observations bound for a reference (mrcal's and lensboy's solvers stop earlier than the
+    others)."""
+    return {"mrcal": SOLVER_MRCAL_PX, "lensboy": SOLVER_LENSBOY_PX}.get(reference, SOLVER_PX)
 
 
 def solver_agreement(label: str, ref: Any, max_px: float, circcal_ssr: float, bound: float) -> Check:

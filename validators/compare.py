@@ -21,7 +21,7 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.metrics import error_stats, per_coord_to_per_point, per_point_to_per_coord
-from circcal.model import PARAM_NAMES, Camera, project_camera, unproject
+from circcal.model import Camera, param_names, project_camera, unproject
 from circcal.rotation import fit_rotation
 
 __all__ = [
@@ -42,12 +42,16 @@ def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
                std_b: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
     """Per-parameter difference ``b - a``.
 
-    Returns ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for fx..k3, where ``sigma`` combines the stated
-    standard deviations: sqrt(std_a^2 + std_b^2) over those given (NaN when neither states one, or both are 0).
+    Returns ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for every parameter of the two cameras' lens
+    model (:func:`circcal.model.param_names`; for two different lens models only fx, fy, cx, cy, the parameters they
+    share the meaning of), where ``sigma`` combines the stated standard deviations: sqrt(std_a^2 + std_b^2) over
+    those given (NaN when neither states one, or both are 0).
     """
-    va, vb = a.intrinsics, b.intrinsics
+    names = param_names(a.lens) if a.lens == b.lens else param_names(a.lens)[:4]
+    va = dict(zip(param_names(a.lens), a.intrinsics))
+    vb = dict(zip(param_names(b.lens), b.intrinsics))
     out: dict[str, dict[str, float]] = {}
-    for i, n in enumerate(PARAM_NAMES):
+    for n in names:
         s2 = 0.0
         given = False
         for s in (std_a, std_b):
@@ -55,8 +59,8 @@ def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
                 s2 += float(s[n]) ** 2
                 given = True
         sigma = float(np.sqrt(s2)) if given and s2 > 0 else float("nan")
-        d = float(vb[i] - va[i])
-        out[n] = {"a": float(va[i]), "b": float(vb[i]), "diff": d, "sigma": sigma,
+        d = float(vb[n] - va[n])
+        out[n] = {"a": float(va[n]), "b": float(vb[n]), "diff": d, "sigma": sigma,
                   "diff_sigmas": d / sigma if np.isfinite(sigma) else float("nan")}
     return out
 

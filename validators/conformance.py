@@ -3,8 +3,11 @@ against circcal's solver on identical observations. Plain functions and data; :m
 and ``tests/conformance`` parametrise pytest over them, and anything else (a script, another test runner) can call
 them.
 
-A *case* is ``(scenario, variant, reference, mode)`` with a readable id (``paper-normal-circcal``,
-``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``). The expensive part, circcal's
+A *case* is ``(scenario, variant, lens, reference, mode)`` with a readable id (``paper-normal-circcal``,
+``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``; a lens other than the scenario's own is named:
+``rational-wide-clean-thin-prism-mrcal_fair``). The lens model is a dimension of the matrix: each scenario is
+calibrated with its true camera's lens, plus the models in :data:`LENSES`; a reference that does not fit a lens
+model answers "unsupported" with its reason, which the case asserts (never an error, never a silent pass). The expensive part, circcal's
 :func:`circcal.pipeline.calibrate_images` on one scenario-variant, is done once by :func:`observe`; every reference case of that scenario-variant then fits
 the same observations (circcal's final centres rounded to float32, OpenCV's input type, exactly as
 :func:`circcal.validators.validate.run_validation` hands them out) and is compared with circcal's solver run on exactly
@@ -21,11 +24,14 @@ What a case asserts (bounds below, each with its reason):
 * a reference in ``fair`` mode (and a user's calibrator): it runs; the same two truth checks (its own stated
   sigmas, or circcal's on the same observations when it states none: same estimator, same points, same
   covariance); max projection difference to circcal's solver on identical observations <= :data:`SOLVER_PX`
-  (mrcal: :data:`SOLVER_MRCAL_PX`, its solver stops earlier).
+  (mrcal: :data:`SOLVER_MRCAL_PX`, lensboy: ``SOLVER_LENSBOY_PX``: their solvers stop earlier).
 * a reference in ``default`` mode (mrcal's board warp, regularisation and outlier rejection: a different estimator):
   it runs; its differences to circcal and to the truth are measured and printed, not asserted.
 * a (scenario, reference) pair in :data:`EXPECTED_UNSUPPORTED` (mrcal on the staggered asymmetric grid): the
   reference must answer status "unsupported" with a reason naming the cause; anything else fails.
+* a reference on a lens model it does not fit (its ``lenses``; :func:`circcal.validators.base.lens_support`): a
+  built-in must answer status "unsupported" with a reason; a plug-in that declares no such model is not called and
+  its case reports the reason.
 
 Reprojection errors name their convention (:mod:`circcal.metrics`); projection differences come from
 :func:`circcal.validators.compare.projection_diff` (60-wide pixel grid, corners included).
@@ -43,8 +49,8 @@ from circcal.board import Board
 from circcal.detector import Reason, Rejection
 from circcal.errors import InputError
 from circcal.formatting import fmt_number
-from circcal.model import PARAM_NAMES, Camera
-from circcal.validators.base import ReferenceCalibrator, ReferenceResult
+from circcal.model import Camera, param_names
+from circcal.validators.base import ReferenceCalibrator, ReferenceResult, lens_support
 from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement, solver_bound,
                                        truth_checks)
 from circcal.validators.compare import match_grid_order, projection_diff
@@ -77,6 +83,8 @@ __all__ = [
     "failed_checks",
     "predicted_truth_rms",
     "KNOWN_FAILURES",
+    "LENSES",
+    "scenario_lens",
 ]
 
 CIRCCAL = "circcal"
@@ -140,6 +148,19 @@ BOUNDS: dict[str, ScenarioBounds] = {
 }
 _DEFAULT_BOUNDS = ScenarioBounds(0.10, PAPER_MEAN_2D_PX, "no scenario-specific bound: the wide-angle default")
 
+#: Lens models each scenario is calibrated with beyond its true camera's own (:func:`scenario_lens`): thin prism on
+#: rational-wide (a superset of the true rational model, s1-s4 = 0 in the truth: the 12-coefficient path of every
+#: reference, and pycolmap's refusal).
+LENSES: dict[str, tuple[str, ...]] = {"rational-wide": ("thin-prism",)}
+
+
+def scenario_lens(scenario: str) -> str:
+    """The lens model of scenario ``scenario``'s true camera (what its cases fit unless they name another)."""
+    from circcal.fixtures.scenarios import SCENARIOS
+
+    return SCENARIOS[scenario].camera.lens if scenario in SCENARIOS else "opencv5"
+
+
 #: case id -> reason: cases that fail a bar today for a measured, understood cause; pytest marks them
 #: xfail(strict=True), so one that starts passing is reported too.
 KNOWN_FAILURES: dict[str, str] = {}
@@ -184,6 +205,12 @@ class Case:
     n_modes: int = 1
     user: bool = False
     slow: bool = True
+    #: the lens model fitted; "" = the scenario's own (:func:`scenario_lens`)
+    lens_model: str = ""
+
+    @property
+    def lens(self) -> str:
+        return self.lens_model or scenario_lens(self.scenario)
 
     @property
     def label(self) -> str:
@@ -191,7 +218,9 @@ class Case:
 
     @property
     def id(self) -> str:
-        return f"{self.scenario}-{self.variant}-{self.label}"
+        own = not self.lens_model or self.lens_model == scenario_lens(self.scenario)
+        return f"{self.scenario}-{self.variant}-{self.label}" if own else \
+            f"{self.scenario}-{self.variant}-{self.lens_model}-{self.label}"
 
 
 def reference_modes(cal: Any) -> tuple[str, ...]:
@@ -202,37 +231,43 @@ def reference_modes(cal: Any) -> tuple[str, ...]:
 
 def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
           user: Sequence[tuple[str, tuple[str, ...]]] = (), scenarios: Iterable[str] | None = None,
-          fast: dict[tuple[str, str], tuple[str, ...] | None] | None = None) -> list[Case]:
-    """The case matrix, scenario-variant major (circcal's case first, then each reference and mode).
+          fast: dict[tuple[str, str], tuple[str, ...] | None] | None = None,
+          lenses: dict[str, tuple[str, ...]] | None = None) -> list[Case]:
+    """The case matrix, scenario-variant-lens major (circcal's case first, then each reference and mode).
 
     ``references``: (name, modes) of the built-in/plug-in references (default: every registered one, modes from
     its class). ``user``: (label, modes) of calibrators under test; when given they replace circcal's case and the
     registered references (the suite then tests only them). ``scenarios``: default every one in
-    :data:`circcal.fixtures.scenarios.SCENARIOS`. ``fast``: the slice left unmarked by ``slow`` (default :data:`FAST`).
+    :data:`circcal.fixtures.scenarios.SCENARIOS`. ``fast``: the slice left unmarked by ``slow`` (default :data:`FAST`;
+    only the scenario's own lens is fast). ``lenses``: scenario -> lens models beyond its own (default
+    :data:`LENSES`).
     """
     from circcal.fixtures.scenarios import SCENARIOS
 
     fast = FAST if fast is None else fast
+    lenses = LENSES if lenses is None else lenses
     if references is None and not user:
         references = registered_references()
     refs = list(user) if user else list(references or [])
     out: list[Case] = []
     for name in (scenarios or SCENARIOS):
         sc = SCENARIOS[name]
+        models = ("",) + tuple(m for m in lenses.get(name, ()) if m != sc.camera.lens)
         for variant in sc.variants:
-            key = (name, variant)
-            in_fast = key in fast
+            for lens in models:
+                key = (name, variant)
+                in_fast = key in fast and not lens
 
-            def slow_for(ref: str) -> bool:
-                return not (in_fast and (fast[key] is None or ref in fast[key]))
+                def slow_for(ref: str) -> bool:
+                    return not (in_fast and (fast[key] is None or ref in fast[key]))
 
-            if not user:
-                out.append(Case(name, variant, CIRCCAL, slow=slow_for(CIRCCAL)))
-            if name in CIRCCAL_UNSUPPORTED:
-                continue
-            for ref, modes in refs:
-                for m in modes:
-                    out.append(Case(name, variant, ref, m, len(modes), bool(user), slow_for(ref)))
+                if not user:
+                    out.append(Case(name, variant, CIRCCAL, slow=slow_for(CIRCCAL), lens_model=lens))
+                if name in CIRCCAL_UNSUPPORTED:
+                    continue
+                for ref, modes in refs:
+                    for m in modes:
+                        out.append(Case(name, variant, ref, m, len(modes), bool(user), slow_for(ref), lens))
     return out
 
 
@@ -273,6 +308,7 @@ class Observations:
     truth: Camera
     board: Board
     paths: list[str]
+    lens: str = "opencv5"
     status: str = "ok"
     message: str = ""
     camera: Camera | None = None
@@ -310,8 +346,9 @@ def _matched_centre_errors(centres: Sequence[np.ndarray], truth: Sequence[np.nda
     return np.concatenate(errs) if errs else np.zeros(0)
 
 
-def observe(scenario: str, variant: str, *, progress: bool = False) -> Observations:
-    """Render (or fetch) the fixture and run circcal's :func:`~circcal.solver.calibrate_images` on it.
+def observe(scenario: str, variant: str, lens: str | None = None, *, progress: bool = False) -> Observations:
+    """Render (or fetch) the fixture and run circcal's :func:`~circcal.solver.calibrate_images` on it with lens
+    model ``lens`` (default: the true camera's).
 
     Never raises for circcal's own failure (status "failed" with the message); fixture problems do raise.
     """
@@ -321,10 +358,13 @@ def observe(scenario: str, variant: str, *, progress: bool = False) -> Observati
     folder = fixture_dir(scenario, variant, progress=progress)
     truth = load_truth(folder)
     paths = [str(v.image) for v in truth.views]
-    obs = Observations(scenario, variant, str(folder), truth.camera, truth.board, paths)
+    lens = truth.camera.lens if lens is None else lens
+    obs = Observations(scenario, variant, str(folder), truth.camera, truth.board, paths, lens)
     t0 = time.perf_counter()
     try:
-        cal = calibrate_images(paths, truth.board, progress=progress, image_size=obs.image_size)
+        # (the pipeline's lens option is given only for a model other than its default, opencv5)
+        cal = calibrate_images(paths, truth.board, progress=progress, image_size=obs.image_size,
+                               **({"lens": lens} if lens != "opencv5" else {}))
     except InputError as exc:
         obs.status, obs.message = "failed", f"{type(exc).__name__}: {exc}"
         if isinstance(exc, TooFewImagesError):
@@ -396,15 +436,16 @@ def predicted_truth_rms(camera: Camera, std: dict[str, float], correlation: np.n
     """What the stated covariance predicts for the RMS projection difference to the truth (rotation fitted, as in
     the truth check): ``n`` cameras drawn from N(camera, covariance) against ``camera``; returns
     ``{"p50", "p95", "p99"}`` px. Printed beside the measured value, not asserted."""
-    sd = np.array([float(std.get(k, 0.0) or 0.0) for k in PARAM_NAMES])
-    corr = np.eye(9) if correlation is None else np.nan_to_num(np.asarray(correlation, dtype=np.float64))
+    names = param_names(camera.lens)
+    sd = np.array([float(std.get(k, 0.0) or 0.0) for k in names])
+    corr = np.eye(len(names)) if correlation is None else np.nan_to_num(np.asarray(correlation, dtype=np.float64))
     cov = corr * np.outer(sd, sd)
     rng = np.random.default_rng(seed)
     draws = rng.multivariate_normal(camera.intrinsics, cov, size=n, method="eigh")
     rms = []
     for p in draws:
         try:
-            other = Camera.from_intrinsics(camera.width, camera.height, p)
+            other = Camera.from_intrinsics(camera.width, camera.height, p, lens=camera.lens)
         except ValueError:
             continue
         rms.append(projection_diff(camera, other, fit=True)["rms_px"])
@@ -479,7 +520,8 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
                        solver_px: float | None = None) -> Outcome:
     """A reference (or user) calibrator on circcal's observations of ``case``'s scenario-variant.
 
-    ``solver_px``: the agreement bound with circcal's solver (default :data:`SOLVER_PX`, mrcal
+    ``solver_px``: the agreement bound with circcal's solver (default :func:`~circcal.validators.checks.solver_bound`:
+    :data:`SOLVER_PX`, lensboy ``SOLVER_LENSBOY_PX``, mrcal
     :data:`SOLVER_MRCAL_PX`); ``float('inf')`` measures without asserting. Availability is the caller's business
     (a test skips or fails); an "unavailable" result here becomes a skip outcome.
     """
@@ -490,6 +532,9 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
         out.skip_reason = (f"no observations: circcal did not calibrate {case.scenario}-{case.variant} "
                            f"({obs.message.splitlines()[0] if obs.message else 'failed'})")
         return out
+    supported, why = lens_support(calibrator, case.lens)
+    if not supported:
+        return _lens_unsupported(case, obs, calibrator, why)
     res = calibrator.calibrate_observations(obs.object_points, obs.image_points, obs.image_size, mode=case.mode)
     out.result = res
     out.measured["time_s"] = float(res.time_s)
@@ -535,6 +580,26 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
         check = solver_agreement(label, res, vs_circcal["max_px"], obs.solver_ssr, solver_px)
         check.note = "; ".join(x for x in (f"RMS {vs_circcal['rms_px']:.3g} px", check.note) if x)
         out.checks.append(check)
+    return out
+
+
+def _lens_unsupported(case: Case, obs: Observations, calibrator: ReferenceCalibrator, why: str) -> Outcome:
+    """A reference on a lens model it does not fit. Set up for that lens (``calibrator.lens``), it must answer
+    "unsupported" with a reason itself; otherwise (a plug-in that declares no such model) it is not called and the
+    case reports ``why``. A user calibrator's case is skipped with the reason."""
+    out = Outcome(case, "unsupported")
+    name = getattr(calibrator, "name", case.reference)
+    if case.user:
+        out.status, out.skip_reason = "skip", f"{name} does not fit lens {case.lens}: {why}"
+        return out
+    if getattr(calibrator, "lens", None) != case.lens:
+        out.checks.append(Check(f"{name} declares lens {case.lens} unsupported", 1.0, 1.0, True, why))
+        return out
+    res = calibrator.calibrate_observations(obs.object_points, obs.image_points, obs.image_size, mode=case.mode)
+    out.result = res
+    ok = res.status == "unsupported" and bool((res.message or "").strip())
+    out.checks.append(Check(f"{res.name} [{res.mode}] reports lens {case.lens} unsupported with a reason", float(ok),
+                            1.0, ok, f"status {res.status}: {res.message}"))
     return out
 
 

@@ -270,7 +270,7 @@ class _Summary:
 # --------------------------------------------------------------------------------------------------------------------
 
 class ObservationCache:
-    """circcal's observations per (scenario, variant), computed once. Under pytest-xdist the workers share a folder
+    """circcal's observations per (scenario, variant, lens model), computed once. Under pytest-xdist the workers share a folder
     in the run's base temp directory (unique per run) and a file lock, so each scenario-variant is calibrated once
     per run, not once per worker."""
 
@@ -278,22 +278,23 @@ class ObservationCache:
         self.shared = shared
         self.memory: dict[tuple[str, str], Any] = {}
 
-    def __call__(self, scenario: str, variant: str):
-        from circcal.validators.conformance import observe
+    def __call__(self, scenario: str, variant: str, lens: str | None = None):
+        from circcal.validators.conformance import observe, scenario_lens
 
-        key = (scenario, variant)
+        lens = scenario_lens(scenario) if lens is None else lens
+        key = (scenario, variant, lens)
         if key in self.memory:
             return self.memory[key]
         if self.shared is None:
-            obs = observe(scenario, variant)
+            obs = observe(scenario, variant, lens)
         else:
             self.shared.mkdir(parents=True, exist_ok=True)
-            f = self.shared / f"{scenario}--{variant}.pkl"
-            with FileLock(self.shared / f"{scenario}--{variant}.lock"):
+            f = self.shared / f"{scenario}--{variant}--{lens}.pkl"
+            with FileLock(self.shared / f"{scenario}--{variant}--{lens}.lock"):
                 if f.exists():
                     obs = pickle.loads(f.read_bytes())
                 else:
-                    obs = observe(scenario, variant)
+                    obs = observe(scenario, variant, lens)
                     atomic.write_bytes(f, pickle.dumps(obs))
         self.memory[key] = obs
         return obs
@@ -302,8 +303,8 @@ class ObservationCache:
 @pytest.fixture(scope="session")
 def conformance_observations(request: pytest.FixtureRequest,
                              tmp_path_factory: pytest.TempPathFactory) -> ObservationCache:
-    """``get(scenario, variant) -> circcal.validators.conformance.Observations`` (circcal's calibration, computed
-    once)."""
+    """``get(scenario, variant, lens=None) -> circcal.validators.conformance.Observations`` (circcal's calibration
+    with that lens model, default the scenario's own, computed once)."""
     shared = None
     if hasattr(request.config, "workerinput"):  # a pytest-xdist worker: basetemp/.. is this run's, shared
         shared = tmp_path_factory.getbasetemp().parent / "circcal-conformance"
@@ -313,18 +314,21 @@ def conformance_observations(request: pytest.FixtureRequest,
 @pytest.fixture(scope="session")
 def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], Any]:
     """``get(case) -> ReferenceCalibrator``: the ``--calibrator`` object for a user case, else the registry's
-    reference (one instance per name). A reference that cannot be loaded raises ``ImportError`` with the cause."""
-    from circcal.validators import registry
+    reference set up for the case's lens model (one instance per name and lens:
+    :func:`circcal.validators.registry.get_for_lens`). A reference that cannot be loaded raises ``ImportError``
+    with the cause."""
+    from circcal.validators.registry import get_for_lens
 
     user = {calibrator_label(c): c for c in _user(request.config)}
-    made: dict[str, Any] = {}
+    made: dict[tuple[str, str], Any] = {}
 
     def get(case: Any) -> Any:
         if case.user:
             return user[case.reference]
-        if case.reference not in made:
-            made[case.reference] = registry.get(case.reference)
-        return made[case.reference]
+        key = (case.reference, case.lens)
+        if key not in made:
+            made[key] = get_for_lens(case.reference, case.lens)
+        return made[key]
 
     return get
 

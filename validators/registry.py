@@ -15,9 +15,9 @@ import importlib
 import importlib.metadata
 from typing import Any, Callable
 
-from circcal.validators.base import ReferenceCalibrator, missing_members
+from circcal.validators.base import ReferenceCalibrator, lens_support, missing_members
 
-__all__ = ["ENTRY_POINT_GROUP", "BUILTINS", "names", "get", "all_available", "problems"]
+__all__ = ["ENTRY_POINT_GROUP", "BUILTINS", "names", "get", "get_for_lens", "all_available", "problems"]
 
 ENTRY_POINT_GROUP = "circcal.validators"
 
@@ -77,6 +77,19 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
         raise TypeError(f"reference calibrator {name!r} lacks {missing[0]!r}; see "
                         "circcal.validators.base.ReferenceCalibrator")
     return obj
+
+
+def get_for_lens(name: str, lens: str, **kwargs: Any) -> ReferenceCalibrator:
+    """Reference ``name`` set up for lens model ``lens``: constructed with ``lens=`` when it is a built-in (every one
+    takes it, and answers "unsupported" with its reason for a model it does not fit) or a plug-in that declares the
+    model in its ``lenses``; else as it comes (a plug-in without that model: the caller reports
+    :func:`~circcal.validators.base.lens_support`'s reason instead of calling it)."""
+    plain = get(name, **kwargs)
+    if lens == getattr(plain, "lens", "opencv5"):
+        return plain
+    if name in BUILTINS or lens_support(plain, lens)[0]:
+        return get(name, lens=lens, **kwargs)
+    return plain
 
 
 def all_available() -> dict[str, tuple[bool, str]]:

@@ -21,11 +21,11 @@ from circcal.board import Board
 from circcal.errors import InputError
 from circcal.formatting import fmt_number
 from circcal.jsonio import jsonable
-from circcal.model import PARAM_NAMES, Camera
+from circcal.model import Camera, lens_model, param_names
 from circcal.validators import registry
-from circcal.validators.base import ReferenceResult
-from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement,
-                                       truth_checks)
+from circcal.validators.base import ReferenceResult, lens_support
+from circcal.validators.checks import (SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check,
+                                       solver_agreement, truth_checks)
 from circcal.validators.compare import GRID_WIDTH, param_diff, projection_diff
 from circcal.validators.shared import SharedObservations, share
 
@@ -36,7 +36,8 @@ __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_r
 class Bounds:
     """Agreement bounds (px). ``solver``: a reference in ``fair`` mode on circcal's observations vs circcal's solve,
     max projection difference; ``solver_mrcal``: the same for mrcal (its solver stops earlier); ``truth_sigmas``:
-    circcal's fx, fy, cx, cy within this many of their stated sigmas of the true camera; ``truth``: if set, also
+    circcal's fx, fy, cx, cy within this many of their stated sigmas of the true camera; ``solver_lensboy``: the
+    same for lensboy (its solver stops earlier still); ``truth``: if set, also
     bound circcal's RMS projection difference to the true camera (implied rotation fitted), px. That one is off by
     default: with a long lens the focal length is weakly observable (std(fx) 0.3 px at fx 4900 even from exact
     centres with 0.003 px noise), which alone moves the image edge by ~0.05 px, so a fixed px bound would test the
@@ -46,9 +47,10 @@ class Bounds:
     solver_mrcal: float = SOLVER_MRCAL_PX
     truth_sigmas: float = TRUTH_SIGMAS
     truth: float | None = None
+    solver_lensboy: float = SOLVER_LENSBOY_PX
 
     def __post_init__(self) -> None:
-        for name in ("solver", "solver_mrcal", "truth_sigmas", "truth"):
+        for name in ("solver", "solver_mrcal", "solver_lensboy", "truth_sigmas", "truth"):
             v = getattr(self, name)
             if v is None and name == "truth":
                 continue
@@ -72,6 +74,8 @@ class ValidationRun:
     shared: SharedObservations | None = None
     #: references that were not available and were allowed to be missing (``allow_missing``), with the reason
     skipped: list[str] = field(default_factory=list)
+    #: the lens model every calibrator fitted (:data:`circcal.model.LENS_MODELS`)
+    lens: str = "opencv5"
 
     @property
     def passed(self) -> bool:
@@ -111,6 +115,7 @@ def run_validation(
     progress: bool = True,
     source: dict[str, Any] | None = None,
     allow_missing: bool = False,
+    lens: str | None = None,
 ) -> ValidationRun:
     """Calibrate ``paths`` with circcal, then with each reference in ``against`` ("all" = every registered one),
     and compare. ``mode``: "fair", "default" or "both" (a reference with one estimator runs once).
@@ -121,6 +126,9 @@ def run_validation(
     at all: a gate that cannot pass vacuously). A reference that is not available fails it too: asked for by name,
     or, under "all", a built-in reference (``make setup`` installs every one), unless ``allow_missing`` (then each
     one missing is listed as skipped).
+
+    ``lens``: the lens model circcal and every reference fit (default: the true camera's, else ``opencv5``). A
+    reference that does not fit it is a row with status "unsupported" and its reason (no check: nothing to compare).
     """
     from circcal.pipeline import calibrate_images
 
@@ -133,13 +141,17 @@ def run_validation(
         if n not in registry.names():
             raise InputError(f"unknown reference calibrator {n!r}; known: {', '.join(registry.names())}, all")
     paths = [str(p) for p in paths]
+    lens = lens if lens is not None else (truth.lens if truth is not None else "opencv5")
+    lens_model(lens)  # an unknown name is bad input
 
     t0 = time.perf_counter()
     cc: dict[str, Any] = {"status": "ok", "message": "", "camera": None}
     shared: SharedObservations | None = None
     image_size = (truth.width, truth.height) if truth is not None else None
     try:
-        cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size)
+        # (the pipeline's lens option is given only for a model other than its default, opencv5)
+        cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size,
+                               **({"lens": lens} if lens != "opencv5" else {}))
     except InputError as exc:
         cc.update(status="failed", message=str(exc))
     else:
@@ -160,11 +172,16 @@ def run_validation(
     refs: list[ReferenceResult] = []
     for n in names:
         try:
-            cal_ref = registry.get(n, **({"fix_k3": True} if fix_k3 and n in ("opencv", "kornia") else {}))
+            cal_ref = registry.get_for_lens(n, lens, **({"fix_k3": True} if fix_k3 and n in ("opencv", "kornia")
+                                                        else {}))
         except Exception as exc:  # a plug-in that cannot load is a row, not a crash
             refs.append(ReferenceResult(n, "?", modes[0], "failed", f"{type(exc).__name__}: {exc}"))
             continue
         supported = tuple(m for m in modes if m in getattr(cal_ref, "modes", ("fair",))) or ("fair",)
+        fits, why = lens_support(cal_ref, lens)
+        if not fits and getattr(cal_ref, "lens", "opencv5") != lens:  # a plug-in without the model: not called
+            refs += [ReferenceResult(n, cal_ref.version, m, "unsupported", why) for m in supported]
+            continue
         if observations == "own":
             for m in supported:
                 refs.append(cal_ref.calibrate_images(paths, board, image_size, mode=m))
@@ -206,14 +223,14 @@ def run_validation(
             elif "all" not in against or r.name in registry.BUILTINS:  # asked for, or installed by `make setup`
                 checks.append(Check(f"{label} is available", float("nan"), float("nan"), False, r.message))
         elif r.ok and observations == "circcal" and r.mode == "fair" and "vs_circcal" in row:
-            b = bounds.solver_mrcal if r.name == "mrcal" else bounds.solver
+            b = {"mrcal": bounds.solver_mrcal, "lensboy": bounds.solver_lensboy}.get(r.name, bounds.solver)
             checks.append(solver_agreement(label, r, row["vs_circcal"]["max_px"], cc["solver_ssr"], b))
     if not checks:
         checks.append(Check("something was checked", 0.0, 1.0, False,
                             "nothing was checked: no ground truth and no reference result to compare (give a fixture "
                             "with truth.json, or --against a reference in fair mode on circcal's observations)"))
     return ValidationRun(source or {"images": paths}, board, image_size, truth, cc, refs, comparisons, checks,
-                         observations, shared, skipped)
+                         observations, shared, skipped, lens)
 
 
 def format_table(run: ValidationRun) -> str:
@@ -221,7 +238,7 @@ def format_table(run: ValidationRun) -> str:
     lines = []
     src = ", ".join(f"{k}={v}" for k, v in run.source.items() if k != "images") or f"{len(run.source['images'])} images"
     lines.append(f"validation: {src}; board {run.board.rows}x{run.board.cols} {run.board.layout}; "
-                 f"observations: {run.observations}")
+                 f"observations: {run.observations}; lens model: {run.lens}")
     lines.append("errors: rms/pt = OpenCV's RMS (2-D per point), rms/coord = mrcal's (per coordinate), mean2d = "
                  f"the paper's mean error; projection differences over a {GRID_WIDTH}-wide pixel grid of the whole "
                  "image (vs truth: implied rotation fitted; vs circcal: none)")
@@ -267,7 +284,7 @@ def format_table(run: ValidationRun) -> str:
         lines += ["", "circcal parameters vs truth:", "", "| param | truth | circcal | +- sigma | error / sigma |",
                   "|---|---|---|---|---|"]
         pd = run.comparisons[0]["vs_truth"]["params"]
-        for n in PARAM_NAMES:
+        for n in param_names(run.truth.lens):
             cells = (fmt_number(pd[n]["a"], ".6g"), fmt_number(pd[n]["b"], ".6g"), fmt_number(cc["std"][n], ".3g"),
                      fmt_number(pd[n]["diff_sigmas"], "+.2f"))
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
@@ -283,7 +300,7 @@ def to_dict(run: ValidationRun) -> dict[str, Any]:
     cc = {k: v for k, v in run.circcal.items()}
     return jsonable({
         "source": run.source, "board": run.board.to_dict(), "image_size": list(run.image_size),
-        "truth": run.truth, "observations": run.observations, "circcal": cc,
+        "truth": run.truth, "observations": run.observations, "lens": run.lens, "circcal": cc,
         "references": [r.to_dict() for r in run.references],
         "comparisons": [{k: v for k, v in c.items()} for c in run.comparisons],
         "checks": [vars(c) for c in run.checks], "passed": run.passed,

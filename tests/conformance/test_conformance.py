@@ -36,7 +36,7 @@ HERE = Path(__file__).resolve().parent
 def test_conformance(conformance_case, conformance_observations, conformance_calibrator, conformance_record,
                      request):
     case = conformance_case
-    obs = conformance_observations(case.scenario, case.variant)
+    obs = conformance_observations(case.scenario, case.variant, case.lens)
     if case.reference == conformance.CIRCCAL:
         outcome = conformance.run_circcal_case(case, obs)
     else:
@@ -76,6 +76,50 @@ def test_matrix_covers_every_scenario_variant_with_readable_ids():
     assert ids.index("paper-uneven-circcal") < ids.index("paper-uneven-opencv") < ids.index("paper-strong-circcal")
 
 
+def test_the_lens_model_is_a_dimension_of_the_matrix():
+    refs = [("mrcal", ("fair", "default")), ("pycolmap", ("fair",))]
+    cs = conformance.cases(refs, scenarios=["wide", "fisheye", "rational-wide"])
+    ids = [c.id for c in cs]
+    assert len(ids) == len(set(ids))
+    by_id = {c.id: c for c in cs}
+    # each scenario fits its own lens (ids unchanged), rational-wide also thin prism (named in the id)
+    assert by_id["wide-clean-mrcal_fair"].lens == "opencv5"
+    assert by_id["fisheye-clean-pycolmap"].lens == "fisheye"
+    assert by_id["rational-wide-perturbed-circcal"].lens == "rational"
+    assert by_id["rational-wide-clean-thin-prism-pycolmap"].lens == "thin-prism"
+    assert not any(c.lens == "thin-prism" and not c.slow for c in cs)  # extra lenses are outside the fast slice
+
+
+def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
+    from circcal.validators.registry import get_for_lens
+
+    obj, img, size, cam = _problem(n_views=4)
+    obs = conformance.Observations("wide", "clean", "", cam, Board(7, 7, 15.0, 7.0), [], "thin-prism",
+                                   object_points=obj, image_points=img, solver_camera=cam)
+    # a built-in is set up for the lens and answers for itself, with its reason
+    cal = get_for_lens("pycolmap", "thin-prism")
+    skip_unless_available(cal)
+    out = conformance.run_reference_case(conformance.Case("wide", "clean", "pycolmap", lens_model="thin-prism"),
+                                         obs, cal)
+    assert out.status == "unsupported" and out.result.status == "unsupported" and "s1-s4" in out.result.message
+    assert out.checks and not conformance.failed_checks(out)
+
+    # a plug-in that declares no such model is not called: its case reports why
+    class Plain:
+        name, version = "plain", "1"
+
+        def available(self):
+            return True, ""
+
+        def calibrate_observations(self, *args, **kwargs):
+            raise AssertionError("called for a lens it does not declare")
+
+    out = conformance.run_reference_case(conformance.Case("wide", "clean", "plain", lens_model="thin-prism"), obs,
+                                         Plain())
+    assert out.status == "unsupported" and out.result is None and "opencv5" in out.checks[0].note
+    assert not conformance.failed_checks(out)
+
+
 def test_user_calibrators_replace_circcal_and_the_references():
     cs = conformance.cases(user=[("mine", ("fair",))])
     assert {c.reference for c in cs} == {"mine"} and all(c.user for c in cs)
@@ -85,15 +129,18 @@ def test_user_calibrators_replace_circcal_and_the_references():
 def test_observations_are_computed_once_across_workers(tmp_path, monkeypatch):
     calls = []
 
-    def fake(scenario, variant):
-        calls.append((scenario, variant))
-        return {"scenario": scenario, "variant": variant}
+    def fake(scenario, variant, lens):
+        calls.append((scenario, variant, lens))
+        return {"scenario": scenario, "variant": variant, "lens": lens}
 
     monkeypatch.setattr(conformance, "observe", fake)
     a, b = ObservationCache(tmp_path), ObservationCache(tmp_path)  # two workers sharing the run's folder
-    assert a("wide", "clean") == b("wide", "clean") == a("wide", "clean")
+    assert a("wide", "clean") == b("wide", "clean") == a("wide", "clean", "opencv5")
     assert b("wide", "jpeg")["variant"] == "jpeg"
-    assert calls == [("wide", "clean"), ("wide", "jpeg")]
+    assert b("rational-wide", "clean")["lens"] == "rational"  # the scenario's own lens by default
+    assert a("rational-wide", "clean", "thin-prism")["lens"] == "thin-prism"
+    assert calls == [("wide", "clean", "opencv5"), ("wide", "jpeg", "opencv5"), ("rational-wide", "clean", "rational"),
+                     ("rational-wide", "clean", "thin-prism")]
 
 
 # --------------------------------------------------------------------------------------------------------------------
