@@ -36,11 +36,11 @@ from circcal.detector.centre import correct_centres
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
-from circcal.detector.image import as_gray, normalise_u8
+from circcal.detector.image import STRETCH_TAIL_PX, as_gray, normalise_u8
 from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
 from circcal.detector.segment import SHRUNK_MIN_RADIUS, segmentation_scales, segmentations, shrink, upscaled
 from circcal.detector.smoothing import SmoothedImage
-from circcal.detector.trust import bad_dots, check_grid
+from circcal.detector.trust import absent_dots, bad_dots, check_grid
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
@@ -124,6 +124,17 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
         return _not_found(board, rec, best, gray, deadline)
     N = board.n_points
     seen = rec.order >= 0
+    if not rec.complete and not board.has_markers:
+        lab = np.nonzero(seen)[0]
+        absent = absent_dots(board, lab, np.array([cands[rec.order[k]].centre for k in lab]),
+                             np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1])
+                                       for k in lab]), gray)
+        if len(absent):
+            return Detection(False, None, f"grid {board.rows}x{board.cols} not recognised: a lattice of "
+                                          f"{int(seen.sum())} dots fits part of the board, but {len(absent)} of the "
+                                          "board's other dots would lie on bare board inside the image (a dot "
+                                          "lattice of another layout?)", Reason.GRID_NOT_RECOGNISED,
+                             image_size=(W, H), notes=list(rec.notes))
     dropped = {int(k): "cut by the image border" for k in np.nonzero(seen & rec.cut)[0]}
     todo = np.nonzero(seen & ~rec.cut)[0]
     Q0 = conic_from_params_batch(np.array([cands[rec.order[k]].centre for k in todo]),
@@ -195,7 +206,7 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
-        img = normalise_u8(gray if scale == 1 else shrink(gray, scale))
+        img = normalise_u8(gray if scale == 1 else shrink(gray, scale), STRETCH_TAIL_PX / scale ** 2)
         for name, mask in segmentations(img):
             deadline.check()
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)

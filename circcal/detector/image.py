@@ -17,13 +17,18 @@ import numpy as np
 
 from circcal.errors import ImageError
 
-__all__ = ["as_gray", "decode_image", "normalise_u8", "read_image", "read_image_messages"]
+__all__ = ["as_gray", "decode_image", "normalise_u8", "read_image", "read_image_messages", "stretch_percentiles"]
 
 MIN_IMAGE_SIDE = 8
 """Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""
 STRETCH_PERCENTILES = (0.5, 99.5)
 """Grey levels (percent of the pixels) stretched to 0 and 255: a few outliers at either end (specular highlights,
 dead pixels, the image border) do not squeeze the board's contrast."""
+STRETCH_TAIL_PX = 2000
+"""... but never more than this many pixels at either end (a highlight or dead area of ~45 x 45 px): in a large frame
+0.5 % of the pixels can outnumber the white of a small board (a 7x7 board of 6 px dots in a 4000x3000 frame has
+~5,000 white pixels, 0.04 %), and its percentile would stretch the background's noise to the full range (measured:
+masks of 850,000 noise specks, seconds per contour search)."""
 FLOAT_SUBSAMPLE_STEP = 4
 """Float images larger than :data:`FLOAT_SUBSAMPLE_ABOVE` pixels take their stretch percentiles from every 4th pixel
 in each direction (1/16 of the pixels; percentiles of a smooth histogram barely move)."""
@@ -109,17 +114,27 @@ def as_gray(image: np.ndarray) -> np.ndarray:
     return img
 
 
-def normalise_u8(gray: np.ndarray) -> np.ndarray:
-    """(H, W) uint8: the :data:`STRETCH_PERCENTILES` range of ``gray`` (H, W) stretched to 0..255 (for thresholding
-    only). Integer images (uint8/uint16, e.g. from :func:`as_gray`): percentiles of all pixels from their histogram,
-    the stretch through a lookup table of the same formula (identical results); float images: percentiles of a
-    subsample above :data:`FLOAT_SUBSAMPLE_ABOVE` pixels (:data:`FLOAT_SUBSAMPLE_STEP`)."""
+def stretch_percentiles(n_pixels: int, tail_px: float = STRETCH_TAIL_PX) -> tuple[float, float]:
+    """(low, high) percentiles stretched to 0 and 255 in an image of ``n_pixels``: :data:`STRETCH_PERCENTILES`, with
+    at most ``tail_px`` pixels beyond either (:data:`STRETCH_TAIL_PX`; an image shrunk s times passes it over s^2)."""
+    tail = min(STRETCH_PERCENTILES[0], 100.0 * max(float(tail_px), 1.0) / max(int(n_pixels), 1))
+    return tail, 100.0 - tail
+
+
+def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX) -> np.ndarray:
+    """(H, W) uint8: the range of ``gray`` (H, W) between the :func:`stretch_percentiles` stretched to 0..255 (for
+    thresholding only; ``tail_px``: see there). Integer images (uint8/uint16, e.g. from :func:`as_gray`): percentiles
+    of all pixels from their histogram, the stretch through a lookup table of the same formula (identical results);
+    float images: percentiles of a subsample above :data:`FLOAT_SUBSAMPLE_ABOVE` pixels
+    (:data:`FLOAT_SUBSAMPLE_STEP`)."""
+    q = stretch_percentiles(gray.size, tail_px)
     if gray.dtype in (np.uint8, np.uint16):
-        lo, hi = _histogram_percentiles(gray, STRETCH_PERCENTILES)
+        lo, hi = _histogram_percentiles(gray, q)
     else:
         step = FLOAT_SUBSAMPLE_STEP
         sub = gray[::step, ::step] if gray.size > FLOAT_SUBSAMPLE_ABOVE else gray
-        lo, hi = np.percentile(sub.astype(np.float64), STRETCH_PERCENTILES)
+        q = stretch_percentiles(sub.size, tail_px * sub.size / gray.size)
+        lo, hi = np.percentile(sub.astype(np.float64), q)
     if hi <= lo:   # a flat image: any positive range (everything maps to 0)
         hi = lo + 1e-9
     scale = 255.0 / (hi - lo)

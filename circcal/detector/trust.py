@@ -28,7 +28,7 @@ import numpy as np
 from circcal.board import Board
 from circcal.detector.ellipse import conic_params_batch
 
-__all__ = ["bad_dots", "check_grid", "local_steps", "sampson_rms"]
+__all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps", "sampson_rms"]
 
 BORDER_PX = 1.0
 """A dot with an edge point within this many px of the image's outer pixel centres is cut by the border."""
@@ -91,6 +91,13 @@ without distortion, <= 0.03 with k1 = -0.3 and on real 640x480 photographs (meas
 QUADRATIC_FROM = 20
 """Grids of at least this many dots are fitted with a homography plus a quadratic term in board coordinates (lens
 distortion bends rows over a large board); smaller ones with the homography alone (8 parameters: enough)."""
+ABSENT_RADIUS_SHARE = 0.5
+"""Absent dots (:func:`absent_dots`): the grey level at a board point not seen is the mean over a disk of this share
+of the neighbouring dots' radius around its predicted position ..."""
+ABSENT_WHITE = 0.75
+"""... and the dot is absent from bare board when that mean lies above the dots' dark level by this share of the
+contrast to the board's white (a dot there, even blurred or half-hidden, darkens its centre below half the
+contrast; a grey occluder (a hand) sits lower)."""
 DIAMETER_FACTOR = 2.5
 """The dots' diameter measured against the lattice (median dot area over cell area, as a diameter over the pitch)
 lies within this factor of the board's stated diameter either way: the default diameter is half the dot spacing,
@@ -325,3 +332,54 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
             return (f"the dots measure {d_rel:.2f} pitches across, the board's are {stated:.2f} (--diameter, "
                     f"--pitch): not this board")
     return None
+
+
+def absent_dots(board: Board, points: np.ndarray, centres: np.ndarray, radii: np.ndarray, gray: np.ndarray
+                ) -> np.ndarray:
+    """Board points of an unmarked board's partial labelling that the image shows as bare board: where the board
+    has a dot, inside the image, the image is as bright as the board's white (a lattice of another layout labelled
+    as part of the board, e.g. a staggered 5x5 grid whose diagonals make a square lattice spanning 7x7: a dot
+    hidden by an occluder is not bright there). ``points`` (K,) labelled board points with their rough ``centres``
+    (K, 2) px and ``radii`` (K,) px; ``gray`` (H, W). Positions of the other board points from the homography of the
+    labelled ones (:data:`ABSENT_RADIUS_SHARE`, :data:`ABSENT_WHITE`). Returns the absent board points (int)."""
+    N = board.n_points
+    H_img, W_img = gray.shape
+    missing = np.setdiff1d(np.arange(N), points)
+    if len(points) < 4 or len(missing) == 0:
+        return np.zeros(0, np.int64)
+    obj = board.object_points()[:, :2]
+    Hm, _ = cv2.findHomography(obj[points], centres, 0)
+    if Hm is None or not np.all(np.isfinite(Hm)):
+        return np.zeros(0, np.int64)
+    q = cv2.perspectiveTransform(obj[missing].reshape(-1, 1, 2), Hm).reshape(-1, 2)
+    r = float(np.median(radii))
+    pad = 2.0 * r
+    inside = (q[:, 0] >= pad) & (q[:, 1] >= pad) & (q[:, 0] <= W_img - 1 - pad) & (q[:, 1] <= H_img - 1 - pad)
+    if not np.any(inside):
+        return np.zeros(0, np.int64)
+    g = np.asarray(gray)
+    if g.dtype not in (np.uint8, np.uint16, np.float32):
+        g = g.astype(np.float32)
+    k = max(1.0, ABSENT_RADIUS_SHARE * r)
+    th = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    rho = np.array([0.0, 0.5 * k, k])
+    dx = np.concatenate([[0.0], (rho[1:, None] * np.cos(th)).ravel()])
+    dy = np.concatenate([[0.0], (rho[1:, None] * np.sin(th)).ravel()])
+
+    def mean_at(c: np.ndarray) -> np.ndarray:
+        x = (c[:, 0:1] + dx).astype(np.float32)
+        y = (c[:, 1:2] + dy).astype(np.float32)
+        return cv2.remap(g, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64).mean(1)
+
+    dark = float(np.median(mean_at(centres)))
+    # the board's white: half-way between labelled neighbours (midpoints of the board's nearest-neighbour pairs)
+    step = board.pitch_mm * (np.sqrt(2.0) if board.layout == "asymmetric" else 1.0)
+    d = np.linalg.norm(obj[points][:, None] - obj[points][None], axis=-1)
+    i, j = np.nonzero(np.triu(np.abs(d - step) < 1e-6 * step, 1))
+    if len(i) == 0:
+        return np.zeros(0, np.int64)
+    white = float(np.median(mean_at(0.5 * (centres[i] + centres[j]))))
+    if not white > dark:
+        return np.zeros(0, np.int64)
+    level = mean_at(q[inside])
+    return missing[inside][level > dark + ABSENT_WHITE * (white - dark)]
