@@ -1,7 +1,8 @@
 """Camera-model files: circcal's model.json and the formats other tools read, one module per format.
 
-Every format here holds the same 5-coefficient OpenCV model (:class:`circcal.model.Camera`); a format that cannot
-hold a given camera exactly is refused with a clear error rather than written lossily.
+Every format here holds :class:`circcal.model.Camera` of its lens model (``opencv5``, ``rational``, ``thin-prism``,
+``fisheye``) where the format has that model; a format that cannot hold a given camera exactly is refused with a
+clear error (naming the reason) rather than written lossily.
 
 =================  ==========================================================================================
 format             module and file
@@ -9,9 +10,11 @@ format             module and file
 ``json``           :mod:`~circcal.formats.modeljson`: circcal model.json (the truth.json ``camera`` block plus
                    ``std``, errors, per-view poses, ...)
 ``opencv``         :mod:`~circcal.formats.opencv`: OpenCV ``cv2.FileStorage`` YAML (or .xml)
-``mrcal``          :mod:`~circcal.formats.mrcal`: mrcal ``.cameramodel`` (``LENSMODEL_OPENCV5``)
-``colmap``         :mod:`~circcal.formats.colmap`: COLMAP ``cameras.txt`` (``OPENCV`` / ``FULL_OPENCV``; +0.5 px)
-``ros``            :mod:`~circcal.formats.ros`: ROS ``camera_info`` YAML (``plumb_bob``)
+``mrcal``          :mod:`~circcal.formats.mrcal`: mrcal ``.cameramodel`` (``LENSMODEL_OPENCV5/8/12``; no fisheye)
+``colmap``         :mod:`~circcal.formats.colmap`: COLMAP ``cameras.txt`` (``OPENCV`` / ``FULL_OPENCV`` /
+                   ``OPENCV_FISHEYE``; no thin prism; +0.5 px)
+``ros``            :mod:`~circcal.formats.ros`: ROS ``camera_info`` YAML (``plumb_bob``, ``rational_polynomial``,
+                   ``equidistant``; no thin prism)
 =================  ==========================================================================================
 
 :func:`read_camera` (every command reads models through it) and :func:`write_camera` pick the format from the file
@@ -64,7 +67,8 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
             return "opencv"
         if re.search(r"^\s*(distortion_model|camera_matrix|K)\s*:", text, re.M):
             return "ros"
-        if re.search(r"^\s*\d+\s+(OPENCV|FULL_OPENCV|PINHOLE|SIMPLE_PINHOLE|SIMPLE_RADIAL|RADIAL)\s", text, re.M):
+        if re.search(r"^\s*\d+\s+(OPENCV|FULL_OPENCV|OPENCV_FISHEYE|PINHOLE|SIMPLE_PINHOLE|SIMPLE_RADIAL|RADIAL)\s",
+                     text, re.M):
             return "colmap"
     if ext == ".json":
         return "json"
@@ -115,8 +119,9 @@ def write_camera(path: str | Path, camera: Camera, fmt: str | None = None, *, do
     """Write ``camera`` to ``path`` in ``fmt`` (default: from the file name), atomically. For ``json``,
     ``document`` (a :func:`~circcal.formats.modeljson.model_json` document, e.g. from
     :meth:`circcal.pipeline.ImagesCalibration.to_model_json`) is written when given, its camera block replaced by
-    ``camera``'s, else the bare camera block. ``colmap_model``: ``"auto"`` (OPENCV when k3 = 0, else FULL_OPENCV),
-    ``"OPENCV"`` or ``"FULL_OPENCV"``. Returns the format written."""
+    ``camera``'s, else the bare camera block. ``colmap_model``: ``"auto"`` (the camera's lens model: OPENCV when k3 =
+    0, else FULL_OPENCV; OPENCV_FISHEYE), or a COLMAP model name. A format without the camera's lens model raises
+    :class:`~circcal.errors.InputError` with the reason. Returns the format written."""
     p = Path(path)
     fmt = fmt or detect_format(p)
     if fmt == "json":

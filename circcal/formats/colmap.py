@@ -1,35 +1,51 @@
-"""COLMAP ``cameras.txt``: ``OPENCV`` (fx fy cx cy k1 k2 p1 p2, no k3) or ``FULL_OPENCV`` (+ k3 k4 k5 k6).
-COLMAP puts the top-left pixel's centre at (0.5, 0.5), OpenCV at (0, 0): ``cx_colmap = cx + 0.5`` at this file
-boundary and nowhere else."""
+"""COLMAP ``cameras.txt``: ``OPENCV`` (fx fy cx cy k1 k2 p1 p2, no k3), ``FULL_OPENCV`` (fx fy cx cy k1 k2 p1 p2 k3
+k4 k5 k6: OpenCV's rational vector) and ``OPENCV_FISHEYE`` (fx fy cx cy k1 k2 k3 k4: cv2.fisheye's). COLMAP has no
+thin-prism model (a ``thin-prism`` camera is refused with that reason). COLMAP puts the top-left pixel's centre at
+(0.5, 0.5), OpenCV at (0, 0): ``cx_colmap = cx + 0.5`` at this file boundary and nowhere else."""
 from __future__ import annotations
 
 import numpy as np
 
 from circcal.errors import InputError, ModelFileError
+from circcal.formats.opencv import camera_from_K_dist
 from circcal.model import Camera
 
-__all__ = ["COLMAP_PIXEL_OFFSET", "camera_to_colmap", "camera_from_colmap"]
+__all__ = ["COLMAP_PIXEL_OFFSET", "COLMAP_MODELS", "camera_to_colmap", "camera_from_colmap"]
 
 COLMAP_PIXEL_OFFSET = 0.5  # COLMAP pixel-centre convention minus OpenCV's
+#: The COLMAP models this module reads, with their parameter counts.
+COLMAP_MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12,
+                 "OPENCV_FISHEYE": 8}
 
 
 def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) -> str:
-    """COLMAP ``cameras.txt`` with one camera. ``model``: ``"auto"`` (OPENCV when k3 = 0, else FULL_OPENCV),
-    ``"OPENCV"`` (refuses a nonzero k3: it cannot be dropped silently) or ``"FULL_OPENCV"``. The principal point
-    is shifted by +0.5 px into COLMAP's pixel convention."""
-    k1, k2, p1, p2, k3 = (float(v) for v in camera.dist)
+    """COLMAP ``cameras.txt`` with one camera. ``model``: ``"auto"`` (opencv5: OPENCV when k3 = 0, else
+    FULL_OPENCV; rational: FULL_OPENCV; fisheye: OPENCV_FISHEYE), or one of those names (``OPENCV`` refuses a
+    nonzero k3: it cannot be dropped silently). The principal point is shifted by +0.5 px into COLMAP's pixel
+    convention. A thin-prism camera raises :class:`~circcal.errors.InputError` (COLMAP has no such model)."""
     model = model.upper()
+    lens = camera.lens
+    if lens == "thin-prism":
+        raise InputError("COLMAP has no thin-prism model (its OpenCV models are OPENCV, FULL_OPENCV and "
+                         "OPENCV_FISHEYE): write another format, or calibrate with --lens rational")
     if model == "AUTO":
-        model = "OPENCV" if k3 == 0.0 else "FULL_OPENCV"
-    if model == "OPENCV":
-        if k3 != 0.0:
-            raise InputError(f"COLMAP's OPENCV model has no k3, and this camera has k3 = {k3:.6g}: write "
+        model = {"fisheye": "OPENCV_FISHEYE", "rational": "FULL_OPENCV",
+                 "opencv5": "OPENCV" if camera.dist[-1] == 0.0 else "FULL_OPENCV"}[lens]
+    d = [float(v) for v in camera.dist]
+    if lens == "fisheye":
+        if model != "OPENCV_FISHEYE":
+            raise InputError(f"a fisheye camera is COLMAP's OPENCV_FISHEYE, not {model}")
+        extra = d
+    elif model == "OPENCV":
+        if any(d[4:]):
+            raise InputError(f"COLMAP's OPENCV model has no k3..k6, and this camera has k3.. = {d[4:]}: write "
                              f"FULL_OPENCV instead (or calibrate with k3 fixed at 0)")
-        extra = [k1, k2, p1, p2]
+        extra = d[:4]
     elif model == "FULL_OPENCV":
-        extra = [k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+        extra = (d + [0.0, 0.0, 0.0])[:8]
     else:
-        raise InputError(f"unsupported COLMAP model {model!r}; expected OPENCV or FULL_OPENCV")
+        raise InputError(f"unsupported COLMAP model {model!r} for a {lens} camera; expected OPENCV, FULL_OPENCV or "
+                         f"OPENCV_FISHEYE")
     params = [camera.fx, camera.fy, camera.cx + COLMAP_PIXEL_OFFSET, camera.cy + COLMAP_PIXEL_OFFSET] + extra
     return ("# Camera list with one line of data per camera:\n"
             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
@@ -40,8 +56,8 @@ def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) ->
 
 def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
     """Camera from COLMAP ``cameras.txt`` (the first camera, or ``camera_id``). Models SIMPLE_PINHOLE, PINHOLE,
-    SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV (k4..k6 must be zero); the principal point is shifted by -0.5 px
-    into OpenCV's convention."""
+    SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV (``rational`` when k4..k6 are nonzero, else ``opencv5``) and
+    OPENCV_FISHEYE (``fisheye``); the principal point is shifted by -0.5 px into OpenCV's convention."""
     lines = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if camera_id is not None:
         lines = [ln for ln in lines if ln[0] == str(camera_id)]
@@ -57,26 +73,20 @@ def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
     except ValueError:
         raise ModelFileError(f"COLMAP camera {cid}: the size and parameters must be numbers, got "
                              f"{' '.join(lines[0][2:])!r}") from None
-    need = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12}
+    need = COLMAP_MODELS
     if model not in need:
-        raise ModelFileError(f"COLMAP camera {cid}: model {model} has no exact OpenCV-5 equivalent; supported: "
-                         f"{', '.join(need)}")
+        raise ModelFileError(f"COLMAP camera {cid}: model {model} has no exact circcal equivalent; supported: "
+                             f"{', '.join(need)}")
     if len(q) != need[model]:
         raise ModelFileError(f"COLMAP camera {cid}: {model} needs {need[model]} parameters, got {len(q)}")
-    dist = np.zeros(5)
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         fx = fy = q[0]
         cx, cy = q[1], q[2]
+        dist = np.zeros(5)
         dist[: len(q) - 3] = q[3:]
     else:
         fx, fy, cx, cy = q[:4]
-        if model == "FULL_OPENCV":
-            if any(q[9:12]):
-                raise ModelFileError(f"COLMAP camera {cid}: FULL_OPENCV k4..k6 = {q[9:12]} are nonzero; circcal's model "
-                                 f"holds only [k1, k2, p1, p2, k3]")
-            dist[:] = q[4:9]
-        elif model == "OPENCV":
-            dist[:4] = q[4:8]
-    return Camera(w, h, fx, fy, cx - COLMAP_PIXEL_OFFSET, cy - COLMAP_PIXEL_OFFSET, dist)
-
-
+        dist = np.asarray(q[4:])
+    K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET], [0.0, fy, cy - COLMAP_PIXEL_OFFSET], [0.0, 0.0, 1.0]])
+    return camera_from_K_dist(w, h, K, dist, f"COLMAP camera {cid} ({model})",
+                              lens="fisheye" if model == "OPENCV_FISHEYE" else None)

@@ -3,7 +3,8 @@
 ::
 
     {"format": "circcal-model", "version": 1,
-     "camera": {"width", "height", "fx", "fy", "cx", "cy", "dist": [k1, k2, p1, p2, k3]},   # = truth.json's block
+     "camera": {"width", "height", "fx", "fy", "cx", "cy", "dist": [...], "lens"},   # = truth.json's block
+         # dist in circcal.model.LENS_MODELS[lens].dist_names order; "lens" absent = "opencv5" ([k1, k2, p1, p2, k3])
      ... sections (MODEL_SECTIONS, each optional): "std", "fixed", "parameter_order", "correlation", "errors",
          "sigma_px", "n_params", "n_iterations", "converged", "views", "board_refinement", "board",
          "failed_images", "recorrection_rounds"}

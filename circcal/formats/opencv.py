@@ -1,15 +1,18 @@
 """OpenCV ``cv2.FileStorage`` camera files (YAML, or XML by the name): ``camera_matrix``,
-``distortion_coefficients``, ``image_width``, ``image_height``, as OpenCV's calibration sample writes them; and
-:func:`camera_from_K_dist`, the one conversion from an OpenCV camera matrix and distortion vector that every format
-holding them (OpenCV, mrcal, ROS) reads through."""
+``distortion_coefficients``, ``image_width``, ``image_height``, as OpenCV's calibration sample
+(samples/cpp/tutorial_code/calib3d/camera_calibration) writes them, with its ``fisheye_model: 1`` for a
+cv2.fisheye camera (``distortion_coefficients`` then its 4x1 ``D`` = k1..k4); and :func:`camera_from_K_dist`, the one
+conversion from an OpenCV camera matrix and distortion vector that every format holding them (OpenCV, mrcal, ROS,
+COLMAP) reads through."""
 from __future__ import annotations
 
 import numpy as np
 
 from circcal.errors import ModelFileError
-from circcal.model import DIST_NAMES, Camera
+from circcal.model import Camera
 
-__all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES"]
+__all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES",
+           "pinhole_lens_of"]
 
 #: Lengths of OpenCV's distortion vector: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (+ k4 k5 k6), 12 (+ s1..s4), 14 (+ tau x, y).
 OPENCV_DIST_SIZES = (0, 4, 5, 8, 12, 14)
@@ -19,20 +22,28 @@ SKEW_TOL = 1e-12
 
 def opencv_yaml_text(camera: Camera, *, xml: bool = False) -> str:
     """The FileStorage text (YAML, or XML) OpenCV's calibration sample writes: ``image_width``, ``image_height``,
-    ``camera_matrix`` (3x3) and ``distortion_coefficients`` (1x5)."""
+    ``camera_matrix`` (3x3) and ``distortion_coefficients`` (1x5, 1x8 or 1x12: OpenCV's vector of the lens model);
+    for a fisheye ``fisheye_model: 1`` and the 4x1 ``D`` of cv2.fisheye."""
     import cv2
 
     fs = cv2.FileStorage(".xml" if xml else ".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.write("image_width", int(camera.width))
     fs.write("image_height", int(camera.height))
-    fs.write("camera_matrix", camera.K)
-    fs.write("distortion_coefficients", camera.dist.reshape(1, len(DIST_NAMES)))
+    if camera.model.pinhole:
+        fs.write("camera_matrix", camera.K)
+        fs.write("distortion_coefficients", camera.dist.reshape(1, -1))
+    else:
+        fs.write("fisheye_model", 1)
+        fs.write("camera_matrix", camera.K)
+        fs.write("distortion_coefficients", camera.dist.reshape(-1, 1))
     return fs.releaseAndGetString()
 
 
 def camera_from_opencv_yaml(text: str) -> Camera:
-    """Camera from an OpenCV FileStorage text (YAML or XML). Accepts 4, 5, 8, 12 or 14 distortion coefficients as
-    long as those beyond k3 are zero; ``image_width``/``image_height`` (or ``image_size``) are required."""
+    """Camera from an OpenCV FileStorage text (YAML or XML). Pinhole: 4, 5, 8, 12 or 14 distortion coefficients
+    (the lens model from them, :func:`pinhole_lens_of`; the tilt of 14 must be zero); with a nonzero
+    ``fisheye_model`` (OpenCV's calibration sample) a cv2.fisheye camera with its 4 coefficients.
+    ``image_width``/``image_height`` (or ``image_size``) are required."""
     import cv2
 
     try:
@@ -56,15 +67,36 @@ def camera_from_opencv_yaml(text: str) -> Camera:
             if size.empty():
                 raise ModelFileError("no image_width/image_height (or image_size): the image size is needed")
             w, h = size.at(0).real(), size.at(1).real()
+        fisheye_node = fs.getNode("fisheye_model")
+        fisheye = not fisheye_node.empty() and fisheye_node.real() != 0
     finally:
         fs.release()
-    return camera_from_K_dist(w, h, np.asarray(K, dtype=np.float64), np.asarray(d, dtype=np.float64).ravel())
+    return camera_from_K_dist(w, h, np.asarray(K, dtype=np.float64), np.asarray(d, dtype=np.float64).ravel(),
+                              lens="fisheye" if fisheye else None)
 
 
-def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: str = "") -> Camera:
-    """A :class:`~circcal.model.Camera` from OpenCV's 3x3 camera matrix ``K`` and distortion vector ``d`` (any of
-    :data:`OPENCV_DIST_SIZES`; coefficients beyond k3 must be zero) for a ``w`` x ``h`` image. ``what`` names the
-    model in messages (e.g. the mrcal lens model). Raises :class:`~circcal.errors.ModelFileError`."""
+#: The pinhole lens models by the distortion coefficients they hold (each one's vector a prefix of the next's).
+_PINHOLE_LENSES = (("opencv5", 5), ("rational", 8), ("thin-prism", 12))
+
+
+def pinhole_lens_of(d: np.ndarray) -> str:
+    """The smallest pinhole lens model that holds OpenCV's distortion vector ``d`` (of 0-12 coefficients) exactly:
+    ``opencv5`` unless k4-k6 are nonzero (``rational``) or s1-s4 are (``thin-prism``). A file's zeros beyond k3 thus
+    read as the 5-coefficient camera they are."""
+    d = np.asarray(d, dtype=np.float64).ravel()
+    for name, n in _PINHOLE_LENSES:
+        if not np.any(d[n:]):
+            return name
+    raise ModelFileError(f"{d.size} distortion coefficients: more than the thin-prism model's 12 are nonzero")
+
+
+def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: str = "",
+                       lens: str | None = None) -> Camera:
+    """A :class:`~circcal.model.Camera` from OpenCV's 3x3 camera matrix ``K`` and distortion vector ``d`` for a
+    ``w`` x ``h`` image. ``lens`` None: a pinhole model, ``d`` any of :data:`OPENCV_DIST_SIZES` (the tilted
+    model's tau of 14 must be zero) and the model :func:`pinhole_lens_of` ``d``; ``lens="fisheye"``: cv2.fisheye's
+    ``D`` (4 coefficients). ``what`` names the model in messages (e.g. the mrcal lens model). Raises
+    :class:`~circcal.errors.ModelFileError`."""
     where = f"{what}: " if what else ""
     K = np.asarray(K, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64).ravel()
@@ -72,12 +104,20 @@ def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: s
         raise ModelFileError(f"{where}camera matrix must be 3x3, got {K.shape}")
     if abs(K[0, 1]) > SKEW_TOL * abs(K[0, 0]):
         raise ModelFileError(f"{where}skew {K[0, 1]} is not supported (circcal's model has zero skew)")
+    if lens == "fisheye":
+        if d.size != 4:
+            raise ModelFileError(f"{where}a fisheye camera has 4 distortion coefficients (k1, k2, k3, k4), got "
+                                 f"{d.size}")
+        return Camera(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2], d, "fisheye")
+    if lens is not None:
+        raise ValueError(f"lens must be None (from the coefficients) or 'fisheye', got {lens!r}")
     if d.size not in OPENCV_DIST_SIZES:
         raise ModelFileError(f"{where}{d.size} distortion coefficients; expected 4, 5, 8, 12 or 14")
-    n = len(DIST_NAMES)
-    if d.size > n and np.any(d[n:] != 0):
-        raise ModelFileError(f"{where}distortion coefficients beyond k3 are nonzero ({d[n:].tolist()}); circcal's "
-                             f"model holds only [k1, k2, p1, p2, k3]")
+    if d.size == 14 and np.any(d[12:]):
+        raise ModelFileError(f"{where}the tilted-sensor coefficients tau_x, tau_y = {d[12:].tolist()} are nonzero; "
+                             f"circcal's models hold at most OpenCV's 12 (thin prism)")
+    lens = pinhole_lens_of(d)
+    n = dict(_PINHOLE_LENSES)[lens]
     dist = np.zeros(n)
     dist[: min(n, d.size)] = d[:n]
-    return Camera(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist)
+    return Camera(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist, lens)

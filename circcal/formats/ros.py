@@ -1,29 +1,42 @@
-"""ROS ``camera_info`` YAML: the camera_calibration_parsers layout (``camera_matrix``, ``distortion_model:
-plumb_bob``, ``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``), what
-camera_info_manager loads; the message layout (``K``, ``D``, ``R``, ``P``) is read too. ROS uses OpenCV's pixel
-convention."""
+"""ROS ``camera_info`` YAML: the camera_calibration_parsers layout (``camera_matrix``, ``distortion_model``,
+``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``), what camera_info_manager loads; the
+message layout (``K``, ``D``, ``R``, ``P``) is read too. ROS uses OpenCV's pixel convention.
+
+Distortion models (sensor_msgs/distortion_models.h; image_geometry projects them with OpenCV): ``plumb_bob`` D =
+[k1, k2, p1, p2, k3] (``opencv5``), ``rational_polynomial`` D = [k1, k2, p1, p2, k3, k4, k5, k6] (``rational``),
+``equidistant`` D = [k1, k2, k3, k4] (cv2.fisheye: ``fisheye``). ROS has no thin-prism model: such a camera is
+refused with that reason."""
 from __future__ import annotations
 
 import numpy as np
 
-from circcal.errors import ModelFileError
+from circcal.errors import InputError, ModelFileError
 from circcal.formats.opencv import camera_from_K_dist
 from circcal.model import Camera
 
-__all__ = ["camera_to_ros_yaml", "camera_from_ros_yaml"]
+__all__ = ["ROS_DISTORTION_MODELS", "camera_to_ros_yaml", "camera_from_ros_yaml"]
+
+#: circcal's lens model -> ROS's distortion_model.
+ROS_DISTORTION_MODELS: dict[str, str] = {"opencv5": "plumb_bob", "rational": "rational_polynomial",
+                                         "fisheye": "equidistant"}
 
 
 def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
     """ROS ``camera_info`` YAML as camera_calibration_parsers writes it (what camera_info_manager loads):
-    plumb_bob D = [k1, k2, p1, p2, k3], K, R = I, P = [K | 0] (``yaml.safe_dump``)."""
+    the distortion model of :data:`ROS_DISTORTION_MODELS` with its D, K, R = I, P = [K | 0] (``yaml.safe_dump``).
+    A thin-prism camera raises :class:`~circcal.errors.InputError` (ROS has no such model)."""
     import yaml
+
+    if camera.lens not in ROS_DISTORTION_MODELS:
+        raise InputError("ROS camera_info has no thin-prism distortion model (plumb_bob, rational_polynomial and "
+                         "equidistant only): write another format, or calibrate with --lens rational")
 
     def matrix(a: np.ndarray) -> dict:
         a = np.atleast_2d(a)
         return {"rows": int(a.shape[0]), "cols": int(a.shape[1]), "data": [float(v) for v in a.ravel()]}
 
     doc = {"image_width": int(camera.width), "image_height": int(camera.height), "camera_name": str(name),
-           "camera_matrix": matrix(camera.K), "distortion_model": "plumb_bob",
+           "camera_matrix": matrix(camera.K), "distortion_model": ROS_DISTORTION_MODELS[camera.lens],
            "distortion_coefficients": matrix(camera.dist[None]), "rectification_matrix": matrix(np.eye(3)),
            "projection_matrix": matrix(np.hstack([camera.K, np.zeros((3, 1))]))}
     return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
@@ -32,7 +45,8 @@ def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
 def camera_from_ros_yaml(text: str) -> Camera:
     """Camera from ROS camera_info YAML: the camera_calibration_parsers layout (``camera_matrix.data``,
     ``distortion_coefficients.data``, ``image_width``) or the message layout (``K``, ``D``, ``width``, ``height``).
-    The distortion model must be plumb_bob (or rational_polynomial with k4..k6 = 0)."""
+    The distortion model: plumb_bob, rational_polynomial (``rational``; ``opencv5`` when k4..k6 are 0) or
+    equidistant (``fisheye``)."""
     import yaml
 
     try:
@@ -57,10 +71,15 @@ def camera_from_ros_yaml(text: str) -> Camera:
     if K is None or K.size != 9:
         raise ModelFileError("ROS camera_info: no 3x3 camera_matrix / K")
     model = str(d.get("distortion_model", "plumb_bob"))
-    if model not in ("plumb_bob", "rational_polynomial"):
-        raise ModelFileError(f"ROS camera_info: distortion_model {model!r} is not OpenCV's Brown model (plumb_bob)")
+    if model not in ROS_DISTORTION_MODELS.values():
+        raise ModelFileError(f"ROS camera_info: distortion_model {model!r} is none of circcal's: "
+                             f"{', '.join(ROS_DISTORTION_MODELS.values())}")
     w = d.get("image_width", d.get("width"))
     h = d.get("image_height", d.get("height"))
     if w is None or h is None:
         raise ModelFileError("ROS camera_info: no image_width/image_height (or width/height)")
-    return camera_from_K_dist(w, h, K.reshape(3, 3), np.zeros(5) if D is None else D.ravel(), "ROS camera_info")
+    fisheye = model == "equidistant"
+    if D is None:
+        D = np.zeros(4 if fisheye else 5)
+    return camera_from_K_dist(w, h, K.reshape(3, 3), D.ravel(), f"ROS camera_info ({model})",
+                              lens="fisheye" if fisheye else None)
