@@ -204,7 +204,7 @@ def test_cli_render(tmp_path, monkeypatch, capsys):
 
 def test_lens_model_scenarios():
     """fisheye: a ~170 deg equidistant lens, boards out to 64 deg (centre) / 80 deg (farthest dot), every dot in
-    frame and in front; rational-wide: a lens OpenCV's 5 coefficients cannot fit (0.39 px RMS on exact
+    frame and in front; rational-wide: a lens OpenCV's 5 coefficients cannot fit (0.72 px RMS on exact
     projections of its views) and the rational model can (float32 rounding)."""
     from circcal.rotation import rodrigues
 
