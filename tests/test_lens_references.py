@@ -126,3 +126,29 @@ def test_kornia_reports_points_beyond_90_degrees() -> None:
     with pytest.raises(NotImplementedError, match="90 deg"):
         _check_in_front(pose, [g])
     _check_in_front(np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 50.0]]), [g])
+
+
+@pytest.mark.parametrize("lens", ["rational", "thin-prism", "fisheye"])
+def test_mrcal_export_per_lens(lens: str) -> None:
+    """A .cameramodel with mrcal's optimisation inputs for the rational (OPENCV8) and thin-prism (OPENCV12) lenses:
+    mrcal's own residuals at circcal's solution equal circcal's and its cost gradient vanishes there; the fisheye
+    has no mrcal model and says so."""
+    from circcal.solver import calibrate
+    from circcal.validators.mrcal import mrcal_python
+    from circcal.validators.mrcal_export import ExportError, export_cameramodel
+
+    if mrcal_python()[0] is None:
+        pytest.skip(mrcal_python()[1])
+    truth = TRUTH[lens]
+    obj, img = _views(truth, n_views=10)
+    rng = np.random.default_rng(0)
+    img = [q + rng.normal(0, 0.02, q.shape) for q in img]
+    cc = calibrate(obj, img, (truth.width, truth.height), lens=lens)
+    if lens == "fisheye":
+        with pytest.raises(ExportError, match="Kannala-Brandt"):
+            export_cameramodel(cc.camera, cc.rvecs, cc.tvecs, obj, img, fixed=cc.fixed)
+        return
+    m = export_cameramodel(cc.camera, cc.rvecs, cc.tvecs, obj, img, fixed=cc.fixed)
+    assert m.info["lensmodel"] == {"rational": "LENSMODEL_OPENCV8", "thin-prism": "LENSMODEL_OPENCV12"}[lens]
+    assert m.info["rms_per_coord_px"] == pytest.approx(cc.errors["rms_per_coord_px"], rel=1e-9)
+    assert m.info["max_abs_gradient"] < 1e-6
