@@ -131,6 +131,7 @@ def calibrate_images(
     image_size: tuple[int, int] | None = None,
     jobs: int | None = None,
     outlier_rule=None,
+    lens: str = "opencv5",
 ) -> ImagesCalibration:
     """Detect the board in every image, calibrate, then re-correct every centre under the current model
     (perspective and distortion aware, ``circcal.detector.recorrect``) and recalibrate, until no centre moves more than
@@ -143,7 +144,9 @@ def calibrate_images(
     ``failed`` with their reason. ``outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule`: the dots the
     detector can tell are bad (:mod:`circcal.dotcheck`) are left out of every solve and each solve rejects outlying
     points and views (listed in ``result.outliers``; a dropped view's image goes to ``failed``, reason code
-    ``outlier-view``); None fits every detected centre. Raises :class:`TooFewImagesError` when fewer than
+    ``outlier-view``); None fits every detected centre. ``lens``: the lens model fitted (a
+    :data:`circcal.model.LENS_MODELS` name); every re-correction goes through it (the fisheye's dot by dot, on a
+    local perspective re-projection). Raises :class:`TooFewImagesError` when fewer than
     :data:`~circcal.observations.MIN_VIEWS` images remain.
     """
     paths = [str(p) for p in paths]
@@ -179,7 +182,7 @@ def calibrate_images(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least {MIN_VIEWS}"
             + "".join(f"\n  {r.path}: {r.reason}" for r in failed), failed)
     opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
-                fix_principal_point=fix_principal_point, refine_board=refine_board)
+                fix_principal_point=fix_principal_point, refine_board=refine_board, lens=lens)
     exclude = None
     if outlier_rule is not None:
         from circcal.dotcheck import bad_dot_rejections

@@ -92,3 +92,20 @@ def board_from_args(grid: tuple[int, int], pitch_mm: float, diameter_mm: float |
     if diameter_mm is None:
         diameter_mm = 0.5 * pitch_mm * (2 ** 0.5 if asymmetric else 1.0)
     return Board(grid[0], grid[1], pitch_mm, diameter_mm, layout)
+
+
+#: The lens models of ``--lens`` (:data:`circcal.model.LENS_MODELS`' names, written out so that building the parser
+#: imports no numpy; tests/test_calibrate_lens.py checks they agree), each with what it is.
+LENS_CHOICES: dict[str, str] = {
+    "opencv5": "OpenCV's k1, k2, p1, p2, k3",
+    "rational": "OpenCV's CALIB_RATIONAL_MODEL, k1-k6, p1, p2",
+    "thin-prism": "OpenCV's CALIB_THIN_PRISM_MODEL, + s1-s4",
+    "fisheye": "cv2.fisheye's equidistant Kannala-Brandt k1-k4",
+}
+
+
+def add_lens_argument(p: argparse.ArgumentParser) -> None:
+    """``--lens``: the lens model a command fits (default opencv5)."""
+    p.add_argument("--lens", choices=tuple(LENS_CHOICES), default="opencv5",
+                   help="lens model: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
+                   + " (default opencv5)")

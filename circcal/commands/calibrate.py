@@ -5,8 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
-                                   positive_float, positive_int)
+from circcal.commands.args import (DIAMETER_HELP, add_lens_argument, board_from_args, check_output, parse_grid,
+                                   parse_length_mm, positive_float, positive_int)
 from circcal.commands.board import add_marker_arguments, board_with_markers
 
 
@@ -14,8 +14,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate", help="calibrate a camera from images of a circle grid",
         description="Detect the circle grid in every image, calibrate (Zhang + Levenberg-Marquardt over fx, fy, cx, "
-                    "cy, k1, k2, p1, p2, k3 and all poses), re-correct every centre under the current model and "
-                    "recalibrate until the centres settle. Writes model.json (or, by extension, OpenCV .yaml, "
+                    "cy, the lens model's distortion coefficients (--lens; default k1, k2, p1, p2, k3) and all "
+                    "poses), re-correct every centre under the current model and recalibrate until the centres "
+                    "settle. Writes model.json (or, by extension, OpenCV .yaml, "
                     "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).")
     p.add_argument("images", nargs="+", type=Path, help="image files")
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
@@ -24,8 +25,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
+    add_lens_argument(p)
     p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0")
-    p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0")
+    p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0 (pinhole lens models)")
     p.add_argument("--fix-aspect-ratio", action="store_true", help="hold fx = fy")
     p.add_argument("--fix-principal-point", action="store_true", help="hold (cx, cy) at the image centre")
     p.add_argument("--refine-board", action="store_true",
@@ -59,16 +61,15 @@ def format_summary(cal, *, worst: int = 3) -> str:
     """Human-readable summary of an :class:`circcal.pipeline.ImagesCalibration` (or a CalibrationResult)."""
     import numpy as np
 
-    from circcal.model import PARAM_NAMES
-
     res = getattr(cal, "result", cal)
     lines = []
     vals = res.camera.intrinsics
-    lines.append(f"camera {res.camera.width}x{res.camera.height}, {len(res.rvecs)} views, "
+    lines.append(f"camera {res.camera.width}x{res.camera.height} ({res.camera.model.description}), "
+                 f"{len(res.rvecs)} views, "
                  f"{res.errors['n_points']} points, {res.n_iterations} iterations"
                  f"{'' if res.converged else ' (NOT converged)'}")
     lines.append(f"  {'parameter':>9}  {'value':>14}  {'+- 1 sigma':>12}")
-    for name, v in zip(PARAM_NAMES, vals):
+    for name, v in zip(res.camera.model.param_names, vals):
         s = res.std[name]
         note = "  (fixed)" if name in res.fixed else ""
         if name == "fx" and "aspect_ratio" in res.fixed:
@@ -145,7 +146,14 @@ def run(args: argparse.Namespace) -> int:
     fmt = detect_format(args.out)
     rule = None if args.no_outlier_rejection else OutlierRule(k=args.outlier_k or DEFAULT_K)
     opts = dict(fix_k3=args.fix_k3, fix_tangential=args.fix_tangential, fix_aspect_ratio=args.fix_aspect_ratio,
-                fix_principal_point=args.fix_principal_point, refine_board=args.refine_board)
+                fix_principal_point=args.fix_principal_point, refine_board=args.refine_board, lens=args.lens)
+    if args.lens == "fisheye" and args.fix_tangential:
+        raise InputError("--fix-tangential: the fisheye lens model has no tangential coefficients (p1, p2)")
+    if fmt == "mrcal" and args.lens == "fisheye":
+        from circcal.formats.mrcal import MRCAL_UNSUPPORTED
+
+        raise InputError(f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
+                         f"COLMAP cameras.txt or ROS camera_info instead")
     try:
         cal = calibrate_images(args.images, board, progress=not args.no_progress, jobs=args.jobs, outlier_rule=rule,
                                **opts)

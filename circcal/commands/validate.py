@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm,
-                                   positive_float)
+from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, check_output, parse_grid,
+                                   parse_length_mm, positive_float)
 from circcal.errors import InputError
 from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
@@ -34,6 +34,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--observations", choices=("circcal", "own"), default="circcal",
                    help="circcal = every reference fits circcal's centres; own = each reference's own detector")
     p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0 in every calibrator that can")
+    p.add_argument("--lens", choices=tuple(LENS_CHOICES), default=None,
+                   help="lens model every calibrator fits: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
+                   + " (default: the fixture's true camera's, else opencv5); a reference without it is reported "
+                     "unsupported with the reason")
     p.add_argument("--solver-tol", type=positive_float, default=SOLVER_PX, help="max px projection difference to "
                    f"circcal on identical observations (default {SOLVER_PX:g}; mrcal: {SOLVER_MRCAL_PX:g})")
     p.add_argument("--truth-sigmas", type=positive_float, default=TRUTH_SIGMAS, help="max |error| of circcal's fx, "
@@ -78,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         paths = [v.image for v in truth.views]
     result = run_validation(paths, board, truth=truth_cam, against=against, mode=args.mode,
                             observations=args.observations, fix_k3=args.fix_k3, progress=not args.no_progress,
+                            **({} if args.lens is None else {"lens": args.lens}),
                             bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas,
                                           truth=args.truth_tol), source=source, allow_missing=args.allow_missing)
     print(format_table(result))

@@ -217,7 +217,8 @@ def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], *, names: Se
 
 #: Solver keywords a cross-validation passes to its leave-one-out refits (outlier rejection is not among them: they
 #: refit the full model's observations, already free of outliers).
-_SOLVER_KEYS = ("fix_k3", "fix_k2", "fix_tangential", "fix_aspect_ratio", "fix_principal_point", "refine_board")
+_SOLVER_KEYS = ("fix_k3", "fix_k2", "fix_tangential", "fix_aspect_ratio", "fix_principal_point", "refine_board",
+                "lens")
 
 
 def cross_validate_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],

@@ -27,11 +27,10 @@ MIN_CONTOUR_POINTS = 5
 MAX_AREA_FACTOR = 4.0
 """The largest dot may be this many times the area of an average dot of a board filling the whole image
 (perspective makes near dots larger)."""
-MIN_AREA_FRACTION = 1e-5
-"""The smallest dot is this share of the image area (~12 px^2 at 640x480, ~21 px^2 at 1920x1080): below it a
-sub-pixel boundary cannot be measured anyway."""
 MIN_AREA_PX2 = 12.0
-"""... and never below this many px^2 (a disk of radius ~2 px)."""
+"""The smallest candidate dot (px^2, at any image size): a dot 6 px across (28 px^2) seen at 60 deg of tilt has
+14; below, a sub-pixel boundary cannot be measured. (A share of the image area, as before, dropped dots 8-12 px
+across at 4000x3000 and 20 px across at 8000x6000.)"""
 MIN_AREA_RANGE = 4.0
 """The area window spans at least this factor (radii within 2x), however small the board's dots."""
 SHORTEST_CONTOUR_SHARE = 0.5
@@ -57,12 +56,12 @@ class Candidate:
 def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
     """(min_area, max_area) px^2 for candidate dots of ``board`` in a ``width`` x ``height`` image: at most
     :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image (times the markers' area ratio on a
-    marker board), at least :data:`MIN_AREA_FRACTION` of the image and :data:`MIN_AREA_PX2`; the window spans at
-    least :data:`MIN_AREA_RANGE`."""
+    marker board), at least :data:`MIN_AREA_PX2` (the smallest measurable dot, whatever the image size); the window
+    spans at least :data:`MIN_AREA_RANGE`."""
     cell = board.pitch_mm ** 2 * (2.0 if board.layout == "asymmetric" else 1.0)
     dot_frac = np.pi * board.radius_mm ** 2 / cell
     max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points * board.marker_scale ** 2
-    min_area = max(MIN_AREA_PX2, MIN_AREA_FRACTION * width * height)
+    min_area = MIN_AREA_PX2
     return min_area, max(max_area, MIN_AREA_RANGE * min_area)
 
 

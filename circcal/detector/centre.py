@@ -16,15 +16,24 @@ Two independent computations are given:
 
 :func:`correct_centres` iterates: homography from the current centres, vanishing line, poles, until stable.
 All coordinates are pixels (OpenCV convention).
+
+A fisheye has no global perspective image (beyond 90 deg none exists, and near it the undistorted image stretches
+without bound): :func:`correct_centres_on_rays` corrects each dot on a local perspective re-projection instead, a
+virtual pinhole camera turned to look along the dot's own ray. There the dot's rim, carried along its rays, is the
+exact perspective image of a circle (an ellipse), the board's vanishing line is ``K_v^-T R_k n`` for the board's
+normal ``n`` (from the homography of the board onto the centres' rays), and the pole gives the centre's ray, which
+the lens model takes back into the image. Exact for any central camera; used for the fisheye.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.ellipse import conic_params, conic_params_batch
+from circcal.detector.ellipse import FIT_ERRORS, conic_params, conic_params_batch, fit_ellipses_direct
+from circcal.model import Camera, project_camera, unproject
+from circcal.model.rays import plane_normal, ray_homography
 
 __all__ = ["vanishing_line", "pole_centre", "pole_centres", "tangent_chord_centre", "fit_homography",
-           "correct_centres"]
+           "correct_centres", "rotations_to_axis", "correct_centres_on_rays"]
 
 
 def vanishing_line(H: np.ndarray) -> np.ndarray:
@@ -57,13 +66,15 @@ def pole_centre(Q: np.ndarray, line: np.ndarray) -> np.ndarray:
 
 
 def pole_centres(conics: np.ndarray, line: np.ndarray, frames: np.ndarray | None = None) -> np.ndarray:
-    """(D, 2) poles of ``line`` (3,) w.r.t. each ellipse of ``conics`` (D, 3, 3) (batched :func:`pole_centre`).
-    ``frames``: the (D, 3, 3) local frames of the conics when already computed (they do not depend on ``line``)."""
+    """(D, 2) poles of ``line`` (3,), or of one line per ellipse (D, 3), w.r.t. each ellipse of ``conics`` (D, 3, 3)
+    (batched :func:`pole_centre`). ``frames``: the (D, 3, 3) local frames of the conics when already computed (they
+    do not depend on ``line``)."""
     conics = np.asarray(conics, dtype=np.float64)
     T = _local_frames(conics) if frames is None else frames
     Tt = T.transpose(0, 2, 1)
     Ql = Tt @ conics @ T
-    ll = Tt @ np.asarray(line, dtype=np.float64)
+    line = np.asarray(line, dtype=np.float64)
+    ll = Tt @ line if line.ndim == 1 else np.einsum("dij,dj->di", Tt, line)
     p = T @ np.linalg.solve(Ql, ll[..., None])
     return p[:, :2, 0] / p[:, 2:, 0]
 
@@ -176,3 +187,74 @@ def correct_centres(
         if step < tol_px:
             break
     return c, H
+
+
+def rotations_to_axis(d: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the smallest rotations ``R`` with ``R d_k = (0, 0, 1)`` for unit directions ``d`` (K, 3) (not
+    straight backwards): ``I + [v]x + [v]x^2 / (1 + c)``, ``v = d x z``, ``c = d . z``."""
+    d = np.asarray(d, dtype=np.float64)
+    v = np.stack([d[:, 1], -d[:, 0], np.zeros(len(d))], axis=1)
+    c = d[:, 2]
+    V = np.zeros((len(d), 3, 3))
+    V[:, 0, 1], V[:, 0, 2], V[:, 1, 0] = -v[:, 2], v[:, 1], v[:, 2]
+    V[:, 1, 2], V[:, 2, 0], V[:, 2, 1] = -v[:, 0], -v[:, 1], v[:, 0]
+    return np.eye(3) + V + (V @ V) / (1.0 + c)[:, None, None]
+
+
+def correct_centres_on_rays(
+    edge_points: np.ndarray,
+    mask: np.ndarray,
+    board_xy: np.ndarray,
+    camera: Camera,
+    *,
+    init: np.ndarray | None = None,
+    max_iter: int = 10,
+    tol_px: float = 1e-9,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Images of the circle centres under any lens model, each dot corrected on a local perspective re-projection
+    (see the module): iterate board homography onto the centres' rays, per-dot virtual camera along the centre's
+    ray, ellipse fit there, pole of the vanishing line, until no centre moves ``tol_px``.
+
+    ``edge_points``: (K, M, 2) px, each dot's rim points in the observed image (board order), ``mask`` (K, M) the
+    valid ones; ``board_xy``: (K, 2) mm the dots' board coordinates; ``camera``: the lens model; ``init``: (K, 2)
+    px starting centres (default: the mean of each dot's rim rays). Returns ``(centres (K, 2) px in the observed
+    image, H (3, 3) board -> rays of the final centres)``. Raises ``ValueError`` when a rim point has no ray, an
+    ellipse cannot be fitted or the centres fix no board plane."""
+    P = np.asarray(edge_points, dtype=np.float64)
+    M = np.asarray(mask, bool)
+    E = np.full(P.shape[:2] + (3,), np.nan)
+    E[M] = unproject(P[M], camera)
+    E /= np.linalg.norm(E, axis=2, keepdims=True)
+    if not np.all(np.isfinite(E[M])):
+        raise ValueError("a rim point lies beyond the lens model's field (no ray)")
+    if init is None:
+        d = np.where(M[..., None], E, 0.0).sum(axis=1)
+    else:
+        d = unproject(np.asarray(init, dtype=np.float64), camera)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c = project_camera(d, camera)
+    f = float(camera.fx)                     # the virtual cameras' focal length: pixel-sized units
+    H = None
+    for _ in range(max_iter):
+        H = ray_homography(board_xy, d)
+        if H is None:
+            raise ValueError("could not fit a board homography to the centres' rays (degenerate configuration)")
+        n = plane_normal(H)
+        R = rotations_to_axis(d)
+        q = np.einsum("kij,kmj->kmi", R, np.where(M[..., None], E, 0.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x = f * q[..., :2] / q[..., 2:3]
+        conics, err = fit_ellipses_direct(x, M & (q[..., 2] > 0))
+        if np.any(err):
+            raise ValueError(FIT_ERRORS[int(err[np.argmax(err != 0)])])
+        ln = R @ n                                                     # the vanishing line, K_v^-T R_k n
+        ln[:, :2] /= f
+        p = pole_centres(conics, ln)
+        new_d = np.einsum("kji,kj->ki", R, np.column_stack([p / f, np.ones(len(p))]))
+        new_d /= np.linalg.norm(new_d, axis=1, keepdims=True)
+        new_c = project_camera(new_d, camera)
+        step = float(np.max(np.abs(new_c - c)))
+        c, d = new_c, new_d
+        if step < tol_px:
+            break
+    return c, ray_homography(board_xy, d)

@@ -32,7 +32,7 @@ import numpy as np
 from circcal.board import Board
 from circcal.detector.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
 from circcal.detector.candidates import Candidate, area_limits, find_candidates
-from circcal.detector.centre import correct_centres
+from circcal.detector.centre import correct_centres, correct_centres_on_rays
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
@@ -183,7 +183,8 @@ def _why(dropped: dict[int, str]) -> str:
     return ", ".join(f"{n} {r}" for r, n in counts.items()) or "none"
 
 
-def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *, first_only: bool = False
+def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *, first_only: bool = False,
+                           scales: list[int] | None = None, box: tuple[int, int, int, int] | None = None
                            ) -> tuple[Recognition, list[Candidate], str | None, int]:
     """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
     :func:`~circcal.detector.segment.segmentation_scales` in turn (candidates in full-image pixels).
@@ -194,19 +195,24 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     the most telling refusal (a lattice larger than the board, an
     ambiguous part, before "not recognised"). Returns ``(recognition, candidates, segmentation name, most
     candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.segment.SHRUNK_MIN_RADIUS` at a shrunk
-    scale sends the search on to the coarsest scale where they are not. ``first_only``: the first segmentation at
-    the first scale only (the inverted-board hint)."""
+    scale sends the search on to the coarsest scale where they are not, in the board's window only
+    (:func:`_board_window`; the whole image again when the window does not show it). ``first_only``: the first
+    segmentation at the first scale only (the inverted-board hint). ``scales``: the scales to try (default
+    :func:`~circcal.detector.segment.segmentation_scales`); ``box``: ``(x0, y0, x1, y1)`` px, search this window of
+    ``gray`` only (candidates still in full-image pixels)."""
     H, W = gray.shape
     min_area, max_area = area_limits(board, W, H)
     best = 0
     need = min(board.n_points, MIN_PARTIAL_POINTS)
-    scales = list(segmentation_scales(H, W))
+    x0, y0, x1, y1 = box if box is not None else (0, 0, W, H)
+    win = gray[y0:y1, x0:x1]
+    scales = list(segmentation_scales(*win.shape) if scales is None else scales)
     partial: tuple[Recognition, list[Candidate], str] | None = None
     refusal: tuple[Recognition, list[Candidate], str] | None = None
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
-        img = normalise_u8(gray if scale == 1 else shrink(gray, scale), STRETCH_TAIL_PX / scale ** 2)
+        img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2)
         for name, mask in segmentations(img):
             deadline.check()
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
@@ -218,16 +224,27 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
                 continue
             if scale != 1:
                 cs = [upscaled(c, scale) for c in cs]
+            if box is not None:
+                cs = [_shifted(c, x0, y0, W, H) for c in cs]
             rec = recognise(board, cs, (W, H), deadline)
             label = name if scale == 1 else f"{name}@1/{scale}"
+            if box is not None:
+                label += f"[{x0}:{x1},{y0}:{y1}]"
             if rec.order is not None:
                 seen = rec.order[rec.order >= 0]
                 radii = np.array([np.sqrt(cs[i].axes[0] * cs[i].axes[1]) for i in seen])
                 r_min = float(np.min(radii))
                 if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
-                    # small dots: their contours are worth a finer scale, the coarsest one where they are not small
+                    # small dots: their contours are worth a finer scale, the coarsest one where they are not small,
+                    # in the board's window first (a small board in a large frame: a few % of the pixels)
                     finer = max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)
-                    scales = [finer, 1] if finer != 1 else [1]
+                    finer_scales = [finer, 1] if finer != 1 else [1]
+                    window = _board_window(cs, rec, (W, H), (x0, y0, x1, y1))
+                    if window is not None:
+                        got = _segment_and_recognise(gray, board, deadline, scales=list(finer_scales), box=window)
+                        if got[0].order is not None:
+                            return got[0], got[1], got[2], max(best, got[3])
+                    scales = finer_scales
                     partial = refusal = None
                     break
                 if rec.complete:
@@ -251,6 +268,44 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
 
 
+WINDOW_MARGIN_STEPS = 2.0
+"""The board's window (:func:`_board_window`) reaches this many lattice steps beyond the dots recognised at a coarse
+scale (room for the dots that scale missed and for the lattice's continuation, which the search checks)."""
+WINDOW_MAX_SHARE = 0.25
+"""... and is used only when it is at most this share of the image searched (else the whole image is)."""
+
+
+def _board_window(cands: list[Candidate], rec: Recognition, size: tuple[int, int],
+                  within: tuple[int, int, int, int]) -> tuple[int, int, int, int] | None:
+    """``(x0, y0, x1, y1)`` px: the bounding box of the recognised dots of ``rec`` (candidates ``cands``, full-image
+    pixels) grown by :data:`WINDOW_MARGIN_STEPS` lattice steps (the median nearest-neighbour distance of those
+    dots), clipped to the image ``size`` (W, H); ``None`` when it is not much smaller than the window ``within``
+    searched (:data:`WINDOW_MAX_SHARE`)."""
+    W, H = size
+    P = np.array([cands[i].centre for i in rec.order[rec.order >= 0]])
+    if len(P) < 2:
+        return None
+    d = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    pad = WINDOW_MARGIN_STEPS * float(np.median(d.min(axis=1))) + 2.0 * max(max(c.axes) for c in cands)
+    lo, hi = P.min(axis=0) - pad, P.max(axis=0) + pad
+    x0, y0 = max(0, int(np.floor(lo[0]))), max(0, int(np.floor(lo[1])))
+    x1, y1 = min(W, int(np.ceil(hi[0])) + 1), min(H, int(np.ceil(hi[1])) + 1)
+    area = (within[2] - within[0]) * (within[3] - within[1])
+    if (x1 - x0) * (y1 - y0) > WINDOW_MAX_SHARE * area or x1 - x0 < 16 or y1 - y0 < 16:
+        return None
+    return x0, y0, x1, y1
+
+
+def _shifted(c: Candidate, x0: int, y0: int, W: int, H: int) -> Candidate:
+    """Candidate ``c`` of a window at ``(x0, y0)`` in full-image pixels; cut only where it touches the image's own
+    border (its contour touching the window's edge inside the image is clutter reaching in, not a dot cut off)."""
+    centre = c.centre + [x0, y0]
+    cut = c.cut and bool(centre[0] - c.axes[0] <= 1.0 or centre[1] - c.axes[0] <= 1.0
+                         or centre[0] + c.axes[0] >= W - 2.0 or centre[1] + c.axes[0] >= H - 2.0)
+    return Candidate(centre, c.axes, c.angle, c.area, cut)
+
+
 def _telling(rec: Recognition) -> int:
     """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
     markers, then an ambiguous view, then too few points, then not recognised."""
@@ -260,8 +315,9 @@ def _telling(rec: Recognition) -> int:
 
 def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.ndarray:
     """(N, 2) centres of a found ``detection`` corrected with ``camera`` (its distortion), from the stored edge
-    points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back.
-    Points not seen (no edge points) stay NaN."""
+    points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back
+    (a fisheye: each dot on its own local perspective re-projection,
+    :func:`~circcal.detector.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN."""
     if not detection.found or detection.edge_points is None:
         raise ValueError(f"cannot re-correct a detection that was not found ({detection.reason})")
     if detection.image_size is not None:
@@ -276,11 +332,14 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
     image (NaN likewise), H board -> undistorted image, from the ``edge_points`` (N lists of (M_k, 2) px, board
     order, observed image) of the board points ``used`` (K,). ``conics``: (K, 3, 3) the ellipses already fitted
     to those edge points (observed image), reused when there is no distortion to remove. Raises ``ValueError`` when
-    an ellipse cannot be fitted or no board homography fits the centres."""
+    an ellipse cannot be fitted or no board homography fits the centres. A fisheye ``camera``: the centres from
+    :func:`~circcal.detector.centre.correct_centres_on_rays`, the conics those given (observed image; else NaN) and
+    H board -> rays."""
     N = board.n_points
     obj = board.object_points()[used, :2]
-    distorted = camera is not None and np.any(camera.dist)
-    if conics is None or distorted:
+    fisheye = camera is not None and not camera.model.pinhole
+    distorted = camera is not None and np.any(camera.dist) and not fisheye
+    if conics is None or distorted or fisheye:
         sub = [edge_points[k] for k in used]
         counts = [len(p) for p in sub]
         width = max(counts) if counts else 0
@@ -289,6 +348,14 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
         for i, p in enumerate(sub):
             P[i, :len(p)] = p
             M[i, :len(p)] = True
+        if fisheye:
+            c, H = correct_centres_on_rays(P, M, obj, camera)
+            centres = np.full((N, 2), np.nan)
+            centres[used] = c
+            all_conics = np.full((N, 3, 3), np.nan)
+            if conics is not None:
+                all_conics[used] = conics
+            return centres, all_conics, H
         if distorted:
             P[M] = undistort_pixels(P[M], camera)
             M &= np.isfinite(P[..., 0]) & np.isfinite(P[..., 1])

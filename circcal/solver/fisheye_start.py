@@ -21,6 +21,7 @@ import numpy as np
 from circcal.errors import CalibrationError
 from circcal.metrics import error_stats
 from circcal.model import Camera, project, unproject
+from circcal.model.rays import ray_homography
 from circcal.solver.zhang import poses_from_homographies
 
 __all__ = ["ray_homographies", "poses_from_rays", "fisheye_start"]
@@ -32,34 +33,15 @@ _N_SCAN = 40
 
 
 def ray_homographies(object_xy: Sequence[np.ndarray], rays: Sequence[np.ndarray]) -> np.ndarray:
-    """Per view the homography ``H`` (V, 3, 3) with ``H (X, Y, 1) ~ d`` for board points ``object_xy[v]`` (N_v, 2)
-    mm and rays ``d = rays[v]`` (N_v, 3), any direction, scaled so that ``H (X, Y, 1)`` points along the rays
-    (positive scale) and ``|h1| + |h2| = 2``. A DLT on the cross product ``d x H a = 0`` with the board points
-    Hartley-normalised; the rays' own norm does not matter. Raises CalibrationError for fewer than 4 points or
-    collinear ones."""
+    """Per view the homography (V, 3, 3) board mm -> rays of :func:`circcal.model.rays.ray_homography` (any
+    direction; ``H (X, Y, 1)`` along the rays, ``|h1| + |h2| = 2``). Raises CalibrationError for fewer than 4 points
+    or collinear ones."""
     out = []
     for a, d in zip(object_xy, rays):
-        a = np.asarray(a, dtype=np.float64).reshape(-1, 2)
-        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
-        d = d / np.linalg.norm(d, axis=1, keepdims=True)
-        if len(a) < 4:
-            raise CalibrationError(f"a plane homography needs >= 4 points, got {len(a)}")
-        c = a.mean(axis=0)
-        s = np.sqrt(2.0) / max(float(np.mean(np.linalg.norm(a - c, axis=1))), 1e-300)
-        T = np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
-        ah = np.column_stack([(a - c) * s, np.ones(len(a))])
-        A = np.zeros((2 * len(a), 9))
-        A[0::2, 0:3] = d[:, 2:3] * ah
-        A[0::2, 6:9] = -d[:, 0:1] * ah
-        A[1::2, 3:6] = d[:, 2:3] * ah
-        A[1::2, 6:9] = -d[:, 1:2] * ah
-        _, sv, Vt = np.linalg.svd(A, full_matrices=False)
-        if sv[-2] <= 1e-12 * sv[0]:
-            raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
-        H = Vt[-1].reshape(3, 3) @ T
-        if np.sum(np.einsum("ij,nj->ni", H, np.column_stack([a, np.ones(len(a))])) * d) < 0:
-            H = -H
-        out.append(2.0 * H / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1])))
+        H = ray_homography(a, d)
+        if H is None:
+            raise CalibrationError("could not fit a plane homography: fewer than 4 points, or collinear ones")
+        out.append(H)
     return np.stack(out)
 
 
