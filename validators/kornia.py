@@ -34,7 +34,7 @@ import numpy as np
 
 from circcal.model import LENS_MODELS, Camera, param_names
 from circcal.observations import check_observations
-from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence
+from circcal.validators.base import FISHEYE_FOCAL_SWEEP, BaseCalibrator, ReferenceResult, check_divergence
 
 __all__ = ["KorniaCalibrator", "Problem"]
 
@@ -157,10 +157,6 @@ def _poses_from_homographies(H, Kn):
     R = U @ Vt
     rv = _rotation_to_axis_angle(R.reshape(-1, 3, 3)).reshape(B, V, 3)
     return torch.cat([rv, t], -1)
-
-
-#: Equidistant focal lengths tried by the fisheye initialisation, relative to max(w, h) / pi (cv2.fisheye's start).
-FISHEYE_FOCAL_SWEEP: tuple[float, ...] = (0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6)
 
 
 def _fisheye_init(obj, img, w, vmask, sizes):
