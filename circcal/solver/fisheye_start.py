@@ -19,9 +19,9 @@ from typing import Sequence
 import numpy as np
 
 from circcal.errors import CalibrationError
-from circcal.metrics import error_stats
-from circcal.model import Camera, project, unproject
-from circcal.model.rays import ray_homography
+from circcal.model import Camera
+from circcal.model import rays as model_rays
+from circcal.rotation import rodrigues
 from circcal.solver.zhang import poses_from_homographies
 
 __all__ = ["ray_homographies", "poses_from_rays", "fisheye_start"]
@@ -29,20 +29,26 @@ __all__ = ["ray_homographies", "poses_from_rays", "fisheye_start"]
 #: Candidate focal lengths scanned (log-spaced) between the one that puts the farthest observed point at 180 deg
 #: and this many times the image's longer side.
 _F_MAX_PER_SIDE = 20.0
-_N_SCAN = 40
+_N_SCAN = 16
+
+
+def _by_count(n_points: Sequence[int]) -> list[np.ndarray]:
+    """Indices of the views grouped by their number of points (each group is one batched solve)."""
+    counts = np.asarray(n_points)
+    return [np.flatnonzero(counts == n) for n in np.unique(counts)]
 
 
 def ray_homographies(object_xy: Sequence[np.ndarray], rays: Sequence[np.ndarray]) -> np.ndarray:
     """Per view the homography (V, 3, 3) board mm -> rays of :func:`circcal.model.rays.ray_homography` (any
-    direction; ``H (X, Y, 1)`` along the rays, ``|h1| + |h2| = 2``). Raises CalibrationError for fewer than 4 points
-    or collinear ones."""
-    out = []
-    for a, d in zip(object_xy, rays):
-        H = ray_homography(a, d)
-        if H is None:
-            raise CalibrationError("could not fit a plane homography: fewer than 4 points, or collinear ones")
-        out.append(H)
-    return np.stack(out)
+    direction; ``H (X, Y, 1)`` along the rays, ``|h1| + |h2| = 2``), views of equal point counts batched. Raises
+    CalibrationError for fewer than 4 points or collinear ones."""
+    H = np.empty((len(object_xy), 3, 3))
+    for idx in _by_count([len(o) for o in object_xy]):
+        H[idx] = model_rays.ray_homographies(np.stack([np.asarray(object_xy[i], float)[:, :2] for i in idx]),
+                                             np.stack([np.asarray(rays[i], float) for i in idx]))
+    if not np.all(np.isfinite(H)):
+        raise CalibrationError("could not fit a plane homography: fewer than 4 points, or collinear ones")
+    return H
 
 
 def poses_from_rays(object_points: Sequence[np.ndarray], rays: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -52,23 +58,41 @@ def poses_from_rays(object_points: Sequence[np.ndarray], rays: Sequence[np.ndarr
     return poses_from_homographies(Hs, np.eye(3), signed=True)
 
 
-def _equidistant(f: float, image_size: tuple[int, int], centre: tuple[float, float], aspect: float) -> Camera:
-    w, h = image_size
-    return Camera(w, h, aspect * f, f, centre[0], centre[1], np.zeros(4), "fisheye")
+def _equidistant_rays(uv: np.ndarray, f: float, aspect: float, centre) -> np.ndarray:
+    """Pixels (..., 2) -> unit rays (..., 3) of the equidistant lens (k = 0, ``theta = r``: closed form)."""
+    x = (uv[..., 0] - centre[0]) / (aspect * f)
+    y = (uv[..., 1] - centre[1]) / f
+    th = np.hypot(x, y)
+    s = np.where(th > 0, np.sin(th) / np.where(th > 0, th, 1.0), 1.0)
+    return np.stack([x * s, y * s, np.cos(th)], axis=-1)
 
 
-def _reprojection_rms(obj, img, cam: Camera) -> tuple[float, np.ndarray, np.ndarray]:
-    """RMS per coordinate (px) of the best plane poses under ``cam`` (inf where a ray or a fit fails)."""
-    rays = [unproject(p, cam) for p in img]
-    if not all(np.all(np.isfinite(r)) for r in rays):
-        return float("inf"), None, None
-    try:
-        rv, tv = poses_from_rays(obj, rays)
-    except CalibrationError:
-        return float("inf"), None, None
-    r = np.concatenate([project(o, a, b, cam) - p for o, p, a, b in zip(obj, img, rv, tv)])
-    rms = error_stats(r)["rms_per_coord_px"] if np.all(np.isfinite(r)) else float("inf")
-    return rms, rv, tv
+def _equidistant_pixels(Xc: np.ndarray, f: float, aspect: float, centre) -> np.ndarray:
+    """Camera-frame points (..., 3) -> pixels (..., 2) of the equidistant lens (k = 0)."""
+    rho = np.hypot(Xc[..., 0], Xc[..., 1])
+    th = np.arctan2(rho, Xc[..., 2])
+    s = np.where(rho > 0, th / np.where(rho > 0, rho, 1.0), 1.0 / Xc[..., 2])
+    return np.stack([aspect * f * s * Xc[..., 0] + centre[0], f * s * Xc[..., 1] + centre[1]], axis=-1)
+
+
+def _fit(groups, f: float, aspect: float, centre) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+    """RMS per coordinate (px) of the plane poses that best fit the equidistant rays of focal length ``f``, with
+    those poses (rvecs, tvecs per view); inf (and None) where a homography is not determined."""
+    V = sum(len(idx) for idx, _, _ in groups)
+    rv, tv = np.empty((V, 3)), np.empty((V, 3))
+    ssr, n = 0.0, 0
+    for idx, O, P in groups:
+        H = model_rays.ray_homographies(O[..., :2], _equidistant_rays(P, f, aspect, centre))
+        if not np.all(np.isfinite(H)):
+            return float("inf"), None, None
+        r, t = poses_from_homographies(H, np.eye(3), signed=True)
+        Xc = O @ rodrigues(r).transpose(0, 2, 1) + t[:, None, :]
+        res = _equidistant_pixels(Xc, f, aspect, centre) - P
+        ssr += float(np.sum(res * res))
+        n += res.size
+        rv[idx], tv[idx] = r, t
+    rms = np.sqrt(ssr / n)
+    return (float(rms), rv, tv) if np.isfinite(rms) else (float("inf"), None, None)
 
 
 def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
@@ -87,6 +111,8 @@ def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np
     aspect = 1.0 if aspect_ratio is None else float(aspect_ratio)
     obj = [np.asarray(o, dtype=np.float64) for o in object_points]
     img = [np.asarray(p, dtype=np.float64) for p in image_points]
+    groups = [(idx, np.stack([obj[i] for i in idx]), np.stack([img[i] for i in idx]))
+              for idx in _by_count([len(o) for o in obj])]
     allp = np.concatenate(img) - np.asarray(centre)
     r_max = float(np.max(np.hypot(allp[:, 0] / aspect, allp[:, 1])))
     f_lo = max(r_max / np.pi, 1e-3) * (1.0 + 1e-6)
@@ -94,7 +120,7 @@ def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np
     grid = np.geomspace(f_lo, f_hi, _N_SCAN)
 
     def cost(logf: float) -> float:
-        return _reprojection_rms(obj, img, _equidistant(float(np.exp(logf)), (w, h), centre, aspect))[0]
+        return _fit(groups, float(np.exp(logf)), aspect, centre)[0]
 
     scan = np.array([cost(np.log(f)) for f in grid])
     if not np.any(np.isfinite(scan)):
@@ -102,8 +128,7 @@ def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np
                                "correspondences (board order, image_size) and the object points")
     i = int(np.nanargmin(np.where(np.isfinite(scan), scan, np.nan)))
     lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
-    best = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    best = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
     f = float(np.exp(best.x)) if best.fun <= scan[i] else float(grid[i])
-    cam = _equidistant(f, (w, h), centre, aspect)
-    _, rv, tv = _reprojection_rms(obj, img, cam)
-    return cam, rv, tv
+    _, rv, tv = _fit(groups, f, aspect, centre)
+    return Camera(w, h, aspect * f, f, centre[0], centre[1], np.zeros(4), "fisheye"), rv, tv
