@@ -21,8 +21,8 @@ from pathlib import Path
 
 #: BLAS pools fixed at one thread before numpy's first import (benchmarks pin OpenCV and BLAS again per timing)
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-MODULES = ("bench_render", "bench_detect", "bench_calibrate", "bench_startup", "bench_validate", "bench_study",
-           "bench_trust")
+MODULES = ("bench_render", "bench_detect", "bench_calibrate", "bench_lens", "bench_startup", "bench_validate",
+           "bench_study", "bench_trust")
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
 
