@@ -80,3 +80,56 @@ def test_rotations_to_axis():
     np.testing.assert_allclose(np.einsum("kij,kj->ki", R, d), np.tile([0, 0, 1.0], (len(d), 1)), atol=1e-14)
     np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-14)
     assert np.allclose(np.linalg.det(R), 1.0)
+
+
+@pytest.mark.parametrize("theta,tilt,distance", [(0, 30, 400.0), (70, 20, 300.0)], ids=["axis", "70deg"])
+def test_detector_on_fisheye_renders_with_the_true_model(theta, tilt, distance):
+    """Exact renders (area coverage) through the ~170 deg fisheye: the detector with the true model finds every dot
+    within 0.005 px RMS of the true centre's image, also 70 deg off axis (measured 0.0027 and 0.0017 px); without a
+    model (the perspective correction on the fisheye image) 0.012 and 0.058 px."""
+    from circcal.detector import detect
+    from circcal.fixtures.render import render_view, to_uint
+
+    rv, tv = board_pose(theta, 30.0, distance, tilt)
+    img = to_uint(render_view(FISHEYE, BOARD, rv, tv))
+    truth = project(BOARD.object_points(), rv, tv, FISHEYE)
+    det = detect(img, BOARD, FISHEYE)
+    assert det.found, det.reason
+    rms = float(np.sqrt(np.mean(np.sum((det.centres - truth) ** 2, axis=1))))
+    assert rms <= 0.005
+    plain = detect(img, BOARD, None)
+    assert float(np.sqrt(np.mean(np.sum((plain.centres - truth) ** 2, axis=1)))) > 3 * rms
+
+
+def test_pipeline_calibrates_fisheye_renders(tmp_path):
+    """calibrate_images(lens="fisheye") on 10 exact renders of the ~170 deg fisheye (boards to 70 deg off axis):
+    the re-corrected centres lie 0.0023 px RMS from the truth (bar 0.005), fx, fy, cx, cy within 4 stated sigmas of
+    the true camera, the centres settle (< 1e-4 px); the 5-coefficient model on the same images leaves 0.8 px RMS
+    (over 100x: its model error)."""
+    import cv2
+
+    from circcal.fixtures.render import render_view, to_uint
+    from circcal.pipeline import calibrate_images
+
+    rng = np.random.default_rng(3)
+    poses = [board_pose(0, 0, 350, 35)]
+    while len(poses) < 10:
+        rv, tv = board_pose(rng.uniform(10, 70), rng.uniform(-180, 180), rng.uniform(300, 450), rng.uniform(15, 40))
+        p = project(BOARD.object_points(), rv, tv, FISHEYE)
+        if np.all(p > 20) and np.all(p[:, 0] < FISHEYE.width - 21) and np.all(p[:, 1] < FISHEYE.height - 21):
+            poses.append((rv, tv))
+    paths = []
+    for i, (rv, tv) in enumerate(poses):
+        paths.append(tmp_path / f"view{i}.png")
+        cv2.imwrite(str(paths[-1]), to_uint(render_view(FISHEYE, BOARD, rv, tv)))
+    cal = calibrate_images(paths, BOARD, progress=False, jobs=1, lens="fisheye")
+    assert len(cal.used) == 10 and cal.result.camera.lens == "fisheye"
+    assert cal.rounds[-1]["max_centre_shift_px"] < 1e-4
+    truth = [project(BOARD.object_points(), rv, tv, FISHEYE) for rv, tv in poses]
+    err = np.concatenate([c - t for c, t in zip(cal.centres, truth)])
+    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) <= 0.005
+    for k, i in (("fx", 0), ("fy", 1), ("cx", 2), ("cy", 3)):
+        assert abs(cal.result.camera.intrinsics[i] - FISHEYE.intrinsics[i]) < 4 * cal.result.std[k], k
+    with pytest.warns(RuntimeWarning):
+        plain = calibrate_images(paths, BOARD, progress=False, jobs=1)
+    assert plain.result.errors["rms_per_point_px"] > 100 * cal.result.errors["rms_per_point_px"]
