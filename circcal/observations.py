@@ -76,29 +76,50 @@ def check_observations(object_points: Sequence[np.ndarray], image_points: Sequen
             raise CalibrationError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
         if len(o) != len(p):
             raise CalibrationError(f"view {v}: {len(o)} object points but {len(p)} image points")
-        bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
-        if bad.size:
-            raise CalibrationError(
-                f"view {v}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
-                f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
-        if not np.all(np.isfinite(o)):
-            raise CalibrationError(f"view {v}: object points contain NaN/inf (non-finite)")
-        if len(o) < MIN_POINTS_PER_VIEW:
-            raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
-                                   f"has 6 parameters and the homography 8). Remove the view or detect more points")
-        out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
-        if out.size:
-            raise CalibrationError(
-                f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
-                f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
-                f"image_size or a bad detection")
-        scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
-        if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
-            raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
-                                   f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
         obj.append(o)
         img.append(p)
+    if not _all_valid(obj, img, w, h):  # one vectorised pass; the per-view rules only to name what is wrong
+        for v, (o, p) in enumerate(zip(obj, img)):
+            _check_view(v, o, p, w, h)
     if len(obj) < min_views:
         raise CalibrationError(f"{len(obj)} usable view(s); calibration needs at least {min_views} views of the "
                                f"board (10-20 well-tilted views recommended)")
     return obj, img, (w, h)
+
+
+def _all_valid(obj: list[np.ndarray], img: list[np.ndarray], w: int, h: int) -> bool:
+    """Whether every view passes :func:`_check_view`, checked over all views at once."""
+    counts = np.array([len(o) for o in obj])
+    if len(obj) == 0 or np.any(counts < MIN_POINTS_PER_VIEW):
+        return len(obj) == 0
+    O, P = np.concatenate(obj), np.concatenate(img)
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(O))):
+        return False
+    if not np.all((P[:, 0] >= -0.5) & (P[:, 0] <= w - 0.5) & (P[:, 1] >= -0.5) & (P[:, 1] <= h - 0.5)):
+        return False
+    scale = np.maximum(1.0, np.maximum.reduceat(np.abs(O[:, :2]).max(axis=1), np.cumsum(counts) - counts))
+    return bool(np.all(np.abs(O[:, 2]) <= PLANAR_TOL * np.repeat(scale, counts)))
+
+
+def _check_view(v: int, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:
+    """The value rules for view ``v`` (``o`` (N, 3) mm, ``p`` (N, 2) px): raises naming what is wrong."""
+    bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+    if bad.size:
+        raise CalibrationError(
+            f"view {v}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
+            f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
+    if not np.all(np.isfinite(o)):
+        raise CalibrationError(f"view {v}: object points contain NaN/inf (non-finite)")
+    if len(o) < MIN_POINTS_PER_VIEW:
+        raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
+                               f"has 6 parameters and the homography 8). Remove the view or detect more points")
+    out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
+    if out.size:
+        raise CalibrationError(
+            f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
+            f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
+            f"image_size or a bad detection")
+    scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
+    if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
+        raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
+                               f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")

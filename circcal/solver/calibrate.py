@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from circcal.errors import CalibrationError, DegenerateViewsError
-from circcal.metrics import error_stats
+from circcal.metrics import error_stats_per_view
 from circcal.model import Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
 from circcal.solver.covariance import state_covariance
@@ -286,14 +286,14 @@ def calibrate(
         board_std = board_std.reshape(-1, 3)
 
     residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
-    errors = error_stats(np.concatenate(residuals))
+    errors, per_view_errors = error_stats_per_view(residuals)  # once per solve, every view in one pass
     if errors["rms_per_coord_px"] > LARGE_RESIDUAL_PX:
         warnings.warn(f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
                       f"coordinate): outliers, wrong board geometry or a lens the {lens} model cannot fit",
                       RuntimeWarning, stacklevel=2)
     return CalibrationResult(
         camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,
-        per_view_errors=[error_stats(r) for r in residuals], sigma_px=float(np.sqrt(sigma2)),
+        per_view_errors=per_view_errors, sigma_px=float(np.sqrt(sigma2)),
         n_iterations=int(n_iter), converged=bool(converged),
         fixed=tuple(fixed), n_params=int(prob.n),
         board_nominal=None if board is None else board.nominal, board_points=board_points, board_std=board_std,

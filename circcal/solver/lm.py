@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["normal_blocks", "schur_complement", "global_information", "schur_step", "quadratic_form",
+__all__ = ["normal_blocks", "blocks_at", "schur_complement", "global_information", "schur_step", "quadratic_form",
            "levenberg_marquardt", "solve", "is_sane"]
 
 #: Marquardt damping ``lambda`` (times diag(J^T J)) at the start; measured best here: the closed-form start is near
@@ -42,25 +42,49 @@ GRADIENT_TOL = 1e-6
 GRADIENT_FLOOR = 1e-12
 
 
-def normal_blocks(prob: Problem, f: np.ndarray, Ji: np.ndarray, Jp: np.ndarray, starts: np.ndarray):
-    """Blocks of J^T J and J^T f: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6). Each view's rows touch
-    only the global block and its own pose, so each view's (ng + 6)-square block is one product; views with the same
-    number of points are stacked and multiplied in one batched call (no Python loop over views)."""
-    ng = Ji.shape[2]
-    Jc = np.concatenate([Ji, Jp], axis=2)                              # (N, 2, ng + 6)
-    fc = f.reshape(-1, 2)
-    counts = np.diff(np.append(starts, len(Ji)))
-    V = len(starts)
-    G = np.empty((V, ng + 6, ng + 6))
-    g = np.empty((V, ng + 6))
-    for c in np.unique(counts):
-        views = np.flatnonzero(counts == c)
-        rows = (starts[views][:, None] + np.arange(c)[None, :]).ravel()
-        Jv = Jc[rows].reshape(len(views), 2 * c, ng + 6)
+def normal_blocks(prob: Problem, f: np.ndarray, J: np.ndarray, J_pose: np.ndarray | None = None,
+                  starts: np.ndarray | None = None):
+    """Blocks of J^T J and J^T f from residuals ``f`` (2N,) and :meth:`Problem.evaluate_stacked`'s ``J``
+    (N, 2, ng + 6) (or :meth:`Problem.evaluate`'s two parts ``J`` (N, 2, ng) and ``J_pose`` (N, 2, 6), joined
+    here; ``starts`` is accepted for older callers and unused): A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6),
+    gp (V, 6). Each view's rows touch only the global block and its own pose, so each view's (ng + 6)-square block
+    is one product; all views are multiplied in one batched call (views with equal point counts are a free reshape
+    of ``J``; others are gathered by count)."""
+    if J_pose is not None:
+        J = np.concatenate([J, J_pose], axis=2)
+    ng, K = prob.ng, J.shape[2]
+    V = prob.n_views
+    if prob.uniform:
+        Jv = J.reshape(V, -1, K)
         Jt = np.transpose(Jv, (0, 2, 1))
-        G[views] = Jt @ Jv
-        g[views] = (Jt @ fc[rows].reshape(len(views), 2 * c, 1))[:, :, 0]
+        G = Jt @ Jv
+        g = (Jt @ f.reshape(V, -1, 1))[:, :, 0]
+    else:
+        starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
+        fc = f.reshape(-1, 2)
+        G = np.empty((V, K, K))
+        g = np.empty((V, K))
+        for c in np.unique(prob.counts):
+            views = np.flatnonzero(prob.counts == c)
+            rows = (starts[views][:, None] + np.arange(c)[None, :]).ravel()
+            Jv = J[rows].reshape(len(views), 2 * c, K)
+            Jt = np.transpose(Jv, (0, 2, 1))
+            G[views] = Jt @ Jv
+            g[views] = (Jt @ fc[rows].reshape(len(views), 2 * c, 1))[:, :, 0]
     return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
+
+
+def blocks_at(prob: Problem, x: np.ndarray):
+    """``(f, normal_blocks)`` at ``x``, kept for the last x asked (the solver's last step, the convergence test,
+    the information and the covariance all ask at the solution)."""
+    key = x.tobytes()
+    cached = getattr(prob, "_blocks_cache", None)
+    if cached is not None and cached[0] == key:
+        return cached[1], cached[2]
+    f, _, J = prob.evaluate_stacked(x)
+    blocks = normal_blocks(prob, f, J)
+    prob._blocks_cache = (key, f, blocks)
+    return f, blocks
 
 
 def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,8 +99,7 @@ def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
     """Schur complement (ng, ng) of the pose blocks in J^T J at ``x``: the information on the free intrinsics (and
     board coordinates) with the poses marginalised."""
-    f, _, Ji, Jp = prob.evaluate(x)
-    A, _, B, D, _ = normal_blocks(prob, f, Ji, Jp, np.concatenate([[0], np.cumsum(prob.counts)[:-1]]))
+    A, _, B, D, _ = blocks_at(prob, x)[1]
     S = schur_complement(A, B, D)[0]
     return 0.5 * (S + S.T)
 
@@ -118,10 +141,9 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     longer lower the cost otherwise ends "stalled" and is judged by its gradient.
     Returns ``(x, iterations, converged, message)``.
     """
-    starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
     ng = prob.ng
     x = x0.copy()
-    f, _, Ji, Jp = prob.evaluate(x)
+    f = prob.evaluate_stacked(x)[0]
     cost = float(f @ f)
     lam = LAMBDA_START
     it = 0
@@ -129,7 +151,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     last_trusted = np.inf
     while it < max_iterations and not (done or stalled):
         it += 1
-        A, gi, B, D, gp = blocks = normal_blocks(prob, f, Ji, Jp, starts)
+        A, gi, B, D, gp = blocks = blocks_at(prob, x)[1]
         while True:
             step = schur_step(*blocks, lam)
             if not np.all(np.isfinite(step)):
@@ -146,10 +168,11 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             trusted = lam <= LAMBDA_GAUSS_NEWTON and predicted <= TRUST_MODEL_REL * cost
             # last step: at rounding level, or the model's decrease stopped shrinking (no progress left to make)
             final = trusted and (predicted <= FINAL_STEP_REL * cost or predicted >= last_trusted)
-            f_new, _, Ji_new, Jp_new = prob.evaluate(x + step)
+            x_new = x + step
+            f_new = prob.evaluate_stacked(x_new)[0]
             cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
             if cost_new < cost or (trusted and cost_new <= cost * (1.0 + COST_ROUNDING_REL)):
-                x, f, Ji, Jp, cost = x + step, f_new, Ji_new, Jp_new, cost_new
+                x, f, cost = x_new, f_new, cost_new
                 lam = max(lam / LAMBDA_FACTOR, LAMBDA_MIN)
                 last_trusted = predicted if trusted else np.inf
                 done = final
@@ -158,11 +181,11 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             if lam > LAMBDA_MAX:
                 stalled = True
                 break
-    prob.evaluate(x)
+    prob.evaluate_stacked(x)  # the problem's kept evaluation is the solution's (a rejected trial may be the last)
     if not (done or stalled):
         return x, it, False, f"iteration limit {max_iterations} reached"
     # Converged if the scaled gradient is negligible at the final point.
-    A, gi, B, D, gp = normal_blocks(prob, f, Ji, Jp, starts)
+    A, gi, B, D, gp = blocks_at(prob, x)[1]
     scale = np.sqrt(np.concatenate([np.diag(A), np.diagonal(D, axis1=1, axis2=2).ravel()]))
     g = np.concatenate([gi, gp.ravel()]) / np.maximum(scale, 1e-300)
     ok = bool(np.max(np.abs(g)) <= GRADIENT_TOL * np.sqrt(cost) + GRADIENT_FLOOR)
