@@ -239,7 +239,6 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
     Returns ``(uv (N, 2) px, J_intr (N, 2, 4 + n_dist) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
     """
     params = np.asarray(params, dtype=np.float64)
-    fx, fy = params[0], params[1]
     n = len(Xc)
     if _is_pinhole(lens):
         iz = 1.0 / Xc[:, 2]
@@ -252,18 +251,16 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
         JP[:, :, 2] = -(Jx[:, :, 0] * xn[:, 0:1] + Jx[:, :, 1] * xn[:, 1:2]) * iz[:, None]
     else:
         xd, JP, Jd = fisheye_distort_jacobian(Xc, params[4:])
-    uv = np.empty((n, 2))
-    uv[:, 0] = fx * xd[:, 0] + params[2]
-    uv[:, 1] = fy * xd[:, 1] + params[3]
-    Ji = np.zeros((n, 2, len(params)))
+    f = params[:2]                                   # fx, fy
+    uv = xd * f + params[2:4]
+    Ji = np.empty((n, 2, len(params)))
+    Ji[:, :, :4] = 0.0
     Ji[:, 0, 0] = xd[:, 0]
     Ji[:, 1, 1] = xd[:, 1]
     Ji[:, 0, 2] = 1.0
     Ji[:, 1, 3] = 1.0
-    Ji[:, 0, 4:] = fx * Jd[:, 0, :]
-    Ji[:, 1, 4:] = fy * Jd[:, 1, :]
-    J_X = JP * np.array([fx, fy])[None, :, None]
-    return uv, Ji, J_X
+    np.multiply(Jd, f[None, :, None], out=Ji[:, :, 4:])
+    return uv, Ji, JP * f[None, :, None]
 
 
 def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera

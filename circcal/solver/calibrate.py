@@ -1,12 +1,13 @@
 """Calibration solver: Zhang's closed form, then Levenberg-Marquardt over intrinsics, distortion and all board poses.
 
 Model and conventions are :mod:`circcal.model`'s (``lens``: OpenCV's pinhole + ``[k1, k2, p1, p2, k3]`` by default,
-the rational and thin-prism models, or cv2.fisheye's; pixel centres at integer coordinates). The refinement minimises the sum of squared reprojection errors (px) with an analytic
-Jacobian that is sparse by construction: each view's residuals depend only on the intrinsics and that view's six
-pose parameters (a dense intrinsic block beside a block-diagonal pose part). The default solver
-(:func:`circcal.solver.lm.levenberg_marquardt`) is Levenberg-Marquardt that solves each damped step exactly by eliminating the 6x6 pose blocks
-(Schur complement), as OpenCV does; ``solver="scipy"`` runs ``scipy.optimize.least_squares`` (TRF, sparse Jacobian,
-LSMR) on the same residuals and Jacobian as a cross-check (it stops ~1e-7 relative short of the minimum and is
+the rational and thin-prism models, or cv2.fisheye's; pixel centres at integer coordinates). The refinement
+minimises the sum of squared reprojection errors (px) with an analytic Jacobian that is sparse by construction: each
+view's residuals depend only on the intrinsics and that view's six pose parameters (a dense intrinsic block beside a
+block-diagonal pose part). The default solver (:func:`circcal.solver.lm.levenberg_marquardt`) is
+Levenberg-Marquardt that solves each damped step exactly by eliminating the 6x6 pose blocks (Schur complement), as
+OpenCV does; ``solver="scipy"`` runs ``scipy.optimize.least_squares`` (TRF, sparse Jacobian, LSMR) on the same
+residuals and Jacobian as a cross-check (it stops ~1e-7 relative short of the minimum and is
 ~10x slower, hence not the default). The covariance of the intrinsics is ``sigma^2 (J^T J)^-1`` restricted to the
 intrinsics via the Schur complement of the pose blocks (poses marginalised), ``sigma^2 = SSR / (2N - n_params)``:
 the same estimate as ``cv2.calibrateCameraExtended``'s standard deviations.
@@ -96,7 +97,8 @@ def calibrate(
     ``object_points``: per view (N_v, 3) board coordinates in mm with z = 0; ``image_points``: per view (N_v, 2)
     pixels (OpenCV convention); views may hold different points (partial boards), N_v >= 6; ``image_size``:
     (width, height). ``fix_k3`` / ``fix_k2`` / ``fix_tangential`` hold k3 / k2 / (p1, p2) at their initial values
-    (``initial``'s, else 0; all three together leave the one-coefficient radial model k1); ``fix_principal_point`` holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
+    (``initial``'s, else 0; all three together leave the one-coefficient radial model k1); ``fix_principal_point``
+    holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
     ``fix_aspect_ratio`` holds fx / fy at ``initial``'s ratio or 1. ``initial``: start from this camera
     (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form. ``max_iterations``: Jacobian evaluations
     allowed; reaching it warns and returns ``converged=False``. ``solver``: ``"schur"`` (default) is
