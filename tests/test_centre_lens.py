@@ -133,3 +133,13 @@ def test_pipeline_calibrates_fisheye_renders(tmp_path):
     with pytest.warns(RuntimeWarning):
         plain = calibrate_images(paths, BOARD, progress=False, jobs=1)
     assert plain.result.errors["rms_per_point_px"] > 100 * cal.result.errors["rms_per_point_px"]
+    # the command line, with cross-validation (its leave-one-out names the lens model's parameters)
+    from circcal.cli import main
+    from circcal.formats import read_camera
+
+    out = tmp_path / "fisheye.yaml"
+    assert main(["calibrate", *map(str, paths), "--grid", "6x8", "--pitch", "25mm", "--diameter", "12mm",
+                 "--lens", "fisheye", "--cross-validate", "--out", str(out),
+                 "--no-progress", "--jobs", "1"]) == 0
+    back = read_camera(out)
+    assert back.lens == "fisheye" and abs(back.fx - FISHEYE.fx) < 4 * cal.result.std["fx"]

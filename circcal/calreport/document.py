@@ -64,10 +64,9 @@ def _overlay(path: str, detection: Any, dest: Path) -> bool:
 
 def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     """Draw every figure into ``folder/figures`` and return the templates' context."""
-    from circcal.model import PARAM_NAMES
-
     cal, res = assessment.cal, assessment.result
     cam = res.camera
+    names_p = cam.model.param_names  # the lens model's (fx, fy, cx, cy, then its distortion coefficients)
     w, h = cam.width, cam.height
     figdir = folder / "figures"
     figs: dict[str, str] = {}
@@ -95,12 +94,12 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     if assessment.uncertainty is not None:
         put("uncertainty", F.fig_uncertainty(assessment.uncertainty, w, h, allpts))
     corr = np.asarray(res.correlation, dtype=np.float64)
-    put("correlation", F.fig_correlation(corr, PARAM_NAMES))
+    put("correlation", F.fig_correlation(corr, names_p))
     if cv is not None and cv.status == "ok":
         put("crossval", F.fig_crossval(cv, w, h))
 
     params = []
-    for n, v in zip(PARAM_NAMES, cam.intrinsics):
+    for n, v in zip(names_p, cam.intrinsics):
         held = n in res.fixed or (n == "fx" and "aspect_ratio" in res.fixed)
         params.append({"name": n, "value": f"{v:.6f}" if abs(v) >= 1 else f"{v:.6g}",
                        "std": "held" if n in res.fixed else _fmt(res.std[n], 3),

@@ -28,7 +28,6 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from circcal.errors import InputError
-from circcal.model import PARAM_NAMES
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
 from circcal.crossval.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 
@@ -157,7 +156,8 @@ def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, An
     rows = leave_one_out(len(obj), fit, held_out)
     rms = np.array([r.get("rms_per_coord_px", np.nan) for r in rows], dtype=np.float64)
     med = float(np.nanmedian(rms)) if np.isfinite(rms).any() else float("nan")
-    std = np.array([full.std[n] for n in PARAM_NAMES])
+    names_p = full.camera.model.param_names           # the lens model's parameters (fx, fy, cx, cy, dist...)
+    std = np.array([full.std[n] for n in names_p])
     out = []
     for k, r in enumerate(rows):
         shift, which = float("nan"), ""
@@ -165,7 +165,7 @@ def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, An
             free = std > 0
             z = np.abs(models[k].camera.intrinsics - full.camera.intrinsics)[free] / std[free]
             j = int(np.argmax(z))
-            shift, which = float(z[j]), [n for n, f in zip(PARAM_NAMES, free) if f][j]
+            shift, which = float(z[j]), [n for n, f in zip(names_p, free) if f][j]
         ratio = rms[k] / med if med > 0 else float("nan")
         why = []
         if "failed" in r:
