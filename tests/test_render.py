@@ -122,7 +122,7 @@ def _max_off_axis_deg(camera: Camera, board: Board, rvec, tvec) -> float:
 def test_fisheye_and_rational_renders_are_unbiased():
     """The lens models render without bias of their own (<= 0.002 px RMS, the bar): the fisheye view that reaches
     farthest off axis (80 deg) and a rational-wide view in an image corner (measured over every view: fisheye
-    0.0008-0.0015 px, rational-wide 0.0003-0.0009 px; the slow test below)."""
+    0.0008-0.0015 px, rational-wide 0.0003-0.0008 px; the slow test below)."""
     from circcal.fixtures.scenarios import SCENARIOS
 
     fe = SCENARIOS["fisheye"]
