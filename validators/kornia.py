@@ -17,7 +17,9 @@ pieces (float64 throughout):
   ``fisheye`` (where a homography of the pixels means nothing) as cv2.fisheye does: the principal point at the image
   centre, an equidistant focal length (the best of a sweep around max(w, h) / pi), the observations lifted to the
   z = 1 plane with it, and poses from their homographies;
-* refinement: Levenberg-Marquardt (Marquardt's diagonal scaling) with Jacobians from ``torch.func.jacfwd``,
+* refinement: poses alone, then (rational, thin prism) OpenCV's 5 coefficients, then everything (from the
+  distortion-free start a wide lens's 8 or 12 coefficients at once ran into a far minimum on ``rational-wide``),
+  by Levenberg-Marquardt (Marquardt's diagonal scaling) with Jacobians from ``torch.func.jacfwd``,
   vectorised over problems with ``torch.func.vmap``: :meth:`KorniaCalibrator.calibrate_batch` solves many problems
   at once (CPU, or CUDA when available), for Monte-Carlo studies;
 * standard deviations: sqrt(diag(sigma^2 (J^T J)^-1)), sigma^2 = SSR / (2N - n_free_params), as OpenCV does.
@@ -445,6 +447,10 @@ class KorniaCalibrator(BaseCalibrator):
         free_pose = free.clone()
         free_pose[:, :n_intr] = False
         theta, _, _, it0, _ = _lm(theta0, obj_t, img_t, w_t, free_pose, max_iter=30, lens=lens)
+        if len(names) > 9:  # rational / thin prism: OpenCV's 5 coefficients first, from the distortion-free start
+            free_five = free.clone()
+            free_five[:, [i for i, n in enumerate(names) if i >= 4 and n not in ("k1", "k2", "p1", "p2", "k3")]] = False
+            theta, _, _, _, _ = _lm(theta, obj_t, img_t, w_t, free_five, max_iter=self.max_iter, lens=lens)
         theta, J, r, iters, conv = _lm(theta, obj_t, img_t, w_t, free, max_iter=self.max_iter, lens=lens)
         elapsed = time.perf_counter() - t0
         out: list[ReferenceResult] = []
