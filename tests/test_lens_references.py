@@ -204,3 +204,19 @@ def test_identical_observations_agreement_on_the_lens_scenarios(scenario: str, l
     check = solver_agreement(ref, res, projection_diff(mine.camera, res.camera)["max_px"], ssr(mine.residuals),
                              solver_bound(ref))
     assert check.passed, f"{check.value:.3g} px (bound {check.bound:g}): {check.note}"
+
+
+def test_a_rational_solution_with_a_pole_in_the_field_is_not_a_lens() -> None:
+    from circcal.validators.base import rational_pole
+
+    obj = [np.array([[x, 0.0, 0.0] for x in np.linspace(0.0, 200.0, 11)])]  # r = x / 100: up to 2
+    rv, tv = [np.zeros(3)], [np.array([0.0, 0.0, 100.0])]
+    good = Camera(1280, 960, 600.0, 600.0, 640.0, 480.0, [0.3, -0.02, 0, 0, 0.003, 0.5, 0.02, 0.002], lens="rational")
+    assert rational_pole(good, obj, rv, tv) == ""
+    # k5 < 0: 1 + 0.5 r^2 - 0.3 r^4 vanishes at r = 1.685, inside the field
+    bad = Camera(1280, 960, 600.0, 600.0, 640.0, 480.0, [0.3, -0.02, 0, 0, 0.003, 0.5, -0.3, 0.0], lens="rational")
+    why = rational_pole(bad, obj, rv, tv)
+    assert "not a lens" in why and "r = 1.69" in why
+    # beyond the observed field it is not this check's business
+    assert rational_pole(bad, [obj[0][:7]], rv, tv) == ""
+    assert rational_pole(TRUTH["opencv5"], obj, rv, tv) == ""
