@@ -276,3 +276,13 @@ def test_pipeline_recorrects_through_the_rational_model(rational_images, tmp_pat
     assert np.sqrt(np.nanmean(np.sum(err ** 2, axis=1))) <= 0.005
     plain = calibrate_images(paths, board, progress=False, jobs=1, outlier_rule=None)
     assert plain.result.errors["rms_per_point_px"] > 1.5 * cal.result.errors["rms_per_point_px"]
+
+
+def test_fixing_a_coefficient_the_lens_lacks_is_bad_input():
+    from circcal.errors import InputError
+
+    obj, img = views(FISHEYE, 6, 2, 60, distance=(150.0, 400.0))
+    with pytest.raises(InputError, match="no p1, p2"):
+        calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_tangential=True)
+    res = calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_k3=True)
+    assert res.camera.dist[2] == 0.0 and res.std["k3"] == 0.0 and "k3" in res.fixed

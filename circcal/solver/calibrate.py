@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from circcal.errors import CalibrationError, DegenerateViewsError
+from circcal.errors import CalibrationError, DegenerateViewsError, InputError
 from circcal.metrics import error_stats_per_view
 from circcal.model import Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
@@ -121,10 +121,10 @@ def calibrate(
     fits every observation given, as every reference calibrator does.
 
     ``lens``: the lens model fitted (a :data:`circcal.model.LENS_MODELS` name; default ``initial``'s, else
-    ``opencv5``); the ``fix_*`` options hold the coefficients of those names the model has (fisheye: k1-k4, no p1,
-    p2). Pinhole models start from Zhang's closed form with ``k1, k2`` (every other coefficient 0), as
-    ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal length is searched for
-    (:func:`circcal.solver.fisheye_start.fisheye_start`).
+    ``opencv5``); the ``fix_*`` options hold the coefficients of those names (the fisheye has k1-k4 and no p1,
+    p2: ``fix_tangential`` is then an InputError). Pinhole models start from Zhang's closed form with ``k1, k2``
+    (every other coefficient 0), as ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal
+    length is searched for (:func:`circcal.solver.fisheye_start.fisheye_start`).
 
     Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
     6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
@@ -203,7 +203,9 @@ def calibrate(
     if aspect is not None:
         intr[0] = aspect * intr[1]
 
-    fixed = [name for name in fixed if name in names or name == "aspect_ratio"]
+    missing = [name for name in fixed if name not in names and name not in ("aspect_ratio", "cx", "cy")]
+    if missing:
+        raise InputError(f"the {lens} lens model has no {', '.join(missing)} to hold fixed")
     free = [k for k, name in enumerate(names) if name not in fixed and not (aspect is not None and k == 0)]
     board = board_model(obj, board_gauge) if refine_board else None
     if board is not None and board.held_unseen:
