@@ -286,3 +286,15 @@ def test_fixing_a_coefficient_the_lens_lacks_is_bad_input():
         calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_tangential=True)
     res = calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_k3=True)
     assert res.camera.dist[2] == 0.0 and res.std["k3"] == 0.0 and "k3" in res.fixed
+
+
+def test_opencv_fisheye_beyond_90_degrees_is_unsupported_with_the_reason():
+    """cv2.fisheye works on the z = 1 plane: boards reaching past 90 deg (the 190-deg lens) make its calibrate fail
+    an assertion; the reference reports that as unsupported, saying why, while circcal's solve takes them."""
+    from circcal.validators import registry
+
+    obj, img = views(FISHEYE_190, 16, 3, 95, distance=(120.0, 300.0))
+    ref = registry.get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, (1280, 1024))
+    assert ref.status == "unsupported" and "90 deg" in ref.message
+    res = calibrate(obj, img, (1280, 1024), lens="fisheye")
+    assert res.converged and res.errors["rms_per_coord_px"] < 0.1

@@ -119,6 +119,33 @@ def _lens_flags(lens: str) -> int:
             "fisheye": cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW}[lens]
 
 
+#: cv2.fisheye works on the z = 1 plane (theta = atan(r)): it cannot take a point at or beyond this angle (deg).
+FISHEYE_MAX_THETA_DEG = 90.0
+
+
+def _fisheye_limit(object_points, image_points, size: tuple[int, int], exc: Exception) -> None:
+    """After cv2.fisheye.calibrate failed with ``exc``: ``NotImplementedError`` (status "unsupported", with the
+    reason) when the observations reach 90 deg off axis under the equidistant start of circcal's solver (its focal
+    length searched for over the whole field: :func:`circcal.solver.fisheye_start.fisheye_start`; only to explain
+    the failure, nothing of it enters OpenCV's solve); otherwise return (the caller re-raises: another failure)."""
+    from circcal.errors import CalibrationError
+    from circcal.solver.fisheye_start import fisheye_start
+
+    try:
+        seed = fisheye_start([np.asarray(o, dtype=np.float64) for o in object_points],
+                             [np.asarray(p, dtype=np.float64) for p in image_points], size)[0]
+    except CalibrationError:
+        return
+    uv = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points])
+    r = np.hypot((uv[:, 0] - seed.cx) / seed.fx, (uv[:, 1] - seed.cy) / seed.fy)
+    theta = float(np.degrees(np.max(r)))
+    if theta >= FISHEYE_MAX_THETA_DEG:
+        raise NotImplementedError(
+            f"cv2.fisheye projects only points in front of the camera (theta = atan(|xy| / z) < 90 deg) and these "
+            f"views reach about {theta:.0f} deg off axis (equidistant seed f = {seed.fy:.4g} px); its calibrate "
+            f"fails ({str(exc).strip().splitlines()[-1]})") from None
+
+
 class OpenCVCalibrator(BaseCalibrator):
     """Reference: OpenCV's calibrateCameraExtended / cv2.fisheye.calibrate and findCirclesGrid.
 
@@ -176,10 +203,14 @@ class OpenCVCalibrator(BaseCalibrator):
             if lens == "fisheye":
                 if K0 is None:
                     K0, d0 = np.eye(3), np.zeros((4, 1))
-                rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
-                    [o.reshape(1, -1, 3).astype(np.float64) for o in obj32],
-                    [p.reshape(1, -1, 2).astype(np.float64) for p in img32], size, K0, d0.reshape(4, 1),
-                    flags=flags, criteria=criteria)
+                try:
+                    rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+                        [o.reshape(1, -1, 3).astype(np.float64) for o in obj32],
+                        [p.reshape(1, -1, 2).astype(np.float64) for p in img32], size, K0, d0.reshape(4, 1),
+                        flags=flags, criteria=criteria)
+                except cv2.error as exc:
+                    _fisheye_limit(object_points, image_points, size, exc)
+                    raise
                 std_in = per_view = None
             else:
                 rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
