@@ -1,16 +1,20 @@
 """Detector timing: circcal ``detect`` against ``cv2.findCirclesGrid`` on the same images (benchmarks/timing.py:
 alternated, at least 9 repeats, median [min-max], threads pinned and stated).
 
-``run() -> dict`` (part of ``make bench``):
+``run() -> dict`` (part of ``make bench``; alone: ``python -m benchmarks.run bench_detect``):
 
-* ``paper``: 1920x1080 renders of the paper's 7x7 board: per-image time of each detector and the per-round ratio
-  circcal / OpenCV, with OpenCV at one thread (the fair per-core comparison; circcal's compiled loops are
-  single-threaded) and at its default pool (what a user gets; circcal's OpenCV calls use it too); circcal with the
-  segmentation forced to full resolution; circcal's peak Python-heap memory per image (tracemalloc sees numpy's
-  buffers, not OpenCV's or numba's); the first call in a fresh process (numba's compile or cache load), apart.
-  Bar: circcal <= 1.0x findCirclesGrid.
-* ``variants``: the same on the clutter and partial-view fixtures (OpenCV finds no partial view; it is timed all
-  the same), each with how many views each detector found.
+* ``paper``: 1920x1080 renders of the paper's 7x7 board: the first call in a fresh process (numba's compile or
+  cache load), apart; OpenCV at its default pool (what a user gets; circcal's OpenCV calls use it too); circcal's
+  peak Python-heap memory per image (tracemalloc sees numpy's buffers, not OpenCV's or numba's).
+* ``resolutions``: the paper's views at 640x480, 1920x1080, 4000x3000 and 8000x6000 (the paper's camera scaled to
+  the size), clean and in the ``paper`` scenario's normal and weak light, one thread each: per-image times and the
+  per-round ratio circcal / findCirclesGrid, and how many views each found. Bars (issue 17): <= 0.8x at 640x480 and
+  1920x1080, < 1.0x at 4000x3000 and 8000x6000.
+* ``small_dots``: a 7x7 board of small dots (8 px across at 1920x1080, 6 px at 4000x3000), whose dots the shrunk
+  segmentation cannot resolve, against the paper's views at the same size: the finer path's time over the normal
+  path's (bar: <= 3x).
+* ``variants``: the same as ``resolutions`` on the clutter and partial-view fixtures (OpenCV finds no partial view;
+  it is timed all the same), each with how many views each detector found.
 * ``scaling``: 1920x1080 images of n random dark dots (n = 10 ... 2,000, no board): circcal's whole detection and
   its grid search alone (recognition on the candidates of the first segmentation) against findCirclesGrid, with
   the growth exponents fitted over n >= 100 (time ~ n^e). findCirclesGrid grows about cubically (7 s at 1,000
@@ -43,16 +47,22 @@ VARIANT_VIEWS = 6
 """Views per variant timed (the corner views of ``markers`` are its last ones: they are taken from the end)."""
 
 
-def _paper_views(n: int = 4):
-    from circcal.board import Board
-    from circcal.fixtures.poses import sample_poses
-    from circcal.fixtures.render import render_view, to_uint
-    from circcal.model import Camera
+RESOLUTIONS = ((640, 480), (1920, 1080), (4000, 3000), (8000, 6000))
+"""Frame sizes of the ``resolutions`` benchmark."""
+LIGHT = ("clean", "normal", "weak")
+"""Light of the ``resolutions`` benchmark (``normal``, ``weak``: the paper scenario's perturbations)."""
+VIEWS_AT = {(640, 480): 4, (1920, 1080): 4, (4000, 3000): 2, (8000, 6000): 1}
+"""Views per size (findCirclesGrid takes ~1-3 s on an 8000x6000 frame: 9 repeats of 3 lights)."""
+SUPERSAMPLE_AT = {(4000, 3000): 2, (8000, 6000): 2}
+"""The renderer's supersampling where 6 would take minutes (edges a little less exact: no matter for timing)."""
 
-    cam = Camera(1920, 1080, 4900.0, 4902.5, 963.7, 536.2)  # the paper's camera, 7x7 dots
-    board = Board(7, 7, 10.0, 5.0)
-    imgs = [to_uint(render_view(cam, board, r, t), 8) for r, t in sample_poses(cam, board, n, seed=1, max_tilt_deg=45)]
-    return imgs, board
+
+def _paper_views(n: int = 4, size: tuple[int, int] = (1920, 1080), light: str = "clean"):
+    from circcal.fixtures.frames import paper_views
+    from circcal.fixtures.scenarios import SCENARIOS
+
+    steps = [] if light == "clean" else SCENARIOS["paper"].variants[light]
+    return paper_views(*size, n, steps, supersample=SUPERSAMPLE_AT.get(size, 6))
 
 
 def _flags(board) -> int:
@@ -85,18 +95,8 @@ def _paper(det) -> dict:
     t0 = time.perf_counter()
     det.detect(imgs[0], board)  # first call: numba's compile (or cache load), imports, tables
     first_call = time.perf_counter() - t0
-    out: dict = {"image": "1920x1080 uint8, 7x7 symmetric grid (paper setup)", "views": len(imgs),
+    out: dict = {"image": "1920x1080 uint8, 7x7 symmetric grid (paper setup), clean", "views": len(imgs),
                  "circcal_first_call_s": first_call}
-    with pinned(1) as threads:
-        out["one_thread"] = _pair(imgs, board, det)
-        out["threads"] = threads
-        scales = det.segmentation_scales
-        det.segmentation_scales = lambda h, w: (1,)
-        try:
-            full = alternate({"full": lambda: [det.detect(im, board) for im in imgs]})["full"]
-        finally:
-            det.segmentation_scales = scales
-        out["circcal_fullres_segmentation_s_per_image"] = summary([x / len(imgs) for x in full])
     default = cv2.getNumThreads()
     cv2.setNumThreads(-1)
     try:
@@ -109,7 +109,39 @@ def _paper(det) -> dict:
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     out["circcal_peak_python_memory_mb"] = peak / 2 ** 20
-    out["bar"] = "circcal <= 1.0x findCirclesGrid (one_thread and default_threads ratio medians)"
+    return out
+
+
+def _resolutions(det) -> dict:
+    out: dict = {"bar": "one thread: circcal <= 0.8x findCirclesGrid at 640x480 and 1920x1080, < 1.0x at 4000x3000 "
+                        "and 8000x6000 (ratio medians)"}
+    with pinned(1) as threads:
+        out["threads"] = threads
+        for size in RESOLUTIONS:
+            for light in LIGHT:
+                imgs, board = _paper_views(VIEWS_AT[size], size, light)
+                out[f"{size[0]}x{size[1]} {light}"] = _pair(imgs, board, det)
+                del imgs
+    return out
+
+
+def _small_dots(det) -> dict:
+    from circcal.board import Board
+    from circcal.fixtures.frames import embedded_board
+
+    board = Board(7, 7, 10.0, 5.0)
+    out: dict = {"bar": "the small dots' path <= 3x the normal path (ratio median)"}
+    with pinned(1) as threads:
+        out["threads"] = threads
+        for size, dot_px in (((1920, 1080), 8.0), ((4000, 3000), 6.0)):
+            small, _ = embedded_board(board, *size, dot_px / 2, (0.45 * size[0], 0.55 * size[1]))
+            normal, _ = _paper_views(1, size, "normal")
+            found = [bool(det.detect(small, board).found), bool(det.detect(normal[0], board).found)]
+            t = alternate({"small": lambda: det.detect(small, board), "normal": lambda: det.detect(normal[0], board)})
+            out[f"{size[0]}x{size[1]}"] = {"small_dots_px": dot_px, "small_s": summary(t["small"]),
+                                           "normal_s": summary(t["normal"]),
+                                           "ratio_small_over_normal": ratio(t["small"], t["normal"]),
+                                           "found_small_normal": found}
     return out
 
 
@@ -164,7 +196,7 @@ def _exponent(ns, ts) -> float:
 def _scaling(det) -> dict:
     from circcal.board import Board
     from circcal.detector.candidates import area_limits, find_candidates
-    from circcal.detector.image import normalise_u8
+    from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
     from circcal.detector.recognise import recognise
     from circcal.detector.segment import segmentations, shrink, upscaled
 
@@ -176,7 +208,7 @@ def _scaling(det) -> dict:
             H, W = img.shape
             lo, hi = area_limits(board, W, H)
             s = 3
-            mask = next(segmentations(normalise_u8(shrink(img, s))))[1]
+            mask = next(segmentations(normalise_u8(shrink(img, s), STRETCH_TAIL_PX / s ** 2)))[1]
             cands = [upscaled(c, s) for c in find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2)]
             t = alternate({"detect": lambda: det.detect(img, board),
                            "grid_search": lambda: recognise(board, cands, (W, H))}, repeats=SCALING_REPEATS)
@@ -214,7 +246,8 @@ def _hostile(det) -> dict:
 def run() -> dict:
     import circcal.detector.find as det
 
-    return {"paper": _paper(det), "variants": _variants(det), "scaling": _scaling(det), "hostile": _hostile(det)}
+    return {"paper": _paper(det), "resolutions": _resolutions(det), "small_dots": _small_dots(det),
+            "variants": _variants(det), "scaling": _scaling(det), "hostile": _hostile(det)}
 
 
 if __name__ == "__main__":

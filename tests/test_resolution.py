@@ -32,3 +32,28 @@ def test_small_board_or_small_dots_in_a_large_frame(size, dot_px, centre):
     if size == (8000, 6000):
         assert 280 <= span <= 320
     assert e < 0.05    # 6 px dots under noise 0.005: measured <= 0.016 px
+
+
+def test_a_large_frame_of_noise_is_not_segmented_into_speckle():
+    # a 12 MP frame of noise alone: the stretch would blow the noise up to the full range and every mask would hold
+    # ~850,000 specks (40 s of contour search each); the noise is measured and such scales and masks are skipped
+    import cv2
+
+    from circcal.detector.segment import MAX_STRETCHED_NOISE, MAX_TRANSITIONS, noise_sigma_u8, speckled
+
+    rng = np.random.default_rng(3)
+    noise = rng.normal(128, 20, (400, 600)).clip(0, 255).astype(np.uint8)
+    assert noise_sigma_u8(noise) == pytest.approx(20, rel=0.15)
+    assert noise_sigma_u8(np.full((50, 60), 7, np.uint8)) == 0.0
+    assert noise_sigma_u8(noise) < 2 * MAX_STRETCHED_NOISE        # a noisy but real image stays in
+    assert speckled(np.where(noise > 128, 255, 0).astype(np.uint8))
+    blobs = np.zeros((400, 600), np.uint8)
+    for x in range(20, 600, 40):
+        for y in range(20, 400, 40):
+            cv2.circle(blobs, (x, y), 10, 255, -1)
+    assert not speckled(blobs) and MAX_TRANSITIONS > 0.3
+    frame = np.empty((3000, 4000), np.uint8)
+    cv2.setRNGSeed(1)
+    cv2.randn(frame, 77, 1.3)
+    d = detect(frame, BOARD, time_budget_s=None)
+    assert not d.found and d.code.value in ("too-few-candidates", "grid-not-recognised")

@@ -38,7 +38,8 @@ from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
 from circcal.detector.image import STRETCH_TAIL_PX, as_gray, normalise_u8
 from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
-from circcal.detector.segment import SHRUNK_MIN_RADIUS, segmentation_scales, segmentations, shrink, upscaled
+from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
+                                     segmentations, shrink, speckled, upscaled)
 from circcal.detector.smoothing import SmoothedImage
 from circcal.detector.trust import absent_dots, bad_dots, check_grid
 from circcal.errors import ImageError, InputError
@@ -209,12 +210,17 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     scales = list(segmentation_scales(*win.shape) if scales is None else scales)
     partial: tuple[Recognition, list[Candidate], str] | None = None
     refusal: tuple[Recognition, list[Candidate], str] | None = None
+    unrecognised: list[Candidate] = []     # candidates of scale 2 in no recognised grid (dots too small there?)
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
         img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2)
+        if noise_sigma_u8(img) > MAX_STRETCHED_NOISE:     # nothing but noise at this scale
+            continue
         for name, mask in segmentations(img):
             deadline.check()
+            if speckled(mask):
+                continue
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
             n_whole = sum(not c.cut for c in cs)
             best = max(best, n_whole)
@@ -227,6 +233,8 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
             if box is not None:
                 cs = [_shifted(c, x0, y0, W, H) for c in cs]
             rec = recognise(board, cs, (W, H), deadline)
+            if scale == 2 and rec.order is None:
+                unrecognised += cs
             label = name if scale == 1 else f"{name}@1/{scale}"
             if box is not None:
                 label += f"[{x0}:{x1},{y0}:{y1}]"
@@ -240,13 +248,14 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
                     finer = max([s for s in range(2, scale) if r_min >= SHRUNK_MIN_RADIUS * s], default=1)
                     finer_scales = [finer, 1] if finer != 1 else [1]
                     window = _board_window(cs, rec, (W, H), (x0, y0, x1, y1))
+                    if window is None and box is None and (x1 - x0) * (y1 - y0) <= WHOLE_FRAME_MAX_PX:
+                        window = (x0, y0, x1, y1)        # a board filling much of a small frame: all of it
                     if window is not None:
                         got = _segment_and_recognise(gray, board, deadline, scales=list(finer_scales), box=window)
                         if got[0].order is not None:
                             return got[0], got[1], got[2], max(best, got[3])
-                    scales = finer_scales
-                    partial = refusal = None
-                    break
+                    # the finer scales see no board: this scale's recognition stands (the edges are measured at
+                    # full resolution from its contours all the same)
                 if rec.complete:
                     return rec, cs, label, best
                 if partial is None or np.sum(rec.order >= 0) > np.sum(partial[0].order >= 0):
@@ -261,6 +270,13 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
         else:
             if partial is not None:        # a part of the board at this scale: the other scales see no more of it
                 break
+    if partial is None and box is None and not first_only and unrecognised:
+        # dots ~3 px across at scale 2 are candidates but too rough for the lattice search: their clusters are
+        # searched again at full resolution, each in its own window (never the whole frame)
+        for window in _cluster_windows(unrecognised, need, (W, H)):
+            got = _segment_and_recognise(gray, board, deadline, scales=[1], box=window)
+            if got[0].order is not None:
+                return got[0], got[1], got[2], max(best, got[3])
     if partial is not None:
         return partial[0], partial[1], partial[2], best
     if refusal is not None:
@@ -268,11 +284,58 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
 
 
+CLUSTER_LINK = 2.5
+"""Candidates closer than this many times the smaller of their nearest-neighbour distances belong to one cluster
+(:func:`_cluster_windows`: the dots of a board are about equally spaced, clutter is not)."""
+MAX_CLUSTER_WINDOWS = 3
+"""At most this many clusters (the largest) are searched again at full resolution."""
+
+
+def _cluster_windows(cands: list[Candidate], need: int, size: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+    """Windows ``(x0, y0, x1, y1)`` px around the largest clusters of ``cands`` (full-image pixels) with at least
+    ``need`` members (:data:`CLUSTER_LINK`, :data:`MAX_CLUSTER_WINDOWS`), each grown as :func:`_board_window` grows
+    a recognised board's; windows larger than :data:`WINDOW_MAX_SHARE` of the image are left out."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    W, H = size
+    P = np.array([c.centre for c in cands], np.float64)
+    if len(P) < max(need, 2):
+        return []
+    tree = cKDTree(P)
+    d, _ = tree.query(P, k=2)
+    nn = d[:, 1]
+    pairs = tree.query_pairs(CLUSTER_LINK * float(np.max(nn)), output_type="ndarray")
+    if len(pairs) == 0:
+        return []
+    dist = np.linalg.norm(P[pairs[:, 0]] - P[pairs[:, 1]], axis=1)
+    keep = dist < CLUSTER_LINK * np.minimum(nn[pairs[:, 0]], nn[pairs[:, 1]])
+    pairs = pairs[keep]
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(P), len(P)))
+    n, lab = connected_components(g, directed=False)
+    counts = np.bincount(lab, minlength=n)
+    out = []
+    for k in np.argsort(-counts)[:MAX_CLUSTER_WINDOWS]:
+        if counts[k] < need:
+            break
+        idx = np.nonzero(lab == k)[0]
+        rec = Recognition(order=idx)
+        window = _board_window(cands, rec, (W, H), (0, 0, W, H))
+        if window is not None:
+            out.append(window)
+    return out
+
+
 WINDOW_MARGIN_STEPS = 2.0
 """The board's window (:func:`_board_window`) reaches this many lattice steps beyond the dots recognised at a coarse
 scale (room for the dots that scale missed and for the lattice's continuation, which the search checks)."""
 WINDOW_MAX_SHARE = 0.25
-"""... and is used only when it is at most this share of the image searched (else the whole image is)."""
+"""... and is used only when it is at most this share of the image searched (else the whole image is, up to
+:data:`WHOLE_FRAME_MAX_PX`)."""
+WHOLE_FRAME_MAX_PX = 4_000_000
+"""A board of small dots filling more than that share of the frame is segmented again at the finer scale on the whole
+frame only up to this many pixels (a 4 MP frame takes ~0.1 s at full resolution; a 48 MP one seconds)."""
 
 
 def _board_window(cands: list[Candidate], rec: Recognition, size: tuple[int, int],
@@ -282,12 +345,13 @@ def _board_window(cands: list[Candidate], rec: Recognition, size: tuple[int, int
     dots), clipped to the image ``size`` (W, H); ``None`` when it is not much smaller than the window ``within``
     searched (:data:`WINDOW_MAX_SHARE`)."""
     W, H = size
-    P = np.array([cands[i].centre for i in rec.order[rec.order >= 0]])
+    used = [cands[i] for i in rec.order[rec.order >= 0]]
+    P = np.array([c.centre for c in used])
     if len(P) < 2:
         return None
     d = np.linalg.norm(P[:, None] - P[None], axis=-1)
     np.fill_diagonal(d, np.inf)
-    pad = WINDOW_MARGIN_STEPS * float(np.median(d.min(axis=1))) + 2.0 * max(max(c.axes) for c in cands)
+    pad = WINDOW_MARGIN_STEPS * float(np.median(d.min(axis=1))) + 2.0 * max(max(c.axes) for c in used)
     lo, hi = P.min(axis=0) - pad, P.max(axis=0) + pad
     x0, y0 = max(0, int(np.floor(lo[0]))), max(0, int(np.floor(lo[1])))
     x1, y1 = min(W, int(np.ceil(hi[0])) + 1), min(H, int(np.ceil(hi[1])) + 1)

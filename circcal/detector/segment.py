@@ -14,7 +14,7 @@ import numpy as np
 from circcal.detector.candidates import Candidate
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "segmentation_scales", "segmentations", "shrink",
-           "upscaled"]
+           "noise_sigma_u8", "speckled", "upscaled"]
 
 GUIDED_RADIUS_DIVISOR = 400
 """Guided-filter radius = the shorter image side / this (px): ~1 px of smoothing per 400 px, a fraction of the smallest
@@ -37,6 +37,11 @@ SHRINK_MIN_SIDE = 360
 many pixels (factor 2 from 720 px, 3 from 1080 px, ...; none below 720 px)."""
 SHRUNK_MIN_RADIUS = 3.0
 """Dots smaller than this (px, in the shrunk image) are segmented again at a finer scale."""
+MAX_TRANSITIONS = 0.35
+"""A mask in which more than this share of horizontally neighbouring pixels differ is speckle (noise stretched to the
+full range, a dense texture), not dots: a board of dots 6 px across at a pitch of 7 px, filling the frame, has
+~0.3; noise thresholded at its median ~0.5. Its contour search would take seconds to minutes on a large frame
+(850,000 contours in a 12 MP mask: 40 s), so it is skipped (:func:`speckled`)."""
 
 
 def segmentations(gray_u8: np.ndarray) -> Iterator[tuple[str, np.ndarray]]:
@@ -59,6 +64,32 @@ def segmentations(gray_u8: np.ndarray) -> Iterator[tuple[str, np.ndarray]]:
                                                         block, 255 * ADAPTIVE_OFFSET)
 
 
+MAX_STRETCHED_NOISE = 25.0
+"""Grey levels (of 255): an image whose noise, after the contrast stretch, is larger than this (a tenth of the range)
+shows nothing but noise (a board's contrast is tens of noise sigmas: the weak-light and very noisy fixtures measure
+5-13 levels); it is not segmented (its masks would be speckle: a 48 MP frame of noise took minutes)."""
+
+
+def noise_sigma_u8(img: np.ndarray) -> float:
+    """Robust noise sigma (grey levels) of ``img`` (H, W) uint8 from the median absolute difference of horizontal
+    neighbours on every 4th row (``median / (0.6745 sqrt 2)``; 0 on noiseless renders, whose flat areas dominate)."""
+    rows = img[::4].astype(np.int16)
+    if rows.shape[1] < 2:
+        return 0.0
+    counts = np.bincount(np.abs(rows[:, 1:] - rows[:, :-1]).ravel(), minlength=256)
+    median = int(np.searchsorted(np.cumsum(counts), (counts.sum() + 1) // 2))
+    return median / (0.6745 * np.sqrt(2.0))
+
+
+def speckled(mask: np.ndarray) -> bool:
+    """Whether ``mask`` (H, W) uint8 is speckle rather than blobs (:data:`MAX_TRANSITIONS`; every 4th row counted)."""
+    rows = mask[::4]
+    if rows.shape[1] < 2:
+        return False
+    changes = np.count_nonzero(rows[:, 1:] != rows[:, :-1])
+    return changes > MAX_TRANSITIONS * rows.shape[0] * (rows.shape[1] - 1)
+
+
 def _odd_window(n: float) -> int:
     """``n`` px rounded to an odd window size of at least :data:`MIN_WINDOW`."""
     return max(MIN_WINDOW, int(round(n)) | 1)
@@ -74,21 +105,25 @@ def guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
 
 
 def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
-    """Image scales (1 = full, s = shrunk s times) to segment at, in order: the working scale
+    """Image scales (1 = full, s = shrunk s times) to segment the whole image at, in order: the working scale
     ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer pixels to filter),
-    then halving it (rounded up) down to 2 (a grid of small dots in a large image) and full resolution as the
-    fallbacks. The edges are always measured at full resolution, starting from these contours: only the starting
+    then halving it (rounded up) down to 2 (a grid of small dots in a large image); full resolution only for an image
+    too small to shrink. At scale 2 a dot 6 px across is 3 px and still a candidate: a board recognised with dots
+    that small is segmented again at full resolution in its own window (:mod:`circcal.detector.find`), never the
+    whole frame (a 48 MP frame of noise alone took minutes). The edges are always measured at full resolution, starting from these contours: only the starting
     ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on strongly blurred
     images, where the two-pass refinement still depends slightly on its start, with the same accuracy against the
     truth). When the dots found are smaller than :data:`SHRUNK_MIN_RADIUS` at that scale, the detector goes on at the
     coarsest scale where they are not. Setting ``SHRINK_MIN_SIDE`` above any image size restores full-resolution
     segmentation everywhere."""
     s = min(height, width) // SHRINK_MIN_SIDE
-    out = [s] if s >= 2 else []
+    if s < 2:
+        return (1,)
+    out = [s]
     while s > 2:
         s = (s + 1) // 2
         out.append(s)
-    return (*out, 1)
+    return tuple(out)
 
 
 def shrink(gray: np.ndarray, scale: int) -> np.ndarray:
