@@ -149,9 +149,7 @@ def run_validation(
     shared: SharedObservations | None = None
     image_size = (truth.width, truth.height) if truth is not None else None
     try:
-        # (the pipeline's lens option is given only for a model other than its default, opencv5)
-        cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size,
-                               **({"lens": lens} if lens != "opencv5" else {}))
+        cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size, lens=lens)
     except InputError as exc:
         cc.update(status="failed", message=str(exc))
     else:

@@ -1,8 +1,8 @@
 """circcal's conformance suite: every fixture scenario x variant x calibrator against ground truth and, on identical
 observations, against circcal's solver (what each case asserts, and why each bound: validators/conformance.py).
 
-The default run holds a fast slice (paper-normal and wide-clean, every calibrator); `make conformance` runs the whole
-matrix (`-m 'slow or not slow'`). circcal's calibration of a scenario-variant is computed once per run and reused by
+The default run holds a fast slice (paper-normal and wide-clean, every calibrator; fisheye-clean and rational-wide-clean
+with circcal, OpenCV, pycolmap and mrcal); `make conformance` runs the whole matrix (`-m 'slow or not slow'`). circcal's calibration of a scenario-variant is computed once per run and reused by
 every reference case. With ``--calibrator MODULE:FN`` (the ``circcal`` pytest plug-in) the same cases test that
 calibrator instead; the plug-in itself is tested at the end of this file.
 """
@@ -70,8 +70,10 @@ def test_matrix_covers_every_scenario_variant_with_readable_ids():
                 for i in ("opencv", "mrcal_fair", "mrcal_default", "kornia"):
                     assert f"{name}-{v}-{i}" in ids
     fast = sorted(c.id for c in cs if not c.slow)
-    assert fast == sorted(f"{s}-{v}-{r}" for s, v in (("paper", "normal"), ("wide", "clean"))
-                          for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default", "kornia"))
+    assert fast == sorted([f"{s}-{v}-{r}" for s, v in (("paper", "normal"), ("wide", "clean"))
+                           for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default", "kornia")]
+                          + [f"{s}-clean-{r}" for s in ("fisheye", "rational-wide")
+                             for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default")])
     # scenario-variant major, circcal first: the expensive calibration is reused by the cases right after it
     assert ids.index("paper-uneven-circcal") < ids.index("paper-uneven-opencv") < ids.index("paper-strong-circcal")
 
