@@ -238,7 +238,7 @@ def _exercise() -> None:
 
     img, board = synthetic_board()
     for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):
-        d = detect(im, board)
+        d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
         if not d.found:
             raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
 
