@@ -111,9 +111,10 @@ def _parity(name: str, variant: str, n: int | None) -> None:
         rows[2] += d.found
         if (plain or clus) and not d.found:
             missed.append(f"view {k}: {d.reason}")
-        elif d.found:     # a found grid is the right one (perspective-only correction: within 0.5 px)
+        elif d.found:     # a found grid is the right one, every dot with its own ID (perspective-only correction,
+            # no lens model: up to 0.6 px off on the partial scenario's large dots near the corners of a k1 -0.15 lens)
             e, _ = labelled_errors(tr.board, d.centres, v.centres)
-            assert np.nanmax(e) < 0.5, f"view {k}: a found grid off the truth by {np.nanmax(e):.2f} px"
+            assert np.nanmax(e) < MISLABEL_PX, f"view {k}: a found grid off the truth by {np.nanmax(e):.2f} px"
     print(f"\n{name}/{variant}: {len(views)} views; OpenCV plain {rows[0]}, CLUSTERING {rows[1]}; circcal {rows[2]}")
     assert not missed, "OpenCV finds the grid, circcal does not:\n" + "\n".join(missed)
 
