@@ -109,13 +109,13 @@ def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
     ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer pixels to filter),
     then halving it (rounded up) down to 2 (a grid of small dots in a large image); full resolution only for an image
     too small to shrink. At scale 2 a dot 6 px across is 3 px and still a candidate: a board recognised with dots
-    that small is segmented again at full resolution in its own window (:mod:`circcal.detector.find`), never the
-    whole frame (a 48 MP frame of noise alone took minutes). The edges are always measured at full resolution, starting from these contours: only the starting
-    ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on strongly blurred
-    images, where the two-pass refinement still depends slightly on its start, with the same accuracy against the
-    truth). When the dots found are smaller than :data:`SHRUNK_MIN_RADIUS` at that scale, the detector goes on at the
-    coarsest scale where they are not. Setting ``SHRINK_MIN_SIDE`` above any image size restores full-resolution
-    segmentation everywhere."""
+    smaller than :data:`SHRUNK_MIN_RADIUS` at its scale is segmented again at the coarsest scale where they are not,
+    in its own window (:mod:`circcal.detector.find`), never the whole frame (a 48 MP frame of noise alone took
+    minutes). The edges are always measured at full resolution, starting from these contours: only the starting
+    ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on strongly
+    blurred images, where the two-pass refinement still depends slightly on its start, with the same accuracy
+    against the truth). Setting ``SHRINK_MIN_SIDE`` above any image size restores full-resolution segmentation
+    everywhere."""
     s = min(height, width) // SHRINK_MIN_SIDE
     if s < 2:
         return (1,)
