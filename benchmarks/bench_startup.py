@@ -1,7 +1,9 @@
 """What a one-image ``circcal detect`` costs as a whole process, start-up included (imports, numba's cached code,
 the first detection), against a plain Python script that imports cv2 and runs findCirclesGrid on the same image;
 alternated (benchmarks/timing.py), with each process's peak resident memory. Goals (issue "Speed that holds on any
-machine"): <= 0.6 s wall and <= 120 MiB."""
+machine"): <= 0.6 s wall and <= 120 MiB. Alternated with them: the same command with ``CIRCCAL_AOT=0`` (the
+detector's kernels from numba's on-disk cache instead of the ahead-of-time build, circcal/detector/jit.py), the
+choice that build replaced; ``aot_kernels`` says whether the build was current for this run."""
 from __future__ import annotations
 
 import sys
@@ -30,16 +32,22 @@ def run(repeats: int = 9) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             script = Path(tmp) / "opencv_detect.py"
             script.write_text(OPENCV_SCRIPT)
-            t = alternate_processes({
-                "circcal": [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch",
-                            f"{b.pitch_mm}mm", "--diameter", f"{b.diameter_mm}mm", "--quiet", "--json",
-                            str(Path(tmp) / "d.json")],
-                "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image]}, repeats=repeats)
+            detect = [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm",
+                      "--diameter", f"{b.diameter_mm}mm", "--quiet", "--json", str(Path(tmp) / "d.json")]
+            t = alternate_processes({"circcal": detect, "circcal_numba_jit": ["env", "CIRCCAL_AOT=0", *detect],
+                                     "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image]},
+                                    repeats=repeats)
         key = f"detect_one_{truth.camera.width}x{truth.camera.height}"
         out.update({f"{key}_circcal_s": summary(t["circcal"]["wall_s"]),
                     f"{key}_opencv_s": summary(t["opencv"]["wall_s"]),
                     f"{key}_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
                     f"{key}_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
-                    f"{key}_opencv_peak_mib": summary(t["opencv"]["peak_mib"])})
+                    f"{key}_opencv_peak_mib": summary(t["opencv"]["peak_mib"]),
+                    f"{key}_circcal_numba_jit_s": summary(t["circcal_numba_jit"]["wall_s"]),
+                    f"{key}_circcal_numba_jit_peak_mib": summary(t["circcal_numba_jit"]["peak_mib"])})
+    import circcal.detector.find  # noqa: F401 - registers the kernel modules
+    from circcal.detector import jit
+
+    out["aot_kernels"] = jit.aot_status()
     out["goals"] = "circcal detect of one image: <= 0.6 s wall, <= 120 MiB"
     return out
