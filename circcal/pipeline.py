@@ -237,11 +237,24 @@ def calibrate_detections(
     rounds = [{"round": 0, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": float("nan")}]
     for r in range(1, max_rounds):
         new = [np.asarray(det_mod.recorrect(d, board, result.camera), dtype=np.float64) for d in detections]
+        stuck = [np.isnan(a[:, 0]) & np.isfinite(b[:, 0]) for a, b in zip(new, centres)]
+        if any(s.any() for s in stuck):
+            for a, b, s in zip(new, centres, stuck):
+                a[s] = b[s]
+            warnings.warn(f"centre re-correction: the {result.camera.lens} model has no inverse over the rims of "
+                          f"{sum(int(s.sum()) for s in stuck)} dot(s) in {sum(bool(s.any()) for s in stuck)} view(s) "
+                          f"(beyond the fold of its distortion polynomial: a lens model too simple for this lens?); "
+                          f"those centres keep the previous round's", RuntimeWarning, stacklevel=3)
         shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centres))
+        pairs = [_points_of(c, board_pts) for c in left_out(new)]
+        try:
+            result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera,
+                               **options)
+        except CalibrationError as exc:  # the last round's model cannot start the next one: keep it, and say so
+            warnings.warn(f"centre re-correction stopped after round {r - 1}, whose model is kept: {exc}",
+                          RuntimeWarning, stacklevel=3)
+            break
         centres = new
-        pairs = [_points_of(c, board_pts) for c in left_out(centres)]
-        result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera,
-                           **options)
         rounds.append({"round": r, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": shift})
         if shift < tol_px:
             break

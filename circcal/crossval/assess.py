@@ -18,6 +18,7 @@ import numpy as np
 
 from circcal.coverage import Coverage, coverage
 from circcal.crossval.cross import CrossValidation, cross_validate_detections
+from circcal.solver.modelfit import ModelFit, model_fit
 from circcal.validators.compare import GRID_WIDTH, pixel_grid
 
 __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
@@ -67,7 +68,8 @@ def uncertainty_map(result: Any, *, distance: float | None = None, gridn_width: 
 @dataclass
 class Assessment:
     """``cal``: the calibration; ``board``; ``uncertainty``: :class:`UncertaintyMap` or None; ``coverage``;
-    ``crossval``: :class:`~circcal.crossval.cross.CrossValidation` or None (not asked); ``timings`` (s)."""
+    ``crossval``: :class:`~circcal.crossval.cross.CrossValidation` or None (not asked); ``timings`` (s);
+    ``lens_fit``: whether the lens model fits (:mod:`circcal.solver.modelfit`; None: too few points to tell)."""
 
     cal: Any
     board: Any
@@ -75,6 +77,7 @@ class Assessment:
     coverage: Coverage
     crossval: CrossValidation | None
     timings: dict[str, float] = field(default_factory=dict)
+    lens_fit: ModelFit | None = None
 
     @property
     def result(self) -> Any:
@@ -107,6 +110,8 @@ class Assessment:
     def lines(self) -> list[str]:
         """The console summary of what the calibration summary does not already say."""
         out = list(self.verdict())
+        if self.lens_fit is not None:
+            out.append(self.lens_fit.message())
         rej = self.result.outliers
         if rej is not None:
             if rej.items:
@@ -143,6 +148,7 @@ class Assessment:
                 "coverage": self.coverage.to_dict(),
                 "outliers": None if self.result.outliers is None else self.result.outliers.to_dict(),
                 "cross_validation": None if self.crossval is None else self.crossval.to_dict(),
+                "lens_fit": None if self.lens_fit is None else self.lens_fit.to_dict(),
                 "timings_s": dict(self.timings)}
 
 
@@ -159,4 +165,5 @@ def assess(cal: Any, board: Any, *, distance: float | None = None, cross_validat
     if cross_validate:
         cv = cross_validate_detections(cal, board, split=split, seed=seed, distance=distance, **options)
     t2 = time.perf_counter()
-    return Assessment(cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1})
+    return Assessment(cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1},
+                      model_fit(res))

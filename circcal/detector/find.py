@@ -381,13 +381,18 @@ def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.n
     """(N, 2) centres of a found ``detection`` corrected with ``camera`` (its distortion), from the stored edge
     points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back
     (a fisheye: each dot on its own local perspective re-projection,
-    :func:`~circcal.detector.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN."""
+    :func:`~circcal.detector.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN, and so do
+    the dots whose rim a pinhole ``camera``'s distortion cannot invert (beyond the fold of its polynomial,
+    :func:`~circcal.model.undistort`: a lens model too simple for the lens); the caller says what it does with
+    those."""
     if not detection.found or detection.edge_points is None:
         raise ValueError(f"cannot re-correct a detection that was not found ({detection.reason})")
     if detection.image_size is not None:
         _check_camera(camera, *detection.image_size)
-    used = np.array([k for k, p in enumerate(detection.edge_points) if len(p)], np.int64)
-    return _correct(detection.edge_points, board, camera, None, used)[0]
+    used = [k for k, p in enumerate(detection.edge_points) if len(p)]
+    if camera is not None and camera.model.pinhole and np.any(camera.dist):
+        used = [k for k in used if np.isfinite(undistort_pixels(detection.edge_points[k], camera)).all()]
+    return _correct(detection.edge_points, board, camera, None, np.array(used, np.int64))[0]
 
 
 def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,

@@ -1,0 +1,136 @@
+"""Does the lens model fit? A test of a calibration's residuals for the radial pattern a too simple lens model
+leaves, with the noise measured where no smooth model error can reach it.
+
+A lens model that is too simple for the lens (opencv5 on a fisheye or on a wide lens that needs the rational model)
+cannot follow the true distortion curve: after the fit, the residuals left along the radius from the principal
+point have the same sign over whole rings of the image, in every view. Noise has no such pattern. The test:
+
+1. **Noise** ``noise_px`` (per coordinate) from the differences of the residuals of neighbouring board points in
+   the same view: a smooth model error is nearly the same at two points one pitch apart and cancels in their
+   difference, noise does not (``var(r_i - r_j) = 2 sigma^2`` per coordinate).
+2. **Radial profile**: every residual's component along the ray from the principal point (px, positive outwards),
+   averaged in :data:`RADIAL_BINS` rings of equal point count; ``z_b = mean_b / (noise_px / sqrt(n_b))``.
+3. **Verdict**: the model is reported not to fit when the profile is significant (``chi2 = sum z_b^2`` has a
+   chance below :data:`P_VALUE` under noise alone) *and* large enough to matter: some ring's mean radial residual
+   exceeds both :data:`MIN_EFFECT_PX` and :data:`MIN_EFFECT_NOISE` x the noise. (The first alone would flag
+   0.001 px patterns of a huge clean data set; the second alone would flag noise.)
+
+The rule reads residuals only, so it serves any lens model and any data (renders or photographs). What it cannot
+tell apart: a radial pattern from biased centres that grows with the radius (e.g. centroids of strongly tilted
+dots); the message says so. Residuals are observed - projected (px, OpenCV's pixel-centre convention).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["ModelFit", "model_fit", "neighbour_noise", "RADIAL_BINS", "P_VALUE", "MIN_EFFECT_PX",
+           "MIN_EFFECT_NOISE"]
+
+#: rings of equal point count over the radius from the principal point
+RADIAL_BINS = 8
+#: the chance under noise alone below which the radial profile is significant
+P_VALUE = 1e-6
+#: the least ring-mean radial residual reported as a model error (px): below it the model error is a small part of
+#: any calibration's error budget (the paper's bar is 0.12 px mean 2-D)
+MIN_EFFECT_PX = 0.02
+#: the least ring-mean radial residual reported as a model error, in units of the measured noise
+MIN_EFFECT_NOISE = 0.5
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """``fits``: False when the residuals hold the radial pattern of a too simple lens model (module rule).
+    ``lens``: the model tested. ``noise_px``: per-coordinate noise from neighbour differences. ``radius_px`` (B,):
+    each ring's mean radius; ``radial_px`` (B,): its mean radial residual (positive: observed beyond the projection);
+    ``z`` (B,): in standard errors; ``chi2`` with ``p_value``; ``n_points``."""
+
+    fits: bool
+    lens: str
+    noise_px: float
+    radius_px: np.ndarray
+    radial_px: np.ndarray
+    z: np.ndarray
+    chi2: float
+    p_value: float
+    n_points: int
+
+    @property
+    def worst(self) -> int:
+        """The ring with the largest mean radial residual."""
+        return int(np.argmax(np.abs(self.radial_px)))
+
+    def message(self) -> str:
+        k = self.worst
+        profile = (f"mean radial residual up to {self.radial_px[k]:+.3f} px at {self.radius_px[k]:.0f} px from the "
+                   f"principal point, {abs(self.radial_px[k]) / self.noise_px:.1f}x the noise of {self.noise_px:.3f} "
+                   f"px per coordinate (chi2 {self.chi2:.0f} over {len(self.z)} rings, p {self.p_value:.1g})")
+        if self.fits:
+            return f"lens model {self.lens}: fits (no radial pattern in the residuals: {profile})"
+        wider = {"opencv5": "--lens rational (a wide lens) or --lens fisheye (beyond ~120 deg)",
+                 "rational": "--lens thin-prism or --lens fisheye", "thin-prism": "--lens fisheye",
+                 "fisheye": "--lens rational"}.get(self.lens, "another --lens")
+        return (f"lens model {self.lens} does NOT fit: the residuals follow the radius ({profile}); the model cannot "
+                f"follow this lens's distortion: try {wider}. (Biased centres that grow toward the edge would look "
+                f"alike.)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"fits": self.fits, "lens": self.lens, "noise_px_per_coord": self.noise_px,
+                "radius_px": self.radius_px.tolist(), "radial_residual_px": self.radial_px.tolist(),
+                "z": self.z.tolist(), "chi2": self.chi2, "p_value": self.p_value, "n_points": self.n_points,
+                "rule": f"not fitting when chi2 of {RADIAL_BINS} ring means has p < {P_VALUE:g} and a ring's mean "
+                        f"radial residual exceeds {MIN_EFFECT_PX:g} px and {MIN_EFFECT_NOISE:g}x the noise "
+                        f"(noise from neighbouring points' residual differences)"}
+
+
+def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.ndarray]) -> float:
+    """Per-coordinate noise (px) from the residual differences of board neighbours in each view.
+
+    ``object_points``: per view (N_v, 3) mm; ``residuals``: per view (N_v, 2) px. Neighbours: pairs of a view's
+    points at most 1.01 x the view's smallest point spacing apart. A robust scale (1.4826 x the median absolute
+    difference) so that a few bad points do not set it. NaN with fewer than 10 pairs.
+    """
+    from scipy.spatial import cKDTree
+
+    diffs = []
+    for obj, res in zip(object_points, residuals):
+        if len(obj) < 2:
+            continue
+        tree = cKDTree(np.asarray(obj, dtype=np.float64)[:, :2])
+        d, _ = tree.query(obj[:, :2], k=2)
+        pairs = tree.query_pairs(1.01 * float(np.min(d[:, 1])), output_type="ndarray")
+        if len(pairs):
+            diffs.append((res[pairs[:, 0]] - res[pairs[:, 1]]).ravel())
+    if not diffs or sum(len(x) for x in diffs) < 20:
+        return float("nan")
+    x = np.concatenate(diffs)
+    return float(1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(2.0))
+
+
+def model_fit(result: Any) -> ModelFit | None:
+    """Test a :class:`~circcal.solver.CalibrationResult`'s residuals (module rule); None when it holds too few points
+    to tell (fewer than 4 per ring, or no neighbours for the noise)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    cam = result.camera
+    obs = np.concatenate(result.image_points)
+    res = np.concatenate(result.residuals)
+    n = len(obs)
+    noise = neighbour_noise(result.object_points, result.residuals)
+    if n < 4 * RADIAL_BINS or not np.isfinite(noise) or noise <= 0:
+        return None
+    proj = obs - res
+    out = proj - np.array([cam.cx, cam.cy])
+    r = np.linalg.norm(out, axis=1)
+    radial = np.einsum("ij,ij->i", res, out / np.maximum(r, 1e-12)[:, None])
+    order = np.argsort(r)
+    rings = np.array_split(order, RADIAL_BINS)
+    radius = np.array([r[k].mean() for k in rings])
+    mean = np.array([radial[k].mean() for k in rings])
+    z = mean / (noise / np.sqrt([len(k) for k in rings]))
+    chi2 = float(np.sum(z ** 2))
+    p = float(chi2_dist.sf(chi2, RADIAL_BINS))
+    big = np.abs(mean) > max(MIN_EFFECT_PX, MIN_EFFECT_NOISE * noise)
+    return ModelFit(not (p < P_VALUE and bool(big.any())), cam.lens, noise, radius, mean, z, chi2, p, n)
