@@ -15,7 +15,8 @@ import numpy as np
 
 from circcal.errors import CalibrationError, InputError
 
-__all__ = ["MIN_VIEWS", "MIN_POINTS_PER_VIEW", "PLANAR_TOL", "check_image_size", "check_observations"]
+__all__ = ["MIN_VIEWS", "MIN_POINTS_PER_VIEW", "PLANAR_TOL", "BOARD_KEY_DECIMALS", "check_image_size",
+           "check_observations", "distinct_points"]
 
 #: Views a calibration needs at the least: Zhang's closed form needs 2 for the four intrinsics, and a third view is
 #: the least that leaves the distortion and the poses any redundancy (10-20 well-tilted views are what a good
@@ -123,3 +124,25 @@ def _check_view(v: int, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:
     if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
         raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
                                f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
+
+
+#: Board points are the same point when their coordinates agree to this many decimals (mm): 1e-6 mm, far below any
+#: board's pitch and far above float64 rounding of the same nominal coordinates.
+BOARD_KEY_DECIMALS = 6
+
+
+def distinct_points(object_points: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The distinct board points across views (views may observe different subsets), identified by their
+    coordinates to :data:`BOARD_KEY_DECIMALS`.
+
+    ``object_points``: per view (N_v, 3) mm. Returns ``(points (P, 3) mm in order of first appearance, per view
+    (N_v,) int64 the index of each observed point in points)``.
+    """
+    sizes = [len(o) for o in object_points]
+    X = np.concatenate([np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in object_points])
+    _, first, inverse = np.unique(np.round(X, BOARD_KEY_DECIMALS), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    index = rank[np.asarray(inverse).ravel()].astype(np.int64)
+    return X[first[order]].copy(), np.split(index, np.cumsum(sizes)[:-1])

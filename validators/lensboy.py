@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from circcal.model import Camera, param_names
+from circcal.observations import distinct_points
 from circcal.validators.base import BaseCalibrator, ReferenceResult
 
 __all__ = ["LensboyCalibrator", "COEFFICIENTS", "INSTALL_HINT"]
@@ -46,23 +47,6 @@ def _coefficient_mask(lens: str) -> np.ndarray:
     """lensboy's (14,) bool mask of the coefficients ``lens`` frees (its names in OpenCV's order)."""
     names = param_names(lens)[4:]
     return np.array([c in names for c in COEFFICIENTS], dtype=bool)
-
-
-def _target(object_points: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
-    """One target array (M, 3) of the distinct board points and per view the index of each observed point."""
-    keys: dict[tuple, int] = {}
-    pts: list[np.ndarray] = []
-    idx = []
-    for o in object_points:
-        ids = []
-        for X in o:
-            k = tuple(np.round(X, 9))
-            if k not in keys:
-                keys[k] = len(pts)
-                pts.append(np.asarray(X, dtype=np.float64))
-            ids.append(keys[k])
-        idx.append(np.asarray(ids, dtype=np.int64))
-    return np.array(pts), idx
 
 
 class LensboyCalibrator(BaseCalibrator):
@@ -97,7 +81,7 @@ class LensboyCalibrator(BaseCalibrator):
 
         t0 = time.perf_counter()
         w, h = int(image_size[0]), int(image_size[1])
-        target, idx = _target(object_points)
+        target, idx = distinct_points(object_points)
         frames = [lb.Frame(target_point_indices=i, detected_points_in_image=np.asarray(q, dtype=np.float64))
                   for i, q in zip(idx, image_points)]
         config = lb.OpenCVConfig(image_height=h, image_width=w,

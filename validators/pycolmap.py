@@ -30,6 +30,7 @@ import time
 import numpy as np
 
 from circcal.model import Camera, param_names, project
+from circcal.observations import distinct_points
 from circcal.rotation import rodrigues
 from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
 
@@ -151,18 +152,7 @@ class PycolmapCalibrator(BaseCalibrator):
         rec.add_camera_with_trivial_rig(cam)
 
         # one 3-D point per distinct board point (views may observe different subsets)
-        keys: dict[tuple, int] = {}
-        xyz: list[np.ndarray] = []
-        idx_per_view = []
-        for o in object_points:
-            ids = []
-            for X in o:
-                k = tuple(np.round(X, 9))
-                if k not in keys:
-                    keys[k] = len(xyz)
-                    xyz.append(np.asarray(X, dtype=np.float64))
-                ids.append(keys[k])
-            idx_per_view.append(ids)
+        xyz, idx_per_view = distinct_points(object_points)
 
         est = pycolmap.AbsolutePoseEstimationOptions()
         est.ransac.max_error = 0.02 * max(w, h)  # seed has no distortion: be generous

@@ -15,6 +15,7 @@ import numpy as np
 
 from circcal.errors import CalibrationError
 from circcal.model import project_camera_jacobian
+from circcal.observations import BOARD_KEY_DECIMALS, distinct_points
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
 __all__ = ["BoardModel", "board_model", "Problem", "MIN_VIEWS_PER_BOARD_POINT", "BOARD_KEY_DECIMALS"]
@@ -26,8 +27,6 @@ EVALUATE_CHUNK = 4096
 #: With board refinement, a board point seen in fewer views than this is held at its nominal position (a point seen
 #: in one or two views is not constrained beyond its own views' poses).
 MIN_VIEWS_PER_BOARD_POINT = 3
-#: Board points are identified across views by their nominal coordinates rounded to this many decimals (mm).
-BOARD_KEY_DECIMALS = 6
 
 
 @dataclass
@@ -53,14 +52,8 @@ def board_model(obj: list[np.ndarray], gauge: tuple[int, int, int] | None) -> Bo
     Default gauge: a = the first point, b = the point farthest from a, c = the point farthest from the line a-b (any
     three non-collinear points give the same intrinsics and residuals; only the board frame changes).
     """
-    X = np.concatenate(obj)
-    keys = np.round(X, BOARD_KEY_DECIMALS)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    point_index = rank[np.asarray(inverse).ravel()]
-    nominal = X[first[order]].copy()
+    nominal, per_view = distinct_points(obj)
+    point_index = np.concatenate(per_view)
     n_pts = len(nominal)
     if n_pts < 4:
         raise CalibrationError(f"board refinement needs at least 4 distinct board points, got {n_pts}")
