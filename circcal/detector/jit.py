@@ -31,7 +31,6 @@ import importlib.util
 import json
 import os
 import sys
-import tempfile
 import threading
 import warnings
 from pathlib import Path
@@ -247,6 +246,8 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
     """Compile every kernel module ahead of time into ``out_dir`` (see the module docstring), skipping those whose
     current source is built already (unless ``force``); builds of older sources are removed. Returns module -> the
     kernels exported (or ``["(current)"]``). Needs numba and a C compiler (pycc compiles the module's C glue)."""
+    import tempfile
+
     import numba.pycc.compiler as pycc_compiler
     from numba.pycc import CC
 
