@@ -179,13 +179,21 @@ class Problem:
         f = np.empty(2 * len(X))
         J = np.empty((len(X), 2, ng + 6))
         Jl = left_jacobian(rv)
-        for a in range(0, len(X), EVALUATE_CHUNK):
-            # in chunks: the projection's own temporaries stay a few MB, whatever N (the peak is J and its inputs)
-            sl = slice(a, a + EVALUATE_CHUNK)
+        # in chunks (whole views when they hold equal counts): the projection's own temporaries stay a few MB,
+        # whatever N (the peak is J and its inputs)
+        step = max(1, EVALUATE_CHUNK // self.counts[0]) * self.counts[0] if self.uniform else EVALUATE_CHUNK
+        for a in range(0, len(X), step):
+            sl = slice(a, a + step)
             uv, Ji, dP = project_camera_jacobian(Xc[sl], p, self.lens)
             f[2 * a: 2 * a + 2 * len(uv)] = (uv - self.uv[sl]).ravel()
             J[sl, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
-            np.einsum("nij,njk->nik", rotated_jacobian(dP, Y[sl]), Jl[self.view[sl]], out=J[sl, :, ng: ng + 3])
+            C = rotated_jacobian(dP, Y[sl])
+            if self.uniform:  # this chunk's views times their own left Jacobians, one batched product
+                v0 = a // self.counts[0]
+                k = len(C) // self.counts[0]
+                J[sl, :, ng: ng + 3] = (C.reshape(k, -1, 3) @ Jl[v0: v0 + k]).reshape(C.shape)
+            else:
+                np.einsum("nij,njk->nik", C, Jl[self.view[sl]], out=J[sl, :, ng: ng + 3])
             J[sl, :, ng + 3:] = dP
         if self.board is not None:
             # d uv / d X_board = (d uv / d Xc) R
