@@ -58,7 +58,7 @@ print(len(objs), rms, K[0, 0])
 
 
 MEMORY_CHILD = """\
-import os, resource, sys
+import os, sys
 import numpy as np
 tool, path = sys.argv[1], sys.argv[2]
 d = np.load(path)
@@ -76,7 +76,8 @@ else:
 solve(obj[:5], img[:5])
 rss0 = int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 solve(obj, img)
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+# VmHWM: the high-water mark of this process's own memory (ru_maxrss would start at the parent's)
+peak = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:")) * 1024
 print((peak - rss0) / sum(len(o) for o in obj))
 """
 

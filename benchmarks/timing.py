@@ -10,7 +10,8 @@
   pages), which makes OpenCV 3-4x slower; :data:`MALLOC_ENV` (set for the whole ``make bench`` process by
   ``benchmarks/run.py`` before anything is imported) removes it for both tools alike.
 * Whole processes (:func:`alternate_processes`): what a user of the command line waits for, start-up included, beside
-  the in-process figures; peak memory from ``getrusage`` of each child.
+  the in-process figures; peak memory from ``wait4`` of each command, run by a small fresh launcher (a child's
+  ``ru_maxrss`` starts at its parent's high-water mark, which in a benchmark process is large).
 """
 from __future__ import annotations
 
@@ -74,29 +75,52 @@ def ratio(a: Sequence[float], b: Sequence[float]) -> dict[str, float]:
     return summary([x / y for x, y in zip(a, b)])
 
 
+#: Runs one command (argv[2:]) and writes its wall time (s) and peak RSS (KiB) to the file argv[1]. A process's
+#: ``ru_maxrss`` starts at its parent's memory high-water mark (Linux copies it across fork and exec), so the peak of
+#: a child of a big benchmark process would read as that process's: this small, fresh launcher is the parent
+#: instead, and it times the command itself (its own start-up is not counted).
+_LAUNCHER = """\
+import os, subprocess, sys, time
+t0 = time.perf_counter()
+proc = subprocess.Popen(sys.argv[2:])
+_, status, usage = os.wait4(proc.pid, 0)
+dt = time.perf_counter() - t0
+with open(sys.argv[1], "w") as f:
+    f.write(f"{dt} {usage.ru_maxrss} {os.waitstatus_to_exitcode(status)}")
+"""
+
+
 def alternate_processes(cmds: dict[str, Sequence[str]], repeats: int = MIN_REPEATS, env: dict | None = None,
                         warmup: int = 1) -> dict[str, dict[str, list[float]]]:
     """Whole-process wall times (s) and peak resident memory (MiB) of each command, run in turn like
-    :func:`alternate`. A command that fails raises ``RuntimeError`` with its output (a benchmark of a failing
-    command measures nothing). Returns name -> ``{"wall_s": [...], "peak_mib": [...]}``."""
+    :func:`alternate`, each through a small launcher process (see :data:`_LAUNCHER`: the peak is the command's own).
+    A command that fails raises ``RuntimeError`` with its output (a benchmark of a failing command measures
+    nothing). Returns name -> ``{"wall_s": [...], "peak_mib": [...]}``."""
+    import sys
+    import tempfile
+
     if repeats < MIN_REPEATS:
         raise ValueError(f"at least {MIN_REPEATS} repeats, got {repeats}")
     out: dict[str, dict[str, list[float]]] = {k: {"wall_s": [], "peak_mib": []} for k in cmds}
     full_env = {**os.environ, **(env or {})}
-    for r in range(warmup + repeats):
-        for name, cmd in cmds.items():
-            t0 = time.perf_counter()
-            proc = subprocess.Popen(list(cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=full_env)
-            _, status, usage = os.wait4(proc.pid, 0)
-            dt = time.perf_counter() - t0
-            output = proc.stdout.read().decode(errors="replace") if proc.stdout else ""
-            proc.stdout.close()
-            code = os.waitstatus_to_exitcode(status)
-            if code != 0:
-                raise RuntimeError(f"{name}: {' '.join(cmd)} exited {code}:\n{output[-2000:]}")
-            if r >= warmup:
-                out[name]["wall_s"].append(dt)
-                out[name]["peak_mib"].append(usage.ru_maxrss / 1024.0)  # Linux: KiB
+    with tempfile.TemporaryDirectory() as tmp:
+        result = os.path.join(tmp, "result")
+        for r in range(warmup + repeats):
+            for name, cmd in cmds.items():
+                proc = subprocess.run([sys.executable, "-c", _LAUNCHER, result, *cmd], stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, env=full_env)
+                output = proc.stdout.decode(errors="replace")
+                if proc.returncode != 0 or not os.path.exists(result):
+                    raise RuntimeError(f"{name}: launcher for {' '.join(cmd)} exited {proc.returncode}:\n"
+                                       f"{output[-2000:]}")
+                with open(result) as f:
+                    dt, maxrss_kib, code = f.read().split()
+                os.unlink(result)
+                if int(code) != 0:
+                    raise RuntimeError(f"{name}: {' '.join(cmd)} exited {code}:\n{output[-2000:]}")
+                if r >= warmup:
+                    out[name]["wall_s"].append(float(dt))
+                    out[name]["peak_mib"].append(float(maxrss_kib) / 1024.0)  # Linux: KiB
     return out
 
 
