@@ -32,6 +32,7 @@ import json
 import os
 import sys
 import threading
+import time
 import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -41,7 +42,7 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.board import Board
 
-__all__ = ["njit", "COMPILED", "Kernel", "build", "aot_status", "synthetic_board"]
+__all__ = ["njit", "COMPILED", "Kernel", "build", "aot_status", "compile_seconds", "synthetic_board"]
 
 #: Where :func:`build` writes the compiled kernel modules (one extension + its signatures per kernel module).
 AOT_DIR = Path(__file__).resolve().parent / "_aot"
@@ -56,6 +57,9 @@ if not COMPILED:  # pragma: no cover - exercised by tests/test_detect.py in a su
                   "results, ~50x slower); `pip install numba` restores the speed", RuntimeWarning, stacklevel=2)
 
 _lock = threading.RLock()
+#: seconds spent in calls that made numba compile (a type the ahead-of-time build lacks, or no build): the time
+#: budget of an image (:class:`circcal.detector.budget.Deadline`) does not count them
+_compile_s = 0.0
 #: module name -> its kernels, in the order they were decorated
 _registry: dict[str, list["Kernel"]] = {}
 #: module name -> {kernel name: [(argument specs, compiled function)]}, loaded once per module
@@ -143,7 +147,15 @@ class Kernel:
             for specs, fn in self._aot:
                 if _matches(specs, args):
                     return fn(*args)
-        return self.jitted()(*args)
+        fn = self.jitted()
+        known = len(getattr(fn, "signatures", ()))
+        t0 = time.monotonic()
+        out = fn(*args)
+        if len(getattr(fn, "signatures", ())) > known:  # numba compiled for these types: not the image's time
+            global _compile_s
+            with _lock:
+                _compile_s += time.monotonic() - t0
+        return out
 
     def jitted(self) -> Callable:
         """numba's dispatcher for this kernel (the plain function without numba). The first call turns every kernel
@@ -185,6 +197,11 @@ def njit(*args, **kwargs):
         return k
 
     return wrap
+
+
+def compile_seconds() -> float:
+    """Seconds this process has spent in kernel calls that made numba compile (never decreases)."""
+    return _compile_s
 
 
 def aot_status() -> dict[str, bool]:
@@ -231,12 +248,13 @@ def synthetic_board() -> tuple[np.ndarray, "Board"]:
 
 
 def _exercise() -> None:
-    """Run the detector on :func:`synthetic_board` as uint8, uint16 and float32 images, so that numba compiles each
-    kernel for the argument types detection gives it."""
+    """Run the detector on :func:`synthetic_board` as uint8, uint16, float32 and float64 images (what image files
+    and numpy callers give it: a float64 image is what a renderer hands over), so that numba compiles each kernel
+    for the argument types detection gives it."""
     from circcal.detector.find import detect
 
     img, board = synthetic_board()
-    for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):
+    for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0, img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
         if not d.found:
             raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
