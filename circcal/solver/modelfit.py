@@ -85,6 +85,19 @@ class ModelFit:
                         f"(noise from neighbouring points' residual differences)"}
 
 
+def _neighbour_pairs(xy: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """(K, 2) index pairs i < j of the points ``xy`` (N, 2) at most 1.01 x their smallest spacing apart (numpy in
+    row chunks: scipy.spatial would cost a calibrate process ~1 s of import for a few hundred points a view)."""
+    n = len(xy)
+    if n < 2:
+        return np.empty((0, 2), np.int64)
+    d = [np.linalg.norm(xy[i:i + chunk, None, :] - xy[None, :, :], axis=2) for i in range(0, n, chunk)]
+    d = np.concatenate(d)
+    d[np.tril_indices(n)] = np.inf
+    i, j = np.nonzero(d <= 1.01 * d.min())
+    return np.stack([i, j], axis=1)
+
+
 def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.ndarray]) -> float:
     """Per-coordinate noise (px) from the residual differences of board neighbours in each view.
 
@@ -92,15 +105,9 @@ def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.
     points at most 1.01 x the view's smallest point spacing apart. A robust scale (1.4826 x the median absolute
     difference) so that a few bad points do not set it. NaN with fewer than 10 pairs.
     """
-    from scipy.spatial import cKDTree
-
     diffs = []
     for obj, res in zip(object_points, residuals):
-        if len(obj) < 2:
-            continue
-        tree = cKDTree(np.asarray(obj, dtype=np.float64)[:, :2])
-        d, _ = tree.query(obj[:, :2], k=2)
-        pairs = tree.query_pairs(1.01 * float(np.min(d[:, 1])), output_type="ndarray")
+        pairs = _neighbour_pairs(np.asarray(obj, dtype=np.float64)[:, :2])
         if len(pairs):
             diffs.append((res[pairs[:, 0]] - res[pairs[:, 1]]).ravel())
     if not diffs or sum(len(x) for x in diffs) < 20:
@@ -112,7 +119,7 @@ def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.
 def model_fit(result: Any) -> ModelFit | None:
     """Test a :class:`~circcal.solver.CalibrationResult`'s residuals (module rule); None when it holds too few points
     to tell (fewer than 4 per ring, or no neighbours for the noise)."""
-    from scipy.stats import chi2 as chi2_dist
+    from scipy.special import chdtrc  # the chi-square survival function (scipy.stats would cost ~1 s to import)
 
     cam = result.camera
     obs = np.concatenate(result.image_points)
@@ -131,6 +138,6 @@ def model_fit(result: Any) -> ModelFit | None:
     mean = np.array([radial[k].mean() for k in rings])
     z = mean / (noise / np.sqrt([len(k) for k in rings]))
     chi2 = float(np.sum(z ** 2))
-    p = float(chi2_dist.sf(chi2, RADIAL_BINS))
+    p = float(chdtrc(RADIAL_BINS, chi2))
     big = np.abs(mean) > max(MIN_EFFECT_PX, MIN_EFFECT_NOISE * noise)
     return ModelFit(not (p < P_VALUE and bool(big.any())), cam.lens, noise, radius, mean, z, chi2, p, n)
