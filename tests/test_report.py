@@ -340,9 +340,12 @@ PROSE_CASES = {
     "mrcal's bound": ((checks, "SOLVER_MRCAL_PX", 4.2e-3), 1, "4.2e-3 px (mrcal)", "1e-4 px"),
     "projection grid": ((config, "PROJECTION_GRID_WIDTH", 61), "1 + conditions", "61-wide", "60-wide"),
     "noise factor": ((prose, "MEAN_2D_PER_SIGMA", 1.9876), 1, "~1.988 sigma", "~1.253 sigma"),
-    "tie rule": ((prose, "TIE_REL", 1e-4), 2, "% higher.", "tie"),
-    "shape rule, drop": ((prose, "SHAPE_RMS_DROP", 0.01), 2, "in plane. The baseline", "printed sheet's shape"),
-    "shape rule, significance": ((prose, "SHAPE_SIGNIFICANCE", 100.0), 2, "in plane. The baseline",
+    # both real sets' rigid RMS lie within 3% of OpenCV's (a tie); at 1e-4 they are told apart: 4x5 higher, 10x8 lower
+    "tie rule": ((prose, "TIE_REL", 1e-4), 2, ("% higher.", "% lower."), "tie"),
+    # the shape sentence stands on the 4x5 set only: on the 10x8 set circcal's refined RMS (the shadow-edge dots left
+    # out) is 12% below OpenCV's centres', no tie, so the sentence is not said there whatever the shape rule
+    "shape rule, drop": ((prose, "SHAPE_RMS_DROP", 0.01), 1, "in plane. The baseline", "printed sheet's shape"),
+    "shape rule, significance": ((prose, "SHAPE_SIGNIFICANCE", 100.0), 1, "in plane. The baseline",
                                  "printed sheet's shape"),
     "bias blur": (lambda r: r["bias"]["perturbations"][0].update(sigma_px=0.37), 1, "(blur 0.37 px, 8-bit",
                   "blur 0.7 px"),
