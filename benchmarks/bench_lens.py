@@ -35,30 +35,11 @@ PROBLEMS = (
 
 def _views(cam, n: int, seed: int, max_theta_deg: float, distance, noise: float = 0.05):
     """``n`` views of a 9x9 board wholly inside the image (see the module), float32-rounded."""
-    from scipy.spatial.transform import Rotation
-
     from circcal.board import Board
-    from circcal.model import project
+    from circcal.fixtures.poses import off_axis_observations
 
-    rng = np.random.default_rng(seed)
-    o = Board(9, 9, 20.0, 8.0).object_points()
-    c = o.mean(axis=0)
-    obj, img = [], []
-    while len(obj) < n:
-        th = np.radians(rng.uniform(0, max_theta_deg)) if obj else 0.0
-        ph = rng.uniform(-np.pi, np.pi)
-        d = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
-        x = np.cross([0.0, 1.0, 0.0], d)
-        x /= np.linalg.norm(x)
-        axis = rng.normal(size=3)
-        R = np.column_stack([x, np.cross(d, x), d]) @ Rotation.from_rotvec(
-            axis / np.linalg.norm(axis) * np.radians(rng.uniform(15, 45))).as_matrix()
-        t = rng.uniform(*distance) * d - R @ c
-        p = project(o, Rotation.from_matrix(R).as_rotvec(), t, cam)
-        if np.all(p >= 0) and np.all(p[:, 0] <= cam.width - 1) and np.all(p[:, 1] <= cam.height - 1):
-            obj.append(o.astype(np.float32))
-            img.append((p + rng.normal(0.0, noise, p.shape)).astype(np.float32))
-    return obj, img
+    obj, img = off_axis_observations(cam, Board(9, 9, 20.0, 8.0), n, seed, max_theta_deg, distance, noise)
+    return [o.astype(np.float32) for o in obj], [p.astype(np.float32) for p in img]
 
 
 def _opencv(lens: str, obj, img, size):

@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from circcal.board import Board
+from circcal.fixtures.poses import off_axis_observations
 from circcal.model import Camera, param_names, project, project_camera, unproject
 from circcal.solver import calibrate
 from circcal.solver.fisheye_start import fisheye_start
@@ -36,32 +37,8 @@ def cv2_single_thread():
 
 
 def views(cam: Camera, n: int, seed: int, max_theta_deg: float, distance=(250.0, 600.0), noise=0.05):
-    """``n`` views of BOARD (the first on the axis, the others with their centre up to
-    ``max_theta_deg`` off axis, tilted 15-45 deg, ``distance`` mm away) lying wholly inside the image, plus
-    Gaussian noise (px per coordinate), rounded to float32 (what OpenCV takes) unless the noise is 0. Returns
-    (object points, image points) per view, float64."""
-    rng = np.random.default_rng(seed)
-    o = BOARD.object_points()
-    c = o.mean(axis=0)
-    obj, img = [], []
-    while len(obj) < n:
-        th = np.radians(rng.uniform(0, max_theta_deg)) if obj else 0.0
-        ph = rng.uniform(-np.pi, np.pi)
-        d = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
-        x = np.cross([0.0, 1.0, 0.0], d)
-        x /= np.linalg.norm(x)
-        R0 = np.column_stack([x, np.cross(d, x), d])                # the board faces the camera
-        axis = rng.normal(size=3)
-        R = R0 @ Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.radians(rng.uniform(15, 45))).as_matrix()
-        t = rng.uniform(*distance) * d - R @ c
-        p = project(o, Rotation.from_matrix(R).as_rotvec(), t, cam)
-        if not (np.all(p >= 0) and np.all(p[:, 0] <= cam.width - 1) and np.all(p[:, 1] <= cam.height - 1)):
-            continue
-        if noise:
-            o, p = o.astype(np.float32), (p + rng.normal(0.0, noise, p.shape)).astype(np.float32)
-        obj.append(o.astype(np.float64))
-        img.append(p.astype(np.float64))
-    return obj, img
+    """``n`` views of BOARD through ``cam`` (:func:`circcal.fixtures.poses.off_axis_observations`)."""
+    return off_axis_observations(cam, BOARD, n, seed, max_theta_deg, distance, noise)
 
 
 def projection_difference(a: Camera, b: Camera, uv: np.ndarray) -> float:
