@@ -31,3 +31,15 @@ def skip_unless_available(cal) -> None:
 
 def pytest_report_header(config):
     return [f"circcal fixture cache: {os.environ.get('CIRCCAL_CACHE', Path.home() / '.cache' / 'circcal')}"]
+
+
+@pytest.fixture
+def cv2_single_thread():
+    """OpenCV at one thread for the test: its parallel reductions make calibrateCamera and cv2.fisheye.calibrate
+    vary by ~1e-7..1e-6 between runs; one thread is repeatable."""
+    import cv2
+
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(n)

@@ -34,15 +34,6 @@ def synthetic(camera=TRUE, n=14, seed=0, noise=0.1, max_tilt=40.0, drop=0.0):
     return obj, img, poses
 
 
-@pytest.fixture
-def cv2_single_thread():
-    """cv2's parallel reductions make calibrateCamera vary ~1e-7..1e-6 between runs; one thread is repeatable."""
-    n = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    yield
-    cv2.setNumThreads(n)
-
-
 def cv2_calibrate(obj, img, flags=0, K0=None, d0=None):
     out = cv2.calibrateCameraExtended([o.astype(np.float32) for o in obj], [p.astype(np.float32) for p in img],
                                       (W, H), K0, d0, flags=flags, criteria=CRIT)

@@ -27,15 +27,6 @@ FISHEYE = Camera(1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -
 FISHEYE_190 = Camera(1280, 1024, 310.0, 310.0, 639.5, 511.5, [-0.012, 0.003, -6e-4, 5e-5], "fisheye")
 
 
-@pytest.fixture
-def cv2_single_thread():
-    """cv2's parallel reductions make its solvers vary ~1e-7 between runs; one thread is repeatable."""
-    n = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    yield
-    cv2.setNumThreads(n)
-
-
 def views(cam: Camera, n: int, seed: int, max_theta_deg: float, distance=(250.0, 600.0), noise=0.05):
     """``n`` views of BOARD through ``cam`` (:func:`circcal.fixtures.poses.off_axis_observations`)."""
     return off_axis_observations(cam, BOARD, n, seed, max_theta_deg, distance, noise)
