@@ -3,6 +3,7 @@ bug."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import pytest
 
@@ -85,6 +86,28 @@ def test_outputs_are_checked_before_the_work(tmp_path, capsys):
         assert "not writable" in capsys.readouterr().err
     finally:
         locked.chmod(0o700)
+
+
+def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys):
+    """Where the permission bits do not tell (root, read-only mounts, /proc), the check makes a probe file in the
+    nearest existing folder: an output under /proc is refused at once (exit 2, one line), nothing left behind.
+    (Before, calibrate ran to the end and only then failed.)"""
+    from circcal.cli import main
+
+    if not Path("/proc/self").is_dir():
+        pytest.skip("no /proc here (not Linux)")
+    model = tmp_path / "model.json"
+    model.write_text('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, '
+                     '"dist": [0, 0, 0, 0, 0]}}')
+    assert main(["calibrate", "nonexistent.png", "--grid", "7x7", "--pitch", "10mm",
+                 "--out", "/proc/circcal-no-such-folder/m.json"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write /proc/circcal-no-such-folder/m.json" in err and len(err.strip().splitlines()) == 1
+    assert main(["convert", str(model), "/proc/circcal-no-such-folder/x.yaml"]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    out = tmp_path / "ok.yaml"
+    assert main(["convert", str(model), str(out)]) == 0 and out.is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "ok.yaml"]  # no probe file left
 
 
 @pytest.mark.parametrize("content, field", [

@@ -6,6 +6,7 @@ import argparse
 import math
 import os
 import re
+import tempfile
 from pathlib import Path
 
 from circcal.errors import InputError
@@ -75,6 +76,12 @@ def check_output(path: Path, *, folder: bool = False) -> Path:
         raise InputError(f"cannot write {path}: {parent} is not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"cannot write {path}: folder {parent} is not writable (permission denied)")
+    try:  # the permission bits do not tell for root, read-only mounts or /proc: make (and remove) a file there
+        fd, probe = tempfile.mkstemp(prefix=".circcal-probe-", dir=parent)
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: folder {parent}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(probe)
     return path
 
 

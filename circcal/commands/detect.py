@@ -37,7 +37,8 @@ def add_parser(subparsers) -> None:
                    help="camera model (any format circcal reads) for the distortion-aware centre correction")
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
     p.add_argument("--overlay", type=Path, default=None, help="folder for PNG overlays to check by eye")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                   help="no progress bar (--no-progress, as the other commands spell it)")
     p.add_argument("--jobs", type=positive_int, default=None,
                    help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
     p.set_defaults(func=run)
