@@ -389,19 +389,19 @@ def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.n
         raise ValueError(f"cannot re-correct a detection that was not found ({detection.reason})")
     if detection.image_size is not None:
         _check_camera(camera, *detection.image_size)
-    used = [k for k, p in enumerate(detection.edge_points) if len(p)]
-    if camera is not None and camera.model.pinhole and np.any(camera.dist):
-        used = [k for k in used if np.isfinite(undistort_pixels(detection.edge_points[k], camera)).all()]
-    return _correct(detection.edge_points, board, camera, None, np.array(used, np.int64))[0]
+    used = np.array([k for k, p in enumerate(detection.edge_points) if len(p)], np.int64)
+    return _correct(detection.edge_points, board, camera, None, used, drop_uninvertible=True)[0]
 
 
 def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
-             conics: np.ndarray | None, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             conics: np.ndarray | None, used: np.ndarray, *, drop_uninvertible: bool = False
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centres (N, 2) in the observed image (NaN for points not in ``used``), conics (N, 3, 3) in the undistorted
     image (NaN likewise), H board -> undistorted image, from the ``edge_points`` (N lists of (M_k, 2) px, board
     order, observed image) of the board points ``used`` (K,). ``conics``: (K, 3, 3) the ellipses already fitted
-    to those edge points (observed image), reused when there is no distortion to remove. Raises ``ValueError`` when
-    an ellipse cannot be fitted or no board homography fits the centres. A fisheye ``camera``: the centres from
+    to those edge points (observed image), reused when there is no distortion to remove. ``drop_uninvertible``: a
+    dot whose rim a pinhole ``camera``'s distortion cannot invert everywhere is left out (NaN) instead of fitted.
+    Raises ``ValueError`` when an ellipse cannot be fitted or no board homography fits the centres. A fisheye ``camera``: the centres from
     :func:`~circcal.detector.centre.correct_centres_on_rays`, the conics those given (observed image; else NaN) and
     H board -> rays."""
     N = board.n_points
@@ -427,7 +427,11 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
             return centres, all_conics, H
         if distorted:
             P[M] = undistort_pixels(P[M], camera)
-            M &= np.isfinite(P[..., 0]) & np.isfinite(P[..., 1])
+            finite = np.isfinite(P[..., 0]) & np.isfinite(P[..., 1])
+            if drop_uninvertible:
+                keep = ~np.any(M & ~finite, axis=1)
+                P, M, finite, used, obj = P[keep], M[keep], finite[keep], used[keep], obj[keep]
+            M &= finite
         conics, err = fit_ellipses_direct(P, M)
         if np.any(err):
             i = int(np.argmax(err != 0))
