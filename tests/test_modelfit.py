@@ -10,7 +10,7 @@ import pytest
 from circcal.board import Board
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
-from circcal.solver.modelfit import MIN_EFFECT_PX, model_fit, neighbour_noise
+from circcal.solver.modelfit import MIN_EFFECT_PX, chi2_survival_even, model_fit, neighbour_noise
 
 
 def _calibrate(scenario: str, variant: str, lens: str):
@@ -67,3 +67,20 @@ def test_right_model_is_not_flagged(scenario, variant):
     cal, _ = _calibrate(scenario, variant, "opencv5")
     fit = model_fit(cal.result)
     assert fit.fits, fit.message()
+
+
+@pytest.mark.parametrize("k", [2, 4, 8, 16])
+def test_chi2_survival_equals_scipy(k):
+    """The Poisson-sum survival function equals scipy.special.chdtrc to 1e-12 relative, from the bulk to p ~ 1e-30
+    (the rule compares p with 1e-6), and is 1 at x <= 0."""
+    from scipy.special import chdtrc
+
+    for x in np.concatenate([np.linspace(0.01, 3 * k, 40), [50.0, 100.0, 150.0]]):
+        want = float(chdtrc(k, x))
+        assert chi2_survival_even(k, float(x)) == pytest.approx(want, rel=1e-12, abs=1e-300)
+    assert chi2_survival_even(k, 0.0) == 1.0 and chi2_survival_even(k, -1.0) == 1.0
+
+
+def test_chi2_survival_refuses_odd_dof():
+    with pytest.raises(ValueError, match="even"):
+        chi2_survival_even(3, 1.0)
