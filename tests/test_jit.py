@@ -27,7 +27,7 @@ def _run(code: str, **env: str) -> str:
 
 
 @needs_build
-def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy_linalg(tmp_path):
+def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy(tmp_path):
     code = ("import sys, numpy as np\n"
             "from circcal.detector import jit\n"
             "from circcal.detector.find import detect\n"
@@ -36,11 +36,23 @@ def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy_linal
             "    d = detect(im, board)\n"
             "    assert d.found\n"
             f"np.save({str(tmp_path / 'aot.npy')!r}, d.centres)\n"
-            "print('numba' in sys.modules, 'scipy.linalg' in sys.modules)\n")
-    assert _run(code).split() == ["False", "False"]
+            "print('numba' in sys.modules, 'scipy.linalg' in sys.modules, 'scipy.special' in sys.modules)\n")
+    assert _run(code).split() == ["False", "False", "False"]
     # the same centres as numba's JIT, to the bit
     _run(code.replace("aot.npy", "jit.npy").replace("print(", "# "), CIRCCAL_AOT="0")
     assert np.array_equal(np.load(tmp_path / "aot.npy"), np.load(tmp_path / "jit.npy"))
+
+
+@needs_build
+def test_the_stored_curvature_table_is_the_computed_one(tmp_path):
+    from circcal.detector import curvature
+
+    assert np.array_equal(curvature._shift_table(), curvature._computed_table())
+    path = curvature.store_table(tmp_path)
+    assert path.parent == tmp_path and np.array_equal(np.load(path), curvature._computed_table())
+    (tmp_path / "curvature-table_0000000000000000.npy").write_bytes(b"")   # an older source's table: removed
+    curvature.store_table(tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
 
 
 @needs_build

@@ -3,16 +3,20 @@ the true edge (by ~ sigma_t^2 / (2 rho) for a radius of curvature rho much large
 module says by how much.
 
 The model is exact for a disk blurred by a Gaussian (:func:`_half_level_radius`), applied locally with the
-ellipse's osculating circle; the shift is tabulated once (:func:`_shift_table`, built on first use: scipy.special is
-imported only then) and interpolated.
+ellipse's osculating circle; the shift is tabulated once (:func:`_shift_table`) and interpolated. The table is
+computed with scipy.special (~0.14 s to import, a fifth of a one-image ``circcal detect``) only where no stored copy
+of it exists: ``make setup`` stores it beside the detector's compiled kernels (:func:`store_table`, run by
+:func:`circcal.detector.jit.build`), named after a hash of this module's source, so an edited model is computed
+afresh until the next build.
 """
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["curvature_shift"]
+__all__ = ["curvature_shift", "store_table"]
 
 U_TABLE = np.geomspace(1.2, 60.0, 400)
 """Radii of curvature (in units of the blur sigma) the shift is tabulated at: from just above where a blurred disk
@@ -46,11 +50,47 @@ def _half_level_radius(u: np.ndarray) -> np.ndarray:
     return np.where(u > np.sqrt(2.0 * np.log(2.0)) + 1e-9, v, np.nan)
 
 
+def _computed_table() -> np.ndarray:
+    """(len(U_TABLE),) the shift ``u - v(u)`` (in blur sigmas) from the half-level contour of a blurred disk of radius
+    u to its edge, at :data:`U_TABLE`, computed (scipy.special)."""
+    return U_TABLE - _half_level_radius(U_TABLE)
+
+
+def _stored_path(directory: Path | None = None) -> Path:
+    """Where :func:`store_table` keeps the table: the compiled kernels' folder, named after this module's source."""
+    from circcal.detector import jit
+
+    return (jit.AOT_DIR if directory is None else directory) / f"curvature-table_{jit._module_key(__name__)}.npy"
+
+
+def store_table(directory: Path | None = None) -> Path:
+    """Compute the shift table and store it (``.npy``) where :func:`_shift_table` looks for it; returns the path.
+    Older tables (of other sources) in that folder are removed."""
+    path = _stored_path(directory)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for old in path.parent.glob("curvature-table_*.npy"):
+        if old != path:
+            old.unlink()
+    tmp = path.with_suffix(".tmp.npy")
+    np.save(tmp, _computed_table())
+    tmp.replace(path)   # a reader never sees half a file
+    return path
+
+
 @functools.lru_cache(maxsize=1)
 def _shift_table() -> np.ndarray:
     """(len(U_TABLE),) read-only: the shift ``u - v(u)`` (in blur sigmas) from the half-level contour of a blurred
-    disk of radius u to its edge, at :data:`U_TABLE` (built once, on first use)."""
-    table = U_TABLE - _half_level_radius(U_TABLE)
+    disk of radius u to its edge, at :data:`U_TABLE`: the stored copy of the current source's table where there is
+    one (:func:`store_table`; the same values to the bit), else computed once, on first use."""
+    table = None
+    try:
+        stored = np.load(_stored_path(), allow_pickle=False)
+        if stored.shape == U_TABLE.shape and stored.dtype == np.float64:
+            table = stored
+    except (OSError, ValueError):
+        pass
+    if table is None:
+        table = _computed_table()
     table.flags.writeable = False
     return table
 

@@ -283,6 +283,9 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
     pycc_compiler.Flags = _NoGilFlags
     out_dir.mkdir(parents=True, exist_ok=True)
     done: dict[str, list[str]] = {}
+    from circcal.detector.curvature import store_table  # the curvature model's table: no scipy import at start-up
+
+    store_table(out_dir)
     for module, kernels in _registry.items():
         name = _aot_name(module)
         if not force and out_dir == AOT_DIR and (out_dir / f"{name}.json").is_file():
