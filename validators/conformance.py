@@ -173,10 +173,7 @@ def scenario_lens(scenario: str) -> str:
 
 #: case id -> reason: cases that fail a bar today for a measured, understood cause; pytest marks them
 #: xfail(strict=True), so one that starts passing is reported too.
-KNOWN_FAILURES: dict[str, str] = {
-    "fisheye-perturbed-opencv": "cv2.fisheye.calibrate (validators/opencv.py) diverges on these views: RMS per point "
-                                "3856 px (clean: it agrees with circcal to 2e-8 px)",
-}
+KNOWN_FAILURES: dict[str, str] = {}
 
 #: (scenario, reference) -> a word the "unsupported" message must contain.
 EXPECTED_UNSUPPORTED: dict[tuple[str, str], str] = {("asymmetric", "mrcal"): "asymmetric"}

@@ -4,10 +4,17 @@
 * Solver, by lens model (``lens=``): ``opencv5`` 5 distortion coefficients (k1, k2, p1, p2, k3; OpenCV's default),
   ``rational`` ``CALIB_RATIONAL_MODEL`` (8), ``thin-prism`` ``CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL`` (12),
   all through calibrateCameraExtended (standard deviations from it); ``fisheye`` ``cv2.fisheye.calibrate`` with
-  ``CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW`` (k1-k4, skew held 0; it gives no standard deviations). Optionally
-  k3 fixed (``fix_k3=True``, ``CALIB_FIX_K3``), tight criteria. calibrateCamera takes float32 points: the
-  observations are rounded to float32 and the result records the rounded values it actually used (feed
-  float32-representable centres when comparing solvers to 1e-6 px); cv2.fisheye takes float64 ``(1, N, 3)``
+  ``CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW`` (k1-k4, skew held 0; it gives no standard deviations), started
+  with ``CALIB_USE_INTRINSIC_GUESS`` from the generic equidistant seed that pycolmap's fisheye also starts from
+  (:func:`circcal.validators.base.seed_camera`: f from a sweep over max(w, h) / pi scored by PnP reprojection,
+  principal point at the image centre, k1-k4 = 0; computed from the observations alone, nothing of circcal's
+  solve). Why: OpenCV 5's own start (``modules/calib/src/fisheye.cpp``: f = max(w, h) / 2, where OpenCV 4 had
+  max(w, h) / pi) is 1.5x the focal length of a ~170 deg lens; from it the first Gauss-Newton step (no line search:
+  the step is only scaled by 1 - 0.6^(iter+1)) lands at a false point (RMS 38 px on the ``fisheye`` scenario's
+  views) that every later iteration leaves unchanged. Optionally k3 fixed (``fix_k3=True``, ``CALIB_FIX_K3``),
+  tight criteria. calibrateCamera takes float32 points: the observations are rounded to float32 and the result
+  records the rounded values it actually used (feed float32-representable centres when comparing solvers to
+  1e-6 px); cv2.fisheye takes float64 ``(1, N, 3)``
   arrays (``(N, 1, 3)`` raises a size error in OpenCV 5.0), given the same float32-rounded values.
   ``CALIB_DISABLE_SCHUR_COMPLEMENT`` is never used: in OpenCV 5 it equals ``CALIB_TILTED_MODEL``.
 * "fair" and "default" are the same estimator here (OpenCV has no regularisation, warp or outlier rejection).
@@ -25,7 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from circcal.model import LENS_MODELS, Camera, param_names
-from circcal.validators.base import BaseCalibrator, ReferenceResult
+from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
 
 __all__ = ["OpenCVCalibrator", "make_blob_detector", "find_circles_grid"]
 
@@ -108,7 +115,8 @@ LENS_FLAGS: dict[str, str] = {
     "opencv5": "0 (the default 5 coefficients)",
     "rational": "CALIB_RATIONAL_MODEL",
     "thin-prism": "CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL",
-    "fisheye": "cv2.fisheye.calibrate with CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW",
+    "fisheye": "cv2.fisheye.calibrate with CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW, CALIB_USE_INTRINSIC_GUESS "
+               "from the equidistant seed (base.seed_camera)",
 }
 
 
@@ -202,7 +210,9 @@ class OpenCVCalibrator(BaseCalibrator):
         try:
             if lens == "fisheye":
                 if K0 is None:
-                    K0, d0 = np.eye(3), np.zeros((4, 1))
+                    flags |= cv2.CALIB_USE_INTRINSIC_GUESS
+                    seed = seed_camera(object_points, image_points, size, lens="fisheye")
+                    K0, d0 = seed.K.copy(), seed.dist.copy()
                 try:
                     rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
                         [o.reshape(1, -1, 3).astype(np.float64) for o in obj32],
