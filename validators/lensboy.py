@@ -10,8 +10,18 @@ model and splined pinhole models, no equidistant one).
 
 Modes
 -----
-* ``"fair"``: ``estimate_target_warp=False, outlier_threshold_stddevs=None``: plain least squares over the rigid
-  board, the estimator of cv2.calibrateCamera and of circcal.
+* ``"fair"``: ``estimate_target_warp=False, outlier_threshold_stddevs=None``: plain least squares over the rigid board,
+  the estimator of cv2.calibrateCamera and of circcal. It stops short of the minimum, and no option lensboy exposes
+  changes that: its Ceres solve (``lensboy_bindings.calibrate_opencv``; source ``cpp_src/calibrate_opencv.cpp`` of
+  Robertleoj/lensboy: plain squared residuals, no loss function, the board warp applied only when estimated; the 4.0.3
+  binary holds only the warped cost function, ``ReprojectionError<2, 18, 6, 3, 5>``, the source read is a later
+  revision) keeps Ceres's default tolerances, and Ceres ends a solve without taking a step that would lower the cost by
+  at most :data:`CERES_FUNCTION_TOLERANCE` (1e-6) of it. On the flat directions of a distortion fit that leaves it
+  1.6e-4 .. 5.6e-3 px from circcal's solution while its own cost exceeds circcal's by 2.8e-9 .. 7.8e-7 (relative, on
+  lensboy's own objective; 12 circle-board scenario-lenses): circcal's solution is the lower point of lensboy's
+  objective, and lensboy started there stays there (tests/test_lens_references.py). Restarted from its answer it takes
+  no step; from its answer with f moved by 1e-5 .. 1e-3 it stops 1.3e-3 .. 2.9e-3 px away again (rational-wide). Hence
+  ``SOLVER_LENSBOY_PX``.
 * ``"default"``: lensboy's defaults: a Legendre-polynomial board warp (a, b, c, d, e along the board normal) and
   outlier filtering (5 robust sigma of the residual norm, two passes). Its residuals are lensboy's own (warped
   board; outliers NaN), as mrcal's default mode reports them; a view lensboy drops entirely is left out of ``views``.
@@ -27,7 +37,7 @@ from __future__ import annotations
 import contextlib
 import io
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,12 +45,30 @@ from circcal.model import Camera, param_names
 from circcal.observations import distinct_points
 from circcal.validators.base import BaseCalibrator, ReferenceResult
 
-__all__ = ["LensboyCalibrator", "COEFFICIENTS", "INSTALL_HINT"]
+if TYPE_CHECKING:
+    import lensboy
+
+__all__ = ["LensboyCalibrator", "COEFFICIENTS", "INSTALL_HINT", "CERES_FUNCTION_TOLERANCE", "to_lensboy"]
 
 #: OpenCV's 14-vector order, as lensboy's ``K1, K2, P1, P2, K3, K4, K5, K6, S1, S2, S3, S4, TX, TY``
 COEFFICIENTS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+#: lensboy's stopping rule in fair mode: Ceres's default ``function_tolerance`` (lensboy's
+#: ``cpp_src/calibrate_opencv.cpp`` sets only ``max_num_iterations = 200`` and ``use_nonmonotonic_steps``). Ceres ends
+#: the solve, without taking the step, when the step would lower the cost by at most this fraction of the cost
+#: (what lensboy 4.0.3 is measured to do: tests/test_lens_references.py).
+CERES_FUNCTION_TOLERANCE = 1e-6
 INSTALL_HINT = ("pip install --no-deps lensboy (its declared opencv-contrib-python would replace the "
                 "opencv-contrib-python-headless that provides cv2)")
+
+
+def to_lensboy(camera: Camera) -> lensboy.OpenCV:
+    """``camera`` (opencv5, rational or thin-prism) as a ``lensboy.OpenCV``: the same intrinsics, its coefficients
+    placed in lensboy's 14-vector (OpenCV's order; the absent ones 0)."""
+    import lensboy as lb
+
+    d = dict(zip(param_names(camera.lens)[4:], camera.dist))
+    return lb.OpenCV(image_width=camera.width, image_height=camera.height, fx=camera.fx, fy=camera.fy,
+                     cx=camera.cx, cy=camera.cy, distortion_coeffs=np.array([d.get(c, 0.0) for c in COEFFICIENTS]))
 
 
 def _coefficient_mask(lens: str) -> np.ndarray:
@@ -90,9 +118,7 @@ class LensboyCalibrator(BaseCalibrator):
         if initial is not None:
             if initial.lens != self.lens:
                 raise ValueError(f"initial camera has lens {initial.lens!r}, this reference fits {self.lens!r}")
-            d = dict(zip(param_names(self.lens)[4:], initial.dist))
-            init = lb.OpenCV(image_width=w, image_height=h, fx=initial.fx, fy=initial.fy, cx=initial.cx,
-                             cy=initial.cy, distortion_coeffs=np.array([d.get(c, 0.0) for c in COEFFICIENTS]))
+            init = to_lensboy(initial)
         fair = mode == "fair"
         log = io.StringIO()
         try:
