@@ -7,8 +7,9 @@ true camera over the whole imager with the implied rotation fitted
 (:func:`circcal.validators.compare.projection_diff`, the conformance suite's truth check). Reprojection errors in
 the three conventions (:mod:`circcal.metrics`): ``rms_per_point_px`` (OpenCV), ``rms_per_coord_px`` (mrcal),
 ``mean_2d_px`` (the paper). ``time_s``: the run's own calibration time (a batched solve: the batch's time / its
-size); ``fixture_s``: the time to render the fixture the run used (shared by the runs of one render; 0 for
-observations runs). Missing numbers are NaN, missing counts -1, so every column keeps one type.
+size); ``fixture_s``: the time to render the fixture the run used (shared by the runs of one render; a
+``vary: noise`` seed's render starts from the views' noise-free render kept by the worker,
+:func:`circcal.study.seeded.geometry`, so it is the noise and the files; 0 for observations runs). Missing numbers are NaN, missing counts -1, so every column keeps one type.
 """
 from __future__ import annotations
 

@@ -11,24 +11,33 @@ Either way the seed equal to the scenario's own reproduces its catalogue fixture
 :func:`circcal.fixtures.scenarios.fixture_dir`'s cache applies). Rendering needs only the catalogue, which every
 worker has with circcal installed: no shared file system. :func:`rendered` renders into a private temporary folder,
 or, with ``cache``, into the content-hash cache (``cache_root()/study``), once per machine.
+
+The seeds of a ``vary: noise`` cell differ only in their noise: each worker process renders the views' noise-free
+images once (:func:`geometry`, an ``lru_cache`` of :data:`GEOMETRY_CACHE_SIZE` geometries keyed by
+:meth:`circcal.fixtures.scenarios.Scenario.geometry_spec`) and adds every seed's perturbations to them, the same draw
+as before, so the images are the same bit for bit (tests/test_study_geometry_cache.py); on ``paper`` this is ~80 % of
+a seed's render.
 """
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 import tempfile
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 from filelock import FileLock
 
-from circcal.fixtures.scenarios import Scenario, cache_root, fixture_dir, get_scenario, render_fixture
+from circcal.fixtures.scenarios import (Scenario, ViewGeometry, cache_root, fixture_dir, get_scenario, render_fixture,
+                                        render_geometry)
 from circcal.study.spec import VARY
 
-__all__ = ["SeededScenario", "rendered", "seeded_scenario"]
+__all__ = ["GEOMETRY_CACHE", "GEOMETRY_CACHE_SIZE", "SeededScenario", "geometry", "rendered", "seeded_scenario"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,51 @@ class SeededScenario(Scenario):
             out["pose_seed"] = self.pose_seed
         return out
 
+    def geometry_spec(self) -> dict[str, Any]:
+        """The catalogue's geometry spec with the seed the poses come from (so every seed of a ``vary: noise``
+        cell has the same one: one noise-free render serves them all)."""
+        out = super().geometry_spec()
+        out.pop("pose_seed", None)
+        out["seed"] = self.seed if self.pose_seed is None else self.pose_seed
+        return out
+
+
+#: Noise-free renders (:func:`circcal.fixtures.scenarios.render_geometry`) kept per worker process, most recently
+#: used first: a ``vary: noise`` cell's seeds share one (the paper's 14 views at 1920x1080: ~0.26 GB), so two
+#: cells' scenarios interleaved on a worker each keep theirs.
+GEOMETRY_CACHE_SIZE = 2
+#: Whether :func:`rendered` uses :func:`geometry` (False: every seed renders its views again; the same images).
+GEOMETRY_CACHE = True
+
+
+class _GeometryKey:
+    """A scenario, hashed and compared by its geometry spec (what :func:`_geometry` is cached on)."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.key = json.dumps(scenario.geometry_spec(), sort_keys=True, default=str)
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _GeometryKey) and other.key == self.key
+
+
+@lru_cache(maxsize=GEOMETRY_CACHE_SIZE)
+def _geometry(key: _GeometryKey) -> tuple[ViewGeometry, ...]:
+    return render_geometry(key.scenario)
+
+
+def geometry(scenario: Scenario) -> tuple[ViewGeometry, ...]:
+    """The noise-free render of ``scenario``'s views, rendered once per worker process and geometry spec
+    (:data:`GEOMETRY_CACHE_SIZE` kept); ``geometry.cache_clear()`` / ``cache_info()`` reach the cache."""
+    return _geometry(_GeometryKey(scenario))
+
+
+geometry.cache_clear = _geometry.cache_clear  # type: ignore[attr-defined]
+geometry.cache_info = _geometry.cache_info  # type: ignore[attr-defined]
+
 
 def seeded_scenario(name: str, seed: int, vary: str = "noise") -> SeededScenario:
     """Scenario ``name`` of the catalogue under study seed ``seed`` (see the module docstring)."""
@@ -67,12 +121,19 @@ def rendered(scenario: SeededScenario, variants: Sequence[str], *, cache: bool =
     """Folders (variant -> folder with the images and truth.json) of ``scenario``'s ``variants``, rendered on this
     machine. Without ``cache``: a temporary folder, removed when the block ends. With ``cache``: the catalogue's
     cache when the seeded scenario is the catalogue's own, else ``cache_root()/study/<name>-<variant>-<key>``
-    (rendered once per machine under a lock, folders placed atomically)."""
+    (rendered once per machine under a lock, folders placed atomically). A ``vary: noise`` scenario (poses pinned by
+    ``pose_seed``) starts from its noise-free render kept in this process (:func:`geometry`, when
+    :data:`GEOMETRY_CACHE`): the same images, bit for bit, without rendering the views again for every seed."""
     variants = list(variants)
+
+    def render(out: Path, which: list[str]) -> dict[str, Path]:
+        reuse = GEOMETRY_CACHE and scenario.pose_seed is not None
+        return render_fixture(scenario, out, which, progress=False, geometry=geometry(scenario) if reuse else None)
+
     if not cache:
         tmp = Path(tempfile.mkdtemp(prefix=f"circcal-study-{scenario.name}-"))
         try:
-            yield render_fixture(scenario, tmp, variants, progress=False)
+            yield render(tmp, variants)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         return
@@ -88,7 +149,7 @@ def rendered(scenario: SeededScenario, variants: Sequence[str], *, cache: bool =
         if missing:  # rendered together (the geometry is shared), each folder then renamed into place whole
             tmp = Path(tempfile.mkdtemp(prefix=f".{scenario.name}-", dir=root))
             try:
-                for v, d in render_fixture(scenario, tmp, missing, progress=False).items():
+                for v, d in render(tmp, missing).items():
                     shutil.rmtree(dirs[v], ignore_errors=True)
                     d.replace(dirs[v])
             finally:
