@@ -270,6 +270,13 @@ def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
     wc = _bspline3_weights(c - fc)
     ir, ic = int(fr) - 1, int(fc) - 1
     out = 0.0
+    if ir >= 0 and ic >= 0 and ir + 3 < R and ic + 3 < C:   # no mirror reached (all samples in their crop's box):
+        for i in range(4):                                 # the same sums without the index reflections
+            acc = 0.0
+            for j in range(4):
+                acc += wc[j] * atlas[ir + i, ic + j]
+            out += wr[i] * acc
+        return out
     for i in range(4):
         row = _mirror(ir + i, R)
         acc = 0.0
