@@ -55,12 +55,14 @@ def main(argv: list[str]) -> int:
     for name in names:
         mod = importlib.import_module(f"benchmarks.{name}")
         print(f"[bench] {name} ...", flush=True)
+        t0 = time.perf_counter()
         try:
             results[name] = mod.run()
         except Exception as exc:  # noqa: BLE001 - a failing benchmark is reported with its traceback
             failed = True
             results[name] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}",
                              "traceback": traceback.format_exc()}
+        results[name]["bench_wall_s"] = round(time.perf_counter() - t0, 1)  # the module's own run, to plan a rerun
         for k, v in results[name].items():
             if k != "traceback":
                 print(f"    {k}: {_fmt(v)}")
