@@ -457,6 +457,20 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
         assert np.allclose(Qs[k], Q, rtol=0, atol=1e-10)
 
 
+def test_guided_filter_is_opencvs_to_float32_rounding():
+    from circcal.detector.jit import synthetic_board
+    from circcal.detector.segment import GUIDED_EPS, guided_filter
+
+    board_img, _ = synthetic_board()
+    noise = np.random.default_rng(0).integers(0, 256, (480, 640), dtype=np.uint8)
+    for img, share in ((board_img, 1e-3), (noise, 1e-2), (np.full((40, 50), 77, np.uint8), 0.0)):
+        for radius in (2, 3, 5):
+            g = img.astype(np.float32) * np.float32(1.0 / 255.0)
+            ref = cv2.convertScaleAbs(cv2.ximgproc.guidedFilter(g, g, radius, GUIDED_EPS), alpha=255.0)
+            d = np.abs(guided_filter(img, radius, GUIDED_EPS).astype(int) - ref)
+            assert d.max() <= 1 and np.count_nonzero(d) <= share * d.size
+
+
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):
     from circcal.detector import find
 
