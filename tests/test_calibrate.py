@@ -7,8 +7,9 @@ import pytest
 from circcal.board import Board
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.solver import calibrate
-from circcal.solver.lm import normal_blocks, schur_step
-from circcal.solver.problem import Problem
+from circcal.solver.lm import schur_step
+from circcal.solver import problem
+from circcal.solver.problem import Problem, board_model
 from circcal.model import PARAM_NAMES, Camera, project_jacobian, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
 from circcal.fixtures.poses import sample_poses
 
@@ -98,14 +99,44 @@ def test_is_the_least_squares_minimum(seed, k1, cv2_single_thread):
     np.testing.assert_allclose(res.camera.intrinsics[:4], ref[:4], rtol=1e-8)
     prob = Problem(obj, img, ref, list(range(9)), None)
     x = prob.pack(ref, rv, tv)
-    starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
     for _ in range(4):
-        f, _, Ji, Jp = prob.evaluate(x)
-        x = x + schur_step(*normal_blocks(prob, f, Ji, Jp, starts), 0.0)
+        x = x + schur_step(*prob.normal_equations(x)[1], 0.0)
     polished = prob.intrinsics(x)
     scale = np.maximum(np.abs(polished), 1e-3)
     assert np.max(np.abs(polished - res.camera.intrinsics) / scale) < 1e-9
     assert max_projection_difference(Camera.from_intrinsics(W, H, polished), res.camera) <= 1e-8
+
+
+@pytest.mark.parametrize("refine,drop", [(False, 0.0), (False, 0.2), (True, 0.2)], ids=["equal", "partial", "board"])
+def test_normal_equations_equal_the_whole_jacobians(refine, drop, monkeypatch):
+    """The normal equations assembled chunk by chunk (several chunks, views of unequal point counts, board columns)
+    equal J^T J and J^T f of the whole Jacobian, and the residual-only pass gives the Jacobian pass's residuals to
+    the bit."""
+    monkeypatch.setattr(problem, "EVALUATE_CHUNK", 100)
+    obj, img, poses = synthetic(drop=drop)
+    prob = Problem(obj, img, TRUE.intrinsics, list(range(9)), None, board_model(obj, None) if refine else None)
+    assert len(prob.chunks) > 3
+    rng = np.random.default_rng(1)
+    x = prob.pack(TRUE.intrinsics, np.array([r for r, _ in poses]), np.array([t for _, t in poses]))
+    x = x * (1.0 + 1e-4 * rng.standard_normal(x.size))
+    f, Xc, Jg, Jp = prob.evaluate(x)
+    fr, Xcr = prob.residuals(x)
+    fn, (A, gi, B, D, gp) = prob.normal_equations(x)
+    assert np.array_equal(fr, f) and np.array_equal(fn, f) and np.array_equal(Xcr, Xc)
+    J = np.zeros((len(f), prob.n))
+    J[:, : prob.ng] = Jg.reshape(-1, prob.ng)
+    for v in range(prob.n_views):
+        rows = np.repeat(prob.view == v, 2)
+        J[rows, prob.ng + 6 * v: prob.ng + 6 * v + 6] = Jp.reshape(-1, 6)[rows]
+    JtJ, g = J.T @ J, J.T @ f
+    scale = np.max(np.abs(JtJ))
+    np.testing.assert_allclose(A, JtJ[: prob.ng, : prob.ng], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(gi, g[: prob.ng], rtol=1e-10, atol=1e-12 * np.max(np.abs(g)))
+    for v in range(prob.n_views):
+        p = slice(prob.ng + 6 * v, prob.ng + 6 * v + 6)
+        np.testing.assert_allclose(B[v], JtJ[: prob.ng, p], rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(D[v], JtJ[p, p], rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(gp[v], g[p], rtol=0, atol=1e-12 * np.max(np.abs(g)))
 
 
 def test_scipy_least_squares_reaches_the_same_model():

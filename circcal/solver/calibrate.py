@@ -221,7 +221,7 @@ def calibrate(
         prob = Problem(obj, img, intr, free, aspect, board, lens)
         x, n_iter2, converged, message = solve(prob, prob.pack(intr, rvecs, tvecs), max_iterations, solver)
         n_iter += n_iter2
-    f, Xc, _, _ = prob.evaluate(x)
+    f, Xc = prob.residuals(x)
     p = prob.intrinsics(x)
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
         raise CalibrationError("the solver diverged (non-finite parameters or residuals); check the point "

@@ -22,8 +22,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from circcal.solver.lm import blocks_at
-
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
@@ -91,7 +89,7 @@ def state_covariance(prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, 
     the solver already inverted (None when it is not finite: the information matrix was singular)."""
     if not np.all(np.isfinite(cov_global_unit)):
         return None
-    _, _, B, D, _ = blocks_at(prob, x)[1]
+    _, _, B, D, _ = prob.normal_equations(x)[1]
     D_inv = np.linalg.inv(D)                                                    # (V, 6, 6)
     return StateCovariance(S_inv=cov_global_unit, M=D_inv @ np.transpose(B, (0, 2, 1)), D_inv=D_inv,
                            intrinsics_map=prob.T.copy(), n_board=int(prob.nb), sigma_px=float(sigma_px))

@@ -16,8 +16,8 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["normal_blocks", "blocks_at", "schur_complement", "global_information", "schur_step", "quadratic_form",
-           "levenberg_marquardt", "solve", "is_sane"]
+__all__ = ["schur_complement", "global_information", "schur_step", "quadratic_form", "levenberg_marquardt", "solve",
+           "is_sane"]
 
 #: Marquardt damping ``lambda`` (times diag(J^T J)) at the start; measured best here: the closed-form start is near
 #: the minimum, so the first steps are nearly Gauss-Newton's (22 -> 11-13 evaluations on 14 views).
@@ -42,53 +42,8 @@ GRADIENT_TOL = 1e-6
 GRADIENT_FLOOR = 1e-12
 
 
-def normal_blocks(prob: Problem, f: np.ndarray, J: np.ndarray, J_pose: np.ndarray | None = None,
-                  starts: np.ndarray | None = None):
-    """Blocks of J^T J and J^T f from residuals ``f`` (2N,) and :meth:`Problem.evaluate_stacked`'s ``J``
-    (N, 2, ng + 6) (or :meth:`Problem.evaluate`'s two parts ``J`` (N, 2, ng) and ``J_pose`` (N, 2, 6), joined
-    here; ``starts`` is accepted for older callers and unused): A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6),
-    gp (V, 6). Each view's rows touch only the global block and its own pose, so each view's (ng + 6)-square block
-    is one product; all views are multiplied in one batched call (views with equal point counts are a free reshape
-    of ``J``; others are gathered by count)."""
-    if J_pose is not None:
-        J = np.concatenate([J, J_pose], axis=2)
-    ng, K = prob.ng, J.shape[2]
-    V = prob.n_views
-    if prob.uniform:
-        Jv = J.reshape(V, -1, K)
-        Jt = np.transpose(Jv, (0, 2, 1))
-        G = Jt @ Jv
-        g = (Jt @ f.reshape(V, -1, 1))[:, :, 0]
-    else:
-        starts = np.concatenate([[0], np.cumsum(prob.counts)[:-1]])
-        fc = f.reshape(-1, 2)
-        G = np.empty((V, K, K))
-        g = np.empty((V, K))
-        for c in np.unique(prob.counts):
-            views = np.flatnonzero(prob.counts == c)
-            rows = (starts[views][:, None] + np.arange(c)[None, :]).ravel()
-            Jv = J[rows].reshape(len(views), 2 * c, K)
-            Jt = np.transpose(Jv, (0, 2, 1))
-            G[views] = Jt @ Jv
-            g[views] = (Jt @ fc[rows].reshape(len(views), 2 * c, 1))[:, :, 0]
-    return G[:, :ng, :ng].sum(axis=0), g[:, :ng].sum(axis=0), G[:, :ng, ng:], G[:, ng:, ng:], g[:, ng:]
-
-
-def blocks_at(prob: Problem, x: np.ndarray):
-    """``(f, normal_blocks)`` at ``x``, kept for the last x asked (the solver's last step, the convergence test,
-    the information and the covariance all ask at the solution)."""
-    key = x.tobytes()
-    cached = getattr(prob, "_blocks_cache", None)
-    if cached is not None and cached[0] == key:
-        return cached[1], cached[2]
-    f, _, J = prob.evaluate_stacked(x)
-    blocks = normal_blocks(prob, f, J)
-    prob._blocks_cache = (key, f, blocks)
-    return f, blocks
-
-
 def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :func:`normal_blocks`; also returns
+    """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :meth:`Problem.normal_equations`; also returns
     ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution."""
     ng, V = A.shape[0], len(D)
     Dinv_Bt = np.linalg.solve(D, np.transpose(B, (0, 2, 1)))
@@ -99,7 +54,7 @@ def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
     """Schur complement (ng, ng) of the pose blocks in J^T J at ``x``: the information on the free intrinsics (and
     board coordinates) with the poses marginalised."""
-    A, _, B, D, _ = blocks_at(prob, x)[1]
+    A, _, B, D, _ = prob.normal_equations(x)[1]
     S = schur_complement(A, B, D)[0]
     return 0.5 * (S + S.T)
 
@@ -130,7 +85,9 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
 
     Each iteration forms ``J^T J`` blockwise (global block A: intrinsics and any board coordinates; per-view
     coupling B_v and 6x6 pose blocks D_v), damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
-    like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes.
+    like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. A trial
+    step is judged by its cost alone (:meth:`Problem.residuals`: a rejected one costs no Jacobian); the normal
+    equations are formed only at the points taken (:meth:`Problem.normal_equations`).
     Stopping: once the damping is negligible (lambda <= :data:`LAMBDA_GAUSS_NEWTON`, the step is Gauss-Newton's) and
     the step's predicted decrease of the cost (from the local quadratic model, exact to rounding even where the cost
     itself is not) is below :data:`TRUST_MODEL_REL` of the cost, the cost can no longer rank steps and the model is
@@ -143,7 +100,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     """
     ng = prob.ng
     x = x0.copy()
-    f = prob.evaluate_stacked(x)[0]
+    f = prob.residuals(x)[0]
     cost = float(f @ f)
     lam = LAMBDA_START
     it = 0
@@ -151,7 +108,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     last_trusted = np.inf
     while it < max_iterations and not (done or stalled):
         it += 1
-        A, gi, B, D, gp = blocks = blocks_at(prob, x)[1]
+        A, gi, B, D, gp = blocks = prob.normal_equations(x)[1]
         while True:
             step = schur_step(*blocks, lam)
             if not np.all(np.isfinite(step)):
@@ -169,7 +126,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             # last step: at rounding level, or the model's decrease stopped shrinking (no progress left to make)
             final = trusted and (predicted <= FINAL_STEP_REL * cost or predicted >= last_trusted)
             x_new = x + step
-            f_new = prob.evaluate_stacked(x_new)[0]
+            f_new = prob.residuals(x_new)[0]  # the cost only: a rejected trial costs no Jacobian
             cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
             if cost_new < cost or (trusted and cost_new <= cost * (1.0 + COST_ROUNDING_REL)):
                 x, f, cost = x_new, f_new, cost_new
@@ -181,11 +138,10 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             if lam > LAMBDA_MAX:
                 stalled = True
                 break
-    prob.evaluate_stacked(x)  # the problem's kept evaluation is the solution's (a rejected trial may be the last)
     if not (done or stalled):
         return x, it, False, f"iteration limit {max_iterations} reached"
     # Converged if the scaled gradient is negligible at the final point.
-    A, gi, B, D, gp = blocks_at(prob, x)[1]
+    A, gi, B, D, gp = prob.normal_equations(x)[1]
     scale = np.sqrt(np.concatenate([np.diag(A), np.diagonal(D, axis1=1, axis2=2).ravel()]))
     g = np.concatenate([gi, gp.ravel()]) / np.maximum(scale, 1e-300)
     ok = bool(np.max(np.abs(g)) <= GRADIENT_TOL * np.sqrt(cost) + GRADIENT_FLOOR)
@@ -205,7 +161,6 @@ def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tu
         sol = least_squares(prob.fun, x0, jac=prob.jac, method="trf", x_scale="jac", ftol=1e-15, xtol=1e-15,
                             gtol=1e-15, max_nfev=max_iterations, tr_solver="lsmr",
                             tr_options={"atol": 1e-15, "btol": 1e-15, "maxiter": 10 * prob.n})
-    prob.evaluate(sol.x)
     return sol.x, int(sol.njev if sol.njev is not None else sol.nfev), bool(sol.status > 0), str(sol.message)
 
 
@@ -213,6 +168,6 @@ def is_sane(prob: Problem, x: np.ndarray, converged: bool) -> bool:
     """A solve worth keeping: converged, finite, positive focal lengths, every point in front of the camera."""
     if not converged or not np.all(np.isfinite(x)):
         return False
-    f, Xc, _, _ = prob.evaluate(x)
+    f, Xc = prob.residuals(x)
     p = prob.intrinsics(x)
     return bool(np.all(np.isfinite(f)) and p[0] > 0 and p[1] > 0 and np.all(Xc[:, 2] > 0))

@@ -5,28 +5,73 @@ Parameter vector: the free intrinsics (``nf``), then the free board coordinates 
 refinement: the object-releasing method of Strobl & Hirzinger 2011, as ``cv2.calibrateCameraRO``), then 6 pose
 parameters per view (rvec, tvec). The ``ng = nf + nb`` global parameters are shared by all views; each view's
 residuals depend only on them and its own pose (the sparsity :mod:`circcal.solver.lm` exploits). Residuals are
-``projected - observed`` (px); the camera model is :mod:`circcal.model`'s.
+``projected - observed`` (px); the camera model is :mod:`circcal.model`'s. Everything is computed in chunks of
+whole views (:data:`EVALUATE_CHUNK` points): the solver's normal equations are summed chunk by chunk, so the
+(2N, ng + 6) Jacobian never exists (only :meth:`Problem.evaluate`, for the scipy cross-check, assembles it).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
 from circcal.errors import CalibrationError
-from circcal.model import project_camera_jacobian
+from circcal.model import distort, fisheye_distort, lens_model, project_camera_jacobian
 from circcal.observations import BOARD_KEY_DECIMALS, distinct_points
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
-__all__ = ["BoardModel", "board_model", "Problem", "MIN_VIEWS_PER_BOARD_POINT", "BOARD_KEY_DECIMALS"]
+__all__ = ["BoardModel", "board_model", "Chunk", "Problem", "project_pixels", "MIN_VIEWS_PER_BOARD_POINT",
+           "BOARD_KEY_DECIMALS"]
 
-#: Points projected at a time by :meth:`Problem.evaluate_stacked` (their temporaries ~2 MB; measured as fast as one
-#: pass over 49,000 points, and the peak memory of a 1000-view solve drops by ~400 B per point).
+#: Points projected at a time (whole views, at least one): the residuals' and the Jacobian's temporaries stay a few
+#: MB whatever N (measured as fast as one pass over 49,000 points), and the whole Jacobian never exists.
 EVALUATE_CHUNK = 4096
 
 #: With board refinement, a board point seen in fewer views than this is held at its nominal position (a point seen
 #: in one or two views is not constrained beyond its own views' poses).
 MIN_VIEWS_PER_BOARD_POINT = 3
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Consecutive whole views ``v0:v1`` and their stacked observations ``a:b``, evaluated together; ``groups``:
+    ``(views (k,), rows (k c,) into the chunk or None)`` of its views by point count c (one group with rows None
+    when every view of the problem holds the same count: its rows are a free reshape)."""
+
+    a: int
+    b: int
+    v0: int
+    v1: int
+    groups: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+
+
+def chunks(counts: np.ndarray, size: int) -> list[Chunk]:
+    """Views of ``counts`` (V,) points each in consecutive chunks of at most ``size`` points (at least one view)."""
+    ends = np.cumsum(counts)
+    uniform = bool(np.all(counts == counts[0]))
+    out, v0 = [], 0
+    while v0 < len(counts):
+        a = int(ends[v0] - counts[v0])
+        v1 = max(v0 + 1, int(np.searchsorted(ends, a + size, side="right")))
+        if uniform:
+            groups = ((np.arange(v0, v1), None),)
+        else:
+            starts = ends[v0:v1] - counts[v0:v1] - a
+            groups = tuple((v0 + np.flatnonzero(counts[v0:v1] == n),
+                            (starts[counts[v0:v1] == n][:, None] + np.arange(n)).ravel())
+                           for n in np.unique(counts[v0:v1]))
+        out.append(Chunk(a, int(ends[v1 - 1]), v0, v1, groups))
+        v0 = v1
+    return out
+
+
+def project_pixels(Xc: np.ndarray, p: np.ndarray, pinhole: bool) -> np.ndarray:
+    """Camera-frame points (n, 3) mm -> pixels (n, 2) under intrinsics ``p`` (4 + n_dist,): the value of
+    :func:`circcal.model.project_camera_jacobian` without its derivatives, in the same arithmetic (the two agree to
+    the bit, so a trial step's cost is the cost the Jacobian pass sees there)."""
+    xd = distort(Xc[:, :2] * (1.0 / Xc[:, 2])[:, None], p[4:]) if pinhole else fisheye_distort(Xc, p[4:])
+    return xd * p[:2] + p[2:4]
 
 
 @dataclass
@@ -112,8 +157,6 @@ class Problem:
                 self.T[0, j] = aspect
         self.nf = len(free)
         self.T_is_identity = self.T.shape == (n_intr, n_intr) and bool(np.all(self.T == np.eye(n_intr)))
-        ends = np.cumsum(self.counts)
-        self.slices = [slice(a, b) for a, b in zip(ends - self.counts, ends)]
         self.board = board
         self.nb = 0 if board is None else len(board.free)
         if board is not None:
@@ -123,7 +166,11 @@ class Problem:
             self.board_cols = slot.reshape(-1, 3)[board.point_index]          # (N, 3)
         self.ng = self.nf + self.nb
         self.n = self.ng + 6 * self.n_views
-        self._cache_x: bytes | None = None
+        self.pinhole = lens_model(lens).pinhole
+        self.chunks = chunks(self.counts, EVALUATE_CHUNK)
+        self._frame_x: bytes | None = None
+        self._residuals_x: bytes | None = None
+        self._normal_x: bytes | None = None
 
     def intrinsics(self, x: np.ndarray) -> np.ndarray:
         return self.base + self.T @ x[: self.nf]
@@ -145,67 +192,124 @@ class Problem:
         P = x[self.ng:].reshape(-1, 6)
         return P[:, :3].copy(), P[:, 3:].copy()
 
-    def _times_view_matrix(self, A: np.ndarray, M: np.ndarray) -> np.ndarray:
-        """Each observation's rows times its view's matrix: ``A`` (N, 3) or (N, k, 3), ``M`` (V, 3, m) ->
-        (N, m) or (N, k, m). One batched product over the views when they all hold the same number of points (no
-        gather), else through the (N, 3, m) gathered matrices."""
+    def _times_view_matrix(self, A: np.ndarray, M: np.ndarray, chunk: Chunk) -> np.ndarray:
+        """The chunk's rows times their views' matrices: ``A`` (n, 3) or (n, k, 3), ``M`` (V, 3, m) -> (n, m) or
+        (n, k, m). One batched product over the chunk's views when every view holds the same number of points (no
+        gather), else through the (n, 3, m) gathered matrices."""
         if self.uniform:
-            return (A.reshape(self.n_views, -1, 3) @ M).reshape(*A.shape[:-1], M.shape[-1])
-        return np.einsum("n...j,njk->n...k", A, M[self.view])
+            k = chunk.v1 - chunk.v0
+            return (A.reshape(k, -1, 3) @ M[chunk.v0: chunk.v1]).reshape(*A.shape[:-1], M.shape[-1])
+        return np.einsum("n...j,njk->n...k", A, M[self.view[chunk.a: chunk.b]])
+
+    def _frame(self, x: np.ndarray, key: bytes):
+        """What every pass needs at ``x`` (``key``: its bytes): intrinsics (4 + n_dist,), rvecs (V, 3), R (V, 3, 3),
+        tvecs (V, 3) and the board points (N, 3) mm of the stacked observations. The last is kept: an accepted trial
+        step's Jacobian pass follows its residual pass at the same x."""
+        if key != self._frame_x:
+            rv, tv = self.poses(x)
+            X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
+            self._frame_x, self._frame_kept = key, (self.intrinsics(x), rv, rodrigues(rv), tv, X)
+        return self._frame_kept
+
+    def _camera_points(self, X: np.ndarray, R: np.ndarray, tv: np.ndarray, chunk: Chunk
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """The chunk's board points in its views' camera frames: ``(Y = R_v X, Xc = Y + t_v)``, both (n, 3) mm."""
+        Y = self._times_view_matrix(X[chunk.a: chunk.b], np.transpose(R, (0, 2, 1)), chunk)
+        t = (tv[chunk.v0: chunk.v1].repeat(self.counts[0], axis=0) if self.uniform
+             else tv[self.view[chunk.a: chunk.b]])
+        return Y, Y + t
+
+    def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """-> (f (2N,) projected - observed px, Xc (N, 3) mm) without the Jacobian (a trial step's cost), chunk by
+        chunk; equal to the bit to :meth:`normal_equations`' residuals. The last evaluation is kept."""
+        key = x.tobytes()
+        if key == self._residuals_x:
+            return self._residuals
+        p, _, R, tv, X = self._frame(x, key)
+        f = np.empty(2 * len(X))
+        Xc = np.empty((len(X), 3))
+        for c in self.chunks:
+            Xc[c.a: c.b] = self._camera_points(X, R, tv, c)[1]
+            f[2 * c.a: 2 * c.b] = (project_pixels(Xc[c.a: c.b], p, self.pinhole) - self.uv[c.a: c.b]).ravel()
+        self._residuals_x, self._residuals = key, (f, Xc)
+        return f, Xc
+
+    def _jacobian_chunks(self, x: np.ndarray, f: np.ndarray, Xc: np.ndarray
+                         ) -> Iterator[tuple[Chunk, np.ndarray, np.ndarray]]:
+        """Per chunk ``(chunk, J_global (n, 2, ng), J_pose (n, 2, 6))``: the Jacobian rows of its n observations, the
+        global columns and their own view's 6 pose columns (rvec, tvec); fills the residuals ``f`` (2N,) and camera
+        points ``Xc`` (N, 3) as it goes. Only one chunk's Jacobian exists at a time."""
+        p, rv, R, tv, X = self._frame(x, x.tobytes())
+        Jl = left_jacobian(rv)
+        ng, nf = self.ng, self.nf
+        for c in self.chunks:
+            Y, Xc[c.a: c.b] = self._camera_points(X, R, tv, c)
+            uv, Ji, dP = project_camera_jacobian(Xc[c.a: c.b], p, self.lens)
+            f[2 * c.a: 2 * c.b] = (uv - self.uv[c.a: c.b]).ravel()
+            Jg = np.empty((len(uv), 2, ng))
+            Jg[:, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
+            if self.board is not None:
+                # d uv / d X_board = (d uv / d Xc) R
+                Jb = self._times_view_matrix(dP, R, c)                              # (n, 2, 3)
+                Jg[:, :, nf:] = 0.0
+                cols = self.board_cols[c.a: c.b]
+                rows, coords = np.nonzero(cols >= 0)
+                Jg[rows, :, cols[rows, coords]] = Jb[rows, :, coords]
+            Jp = np.empty((len(uv), 2, 6))
+            Jp[:, :, :3] = self._times_view_matrix(rotated_jacobian(dP, Y), Jl, c)
+            Jp[:, :, 3:] = dP
+            yield c, Jg, Jp
+
+    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """``(f, (A, gi, B, D, gp))`` at ``x``: the residuals f (2N,) px and the blocks of ``J^T J`` and ``J^T f``,
+        A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6) (each view's rows touch only the global
+        parameters and its own pose). Assembled chunk by chunk, so the (2N, ng + 6) Jacobian never exists: per
+        chunk, A and gi are one product over its rows, B, D and gp one batched product over its views (views of
+        equal point count are a free reshape, others gathered by count). The last evaluation is kept (the
+        solver's last step, its convergence test, the information and the covariance all ask at the solution);
+        it also sets :meth:`residuals`' kept one."""
+        key = x.tobytes()
+        if key == self._normal_x:
+            return self._normal
+        self._normal_x = self._normal = None
+        ng, V = self.ng, self.n_views
+        # the Jacobian pass's residuals equal residuals()' to the bit: a kept evaluation at x is refilled in place
+        # with the same numbers (no second copy)
+        f, Xc = (self._residuals if key == self._residuals_x
+                 else (np.empty(2 * len(self.X)), np.empty((len(self.X), 3))))
+        A, gi = np.zeros((ng, ng)), np.zeros(ng)
+        B, D, gp = np.empty((V, ng, 6)), np.empty((V, 6, 6)), np.empty((V, 6))
+        for c, Jg, Jp in self._jacobian_chunks(x, f, Xc):
+            fc = f[2 * c.a: 2 * c.b]
+            Jg2 = Jg.reshape(-1, ng)
+            A += Jg2.T @ Jg2
+            gi += Jg2.T @ fc
+            for views, rows in c.groups:
+                Gv, Pv, Fv = ((Jg, Jp, fc.reshape(-1, 2)) if rows is None
+                              else (Jg[rows], Jp[rows], fc.reshape(-1, 2)[rows]))
+                k = len(views)
+                Gv, Pv = Gv.reshape(k, -1, ng), Pv.reshape(k, -1, 6)
+                Pt = np.transpose(Pv, (0, 2, 1))
+                B[views] = np.transpose(Gv, (0, 2, 1)) @ Pv
+                D[views] = Pt @ Pv
+                gp[views] = (Pt @ Fv.reshape(k, -1, 1))[:, :, 0]
+        self._residuals_x, self._residuals = key, (f, Xc)
+        self._normal_x, self._normal = key, (f, (A, gi, B, D, gp))
+        return self._normal
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """-> (f (2N,) projected - observed px, Xc (N, 3) mm, J_global (N, 2, ng), J_pose (N, 2, 6)); the two
-        Jacobians are views of :meth:`evaluate_stacked`'s one array."""
-        f, Xc, J = self.evaluate_stacked(x)
-        return f, Xc, J[:, :, : self.ng], J[:, :, self.ng:]
-
-    def evaluate_stacked(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """-> (f (2N,) projected - observed px, Xc (N, 3) mm, J (N, 2, ng + 6)): per point the two Jacobian rows,
-        the global columns and then its own view's 6 pose columns (rvec, tvec), in one C-contiguous array (what
-        :func:`circcal.solver.lm.normal_blocks` multiplies view by view without a copy). All views are computed
-        together, :data:`EVALUATE_CHUNK` points at a time. The last evaluation is kept (the solver asks again at the same x); only one
-        evaluation's arrays are alive at a time."""
-        key = x.tobytes()
-        if key == self._cache_x:
-            return self._cache
-        self._cache_x = self._cache = None
-        p = self.intrinsics(x)
-        rv, tv = self.poses(x)
-        R = rodrigues(rv)
-        X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
-        Y = self._times_view_matrix(X, np.transpose(R, (0, 2, 1)))                 # R_v X
-        Xc = Y + (tv.repeat(self.counts[0], axis=0) if self.uniform else tv[self.view])
-        ng, nf = self.ng, self.nf
-        f = np.empty(2 * len(X))
-        J = np.empty((len(X), 2, ng + 6))
-        Jl = left_jacobian(rv)
-        # in chunks (whole views when they hold equal counts): the projection's own temporaries stay a few MB,
-        # whatever N (the peak is J and its inputs)
-        step = max(1, EVALUATE_CHUNK // self.counts[0]) * self.counts[0] if self.uniform else EVALUATE_CHUNK
-        for a in range(0, len(X), step):
-            sl = slice(a, a + step)
-            uv, Ji, dP = project_camera_jacobian(Xc[sl], p, self.lens)
-            f[2 * a: 2 * a + 2 * len(uv)] = (uv - self.uv[sl]).ravel()
-            J[sl, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
-            C = rotated_jacobian(dP, Y[sl])
-            if self.uniform:  # this chunk's views times their own left Jacobians, one batched product
-                v0 = a // self.counts[0]
-                k = len(C) // self.counts[0]
-                J[sl, :, ng: ng + 3] = (C.reshape(k, -1, 3) @ Jl[v0: v0 + k]).reshape(C.shape)
-            else:
-                np.einsum("nij,njk->nik", C, Jl[self.view[sl]], out=J[sl, :, ng: ng + 3])
-            J[sl, :, ng + 3:] = dP
-        if self.board is not None:
-            # d uv / d X_board = (d uv / d Xc) R
-            Jb = self._times_view_matrix(np.ascontiguousarray(J[:, :, ng + 3:]), R)   # (N, 2, 3); J's d uv / d Xc
-            J[:, :, nf:ng] = 0.0
-            rows, coords = np.nonzero(self.board_cols >= 0)
-            J[rows, :, self.board_cols[rows, coords]] = Jb[rows, :, coords]
-        self._cache_x, self._cache = key, (f, Xc, J)
-        return self._cache
+        """-> (f (2N,) projected - observed px, Xc (N, 3) mm, J_global (N, 2, ng), J_pose (N, 2, 6)): the whole
+        Jacobian, for the scipy cross-check and tests (the Levenberg-Marquardt solver needs only
+        :meth:`normal_equations`)."""
+        N = len(self.X)
+        f, Xc = np.empty(2 * N), np.empty((N, 3))
+        Jg, Jp = np.empty((N, 2, self.ng)), np.empty((N, 2, 6))
+        for c, Jgc, Jpc in self._jacobian_chunks(x, f, Xc):
+            Jg[c.a: c.b], Jp[c.a: c.b] = Jgc, Jpc
+        return f, Xc, Jg, Jp
 
     def fun(self, x: np.ndarray) -> np.ndarray:
-        return self.evaluate(x)[0]
+        return self.residuals(x)[0]
 
     def jac(self, x: np.ndarray):
         from scipy.sparse import csr_matrix
@@ -215,5 +319,6 @@ class Problem:
         cols_i = np.broadcast_to(np.arange(self.ng), (m, self.ng))
         cols_p = self.ng + 6 * np.repeat(self.view, 2)[:, None] + np.arange(6)
         indices = np.concatenate([cols_i, cols_p], axis=1).ravel()
-        data = self.evaluate_stacked(x)[2].ravel()
+        _, _, Jg, Jp = self.evaluate(x)
+        data = np.concatenate([Jg, Jp], axis=2).ravel()
         return csr_matrix((data, indices, indptr), shape=(m, self.n))
