@@ -41,6 +41,11 @@ __all__ = [
     "zhang",
 ]
 
+#: Points whose DLT rows are decomposed at a time (whole views): the (2n, 9) design matrices and the SVD's copies
+#: of them are ~450 B per point, so a 1000-view start stays a few MB instead of ~20 MB (each view's SVD is its own:
+#: the homographies do not depend on the chunking).
+HOMOGRAPHY_CHUNK = 4096
+
 
 @dataclass(frozen=True)
 class ZhangResult:
@@ -98,7 +103,7 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
     ``image_points[v]`` (N_v, 2), N_v >= 4.
 
     Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless data),
-    batched over views with equal point counts. Each scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
+    batched over views with equal point counts, :data:`HOMOGRAPHY_CHUNK` points at a time. Each scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
     Raises :class:`CalibrationError` for fewer than 4 points or collinear / coincident points.
     """
     src = [np.asarray(o, dtype=np.float64).reshape(-1, 2) for o in object_xy]
@@ -108,8 +113,10 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
         raise CalibrationError(f"a plane homography needs >= 4 points, got {int(counts.min())}")
     H = np.empty((len(src), 3, 3))
     for n in np.unique(counts):
-        idx = np.flatnonzero(counts == n)
-        H[idx] = _homographies_same_size(np.stack([src[i] for i in idx]), np.stack([dst[i] for i in idx]))
+        same = np.flatnonzero(counts == n)
+        step = max(1, HOMOGRAPHY_CHUNK // int(n))
+        for idx in (same[i: i + step] for i in range(0, len(same), step)):
+            H[idx] = _homographies_same_size(np.stack([src[i] for i in idx]), np.stack([dst[i] for i in idx]))
     if not np.all(np.isfinite(H)):
         raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
     H /= np.linalg.norm(H, axis=(1, 2))[:, None, None]
