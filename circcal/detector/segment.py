@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from circcal.detector.candidates import Candidate
+from circcal.detector.image import HIST_EXACT_COUNT
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "segmentation_scales", "segmentations", "shrink",
            "noise_sigma_u8", "speckled", "upscaled"]
@@ -73,10 +74,14 @@ shows nothing but noise (a board's contrast is tens of noise sigmas: the weak-li
 def noise_sigma_u8(img: np.ndarray) -> float:
     """Robust noise sigma (grey levels) of ``img`` (H, W) uint8 from the median absolute difference of horizontal
     neighbours on every 4th row (``median / (0.6745 sqrt 2)``; 0 on noiseless renders, whose flat areas dominate)."""
-    rows = img[::4].astype(np.int16)
+    rows = img[::4]
     if rows.shape[1] < 2:
         return 0.0
-    counts = np.bincount(np.abs(rows[:, 1:] - rows[:, :-1]).ravel(), minlength=256)
+    diff = cv2.absdiff(rows[:, 1:], rows[:, :-1])
+    if diff.size < HIST_EXACT_COUNT:
+        counts = cv2.calcHist([diff], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64)
+    else:
+        counts = np.bincount(diff.ravel(), minlength=256)
     median = int(np.searchsorted(np.cumsum(counts), (counts.sum() + 1) // 2))
     return median / (0.6745 * np.sqrt(2.0))
 
