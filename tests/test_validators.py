@@ -373,3 +373,22 @@ def test_registry_builtins_and_plugins(monkeypatch, problem):
     assert avail["opencv"] == (True, "") and avail["crashing"][0] is True
     assert isinstance(results["opencv"], ReferenceResult)
     assert results["opencv"].to_dict()["camera"]["fx"] == pytest.approx(results["opencv"].camera.fx)
+
+
+def test_a_reference_that_stops_short_passes_only_above_circcals_cost():
+    """lensboy (checks.STOPS_SHORT) beyond 1e-6 px but within its own bound passes only with its cost at or above
+    circcal's (it stopped short of the minimum, the note says by how much); below circcal's it fails (circcal missed
+    the minimum); within 1e-6 px the costs are not consulted; any other reference within its bound passes as before."""
+    from circcal.validators.checks import SOLVER_LENSBOY_PX, solver_agreement
+
+    def ref(name: str, ssr: float) -> ReferenceResult:
+        return ReferenceResult(name, "1", "fair", "ok", residuals=[np.full((50, 2), np.sqrt(ssr / 100.0))])
+
+    base = 0.5
+    short = solver_agreement("lensboy", ref("lensboy", base * (1 + 3e-7)), 3e-3, base, SOLVER_LENSBOY_PX)
+    assert short.passed and "stopped short of the minimum" in short.note and "3e-07" in short.note
+    lower = solver_agreement("lensboy", ref("lensboy", base * (1 - 3e-7)), 3e-3, base, SOLVER_LENSBOY_PX)
+    assert not lower.passed and "circcal missed the minimum" in lower.note
+    assert solver_agreement("lensboy", ref("lensboy", base * (1 - 3e-7)), 5e-7, base, SOLVER_LENSBOY_PX).passed
+    assert not solver_agreement("lensboy", ref("lensboy", base * (1 + 3e-7)), 2e-2, base, SOLVER_LENSBOY_PX).passed
+    assert solver_agreement("other", ref("other", base * (1 - 3e-7)), 3e-3, base, 1e-2).passed
