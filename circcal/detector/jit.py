@@ -1,6 +1,6 @@
 """``njit`` for the detector's compiled loops (:mod:`circcal.detector.edges`, :mod:`circcal.detector.levels`,
-:mod:`circcal.detector.ellipse`): compiled ahead of time at install, numba's JIT where that build is missing or
-stale, plain Python where numba is missing too.
+:mod:`circcal.detector.ellipse`, :mod:`circcal.detector.robust`): compiled ahead of time at install, numba's JIT
+where that build is missing or stale, plain Python where numba is missing too.
 
 Why ahead of time: numba costs a process ~0.3 s to import (it pulls in scipy) and ~0.45 s more at the first call of
 a kernel it has cached on disk (its type registries load then), which alone broke the 0.6 s a one-image
