@@ -36,6 +36,9 @@ TRUST_MODEL_REL = 1e-10
 FINAL_STEP_REL = 1e-18
 #: A trusted step may raise the cost by this share (its rounding) and still be taken.
 COST_ROUNDING_REL = 1e-12
+#: After this many trial steps taken in a row the next trial is evaluated with its Jacobian (it is likely taken
+#: too); otherwise by its residuals alone (rejections come in runs while lambda searches).
+ACCEPTED_RUN = 2
 #: Converged when every gradient component, scaled by the sqrt of its J^T J diagonal, is within
 #: GRADIENT_TOL * sqrt(cost) + GRADIENT_FLOOR (a stalled solve that is not at a minimum fails this).
 GRADIENT_TOL = 1e-6
@@ -86,8 +89,9 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     Each iteration forms ``J^T J`` blockwise (global block A: intrinsics and any board coordinates; per-view
     coupling B_v and 6x6 pose blocks D_v), damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
     like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. A trial
-    step is judged by its cost alone (:meth:`Problem.residuals`: a rejected one costs no Jacobian); the normal
-    equations are formed only at the points taken (:meth:`Problem.normal_equations`).
+    step is judged by its cost alone (:meth:`Problem.residuals`: a rejected one costs no Jacobian) unless the
+    :data:`ACCEPTED_RUN` steps before it were taken (then with its normal equations, :meth:`Problem.normal_equations`,
+    whose residuals are the same numbers).
     Stopping: once the damping is negligible (lambda <= :data:`LAMBDA_GAUSS_NEWTON`, the step is Gauss-Newton's) and
     the step's predicted decrease of the cost (from the local quadratic model, exact to rounding even where the cost
     itself is not) is below :data:`TRUST_MODEL_REL` of the cost, the cost can no longer rank steps and the model is
@@ -106,6 +110,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     it = 0
     done = stalled = False
     last_trusted = np.inf
+    run = 0  # trial steps taken in a row
     while it < max_iterations and not (done or stalled):
         it += 1
         A, gi, B, D, gp = blocks = prob.normal_equations(x)[1]
@@ -126,15 +131,19 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             # last step: at rounding level, or the model's decrease stopped shrinking (no progress left to make)
             final = trusted and (predicted <= FINAL_STEP_REL * cost or predicted >= last_trusted)
             x_new = x + step
-            f_new = prob.residuals(x_new)[0]  # the cost only: a rejected trial costs no Jacobian
+            # the cost only (a rejected trial costs no Jacobian), but after ACCEPTED_RUN steps taken in a row the
+            # next is likely taken too: its Jacobian pass gives the same residuals and is not repeated
+            f_new = (prob.normal_equations(x_new) if run >= ACCEPTED_RUN else prob.residuals(x_new))[0]
             cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
             if cost_new < cost or (trusted and cost_new <= cost * (1.0 + COST_ROUNDING_REL)):
                 x, f, cost = x_new, f_new, cost_new
+                run += 1
                 lam = max(lam / LAMBDA_FACTOR, LAMBDA_MIN)
                 last_trusted = predicted if trusted else np.inf
                 done = final
                 break
             lam *= LAMBDA_FACTOR
+            run = 0
             if lam > LAMBDA_MAX:
                 stalled = True
                 break
