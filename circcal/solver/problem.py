@@ -246,9 +246,11 @@ class Problem:
             Y, Xc[c.a: c.b] = self._camera_points(X, R, tv, c)
             uv, Ji, dP = project_camera_jacobian(Xc[c.a: c.b], p, self.lens)
             f[2 * c.a: 2 * c.b] = (uv - self.uv[c.a: c.b]).ravel()
-            Jg = np.empty((len(uv), 2, ng))
-            Jg[:, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
-            if self.board is not None:
+            if self.board is None:
+                Jg = Ji if self.T_is_identity else Ji @ self.T
+            else:
+                Jg = np.empty((len(uv), 2, ng))
+                Jg[:, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
                 # d uv / d X_board = (d uv / d Xc) R
                 Jb = self._times_view_matrix(dP, R, c)                              # (n, 2, 3)
                 Jg[:, :, nf:] = 0.0
