@@ -98,12 +98,13 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     n[~live] = 0
     N = int(n.max())
     # profile offsets (one array per distinct half length, as np.arange gives them), NaN past each dot's end
-    svecs = [_profile_offsets(float(h), step) for h in hw]
-    K = max(len(v) for v in svecs)
-    S = np.full((D, K), np.nan)
-    for d, v in enumerate(svecs):
-        S[d, :len(v)] = v
-    klen = np.array([len(v) for v in svecs])
+    half, which = np.unique(hw, return_inverse=True)   # (most dots share the longest profiles)
+    svecs = [_profile_offsets(float(h), step) for h in half]
+    table = np.full((len(svecs), max(len(v) for v in svecs)), np.nan)
+    for i, v in enumerate(svecs):
+        table[i, :len(v)] = v
+    S = table[which.reshape(-1)]
+    klen = np.array([len(v) for v in svecs])[which.reshape(-1)]
     # base points and outward normals, profiles entirely inside the ROI, the extent of those to be sampled
     boxes = np.stack([x0, y0, x1, y1], 1).astype(np.int64)
     base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],

@@ -143,7 +143,8 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
                                  np.array([cands[rec.order[k]].angle for k in todo]))
     pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
     deadline.check()
-    dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H), gray))
+    params = conic_params_batch(conics_d)    # (row by row: the same values as of any subset of the rows)
+    dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H), gray, params=params))
     keep = np.array([int(k) not in dropped for k in todo], bool)
     used = todo[keep]
     cand_xy = np.array([c.centre for c in cands])
@@ -154,8 +155,9 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
                                       f"{len(dropped)} left out: " + _why(dropped) + ")",
                          Reason.TOO_FEW_POINTS, image_size=(W, H), candidates=cand_xy, dropped=dropped,
                          notes=list(rec.notes))
-    ell_c = conic_params_batch(conics_d[keep])[0]
-    why = check_grid(board, used, ell_c, conics_d[keep])
+    kept = tuple(p[keep] for p in params)
+    ell_c = kept[0]
+    why = check_grid(board, used, ell_c, conics_d[keep], params=kept)
     if why is not None:
         return Detection(False, None, f"grid {board.rows}x{board.cols} not trusted: {why}", Reason.IRREGULAR_GRID,
                          image_size=(W, H), candidates=cand_xy, dropped=dropped, notes=list(rec.notes))

@@ -57,9 +57,8 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     rad, valid (D,) bool, as :func:`~circcal.detector.ellipse.conic_params_batch` gives them)."""
     D = len(okc)
     H, W = np.shape(gray)
-    boxes = np.asarray(boxes, np.int64).reshape(D, 4).copy()
-    np.clip(boxes[:, 0::2], 0, W, out=boxes[:, 0::2])   # (the compiled pass reads only inside the image)
-    np.clip(boxes[:, 1::2], 0, H, out=boxes[:, 1::2])
+    boxes = np.clip(np.asarray(boxes, np.int64).reshape(D, 4), 0, np.array([W, H, W, H]))   # (the compiled pass
+    # reads only inside the image)
     dark = np.full(D, np.nan)
     plane = np.full((D, 3), np.nan)
     ok = np.zeros(D, bool)

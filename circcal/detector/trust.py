@@ -209,12 +209,13 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
 
 
 def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.ndarray, conics: np.ndarray,
-             errors: list[str | None], image_size: tuple[int, int], gray: np.ndarray | None = None
-             ) -> dict[int, str]:
+             errors: list[str | None], image_size: tuple[int, int], gray: np.ndarray | None = None,
+             params: tuple[np.ndarray, ...] | None = None) -> dict[int, str]:
     """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
     of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
     :func:`~circcal.detector.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
-    objects next to a dot (:func:`dark_neighbourhood`; not checked without it)."""
+    objects next to a dot (:func:`dark_neighbourhood`; not checked without it); ``params``: ``conic_params_batch
+    (conics)`` where the caller has it (only the rows without an error are read)."""
     W, H = image_size
     out: dict[int, str] = {}
     D = len(points)
@@ -224,7 +225,8 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     ok = np.array([e is None for e in errors], bool)
     if not np.any(ok):
         return out
-    c, axes, ang, okc = conic_params_batch(np.where(ok[:, None, None], conics, np.eye(3)))
+    c, axes, ang, okc = params if params is not None else conic_params_batch(np.where(ok[:, None, None], conics,
+                                                                                      np.eye(3)))
     ok &= okc
     for k in np.nonzero(~okc & np.array([e is None for e in errors]))[0]:
         out[int(points[k])] = "unmeasurable: no real ellipse"
@@ -296,9 +298,11 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     return out
 
 
-def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray) -> str | None:
+def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray,
+               params: tuple[np.ndarray, ...] | None = None) -> str | None:
     """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
-    (K, 3, 3)) are not trusted to be the board, or ``None`` (module docstring)."""
+    (K, 3, 3); ``params``: ``conic_params_batch(conics)`` where the caller has it) are not trusted to be the board,
+    or ``None`` (module docstring)."""
     K = len(points)
     if K < 4:
         return f"only {K} dots measured"
@@ -322,7 +326,7 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
     if rel > MAX_LATTICE_RESIDUAL:
         return (f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
                 f"{MAX_LATTICE_RESIDUAL:g})")
-    _, axes, _, ok = conic_params_batch(conics)
+    _, axes, _, ok = params if params is not None else conic_params_batch(conics)
     plain = ok & ~board.is_marker()[points] & finite
     if np.any(plain):
         fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(np.linalg.det(J[plain]))
