@@ -87,7 +87,7 @@ def _shift_table() -> np.ndarray:
         stored = np.load(_stored_path(), allow_pickle=False)
         if stored.shape == U_TABLE.shape and stored.dtype == np.float64:
             table = stored
-    except (OSError, ValueError):
+    except (OSError, ValueError, EOFError):   # none stored (a wheel install), or not readable
         pass
     if table is None:
         table = _computed_table()
