@@ -7,7 +7,7 @@ import pytest
 from circcal.board import Board
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.solver import calibrate
-from circcal.solver.lm import schur_step
+from circcal.solver.lm import EXTRAPOLATE_MAX, geometric_extension, schur_step
 from circcal.solver import problem
 from circcal.solver.problem import Problem, board_model
 from circcal.model import PARAM_NAMES, Camera, project_jacobian, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
@@ -137,6 +137,15 @@ def test_normal_equations_equal_the_whole_jacobians(refine, drop, monkeypatch):
         np.testing.assert_allclose(B[v], JtJ[: prob.ng, p], rtol=0, atol=1e-12 * scale)
         np.testing.assert_allclose(D[v], JtJ[p, p], rtol=0, atol=1e-12 * scale)
         np.testing.assert_allclose(gp[v], g[p], rtol=0, atol=1e-12 * np.max(np.abs(g)))
+
+
+def test_geometric_extension_only_continues_a_shrinking_step_in_the_same_direction():
+    e = np.array([1.0, 0.0, 0.0])
+    assert geometric_extension(e, 0.2 * e) == pytest.approx(1.25)               # 0.2 + 0.04 + ... = 0.2 / 0.8
+    assert geometric_extension(e, 0.9 * e) == EXTRAPOLATE_MAX
+    assert geometric_extension(e, 1.1 * e) == 1.0                               # growing: no sequence
+    assert geometric_extension(e, -0.5 * e) == 1.0                              # reversed: an overshoot
+    assert geometric_extension(e, np.array([0.2, 0.1, 0.0])) == 1.0             # turned by 27 deg
 
 
 def test_scipy_least_squares_reaches_the_same_model():

@@ -16,8 +16,8 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["schur_complement", "global_information", "schur_step", "quadratic_form", "levenberg_marquardt", "solve",
-           "is_sane"]
+__all__ = ["schur_complement", "global_information", "schur_step", "quadratic_form", "levenberg_marquardt",
+           "geometric_extension", "solve", "is_sane"]
 
 #: Marquardt damping ``lambda`` (times diag(J^T J)) at the start; measured best here: the closed-form start is near
 #: the minimum, so the first steps are nearly Gauss-Newton's (22 -> 11-13 evaluations on 14 views).
@@ -39,6 +39,12 @@ COST_ROUNDING_REL = 1e-12
 #: After this many trial steps taken in a row the next trial is evaluated with its Jacobian (it is likely taken
 #: too); otherwise by its residuals alone (rejections come in runs while lambda searches).
 ACCEPTED_RUN = 2
+#: Two steps one after the other whose directions (scaled by sqrt(diag J^T J)) agree to this cosine, the second
+#: shorter by q < 1, are taken as a geometric sequence (damped steps crawling along a narrow valley, or
+#: Gauss-Newton's linear rate near a minimum with residuals: each step covers the same share of what is left) and
+#: the step is extended to the sequence's limit, ``step / (1 - q)``, at most EXTRAPOLATE_MAX times.
+EXTRAPOLATE_COS = 0.99
+EXTRAPOLATE_MAX = 2.0
 #: Converged when every gradient component, scaled by the sqrt of its J^T J diagonal, is within
 #: GRADIENT_TOL * sqrt(cost) + GRADIENT_FLOOR (a stalled solve that is not at a minimum fails this).
 GRADIENT_TOL = 1e-6
@@ -91,7 +97,10 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. A trial
     step is judged by its cost alone (:meth:`Problem.residuals`: a rejected one costs no Jacobian) unless the
     :data:`ACCEPTED_RUN` steps before it were taken (then with its normal equations, :meth:`Problem.normal_equations`,
-    whose residuals are the same numbers).
+    whose residuals are the same numbers). A step continuing the one before it as a geometric sequence (same
+    direction, shorter: the damped steps' crawl along the rational model's narrow valley, Gauss-Newton's linear rate
+    at the end) is also tried extended towards the sequence's limit (:func:`geometric_extension`, at most
+    :data:`EXTRAPOLATE_MAX` times; a second residual pass, the lower cost taken; among trusted steps followed).
     Stopping: once the damping is negligible (lambda <= :data:`LAMBDA_GAUSS_NEWTON`, the step is Gauss-Newton's) and
     the step's predicted decrease of the cost (from the local quadratic model, exact to rounding even where the cost
     itself is not) is below :data:`TRUST_MODEL_REL` of the cost, the cost can no longer rank steps and the model is
@@ -111,9 +120,11 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     done = stalled = False
     last_trusted = np.inf
     run = 0  # trial steps taken in a row
+    last_step = None  # the last step taken (before any extension), scaled by sqrt(diag J^T J)
     while it < max_iterations and not (done or stalled):
         it += 1
         A, gi, B, D, gp = blocks = prob.normal_equations(x)[1]
+        scale = np.sqrt(np.concatenate([np.diag(A), np.diagonal(D, axis1=1, axis2=2).ravel()]))
         while True:
             step = schur_step(*blocks, lam)
             if not np.all(np.isfinite(step)):
@@ -130,13 +141,23 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             trusted = lam <= LAMBDA_GAUSS_NEWTON and predicted <= TRUST_MODEL_REL * cost
             # last step: at rounding level, or the model's decrease stopped shrinking (no progress left to make)
             final = trusted and (predicted <= FINAL_STEP_REL * cost or predicted >= last_trusted)
-            x_new = x + step
+            extension = 1.0 if last_step is None else geometric_extension(last_step, step * scale)
+            # where the cost can rank steps the extension is a second trial, taken if lower; where it cannot
+            # (trusted) the geometric sequence is followed
+            x_new = x + (extension if trusted else 1.0) * step
             # the cost only (a rejected trial costs no Jacobian), but after ACCEPTED_RUN steps taken in a row the
             # next is likely taken too: its Jacobian pass gives the same residuals and is not repeated
-            f_new = (prob.normal_equations(x_new) if run >= ACCEPTED_RUN else prob.residuals(x_new))[0]
-            cost_new = float(f_new @ f_new) if np.all(np.isfinite(f_new)) else np.inf
+            f_new = (prob.normal_equations(x_new) if run >= ACCEPTED_RUN and (trusted or extension == 1.0)
+                     else prob.residuals(x_new))[0]
+            cost_new = _cost(f_new)
+            if extension > 1.0 and not trusted:
+                x_ext = x + extension * step
+                f_ext = prob.residuals(x_ext)[0]
+                if _cost(f_ext) < cost_new:
+                    x_new, f_new, cost_new = x_ext, f_ext, _cost(f_ext)
             if cost_new < cost or (trusted and cost_new <= cost * (1.0 + COST_ROUNDING_REL)):
                 x, f, cost = x_new, f_new, cost_new
+                last_step = step * scale
                 run += 1
                 lam = max(lam / LAMBDA_FACTOR, LAMBDA_MIN)
                 last_trusted = predicted if trusted else np.inf
@@ -155,6 +176,21 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     g = np.concatenate([gi, gp.ravel()]) / np.maximum(scale, 1e-300)
     ok = bool(np.max(np.abs(g)) <= GRADIENT_TOL * np.sqrt(cost) + GRADIENT_FLOOR)
     return x, it, ok, ("converged" if ok else "stalled: no step lowers the cost but the gradient is not small")
+
+
+def _cost(f: np.ndarray) -> float:
+    """The sum of squares of residuals ``f``; inf where any is not finite."""
+    return float(f @ f) if np.all(np.isfinite(f)) else np.inf
+
+
+def geometric_extension(previous: np.ndarray, step: np.ndarray) -> float:
+    """The factor ``1 / (1 - q)`` (at most :data:`EXTRAPOLATE_MAX`) that takes ``step`` to the limit of the
+    geometric sequence it continues, when it points along ``previous`` (cosine >= :data:`EXTRAPOLATE_COS`) and is
+    shorter by q < 1; else 1. Both (n,), in the same scaled units."""
+    n_prev, n_step = np.linalg.norm(previous), np.linalg.norm(step)
+    if not n_step < n_prev or previous @ step < EXTRAPOLATE_COS * n_prev * n_step:
+        return 1.0
+    return min(1.0 / (1.0 - n_step / n_prev), EXTRAPOLATE_MAX)
 
 
 def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tuple[np.ndarray, int, bool, str]:
