@@ -157,3 +157,21 @@ def test_validate_all_fails_when_a_built_in_reference_is_missing(monkeypatch):
     assert [c.name for c in bad] == ["pycolmap [fair] is available"] and not run.passed
     run = run_validation(paths, truth.board, truth=truth.camera, against=["all"], progress=False, allow_missing=True)
     assert run.passed and run.skipped == ["pycolmap [fair]: pycolmap is not installed"]
+
+
+def test_suite_truth_bound_holds_the_family_wise_rate():
+    """The conformance suite's truth bound: a correct estimator with honest Gaussian sigmas fails none of its
+    observation_sets() x 4 independent parameter checks with probability >= 1 - SUITE_FAMILY_ALPHA (Bonferroni is
+    conservative: the exact family-wise rate lies just below alpha), while the per-run 3 sigmas would fail it often."""
+    from statistics import NormalDist
+
+    from circcal.validators import conformance
+
+    n = 4 * conformance.observation_sets()
+    assert n >= 4 * 40  # every scenario-variant of the suite, not an empty count
+    z = conformance.suite_truth_sigmas()
+    per_check = 2 * (1 - NormalDist().cdf(z))
+    family = 1 - (1 - per_check) ** n
+    assert 0.9 * conformance.SUITE_FAMILY_ALPHA < family <= conformance.SUITE_FAMILY_ALPHA
+    at_3 = 1 - (1 - 2 * (1 - NormalDist().cdf(3.0))) ** n
+    assert at_3 > 0.3
