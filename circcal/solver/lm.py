@@ -53,11 +53,14 @@ GRADIENT_FLOOR = 1e-12
 
 def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :meth:`Problem.normal_equations`; also returns
-    ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution."""
+    ``D_v^-1`` (V, 6, 6), ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution. The
+    6x6 blocks are inverted, as OpenCV's solver does (one batched inverse and product: half the time of a batched
+    solve with ng + 1 right-hand sides)."""
     ng, V = A.shape[0], len(D)
-    Dinv_Bt = np.linalg.solve(D, np.transpose(B, (0, 2, 1)))
+    D_inv = np.linalg.inv(D)
+    Dinv_Bt = D_inv @ np.transpose(B, (0, 2, 1))
     Bf = np.transpose(B, (1, 0, 2)).reshape(ng, 6 * V)
-    return A - Bf @ Dinv_Bt.reshape(6 * V, ng), Dinv_Bt, Bf
+    return A - Bf @ Dinv_Bt.reshape(6 * V, ng), D_inv, Dinv_Bt, Bf
 
 
 def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
@@ -73,8 +76,8 @@ def schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
     if lam:
         A = A + lam * np.diag(np.diag(A))
         D = D + lam * np.diagonal(D, axis1=1, axis2=2)[:, :, None] * np.eye(6)
-    S, Dinv_Bt, Bf = schur_complement(A, B, D)
-    Dinv_g = np.linalg.solve(D, gp[:, :, None])[:, :, 0]     # (V, 6)
+    S, D_inv, Dinv_Bt, Bf = schur_complement(A, B, D)
+    Dinv_g = (D_inv @ gp[:, :, None])[:, :, 0]     # (V, 6)
     r = gi - Bf @ Dinv_g.ravel()
     try:
         di = -np.linalg.solve(S, r)
