@@ -279,3 +279,17 @@ def test_warnings_are_one_readable_line(monkeypatch, capsys):
     assert cli.main(["x"]) == 0
     assert capsys.readouterr().err.strip() == (
         "circcal x: warning: calibration did not converge (iteration limit 200 reached)")
+
+
+def test_progress_bar_hidden_does_not_import_tqdm_and_shown_draws():
+    """A hidden bar is a stand-in (no tqdm import: start-up); a shown one is tqdm's, drawn on stderr."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom circcal.progress import progress_bar\n"
+            "with progress_bar(3, 'x', 'it', False) as b:\n    b.update(); b.set_postfix_str('y')\n"
+            "assert 'tqdm' not in sys.modules, 'tqdm imported for a hidden bar'\n"
+            "b = progress_bar(3, 'detect', 'img', True)\nb.update(3); b.close()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "detect" in r.stderr and "3/3" in r.stderr

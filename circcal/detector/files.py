@@ -13,6 +13,7 @@ from circcal.detector.find import camera_size_mismatch, detect
 from circcal.detector.image import read_image_messages
 from circcal.errors import ImageError
 from circcal.model import Camera
+from circcal.progress import progress_bar
 
 __all__ = ["MAX_DEFAULT_JOBS", "detect_files"]
 
@@ -36,13 +37,11 @@ def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, 
     """
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
-    from tqdm import tqdm
-
     paths = [Path(p) for p in paths]
     jobs = min(MAX_DEFAULT_JOBS, os.cpu_count() or 1) if jobs is None else int(jobs)
     if jobs < 1:
         raise ValueError(f"jobs must be at least 1, got {jobs}")
-    bar = tqdm(total=len(paths), desc="detect", unit="img", disable=not progress)
+    bar = progress_bar(len(paths), "detect", "img", progress)
     try:
         out: list[Detection | None] = [None] * len(paths)
 
