@@ -225,6 +225,7 @@ class Problem:
         key = x.tobytes()
         if key == self._residuals_x:
             return self._residuals
+        self._residuals_x = self._residuals = None  # freed before the new arrays, unless a caller holds them
         p, _, R, tv, X = self._frame(x, key)
         f = np.empty(2 * len(X))
         Xc = np.empty((len(X), 3))
@@ -277,8 +278,11 @@ class Problem:
         ng, V = self.ng, self.n_views
         # the Jacobian pass's residuals equal residuals()' to the bit: a kept evaluation at x is refilled in place
         # with the same numbers (no second copy)
-        f, Xc = (self._residuals if key == self._residuals_x
-                 else (np.empty(2 * len(self.X)), np.empty((len(self.X), 3))))
+        if key == self._residuals_x:
+            f, Xc = self._residuals
+        else:
+            self._residuals_x = self._residuals = None
+            f, Xc = np.empty(2 * len(self.X)), np.empty((len(self.X), 3))
         A, gi = np.zeros((ng, ng)), np.zeros(ng)
         B, D, gp = np.empty((V, ng, 6)), np.empty((V, 6, 6)), np.empty((V, 6))
         for c, Jg, Jp in self._jacobian_chunks(x, f, Xc):
