@@ -21,7 +21,7 @@ from circcal.model import distort, fisheye_distort, lens_model, project_camera_j
 from circcal.observations import BOARD_KEY_DECIMALS, distinct_points
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
-__all__ = ["BoardModel", "board_model", "Chunk", "Problem", "project_pixels", "MIN_VIEWS_PER_BOARD_POINT",
+__all__ = ["BoardModel", "board_model", "Chunk", "chunks", "Problem", "project_pixels", "MIN_VIEWS_PER_BOARD_POINT",
            "BOARD_KEY_DECIMALS"]
 
 #: Points projected at a time (whole views, at least one): the residuals' and the Jacobian's temporaries stay a few

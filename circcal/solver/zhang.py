@@ -103,7 +103,8 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
     ``image_points[v]`` (N_v, 2), N_v >= 4.
 
     Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless data),
-    batched over views with equal point counts, :data:`HOMOGRAPHY_CHUNK` points at a time. Each scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
+    batched over views with equal point counts, :data:`HOMOGRAPHY_CHUNK` points at a time. Each scaled to unit
+    Frobenius norm with ``H[2, 2] >= 0``.
     Raises :class:`CalibrationError` for fewer than 4 points or collinear / coincident points.
     """
     src = [np.asarray(o, dtype=np.float64).reshape(-1, 2) for o in object_xy]
