@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from circcal.errors import InputError
-from circcal.model.brown import distort, distort_jacobian, undistort
+from circcal.model.brown import _distort_jacobian_into, check_dist, distort, distort_jacobian, undistort
 from circcal.model.fisheye import fisheye_distort, fisheye_distort_jacobian, fisheye_rays, theta_max
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
@@ -239,28 +239,43 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
     Returns ``(uv (N, 2) px, J_intr (N, 2, 4 + n_dist) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
     """
     params = np.asarray(params, dtype=np.float64)
+    Xc = np.asarray(Xc, dtype=np.float64)
     n = len(Xc)
-    if _is_pinhole(lens):
-        iz = 1.0 / Xc[:, 2]
-        xn = Xc[:, :2] * iz[:, None]
-        xd, Jx, Jd = distort_jacobian(xn, params[4:])
-        # d xd / d Xc = Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-        JP = np.empty((n, 2, 3))
-        JP[:, :, 0] = Jx[:, :, 0] * iz[:, None]
-        JP[:, :, 1] = Jx[:, :, 1] * iz[:, None]
-        JP[:, :, 2] = -(Jx[:, :, 0] * xn[:, 0:1] + Jx[:, :, 1] * xn[:, 1:2]) * iz[:, None]
-    else:
-        xd, JP, Jd = fisheye_distort_jacobian(Xc, params[4:])
-    f = params[:2]                                   # fx, fy
-    uv = xd * f + params[2:4]
+    fx, fy, cx, cy = (float(v) for v in params[:4])
     Ji = np.empty((n, 2, len(params)))
-    Ji[:, :, :4] = 0.0
-    Ji[:, 0, 0] = xd[:, 0]
-    Ji[:, 1, 1] = xd[:, 1]
-    Ji[:, 0, 2] = 1.0
-    Ji[:, 1, 3] = 1.0
-    np.multiply(Jd, f[None, :, None], out=Ji[:, :, 4:])
-    return uv, Ji, JP * f[None, :, None]
+    Ji[:, :, :4] = _D_UV_D_K                         # d uv / d (fx, fy, cx, cy), xd and yd filled in below
+    if not _is_pinhole(lens):
+        xdn, JP, Jd = fisheye_distort_jacobian(Xc, params[4:])
+        np.multiply(Jd, params[None, :2, None], out=Ji[:, :, 4:])
+        JP *= params[None, :2, None]
+        xd, yd = xdn[:, 0], xdn[:, 1]
+    else:
+        # every term one contiguous (n,) product written into its strided place, the focal lengths folded in
+        mul = np.multiply
+        iz = 1.0 / Xc[:, 2]
+        x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
+        xd, yd, a, b, e, c = _distort_jacobian_into(x, y, check_dist(params[4:]), Ji[:, :, 4:], (fx, fy))
+        # d xd / d Xc = Jx d xn / d Xc, with d xn / d Xc = [[1/z, 0, -x/z], [0, 1/z, -y/z]], Jx = [[a, b], [e, c]]
+        JP = np.empty((n, 2, 3))
+        for row, (jx, jy), f in ((0, (a, b), fx), (1, (e, c), fy)):
+            jxz, jyz = jx * iz, jy * iz
+            mul(jxz, f, out=JP[:, row, 0])
+            mul(jyz, f, out=JP[:, row, 1])
+            w = jxz * x
+            w += jyz * y
+            mul(w, -f, out=JP[:, row, 2])
+    Ji[:, 0, 0] = xd
+    Ji[:, 1, 1] = yd
+    uv = np.empty((n, 2))
+    np.multiply(xd, fx, out=uv[:, 0])
+    np.multiply(yd, fy, out=uv[:, 1])
+    uv[:, 0] += cx
+    uv[:, 1] += cy
+    return uv, Ji, JP
+
+
+#: d (u, v) / d (fx, fy, cx, cy) but for its xd (row 0, col 0) and yd (row 1, col 1) entries
+_D_UV_D_K = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
