@@ -20,10 +20,14 @@ _SMALL_ANGLE2_JACOBIAN = 1e-10
 def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x`` (``[v]x w = v x w``)."""
     v = np.asarray(v, dtype=np.float64)
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+    K = np.zeros(v.shape[:-1] + (3, 3))     # six entries written in place (four nested np.stack calls cost ~3x)
+    K[..., 0, 1] = -v[..., 2]
+    K[..., 0, 2] = v[..., 1]
+    K[..., 1, 0] = v[..., 2]
+    K[..., 1, 2] = -v[..., 0]
+    K[..., 2, 0] = -v[..., 1]
+    K[..., 2, 1] = v[..., 0]
+    return K
 
 
 def rodrigues(rvec: np.ndarray) -> np.ndarray:
@@ -59,12 +63,13 @@ def rotated_jacobian(J_Y: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """``J_Y (-[Y]x)`` (N, k, 3): the derivative of a function of the rotated points ``Y = R X`` (N, 3) with respect
     to a left perturbation of the rotation, given its derivative ``J_Y`` (N, k, 3) with respect to ``Y``. Row j is
     ``Y x J_Y[:, j]``. Times :func:`left_jacobian` of the rotation's rvec it is the derivative with respect to rvec."""
-    a0, a1, a2 = J_Y[:, :, 0], J_Y[:, :, 1], J_Y[:, :, 2]
-    y0, y1, y2 = Y[:, 0:1], Y[:, 1:2], Y[:, 2:3]
+    y0, y1, y2 = Y[:, 0], Y[:, 1], Y[:, 2]
     out = np.empty_like(J_Y)
-    out[:, :, 0] = y1 * a2 - y2 * a1
-    out[:, :, 1] = y2 * a0 - y0 * a2
-    out[:, :, 2] = y0 * a1 - y1 * a0
+    for j in range(J_Y.shape[1]):  # per row j, (N,) products: broadcasting over the small k axis runs ~1.7x slower
+        a0, a1, a2 = J_Y[:, j, 0], J_Y[:, j, 1], J_Y[:, j, 2]
+        np.subtract(y1 * a2, y2 * a1, out=out[:, j, 0])
+        np.subtract(y2 * a0, y0 * a2, out=out[:, j, 1])
+        np.subtract(y0 * a1, y1 * a0, out=out[:, j, 2])
     return out
 
 
