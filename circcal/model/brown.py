@@ -41,11 +41,13 @@ def check_dist(dist: np.ndarray) -> np.ndarray:
 def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
     """The distortion polynomial: ``(xd, yd)`` of normalised ``(x, y)`` (same-shape arrays); with ``jacobian`` also
     ``radial``, the denominator ``den`` (1.0 for 5 coefficients), the 2x2 Jacobian ``d(xd, yd)/d(x, y)`` as
-    ``(a, b, e, c)`` = ``[[a, b], [e, c]]`` (symmetric, b = e, without thin prism), and the shared terms ``r2`` and
-    ``xy2 = 2 x y`` (for :func:`_coefficient_jacobian`)."""
+    ``(a, b, e, c)`` = ``[[a, b], [e, c]]`` (symmetric, b = e, without thin prism), and the shared terms ``r2``,
+    ``xy2 = 2 x y``, ``tx = r2 + 2 x^2``, ``ty = r2 + 2 y^2`` (for :func:`_coefficient_jacobian`). Squares are
+    formed once (``2 x^2`` is exact from ``x^2``: the same numbers as ``2.0 * x * x``)."""
     n = d.size
     k1, k2, p1, p2, k3 = d[:5]
-    r2 = x * x + y * y
+    xx, yy = x * x, y * y
+    r2 = xx + yy
     num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     if n >= 8:
         k4, k5, k6 = d[5:8]
@@ -55,8 +57,10 @@ def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
         den = 1.0
         radial = num
     xy2 = 2.0 * x * y
-    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    xx2, yy2 = 2.0 * xx, 2.0 * yy
+    tx, ty = r2 + xx2, r2 + yy2
+    xd = x * radial + p1 * xy2 + p2 * tx
+    yd = y * radial + p1 * ty + p2 * xy2
     if n == 12:
         s1, s2, s3, s4 = d[8:12]
         xd = xd + r2 * (s1 + s2 * r2)
@@ -66,9 +70,9 @@ def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
     dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d num / d r2
     if n >= 8:
         dradial = (dradial - radial * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / den
-    a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    a = radial + xx2 * dradial + 2.0 * p1 * y + 6.0 * p2 * x
     b = xy2 * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-    c = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    c = radial + yy2 * dradial + 6.0 * p1 * y + 2.0 * p2 * x
     e = b
     if n == 12:
         gx = 2.0 * (s1 + 2.0 * s2 * r2)  # d (s1 r2 + s2 r2^2) / d r2, times 2 (d r2 / dx = 2x)
@@ -77,13 +81,14 @@ def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
         b = b + gx * y
         e = e + gy * x
         c = c + gy * y
-    return xd, yd, radial, den, a, b, e, c, r2, xy2
+    return xd, yd, radial, den, a, b, e, c, r2, xy2, tx, ty
 
 
-def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.ndarray, radial, den, n: int,
-                          out: np.ndarray, scale: tuple[float, float] | None = None) -> None:
+def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.ndarray, tx: np.ndarray,
+                          ty: np.ndarray, radial, den, n: int, out: np.ndarray,
+                          scale: tuple[float, float] | None = None) -> None:
     """Fill ``out`` (..., 2, n) with d (xd, yd) / d dist (columns in ``dist``'s order) at normalised ``(x, y)``, from
-    :func:`_brown`'s ``r2``, ``xy2``, ``radial`` and ``den``; with ``scale = (sx, sy)`` row 0 times sx and row 1
+    :func:`_brown`'s ``r2``, ``xy2``, ``tx``, ``ty``, ``radial`` and ``den``; with ``scale = (sx, sy)`` row 0 times sx and row 1
     times sy (the focal lengths: d uv / d dist). Every column is one contiguous product written into its strided
     place (numpy's broadcasting over the small (2, n) trailing axes runs 3-5x slower, measured), from the shared
     powers r^2, r^4, r^6."""
@@ -99,11 +104,7 @@ def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.
     mul(yo, r2, out=out[..., 1, 0])
     mul(yo, r4, out=out[..., 1, 1])
     mul(yo, r6, out=out[..., 1, 4])
-    tx = 2.0 * x * x                                 # p1, p2: [[2xy, r2 + 2x^2], [r2 + 2y^2, 2xy]]
-    tx += r2
-    ty = 2.0 * y * y
-    ty += r2
-    if scale is None:
+    if scale is None:                                # p1, p2: [[2xy, r2 + 2x^2], [r2 + 2y^2, 2xy]]
         out[..., 0, 2] = xy2
         out[..., 1, 3] = xy2
         out[..., 0, 3] = tx
@@ -148,8 +149,8 @@ def _distort_jacobian_into(x: np.ndarray, y: np.ndarray, d: np.ndarray, J_d: np.
     """:func:`distort_jacobian` on the coordinate arrays ``x``, ``y`` with ``J_d`` written into ``J_d`` (..., 2, n)
     (a view of a caller's array; rows times ``scale``, see :func:`_coefficient_jacobian`). Returns ``(xd, yd, a, b,
     e, c)``: the distorted coordinates and ``d xd / d xn = [[a, b], [e, c]]``."""
-    xd, yd, radial, den, a, b, e, c, r2, xy2 = _brown(x, y, d, True)
-    _coefficient_jacobian(x, y, r2, xy2, radial, den, d.size, J_d, scale)
+    xd, yd, radial, den, a, b, e, c, r2, xy2, tx, ty = _brown(x, y, d, True)
+    _coefficient_jacobian(x, y, r2, xy2, tx, ty, radial, den, d.size, J_d, scale)
     return xd, yd, a, b, e, c
 
 
@@ -200,7 +201,7 @@ def undistort(
     tx, ty = t[:, 0].copy(), t[:, 1].copy()
     x, y = out[:, 0].copy(), out[:, 1].copy()
     thr = tol * np.maximum(1.0, np.maximum(np.abs(tx), np.abs(ty)))
-    fx, fy, _, _, a, b, e, c, _, _ = _brown(x, y, d, True)
+    fx, fy, _, _, a, b, e, c, *_ = _brown(x, y, d, True)
     rx, ry = fx - tx, fy - ty
     err = np.maximum(np.abs(rx), np.abs(ry))
     for _ in range(max_iter):
@@ -220,7 +221,7 @@ def undistort(
         lam = np.ones_like(x)
         for _ in range(_MAX_STEP_HALVINGS):
             nx, ny = x - lam * sx, y - lam * sy
-            fx, fy, _, _, na, nb, ne, nc, _, _ = _brown(nx, ny, d, True)
+            fx, fy, _, _, na, nb, ne, nc, *_ = _brown(nx, ny, d, True)
             nrx, nry = fx - tx, fy - ty
             nerr = np.maximum(np.abs(nrx), np.abs(nry))
             worse = ~(nerr <= err)  # also catches NaN
@@ -238,7 +239,7 @@ def undistort(
     # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no
     # inverse of a real lens: report it as NaN. (The rational denominator alone may cross 0 where its numerator
     # does too: a fitted pole-zero pair that cancels is a smooth lens.)
-    _, _, radial, _, a, b, e, c, _, _ = _brown(out[:, 0], out[:, 1], d, True)
+    _, _, radial, _, a, b, e, c, *_ = _brown(out[:, 0], out[:, 1], d, True)
     bad = (radial <= 0) | ((a * c - b * e) <= 0)
     out[bad] = np.nan
     return out.reshape(shape)
