@@ -31,7 +31,8 @@ import numpy as np
 
 from circcal.errors import InputError
 from circcal.model.brown import _distort_jacobian_into, check_dist, distort, distort_jacobian, undistort
-from circcal.model.fisheye import fisheye_distort, fisheye_distort_jacobian, fisheye_rays, theta_max
+from circcal.model.fisheye import _check as check_fisheye
+from circcal.model.fisheye import _fisheye, fisheye_distort, fisheye_distort_jacobian, fisheye_rays, theta_max
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
 __all__ = [
@@ -245,9 +246,8 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
     Ji = np.empty((n, 2, len(params)))
     Ji[:, :, :4] = _D_UV_D_K                         # d uv / d (fx, fy, cx, cy), xd and yd filled in below
     if not _is_pinhole(lens):
-        xdn, JP, Jd = fisheye_distort_jacobian(Xc, params[4:])
-        np.multiply(Jd, params[None, :2, None], out=Ji[:, :, 4:])
-        JP *= params[None, :2, None]
+        JP = np.empty((n, 2, 3))
+        xdn = _fisheye(Xc, check_fisheye(params[4:]), JP, Ji[:, :, 4:], (fx, fy))
         xd, yd = xdn[:, 0], xdn[:, 1]
     else:
         # every term one contiguous (n,) product written into its strided place, the focal lengths folded in

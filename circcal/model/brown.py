@@ -88,10 +88,10 @@ def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.
                           ty: np.ndarray, radial, den, n: int, out: np.ndarray,
                           scale: tuple[float, float] | None = None) -> None:
     """Fill ``out`` (..., 2, n) with d (xd, yd) / d dist (columns in ``dist``'s order) at normalised ``(x, y)``, from
-    :func:`_brown`'s ``r2``, ``xy2``, ``tx``, ``ty``, ``radial`` and ``den``; with ``scale = (sx, sy)`` row 0 times sx and row 1
-    times sy (the focal lengths: d uv / d dist). Every column is one contiguous product written into its strided
-    place (numpy's broadcasting over the small (2, n) trailing axes runs 3-5x slower, measured), from the shared
-    powers r^2, r^4, r^6."""
+    :func:`_brown`'s ``r2``, ``xy2``, ``tx``, ``ty``, ``radial`` and ``den``; with ``scale = (sx, sy)`` row 0 times
+    sx and row 1 times sy (the focal lengths: d uv / d dist). Every column is one contiguous product written into its
+    strided place (numpy's broadcasting over the small (2, n) trailing axes runs 3-5x slower, measured), from the
+    shared powers r^2, r^4, r^6."""
     mul = np.multiply
     r4 = r2 * r2
     r6 = r4 * r2

@@ -67,7 +67,19 @@ def fisheye_distort_jacobian(P: np.ndarray, dist: np.ndarray, jacobian: bool = T
     """:func:`fisheye_distort` with derivatives: ``(xd (N, 2), J_P (N, 2, 3) = d xd / d P, J_d (N, 2, 4) =
     d xd / d [k1, k2, k3, k4])`` (the Jacobians None without ``jacobian``)."""
     P = np.asarray(P, dtype=np.float64)
-    d = _check(dist)
+    if not jacobian:
+        return _fisheye(P, _check(dist)), None, None
+    n = len(P)
+    J_P, J_d = np.empty((n, 2, 3)), np.empty((n, 2, 4))
+    return _fisheye(P, _check(dist), J_P, J_d), J_P, J_d
+
+
+def _fisheye(P: np.ndarray, d: np.ndarray, J_P: np.ndarray | None = None, J_d: np.ndarray | None = None,
+             scale: tuple[float, float] | None = None) -> np.ndarray:
+    """The model, written once: ``xd`` (N, 2) of camera-frame ``P`` (N, 3); with ``J_P`` (N, 2, 3) and ``J_d``
+    (N, 2, 4) given (views of a caller's arrays) also d xd / d P and d xd / d dist written into them, their row 0
+    times ``scale[0]`` and row 1 times ``scale[1]`` when ``scale`` is given (the focal lengths: d uv). Every entry
+    is one contiguous (N,) product written into its strided place."""
     X, Y, Z = P[:, 0], P[:, 1], P[:, 2]
     rho2 = X * X + Y * Y
     n2 = rho2 + Z * Z
@@ -79,33 +91,44 @@ def fisheye_distort_jacobian(P: np.ndarray, dist: np.ndarray, jacobian: bool = T
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(axis, np.where(Z > 0, 1.0 / Z, np.nan), td / rs)   # xd = s X, yd = s Y
     xd = np.stack([s * X, s * Y], axis=-1)
-    if not jacobian:
-        return xd, None, None
-    n = len(P)
-    J_P = np.empty((n, 2, 3))
+    if J_P is None:
+        return xd
+    sx, sy = (None, None) if scale is None else scale
+
+    def put(out: np.ndarray, v: np.ndarray, f: float | None) -> None:
+        if f is None:
+            out[...] = v
+        else:
+            np.multiply(v, f, out=out)
+
     with np.errstate(divide="ignore", invalid="ignore"):
         g = dtd * Z / (rho2 * n2)            # d theta / d (X, Y) = Z (X, Y) / (rho n2); times dtd and / rho
         h = td / (rs * rho2)                 # theta_d / rho^3
-        J_P[:, 0, 0] = g * X * X + h * Y * Y
-        J_P[:, 0, 1] = J_P[:, 1, 0] = (g - h) * X * Y
-        J_P[:, 1, 1] = g * Y * Y + h * X * X
-        J_P[:, 0, 2] = -dtd * X / n2
-        J_P[:, 1, 2] = -dtd * Y / n2
+        put(J_P[:, 0, 0], g * X * X + h * Y * Y, sx)
+        gh = (g - h) * X * Y
+        put(J_P[:, 0, 1], gh, sx)
+        put(J_P[:, 1, 0], gh, sy)
+        put(J_P[:, 1, 1], g * Y * Y + h * X * X, sy)
+        put(J_P[:, 0, 2], -dtd * X / n2, sx)
+        put(J_P[:, 1, 2], -dtd * Y / n2, sy)
     if axis.any():  # the limit on the axis: the pinhole's d (X/Z, Y/Z) / d P
         iz = np.where(Z[axis] > 0, 1.0 / Z[axis], np.nan)
+        fx, fy = (1.0, 1.0) if scale is None else scale
         J_P[axis] = 0.0
-        J_P[axis, 0, 0] = J_P[axis, 1, 1] = iz
-        J_P[axis, 0, 2] = -X[axis] * iz * iz
-        J_P[axis, 1, 2] = -Y[axis] * iz * iz
-    J_d = np.empty((n, 2, 4))
+        J_P[axis, 0, 0] = iz * fx
+        J_P[axis, 1, 1] = iz * fy
+        J_P[axis, 0, 2] = -X[axis] * iz * iz * fx
+        J_P[axis, 1, 2] = -Y[axis] * iz * iz * fy
     ux, uy = np.where(axis, 0.0, X / rs), np.where(axis, 0.0, Y / rs)
+    if scale is not None:
+        ux, uy = ux * sx, uy * sy
     t2 = theta * theta
-    tp = theta * t2
+    tp = theta * t2                          # theta^3, ^5, ^7, ^9: d theta_d / d k_j along (X, Y) / rho
     for j in range(4):
-        J_d[:, 0, j] = tp * ux
-        J_d[:, 1, j] = tp * uy
+        np.multiply(tp, ux, out=J_d[:, 0, j])
+        np.multiply(tp, uy, out=J_d[:, 1, j])
         tp = tp * t2
-    return xd, J_P, J_d
+    return xd
 
 
 def fisheye_rays(xd: np.ndarray, dist: np.ndarray, *, tol: float = 1e-15, max_iter: int = 100) -> np.ndarray:
