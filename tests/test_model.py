@@ -299,3 +299,36 @@ def test_lens_camera_api():
 
 
 PARAM_NAMES_OPENCV5 = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+@pytest.mark.parametrize("name", ["opencv5", "rational", "thin-prism", "fisheye", "fisheye-190"])
+def test_projection_jacobian_equals_its_parts(name):
+    """project_camera_jacobian (the focal lengths folded into every column) against the chain rule through the
+    public parts: its pixels equal the value-only path to the bit (the solver's trial steps rely on it), its
+    Jacobians distort_jacobian's / fisheye_distort_jacobian's to 1e-13 relative."""
+    from circcal.model import fisheye_distort, fisheye_distort_jacobian
+
+    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0,
+                                           [-0.3, 0.12, 1e-3, -2e-3, -0.02])
+    rays = unproject(_pixel_grid(cam, (23, 17)), cam)
+    Xc = rays * np.random.default_rng(4).uniform(200, 2000, (len(rays), 1))
+    if name.startswith("fisheye"):
+        Xc[0] = [0.0, 0.0, 300.0]                                # on the axis: the pinhole limit
+    p, f = cam.intrinsics, cam.intrinsics[:2]
+    uv, Ji, JX = project_camera_jacobian(Xc, p, cam.lens)
+    if cam.model.pinhole:
+        xn = Xc[:, :2] * (1.0 / Xc[:, 2])[:, None]
+        value = distort(xn, cam.dist)
+        xd, Jx, Jd = distort_jacobian(xn, cam.dist)
+        dxn = np.zeros((len(Xc), 2, 3))
+        dxn[:, 0, 0] = dxn[:, 1, 1] = 1.0 / Xc[:, 2]
+        dxn[:, :, 2] = -xn / Xc[:, 2:3]
+        JP = Jx @ dxn
+    else:
+        value = fisheye_distort(Xc, cam.dist)
+        xd, JP, Jd = fisheye_distort_jacobian(Xc, cam.dist)
+    assert np.array_equal(uv, value * f + p[2:4]) and np.array_equal(xd, value)
+    want_i = np.concatenate([np.zeros((len(Xc), 2, 4)), Jd * f[None, :, None]], axis=2)
+    want_i[:, 0, 0], want_i[:, 1, 1], want_i[:, 0, 2], want_i[:, 1, 3] = xd[:, 0], xd[:, 1], 1.0, 1.0
+    for got, want in ((Ji, want_i), (JX, JP * f[None, :, None])):
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(want))
