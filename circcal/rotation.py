@@ -35,11 +35,14 @@ def rodrigues(rvec: np.ndarray) -> np.ndarray:
     tiny angles. Equals ``cv2.Rodrigues``."""
     r = np.asarray(rvec, dtype=np.float64)
     theta2 = np.sum(r * r, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
     small = theta2 < _SMALL_ANGLE2_ROTATION
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    tiny = bool(small.any())                      # the series (and its np.where) only where an angle needs it
+    safe = np.where(small, 1.0, np.sqrt(theta2)) if tiny else np.sqrt(theta2)
+    a = np.sin(safe) / safe
+    b = (1.0 - np.cos(safe)) / (safe * safe)
+    if tiny:
+        a = np.where(small, 1.0 - theta2 / 6.0, a)
+        b = np.where(small, 0.5 - theta2 / 24.0, b)
     kx = skew(r)
     eye = np.broadcast_to(np.eye(3), kx.shape)
     return eye + a * kx + b * (kx @ kx)
@@ -50,11 +53,14 @@ def left_jacobian(rvec: np.ndarray) -> np.ndarray:
     ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0)."""
     r = np.asarray(rvec, dtype=np.float64)
     t2 = np.sum(r * r, axis=-1)[..., None, None]
-    t = np.sqrt(t2)
     small = t2 < _SMALL_ANGLE2_JACOBIAN
-    safe = np.where(small, 1.0, t)
-    a = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    b = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
+    tiny = bool(small.any())
+    safe = np.where(small, 1.0, np.sqrt(t2)) if tiny else np.sqrt(t2)
+    a = (1.0 - np.cos(safe)) / (safe * safe)
+    b = (safe - np.sin(safe)) / (safe * safe * safe)
+    if tiny:
+        a = np.where(small, 0.5 - t2 / 24.0, a)
+        b = np.where(small, 1.0 / 6.0 - t2 / 120.0, b)
     K = skew(r)
     return np.eye(3) + a * K + b * (K @ K)
 
