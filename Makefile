@@ -99,8 +99,8 @@ study: setup
 	$(VPY) -m pytest -n $(JOBS) -q -m slow --ignore=tests/conformance
 
 # The 2,000-run study (studies/paper-2000.yaml: `paper` normal and weak, circcal and OpenCV's pipeline, 500 seeds
-# each) on an embedded Dask cluster of $(JOBS) workers; resumable (rerun to finish). Hours on 2 cores: the subset
-# (its first 8 seeds, the same run keys) measures the rate. On a cluster:
+# each) on an embedded Dask cluster of $(JOBS) workers; resumable (rerun to finish). 1 h 47 min on the shared 2-core
+# machine (reports/studies/paper-2000); the subset (its first 8 seeds, the same run keys) measures the rate. On a cluster:
 #   circcal study studies/paper-2000.yaml --scheduler tcp://HOST:8786 --out reports/studies/paper-2000
 study-paper-2000: setup
 	$(VENV)/bin/circcal study studies/paper-2000.yaml --workers $(JOBS) --out reports/studies/paper-2000
