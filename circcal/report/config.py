@@ -45,7 +45,7 @@ class ReportConfig:
     bias_diameters_px: tuple[float, ...] = (14.0, 20.0, 30.0, 45.0, 60.0)
     realdata: tuple[str, ...] = ("boofcv_sony_hx5v_circle_asym_4x5", "boofcv_sony_hx5v_circle_regular_10x8")
     heldout: bool = True
-    studies: tuple[str, ...] = ("monte-carlo", "paper-2000", "paper-2000-subset", "solver-batched")
+    studies: tuple[str, ...] = ("monte-carlo", "paper-2000", "paper-2000-subset", "markers-noise", "solver-batched")
 
 
 FULL = ReportConfig()
