@@ -93,33 +93,46 @@ def _points_of(centres: np.ndarray, board_points: np.ndarray) -> tuple[np.ndarra
 
 def duplicates_of(paths: Sequence[str]) -> dict[int, tuple[int, str]]:
     """Images given more than once: ``{i: (j, how)}`` for each path ``i`` that is the same file as an earlier path
-    ``j`` (``how`` = "same file as"), or holds the same bytes ("identical content to"). Files that cannot be read
-    are left to the detector (it reports them)."""
-    seen_file: dict[tuple[int, int], int] = {}
-    seen_bytes: dict[str, int] = {}
+    ``j`` (``how`` = "same file as"), or holds the same bytes ("identical content to"). Only files whose byte size
+    another file shares are read and hashed (files of different sizes cannot hold the same bytes). Files that cannot
+    be read are left to the detector (it reports them)."""
     out: dict[int, tuple[int, str]] = {}
+    seen_file: dict[tuple[int, int], int] = {}
+    by_size: dict[int, list[int]] = {}
     for i, p in enumerate(paths):
         try:
             st = os.stat(p)
-            if not stat.S_ISREG(st.st_mode):
-                continue
-            key = (st.st_dev, st.st_ino)
-            if key in seen_file:
-                out[i] = (seen_file[key], "same file as")
-                continue
-            seen_file[key] = i
-            h = hashlib.sha256()
-            with open(p, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    h.update(chunk)
-            digest = h.hexdigest()
         except OSError:
             continue
-        if digest in seen_bytes:
-            out[i] = (seen_bytes[digest], "identical content to")
-        else:
-            seen_bytes[digest] = i
-    return out
+        if not stat.S_ISREG(st.st_mode):
+            continue
+        key = (st.st_dev, st.st_ino)
+        if key in seen_file:
+            out[i] = (seen_file[key], "same file as")
+            continue
+        seen_file[key] = i
+        by_size.setdefault(st.st_size, []).append(i)
+    for group in by_size.values():
+        seen_bytes: dict[str, int] = {}
+        for i in group if len(group) > 1 else ():
+            try:
+                digest = _sha256(paths[i])
+            except OSError:
+                continue
+            if digest in seen_bytes:
+                out[i] = (seen_bytes[digest], "identical content to")
+            else:
+                seen_bytes[digest] = i
+    return dict(sorted(out.items()))
+
+
+def _sha256(path: str) -> str:
+    """The SHA-256 of a file's bytes, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def calibrate_images(

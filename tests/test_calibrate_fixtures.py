@@ -176,3 +176,17 @@ def test_duplicate_images_are_counted_once(tmp_path):
     assert "identical content to" in cal.failed[1].reason and paths[0] in cal.failed[1].reason
     np.testing.assert_array_equal(cal.result.camera.intrinsics, once.result.camera.intrinsics)
     assert cal.result.std == once.result.std
+
+
+def test_duplicates_of_tells_same_files_and_same_bytes(tmp_path):
+    """The same path twice, a byte copy, a same-size file with other bytes, another size and a missing file: only
+    the second path and the copy are duplicates, each of its earliest twin."""
+    from circcal.pipeline import duplicates_of
+
+    a, copy, same_size, other, missing = (tmp_path / n for n in ("a", "copy", "same", "other", "missing"))
+    a.write_bytes(b"x" * 1000)
+    copy.write_bytes(b"x" * 1000)
+    same_size.write_bytes(b"y" * 1000)
+    other.write_bytes(b"x" * 999)
+    paths = [str(p) for p in (a, same_size, a, other, copy, missing)]
+    assert duplicates_of(paths) == {2: (0, "same file as"), 4: (0, "identical content to")}
