@@ -69,6 +69,7 @@ __all__ = [
     "ScenarioBounds",
     "BOUNDS",
     "EXPECTED_UNSUPPORTED",
+    "UNSUPPORTED_LAYOUTS",
     "CIRCCAL_UNSUPPORTED",
     "MAY_REJECT_ALL",
     "USES_PARTIAL_VIEWS",
@@ -176,10 +177,20 @@ def scenario_lens(scenario: str) -> str:
 
 #: case id -> reason: cases that fail a bar today for a measured, understood cause; pytest marks them
 #: xfail(strict=True), so one that starts passing is reported too.
-KNOWN_FAILURES: dict[str, str] = {}
+KNOWN_FAILURES: dict[str, str] = {
+    "occluded-bar-mrcal_fair": "mrcal 2.2's solve ends at fx 1396 / fy 109 px (true 550) on this occluded set, its "
+                               "cost 3.8e6x circcal's on the same points: a false minimum from its own start on "
+                               "views whose occluded points carry weight -1 (found 2026-12-02, not yet investigated)",
+    "occluded-bar-pycolmap": "COLMAP's bundle adjustment refuses a board point seen in only one view "
+                             "(bundle_adjustment_ceres.cc:740: track length > 1); the adapter does not yet leave such "
+                             "points out (which would also change the observations the agreement compares)",
+}
 
 #: (scenario, reference) -> a word the "unsupported" message must contain.
 EXPECTED_UNSUPPORTED: dict[tuple[str, str], str] = {("asymmetric", "mrcal"): "asymmetric"}
+#: reference -> board layout -> a word its "unsupported" message must contain, for every scenario with such a board
+#: (mrcal's board model is a full rectangular lattice: asym-perspective's 3x6 staggered grid as much as asymmetric's).
+UNSUPPORTED_LAYOUTS: dict[str, dict[str, str]] = {"mrcal": {"asymmetric": "asymmetric"}}
 #: scenario -> a word circcal's refusal must contain (no reference cases: there are no circcal observations).
 CIRCCAL_UNSUPPORTED: dict[str, str] = {"paper-checkerboard": "checkerboard"}
 #: Scenarios whose views a calibrator may reject, each with a reason: if every view is rejected, circcal's case
@@ -570,6 +581,8 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
     """
     out = Outcome(case, "checked")
     expect = EXPECTED_UNSUPPORTED.get((case.scenario, case.reference))
+    if expect is None and case.reference in UNSUPPORTED_LAYOUTS and obs.board is not None:
+        expect = UNSUPPORTED_LAYOUTS[case.reference].get(obs.board.layout)
     if not obs.ok:
         out.status = "skip"
         out.skip_reason = (f"no observations: circcal did not calibrate {case.scenario}-{case.variant} "
