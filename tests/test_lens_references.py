@@ -154,6 +154,18 @@ def test_mrcal_export_per_lens(lens: str) -> None:
     assert m.info["max_abs_gradient"] < 1e-6
 
 
+def _both_solves(cal, scenario: str, lens: str):
+    """(obj, img, size, circcal's result, the reference's result) on the scenario's observations; skips when the
+    reference is not installed."""
+    from circcal.solver import calibrate
+
+    ok, why = cal.available()
+    if not ok:
+        pytest.skip(why)
+    obj, img, size = _scenario_observations(scenario)
+    return obj, img, size, calibrate(obj, img, size, lens=lens), cal.calibrate_observations(obj, img, size)
+
+
 def _scenario_observations(scenario: str) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
     """Scenario ``scenario``'s true centres + 0.01 px noise (seed 1), rounded to float32 as the suite shares them:
     per view (N, 3) mm and (N, 2) px, and the image size (w, h)."""
@@ -182,19 +194,13 @@ def test_identical_observations_agreement_on_the_lens_scenarios(scenario: str, l
     suite shares them): circcal's solver and the reference agree to the reference's bound (1e-6 px; mrcal 1e-4,
     lensboy 1e-2: it stops early, test_lensboy_stops_short_of_the_minimum_of_its_own_objective), or their costs tie
     (the suite's rule); one that does not fit the lens says why."""
-    from circcal.solver import calibrate
     from circcal.validators.checks import solver_agreement, solver_bound
     from circcal.validators.compare import projection_diff
     from circcal.validators.registry import get_for_lens
     from circcal.validators.shared import ssr
 
     cal = get_for_lens(ref, lens)
-    ok, why = cal.available()
-    if not ok:
-        pytest.skip(why)
-    obj, img, size = _scenario_observations(scenario)
-    mine = calibrate(obj, img, size, lens=lens)
-    res = cal.calibrate_observations(obj, img, size)
+    obj, img, size, mine, res = _both_solves(cal, scenario, lens)
     if not lens_support(cal, lens)[0]:
         assert res.status == "unsupported" and res.message
         return
@@ -247,18 +253,12 @@ def test_lensboy_stops_short_of_the_minimum_of_its_own_objective(scenario: str, 
     here, and on lensboy's own objective circcal's solution is the lower one, by less than lensboy's stopping rule
     (Ceres's function tolerance: it takes no step that gains less than 1e-6 of the cost); started at circcal's
     solution, lensboy stays there. So the gap is lensboy stopping early, not a different model or objective."""
-    from circcal.solver import calibrate
     from circcal.validators.bounds import SOLVER_LENSBOY_PX, SOLVER_PX
     from circcal.validators.compare import projection_diff
     from circcal.validators.lensboy import CERES_FUNCTION_TOLERANCE, LensboyCalibrator
 
     cal = LensboyCalibrator(lens=lens)
-    ok, why = cal.available()
-    if not ok:
-        pytest.skip(why)
-    obj, img, size = _scenario_observations(scenario)
-    mine = calibrate(obj, img, size, lens=lens)
-    res = cal.calibrate_observations(obj, img, size)
+    obj, img, size, mine, res = _both_solves(cal, scenario, lens)
     assert res.status == "ok", res.message
     assert SOLVER_PX < projection_diff(mine.camera, res.camera)["max_px"] <= SOLVER_LENSBOY_PX
     theirs = _lensboy_cost(res.camera, res.rvecs, res.tvecs, res.object_points, res.image_points)
