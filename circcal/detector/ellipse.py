@@ -61,7 +61,8 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
 
     Returns ``(Q (D, 3, 3), err (D,) int)``: conics as in :func:`fit_ellipse_direct` (NaN where ``err != 0``) and
     error codes (0 fitted; otherwise a key of :data:`FIT_ERRORS`). Each fit is the same normalised Halir-Flusser
-    solve as the single version (stacked 3x3 solves and eigen-decompositions); it never raises for a bad row.
+    solve as the single version, compiled and in closed form (:func:`_direct_solves`: ~7x faster than stacked
+    LAPACK solves and eigen-decompositions, the same conics to ~1e-12); it never raises for a bad row.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 2:
@@ -74,53 +75,124 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     err[np.any(m & ~finite, axis=1)] = 2
     err[cnt < 5] = 1
     mean, s, S1, S2, S3 = _normalised_scatter(p, m & finite)
-    good = err == 0
-    T = np.full((D, 3, 3), np.nan)
-    if np.any(good):
-        try:
-            T[good] = -np.linalg.solve(S3[good], S2[good].transpose(0, 2, 1))
-        except np.linalg.LinAlgError:  # some row singular: find which
-            for i in np.nonzero(good)[0]:
-                try:
-                    T[i] = -np.linalg.solve(S3[i], S2[i].T)
-                except np.linalg.LinAlgError:
-                    err[i] = 3
-    good = err == 0
     Q = np.full((D, 3, 3), np.nan)
-    if not np.any(good):
-        return Q, err
-    gi = np.nonzero(good)[0]
-    Tg = T[gi]
-    M = S1[gi] + S2[gi] @ Tg
-    M = np.stack([M[:, 2] / 2.0, -M[:, 1], M[:, 0] / 2.0], axis=1)  # C1^-1 M
-    if not np.all(np.isfinite(M)):
-        bad = ~np.all(np.isfinite(M), axis=(1, 2))
-        err[gi[bad]] = 3
-        M[bad] = np.eye(3)
-    wv, v = np.linalg.eig(M)
-    v = np.real(v)
-    wr = np.abs(np.real(wv))
-    cond = 4.0 * v[:, 0, :] * v[:, 2, :] - v[:, 1, :] ** 2
-    ok = cond > 0
-    none = ~np.any(ok, axis=1)
-    err[gi[none & (err[gi] == 0)]] = 4
-    j = np.argmin(np.where(ok, wr, np.inf), axis=1)
-    a1 = np.take_along_axis(v, j[:, None, None], axis=2)[:, :, 0]   # (G, 3)
-    a2 = (Tg @ a1[:, :, None])[:, :, 0]
-    A, B, C = a1[:, 0], a1[:, 1], a1[:, 2]
-    Dd, E, F = a2[:, 0], a2[:, 1], a2[:, 2]
-    Qn = np.stack([np.stack([A, B / 2, Dd / 2], 1), np.stack([B / 2, C, E / 2], 1),
-                   np.stack([Dd / 2, E / 2, F], 1)], 1)
-    sg = s[gi]
-    N = np.zeros((len(gi), 3, 3))
-    N[:, 0, 0] = N[:, 1, 1] = sg
-    N[:, 0, 2] = -sg * mean[gi, 0]
-    N[:, 1, 2] = -sg * mean[gi, 1]
-    N[:, 2, 2] = 1.0
-    Qg = _canonical(N.transpose(0, 2, 1) @ Qn @ N)
-    keep = err[gi] == 0
-    Q[gi[keep]] = Qg[keep]
+    _direct_solves(S1, S2, S3, mean, s, err, Q)
     return Q, err
+
+
+@njit(cache=True, nogil=True)
+def _direct_solves(S1, S2, S3, mean, s, err, Q):
+    """The Halir-Flusser solve of each row ``d`` with ``err[d] == 0``, in closed form: writes the conic (3, 3) px into
+    ``Q[d]`` (unit Frobenius norm, upper-left block positive definite) or an error code into ``err[d]`` (3:
+    ``S3`` singular or the reduced matrix not finite; 4: no elliptic solution).
+
+    ``T = -S3^-1 S2^T`` (adjugate), ``M = C1^-1 (S1 + S2 T)``; the ellipse is the eigenvector of M's largest
+    eigenvalue (Fitzgibbon et al. 1999: the reduced scatter is positive semi-definite and the constraint
+    ``4AC - B^2`` has one positive direction, so exactly one eigenvalue is >= 0, the ellipse's, and the other two
+    are <= 0; for the points of a circle those two coincide, which is why it is found by its eigenvalue, not by
+    testing the constraint on all three eigenvectors), taken from the characteristic cubic (trigonometric roots,
+    two Newton steps) and the largest cross product of two rows of ``M - lambda I``; the linear part is ``T a1``.
+    The conic is mapped back from the normalised coordinates ``s (p - mean)``."""
+    for d in range(len(err)):
+        if err[d] != 0:
+            continue
+        A3 = S3[d]
+        c00 = A3[1, 1] * A3[2, 2] - A3[1, 2] * A3[2, 1]
+        c01 = A3[1, 2] * A3[2, 0] - A3[1, 0] * A3[2, 2]
+        c02 = A3[1, 0] * A3[2, 1] - A3[1, 1] * A3[2, 0]
+        det3 = A3[0, 0] * c00 + A3[0, 1] * c01 + A3[0, 2] * c02
+        if not (np.isfinite(det3) and det3 != 0.0):
+            err[d] = 3
+            continue
+        inv = np.empty((3, 3))   # S3^-1 = adj(S3) / det
+        inv[0, 0], inv[1, 0], inv[2, 0] = c00 / det3, c01 / det3, c02 / det3
+        inv[0, 1] = (A3[0, 2] * A3[2, 1] - A3[0, 1] * A3[2, 2]) / det3
+        inv[1, 1] = (A3[0, 0] * A3[2, 2] - A3[0, 2] * A3[2, 0]) / det3
+        inv[2, 1] = (A3[0, 1] * A3[2, 0] - A3[0, 0] * A3[2, 1]) / det3
+        inv[0, 2] = (A3[0, 1] * A3[1, 2] - A3[0, 2] * A3[1, 1]) / det3
+        inv[1, 2] = (A3[0, 2] * A3[1, 0] - A3[0, 0] * A3[1, 2]) / det3
+        inv[2, 2] = (A3[0, 0] * A3[1, 1] - A3[0, 1] * A3[1, 0]) / det3
+        T = np.empty((3, 3))     # -S3^-1 S2^T
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += inv[i, k] * S2[d, j, k]
+                T[i, j] = -acc
+        R = np.empty((3, 3))     # S1 + S2 T
+        for i in range(3):
+            for j in range(3):
+                acc = S1[d, i, j]
+                for k in range(3):
+                    acc += S2[d, i, k] * T[k, j]
+                R[i, j] = acc
+        M = np.empty((3, 3))     # C1^-1 R
+        for j in range(3):
+            M[0, j], M[1, j], M[2, j] = R[2, j] / 2.0, -R[1, j], R[0, j] / 2.0
+        if not np.all(np.isfinite(M)):
+            err[d] = 3
+            continue
+        lam = _largest_eigenvalue(M)
+        # eigenvector: the largest cross product of two rows of M - lam I
+        best = -1.0
+        v0 = v1 = v2 = 0.0
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            ax, ay, az = M[i, 0] - (lam if i == 0 else 0.0), M[i, 1] - (lam if i == 1 else 0.0), M[i, 2]
+            bx, by, bz = M[j, 0], M[j, 1] - (lam if j == 1 else 0.0), M[j, 2] - (lam if j == 2 else 0.0)
+            cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+            nn = cx * cx + cy * cy + cz * cz
+            if nn > best:
+                best, v0, v1, v2 = nn, cx, cy, cz
+        if not (best > 0.0 and 4.0 * v0 * v2 - v1 * v1 > 0.0):
+            err[d] = 4
+            continue
+        A, B, C = v0, v1, v2
+        Dd = T[0, 0] * v0 + T[0, 1] * v1 + T[0, 2] * v2
+        E = T[1, 0] * v0 + T[1, 1] * v1 + T[1, 2] * v2
+        F = T[2, 0] * v0 + T[2, 1] * v1 + T[2, 2] * v2
+        # back to pixels: x_n = s (x - mean), so Q = N^T Qn N with N = [[s, 0, -s mx], [0, s, -s my], [0, 0, 1]]
+        sc, mx, my = s[d], mean[d, 0], mean[d, 1]
+        q00, q01, q11 = A * sc * sc, 0.5 * B * sc * sc, C * sc * sc
+        l0, l1 = 0.5 * Dd * sc, 0.5 * E * sc
+        q02 = -(q00 * mx + q01 * my) + l0
+        q12 = -(q01 * mx + q11 * my) + l1
+        q22 = ((A * mx + B * my) * mx + C * my * my) * sc * sc - 2.0 * (l0 * mx + l1 * my) + F
+        nrm = np.sqrt(q00 * q00 + q11 * q11 + q22 * q22 + 2.0 * (q01 * q01 + q02 * q02 + q12 * q12))
+        if q00 + q11 < 0:
+            nrm = -nrm
+        Q[d, 0, 0], Q[d, 1, 1], Q[d, 2, 2] = q00 / nrm, q11 / nrm, q22 / nrm
+        Q[d, 0, 1] = Q[d, 1, 0] = q01 / nrm
+        Q[d, 0, 2] = Q[d, 2, 0] = q02 / nrm
+        Q[d, 1, 2] = Q[d, 2, 1] = q12 / nrm
+
+
+@njit(cache=True, nogil=True)
+def _largest_eigenvalue(M):
+    """The largest real eigenvalue of the real (3, 3) matrix ``M``: the largest root of its characteristic cubic
+    (trigonometric form when all three roots are real, Cardano's otherwise), polished by two Newton steps."""
+    tr = M[0, 0] + M[1, 1] + M[2, 2]
+    c2 = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) + (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) \
+        + (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+    dt = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+          + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+    # lam^3 - tr lam^2 + c2 lam - dt = 0; lam = t + tr / 3: t^3 + p t + q = 0
+    sh = tr / 3.0
+    p = c2 - tr * tr / 3.0
+    q = -2.0 * tr * tr * tr / 27.0 + tr * c2 / 3.0 - dt
+    if p < 0.0 and 4.0 * p * p * p + 27.0 * q * q <= 0.0:
+        r = np.sqrt(-p / 3.0)
+        arg = min(1.0, max(-1.0, 3.0 * q / (2.0 * p * r)))
+        t = 2.0 * r * np.cos(np.arccos(arg) / 3.0)
+    else:
+        disc = np.sqrt(max(q * q / 4.0 + p * p * p / 27.0, 0.0))
+        t = np.cbrt(-q / 2.0 + disc) + np.cbrt(-q / 2.0 - disc)
+    lam = t + sh
+    for _ in range(2):
+        f = ((lam - tr) * lam + c2) * lam - dt
+        g = (3.0 * lam - 2.0 * tr) * lam + c2
+        if g != 0.0:
+            lam -= f / g
+    return lam
 
 
 @njit(cache=True, nogil=True)
@@ -187,14 +259,6 @@ def _normalised_scatter(p: np.ndarray, use: np.ndarray):
         S3[d, 1, 0], S3[d, 1, 1], S3[d, 1, 2] = m11, m02, m01
         S3[d, 2, 0], S3[d, 2, 1], S3[d, 2, 2] = m10, m01, m00
     return mean, s, S1, S2, S3
-
-
-def _canonical(Q: np.ndarray) -> np.ndarray:
-    """Scale Q (..., 3, 3) to unit Frobenius norm, sign chosen so the upper-left block is positive definite."""
-    Q = 0.5 * (Q + np.swapaxes(Q, -1, -2))
-    Q = Q / np.sqrt(np.sum(Q * Q, axis=(-2, -1), keepdims=True))
-    sign = np.where(Q[..., 0, 0] + Q[..., 1, 1] < 0, -1.0, 1.0)
-    return Q * sign[..., None, None]
 
 
 def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
