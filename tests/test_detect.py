@@ -406,6 +406,32 @@ def test_batched_levels_equal_the_per_dot_estimate():
         assert np.allclose(plane[k][:2], rp[:2], atol=1e-11)
 
 
+def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
+    """A dot whose inside (the ellipse shrunk by the edge gap) holds fewer than 3 pixels takes the median of the 3
+    pixels nearest its centre (in the ellipse's own metric) as its dark level: against a direct computation, for
+    float and uint8 images."""
+    from circcal.detector.ellipse import conic_from_params_batch
+    from circcal.detector.levels import DARK_MIN_PIXELS, dot_levels_batch
+
+    rng = np.random.default_rng(11)
+    img = rng.uniform(0.0, 1.0, (60, 80))
+    c = np.column_stack([rng.uniform(15, 65, 8), rng.uniform(15, 45, 8)])
+    axes = np.column_stack([rng.uniform(1.5, 2.5, 8), rng.uniform(1.0, 1.9, 8)])
+    ang = rng.uniform(-1.5, 1.5, 8)
+    Q = conic_from_params_batch(c, axes, ang)
+    boxes = np.column_stack([np.floor(c - 9), np.ceil(c + 9)]).astype(int)
+    for im in (img, np.rint(img * 255).astype(np.uint8)):
+        dark, _, _ = dot_levels_batch(im, Q, boxes)
+        for k in range(8):
+            x0, y0, x1, y1 = boxes[k]
+            yy, xx = np.mgrid[y0:y1, x0:x1]
+            dx, dy = xx - c[k, 0], yy - c[k, 1]
+            u = (np.cos(ang[k]) * dx + np.sin(ang[k]) * dy) / axes[k, 0]
+            v = (-np.sin(ang[k]) * dx + np.cos(ang[k]) * dy) / axes[k, 1]
+            near = np.argsort((u * u + v * v).ravel(), kind="stable")[:DARK_MIN_PIXELS]
+            assert dark[k] == pytest.approx(float(np.median(im[y0:y1, x0:x1].ravel()[near])), abs=1e-12)
+
+
 def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, k_out, fa_out, fb_out,
                              found_out):
     """Reference for ``edges._crossings_kernel``: every sample of every profile (scipy's map_coordinates), then the
@@ -469,6 +495,31 @@ def test_guided_filter_is_opencvs_to_float32_rounding():
             ref = cv2.convertScaleAbs(cv2.ximgproc.guidedFilter(g, g, radius, GUIDED_EPS), alpha=255.0)
             d = np.abs(guided_filter(img, radius, GUIDED_EPS).astype(int) - ref)
             assert d.max() <= 1 and np.count_nonzero(d) <= share * d.size
+
+
+def test_shrink_is_opencvs_area_resize():
+    """The compiled block means of uint8 images (scales >= 3) equal ``cv2.resize(..., INTER_AREA)`` to the bit,
+    ties (even block sizes) included, on noise, on a board and on sizes that are not multiples of the scale; the
+    other dtypes and scale 2 are OpenCV's own call."""
+    from circcal.detector.jit import synthetic_board
+    from circcal.detector.segment import shrink
+
+    rng = np.random.default_rng(5)
+    board_img, _ = synthetic_board()
+    images = [board_img, np.repeat(np.repeat(board_img, 3, axis=0), 3, axis=1)]
+    images += [rng.integers(0, 256, (int(rng.integers(20, 500)), int(rng.integers(20, 700))), dtype=np.uint8)
+               for _ in range(12)]
+    for img in images:
+        for s in range(2, 10):
+            H, W = img.shape
+            if H < s or W < s:
+                continue
+            ref = cv2.resize(img[:H // s * s, :W // s * s], (W // s, H // s), interpolation=cv2.INTER_AREA)
+            out = shrink(img, s)
+            assert out.dtype == np.uint8 and out.shape == ref.shape
+            assert np.array_equal(out, ref), (img.shape, s, int(np.count_nonzero(out != ref)))
+    f = board_img.astype(np.float32)
+    assert np.array_equal(shrink(f, 3), cv2.resize(f[:480, :639], (213, 160), interpolation=cv2.INTER_AREA))
 
 
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):

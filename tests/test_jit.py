@@ -91,6 +91,17 @@ def test_the_build_is_named_after_the_kernel_source():
     assert key != jit._module_key("circcal.detector.levels")
 
 
+def test_a_build_for_another_cpu_is_not_loaded(monkeypatch):
+    # the build is compiled for the host CPU: on a machine whose CPU differs its name differs, so it is not found
+    # there (numba's JIT runs instead of instructions that CPU may lack)
+    here = jit._aot_name("circcal.detector.levels")
+    assert "flags=" in jit._host_cpu() or not Path("/proc/cpuinfo").is_file()
+    monkeypatch.setattr(jit, "_host_cpu", lambda: "x86_64|model name=another|flags=fpu sse sse2")
+    assert jit._aot_name("circcal.detector.levels") != here
+    monkeypatch.setattr(jit, "_aot_cache", {})
+    assert jit._load_aot("circcal.detector.levels") == {}
+
+
 def test_synthetic_board_is_found():
     img, board = jit.synthetic_board()
     d = detect(img, board)

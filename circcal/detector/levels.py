@@ -33,6 +33,9 @@ PLANE_MIN_PIXELS = 6
 """The plane is fitted to at least this many bright ring pixels (3 parameters, twice over), else no bright level."""
 PLANE_OUTLIER_SIGMAS = 4.0
 """Ring pixels further than this many robust sigmas from the first plane are left out of the refit."""
+SURE_MARGIN_PX = 2
+"""Columns of a row this far inside the inner ellipse's real roots are taken as inside without testing each
+(the compiled pass's shortcut; pixels nearer the roots are tested: the same pixels either way)."""
 _HIST_BINS_U8 = 256
 
 
@@ -171,6 +174,33 @@ def _plane_fit(rx, ry, rv, use, n):
 
 
 @njit(cache=True, nogil=True)
+def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v):
+    """Median grey level of the :data:`DARK_MIN_PIXELS` pixels of the box ``x0, y0, x1, y1`` nearest the centre
+    ``cx, cy`` in ``rho^2 = qa dx^2 + qb dx dy + qc dy^2`` (among those of the rows' spans inside ``rho^2 < t_hi``,
+    as :func:`_levels_kernel` visits them; ties: the first visited): the dark level of a dot too small to have an
+    inside. NaN when there is no such pixel. ``near_r``, ``near_v``: scratch of that length."""
+    n_near = 0
+    for y in range(y0, y1):
+        dy = y - cy
+        disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
+        if disc < 0:
+            continue
+        half = np.sqrt(disc) / (2.0 * qa)
+        mid = cx - qb * dy / (2.0 * qa)
+        for x in range(max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)):
+            dx = x - cx
+            rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
+            if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:   # kept sorted by rho^2
+                i = min(n_near, DARK_MIN_PIXELS - 1)
+                while i > 0 and near_r[i - 1] > rho2:
+                    near_r[i], near_v[i] = near_r[i - 1], near_v[i - 1]
+                    i -= 1
+                near_r[i], near_v[i] = rho2, gray[y, x]
+                n_near = min(n_near + 1, DARK_MIN_PIXELS)
+    return np.median(near_v[:n_near]) if n_near else np.nan
+
+
+@njit(cache=True, nogil=True)
 def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, ok):
     """The per-pixel work of :func:`dot_levels_batch`, one dot at a time; writes ``dark``, ``plane``, ``ok``.
 
@@ -200,7 +230,6 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
         t_in, t_lo, t_hi = t[d, 0], t[d, 1], t[d, 2]
         n_in = 0
         n_ring = 0
-        n_near = 0
         for y in range(y0, y1):
             dy = y - cy
             # the columns inside the outer ellipse rho^2 < t_hi (a pixel beyond it is neither inside nor in the ring;
@@ -210,7 +239,26 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
                 continue
             half = np.sqrt(disc) / (2.0 * qa)
             mid = cx - qb * dy / (2.0 * qa)
-            for x in range(max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)):
+            xa = max(x0, int(np.floor(mid - half)) - 1)
+            xb = min(x1, int(np.ceil(mid + half)) + 2)
+            # the columns certainly inside (rho^2 < t_in): SURE_MARGIN_PX in from the row's real roots, where rho^2
+            # is below t_in by ~4 qa (h - 1) px, far beyond rounding; they need no test (the others are tested)
+            ia = ib = xb
+            disc_in = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_in)
+            if t_in > 0 and disc_in > 0:
+                h_in = np.sqrt(disc_in) / (2.0 * qa)
+                if h_in > SURE_MARGIN_PX + 1.0:
+                    ia = max(xa, int(np.ceil(mid - h_in)) + SURE_MARGIN_PX)
+                    ib = max(ia, min(xb, int(np.floor(mid + h_in)) - SURE_MARGIN_PX + 1))
+            x = xa
+            while x < xb:
+                if x == ia:
+                    for xx in range(ia, ib):
+                        inner[n_in] = gray[y, xx]
+                        n_in += 1
+                    x = ib
+                    if x >= xb:
+                        break
                 dx = x - cx
                 rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
                 v = gray[y, x]
@@ -222,20 +270,11 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
                     ry[n_ring] = dy
                     rv[n_ring] = v
                     n_ring += 1
-                # the pixels nearest the centre (for dots too small to have an inside), sorted by rho^2
-                if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:
-                    i = min(n_near, DARK_MIN_PIXELS - 1)
-                    while i > 0 and near_r[i - 1] > rho2:
-                        near_r[i], near_v[i] = near_r[i - 1], near_v[i - 1]
-                        i -= 1
-                    near_r[i], near_v[i] = rho2, v
-                    n_near = min(n_near + 1, DARK_MIN_PIXELS)
+                x += 1
         if n_in >= DARK_MIN_PIXELS:
             dk = _median_values(inner, n_in, hist, res)
-        elif n_near:
-            dk = np.median(near_v[:n_near])
         else:
-            dk = np.nan
+            dk = _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v)
         if n_ring < RING_MIN_PIXELS:
             continue
         ring_med = _median_values(rv, n_ring, hist, res)

@@ -13,6 +13,7 @@ import numpy as np
 
 from circcal.detector.candidates import Candidate
 from circcal.detector.image import HIST_EXACT_COUNT
+from circcal.detector.jit import njit
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "segmentation_scales", "segmentations", "shrink",
            "noise_sigma_u8", "speckled", "upscaled"]
@@ -154,12 +155,43 @@ def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
 
 def shrink(gray: np.ndarray, scale: int) -> np.ndarray:
     """(H // s, W // s) averages of the s x s pixel blocks of ``gray`` (H, W), ``s = scale`` (uint8, uint16 and
-    float32 kept; other dtypes via float32, as :func:`~circcal.detector.image.as_gray` converts float64 colour)."""
+    float32 kept; other dtypes via float32, as :func:`~circcal.detector.image.as_gray` converts float64 colour).
+
+    ``cv2.resize(..., INTER_AREA)``'s values; for uint8 and ``s >= 3`` computed by :func:`_block_means_u8` (the same
+    values, ~3x faster: OpenCV has a fast path for 2x only, its general area loop took ~1.5 ms of a 1080p frame)."""
     H, W = gray.shape
     g = gray[:H // scale * scale, :W // scale * scale]
+    if g.dtype == np.uint8 and scale >= 3 and W // scale and H // scale:
+        return _block_means_u8(np.ascontiguousarray(g), int(scale), np.empty((H // scale, W // scale), np.uint8))
     if g.dtype not in (np.uint8, np.uint16, np.float32):
         g = g.astype(np.float32)
     return cv2.resize(g, (W // scale, H // scale), interpolation=cv2.INTER_AREA)
+
+
+@njit(cache=True, nogil=True)
+def _block_means_u8(g, s, out):
+    """Writes into ``out`` (H, W) uint8 the means of the ``s`` x ``s`` blocks of ``g`` (H s, W s) uint8, rounded
+    as OpenCV's area resize rounds them (float32 product with 1 / s^2, half to even; equal to
+    ``cv2.resize(g, (W, H), interpolation=cv2.INTER_AREA)`` for s >= 3, tested); returns ``out``. The s rows of a
+    block row are summed first (contiguous, vectorised), then each block of s columns."""
+    H, W = out.shape
+    inv = np.float32(1.0) / np.float32(s * s)
+    wide = W * s
+    acc = np.zeros(wide, np.int32)
+    for y in range(H):
+        first = g[y * s]
+        for x in range(wide):
+            acc[x] = first[x]
+        for r in range(1, s):
+            row = g[y * s + r]
+            for x in range(wide):
+                acc[x] += row[x]
+        for x in range(W):
+            t = 0
+            for k in range(s):
+                t += acc[x * s + k]
+            out[y, x] = np.uint8(np.rint(np.float32(t) * inv))
+    return out
 
 
 def upscaled(c: Candidate, scale: int) -> Candidate:
