@@ -99,6 +99,19 @@ class Symmetry:
     det: int
 
 
+@functools.lru_cache(maxsize=64)
+def _object_points(rows: int, cols: int, pitch_mm: float, staggered: bool) -> np.ndarray:
+    """:meth:`Board.object_points`, computed once per layout (the detector asks for them several times per image);
+    read-only, so that a caller cannot change the cached copy."""
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    i = i.ravel().astype(np.float64)
+    j = j.ravel().astype(np.float64)
+    x = (2.0 * j + (i % 2)) * pitch_mm if staggered else j * pitch_mm
+    out = np.stack([x, i * pitch_mm, np.zeros_like(x)], axis=-1)
+    out.flags.writeable = False
+    return out
+
+
 @dataclass(frozen=True)
 class Board:
     """A planar target. ``pitch_mm`` and ``diameter_mm`` in mm (``diameter_mm`` is 0 for a checkerboard);
@@ -235,15 +248,8 @@ class Board:
         return self.pitch_mm if self.margin_mm is None else float(self.margin_mm)
 
     def object_points(self) -> np.ndarray:
-        """(rows*cols, 3) float64 board coordinates in mm, OpenCV's order."""
-        i, j = np.meshgrid(np.arange(self.rows), np.arange(self.cols), indexing="ij")
-        i = i.ravel().astype(np.float64)
-        j = j.ravel().astype(np.float64)
-        if self.layout == "asymmetric":
-            x = (2.0 * j + (i % 2)) * self.pitch_mm
-        else:
-            x = j * self.pitch_mm
-        return np.stack([x, i * self.pitch_mm, np.zeros_like(x)], axis=-1)
+        """(rows*cols, 3) float64 board coordinates in mm, OpenCV's order (a fresh array the caller may change)."""
+        return _object_points(self.rows, self.cols, float(self.pitch_mm), self.layout == "asymmetric").copy()
 
     def feature_extent_mm(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the printed features (dot rims or squares, markers included), mm."""
