@@ -1,7 +1,7 @@
 """Direct ellipse fit (Halir-Flusser) and conic conversions: exact recovery on random ellipses."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from circcal.detector.ellipse import (algebraic_distance, conic_centre, conic_from_params, conic_params, ellipse_normals,
                              fit_ellipse_direct, sample_ellipse)
@@ -15,6 +15,7 @@ ellipses = st.tuples(
 
 @settings(max_examples=60, deadline=None)
 @given(ellipses, st.integers(6, 200), st.floats(0.0, 2 * np.pi))
+@example(e=(1.0, 3999.0, 2.0, 0.1, 0.0625), n=61, t0=0.0)   # a thin ellipse the unrefined closed form missed by 1.4e-7
 def test_fit_recovers_exact_ellipse(e, n, t0):
     cx, cy, a, ratio, ang = e
     b = a * ratio
@@ -26,8 +27,12 @@ def test_fit_recovers_exact_ellipse(e, n, t0):
     F = fit_ellipse_direct(pts)
     c, (fa, fb), fang = conic_params(F)
     assert np.allclose(c, [cx, cy], atol=1e-7 * a)
-    assert fa == pytest.approx(a, rel=1e-7)
-    assert fb == pytest.approx(b, rel=1e-7)
+    # the points themselves are rounded to eps |c| px, eps |c| / b of the minor axis, which the fit's conditioning
+    # amplifies (~3e4 for thin 2 x 0.2 px ellipses 4000 px from the origin: 1.4e-7 of the axes measured over 5000
+    # of them, LAPACK's path as the compiled one); elsewhere 1e-7 holds
+    rel = 1e-7 + 1e5 * np.finfo(float).eps * max(abs(cx), abs(cy)) / b
+    assert fa == pytest.approx(a, rel=rel)
+    assert fb == pytest.approx(b, rel=rel)
     if ratio < 0.99:  # the angle is defined only for a non-circle
         d = (fang - ang + np.pi / 2) % np.pi - np.pi / 2
         assert abs(d) < 1e-6 / (1 - ratio)
