@@ -178,9 +178,6 @@ def scenario_lens(scenario: str) -> str:
 #: case id -> reason: cases that fail a bar today for a measured, understood cause; pytest marks them
 #: xfail(strict=True), so one that starts passing is reported too.
 KNOWN_FAILURES: dict[str, str] = {
-    "occluded-bar-mrcal_fair": "mrcal 2.2's solve ends at fx 1396 / fy 109 px (true 550) on this occluded set, its "
-                               "cost 3.8e6x circcal's on the same points: a false minimum from its own start on "
-                               "views whose occluded points carry weight -1 (found 2026-12-02, not yet investigated)",
     "occluded-bar-pycolmap": "COLMAP's bundle adjustment refuses a board point seen in only one view "
                              "(bundle_adjustment_ceres.cc:740: track length > 1); the adapter does not yet leave such "
                              "points out (which would also change the observations the agreement compares)",

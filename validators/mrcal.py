@@ -108,6 +108,26 @@ class UnsupportedLayout(NotImplementedError):
     pass
 
 
+def _seed_frames(object_points: list[np.ndarray], image_points: list[np.ndarray], seed: Camera,
+                 origin: np.ndarray) -> list[list[float]] | None:
+    """The fair mode's starting board poses (Nframes, 6) ``rvec, tvec`` (mrcal's lattice frame, whose origin is
+    ``origin`` (3,) mm of ours, -> camera): each view's PnP with the ``seed`` camera (the generic seed, or the
+    caller's initial camera; nothing of circcal's solve), in place of mrcal 2.2's own pose seeding, which on partial
+    views can start a board a few mm from the camera (mrcal_worker's "Modes"). ``None`` (mrcal's seeding) when a
+    view has no pose."""
+    from circcal.errors import CalibrationError
+    from circcal.solver.holdout import fit_pose
+
+    frames = []
+    for o, q in zip(object_points, image_points):
+        try:
+            rv, tv = fit_pose(np.asarray(o, np.float64) - origin, q, seed)
+        except CalibrationError:
+            return None
+        frames.append([*map(float, rv), *map(float, tv)])
+    return frames
+
+
 def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False
                   ) -> dict[str, Any]:
     """Map per-view board points (N_v, 3) mm onto mrcal's rectangular lattice.
@@ -228,7 +248,8 @@ class MrcalCalibrator(BaseCalibrator):
         req = {"modes": modes, "width_n": W, "height_n": H, "spacing": s, "observations": obs.tolist(),
                "imagersize": [int(image_size[0]), int(image_size[1])],
                "focal_estimate": float(0.5 * (seed.fx + seed.fy)), "lensmodel": lensmodel,
-               "seed_intrinsics": None if initial is None else initial.intrinsics.tolist()}
+               "seed_intrinsics": None if initial is None else initial.intrinsics.tolist(),
+               "seed_frames_fair": _seed_frames(object_points, image_points, seed, origin)}
         reply = run_worker(py, req, self.timeout_s)
         wall = time.perf_counter() - t0
         out = []
