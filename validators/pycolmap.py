@@ -165,8 +165,16 @@ class PycolmapCalibrator(BaseCalibrator):
                 raise RuntimeError(f"view {v}: pycolmap could not estimate an initial pose")
             img = pycolmap.Image(name=f"view{v:04d}", keypoints=q + COLMAP_OFFSET, camera_id=1, image_id=v + 1)
             rec.add_image_with_trivial_frame(img, pose["cam_from_world"])
+        # COLMAP's bundle adjustment takes no track of one observation (bundle_adjustment_ceres.cc checks track
+        # length > 1, constant points too): a board point seen in one view only is left out, and said so (the
+        # conformance suite then compares with circcal's solve on the same subset, ``extra["left_out"]``)
+        views_of = np.bincount(np.concatenate(idx_per_view), minlength=len(xyz)) if len(xyz) else np.zeros(0, int)
+        left_out = {v: [int(k) for k, pid in enumerate(ids) if views_of[pid] < 2] for v, ids in enumerate(idx_per_view)}
+        left_out = {v: ks for v, ks in left_out.items() if ks}
         point_ids = []
         for j, X in enumerate(xyz):
+            if views_of[j] < 2:
+                continue
             track = pycolmap.Track()
             for v, ids in enumerate(idx_per_view):
                 for k, pid in enumerate(ids):
@@ -233,11 +241,13 @@ class PycolmapCalibrator(BaseCalibrator):
             else:
                 C = np.asarray(C)
                 n_free_intr = C.shape[0]
-                n_obs = 2 * sum(len(q) for q in image_points)
+                n_obs = 2 * (sum(len(q) for q in image_points) - sum(map(len, left_out.values())))
                 n_free = n_free_intr + 6 * len(object_points)
                 ssr = 0.0
-                for o, q, r, t in zip(object_points, image_points, rvecs_a, tvecs_a):
-                    ssr += float(np.sum((project(o, r, t, camera) - q) ** 2))
+                for v, (o, q, r, t) in enumerate(zip(object_points, image_points, rvecs_a, tvecs_a)):
+                    use = np.ones(len(q), bool)
+                    use[left_out.get(v, [])] = False      # (the observations the adjustment fitted)
+                    ssr += float(np.sum((project(o[use], r, t, camera) - q[use]) ** 2))
                 sigma2 = ssr / max(n_obs - n_free, 1)
                 sd = np.sqrt(np.clip(np.diag(C), 0, None) * sigma2)
                 # tangent order: the free parameters in COLMAP's order
@@ -255,5 +265,7 @@ class PycolmapCalibrator(BaseCalibrator):
                            fixed=fixed, model=self.model, lens=lens, ceres_termination=term,
                            ceres_iterations=int(getattr(summary, "num_iterations", -1))
                            if hasattr(summary, "num_iterations") else None,
-                           std_note=std_note, seed_fx=float(seed.fx),
-                           note="pixel convention converted from COLMAP's (0.5, 0.5) top-left centre")
+                           std_note=std_note, seed_fx=float(seed.fx), left_out=left_out,
+                           note="pixel convention converted from COLMAP's (0.5, 0.5) top-left centre"
+                           + (f"; {sum(map(len, left_out.values()))} observations of board points seen in one view "
+                              "only left out (COLMAP takes no single-view track)" if left_out else ""))
