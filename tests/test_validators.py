@@ -392,3 +392,32 @@ def test_a_reference_that_stops_short_passes_only_above_circcals_cost():
     assert solver_agreement("lensboy", ref("lensboy", base * (1 - 3e-7)), 5e-7, base, SOLVER_LENSBOY_PX).passed
     assert not solver_agreement("lensboy", ref("lensboy", base * (1 + 3e-7)), 2e-2, base, SOLVER_LENSBOY_PX).passed
     assert solver_agreement("other", ref("other", base * (1 - 3e-7)), 3e-3, base, 1e-2).passed
+
+
+def test_pycolmap_leaves_out_single_view_points_and_equals_circcal_on_the_rest():
+    """COLMAP's bundle adjustment takes no single-view track: a board point seen in one view only is left out (and
+    reported), the rest is solved; circcal's solver on exactly that subset reaches the same camera (<= 1e-6 px, the
+    identical-observations bar)."""
+    from circcal.solver import calibrate
+
+    cal = registry.get("pycolmap")
+    skip_unless_available(cal)
+    p = make_problem(5)
+    obj = [o.copy() for o in p["object_points"]]
+    img = [q.copy() for q in p["image_points"]]
+    for v in range(1, len(obj)):   # board point 3 stays in view 0 only, point 10 in view 2 only
+        drop = [3] if v == 2 else [3, 10]
+        keep = np.ones(len(obj[v]), bool)
+        keep[drop] = False
+        obj[v], img[v] = obj[v][keep], img[v][keep]
+    keep0 = np.ones(len(obj[0]), bool)
+    keep0[10] = False
+    obj[0], img[0] = obj[0][keep0], img[0][keep0]
+    res = cal.calibrate_observations(obj, img, p["image_size"])
+    assert res.status == "ok", res.message
+    assert res.extra["left_out"] == {0: [3], 2: [9]} and "seen in one view" in res.extra["note"]   # (2 lacks 3)
+    assert np.array_equal(obj[0][3], p["object_points"][0][3]) and np.array_equal(obj[2][9], p["object_points"][2][10])
+    sub_o = [np.delete(o, res.extra["left_out"].get(v, []), axis=0) for v, o in enumerate(obj)]
+    sub_i = [np.delete(q, res.extra["left_out"].get(v, []), axis=0) for v, q in enumerate(img)]
+    ours = calibrate(sub_o, sub_i, p["image_size"])
+    assert projection_diff(ours.camera, res.camera)["max_px"] <= 1e-6
