@@ -608,8 +608,9 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
     left_out = res.extra.get("left_out") or {}
     if left_out:   # the reference fitted a subset of the observations: circcal's solve on that same subset
         circcal_camera, circcal_ssr, res_fitted = _solve_subset(obs, res, left_out)
-        out.notes.append(f"{label} left out {sum(map(len, left_out.values()))} observations ({res.extra.get('note', '')}); "
-                         "compared with circcal's solve on the same subset")
+        n_left = sum(map(len, left_out.values()))
+        out.notes.append(f"{label} left out {n_left} observations ({res.extra.get('note', '')}); compared with "
+                         "circcal's solve on the same subset")
     vs_circcal = projection_diff(circcal_camera, res_fitted.camera, fit=False)
     out.measured["vs_circcal_max_px"] = vs_circcal["max_px"]
     errors = res.errors or {}
