@@ -173,6 +173,19 @@ def _plane_fit(rx, ry, rv, use, n):
     return p0, p1, p2
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1):
+    """``(xa, xb)``: the columns of the row ``dy`` px from the centre ``cx`` inside the outer ellipse
+    ``qa dx^2 + qb dx dy + qc dy^2 < t_hi``, with a pixel of slack either side (a pixel beyond it is neither inside
+    nor in the ring; the per-pixel test decides), clipped to ``[x0, x1)``; ``xa >= xb`` for a row that misses it."""
+    disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
+    if disc < 0:
+        return x0, x0
+    half = np.sqrt(disc) / (2.0 * qa)
+    mid = cx - qb * dy / (2.0 * qa)
+    return max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)
+
+
 @njit(cache=True, nogil=True)
 def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v):
     """Median grey level of the :data:`DARK_MIN_PIXELS` pixels of the box ``x0, y0, x1, y1`` nearest the centre
@@ -182,12 +195,8 @@ def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near
     n_near = 0
     for y in range(y0, y1):
         dy = y - cy
-        disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
-        if disc < 0:
-            continue
-        half = np.sqrt(disc) / (2.0 * qa)
-        mid = cx - qb * dy / (2.0 * qa)
-        for x in range(max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)):
+        xa, xb = _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1)
+        for x in range(xa, xb):
             dx = x - cx
             rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
             if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:   # kept sorted by rho^2
@@ -232,15 +241,10 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
         n_ring = 0
         for y in range(y0, y1):
             dy = y - cy
-            # the columns inside the outer ellipse rho^2 < t_hi (a pixel beyond it is neither inside nor in the ring;
-            # one pixel of slack, the test below decides)
-            disc = (qb * dy) ** 2 - 4.0 * qa * (qc * dy * dy - t_hi)
-            if disc < 0:
+            xa, xb = _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1)
+            if xa >= xb:
                 continue
-            half = np.sqrt(disc) / (2.0 * qa)
             mid = cx - qb * dy / (2.0 * qa)
-            xa = max(x0, int(np.floor(mid - half)) - 1)
-            xb = min(x1, int(np.ceil(mid + half)) + 2)
             # the columns certainly inside (rho^2 < t_in): SURE_MARGIN_PX in from the row's real roots, where rho^2
             # is below t_in by ~4 qa (h - 1) px, far beyond rounding; they need no test (the others are tested)
             ia = ib = xb
