@@ -88,9 +88,9 @@ def _module_key(module: str) -> str:
 def _host_cpu() -> str:
     """What identifies this machine's CPU for code generation: on Linux the first processor's model name and
     instruction-set flags (``/proc/cpuinfo``, read in under a millisecond), beside the machine type
-    (``platform.machine``; ``platform.processor`` would start a subprocess). The ahead-of-time build is compiled for the host CPU (:data:`TARGET_CPU`); a build copied to a
-    machine whose CPU differs is not found there (its name differs) and that machine runs numba's JIT instead of
-    code that might use instructions its CPU lacks."""
+    (``platform.machine``; ``platform.processor`` would start a subprocess). The ahead-of-time build is compiled
+    for the host CPU (:data:`TARGET_CPU`); a build copied to a machine whose CPU differs is not found there (its
+    name differs) and that machine runs numba's JIT instead of code that might use instructions its CPU lacks."""
     import platform
 
     try:
@@ -283,7 +283,6 @@ def _exercise() -> None:
     and numpy callers give it: a float64 image is what a renderer hands over), so that numba compiles each kernel
     for the argument types detection gives it."""
     from circcal.detector.find import detect
-
     from circcal.detector.segment import shrink
 
     img, board = synthetic_board()
