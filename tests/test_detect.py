@@ -275,6 +275,47 @@ def test_row_medians_are_numpys_medians_of_the_values_left_in():
     assert np.array_equal(got, expect, equal_nan=True)
 
 
+def test_compiled_medians_are_numpys_on_ties_and_ordered_input():
+    # the selection's partitions (three-way, drawn pivots) on the inputs that break simple quickselects: ties, all
+    # equal, sorted and reverse-sorted rows, one and two values; the selection the levels kernel calls as well
+    from circcal.detector.robust import _median_of, row_medians
+
+    rng = np.random.default_rng(11)
+    rows = [rng.integers(0, 3, 500).astype(float), np.full(300, 2.5), np.arange(1001.0), np.arange(1000.0)[::-1],
+            np.round(rng.normal(size=777), 2), np.array([3.0]), np.array([4.0, -1.0]), rng.normal(size=2048)]
+    for r in rows:
+        assert row_medians(r[None])[0] == np.median(r)
+        assert _median_of(r.copy(), len(r)) == np.median(r)
+
+
+def test_median_and_mad_inliers_are_the_numpy_rule():
+    # the compiled statistics against the numpy expressions they replaced, with ties, NaN, +-inf and empty rows
+    from circcal.detector.robust import MAD_TO_SIGMA, mad_inliers, median, row_medians
+
+    rng = np.random.default_rng(7)
+    for trial in range(200):
+        D, M = int(rng.integers(1, 6)), int(rng.integers(1, 40))
+        vals = rng.normal(size=(D, M)) * rng.choice([1e-3, 1.0, 50.0])
+        if trial % 3 == 0:
+            vals = np.round(vals, 1)                           # ties
+        special = rng.random((D, M))
+        vals[special < 0.05] = np.nan
+        vals[(special >= 0.05) & (special < 0.08)] = np.inf * rng.choice([-1, 1])
+        mask = rng.random((D, M)) < 0.8
+        mask[0] = mask[0] if trial % 4 else False              # a row without values keeps nothing
+        floor = rng.random((D, M)) * 0.2
+        sigmas = float(rng.choice([1.0, 4.0]))
+        with np.errstate(invalid="ignore"):
+            med = row_medians(np.where(mask, vals, np.nan))
+            sdev = MAD_TO_SIGMA * row_medians(np.where(mask, np.abs(vals - med[:, None]), np.nan))
+            expect = np.abs(vals) <= np.maximum((sigmas * sdev)[:, None], floor)
+        assert np.array_equal(mad_inliers(vals, mask, floor, sigmas), expect)
+        finite = vals[np.isfinite(vals)]
+        if finite.size:
+            assert median(finite) == np.median(finite)
+    assert np.isnan(median(np.zeros(0)))
+
+
 def test_shared_tables_are_computed_once_and_read_only():
     # detect_files runs images in threads: nothing global is mutated per call
     from circcal.detector.curvature import _shift_table

@@ -84,6 +84,16 @@ def test_argument_checks():
     assert not jit._matches([arr], (x, 1))
 
 
+def test_literal_signatures_are_not_exported():
+    # numba specialises a helper called with a constant (Literal[int](0)): its code holds that constant, so the
+    # build must not offer it for every int (a helper called from Python once got the literal-0 code and returned
+    # a wrong median)
+    from numba.core import types
+
+    assert jit._spec_of(types.literal(0)) is None and jit._spec_of(types.literal(True)) is None
+    assert jit._spec_of(types.int64) == ["int"]
+
+
 def test_the_build_is_named_after_the_kernel_source():
     # an edited kernel module loads no old build: its name carries the hash of the module's source
     key = jit._module_key("circcal.detector.edges")

@@ -15,10 +15,12 @@ quickselect and per-profile early exits).
 * Signatures: :func:`build` runs the detector on synthetic boards (uint8, uint16 and float32 images) under numba and
   exports every signature numba compiled for each kernel; a call whose arguments match none of them (checked here,
   in Python: pycc's wrappers do not check types and would crash) runs under numba instead, never wrongly.
-* Staleness: an extension is named after a hash of its kernel module's source, of this file, of numpy's version
-  and of the CPU (the build is compiled for the host's, :data:`TARGET_CPU`), so an edited kernel module loads no
-  old code, nor does another machine's CPU: until the next build it runs under numba's JIT (the rule numba's own
-  cache follows: a kernel calls only kernels of its own module and reads only that module's constants).
+* Staleness: an extension is named after a hash of its kernel module's source, of the kernel modules it calls
+  (listed in its ``KERNEL_IMPORTS``), of this file, of numpy's version and of the CPU (the build is compiled for
+  the host's, :data:`TARGET_CPU`), so an edited kernel module loads no old code, nor does another machine's CPU:
+  until the next build it runs under numba's JIT. A kernel reads only its own module's constants (numba freezes
+  them into the code); it calls kernels of its own module or of those it lists (numba's disk cache, which checks
+  only the caller's file, is then off for it: :func:`_jit_module`).
 * The GIL is released inside compiled kernels (``nogil``), as under numba, so threaded detection stays parallel.
 * ``CIRCCAL_AOT=0`` ignores the ahead-of-time build (numba's JIT, as before it existed).
 
@@ -73,11 +75,23 @@ _registry: dict[str, list["Kernel"]] = {}
 _aot_cache: dict[str, dict[str, list[tuple[list, Callable]]]] = {}
 
 
+def _kernel_imports(module: str) -> tuple[str, ...]:
+    """The kernel modules whose kernels ``module``'s kernels call (its ``KERNEL_IMPORTS``, and theirs), in
+    dependency order: their sources are part of its build's name, and they are turned into numba dispatchers first."""
+    out: list[str] = []
+    for dep in getattr(sys.modules[module], "KERNEL_IMPORTS", ()):
+        for m in (*_kernel_imports(dep), dep):
+            if m not in out:
+                out.append(m)
+    return tuple(out)
+
+
 def _module_key(module: str) -> str:
-    """Hash (16 hex) naming a kernel module's compiled build: its source file, this file, numpy's version and the
-    CPU (:func:`_host_cpu`: the build is compiled for the CPU it runs on)."""
+    """Hash (16 hex) naming a kernel module's compiled build: its source file and those of the kernel modules it
+    calls (:func:`_kernel_imports`), this file, numpy's version and the CPU (:func:`_host_cpu`: the build is compiled
+    for the CPU it runs on)."""
     h = hashlib.sha256()
-    for path in (sys.modules[module].__file__, __file__):
+    for path in (sys.modules[module].__file__, *(sys.modules[m].__file__ for m in _kernel_imports(module)), __file__):
         h.update(Path(path).read_bytes())
     h.update(np.__version__.encode())
     h.update(_host_cpu().encode())
@@ -198,15 +212,23 @@ class Kernel:
 
 
 def _jit_module(module: str) -> None:
+    """Turn the kernels of ``module`` into numba dispatchers and rebind its names to them, those of the kernel modules
+    it calls (:func:`_kernel_imports`) first, and its imported names of their kernels too (numba compiles a call to
+    another kernel only through numba's dispatcher). A module that calls other modules' kernels is not cached on
+    disk by numba, whose cache checks only the caller's file: an edited callee would leave stale code (the ahead-of-
+    time build, named after all the sources, is unaffected)."""
     with _lock:
         kernels = _registry[module]
         if all(k._jit is not None for k in kernels):
             return
+        deps = _kernel_imports(module)
+        for dep in deps:
+            _jit_module(dep)
         if _HAVE_NUMBA:
             import numba
 
             for k in kernels:
-                k._jit = numba.njit(**k.options)(k.py_func)
+                k._jit = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
         else:
             for k in kernels:
                 k._jit = k.py_func
@@ -214,6 +236,9 @@ def _jit_module(module: str) -> None:
         for k in kernels:
             if namespace.get(k.__name__) is k:
                 namespace[k.__name__] = k._jit
+        for name, value in list(namespace.items()):
+            if isinstance(value, Kernel) and value.module in deps:
+                namespace[name] = value._jit
 
 
 def njit(*args, **kwargs):
@@ -242,9 +267,13 @@ def aot_status() -> dict[str, bool]:
 
 def _spec_of(t) -> list | None:
     """A numba argument type as a check :func:`_matches` can run without numba: ``["array", dtype.str, ndim,
-    layout, writeable]``, ``["int"]``, ``["float"]``, ``["bool"]``; None for a type not exported."""
+    layout, writeable]``, ``["int"]``, ``["float"]``, ``["bool"]``; None for a type not exported. A literal type
+    (numba specialises a kernel called inside another with a constant, e.g. ``Literal[int](0)``) is not exported:
+    its code holds that constant, and a check of the Python type alone would run it for any value."""
     from numba.core import types
 
+    if isinstance(t, types.Literal):
+        return None
     if isinstance(t, types.Array):
         if t.layout not in ("C", "A"):
             return None

@@ -11,7 +11,10 @@ import numpy as np
 
 from circcal.detector.ellipse import conic_params_batch
 from circcal.detector.jit import njit
-from circcal.detector.robust import MAD_TO_SIGMA
+from circcal.detector.robust import MAD_TO_SIGMA, _median_of
+
+KERNEL_IMPORTS = ("circcal.detector.robust",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["EDGE_GAP_PX", "dot_levels_batch", "dot_levels_from_params"]
 
@@ -100,52 +103,6 @@ def _median_hist(hist: np.ndarray, m: int) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _median_values(vals, n, hist, scratch):
-    """Median of ``vals[:n]``, leaving ``vals`` as it is: from a histogram when ``hist`` has bins (uint8 values, one
-    bin per value), else by quickselect on a copy in ``scratch``."""
-    if len(hist):
-        hist[:] = 0
-        for i in range(n):
-            hist[int(vals[i])] += 1
-        return _median_hist(hist, n)
-    scratch[:n] = vals[:n]
-    return _median_inplace(scratch, n)
-
-
-@njit(cache=True, nogil=True)
-def _median_inplace(a, n):
-    """Median of ``a[:n]`` (the mean of the two middle values for even n), reordering ``a[:n]`` (quickselect)."""
-    k = (n - 1) // 2
-    lo, hi = 0, n - 1
-    while lo < hi:
-        pivot = a[(lo + hi) // 2]
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
-    m = a[k]
-    if n % 2 == 1:
-        return m
-    nxt = a[k + 1]
-    for i in range(k + 2, n):  # the next order statistic: the smallest of the upper part
-        if a[i] < nxt:
-            nxt = a[i]
-    return 0.5 * (m + nxt)
-
-
-@njit(cache=True, nogil=True)
 def _plane_fit(rx, ry, rv, use, n):
     """(p0, p1, p2): least-squares plane v = p0 x + p1 y + p2 through the first ``n`` points where ``use``
     (normal equations solved by Cramer's rule: the coordinates are centred on the dot, the system well scaled);
@@ -228,6 +185,8 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
     okr = np.zeros(npx, np.bool_)
     res = np.empty(npx)
     hist = np.zeros(nbins, np.int64)   # empty: values are not uint8, medians by selection
+    hist_ring = np.zeros(nbins, np.int64)
+    counted = nbins > 0
     near_r = np.empty(DARK_MIN_PIXELS)
     near_v = np.empty(DARK_MIN_PIXELS)
     for d in range(D):
@@ -239,6 +198,9 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
         t_in, t_lo, t_hi = t[d, 0], t[d, 1], t[d, 2]
         n_in = 0
         n_ring = 0
+        if counted:
+            hist[:] = 0
+            hist_ring[:] = 0
         for y in range(y0, y1):
             dy = y - cy
             xa, xb = _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1)
@@ -257,9 +219,13 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
             x = xa
             while x < xb:
                 if x == ia:
-                    for xx in range(ia, ib):
-                        inner[n_in] = gray[y, xx]
-                        n_in += 1
+                    if counted:   # (uint8: the values counted as they are met, the histogram gives the median)
+                        for xx in range(ia, ib):
+                            hist[int(gray[y, xx])] += 1
+                    else:
+                        for xx in range(ia, ib):
+                            inner[n_in + xx - ia] = gray[y, xx]
+                    n_in += ib - ia
                     x = ib
                     if x >= xb:
                         break
@@ -267,21 +233,30 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
                 rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
                 v = gray[y, x]
                 if rho2 < t_in:
-                    inner[n_in] = v
+                    if counted:
+                        hist[int(v)] += 1
+                    else:
+                        inner[n_in] = v
                     n_in += 1
                 elif t_lo < rho2 < t_hi:
                     rx[n_ring] = dx
                     ry[n_ring] = dy
                     rv[n_ring] = v
+                    if counted:
+                        hist_ring[int(v)] += 1
                     n_ring += 1
                 x += 1
         if n_in >= DARK_MIN_PIXELS:
-            dk = _median_values(inner, n_in, hist, res)
+            dk = _median_hist(hist, n_in) if counted else _median_of(inner, n_in)   # (inner: reordered)
         else:
             dk = _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v)
         if n_ring < RING_MIN_PIXELS:
             continue
-        ring_med = _median_values(rv, n_ring, hist, res)
+        if counted:
+            ring_med = _median_hist(hist_ring, n_ring)
+        else:   # (rv stays in step with rx, ry: a copy is reordered)
+            res[:n_ring] = rv[:n_ring]
+            ring_med = _median_of(res, n_ring)
         mid = 0.5 * (dk + ring_med)
         n_keep = 0
         for i in range(n_ring):
@@ -292,11 +267,11 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
         p0, p1, p2 = _plane_fit(rx, ry, rv, keep, n_ring)
         m = 0
         for i in range(n_ring):
-            res[i] = abs(rv[i] - (p0 * rx[i] + p1 * ry[i] + p2))
             if keep[i]:
+                res[i] = abs(rv[i] - (p0 * rx[i] + p1 * ry[i] + p2))
                 inner[m] = res[i]   # (the inner values are used up: the buffer holds the kept residuals)
                 m += 1
-        s = mad_to_sigma * _median_inplace(inner, m) + 1e-12   # (+ a tiny floor: an exact plane has no residuals)
+        s = mad_to_sigma * _median_of(inner, m) + 1e-12   # (+ a tiny floor: an exact plane has no residuals)
         n_ok = 0
         for i in range(n_ring):
             okr[i] = keep[i] and res[i] < PLANE_OUTLIER_SIGMAS * s

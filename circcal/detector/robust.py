@@ -5,10 +5,12 @@ import numpy as np
 
 from circcal.detector.jit import njit
 
-__all__ = ["MAD_TO_SIGMA", "row_medians"]
+__all__ = ["MAD_TO_SIGMA", "mad_inliers", "median", "row_medians"]
 
 MAD_TO_SIGMA = 1.4826
 """Standard deviation of a normal distribution per unit of its median absolute deviation (1 / Phi^-1(3/4))."""
+_XORSHIFT_MASK = (1 << 60) - 1
+"""The pivot draws' state stays below 2^60 (non-negative in int64)."""
 
 
 def row_medians(values: np.ndarray) -> np.ndarray:
@@ -24,47 +26,136 @@ def row_medians(values: np.ndarray) -> np.ndarray:
     return out
 
 
+def median(values: np.ndarray) -> float:
+    """``np.median`` of ``values`` (any shape, all entries; NaN entries are left out, as :func:`row_medians` does),
+    NaN when there are none: the compiled selection, ~20x faster than numpy's on the few hundred values of a
+    detection (numpy's generic path costs ~40-190 us a call)."""
+    return float(row_medians(np.asarray(values, np.float64).reshape(1, -1))[0])
+
+
+def mad_inliers(values: np.ndarray, mask: np.ndarray, floor: np.ndarray, sigmas: float) -> np.ndarray:
+    """(D, M) bool: the entries of ``values`` (D, M) within ``max(sigmas * MAD_TO_SIGMA * MAD_d, floor)`` of 0,
+    where ``MAD_d`` is row d's median absolute deviation from its median, both over the entries where ``mask``
+    (D, M) bool (NaN values left out); ``floor`` (D, M). A row without such entries keeps nothing; entries outside
+    ``mask`` are tested too (the caller masks them). The values of::
+
+        med = row_medians(np.where(mask, values, np.nan))
+        sdev = MAD_TO_SIGMA * row_medians(np.where(mask, np.abs(values - med[:, None]), np.nan))
+        np.abs(values) <= np.maximum((sigmas * sdev)[:, None], floor)
+
+    in one compiled pass per row (:func:`_mad_inliers_kernel`)."""
+    v = np.ascontiguousarray(values, np.float64)
+    out = np.zeros(v.shape, bool)
+    if v.size:
+        _mad_inliers_kernel(v, np.ascontiguousarray(mask, np.bool_), np.ascontiguousarray(
+            np.broadcast_to(floor, v.shape), np.float64), float(sigmas), MAD_TO_SIGMA, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _select_inplace(a, n, k):
+    """The ``k``-th smallest (0-based) of ``a[:n]`` (no NaN), reordering ``a[:n]`` so that none before index k is
+    larger and none after it smaller. Quickselect with branch-free three-way partitions (values below the pivot,
+    equal to it, above it: ~3x faster than a Hoare partition on the noisy ring residuals of a dot, whose
+    comparisons the CPU cannot predict, and linear on ties), the pivot the median of three positions drawn by a
+    xorshift (so sorted input is no worse than random). The value is the order statistic, whatever the pivots."""
+    lo, hi = 0, n - 1
+    r = 88172645463325252
+    while hi > lo:
+        w = hi - lo + 1
+        r ^= (r << 13) & _XORSHIFT_MASK
+        r ^= r >> 7
+        r ^= (r << 17) & _XORSHIFT_MASK
+        x, y, z = a[lo + r % w], a[lo + (r >> 20) % w], a[lo + (r >> 40) % w]
+        if x > y:
+            x, y = y, x
+        if y > z:
+            y = z
+        pivot = x if x > y else y
+        s = lo
+        for i in range(lo, hi + 1):   # below the pivot to the front
+            v = a[i]
+            a[i] = a[s]
+            a[s] = v
+            s += v < pivot
+        if k < s:
+            hi = s - 1
+            continue
+        e = s
+        for i in range(s, hi + 1):    # then those equal to it
+            v = a[i]
+            a[i] = a[e]
+            a[e] = v
+            e += v == pivot
+        if k < e:
+            return pivot
+        lo = e
+    return a[k]
+
+
+@njit(cache=True, nogil=True)
+def _median_of(a, n):
+    """Median of ``a[:n]`` (``n >= 1``, no NaN; the mean of the two middle values for even n), reordering ``a[:n]``:
+    the lower middle value by :func:`_select_inplace`, the upper one (even counts) the smallest value above it."""
+    k = (n - 1) // 2
+    m = _select_inplace(a, n, k)
+    if n % 2 == 1:
+        return m
+    nxt = a[k + 1]
+    for i in range(k + 2, n):
+        if a[i] < nxt:
+            nxt = a[i]
+    return 0.5 * (m + nxt)
+
+
+@njit(cache=True, nogil=True)
+def _gather(row, use, a):
+    """Copies the non-NaN entries of ``row`` (P,) where ``use`` (P,) into ``a[:n]``; returns n."""
+    n = 0
+    for i in range(len(row)):
+        v = row[i]
+        if use[i] and not np.isnan(v):
+            a[n] = v
+            n += 1
+    return n
+
+
 @njit(cache=True, nogil=True)
 def _row_medians_kernel(values, out):
-    """``out[d]``: the median of the non-NaN entries of ``values[d]`` (left as NaN for a row without any); the
-    lower middle value by quickselect on a copy, the upper one (even counts) the smallest value above it."""
+    """``out[d]``: the median of the non-NaN entries of ``values[d]`` (left as NaN for a row without any), by
+    :func:`_median_of` on a copy."""
     D, P = values.shape
     a = np.empty(P)
+    every = np.ones(P, np.bool_)
     for d in range(D):
-        n = 0
-        for i in range(P):
-            v = values[d, i]
-            if not np.isnan(v):
-                a[n] = v
-                n += 1
+        n = _gather(values[d], every, a)
+        if n:
+            out[d] = _median_of(a, n)
+
+
+@njit(cache=True, nogil=True)
+def _mad_inliers_kernel(values, mask, floor, sigmas, mad_to_sigma, out):
+    """Writes :func:`mad_inliers` into ``out`` (D, M) bool (zeros on entry)."""
+    D, M = values.shape
+    a = np.empty(M)
+    for d in range(D):
+        n = _gather(values[d], mask[d], a)
         if n == 0:
             continue
-        k = (n - 1) // 2
-        lo, hi = 0, n - 1
-        while lo < hi:
-            pivot = a[(lo + hi) // 2]
-            i, j = lo, hi
-            while i <= j:
-                while a[i] < pivot:
-                    i += 1
-                while a[j] > pivot:
-                    j -= 1
-                if i <= j:
-                    a[i], a[j] = a[j], a[i]
-                    i += 1
-                    j -= 1
-            if k <= j:
-                hi = j
-            elif k >= i:
-                lo = i
-            else:
-                break
-        m = a[k]
-        if n % 2 == 1:
-            out[d] = m
-        else:
-            nxt = a[k + 1]
-            for i in range(k + 2, n):
-                if a[i] < nxt:
-                    nxt = a[i]
-            out[d] = 0.5 * (m + nxt)
+        med = _median_of(a, n)
+        n2 = 0
+        for i in range(M):
+            v = values[d, i]
+            if mask[d, i]:
+                e = abs(v - med)
+                if not np.isnan(e):
+                    a[n2] = e
+                    n2 += 1
+        if n2 == 0:
+            continue
+        t = sigmas * (mad_to_sigma * _median_of(a, n2))
+        for i in range(M):
+            f = floor[d, i]
+            if np.isnan(t) or np.isnan(f):
+                continue
+            out[d, i] = abs(values[d, i]) <= (t if t >= f else f)
