@@ -165,3 +165,22 @@ def _reference_fit(p):
     Q = 0.5 * (Q + Q.T)
     Q = Q / np.linalg.norm(Q)
     return -Q if Q[0, 0] + Q[1, 1] < 0 else Q
+
+
+def test_sampson_distances_are_the_first_order_distance():
+    # the compiled pass against x^T Q x / |grad| written in numpy, and the signs and limits numpy's division gives
+    from circcal.detector.ellipse import conic_from_params_batch, sampson_distances
+
+    rng = np.random.default_rng(3)
+    Q = conic_from_params_batch(rng.uniform(0, 500, (6, 2)), np.sort(rng.uniform(2, 40, (6, 2)), 1)[:, ::-1],
+                                rng.uniform(-1.5, 1.5, 6))
+    P = rng.uniform(0, 500, (6, 30, 2))
+    h = np.concatenate([P, np.ones((6, 30, 1))], axis=2)
+    hQ = h @ Q
+    expect = np.einsum("dmi,dmi->dm", hQ, h) / (2.0 * np.hypot(hQ[..., 0], hQ[..., 1]))
+    assert np.allclose(sampson_distances(P, Q), expect, rtol=1e-12, atol=0)
+    # a circle of radius 10 at the origin: first-order distance (r^2 - 100) / (2 r); its centre has no gradient
+    circle = np.diag([1.0, 1.0, -100.0])[None]
+    d = sampson_distances(np.array([[[12.0, 0.0], [0.0, 0.0]]]), circle)
+    assert d[0, 0] == pytest.approx((144.0 - 100.0) / 24.0, rel=1e-15) and d[0, 1] == -np.inf
+    assert np.isnan(sampson_distances(np.array([[[np.nan, 1.0]]]), circle)[0, 0])

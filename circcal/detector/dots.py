@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.detector.edges import subpixel_edge_points_batch
-from circcal.detector.ellipse import FIT_ERRORS, fit_ellipses_direct
-from circcal.detector.robust import MAD_TO_SIGMA, row_medians
+from circcal.detector.ellipse import FIT_ERRORS, fit_ellipses_direct, sampson_distances
+from circcal.detector.robust import mad_inliers
 from circcal.detector.smoothing import SmoothedImage
 
 __all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "fit_dots"]
@@ -82,7 +82,7 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
             break
         Qa, ferr = fit_ellipses_direct(pts[ai], mask[ai])
         m = mask[ai] & (ferr == 0)[:, None]
-        keep = m & _inliers(_sampson_distances(pts[ai], Qa), m, slack[ai])
+        keep = m & _inliers(sampson_distances(pts[ai], Qa), m, slack[ai])
         nk = keep.sum(axis=1)
         refit = (ferr == 0) & (nk < m.sum(axis=1)) & (nk >= MIN_EDGE_POINTS)
         if np.any(refit):
@@ -99,22 +99,9 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
     return pts, mask, Q, errors
 
 
-def _sampson_distances(points: np.ndarray, conics: np.ndarray) -> np.ndarray:
-    """(D, M) first-order (Sampson) signed distances px ``x^T Q x / |grad(x^T Q x)|`` of ``points`` (D, M, 2) from
-    the conics (D, 3, 3); NaN/inf where the gradient vanishes or a conic is NaN."""
-    h = np.concatenate([points, np.ones((*points.shape[:2], 1))], axis=2)
-    hQ = h @ conics
-    g = 2.0 * hQ[..., :2]
-    with np.errstate(invalid="ignore", divide="ignore"):  # sums over the last axis written out (faster)
-        return ((hQ[..., 0] * h[..., 0] + hQ[..., 1] * h[..., 1]) + hQ[..., 2] * h[..., 2]) / np.sqrt(
-            g[..., 0] * g[..., 0] + g[..., 1] * g[..., 1])
-
-
 def _inliers(dist: np.ndarray, mask: np.ndarray, slack: np.ndarray | float = 0.0) -> np.ndarray:
     """(D, M) bool: the distances ``dist`` (D, M) px, of the points where ``mask`` (D, M), within the outlier rule:
     ``|dist| <= max(OUTLIER_SIGMAS * robust sigma, OUTLIER_MIN_PX + slack)``, the robust sigma from the median
-    absolute deviation from the median of each row, ``slack`` (D, M) px each point's uncorrected curvature shift."""
-    med = row_medians(np.where(mask, dist, np.nan))
-    sdev = MAD_TO_SIGMA * row_medians(np.where(mask, np.abs(dist - med[:, None]), np.nan))
-    with np.errstate(invalid="ignore"):
-        return np.abs(dist) <= np.maximum((OUTLIER_SIGMAS * sdev)[:, None], OUTLIER_MIN_PX + slack)
+    absolute deviation from the median of each row (:func:`~circcal.detector.robust.mad_inliers`), ``slack``
+    (D, M) px each point's uncorrected curvature shift."""
+    return mad_inliers(dist, mask, OUTLIER_MIN_PX + np.asarray(slack, np.float64), OUTLIER_SIGMAS)

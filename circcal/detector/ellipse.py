@@ -28,6 +28,7 @@ __all__ = [
     "ellipse_normals",
     "transform_conic",
     "algebraic_distance",
+    "sampson_distances",
 ]
 
 
@@ -431,3 +432,40 @@ def algebraic_distance(Q: np.ndarray, points: np.ndarray) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     h = np.column_stack([p, np.ones(len(p))])
     return np.einsum("ij,jk,ik->i", h, Q, h)
+
+
+def sampson_distances(points: np.ndarray, conics: np.ndarray) -> np.ndarray:
+    """(D, M) first-order (Sampson) signed distances px ``x^T Q x / |grad_(u,v) x^T Q x|`` of ``points``
+    (D, M, 2) from the conics (D, 3, 3) (the sign and scale of ``Q`` as given); NaN where a point or conic is NaN or
+    where the gradient vanishes at a point on the conic, +-inf where it vanishes off it (numpy's division). One
+    compiled pass (:func:`_sampson_kernel`; numpy took ~10 array passes, ~0.2-0.4 ms for a 7x7 board)."""
+    P = np.ascontiguousarray(points, np.float64).reshape(len(points), -1, 2)
+    Q = np.ascontiguousarray(conics, np.float64).reshape(len(P), 3, 3)
+    out = np.empty(P.shape[:2])
+    if out.size:
+        _sampson_kernel(P, Q, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _sampson_kernel(P, Q, out):
+    """Writes :func:`sampson_distances` of ``P`` (D, M, 2) from ``Q`` (D, 3, 3) into ``out`` (D, M): ``h Q`` as
+    numpy's matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2``, the gradient
+    ``2 (hQ0, hQ1)``."""
+    D, M = out.shape
+    for d in range(D):
+        q00, q01, q02 = Q[d, 0, 0], Q[d, 0, 1], Q[d, 0, 2]
+        q10, q11, q12 = Q[d, 1, 0], Q[d, 1, 1], Q[d, 1, 2]
+        q20, q21, q22 = Q[d, 2, 0], Q[d, 2, 1], Q[d, 2, 2]
+        for m in range(M):
+            x, y = P[d, m, 0], P[d, m, 1]
+            h0 = x * q00 + y * q10 + q20
+            h1 = x * q01 + y * q11 + q21
+            h2 = x * q02 + y * q12 + q22
+            num = (h0 * x + h1 * y) + h2
+            gx, gy = 2.0 * h0, 2.0 * h1
+            g = np.sqrt(gx * gx + gy * gy)
+            if g == 0.0:  # (numba, like Python, raises on a division by zero: numpy's values written out)
+                out[d, m] = np.nan if (num == 0.0 or np.isnan(num)) else (np.inf if num > 0 else -np.inf)
+            else:
+                out[d, m] = num / g
