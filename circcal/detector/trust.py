@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.ellipse import conic_params_batch
+from circcal.detector.ellipse import conic_params_batch, sampson_distances
+from circcal.detector.robust import median, row_medians
 
 __all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps", "sampson_rms"]
 
@@ -107,12 +108,9 @@ and printed boards use 0.2-0.8 of it. Noise specks that line up are far smaller 
 def sampson_rms(points: np.ndarray, mask: np.ndarray, conics: np.ndarray) -> np.ndarray:
     """(D,) RMS Sampson distance (px) of each dot's edge points ``points`` (D, M, 2) where ``mask`` (D, M) from its
     conic (D, 3, 3); NaN for a dot without points."""
-    h = np.concatenate([points, np.ones((*points.shape[:2], 1))], axis=2)
-    hQ = h @ conics
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.einsum("dmi,dmi->dm", hQ, h) / np.sqrt(4.0 * (hQ[..., 0] ** 2 + hQ[..., 1] ** 2))
-        d = np.where(mask, d, 0.0)
-        n = mask.sum(axis=1)
+    d = np.where(mask, sampson_distances(points, conics), 0.0)
+    n = mask.sum(axis=1)
+    with np.errstate(invalid="ignore"):
         return np.where(n > 0, np.sqrt(np.sum(d * d, axis=1) / np.maximum(n, 1)), np.nan)
 
 
@@ -208,7 +206,7 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
     v = _rings(g, centres, axes, angle, np.stack([0.5 * near, near, start, 0.5 * (start + far), far], 1))
     ring = _median3_around(v[:, :2]).reshape(D, -1)
     level = v[:, 2:].reshape(D, -1)
-    white = np.median(v.reshape(D, -1), axis=1)
+    white = row_medians(v.reshape(D, -1))
     contrast = white - inner
     dark = ring < (white - CLEARANCE_LEVEL * contrast)[:, None]
     mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
@@ -251,7 +249,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
     coverage = mask.sum(axis=1) / np.maximum(np.ceil(perim), 1.0)
     rms = sampson_rms(edge_pts, mask, np.where(ok[:, None, None], conics, np.eye(3)))
-    med_rms = float(np.median(rms[ok & np.isfinite(rms)])) if np.any(ok & np.isfinite(rms)) else 0.0
+    med_rms = median(rms[ok & np.isfinite(rms)]) if np.any(ok & np.isfinite(rms)) else 0.0
     res_limit = np.maximum.reduce([np.full(D, RESIDUAL_FLOOR_PX), RESIDUAL_SHARE * b,
                                    np.full(D, RESIDUAL_FACTOR * med_rms)])
     round_limit = MAX_ROUNDNESS + ROUNDNESS_PX / np.maximum(b, 1e-9)
@@ -282,7 +280,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     for kind in (False, True):
         sel = ok & np.isfinite(fill) & (marker == kind)
         if np.any(sel):
-            rel[sel] = fill[sel] / np.median(fill[sel])
+            rel[sel] = fill[sel] / median(fill[sel])
     with np.errstate(invalid="ignore"):
         suspect = ok & (near | (coverage < MIN_COVERAGE) | (rms > res_limit) | (shade > CLEARANCE_SHARE)
                         | (grey > GREY_SHARE) | (round_ > round_limit) | (rel < size_lo)
@@ -329,7 +327,7 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
         res = res - A @ coef
     J = local_steps(board, points, centres)
     finite = np.all(np.isfinite(J), axis=(1, 2))
-    step = float(np.median(np.sqrt(np.abs(np.linalg.det(J[finite]))))) if np.any(finite) else np.nan
+    step = median(np.sqrt(np.abs(np.linalg.det(J[finite])))) if np.any(finite) else np.nan
     if not np.isfinite(step) or step <= 0:
         return "the dots have no lattice neighbours"
     rel = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) / step
@@ -340,7 +338,7 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
     plain = ok & ~board.is_marker()[points] & finite
     if np.any(plain):
         fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(np.linalg.det(J[plain]))
-        d_rel = float(np.sqrt(np.median(fill) / np.pi)) * 2.0      # measured diameter / pitch
+        d_rel = float(np.sqrt(median(fill) / np.pi)) * 2.0      # measured diameter / pitch
         stated = board.diameter_mm / board.pitch_mm
         if not stated / DIAMETER_FACTOR <= d_rel <= stated * DIAMETER_FACTOR:
             return (f"the dots measure {d_rel:.2f} pitches across, the board's are {stated:.2f} (--diameter, "
