@@ -29,6 +29,8 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, (list, tuple)):
         return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
+        if x.dtype.kind in "biu" or (x.dtype.kind == "f" and bool(np.isfinite(x).all())):
+            return x.tolist()   # (plain Python values already: no element-wise walk, ~3x faster for model.json)
         return jsonable(x.tolist())
     if isinstance(x, (bool, np.bool_)):
         return bool(x)
