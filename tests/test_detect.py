@@ -538,6 +538,35 @@ def test_guided_filter_is_opencvs_to_float32_rounding():
             assert d.max() <= 1 and np.count_nonzero(d) <= share * d.size
 
 
+def test_guided_filter_work_planes_are_per_thread_and_never_returned(monkeypatch):
+    # the filter computes in planes each thread keeps: the same values as in fresh arrays (WORKSPACE_MAX_PX 0),
+    # whatever the size order (a smaller image after a larger one takes views of the larger buffer), a result that
+    # is never a view of them, and no sharing between threads (a shared plane would mix two images' values)
+    from concurrent.futures import ThreadPoolExecutor
+
+    from circcal.detector import segment
+    from circcal.detector.jit import synthetic_board
+
+    rng = np.random.default_rng(2)
+    board_img, _ = synthetic_board()
+    images = [board_img, rng.integers(0, 256, (300, 410), dtype=np.uint8), board_img[::2, ::3].copy(),
+              rng.integers(0, 256, (37, 53), dtype=np.uint8)]
+    kept = [segment.guided_filter(im, 3, segment.GUIDED_EPS) for im in images]
+    for got in kept:
+        assert not np.shares_memory(got, segment._workspace.planes)
+    monkeypatch.setattr(segment, "WORKSPACE_MAX_PX", 0)
+    fresh = [segment.guided_filter(im, 3, segment.GUIDED_EPS) for im in images]
+    monkeypatch.undo()
+    assert all(np.array_equal(a, b) for a, b in zip(kept, fresh))
+
+    def run(k: int) -> bool:
+        return all(np.array_equal(segment.guided_filter(images[(k + j) % 4], 3, segment.GUIDED_EPS),
+                                  fresh[(k + j) % 4]) for j in range(40))
+
+    with ThreadPoolExecutor(4) as pool:
+        assert all(pool.map(run, range(4)))
+
+
 def test_shrink_is_opencvs_area_resize():
     """The compiled block means of uint8 images (scales >= 3) equal ``cv2.resize(..., INTER_AREA)`` to the bit,
     ties (even block sizes) included, on noise, on a board and on sizes that are not multiples of the scale; the

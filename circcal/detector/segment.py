@@ -6,6 +6,7 @@ centres).
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 
 import cv2
@@ -101,23 +102,48 @@ def _odd_window(n: float) -> int:
     return max(MIN_WINDOW, int(round(n)) | 1)
 
 
+WORKSPACE_MAX_PX = 1 << 20
+"""Images of up to this many pixels are guided-filtered in work planes each thread keeps (:func:`_work_planes`;
+4 float32 planes, 16 MiB at most per thread). Segmentation runs on images of ~0.2-1 MP at every frame size (the
+shrunk scales, the board's windows), so nearly every call reuses them; larger ones allocate afresh."""
+
+_workspace = threading.local()
+
+
+def _work_planes(shape: tuple[int, int], n: int) -> list[np.ndarray]:
+    """``n`` float32 (H, W) planes, contiguous, whose values are garbage: views of a buffer this thread keeps while
+    ``H W <= WORKSPACE_MAX_PX`` (grown when a larger image comes), else fresh arrays. Fresh planes cost the process
+    new pages on every call under glibc's default malloc (buffers of ~1 MB go back to the system when freed and
+    fault in again when touched: at 640x480 the guided filter took 5.3 ms instead of 1.7 ms, ~1,700 page faults);
+    kept, they fault once. One buffer per thread: detection runs images in threads (:mod:`circcal.detector.files`)."""
+    size = int(shape[0]) * int(shape[1])
+    if size > WORKSPACE_MAX_PX:
+        return [np.empty(shape, np.float32) for _ in range(n)]
+    buf = getattr(_workspace, "planes", None)
+    if buf is None or buf.shape[0] < n or buf.shape[1] < size:
+        buf = np.empty((n, size if buf is None else max(size, buf.shape[1])), np.float32)
+        _workspace.planes = buf
+    return [buf[i, :size].reshape(shape) for i in range(n)]
+
+
 def guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
     """Self-guided filter (He, Sun & Tang 2013) of a uint8 image (H, W) on ``g = gray_u8 / 255`` (``radius`` px, ``eps``
     in units of the [0, 1] intensity range squared), rounded back to uint8: the edge-preserving denoise the paper
     uses before segmentation. The steps of ``cv2.ximgproc.guidedFilter(g, g, radius, eps)`` (float32, box means with
-    reflected borders) written out with ``cv2.boxFilter`` and in-place float32 arithmetic: ximgproc's generic
-    multi-channel code takes ~1.6x as long for one grey channel. The same values but for float32 rounding: at most
-    one grey level apart, on ~1e-4 of a board image's pixels (0.6 % of pure noise's; tests/test_detect.py)."""
+    reflected borders) written out with ``cv2.boxFilter`` and in-place float32 arithmetic in this thread's work
+    planes (:func:`_work_planes`): ximgproc's generic multi-channel code takes ~1.6x as long for one grey channel.
+    The same values but for float32 rounding: at most one grey level apart, on ~1e-4 of a board image's pixels
+    (0.6 % of pure noise's; tests/test_detect.py)."""
     k = (2 * int(radius) + 1, 2 * int(radius) + 1)
 
-    def box(x: np.ndarray) -> np.ndarray:
-        return cv2.boxFilter(x, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_REFLECT)
+    def box(x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(x, cv2.CV_32F, k, dst=out, normalize=True, borderType=cv2.BORDER_REFLECT)
 
-    g = gray_u8.astype(np.float32)
-    g *= np.float32(1.0 / 255.0)
-    mean = box(g)
-    t = np.multiply(g, g)
-    cov = box(t)                                      # mean of g^2, then the variance
+    g, mean, t, cov = _work_planes(gray_u8.shape, 4)
+    np.multiply(gray_u8, np.float32(1.0 / 255.0), out=g, dtype=np.float32)
+    mean = box(g, mean)
+    np.multiply(g, g, out=t)
+    cov = box(t, cov)                                 # mean of g^2, then the variance
     np.multiply(mean, mean, out=t)
     np.subtract(cov, t, out=cov)
     np.add(cov, np.float32(eps), out=t)
@@ -125,9 +151,9 @@ def guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
     a = np.multiply(cov, t, out=cov)                  # a = var / (var + eps)
     np.multiply(a, mean, out=t)
     b = np.subtract(mean, t, out=mean)                # b = mean (1 - a)
-    q = box(a)
+    q = box(a, t)
     q *= g
-    q += box(b)
+    q += box(b, a)                                    # (a is spent: its plane takes the box mean of b)
     return cv2.convertScaleAbs(q, alpha=255.0)
 
 
