@@ -5,6 +5,7 @@ Pixel convention: OpenCV's (integer coordinates are pixel centres).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -101,19 +102,20 @@ def find_candidates(
         # the tests from the moments first, then those that need more of the contour (the same candidates)
         mu20, mu02, mu11 = m["mu20"] / S, m["mu02"] / S, m["mu11"] / S
         tr = mu20 + mu02
-        disc = np.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
+        # (math on Python floats: numpy's values without numpy's per-scalar overhead)
+        disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
         l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)   # principal second moments; a = 2 sqrt(l1) for an ellipse
         if l1 <= 0 or l2 / l1 < min_inertia:
             continue
         P = cv2.arcLength(cnt, True)
-        if 4.0 * np.pi * S / (P * P) < min_circularity:
+        if 4.0 * math.pi * S / (P * P) < min_circularity:
             continue
         hull = cv2.contourArea(cv2.convexHull(cnt))
         if hull <= 0 or S / hull < min_convexity:
             continue
         x, y, w, hh = cv2.boundingRect(cnt)
         cut = x <= 0 or y <= 0 or x + w >= W or y + hh >= H
-        ang = 0.5 * np.arctan2(2 * mu11, mu20 - mu02)
+        ang = 0.5 * math.atan2(2 * mu11, mu20 - mu02)
         c = np.array([m["m10"] / S, m["m01"] / S])
-        out.append(Candidate(c, (2.0 * np.sqrt(l1), 2.0 * np.sqrt(max(l2, 1e-12))), float(ang), float(S), cut))
+        out.append(Candidate(c, (2.0 * math.sqrt(l1), 2.0 * math.sqrt(max(l2, 1e-12))), ang, S, cut))
     return out
