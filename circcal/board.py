@@ -350,7 +350,8 @@ def _symmetries(board: Board) -> tuple[Symmetry, ...]:
                 t = np.column_stack([-t[:, 1], t[:, 0]])
             dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
             j = np.argmin(dist, axis=1)
-            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and len(np.unique(j)) == len(d) \
+            one_to_one = np.bincount(j, minlength=len(d)).max() == 1   # (np.unique would import numpy.ma: 9 ms)
+            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and one_to_one \
                     and np.array_equal(board.is_marker()[j], board.is_marker()):  # markers onto markers
                 label = f"rot{90 * quarter}" if not mirror else ("mirror" if quarter == 0 else
                                                                  f"mirror+rot{90 * quarter}")

@@ -140,9 +140,16 @@ def _load_aot(module: str) -> dict[str, list[tuple[list, Callable]]]:
                 mod = importlib.util.module_from_spec(spec)
                 spec.loader.exec_module(mod)
                 for kernel, entries in exports.items():
-                    table[kernel] = [(e["args"], getattr(mod, e["symbol"])) for e in entries]
+                    table[kernel] = [([_loaded_spec(a) for a in e["args"]], getattr(mod, e["symbol"]))
+                                     for e in entries]
         _aot_cache[module] = table
         return table
+
+
+def _loaded_spec(spec: list) -> list:
+    """A manifest's argument spec with its dtype string as a ``np.dtype`` (compared in :func:`_matches` on every
+    call: ~5x cheaper than building ``a.dtype.str``)."""
+    return [spec[0], np.dtype(spec[1]), *spec[2:]] if spec[0] == "array" else spec
 
 
 def _matches(specs: list, args: tuple) -> bool:
@@ -152,10 +159,10 @@ def _matches(specs: list, args: tuple) -> bool:
     for s, a in zip(specs, args):
         kind = s[0]
         if kind == "array":
-            if not (isinstance(a, np.ndarray) and a.dtype.str == s[1] and a.ndim == s[2]
-                    and a.flags.aligned and a.flags.writeable == s[4]):
+            if not (isinstance(a, np.ndarray) and a.dtype == s[1] and a.ndim == s[2]):
                 return False
-            if s[3] == "C" and not a.flags.c_contiguous:
+            flags = a.flags                          # (a new flags object per access: read once)
+            if not flags.aligned or flags.writeable != s[4] or (s[3] == "C" and not flags.c_contiguous):
                 return False
         elif kind == "int":
             if isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer)):
