@@ -199,24 +199,28 @@ def _block_means_u8(g, s, out):
     """Writes into ``out`` (H, W) uint8 the means of the ``s`` x ``s`` blocks of ``g`` (H s, W s) uint8, rounded
     as OpenCV's area resize rounds them (float32 product with 1 / s^2, half to even; equal to
     ``cv2.resize(g, (W, H), interpolation=cv2.INTER_AREA)`` for s >= 3, tested); returns ``out``. The s rows of a
-    block row are summed first (contiguous, vectorised), then each block of s columns."""
+    block row are summed first, then the s columns of each block, each pass a contiguous loop that vectorises
+    (summing each block's columns in an inner loop of s did not: 0.75 against 0.47 ms for a 1080p frame)."""
     H, W = out.shape
     inv = np.float32(1.0) / np.float32(s * s)
     wide = W * s
     acc = np.zeros(wide, np.int32)
+    tot = np.zeros(W, np.int32)
     for y in range(H):
         first = g[y * s]
         for x in range(wide):
-            acc[x] = first[x]
+            acc[x] = np.int32(first[x])
         for r in range(1, s):
             row = g[y * s + r]
             for x in range(wide):
-                acc[x] += row[x]
+                acc[x] += np.int32(row[x])
         for x in range(W):
-            t = 0
-            for k in range(s):
-                t += acc[x * s + k]
-            out[y, x] = np.uint8(np.rint(np.float32(t) * inv))
+            tot[x] = acc[x * s]
+        for k in range(1, s):
+            for x in range(W):
+                tot[x] += acc[x * s + k]
+        for x in range(W):
+            out[y, x] = np.uint8(np.rint(np.float32(tot[x]) * inv))
     return out
 
 
