@@ -84,6 +84,40 @@ def test_argument_checks():
     assert not jit._matches([arr], (x, 1))
 
 
+def test_numba_caches_kernels_that_call_other_modules_and_drops_them_when_a_callee_changes(tmp_path):
+    # levels' kernel calls robust's selection: under numba's JIT (no ahead-of-time build) it is cached on disk like
+    # the others (uncached, every process compiled it: ~8 s of start-up), and an edited robust.py, which numba's
+    # own cache check would not see, makes it compile afresh. On a copy of the package, so the edit is harmless.
+    import shutil
+
+    pkg = tmp_path / "pkg"
+    shutil.copytree(REPO / "circcal", pkg / "circcal", ignore=shutil.ignore_patterns("_aot", "__pycache__"))
+    code = ("import numpy as np\n"
+            "from circcal.detector import levels\n"
+            "from circcal.detector.jit import synthetic_board\n"
+            "from circcal.detector.ellipse import conic_from_params_batch\n"
+            "img, _ = synthetic_board()\n"
+            "Q = conic_from_params_batch(np.array([[320.0, 240.0]]), np.array([[30.0, 20.0]]), np.array([0.3]))\n"
+            "dark, plane, ok = levels.dot_levels_batch(img, Q, np.array([[250, 180, 390, 300]]))\n"
+            "st = levels._levels_kernel.stats\n"
+            "assert levels.__file__.startswith(%r)\n"
+            "print(sum(st.cache_hits.values()), sum(st.cache_misses.values()), repr(float(dark[0])))\n" % str(pkg))
+    env = {**os.environ, "CIRCCAL_AOT": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def run() -> list[str]:   # (in the copy's folder: the copy comes first on sys.path)
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=pkg, timeout=600,
+                           env=env)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.split()
+
+    first, again = run(), run()
+    robust = pkg / "circcal" / "detector" / "robust.py"
+    robust.write_text(robust.read_text() + "\n# an edited callee\n")
+    edited = run()
+    assert first[:2] == ["0", "1"] and again[:2] == ["1", "0"] and edited[:2] == ["0", "1"]
+    assert first[2] == again[2] == edited[2]
+
+
 def test_literal_signatures_are_not_exported():
     # numba specialises a helper called with a constant (Literal[int](0)): its code holds that constant, so the
     # build must not offer it for every int (a helper called from Python once got the literal-0 code and returned

@@ -20,7 +20,7 @@ quickselect and per-profile early exits).
   the host's, :data:`TARGET_CPU`), so an edited kernel module loads no old code, nor does another machine's CPU:
   until the next build it runs under numba's JIT. A kernel reads only its own module's constants (numba freezes
   them into the code); it calls kernels of its own module or of those it lists (numba's disk cache, which checks
-  only the caller's file, is then off for it: :func:`_jit_module`).
+  only the caller's file, then also checks theirs: :mod:`circcal.detector.jitcache`).
 * The GIL is released inside compiled kernels (``nogil``), as under numba, so threaded detection stays parallel.
 * ``CIRCCAL_AOT=0`` ignores the ahead-of-time build (numba's JIT, as before it existed).
 
@@ -221,9 +221,9 @@ class Kernel:
 def _jit_module(module: str) -> None:
     """Turn the kernels of ``module`` into numba dispatchers and rebind its names to them, those of the kernel modules
     it calls (:func:`_kernel_imports`) first, and its imported names of their kernels too (numba compiles a call to
-    another kernel only through numba's dispatcher). A module that calls other modules' kernels is not cached on
-    disk by numba, whose cache checks only the caller's file: an edited callee would leave stale code (the ahead-of-
-    time build, named after all the sources, is unaffected)."""
+    another kernel only through numba's dispatcher). A module that calls other modules' kernels is cached on disk
+    with its callees' sources in the cache's stamp (:mod:`circcal.detector.jitcache`: numba's own cache checks only
+    the caller's file, so an edited callee would leave stale code)."""
     with _lock:
         kernels = _registry[module]
         if all(k._jit is not None for k in kernels):
@@ -236,6 +236,10 @@ def _jit_module(module: str) -> None:
 
             for k in kernels:
                 k._jit = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
+                if deps and k.options.get("cache"):
+                    from circcal.detector import jitcache
+
+                    jitcache.enable(k._jit, [sys.modules[m].__file__ for m in deps])
         else:
             for k in kernels:
                 k._jit = k.py_func
