@@ -184,3 +184,31 @@ def test_sampson_distances_are_the_first_order_distance():
     d = sampson_distances(np.array([[[12.0, 0.0], [0.0, 0.0]]]), circle)
     assert d[0, 0] == pytest.approx((144.0 - 100.0) / 24.0, rel=1e-15) and d[0, 1] == -np.inf
     assert np.isnan(sampson_distances(np.array([[[np.nan, 1.0]]]), circle)[0, 0])
+
+
+def test_conic_params_are_the_closed_form_on_ellipses_and_nan_elsewhere():
+    # the compiled pass against the closed form written in numpy (centre by the 2x2 solve, the quadratic's value
+    # there, the block's eigenvalues), to the bit, and NaN / ok False for conics that are no real ellipse
+    from circcal.detector.ellipse import conic_from_params_batch, conic_params_batch
+
+    rng = np.random.default_rng(9)
+    c0 = rng.uniform(-3000, 3000, (500, 2))
+    ax0 = np.sort(rng.uniform(0.2, 300, (500, 2)), 1)[:, ::-1]
+    Q = conic_from_params_batch(c0, ax0, rng.uniform(-3, 3, 500)) * rng.choice([-1e3, 1e-3, 1.0], (500, 1, 1))
+    c, axes, ang, ok = conic_params_batch(Q)
+    assert ok.all() and np.allclose(c, c0, rtol=0, atol=1e-6) and np.allclose(axes, ax0, rtol=1e-9)
+    assert np.all((ang > -np.pi / 2) & (ang <= np.pi / 2))
+    p, q, r = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
+    det = p * r - q * q
+    cx, cy = (r * -Q[:, 0, 2] - q * -Q[:, 1, 2]) / det, (p * -Q[:, 1, 2] - q * -Q[:, 0, 2]) / det
+    f0 = ((p * cx + 2.0 * q * cy) * cx + r * cy * cy + 2.0 * (Q[:, 0, 2] * cx + Q[:, 1, 2] * cy) + Q[:, 2, 2])
+    pn, qn, rn = p / -f0, q / -f0, r / -f0
+    l_big = 0.5 * (pn + rn) + np.hypot(0.5 * (pn - rn), qn)
+    assert np.array_equal(c, np.stack([cx, cy], 1))
+    assert np.array_equal(axes, np.stack([1.0 / np.sqrt((pn * rn - qn * qn) / l_big), 1.0 / np.sqrt(l_big)], 1))
+    # a hyperbola, an imaginary ellipse, a parabola (singular block), a point, zeros, NaN, inf
+    bad = np.array([np.diag([1.0, -1.0, -1.0]), np.diag([1.0, 1.0, 1.0]), [[0, 0, 1], [0, 1, 0], [1, 0, 0]],
+                    np.diag([1.0, 1.0, 0.0]), np.zeros((3, 3)), np.full((3, 3), np.nan), np.full((3, 3), np.inf)])
+    c, axes, ang, ok = conic_params_batch(bad)
+    assert not ok.any() and np.isnan(c).all() and np.isnan(axes).all() and np.isnan(ang).all()
+    assert [x.shape for x in conic_params_batch(np.zeros((0, 3, 3)))] == [(0, 2), (0, 2), (0,), (0,)]
