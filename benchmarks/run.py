@@ -77,7 +77,9 @@ def main(argv: list[str]) -> int:
              "least 9 repeats) and given as median [min-max] of the per-round ratios; BLAS and OpenCV threads are "
              "pinned and stated per benchmark; glibc malloc runs with "
              + ", ".join(f"{k}={v}" for k, v in MALLOC_ENV.items()) + " for both tools alike "
-             "(benchmarks/timing.py).", ""]
+             "(benchmarks/timing.py), except where a figure says it ran under glibc's defaults "
+             "(bench_detect's default_malloc, bench_calibrate's default_malloc memory: what a user's process has).",
+             ""]
     for name in names:
         lines += [f"## {name}", "", "| metric | value |", "|---|---|"]
         lines += [f"| {k} | {_fmt(v)} |" for k, v in results[name].items() if k != "traceback"]
