@@ -704,3 +704,32 @@ def test_time_numba_spends_compiling_is_not_the_images(monkeypatch):
     assert d.expired()
     with pytest.raises(BudgetExceeded):
         d.check()
+
+
+def test_local_steps_are_the_neighbour_differences():
+    # the compiled neighbour search against the differences written out (central where both neighbours are in
+    # the set, one-sided at its edge, NaN without any), on symmetric and asymmetric boards, subsets, NaN centres
+    from circcal.board import Board
+    from circcal.detector.trust import local_steps
+
+    rng = np.random.default_rng(4)
+    for layout, M in (("symmetric", np.eye(2)), ("asymmetric", np.array([[1.0, 1.0], [-1.0, 1.0]]))):
+        board = Board(5, 6, 10.0, 5.0, layout=layout)
+        L = board.lattice_coords()
+        for trial in range(30):
+            pts = np.sort(rng.choice(board.n_points, int(rng.integers(1, board.n_points + 1)), replace=False))
+            c = rng.normal(size=(len(pts), 2)) * 100.0
+            c[rng.random(len(pts)) < 0.1] = np.nan
+            where = {tuple(L[p]): i for i, p in enumerate(pts)}
+            Jp = np.full((len(pts), 2, 2), np.nan)
+            for i, p in enumerate(pts):
+                for s, st in enumerate(M.T.astype(int)):
+                    f, r = where.get(tuple(L[p] + st)), where.get(tuple(L[p] - st))
+                    if f is not None and r is not None:
+                        Jp[i, :, s] = 0.5 * (c[f] - c[r])
+                    elif f is not None:
+                        Jp[i, :, s] = c[f] - c[i]
+                    elif r is not None:
+                        Jp[i, :, s] = c[i] - c[r]
+            assert np.array_equal(local_steps(board, pts, c), Jp @ np.linalg.inv(M), equal_nan=True)
+    assert local_steps(Board(3, 3, 10.0, 5.0), np.zeros(0, int), np.zeros((0, 2))).shape == (0, 2, 2)

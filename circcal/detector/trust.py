@@ -27,6 +27,7 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.detector.ellipse import conic_params_batch, sampson_distances
+from circcal.detector.jit import njit
 from circcal.detector.robust import median, row_medians
 
 __all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps", "sampson_rms"]
@@ -127,30 +128,50 @@ def _steps(board: Board) -> tuple[np.ndarray, np.ndarray]:
 def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """(K, 2, 2) image Jacobian (px per pitch; columns: along board x, along board y) at each of the board points
     ``points`` (K,) with image positions ``centres`` (K, 2), from the neighbours among them (central differences,
-    one-sided at the grid's edge; NaN where an axis has no neighbour). Vectorised over a grid of the lattice."""
+    one-sided at the grid's edge; NaN where an axis has no neighbour). The differences along the two nearest-neighbour
+    steps by :func:`_step_differences` (one compiled pass over a grid of the lattice), then into board axes."""
     points = np.asarray(points, np.int64)
     K = len(points)
-    J = np.full((K, 2, 2), np.nan)
     if K == 0:
-        return J
-    L = board.lattice_coords()[points]
+        return np.full((0, 2, 2), np.nan)
     M, Minv = _steps(board)
-    lo = L.min(axis=0) - 2
-    shape = tuple((L.max(axis=0) - lo + 3)[::-1])
-    grid = np.full(shape, -1, np.int64)
-    grid[L[:, 1] - lo[1], L[:, 0] - lo[0]] = np.arange(K)
-    cols = []
-    for st in M.T.astype(np.int64):
-        f = grid[L[:, 1] - lo[1] + st[1], L[:, 0] - lo[0] + st[0]]
-        r = grid[L[:, 1] - lo[1] - st[1], L[:, 0] - lo[0] - st[0]]
-        fc = np.where((f >= 0)[:, None], centres[np.maximum(f, 0)], np.nan)
-        rc = np.where((r >= 0)[:, None], centres[np.maximum(r, 0)], np.nan)
-        both = 0.5 * (fc - rc)
-        col = np.where(((f >= 0) & (r >= 0))[:, None], both,
-                       np.where((f >= 0)[:, None], fc - centres, rc * 0 + centres - rc))
-        cols.append(col)
-    Jp = np.stack(cols, axis=2)                       # columns: derivatives along the two nearest-neighbour steps
+    Jp = np.empty((K, 2, 2))
+    _step_differences(np.ascontiguousarray(board.lattice_coords()[points]),
+                      np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(M.T.astype(np.int64)), Jp)
     return Jp @ Minv
+
+
+@njit(cache=True, nogil=True)
+def _step_differences(L, centres, steps, out):
+    """Writes into ``out`` (K, 2, 2) the image differences (px) along each lattice step ``steps[s]`` (2, 2) int
+    (column s of ``out``) at the points of lattice coordinates ``L`` (K, 2) int with image positions ``centres``
+    (K, 2): ``(c[next] - c[prev]) / 2`` where both neighbours are among the points, ``c[next] - c`` or ``c - c[prev]``
+    where one is, NaN where none is."""
+    K = len(L)
+    lo0, lo1, hi0, hi1 = L[0, 0], L[0, 1], L[0, 0], L[0, 1]
+    for k in range(K):
+        lo0, lo1 = min(lo0, L[k, 0]), min(lo1, L[k, 1])
+        hi0, hi1 = max(hi0, L[k, 0]), max(hi1, L[k, 1])
+    lo0 -= 2
+    lo1 -= 2
+    grid = np.full((hi1 - lo1 + 3, hi0 - lo0 + 3), -1, np.int64)
+    for k in range(K):
+        grid[L[k, 1] - lo1, L[k, 0] - lo0] = k
+    for s in range(2):
+        s0, s1 = steps[s, 0], steps[s, 1]
+        for k in range(K):
+            gx, gy = L[k, 0] - lo0, L[k, 1] - lo1
+            f = grid[gy + s1, gx + s0]
+            r = grid[gy - s1, gx - s0]
+            for j in range(2):
+                if f >= 0 and r >= 0:
+                    out[k, j, s] = 0.5 * (centres[f, j] - centres[r, j])
+                elif f >= 0:
+                    out[k, j, s] = centres[f, j] - centres[k, j]
+                elif r >= 0:
+                    out[k, j, s] = centres[k, j] - centres[r, j]
+                else:
+                    out[k, j, s] = np.nan
 
 
 _COS = np.cos(np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False))
