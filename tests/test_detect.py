@@ -733,3 +733,25 @@ def test_local_steps_are_the_neighbour_differences():
                         Jp[i, :, s] = c[i] - c[r]
             assert np.array_equal(local_steps(board, pts, c), Jp @ np.linalg.inv(M), equal_nan=True)
     assert local_steps(Board(3, 3, 10.0, 5.0), np.zeros(0, int), np.zeros((0, 2))).shape == (0, 2, 2)
+
+
+def test_edge_blur_is_the_median_slope_scale():
+    # the compiled pass against numpy's expressions: sigma_t = A / (sqrt(2 pi) slope) per profile, the median of
+    # the finite positive ones where a crossing was found, never below the nominal blur (that without any)
+    from circcal.detector.edges import PIXEL_BOX_VARIANCE, PROFILE_STEP_PX, _edge_blur
+
+    rng = np.random.default_rng(8)
+    for trial in range(50):
+        D, N = int(rng.integers(1, 6)), int(rng.integers(1, 60))
+        at = rng.uniform(0, 400, (D, N, 2))
+        rise = rng.normal(size=(D, N)) * rng.choice([1e-6, 0.1, 10.0])
+        rise[rng.random((D, N)) < 0.1] = 0.0
+        plane = np.column_stack([rng.normal(size=(D, 2)) * 1e-3, rng.uniform(100, 200, D)])
+        ratio, ok, sigma = rng.uniform(0, 1.2, D), rng.random((D, N)) < 0.7, float(rng.choice([0.0, 1.5]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            st = ((at[..., 0] * plane[:, :1] + at[..., 1] * plane[:, 1:2]) + plane[:, 2:]) * (1.0 - ratio)[:, None] \
+                / (np.sqrt(2.0 * np.pi) * (rise / PROFILE_STEP_PX))
+        use = ok & np.isfinite(st) & (st > 0)
+        nominal = np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)
+        expect = [max(nominal, np.median(st[d][use[d]])) if use[d].any() else nominal for d in range(D)]
+        assert np.array_equal(_edge_blur(at, rise, plane, ratio, ok, sigma), expect)

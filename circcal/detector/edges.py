@@ -27,8 +27,11 @@ from circcal.detector.curvature import curvature_shift
 from circcal.detector.ellipse import conic_params_batch
 from circcal.detector.jit import njit
 from circcal.detector.levels import dot_levels_from_params
-from circcal.detector.robust import row_medians
+from circcal.detector.robust import _median_of
 from circcal.detector.smoothing import SmoothedImage
+
+KERNEL_IMPORTS = ("circcal.detector.robust",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["PROFILE_SPACING_PX", "PROFILE_STEP_PX", "subpixel_edge_points_batch"]
 
@@ -148,14 +151,35 @@ def _edge_blur(at: np.ndarray, rise: np.ndarray, plane: np.ndarray, ratio: np.nd
     ((D,) dark / bright), the slope ``rise`` (D, N) (the difference of the samples around the crossing) over
     :data:`PROFILE_STEP_PX`; ``ok`` (D, N) the profiles with a crossing. Per dot the median, never below what the pixel
     box and the smoothing ``sigma`` alone give (and that where no profile gives a value)."""
-    span = (at[..., 0] * plane[:, 0:1] + at[..., 1] * plane[:, 1:2] + plane[:, 2:3]) * (1.0 - ratio)[:, None]
-    slope = rise / PROFILE_STEP_PX
-    with np.errstate(divide="ignore", invalid="ignore"):
-        st = span / (np.sqrt(2.0 * np.pi) * slope)
-        use = ok & np.isfinite(st) & (st > 0)
-    med = row_medians(np.where(use, st, np.nan))
-    nominal = np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)
-    return np.where(use.any(axis=1), np.maximum(nominal, med), nominal)
+    out = np.empty(len(plane))
+    _edge_blur_kernel(np.ascontiguousarray(at, np.float64), np.ascontiguousarray(rise, np.float64),
+                      np.ascontiguousarray(plane, np.float64), np.ascontiguousarray(ratio, np.float64),
+                      np.ascontiguousarray(ok, np.bool_), float(np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _edge_blur_kernel(at, rise, plane, ratio, ok, nominal, out):
+    """Writes :func:`_edge_blur` into ``out`` (D,): per dot the median of ``sigma_t = A / (sqrt(2 pi) slope)`` over
+    its profiles where ``ok`` and the value is finite and positive (``A = (plane . (at, 1)) (1 - ratio)``, ``slope =
+    rise / PROFILE_STEP_PX``, numpy's expressions in numpy's order), at least ``nominal``; ``nominal`` without any."""
+    D, N = rise.shape
+    buf = np.empty(N)
+    root = np.sqrt(2.0 * np.pi)
+    for d in range(D):
+        p0, p1, p2, w = plane[d, 0], plane[d, 1], plane[d, 2], 1.0 - ratio[d]
+        n = 0
+        for i in range(N):
+            if not ok[d, i]:
+                continue
+            den = root * (rise[d, i] / PROFILE_STEP_PX)
+            if den == 0.0:   # (numpy's division gives +-inf or NaN there: never a value)
+                continue
+            st = ((at[d, i, 0] * p0 + at[d, i, 1] * p1) + p2) * w / den
+            if np.isfinite(st) and st > 0:
+                buf[n] = st
+                n += 1
+        out[d] = max(nominal, _median_of(buf, n)) if n else nominal
 
 
 def _roi_boxes(c: np.ndarray, axes: np.ndarray, sigma: float, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
