@@ -347,12 +347,9 @@ def conic_centre(Q: np.ndarray) -> np.ndarray:
 
 
 def conic_centres(Q: np.ndarray) -> np.ndarray:
-    """(D, 2) centres of the ellipse conics ``Q`` (D, 3, 3) (closed-form 2x2 solve)."""
-    Q = np.asarray(Q, dtype=np.float64)
-    p, q, r = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
-    u, v = -Q[:, 0, 2], -Q[:, 1, 2]
-    det = p * r - q * q
-    return np.stack([(r * u - q * v) / det, (p * v - q * u) / det], axis=1)
+    """(D, 2) centres of the ellipse conics ``Q`` (D, 3, 3) (closed-form 2x2 solve, :func:`conic_params_batch`'s;
+    NaN for a conic that is no real ellipse)."""
+    return conic_params_batch(Q)[0]
 
 
 def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]:
