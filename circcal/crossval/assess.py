@@ -120,8 +120,12 @@ class Assessment:
                 names = self.cal_view_names()
                 for r in rej.items:
                     where = names[r.view] if r.view < len(names) else f"view {r.view}"
-                    what = "whole view" if r.point is None else \
-                        f"point {r.point} at ({r.image_px[0]:.1f}, {r.image_px[1]:.1f}) px"
+                    if r.point is None:
+                        what = "whole view"
+                    elif np.all(np.isfinite(r.image_px)):
+                        what = f"point {r.point} at ({r.image_px[0]:.1f}, {r.image_px[1]:.1f}) px"
+                    else:      # a dot the detector dropped has no measured centre: "(nan, nan) px" said nothing
+                        what = f"point {r.point}"
                     out.append(f"  {where}: {what}: {r.reason.value}: {r.detail}")
             else:
                 out.append(f"outliers: none (rule: residual beyond {rej.rule.k:g} sigma in x or y, sigma floored "
