@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
+from circcal.detector.jit import njit
 
 __all__ = ["Candidate", "area_limits", "find_candidates"]
 
@@ -82,7 +83,9 @@ def find_candidates(
     ``>= min_inertia``, convexity ``S / hull area >= min_convexity``. A blob that touches the image border is
     kept with ``cut=True`` (a dot cut by the border: never measured, but it shows where the board goes on).
     Contours too short to enclose ``min_area`` (a closed pixel contour of P points encloses at most
-    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them.
+    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them. The others are
+    measured in one compiled pass (:func:`_contour_measures`: OpenCV's moments, perimeter, hull area and box to the
+    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view).
     """
     H, W = mask.shape
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
@@ -91,31 +94,124 @@ def find_candidates(
         return out
     shortest = max(MIN_CONTOUR_POINTS, int(np.sqrt(4.0 * np.pi * min_area) * SHORTEST_CONTOUR_SHARE))
     outer = hier[0][:, 3] == -1
-    for k in np.nonzero(outer)[0]:
-        cnt = contours[k]
-        if len(cnt) < shortest:
-            continue
-        m = cv2.moments(cnt)
-        S = m["m00"]
+    todo = [contours[k] for k in np.nonzero(outer)[0] if len(contours[k]) >= shortest]
+    if not todo:
+        return out
+    counts = np.array([len(c) for c in todo], np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    pts = np.ascontiguousarray(np.concatenate(todo).reshape(-1, 2), np.int64)
+    meas = np.empty((len(todo), 12))
+    _contour_measures(pts, starts, counts, float(min_area), float(max_area), meas)
+    for S, m10, m01, m20, m11, m02, P, hull, x0, y0, x1, y1 in meas.tolist():
         if not (min_area <= S <= max_area):
             continue
         # the tests from the moments first, then those that need more of the contour (the same candidates)
-        mu20, mu02, mu11 = m["mu20"] / S, m["mu02"] / S, m["mu11"] / S
+        mu20, mu02, mu11 = m20 / S, m02 / S, m11 / S
         tr = mu20 + mu02
         # (math on Python floats: numpy's values without numpy's per-scalar overhead)
         disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
         l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)   # principal second moments; a = 2 sqrt(l1) for an ellipse
         if l1 <= 0 or l2 / l1 < min_inertia:
             continue
-        P = cv2.arcLength(cnt, True)
         if 4.0 * math.pi * S / (P * P) < min_circularity:
             continue
-        hull = cv2.contourArea(cv2.convexHull(cnt))
         if hull <= 0 or S / hull < min_convexity:
             continue
-        x, y, w, hh = cv2.boundingRect(cnt)
-        cut = x <= 0 or y <= 0 or x + w >= W or y + hh >= H
+        cut = x0 <= 0 or y0 <= 0 or x1 + 1 >= W or y1 + 1 >= H
         ang = 0.5 * math.atan2(2 * mu11, mu20 - mu02)
-        c = np.array([m["m10"] / S, m["m01"] / S])
+        c = np.array([m10 / S, m01 / S])
         out.append(Candidate(c, (2.0 * math.sqrt(l1), 2.0 * math.sqrt(max(l2, 1e-12))), ang, S, cut))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _contour_measures(pts, starts, counts, min_area, max_area, out):
+    """Writes into ``out`` (C, 12) per contour ``i`` (points ``pts[starts[i]:starts[i] + counts[i]]`` (x, y) int, a
+    closed pixel contour of ``cv2.findContours``) what :func:`find_candidates` tests, with OpenCV's values:
+    ``m00, m10, m01`` and the central ``mu20, mu11, mu02`` as ``cv2.moments`` (Green's theorem over the polygon,
+    its sums and factors), and, for a contour whose ``m00`` lies in ``[min_area, max_area]`` (else NaN), its
+    perimeter as ``cv2.arcLength(cnt, True)`` (float32 steps, exact sums), its convex hull's area as
+    ``cv2.contourArea(cv2.convexHull(cnt))`` (monotone chain; integer vertices: the area is exact whichever hull
+    algorithm), and its bounding box ``xmin, ymin, xmax, ymax`` (``cv2.boundingRect``'s x, y, x + w - 1,
+    y + h - 1)."""
+    for i in range(len(starts)):
+        s0, n = starts[i], counts[i]
+        a00 = a10 = a01 = a20 = a11 = a02 = 0.0
+        xi_1 = float(pts[s0 + n - 1, 0])
+        yi_1 = float(pts[s0 + n - 1, 1])
+        for k in range(n):
+            xi = float(pts[s0 + k, 0])
+            yi = float(pts[s0 + k, 1])
+            xi2 = xi * xi
+            yi2 = yi * yi
+            dxy = xi_1 * yi - xi * yi_1
+            xii_1 = xi_1 + xi
+            yii_1 = yi_1 + yi
+            a00 += dxy
+            a10 += dxy * xii_1
+            a01 += dxy * yii_1
+            a20 += dxy * (xi_1 * xii_1 + xi2)
+            a11 += dxy * (xi_1 * (yii_1 + yi_1) + xi * (yii_1 + yi))
+            a02 += dxy * (yi_1 * yii_1 + yi2)
+            xi_1 = xi
+            yi_1 = yi
+        m00 = m10 = m01 = m20 = m11 = m02 = 0.0
+        if abs(a00) > 1.1920928955078125e-07:     # FLT_EPSILON, as OpenCV
+            sg = 1.0 if a00 > 0 else -1.0
+            m00 = a00 * (sg * 0.5)
+            m10 = a10 * (sg * 0.16666666666666666)
+            m01 = a01 * (sg * 0.16666666666666666)
+            m20 = a20 * (sg * 0.083333333333333333)
+            m11 = a11 * (sg * 0.041666666666666667)
+            m02 = a02 * (sg * 0.083333333333333333)
+        cx = cy = 0.0
+        if abs(m00) > 2.220446049250313e-16:      # DBL_EPSILON
+            inv = 1.0 / m00
+            cx = m10 * inv
+            cy = m01 * inv
+        out[i, 0], out[i, 1], out[i, 2] = m00, m10, m01
+        out[i, 3] = m20 - m10 * cx
+        out[i, 4] = m11 - m10 * cy
+        out[i, 5] = m02 - m01 * cy
+        out[i, 6:] = np.nan
+        if not (min_area <= m00 <= max_area):
+            continue
+        # perimeter: OpenCV's float32 steps (1 or sqrt(2) here), summed exactly in double
+        per = 0.0
+        px, py = pts[s0 + n - 1, 0], pts[s0 + n - 1, 1]
+        xmin, ymin, xmax, ymax = px, py, px, py
+        for k in range(n):
+            x, y = pts[s0 + k, 0], pts[s0 + k, 1]
+            dx, dy = np.float32(x - px), np.float32(y - py)
+            per += float(np.sqrt(np.float32(dx * dx + dy * dy)))
+            px, py = x, y
+            xmin, ymin, xmax, ymax = min(xmin, x), min(ymin, y), max(xmax, x), max(ymax, y)
+        out[i, 6] = per
+        out[i, 7] = _hull_area(pts[s0:s0 + n])
+        out[i, 8], out[i, 9], out[i, 10], out[i, 11] = xmin, ymin, xmax, ymax
+
+
+@njit(cache=True, nogil=True)
+def _hull_area(p):
+    """Area of the convex hull of the integer points ``p`` (n, 2) (Andrew's monotone chain; the shoelace sum of
+    integer vertices is exact)."""
+    n = len(p)
+    order = np.argsort(p[:, 0] * (1 << 32) + p[:, 1])
+    hull = np.empty((2 * n + 1, 2), np.int64)
+    h = 0
+    for rep in range(2):          # lower chain left to right, then upper chain right to left
+        start = h
+        for t in range(n):
+            j = order[t] if rep == 0 else order[n - 1 - t]
+            x, y = p[j, 0], p[j, 1]
+            while h - start >= 2 and ((hull[h - 1, 0] - hull[h - 2, 0]) * (y - hull[h - 2, 1])
+                                      - (hull[h - 1, 1] - hull[h - 2, 1]) * (x - hull[h - 2, 0])) <= 0:
+                h -= 1
+            hull[h, 0], hull[h, 1] = x, y
+            h += 1
+        h -= 1                    # the chain's last point starts the next one
+    area2 = 0
+    for k in range(h):
+        q = (k + 1) % h
+        area2 += hull[k, 0] * hull[q, 1] - hull[q, 0] * hull[k, 1]
+    return 0.5 * abs(float(area2))

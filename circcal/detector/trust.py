@@ -22,6 +22,8 @@ Pixels: OpenCV's convention. Lattice steps: one pitch along the board's x and y 
 """
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -117,12 +119,20 @@ def sampson_rms(points: np.ndarray, mask: np.ndarray, conics: np.ndarray) -> np.
 
 def _steps(board: Board) -> tuple[np.ndarray, np.ndarray]:
     """The two nearest-neighbour lattice steps (2,) of ``board`` in lattice coordinates, and the (2, 2) matrix whose
-    inverse maps image derivatives along them to derivatives along the board's x and y."""
-    if board.layout == "asymmetric":
+    inverse maps image derivatives along them to derivatives along the board's x and y (read-only, made once per
+    layout)."""
+    return _steps_of(board.layout == "asymmetric")
+
+
+@functools.lru_cache(maxsize=2)
+def _steps_of(asymmetric: bool) -> tuple[np.ndarray, np.ndarray]:
+    if asymmetric:
         M = np.array([[1, 1], [-1, 1]], np.float64)     # columns: the diagonal steps (1, -1) and (1, 1)
     else:
         M = np.eye(2)
-    return M, np.linalg.inv(M)
+    Minv = np.linalg.inv(M)
+    M.flags.writeable = Minv.flags.writeable = False
+    return M, Minv
 
 
 def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -216,7 +226,9 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
         g = g.astype(np.float32)
     gap = np.full(D, np.inf)
     if D > 1:
-        d = np.linalg.norm(centres[:, None] - centres[None], axis=-1) - axes[:, None, 0] - axes[None, :, 0]
+        dx = centres[:, None, 0] - centres[None, :, 0]
+        dy = centres[:, None, 1] - centres[None, :, 1]
+        d = np.sqrt(dx * dx + dy * dy) - axes[:, None, 0] - axes[None, :, 0]   # (np.linalg.norm's values)
         np.fill_diagonal(d, np.inf)
         gap = d.min(axis=1)
     inner = cv2.remap(g, centres[:, 0:1].astype(np.float32), centres[:, 1:2].astype(np.float32),
@@ -280,7 +292,9 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     round_ = np.full(D, np.nan)
     fill = np.full(D, np.nan)
     okJ = np.all(np.isfinite(J), axis=(1, 2))
-    okJ[okJ] = np.abs(np.linalg.det(J[okJ])) > 0
+    detJ = np.linalg.det(J[okJ])
+    okJ[okJ] = np.abs(detJ) > 0
+    detJ = detJ[detJ != 0]
     if np.any(okJ):
         E = np.zeros((D, 2, 2))
         cs, sn = np.cos(ang), np.sin(ang)
@@ -291,7 +305,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
         C = Jinv @ E[oi] @ Jinv.transpose(0, 2, 1)          # the dot on the board (pitch units)
         w = np.linalg.eigvalsh(C)
         round_[oi] = np.sqrt(np.maximum(w[:, 1], 1e-300) / np.maximum(w[:, 0], 1e-300))
-        fill[oi] = np.pi * a[oi] * b[oi] / np.abs(np.linalg.det(J[okJ]))
+        fill[oi] = np.pi * a[oi] * b[oi] / np.abs(detJ)
     shade = np.zeros(D)
     grey = np.zeros(D)
     if gray is not None and np.any(ok):
@@ -348,7 +362,10 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
         res = res - A @ coef
     J = local_steps(board, points, centres)
     finite = np.all(np.isfinite(J), axis=(1, 2))
-    step = median(np.sqrt(np.abs(np.linalg.det(J[finite])))) if np.any(finite) else np.nan
+    det = np.full(K, np.nan)
+    if np.any(finite):
+        det[finite] = np.linalg.det(J[finite])
+    step = median(np.sqrt(np.abs(det[finite]))) if np.any(finite) else np.nan
     if not np.isfinite(step) or step <= 0:
         return "the dots have no lattice neighbours"
     rel = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) / step
@@ -358,7 +375,7 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
     _, axes, _, ok = params if params is not None else conic_params_batch(conics)
     plain = ok & ~board.is_marker()[points] & finite
     if np.any(plain):
-        fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(np.linalg.det(J[plain]))
+        fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(det[plain])
         d_rel = float(np.sqrt(median(fill) / np.pi)) * 2.0      # measured diameter / pitch
         stated = board.diameter_mm / board.pitch_mm
         if not stated / DIAMETER_FACTOR <= d_rel <= stated * DIAMETER_FACTOR:
