@@ -207,7 +207,7 @@ def _scaling(det) -> dict:
     from circcal.detector.candidates import area_limits, find_candidates
     from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
     from circcal.detector.recognise import recognise
-    from circcal.detector.segment import segmentations, shrink, upscaled
+    from circcal.detector.segment import segmentations, shrink
 
     board = Board(7, 7, 10.0, 5.0)
     rows = []
@@ -218,7 +218,7 @@ def _scaling(det) -> dict:
             lo, hi = area_limits(board, W, H)
             s = 3
             mask = next(segmentations(normalise_u8(shrink(img, s), STRETCH_TAIL_PX / s ** 2)))[1]
-            cands = [upscaled(c, s) for c in find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2)]
+            cands = find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2, scale=s)
             t = alternate({"detect": lambda: det.detect(img, board),
                            "grid_search": lambda: recognise(board, cands, (W, H))}, repeats=SCALING_REPEATS)
             row = {"dots": n, "candidates": len(cands), "circcal_detect_s": summary(t["detect"]),

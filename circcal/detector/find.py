@@ -39,7 +39,7 @@ from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_
 from circcal.detector.image import STRETCH_TAIL_PX, as_gray, normalise_u8
 from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
 from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
-                                     segmentations, shrink, speckled, upscaled)
+                                     segmentations, shrink, speckled)
 from circcal.detector.smoothing import SmoothedImage
 from circcal.detector.trust import absent_dots, bad_dots, check_grid
 from circcal.errors import ImageError, InputError
@@ -223,15 +223,13 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
             deadline.check()
             if speckled(mask):
                 continue
-            cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2)
+            cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2, scale=scale)
             n_whole = sum(not c.cut for c in cs)
             best = max(best, n_whole)
             if n_whole < need:
                 if first_only:
                     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), cs, None, best
                 continue
-            if scale != 1:
-                cs = [upscaled(c, scale) for c in cs]
             if box is not None:
                 cs = [_shifted(c, x0, y0, W, H) for c in cs]
             rec = recognise(board, cs, (W, H), deadline)

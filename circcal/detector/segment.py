@@ -12,12 +12,11 @@ from collections.abc import Iterator
 import cv2
 import numpy as np
 
-from circcal.detector.candidates import Candidate
 from circcal.detector.image import HIST_EXACT_COUNT
 from circcal.detector.jit import njit
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "segmentation_scales", "segmentations", "shrink",
-           "noise_sigma_u8", "speckled", "upscaled"]
+           "noise_sigma_u8", "speckled"]
 
 GUIDED_RADIUS_DIVISOR = 400
 """Guided-filter radius = the shorter image side / this (px): ~1 px of smoothing per 400 px, a fraction of the smallest
@@ -222,12 +221,3 @@ def _block_means_u8(g, s, out):
         for x in range(W):
             out[y, x] = np.uint8(np.rint(np.float32(tot[x]) * inv))
     return out
-
-
-def upscaled(c: Candidate, scale: int) -> Candidate:
-    """A candidate found on an image shrunk ``scale`` x (pixel-area averaging) in full-image pixels. The contour
-    runs through the centres of the blob's boundary pixels, ~half a pixel inside its edge at either scale: the axes
-    get the difference back, so the starting ellipse is as close to the edge as one found at full resolution."""
-    off = 0.5 * (scale - 1)
-    return Candidate(c.centre * scale + off, (c.axes[0] * scale + off, c.axes[1] * scale + off), c.angle,
-                     c.area * scale ** 2, c.cut)
