@@ -288,6 +288,26 @@ def test_compiled_medians_are_numpys_on_ties_and_ordered_input():
         assert _median_of(r.copy(), len(r)) == np.median(r)
 
 
+def test_the_band_median_is_the_median_also_where_the_sample_misses_it():
+    # from BAND_SELECT_FROM values the median is selected within a band a sample bounds; inputs whose sample lies far
+    # from the median (the values at the sample's positions all large) take the full selection: both numpy's median
+    from circcal.detector.robust import BAND_SAMPLE, BAND_SELECT_FROM, _band_median_of, _median_of
+
+    rng = np.random.default_rng(12)
+    missed = 0
+    for n in (BAND_SELECT_FROM, BAND_SELECT_FROM + 1, 1000, 1401, 4096):
+        for kind in range(5):
+            r = [rng.normal(size=n), np.abs(rng.normal(size=n)) ** 3, rng.integers(0, 4, n).astype(float),
+                 np.sort(rng.normal(size=n)), rng.normal(size=n)][kind]
+            if kind == 4:   # the sampled positions hold the largest values: the band misses the median
+                pos = ((2 * np.arange(BAND_SAMPLE) + 1) * n) // (2 * BAND_SAMPLE)
+                r[pos] = 1e6 + np.arange(BAND_SAMPLE)
+                missed += 1
+            assert _median_of(r.copy(), n) == np.median(r)
+            assert _band_median_of(r.copy(), n, (n - 1) // 2) == np.median(r)
+    assert missed == 5
+
+
 def test_median_and_mad_inliers_are_the_numpy_rule():
     # the compiled statistics against the numpy expressions they replaced, with ties, NaN, +-inf and empty rows
     from circcal.detector.robust import MAD_TO_SIGMA, mad_inliers, median, row_medians

@@ -27,6 +27,8 @@ Pixel convention: OpenCV's (integer coordinates are pixel centres); centres in O
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from circcal.board import Board
@@ -240,7 +242,7 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
                 label += f"[{x0}:{x1},{y0}:{y1}]"
             if rec.order is not None:
                 seen = rec.order[rec.order >= 0]
-                radii = np.array([np.sqrt(cs[i].axes[0] * cs[i].axes[1]) for i in seen])
+                radii = np.array([math.sqrt(cs[i].axes[0] * cs[i].axes[1]) for i in seen])
                 r_min = float(np.min(radii))
                 if scale != 1 and r_min < SHRUNK_MIN_RADIUS * scale:
                     # small dots: their contours are worth a finer scale, the coarsest one where they are not small,

@@ -11,6 +11,15 @@ MAD_TO_SIGMA = 1.4826
 """Standard deviation of a normal distribution per unit of its median absolute deviation (1 / Phi^-1(3/4))."""
 _XORSHIFT_MASK = (1 << 60) - 1
 """The pivot draws' state stays below 2^60 (non-negative in int64)."""
+BAND_SELECT_FROM = 256
+"""Medians of at least this many values select within a sampled band (:func:`_band_median_of`; 13-22 % faster from
+300 to 1,400 values, measured); below, the sample and the extra pass cost about what they save."""
+BAND_SAMPLE = 31
+"""Values sampled (evenly spread) to bound the band ..."""
+BAND_HALF_WIDTH = 6
+"""... which reaches this many sample steps either side of the median's (the median's rank in a sample of 31 varies
+by ~2.8 steps: 6 misses it with a probability of ~3 %, and then all values are searched; wider bands and larger
+samples measured slower)."""
 
 
 def row_medians(values: np.ndarray) -> np.ndarray:
@@ -96,16 +105,62 @@ def _select_inplace(a, n, k):
 @njit(cache=True, nogil=True)
 def _median_of(a, n):
     """Median of ``a[:n]`` (``n >= 1``, no NaN; the mean of the two middle values for even n), reordering ``a[:n]``:
-    the lower middle value by :func:`_select_inplace`, the upper one (even counts) the smallest value above it."""
+    the lower middle value by :func:`_select_inplace`, the upper one (even counts) the smallest value above it. From
+    :data:`BAND_SELECT_FROM` values the selection runs on the band of values around the median that a sample of
+    them bounds (:func:`_band_median_of`); the same order statistics either way."""
     k = (n - 1) // 2
+    if n >= BAND_SELECT_FROM:
+        return _band_median_of(a, n, k)
     m = _select_inplace(a, n, k)
     if n % 2 == 1:
         return m
-    nxt = a[k + 1]
-    for i in range(k + 2, n):
-        if a[i] < nxt:
-            nxt = a[i]
-    return 0.5 * (m + nxt)
+    return 0.5 * (m + _min_of(a, k + 1, n))
+
+
+@njit(cache=True, nogil=True)
+def _min_of(a, lo, hi):
+    """The smallest of ``a[lo:hi]`` (``lo < hi``)."""
+    m = a[lo]
+    for i in range(lo + 1, hi):
+        if a[i] < m:
+            m = a[i]
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _band_median_of(a, n, k):
+    """:func:`_median_of` of ``a[:n]`` (``k = (n - 1) // 2``) for many values: :data:`BAND_SAMPLE` of them, evenly
+    spread, sorted, bound a band ``[lo, hi]`` of ranks ~k +- :data:`BAND_HALF_WIDTH` sample steps; one branch-free
+    pass moves the values in the band to the front and counts those below it, and where the k-th (and, for even n,
+    the next) smallest lies in the band it is selected among the band alone (~40 % of the values: the quickselect
+    over the noisy ring residuals of a dot, whose comparisons the CPU cannot predict, was ~40% of the levels' pass);
+    otherwise among all values, as :func:`_median_of` does. The order statistics are unique, so the value does not
+    depend on the band."""
+    samp = np.empty(BAND_SAMPLE)
+    for j in range(BAND_SAMPLE):                     # insertion sort of the sample
+        v = a[((2 * j + 1) * n) // (2 * BAND_SAMPLE)]
+        i = j
+        while i > 0 and samp[i - 1] > v:
+            samp[i] = samp[i - 1]
+            i -= 1
+        samp[i] = v
+    j = (k * (BAND_SAMPLE - 1) + (n - 1) // 2) // (n - 1)
+    lo = samp[j - BAND_HALF_WIDTH] if j >= BAND_HALF_WIDTH else -np.inf
+    hi = samp[j + BAND_HALF_WIDTH] if j + BAND_HALF_WIDTH < BAND_SAMPLE else np.inf
+    s = 0
+    below = 0
+    for i in range(n):
+        v = a[i]
+        below += v < lo
+        a[i] = a[s]
+        a[s] = v
+        s += (v >= lo) & (v <= hi)
+    even = n % 2 == 0
+    if below <= k and k + even < below + s:       # the middle value(s) among the band a[:s]
+        m = _select_inplace(a, s, k - below)
+        return 0.5 * (m + _min_of(a, k - below + 1, s)) if even else m
+    m = _select_inplace(a, n, k)
+    return 0.5 * (m + _min_of(a, k + 1, n)) if even else m
 
 
 @njit(cache=True, nogil=True)
