@@ -84,11 +84,11 @@ def find_candidates(
     ``>= min_inertia``, convexity ``S / hull area >= min_convexity``. A blob that touches the image border is
     kept with ``cut=True`` (a dot cut by the border: never measured, but it shows where the board goes on).
     Contours too short to enclose ``min_area`` (a closed pixel contour of P points encloses at most
-    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them. ``scale``: the
-    mask is of an image shrunk that many times; the candidates are given in full-image pixels (:func:`_upscale`;
-    the area limits and tests apply at the mask's scale). The others are
+    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them. The others are
     measured in one compiled pass (:func:`_contour_measures`: OpenCV's moments, perimeter, hull area and box to the
-    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view).
+    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view). ``scale``: the
+    mask is of an image shrunk that many times; the candidates are given in full-image pixels (:func:`_upscale`;
+    the area limits and tests apply at the mask's scale).
     """
     H, W = mask.shape
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
