@@ -381,6 +381,34 @@ def test_the_compiled_contour_measures_are_opencvs():
     assert checked > 10000
 
 
+def test_the_compiled_ring_shares_are_the_numpy_rule():
+    # dark_neighbourhood's shares, once numpy expressions (a median of three along each ring by np.roll, the tests'
+    # means), now one compiled pass: the same values on random rings, with ties, NaN samples and no contrast
+    from circcal.detector.trust import CLEARANCE_LEVEL, CLEARANCE_MIN_PX, _ring_shares
+
+    rng = np.random.default_rng(21)
+    for trial in range(40):
+        D = int(rng.integers(1, 30))
+        v = np.round(rng.uniform(0, 255, (D, 5, 48)), int(rng.integers(0, 3)))
+        if trial % 4 == 0:
+            v[rng.random(v.shape) < 0.02] = np.nan
+        white, inner = rng.uniform(100, 255, D), rng.uniform(0, 150, D)
+        near, far = rng.uniform(0, 5, D), rng.uniform(0, 8, D)
+        a, b = np.roll(v[:, :2], 1, axis=-1), np.roll(v[:, :2], -1, axis=-1)
+        ring = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), v[:, :2])).reshape(D, -1)
+        level = v[:, 2:].reshape(D, -1)
+        contrast = white - inner
+        dark = ring < (white - CLEARANCE_LEVEL * contrast)[:, None]
+        mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
+                                                                                   * contrast)[:, None])
+        ok = contrast > 0
+        want = (np.where(ok & (near >= CLEARANCE_MIN_PX), dark.mean(axis=1), 0.0),
+                np.where(ok & (far > near), mid.mean(axis=1), 0.0))
+        got = np.empty(D), np.empty(D)
+        _ring_shares(v, white, inner, near, far, CLEARANCE_LEVEL, CLEARANCE_MIN_PX, *got)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+
+
 def test_importing_the_detector_does_not_load_scipy_ndimage_or_special():
     code = ("import sys\nimport circcal.detector, circcal.detector.overlay\n"
             "print([m for m in ('scipy.ndimage', 'scipy.special') if m in sys.modules])\n")

@@ -202,19 +202,10 @@ def _rings(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarr
     return v.reshape(D, R, -1).astype(np.float64)
 
 
-def _median3_around(v: np.ndarray) -> np.ndarray:
-    """``v`` (..., A) samples around closed rings: each replaced by the median of itself and its two neighbours
-    along the ring (circular). A dark object next to a rim darkens an arc of adjacent samples, which this keeps;
-    a single sample darkened by noise is removed (under noise of 17 % of the contrast, a sixth of a small noisy dot's,
-    each sample is dark with p ~ 4 %, which alone would leave a clear dot at the share's limit)."""
-    a, b = np.roll(v, 1, axis=-1), np.roll(v, -1, axis=-1)
-    return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), v))
-
-
 def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Per dot (D,), the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`; each
-    ring's samples median-filtered along it, :func:`_median3_around`, so only dark arcs count), and
+    ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`), and
     the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white level is
     measured on (:data:`LEVEL_RING_PX`); ``gray`` (H, W), ellipses ``centres`` (D, 2), ``axes`` (D, 2),
     ``angle`` (D,). Both rings end half-way to the nearest dot."""
@@ -237,16 +228,58 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
     far = np.minimum(LEVEL_RING_PX[0] + np.maximum(LEVEL_RING_PX[1], LEVEL_RING_PX[2] * axes[:, 1]), 0.5 * gap)
     start = np.minimum(LEVEL_RING_PX[0], far)
     v = _rings(g, centres, axes, angle, np.stack([0.5 * near, near, start, 0.5 * (start + far), far], 1))
-    ring = _median3_around(v[:, :2]).reshape(D, -1)
-    level = v[:, 2:].reshape(D, -1)
     white = row_medians(v.reshape(D, -1))
-    contrast = white - inner
-    dark = ring < (white - CLEARANCE_LEVEL * contrast)[:, None]
-    mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
-                                                                               * contrast)[:, None])
-    ok = contrast > 0
-    return (np.where(ok & (near >= CLEARANCE_MIN_PX), dark.mean(axis=1), 0.0),
-            np.where(ok & (far > near), mid.mean(axis=1), 0.0))
+    shade, grey = np.empty(D), np.empty(D)
+    _ring_shares(v, white, inner, near, far, CLEARANCE_LEVEL, CLEARANCE_MIN_PX, shade, grey)
+    return shade, grey
+
+
+@njit(cache=True, nogil=True)
+def _ring_shares(v, white, inner, near, far, level_share, min_near, shade, grey):
+    """Writes :func:`dark_neighbourhood`'s two shares per dot into ``shade`` and ``grey`` (D,), from the ring samples
+    ``v`` (D, 5, A) (two clearance rings, three level rings), the white level ``white`` (D,), the dark level
+    ``inner`` (D,) and the rings' reach ``near``, ``far`` (D,) px: the share of the clearance rings' samples, each
+    the median of itself and its two neighbours along its ring (circular), darker than ``white - level_share *
+    contrast``, and the share of the level rings' samples between that and ``inner +
+    level_share * contrast`` (``contrast = white - inner``); 0 where there is no contrast, or where the clearance
+    ring reaches less than ``min_near`` px (the level rings: no further than the clearance ring). The median of
+    three keeps the arc of adjacent samples a dark object next to a rim darkens and removes a single sample darkened
+    by noise (under noise of 17 % of the contrast, a sixth of a small noisy dot's, each sample is dark with p ~ 4 %,
+    which alone would leave a clear dot at the share's limit). NaN samples propagate as in numpy's minimum and
+    maximum; the shares are numpy's means of the tests (counts over sample counts)."""
+    D, _, A = v.shape
+    for d in range(D):
+        contrast = white[d] - inner[d]
+        hi = white[d] - level_share * contrast
+        lo = inner[d] + level_share * contrast
+        n_dark = 0
+        for r in range(2):
+            for i in range(A):
+                a, b, c = v[d, r, i - 1 if i > 0 else A - 1], v[d, r, i + 1 if i + 1 < A else 0], v[d, r, i]
+                n_dark += _nan_max(_nan_min(a, b), _nan_min(_nan_max(a, b), c)) < hi
+        n_mid = 0
+        for r in range(2, 5):
+            for i in range(A):
+                n_mid += (v[d, r, i] < hi) & (v[d, r, i] > lo)
+        ok = contrast > 0
+        shade[d] = n_dark / (2 * A) if ok and near[d] >= min_near else 0.0
+        grey[d] = n_mid / (3 * A) if ok and far[d] > near[d] else 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nan_min(a, b):
+    """``np.minimum(a, b)`` of two floats (NaN if either is)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a < b else b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nan_max(a, b):
+    """``np.maximum(a, b)`` of two floats (NaN if either is)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a > b else b
 
 
 def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.ndarray, conics: np.ndarray,
