@@ -409,6 +409,22 @@ def test_the_compiled_ring_shares_are_the_numpy_rule():
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
 
 
+def test_the_compiled_ring_points_are_the_numpy_expression():
+    from circcal.detector.trust import _COS, _SIN, _ring_points
+
+    rng = np.random.default_rng(22)
+    D, R = 37, 5
+    c, axes = rng.uniform(0, 4000, (D, 2)), rng.uniform(1, 80, (D, 2))
+    ang, radii = rng.uniform(-np.pi, np.pi, D), rng.uniform(0, 9, (D, R))
+    cs, sn = np.cos(ang)[:, None, None], np.sin(ang)[:, None, None]
+    a, b = axes[:, 0:1, None] + radii[:, :, None], axes[:, 1:2, None] + radii[:, :, None]
+    want_x = (c[:, 0:1, None] + a * _COS * cs - b * _SIN * sn).reshape(D, -1).astype(np.float32)
+    want_y = (c[:, 1:2, None] + a * _COS * sn + b * _SIN * cs).reshape(D, -1).astype(np.float32)
+    x, y = np.empty_like(want_x), np.empty_like(want_y)
+    _ring_points(c, axes, np.cos(ang), np.sin(ang), radii, _COS, _SIN, x, y)
+    assert np.array_equal(x, want_x) and np.array_equal(y, want_y)
+
+
 def test_importing_the_detector_does_not_load_scipy_ndimage_or_special():
     code = ("import sys\nimport circcal.detector, circcal.detector.overlay\n"
             "print([m for m in ('scipy.ndimage', 'scipy.special') if m in sys.modules])\n")

@@ -191,15 +191,31 @@ _SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False))
 def _rings(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray, radii: np.ndarray
            ) -> np.ndarray:
     """(D, R, CLEARANCE_ANGLES) grey values on the ellipses grown by ``radii`` (D, R) px (bilinear, one remap)."""
-    cs, sn = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
-    a = axes[:, 0:1, None] + radii[:, :, None]
-    b = axes[:, 1:2, None] + radii[:, :, None]
-    x = centres[:, 0:1, None] + a * _COS * cs - b * _SIN * sn
-    y = centres[:, 1:2, None] + a * _COS * sn + b * _SIN * cs
     D, R = radii.shape
-    v = cv2.remap(g, x.reshape(D, -1).astype(np.float32), y.reshape(D, -1).astype(np.float32), cv2.INTER_LINEAR,
-                  borderMode=cv2.BORDER_REPLICATE)
+    x = np.empty((D, R * len(_COS)), np.float32)
+    y = np.empty((D, R * len(_COS)), np.float32)
+    _ring_points(np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(axes, np.float64),
+                 np.cos(angle), np.sin(angle), np.ascontiguousarray(radii, np.float64), _COS, _SIN, x, y)
+    v = cv2.remap(g, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return v.reshape(D, R, -1).astype(np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _ring_points(c, axes, cs, sn, radii, cos_a, sin_a, x, y):
+    """Writes into ``x``, ``y`` (D, R A) float32 the points of :func:`_rings`: on ellipse d grown by ``radii[d, r]``
+    at the angles of ``cos_a``, ``sin_a`` (A,), ``x = (cx + (a cos) cs) - (b sin) sn``, ``y = (cy + (a cos) sn) +
+    (b sin) cs`` in numpy's order of the broadcast expression it replaced (the same float64 values, then rounded to
+    float32)."""
+    D, R = radii.shape
+    A = len(cos_a)
+    for d in range(D):
+        for r in range(R):
+            a = axes[d, 0] + radii[d, r]
+            b = axes[d, 1] + radii[d, r]
+            for i in range(A):
+                ac, bs = a * cos_a[i], b * sin_a[i]
+                x[d, r * A + i] = np.float32((c[d, 0] + ac * cs[d]) - bs * sn[d])
+                y[d, r * A + i] = np.float32((c[d, 1] + ac * sn[d]) + bs * cs[d])
 
 
 def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
