@@ -12,8 +12,8 @@ MAD_TO_SIGMA = 1.4826
 _XORSHIFT_MASK = (1 << 60) - 1
 """The pivot draws' state stays below 2^60 (non-negative in int64)."""
 BAND_SELECT_FROM = 256
-"""Medians of at least this many values select within a sampled band (:func:`_band_median_of`; 13-22 % faster from
-300 to 1,400 values, measured); below, the sample and the extra pass cost about what they save."""
+"""Medians of at least this many values select within a sampled band (:func:`_band_median_of`: 13-22 % faster on
+300 to 1,400 values, measured); on fewer, the sample and the extra pass cost about what they save."""
 BAND_SAMPLE = 31
 """Values sampled (evenly spread) to bound the band ..."""
 BAND_HALF_WIDTH = 6
@@ -132,9 +132,9 @@ def _band_median_of(a, n, k):
     """:func:`_median_of` of ``a[:n]`` (``k = (n - 1) // 2``) for many values: :data:`BAND_SAMPLE` of them, evenly
     spread, sorted, bound a band ``[lo, hi]`` of ranks ~k +- :data:`BAND_HALF_WIDTH` sample steps; one branch-free
     pass moves the values in the band to the front and counts those below it, and where the k-th (and, for even n,
-    the next) smallest lies in the band it is selected among the band alone (~40 % of the values: the quickselect
-    over the noisy ring residuals of a dot, whose comparisons the CPU cannot predict, was ~40% of the levels' pass);
-    otherwise among all values, as :func:`_median_of` does. The order statistics are unique, so the value does not
+    the next) smallest lies in the band it is selected among the band alone (~40 % of the values; the quickselect
+    over all the noisy ring residuals of a dot, whose comparisons the CPU cannot predict, had been ~40 % of the
+    levels' pass), otherwise among all values, as :func:`_median_of` does. The order statistics are unique, so the value does not
     depend on the band."""
     samp = np.empty(BAND_SAMPLE)
     for j in range(BAND_SAMPLE):                     # insertion sort of the sample
