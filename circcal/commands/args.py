@@ -79,7 +79,8 @@ def check_output(path: Path, *, folder: bool = False) -> Path:
     try:  # the permission bits do not tell for root, read-only mounts or /proc: make (and remove) a file there
         fd, probe = tempfile.mkstemp(prefix=".circcal-probe-", dir=parent)
     except OSError as exc:
-        raise InputError(f"cannot write {path}: folder {parent}: {exc.strerror or exc}") from None
+        raise InputError(f"cannot write {path}: no file can be made in folder {parent} ({exc.strerror or exc})") \
+            from None
     os.close(fd)
     os.unlink(probe)
     return path
