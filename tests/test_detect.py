@@ -623,6 +623,55 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
         assert np.allclose(Qs[k], Q, rtol=0, atol=1e-10)
 
 
+@pytest.mark.parametrize("radius_px,tilt", [(7, 0), (15, 45), (30, 60)])
+def test_sparse_steering_pass_moves_no_ellipse(radius_px, tilt, monkeypatch):
+    """The steering pass measures a quarter of the profiles; from starts up to 0.5 px and 5 % off, the last pass's
+    ellipses are those steered by every profile (measured <= 5e-6 px on these renders), the same points kept."""
+    from circcal.detector import dots
+    from circcal.detector.ellipse import conic_from_params, conic_params_batch
+
+    img, _, *_ = _render(CAM, radius_px, tilt)
+    c, axes, ang, _ = conic_params_batch(detect(img, BOARD).conics)
+    rng = np.random.default_rng(1)
+    starts = np.array([conic_from_params(c[k] + rng.uniform(-0.5, 0.5, 2), axes[k] * rng.uniform(0.95, 1.05),
+                                         ang[k] + 0.05) for k in range(len(c))])
+    assert dots.STEERING_SPACING_PX > dots.PROFILE_SPACING_PX
+    _, M, Q, err = dots.fit_dots(img, starts)
+    monkeypatch.setattr(dots, "STEERING_SPACING_PX", dots.PROFILE_SPACING_PX)
+    _, M1, Q1, err1 = dots.fit_dots(img, starts)
+    assert err == err1 == [None] * len(starts)
+    assert np.array_equal(M.sum(axis=1), M1.sum(axis=1))
+    diff = np.abs(conic_params_batch(Q)[0] - conic_params_batch(Q1)[0])
+    assert diff.max() < 1e-4, diff.max()
+
+
+def test_a_dot_the_steering_pass_cannot_fit_is_measured_by_the_last_pass(monkeypatch):
+    """A dot left with too few steering points (as a cut or occluded dot may be) is not dropped: it keeps its
+    starting ellipse and the last pass measures it, as a single pass from that start would."""
+    from circcal.detector import dots
+    from circcal.detector.edges import subpixel_edge_points_batch
+
+    img, _, *_ = _render(CAM, 15, 30)
+    starts = detect(img, BOARD).conics
+    real = subpixel_edge_points_batch
+
+    def starved(src, conics, with_slack=False, spacing_px=dots.PROFILE_SPACING_PX):
+        out = real(src, conics, with_slack=with_slack, spacing_px=spacing_px)
+        if spacing_px == dots.STEERING_SPACING_PX:          # the steering pass: dot 0 keeps 5 points
+            mask = out[1]
+            mask[0, np.nonzero(mask[0])[0][5:]] = False
+        return out
+
+    monkeypatch.setattr(dots, "subpixel_edge_points_batch", starved)
+    P, M, Q, err = dots.fit_dots(img, starts)
+    assert err == [None] * len(starts)
+    monkeypatch.setattr(dots, "FIT_PASSES", 1)
+    P1, M1, Q1, err1 = dots.fit_dots(img, starts[:1])
+    assert err1 == [None]
+    assert M[0].sum() == M1[0].sum() > dots.MIN_EDGE_POINTS
+    assert np.allclose(P[0][M[0]], P1[0][M1[0]], rtol=0, atol=1e-8) and np.allclose(Q[0], Q1[0], rtol=0, atol=1e-10)
+
+
 def test_guided_filter_is_opencvs_to_float32_rounding():
     from circcal.detector.jit import synthetic_board
     from circcal.detector.segment import GUIDED_EPS, guided_filter

@@ -58,13 +58,13 @@ PIXEL_BOX_VARIANCE = 1.0 / 12.0
 """Variance (px^2) of a pixel's unit box: the blur that area sampling adds to every edge, whatever the optics."""
 
 
-def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slack: bool = False
-                               ) -> tuple[np.ndarray, ...]:
+def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slack: bool = False,
+                               spacing_px: float = PROFILE_SPACING_PX) -> tuple[np.ndarray, ...]:
     """Sub-pixel boundary points of the dark dots near the ellipses ``conics`` (D, 3, 3) on ``src`` (the image and its
     smoothing scale ``sigma``).
 
-    Profiles along the ellipse normals, one per :data:`PROFILE_SPACING_PX` px of perimeter, sampled every
-    :data:`PROFILE_STEP_PX` px; the edge point of a profile is its up-crossing of the dot's half level nearest to the
+    Profiles along the ellipse normals, one per ``spacing_px`` px of perimeter (at least :data:`MIN_PROFILES`),
+    sampled every :data:`PROFILE_STEP_PX` px; the edge point of a profile is its up-crossing of the dot's half level nearest to the
     current ellipse (see the module docstring), moved outwards by the exact shift of the half-level contour of a
     blurred disk with the ellipse's local radius of curvature (the level set of a blurred convex shape lies inside it
     by ~ sigma_t^2 / (2 rho); sigma_t measured from the edge slope, :func:`_edge_blur`). Each dot keeps its own
@@ -94,10 +94,10 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     live = okc & (y1 - y0 >= MIN_ROI_SIDE_PX) & (x1 - x0 >= MIN_ROI_SIDE_PX)
     if not np.any(live):
         return np.zeros((D, 0, 2)), np.zeros((D, 0), bool), errors
-    # one profile per PROFILE_SPACING_PX of perimeter (Ramanujan's approximation)
+    # one profile per spacing_px of perimeter (Ramanujan's approximation)
     hab = ((a_ - b_) / (a_ + b_)) ** 2
     perim = np.pi * (a_ + b_) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-    n = np.maximum(MIN_PROFILES, np.ceil(perim / PROFILE_SPACING_PX)).astype(int)
+    n = np.maximum(MIN_PROFILES, np.ceil(perim / spacing_px)).astype(int)
     n[~live] = 0
     N = int(n.max())
     # profile offsets (one array per distinct half length, as np.arange gives them), NaN past each dot's end
