@@ -494,8 +494,9 @@ def test_cli_writes_json_and_overlays(tmp_path):
 
 # ---- the vectorised detector against the per-dot formulation it replaced -------------------------------------
 
-def _reference_levels(img, Q, origin, edge_px=2.0):
-    """The per-dot level estimate as first written (one ROI, np.median, np.linalg.lstsq)."""
+def _reference_levels(img, Q, origin, edge_px=2.0, step=1):
+    """The per-dot level estimate as first written (one ROI, np.median, np.linalg.lstsq); ``step``: only the pixels
+    of every step-th row and column from the ROI's corner."""
     from circcal.detector.ellipse import conic_params
 
     c, (a, b), ang = conic_params(Q)
@@ -506,8 +507,9 @@ def _reference_levels(img, Q, origin, edge_px=2.0):
     u = (np.cos(ang) * dx + np.sin(ang) * dy) / a
     v = (-np.sin(ang) * dx + np.cos(ang) * dy) / b
     rho = np.sqrt(u * u + v * v)
-    dark = float(np.median(img[rho < 1.0 - edge_px / b]))
-    ring = (rho > 1.0 + edge_px / b) & (rho < 1.0 + (edge_px + max(2.0, 0.5 * b)) / b)
+    grid = ((xx - origin[0]) % step == 0) & ((yy - origin[1]) % step == 0)
+    dark = float(np.median(img[(rho < 1.0 - edge_px / b) & grid]))
+    ring = (rho > 1.0 + edge_px / b) & (rho < 1.0 + (edge_px + max(2.0, 0.5 * b)) / b) & grid
     vals = img[ring]
     keep = vals > 0.5 * (dark + np.median(vals))
     A = np.column_stack([xx[ring][keep], yy[ring][keep], np.ones(np.count_nonzero(keep))]).astype(float)
@@ -544,6 +546,35 @@ def test_batched_levels_equal_the_per_dot_estimate():
         # the plane at the dot's centre and its slopes
         assert plane[k] @ [*c[k], 1.0] == pytest.approx(rp @ [*c[k], 1.0], abs=1e-9)
         assert np.allclose(plane[k][:2], rp[:2], atol=1e-11)
+
+
+def test_strided_levels_are_those_of_every_second_row_and_column():
+    """stride 2 (a steering pass's levels): the dots of minor semi-axis >= 8 px take the levels of the pixels of
+    every second row and column of their box, the smaller ones of every pixel (against the reference on those
+    pixels); they agree with the full levels to the noise of a quarter of the pixels."""
+    from circcal.detector.edges import _roi_boxes
+    from circcal.detector.ellipse import conic_params_batch
+    from circcal.detector.levels import STRIDE_MIN_MINOR_PX, dot_levels_from_params
+
+    img, _ = _uneven_render()
+    d = detect(img, BOARD)
+    params = conic_params_batch(d.conics)
+    c, axes = params[0], params[1]
+    _, x0, y0, x1, y1 = _roi_boxes(c, axes, 1.5, img.shape)
+    boxes = np.stack([x0, y0, x1, y1], 1)
+    dark, plane, ok = dot_levels_from_params(img, *params, boxes, 2)
+    dark1, plane1, _ = dot_levels_from_params(img, *params, boxes)
+    big = axes[:, 1] >= STRIDE_MIN_MINOR_PX
+    assert np.all(ok) and 0 < big.sum() < len(big)        # (both kinds of dot on this render)
+    for k, Q in enumerate(d.conics):
+        rd, rp = _reference_levels(img[y0[k]:y1[k], x0[k]:x1[k]], Q, (x0[k], y0[k]), step=2 if big[k] else 1)
+        assert dark[k] == pytest.approx(rd, abs=1e-12)
+        assert plane[k] @ [*c[k], 1.0] == pytest.approx(rp @ [*c[k], 1.0], abs=1e-9)
+        assert np.allclose(plane[k][:2], rp[:2], atol=1e-11)
+    assert np.array_equal(dark[~big], dark1[~big]) and np.array_equal(plane[~big], plane1[~big])
+    bright = np.einsum("kj,kj->k", plane, np.column_stack([c, np.ones(len(c))]))
+    bright1 = np.einsum("kj,kj->k", plane1, np.column_stack([c, np.ones(len(c))]))
+    assert np.abs(bright - bright1)[big].max() < 0.01 and np.abs(dark - dark1)[big].max() < 0.01   # (noise 0.01)
 
 
 def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
@@ -655,8 +686,8 @@ def test_a_dot_the_steering_pass_cannot_fit_is_measured_by_the_last_pass(monkeyp
     starts = detect(img, BOARD).conics
     real = subpixel_edge_points_batch
 
-    def starved(src, conics, with_slack=False, spacing_px=dots.PROFILE_SPACING_PX):
-        out = real(src, conics, with_slack=with_slack, spacing_px=spacing_px)
+    def starved(src, conics, spacing_px=dots.PROFILE_SPACING_PX, **kw):
+        out = real(src, conics, spacing_px=spacing_px, **kw)
         if spacing_px == dots.STEERING_SPACING_PX:          # the steering pass: dot 0 keeps 5 points
             mask = out[1]
             mask[0, np.nonzero(mask[0])[0][5:]] = False

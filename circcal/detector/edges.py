@@ -59,7 +59,8 @@ PIXEL_BOX_VARIANCE = 1.0 / 12.0
 
 
 def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slack: bool = False,
-                               spacing_px: float = PROFILE_SPACING_PX) -> tuple[np.ndarray, ...]:
+                               spacing_px: float = PROFILE_SPACING_PX, level_stride: int = 1
+                               ) -> tuple[np.ndarray, ...]:
     """Sub-pixel boundary points of the dark dots near the ellipses ``conics`` (D, 3, 3) on ``src`` (the image and its
     smoothing scale ``sigma``).
 
@@ -77,7 +78,8 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all. ``with_slack``: a fourth array ``slack``
     (D, Nmax) px, the curvature shift left uncorrected at each point where the osculating-circle model fades out
     (:func:`~circcal.detector.curvature.curvature_shift`; 0 elsewhere): how far that point may lie off the true
-    edge without being an outlier.
+    edge without being an outlier. ``level_stride``: the dots' levels from every this many rows and columns of their
+    pixels (:func:`~circcal.detector.levels.dot_levels_from_params`; for a pass that only steers the next).
     """
     conics = np.asarray(conics, np.float64)
     D = len(conics)
@@ -113,7 +115,7 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
                                                             S[np.arange(D), klen - 1], boxes)
     crop = src.crops_for(ext)
-    dark, plane, okl = dot_levels_from_params(src.gray, c, np.stack([a_, b_], 1), ang, okc, boxes)
+    dark, plane, okl = dot_levels_from_params(src.gray, c, np.stack([a_, b_], 1), ang, okc, boxes, level_stride)
     bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
     with np.errstate(invalid="ignore"):
         okl &= live & (bright_c > dark)

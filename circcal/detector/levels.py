@@ -39,6 +39,10 @@ PLANE_OUTLIER_SIGMAS = 4.0
 SURE_MARGIN_PX = 2
 """Columns of a row this far inside the inner ellipse's real roots are taken as inside without testing each
 (the compiled pass's shortcut; pixels nearer the roots are tested: the same pixels either way)."""
+STRIDE_MIN_MINOR_PX = 8.0
+"""A stride s > 1 (:func:`dot_levels_from_params`) applies to the dots whose minor semi-axis is at least this many px
+times s / 2: their inside keeps >= ~30 and their ring >= ~80 of the pixels at every s-th row and column (smaller dots
+use every pixel)."""
 _HIST_BINS_U8 = 256
 
 
@@ -58,9 +62,12 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
 
 
 def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
-                           boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                           boxes: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2) px, semi-axes (D, 2) px, angles (D,)
-    rad, valid (D,) bool, as :func:`~circcal.detector.ellipse.conic_params_batch` gives them)."""
+    rad, valid (D,) bool, as :func:`~circcal.detector.ellipse.conic_params_batch` gives them). ``stride`` s > 1:
+    the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2 px use only the pixels of every s-th row and
+    column of their box (from its corner): ~1/s^2 of the work, levels ~s times noisier (for measurements that only
+    steer a later one)."""
     D = len(okc)
     H, W = np.shape(gray)
     boxes = np.clip(np.asarray(boxes, np.int64).reshape(D, 4), 0, np.array([W, H, W, H]))   # (the compiled pass
@@ -81,7 +88,8 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     t_in = 1.0 - EDGE_GAP_PX / b
     t = np.stack([np.where(t_in > 0, t_in * t_in, -1.0), (1.0 + EDGE_GAP_PX / b) ** 2,
                   (1.0 + (EDGE_GAP_PX + np.maximum(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)) / b) ** 2], 1)
-    _levels_kernel(gray, np.where(okc[:, None], c, 0.0), q, t, boxes, okc,
+    st = np.where(b >= STRIDE_MIN_MINOR_PX * 0.5 * stride, int(stride), 1).astype(np.int64)
+    _levels_kernel(gray, np.where(okc[:, None], c, 0.0), q, t, boxes, st, okc,
                    _HIST_BINS_U8 if gray.dtype == np.uint8 else 0, MAD_TO_SIGMA, dark, plane, ok)
     return dark, plane, ok
 
@@ -143,6 +151,12 @@ def _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1):
     return max(x0, int(np.floor(mid - half)) - 1), min(x1, int(np.ceil(mid + half)) + 2)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _on_grid(x, x0, st):
+    """The first column at or after ``x`` on the grid ``x0 + k st`` (``x`` itself for ``st`` 1)."""
+    return x0 + ((x - x0 + st - 1) // st) * st
+
+
 @njit(cache=True, nogil=True)
 def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v):
     """Median grey level of the :data:`DARK_MIN_PIXELS` pixels of the box ``x0, y0, x1, y1`` nearest the centre
@@ -167,11 +181,12 @@ def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near
 
 
 @njit(cache=True, nogil=True)
-def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, ok):
+def _levels_kernel(gray, c, q, t, boxes, stride, okc, nbins, mad_to_sigma, dark, plane, ok):
     """The per-pixel work of :func:`dot_levels_batch`, one dot at a time; writes ``dark``, ``plane``, ``ok``.
 
     ``c`` (D, 2) centres, ``q`` (D, 3) the ellipses as ``rho^2 = q0 dx^2 + q1 dx dy + q2 dy^2``, ``t`` (D, 3) the
-    ``rho^2`` bounds of the inside and of the ring, ``boxes`` (D, 4) the pixels to visit, ``nbins`` histogram bins
+    ``rho^2`` bounds of the inside and of the ring, ``boxes`` (D, 4) the pixels to visit (``stride`` (D,) int: those
+    of every s-th row and column from the box's corner), ``nbins`` histogram bins
     for the medians (0: by selection), ``mad_to_sigma`` the robust scale factor."""
     D = len(c)
     npx = 1
@@ -201,9 +216,11 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
         if counted:
             hist[:] = 0
             hist_ring[:] = 0
-        for y in range(y0, y1):
+        st = stride[d]
+        for y in range(y0, y1, st):
             dy = y - cy
             xa, xb = _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1)
+            xa = _on_grid(xa, x0, st)
             if xa >= xb:
                 continue
             mid = cx - qb * dy / (2.0 * qa)
@@ -216,17 +233,23 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
                 if h_in > SURE_MARGIN_PX + 1.0:
                     ia = max(xa, int(np.ceil(mid - h_in)) + SURE_MARGIN_PX)
                     ib = max(ia, min(xb, int(np.floor(mid + h_in)) - SURE_MARGIN_PX + 1))
+            ia = _on_grid(ia, x0, st)
             x = xa
             while x < xb:
                 if x == ia:
+                    m = len(range(ia, ib, st))
                     if counted:   # (uint8: the values counted as they are met, the histogram gives the median)
-                        for xx in range(ia, ib):
-                            hist[int(gray[y, xx])] += 1
+                        if st == 1:   # (the unit-step loop compiles tighter)
+                            for xx in range(ia, ib):
+                                hist[int(gray[y, xx])] += 1
+                        else:
+                            for xx in range(ia, ib, st):
+                                hist[int(gray[y, xx])] += 1
                     else:
-                        for xx in range(ia, ib):
-                            inner[n_in + xx - ia] = gray[y, xx]
-                    n_in += ib - ia
-                    x = ib
+                        for i in range(m):
+                            inner[n_in + i] = gray[y, ia + i * st]
+                    n_in += m
+                    x = ia + m * st
                     if x >= xb:
                         break
                 dx = x - cx
@@ -245,7 +268,7 @@ def _levels_kernel(gray, c, q, t, boxes, okc, nbins, mad_to_sigma, dark, plane, 
                     if counted:
                         hist_ring[int(v)] += 1
                     n_ring += 1
-                x += 1
+                x += st
         if n_in >= DARK_MIN_PIXELS:
             dk = _median_hist(hist, n_in) if counted else _median_of(inner, n_in)   # (inner: reordered)
         else:
