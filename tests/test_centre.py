@@ -71,6 +71,26 @@ def test_iterated_correction_recovers_every_centre(seed):
     assert np.allclose(_project(Hf, board), truth, atol=1e-6 * scale)
 
 
+def test_the_default_tolerance_stops_at_the_fixed_point():
+    """Stopping at a last step < 1e-6 px (the default) leaves the centres within 4e-7 px of the iteration run to 1e-13
+    px, on ellipses 0.02 px off a consistent view (the fixed point then is not the truth), dots 0.9 pitches across,
+    tilts to 70 deg, 40 views (measured 2.0e-7; a 1e-4 px tolerance leaves 6.7e-7)."""
+    worst = 0.0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        H = _random_homography(seed)
+        gx, gy = np.meshgrid(np.arange(7) * 10.0, np.arange(6) * 10.0)
+        board = np.column_stack([gx.ravel(), gy.ravel()]) - [30, 25]
+        shifts = rng.normal(0, 0.02, (len(board), 2))
+        conics = np.array([transform_conic(transform_conic(_circle(x, y, 4.5), H),
+                                           np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]))
+                           for (x, y), (dx, dy) in zip(board, shifts)])
+        c, _ = correct_centres(conics, board)
+        c0, _ = correct_centres(conics, board, tol_px=1e-13, max_iter=50)
+        worst = max(worst, float(np.max(np.abs(c - c0))))
+    assert worst < 4e-7, worst
+
+
 def test_batched_poles_equal_single_poles():
     from circcal.detector.centre import pole_centres
 

@@ -71,8 +71,13 @@ def pole_centres(conics: np.ndarray, line: np.ndarray, frames: np.ndarray | None
     do not depend on ``line``)."""
     conics = np.asarray(conics, dtype=np.float64)
     T = _local_frames(conics) if frames is None else frames
+    return _poles_in_frames(T, T.transpose(0, 2, 1) @ conics @ T, line)
+
+
+def _poles_in_frames(T: np.ndarray, Ql: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """(D, 2) px :func:`pole_centres` from the local frames ``T`` (D, 3, 3) and the conics in them ``Ql = T^T Q T``
+    (D, 3, 3), which do not depend on the line (computed once where the line is iterated)."""
     Tt = T.transpose(0, 2, 1)
-    Ql = Tt @ conics @ T
     line = np.asarray(line, dtype=np.float64)
     ll = Tt @ line if line.ndim == 1 else np.einsum("dij,dj->di", Tt, line)
     p = T @ np.linalg.solve(Ql, ll[..., None])
@@ -166,21 +171,26 @@ def correct_centres(
     *,
     init: np.ndarray | None = None,
     max_iter: int = 10,
-    tol_px: float = 1e-9,
+    tol_px: float = 1e-6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Images of the circle centres from their ellipses, iterating homography and poles until stable.
+    """Images of the circle centres from their ellipses, iterating homography and poles until no centre moves
+    ``tol_px``.
 
     ``conics``: (N, 3, 3) ellipses (undistorted pixel coordinates), in board order; ``board_xy``: (N, 2) board
     coordinates of the circle centres (mm); ``init``: optional (N, 2) starting centres (default: ellipse centres).
-    Returns ``(centres (N, 2) px, H (3, 3) board -> image from the final centres)``.
+    Returns ``(centres (N, 2) px, H (3, 3) board -> image from the final centres)``. The iteration contracts fast
+    (the poles depend on the centres only through the vanishing line: steps of ~1e-2, 1e-7, 0 px on the paper's
+    views), so after a step below 1e-6 px the centres are within ~4e-7 px of the fixed point (tested; one iteration
+    fewer than a 1e-9 px tolerance).
     """
     conics = np.asarray(conics, dtype=np.float64)
     frames = _local_frames(conics)
+    local = frames.transpose(0, 2, 1) @ conics @ frames
     c = frames[:, :2, 2].copy() if init is None else np.asarray(init, np.float64).copy()
     H = fit_homography(board_xy, c)
     for _ in range(max_iter):
         line = vanishing_line(H)
-        new = pole_centres(conics, line, frames)
+        new = _poles_in_frames(frames, local, line)
         step = np.max(np.abs(new - c))
         c = new
         H = fit_homography(board_xy, c)
