@@ -603,11 +603,13 @@ def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
             assert dark[k] == pytest.approx(float(np.median(im[y0:y1, x0:x1].ravel()[near])), abs=1e-12)
 
 
-def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, k_out, fa_out, fb_out,
-                             found_out):
+def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out,
+                             rise_out, found_out):
     """Reference for ``edges._crossings_kernel``: every sample of every profile (scipy's map_coordinates), then the
     up-crossing of the half level nearest to the boundary (ties: the lower index)."""
     from scipy import ndimage
+
+    from circcal.detector.edges import PROFILE_STEP_PX
 
     for d, j in zip(*np.nonzero(todo)):
         kk = np.arange(n_iv[d] + 1)
@@ -619,7 +621,9 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
         if len(up):
             mid = np.abs(0.5 * (S[d, up] + S[d, up + 1]))
             k = up[np.argmin(mid)]
-            k_out[d, j], fa_out[d, j], fb_out[d, j], found_out[d, j] = k, F[k], F[k + 1], True
+            off_out[d, j] = S[d, k] + F[k] / (F[k] - F[k + 1]) * PROFILE_STEP_PX
+            at_out[d, j] = base[d, j] + S[d, k] * nrm[d, j]
+            rise_out[d, j], found_out[d, j] = F[k + 1] - F[k], True
 
 
 def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):

@@ -102,14 +102,7 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     n = np.maximum(MIN_PROFILES, np.ceil(perim / spacing_px)).astype(int)
     n[~live] = 0
     N = int(n.max())
-    # profile offsets (one array per distinct half length, as np.arange gives them), NaN past each dot's end
-    half, which = np.unique(hw, return_inverse=True)   # (most dots share the longest profiles)
-    svecs = [_profile_offsets(float(h), step) for h in half]
-    table = np.full((len(svecs), max(len(v) for v in svecs)), np.nan)
-    for i, v in enumerate(svecs):
-        table[i, :len(v)] = v
-    S = table[which.reshape(-1)]
-    klen = np.array([len(v) for v in svecs])[which.reshape(-1)]
+    S, klen, rank = _offset_table(hw, step)
     # base points and outward normals, profiles entirely inside the ROI, the extent of those to be sampled
     boxes = np.stack([x0, y0, x1, y1], 1).astype(np.int64)
     base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
@@ -122,21 +115,14 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     ratio = np.where(okl, dark / np.where(okl, bright_c, 1.0), 0.0)
     halfk = 0.5 * (1.0 + ratio)
     todo = okl[:, None] & inside
-    # intervals of each profile nearest to the boundary first (ties: the lower index), NaN ones (past the end) last
-    mid_dist = np.abs(0.5 * (S[:, :-1] + S[:, 1:]))  # (D, K-1)
-    rank = np.argsort(np.where(np.isfinite(mid_dist), mid_dist, np.inf), axis=1, kind="stable")
     atlas, rows, org = src.coefficient_atlas(crop)
-    k = np.zeros((D, N), np.int64)
-    fa = np.zeros((D, N))
-    fb = np.zeros((D, N))
+    off = np.zeros((D, N))
+    at = np.zeros((D, N, 2))
+    rise = np.zeros((D, N))
     found = np.zeros((D, N), bool)
-    _crossings_kernel(atlas, rows, org, base, nrm, S, klen - 1, rank, todo, plane, halfk, k, fa, fb, found)
+    _crossings_kernel(atlas, rows, org, base, nrm, S, klen - 1, rank, todo, plane, halfk, off, at, rise, found)
     ok = found & todo
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tt = fa / (fa - fb)
-    sk = np.take_along_axis(S, k, axis=1)
-    off = sk + tt * step
-    sigma_t = _edge_blur(base + sk[..., None] * nrm, fb - fa, plane, ratio, ok, src.sigma)
+    sigma_t = _edge_blur(at, rise, plane, ratio, ok, src.sigma)
     shift, slack = curvature_shift(a_, b_, cos_t, sin_t, sigma_t, unmodelled=True)
     off = np.where(ok, off + shift, 0.0)
     if with_slack:
@@ -197,6 +183,41 @@ def _roi_boxes(c: np.ndarray, axes: np.ndarray, sigma: float, shape: tuple[int, 
     y0 = np.maximum(0, np.floor(c[:, 1] - a - pad)).astype(int)
     y1 = np.minimum(H, np.ceil(c[:, 1] + a + pad).astype(int) + 1)
     return hw, x0, y0, x1, y1
+
+
+def _offset_table(hw: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sample offsets of each dot's profiles, for half lengths ``hw`` (D,) px and ``step`` px: ``S`` (D, K) px
+    (:func:`_profile_offsets`' values, NaN past a dot's end), their counts ``klen`` (D,) and ``rank`` (D, K - 1) the
+    intervals in the order :func:`_crossings_kernel` examines them: nearest to the boundary first (ties: the lower
+    index), those past the end last. All dots of one half length (most boards: the longest) take one cached row."""
+    if len(hw) and np.all(hw == hw[0]):
+        row, order = _uniform_offsets(float(hw[0]), step)
+        D = len(hw)
+        return np.repeat(row[None], D, axis=0), np.full(D, len(row)), np.repeat(order[None], D, axis=0)
+    half, which = np.unique(hw, return_inverse=True)
+    svecs = [_profile_offsets(float(h), step) for h in half]
+    table = np.full((len(svecs), max(len(v) for v in svecs)), np.nan)
+    for i, v in enumerate(svecs):
+        table[i, :len(v)] = v
+    S = table[which.reshape(-1)]
+    klen = np.array([len(v) for v in svecs])[which.reshape(-1)]
+    return S, klen, _nearest_first(S)
+
+
+def _nearest_first(S: np.ndarray) -> np.ndarray:
+    """(..., K - 1) the intervals of the offsets ``S`` (..., K) by the distance of their midpoints from 0, nearest
+    first (a stable sort: ties keep the lower index), NaN ones (past a profile's end) last."""
+    mid_dist = np.abs(0.5 * (S[..., :-1] + S[..., 1:]))
+    return np.argsort(np.where(np.isfinite(mid_dist), mid_dist, np.inf), axis=-1, kind="stable")
+
+
+@functools.lru_cache(maxsize=64)
+def _uniform_offsets(half_length: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) :func:`_profile_offsets` and (K - 1,) :func:`_nearest_first` of them, read-only."""
+    row = _profile_offsets(half_length, step)
+    order = _nearest_first(row)
+    order.flags.writeable = False
+    return row, order
 
 
 @functools.lru_cache(maxsize=256)
@@ -314,14 +335,16 @@ def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _crossings_kernel(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, k_out, fa_out, fb_out,
+def _crossings_kernel(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out, rise_out,
                       found_out):
     """Nearest up-crossing of the half level on each profile ``(d, j)`` where ``todo``.
 
     Profile samples at ``base[d, j] + S[d, k] nrm[d, j]`` (smoothed image from ``atlas`` rows ``rows[d]`` +, crop
     origin ``org[d]``) minus the half level ``halfk[d] plane[d] @ (x, y, 1)``; intervals ``(k, k + 1)`` examined in
     the order ``rank[d, :n_iv[d]]`` (nearest to the boundary first), each sample computed once when first needed.
-    Writes the interval ``k_out``, the values at its ends ``fa_out``, ``fb_out`` and ``found_out``.
+    Where one crosses (``found_out``), with ``fa``, ``fb`` the values at its ends: ``off_out`` the crossing's offset
+    along the normal, ``S[d, k] + fa / (fa - fb) PROFILE_STEP_PX`` (linear interpolation), ``at_out`` (D, N, 2) the
+    sample point before it and ``rise_out`` ``fb - fa`` (for the edge's slope); elsewhere they are left as given.
     """
     D, N = todo.shape
     F = np.empty(S.shape[1])
@@ -344,8 +367,10 @@ def _crossings_kernel(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, h
                         F[q] = _spline_at(atlas, (py - oy) + r0, px - ox) - (px * p0 + py * p1 + p2) * hk
                         have[q] = True
                 if F[kk] < 0 and F[kk + 1] >= 0:
-                    k_out[d, j] = kk
-                    fa_out[d, j] = F[kk]
-                    fb_out[d, j] = F[kk + 1]
+                    fa, fb, sk = F[kk], F[kk + 1], S[d, kk]
+                    off_out[d, j] = sk + (fa / (fa - fb)) * PROFILE_STEP_PX
+                    at_out[d, j, 0] = bx + sk * nx
+                    at_out[d, j, 1] = by + sk * ny
+                    rise_out[d, j] = fb - fa
                     found_out[d, j] = True
                     break
