@@ -12,7 +12,7 @@ from circcal.detector.ellipse import FIT_ERRORS, fit_ellipses_direct, sampson_di
 from circcal.detector.robust import mad_inliers
 from circcal.detector.smoothing import SmoothedImage
 
-__all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "STEERING_SPACING_PX", "fit_dots"]
+__all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "STEERING_LEVEL_STRIDE", "STEERING_SPACING_PX", "fit_dots"]
 
 EDGE_SIGMA = 1.5
 """Gaussian smoothing (px) for the edge profiles, one for all dots (so the board's window is smoothed once). 1.5 px

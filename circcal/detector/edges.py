@@ -65,13 +65,14 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     smoothing scale ``sigma``).
 
     Profiles along the ellipse normals, one per ``spacing_px`` px of perimeter (at least :data:`MIN_PROFILES`),
-    sampled every :data:`PROFILE_STEP_PX` px; the edge point of a profile is its up-crossing of the dot's half level nearest to the
-    current ellipse (see the module docstring), moved outwards by the exact shift of the half-level contour of a
-    blurred disk with the ellipse's local radius of curvature (the level set of a blurred convex shape lies inside it
-    by ~ sigma_t^2 / (2 rho); sigma_t measured from the edge slope, :func:`_edge_blur`). Each dot keeps its own
-    region of interest (the pixels its levels come from and the box its profiles must stay inside). Each profile's
-    intervals are examined nearest to the current boundary first (:func:`_crossings_kernel`), sampling the image
-    only where needed: the first up-crossing met is the nearest one of the whole profile, found from a few samples.
+    sampled every :data:`PROFILE_STEP_PX` px; the edge point of a profile is its up-crossing of the dot's half level
+    nearest to the current ellipse (see the module docstring), moved outwards by the exact shift of the half-level
+    contour of a blurred disk with the ellipse's local radius of curvature (the level set of a blurred convex shape
+    lies inside it by ~ sigma_t^2 / (2 rho); sigma_t measured from the edge slope, :func:`_edge_blur`). Each dot keeps
+    its own region of interest (the pixels its levels come from and the box its profiles must stay inside). Each
+    profile's intervals are examined nearest to the current boundary first (:func:`_crossings_kernel`), sampling the
+    image only where needed: the first up-crossing met is the nearest one of the whole profile, found from a few
+    samples.
 
     Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
     ``points[d][mask[d]]`` (profiles without a clear edge are left out; there may be few, the caller decides);
@@ -92,7 +93,8 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     b_ = np.where(okc, axes[:, 1], 1.0)
     c = np.where(okc[:, None], c, 0.0)
     ang = np.where(okc, ang, 0.0)
-    hw, x0, y0, x1, y1 = _roi_boxes(c, np.stack([a_, b_], 1), src.sigma, src.shape)
+    ab = np.stack([a_, b_], 1)
+    hw, x0, y0, x1, y1 = _roi_boxes(c, ab, src.sigma, src.shape)
     live = okc & (y1 - y0 >= MIN_ROI_SIDE_PX) & (x1 - x0 >= MIN_ROI_SIDE_PX)
     if not np.any(live):
         return np.zeros((D, 0, 2)), np.zeros((D, 0), bool), errors
@@ -108,7 +110,7 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
                                                             S[np.arange(D), klen - 1], boxes)
     crop = src.crops_for(ext)
-    dark, plane, okl = dot_levels_from_params(src.gray, c, np.stack([a_, b_], 1), ang, okc, boxes, level_stride)
+    dark, plane, okl = dot_levels_from_params(src.gray, c, ab, ang, okc, boxes, level_stride)
     bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
     with np.errstate(invalid="ignore"):
         okl &= live & (bright_c > dark)
