@@ -743,33 +743,79 @@ def test_guided_filter_is_opencvs_to_float32_rounding():
             assert d.max() <= 1 and np.count_nonzero(d) <= share * d.size
 
 
-def test_guided_filter_work_planes_are_per_thread_and_never_returned(monkeypatch):
-    # the filter computes in planes each thread keeps: the same values as in fresh arrays (WORKSPACE_MAX_PX 0),
-    # whatever the size order (a smaller image after a larger one takes views of the larger buffer), a result that
-    # is never a view of them, and no sharing between threads (a shared plane would mix two images' values)
+def _written_out_guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """The guided filter's steps written out with OpenCV's float32 box filter and numpy's float32 arithmetic (what
+    circcal ran before its compiled pass)."""
+    k = (2 * radius + 1, 2 * radius + 1)
+
+    def box(x):
+        return cv2.boxFilter(x, cv2.CV_32F, k, normalize=True, borderType=cv2.BORDER_REFLECT)
+
+    g = np.multiply(gray_u8, np.float32(1.0 / 255.0), dtype=np.float32)
+    mean = box(g)
+    cov = box(g * g) - mean * mean
+    a = cov * (np.float32(1.0) / (cov + np.float32(eps)))
+    return cv2.convertScaleAbs(box(a) * g + box(mean - a * mean), alpha=255.0)
+
+
+def test_compiled_guided_filter_is_the_written_out_filter_to_the_bit():
+    # one streamed pass with integer box sums against OpenCV's box filters and float32 arithmetic: the same uint8
+    # image, at every radius the detector uses (2 at 640x480 ... 8 at 8000x6000's scale 2) and beyond, on boards,
+    # noise, sizes smaller than the window (the reflection repeated), and a view that is not contiguous; the histogram
+    # it hands over is the result's; threads share nothing (the same results from 4 at once)
     from concurrent.futures import ThreadPoolExecutor
 
-    from circcal.detector import segment
     from circcal.detector.jit import synthetic_board
+    from circcal.detector.segment import GUIDED_EPS, guided_filter
 
     rng = np.random.default_rng(2)
     board_img, _ = synthetic_board()
-    images = [board_img, rng.integers(0, 256, (300, 410), dtype=np.uint8), board_img[::2, ::3].copy(),
-              rng.integers(0, 256, (37, 53), dtype=np.uint8)]
-    kept = [segment.guided_filter(im, 3, segment.GUIDED_EPS) for im in images]
-    for got in kept:
-        assert not np.shares_memory(got, segment._workspace.planes)
-    monkeypatch.setattr(segment, "WORKSPACE_MAX_PX", 0)
-    fresh = [segment.guided_filter(im, 3, segment.GUIDED_EPS) for im in images]
-    monkeypatch.undo()
-    assert all(np.array_equal(a, b) for a, b in zip(kept, fresh))
+    images = [board_img, cv2.GaussianBlur(board_img, (0, 0), 2.0), board_img[::2, ::3],
+              np.full((40, 50), 77, np.uint8), np.full((1, 9), 200, np.uint8)]
+    images += [rng.integers(0, 256, (int(rng.integers(1, 120)), int(rng.integers(1, 160))), dtype=np.uint8)
+               for _ in range(12)]
+    for img in images:
+        for radius in (1, 2, 3, 5, 8, 13):
+            hist = np.zeros(256, np.int64)
+            got = guided_filter(img, radius, GUIDED_EPS, hist)
+            assert np.array_equal(got, _written_out_guided_filter(img, radius, GUIDED_EPS)), (img.shape, radius)
+            assert np.array_equal(hist, np.bincount(got.ravel(), minlength=256))
+    expect = [guided_filter(im, 3, GUIDED_EPS) for im in images]
 
     def run(k: int) -> bool:
-        return all(np.array_equal(segment.guided_filter(images[(k + j) % 4], 3, segment.GUIDED_EPS),
-                                  fresh[(k + j) % 4]) for j in range(40))
+        return all(np.array_equal(guided_filter(images[(k + j) % len(images)], 3, GUIDED_EPS),
+                                  expect[(k + j) % len(images)]) for j in range(40))
 
     with ThreadPoolExecutor(4) as pool:
         assert all(pool.map(run, range(4)))
+
+
+def test_otsu_threshold_from_the_histogram_is_opencvs():
+    from circcal.detector.jit import synthetic_board
+    from circcal.detector.segment import GUIDED_EPS, guided_filter, otsu_threshold
+
+    rng = np.random.default_rng(3)
+    board_img, _ = synthetic_board()
+    images = [board_img, guided_filter(board_img, 2, GUIDED_EPS), np.full((30, 40), 9, np.uint8),
+              np.where(rng.random((50, 60)) < 0.01, 255, 0).astype(np.uint8)]
+    images += [rng.integers(int(lo), 256, (int(rng.integers(1, 200)), int(rng.integers(1, 200))), dtype=np.uint8)
+               for lo in rng.integers(0, 250, 20)]
+    images += [np.clip(rng.normal(m, s, (120, 90)), 0, 255).astype(np.uint8) for m, s in ((60, 5), (128, 40),
+                                                                                         (250, 3))]
+    for img in images:
+        t_cv, mask_cv = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
+        t = otsu_threshold(np.bincount(img.ravel(), minlength=256))
+        assert t == int(t_cv)
+        assert np.array_equal(cv2.threshold(img, t, 255, cv2.THRESH_BINARY_INV)[1], mask_cv)
+
+
+def test_compiled_histogram_is_numpys_bincount():
+    from circcal.detector.image import histogram_u8
+
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 256, (301, 407), dtype=np.uint8)
+    for a in (img, img[::3, 1::2], img[:1, :3], np.zeros((5, 0), np.uint8), np.full((64, 64), 17, np.uint8)):
+        assert np.array_equal(histogram_u8(a), np.bincount(a.ravel(), minlength=256))
 
 
 def test_shrink_is_opencvs_area_resize():

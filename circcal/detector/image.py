@@ -15,9 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from circcal.detector.jit import njit
 from circcal.errors import ImageError
 
-__all__ = ["as_gray", "decode_image", "normalise_u8", "read_image", "read_image_messages", "stretch_percentiles"]
+__all__ = ["as_gray", "decode_image", "histogram_u8", "normalise_u8", "read_image", "read_image_messages", "stretch_percentiles"]
 
 MIN_IMAGE_SIDE = 8
 """Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""
@@ -33,8 +34,6 @@ FLOAT_SUBSAMPLE_STEP = 4
 """Float images larger than :data:`FLOAT_SUBSAMPLE_ABOVE` pixels take their stretch percentiles from every 4th pixel
 in each direction (1/16 of the pixels; percentiles of a smooth histogram barely move)."""
 FLOAT_SUBSAMPLE_ABOVE = 400_000
-HIST_EXACT_COUNT = 2 ** 24
-"""``cv2.calcHist`` counts in float32, exact up to 2^24 pixels; larger uint8 images are counted by ``np.bincount``."""
 
 
 DECODER_NOISE = re.compile(r"^(libpng (warning|error)|Corrupt JPEG data|Premature end of JPEG|Invalid SOS|"
@@ -145,11 +144,43 @@ def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX) -> np.ndarr
     return np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
 
 
+def histogram_u8(img: np.ndarray) -> np.ndarray:
+    """(256,) int64 counts of the values of ``img`` (H, W) uint8 (any strides): ``np.bincount(img.ravel(),
+    minlength=256)``, in one compiled pass (:func:`_histogram_kernel`; ~2x faster than ``cv2.calcHist`` at one
+    thread, and exact at any size, where calcHist counts in float32)."""
+    out = np.zeros(256, np.int64)
+    a = img if img.flags.c_contiguous else np.ascontiguousarray(img)
+    _histogram_kernel(a.reshape(-1), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _histogram_kernel(values, out):
+    """Adds to ``out`` (256,) int64 the counts of ``values`` (n,) uint8. Four partial histograms, filled in turn: a run
+    of equal values (flat image areas) then increments four counters, not one, whose updates would wait on each
+    other."""
+    part = np.zeros((4, 256), np.int64)
+    h0, h1, h2, h3 = part[0], part[1], part[2], part[3]
+    n = values.shape[0]
+    i = 0
+    while i + 4 <= n:
+        h0[values[i]] += 1
+        h1[values[i + 1]] += 1
+        h2[values[i + 2]] += 1
+        h3[values[i + 3]] += 1
+        i += 4
+    while i < n:
+        h0[values[i]] += 1
+        i += 1
+    for v in range(256):
+        out[v] += (h0[v] + h1[v]) + (h2[v] + h3[v])
+
+
 def _histogram_percentiles(img: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
     """``np.percentile(img, q)`` (linear interpolation between order statistics) of an integer image, from its
     histogram: O(pixels), no sort."""
-    if img.dtype == np.uint8 and img.size < HIST_EXACT_COUNT:
-        cum = np.cumsum(cv2.calcHist([img], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64))
+    if img.dtype == np.uint8:
+        cum = np.cumsum(histogram_u8(img))
     else:
         cum = np.cumsum(np.bincount(img.ravel(), minlength=1))
     n = int(cum[-1])

@@ -354,6 +354,20 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
             self.release_gil = True
 
     pycc_compiler.Flags = _NoGilFlags
+    # a kernel's own compile options that change its code (numba's njit takes them per function; pycc compiles all
+    # exports of a module with one set of flags): ``error_model="numpy"`` (a float division without Python's zero
+    # check, which keeps a loop from vectorising) is applied to that kernel's exports alone
+    models = {k.py_func: k.options["error_model"] for ks in _registry.values() for k in ks
+              if "error_model" in k.options}
+    compile_extra = pycc_compiler.compile_extra
+
+    def _compile_extra(typingctx, targetctx, func, args, return_type, flags, locals, **kw):
+        if func in models:
+            flags = flags.copy()
+            flags.error_model = models[func]
+        return compile_extra(typingctx, targetctx, func, args, return_type, flags, locals, **kw)
+
+    pycc_compiler.compile_extra = _compile_extra
     out_dir.mkdir(parents=True, exist_ok=True)
     done: dict[str, list[str]] = {}
     from circcal.detector.curvature import store_table  # the curvature model's table: no scipy import at start-up

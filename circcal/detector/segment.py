@@ -6,17 +6,16 @@ centres).
 """
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 
 import cv2
 import numpy as np
 
-from circcal.detector.image import HIST_EXACT_COUNT
+from circcal.detector.image import histogram_u8
 from circcal.detector.jit import njit
 
-__all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "segmentation_scales", "segmentations", "shrink",
-           "noise_sigma_u8", "speckled"]
+__all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales", "segmentations",
+           "shrink", "noise_sigma_u8", "speckled"]
 
 GUIDED_RADIUS_DIVISOR = 400
 """Guided-filter radius = the shorter image side / this (px): ~1 px of smoothing per 400 px, a fraction of the smallest
@@ -57,8 +56,9 @@ def segmentations(gray_u8: np.ndarray) -> Iterator[tuple[str, np.ndarray]]:
     """
     H, W = gray_u8.shape
     radius = max(GUIDED_MIN_RADIUS, int(round(min(H, W) / GUIDED_RADIUS_DIVISOR)))
-    f8 = guided_filter(gray_u8, radius, GUIDED_EPS)
-    _, otsu = cv2.threshold(f8, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
+    hist = np.zeros(256, np.int64)
+    f8 = guided_filter(gray_u8, radius, GUIDED_EPS, hist)
+    _, otsu = cv2.threshold(f8, otsu_threshold(hist), 255, cv2.THRESH_BINARY_INV)
     yield "otsu", otsu
     for divisor in ADAPTIVE_WINDOW_DIVISORS:
         block = _odd_window(min(H, W) / divisor)
@@ -78,11 +78,7 @@ def noise_sigma_u8(img: np.ndarray) -> float:
     rows = img[::4]
     if rows.shape[1] < 2:
         return 0.0
-    diff = cv2.absdiff(rows[:, 1:], rows[:, :-1])
-    if diff.size < HIST_EXACT_COUNT:
-        counts = cv2.calcHist([diff], [0], None, [256], [0, 256]).reshape(-1).astype(np.int64)
-    else:
-        counts = np.bincount(diff.ravel(), minlength=256)
+    counts = histogram_u8(cv2.absdiff(rows[:, 1:], rows[:, :-1]))
     median = int(np.searchsorted(np.cumsum(counts), (counts.sum() + 1) // 2))
     return median / (0.6745 * np.sqrt(2.0))
 
@@ -101,59 +97,214 @@ def _odd_window(n: float) -> int:
     return max(MIN_WINDOW, int(round(n)) | 1)
 
 
-WORKSPACE_MAX_PX = 1 << 20
-"""Images of up to this many pixels are guided-filtered in work planes each thread keeps (:func:`_work_planes`;
-4 float32 planes, 16 MiB at most per thread). Segmentation runs on images of ~0.2-1 MP at every frame size (the
-shrunk scales, the board's windows), so nearly every call reuses them; larger ones allocate afresh."""
+def guided_filter(gray_u8: np.ndarray, radius: int, eps: float, hist: np.ndarray | None = None) -> np.ndarray:
+    """Self-guided filter (He, Sun & Tang 2013) of a uint8 image (H, W) on ``g = gray_u8 / 255`` (``radius`` px,
+    ``eps`` in units of the [0, 1] intensity range squared), rounded back to uint8: the edge-preserving denoise the
+    paper uses before segmentation. ``hist``: (256,) int64, if given the counts of the result's values are added to
+    it (what Otsu's threshold needs: :func:`otsu_threshold`).
 
-_workspace = threading.local()
-
-
-def _work_planes(shape: tuple[int, int], n: int) -> list[np.ndarray]:
-    """``n`` float32 (H, W) planes, contiguous, whose values are garbage: views of a buffer this thread keeps while
-    ``H W <= WORKSPACE_MAX_PX`` (grown when a larger image comes), else fresh arrays. Fresh planes cost the process
-    new pages on every call under glibc's default malloc (buffers of ~1 MB go back to the system when freed and
-    fault in again when touched: at 640x480 the guided filter took 5.3 ms instead of 1.7 ms, ~1,700 page faults);
-    kept, they fault once. One buffer per thread: detection runs images in threads (:mod:`circcal.detector.files`)."""
-    size = int(shape[0]) * int(shape[1])
-    if size > WORKSPACE_MAX_PX:
-        return [np.empty(shape, np.float32) for _ in range(n)]
-    buf = getattr(_workspace, "planes", None)
-    if buf is None or buf.shape[0] < n or buf.shape[1] < size:
-        buf = np.empty((n, size if buf is None else max(size, buf.shape[1])), np.float32)
-        _workspace.planes = buf
-    return [buf[i, :size].reshape(shape) for i in range(n)]
+    The values of ``cv2.ximgproc.guidedFilter(g, g, radius, eps)`` (box means with reflected borders, float32) as
+    their steps written out with ``cv2.boxFilter`` and float32 arithmetic give them (the same to the bit, tested), in
+    one compiled pass over the rows (:func:`_guided_kernel`): the rows in flight are held in small ring buffers, so a
+    frame of any size streams through the cache once, where the ten whole-image passes of the written-out filter
+    each went through memory (3 MP: ~12 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own
+    filter rounds a few pixels differently: at most one grey level apart, on ~1e-4 of a board image's pixels
+    (0.3 % of pure noise's; tests/test_detect.py)."""
+    img = np.ascontiguousarray(gray_u8, np.uint8)
+    out = np.empty(img.shape, np.uint8)
+    counts = np.zeros(256, np.int64) if hist is None else hist
+    _guided_kernel(img, int(radius), float(eps), out, counts)
+    return out
 
 
-def guided_filter(gray_u8: np.ndarray, radius: int, eps: float) -> np.ndarray:
-    """Self-guided filter (He, Sun & Tang 2013) of a uint8 image (H, W) on ``g = gray_u8 / 255`` (``radius`` px, ``eps``
-    in units of the [0, 1] intensity range squared), rounded back to uint8: the edge-preserving denoise the paper
-    uses before segmentation. The steps of ``cv2.ximgproc.guidedFilter(g, g, radius, eps)`` (float32, box means with
-    reflected borders) written out with ``cv2.boxFilter`` and in-place float32 arithmetic in this thread's work
-    planes (:func:`_work_planes`): ximgproc's generic multi-channel code takes ~1.6x as long for one grey channel.
-    The same values but for float32 rounding: at most one grey level apart, on ~1e-4 of a board image's pixels
-    (0.6 % of pure noise's; tests/test_detect.py)."""
-    k = (2 * int(radius) + 1, 2 * int(radius) + 1)
+@njit(cache=True, nogil=True, inline="always")
+def _reflect(p, n):
+    """Index ``p`` reflected into [0, n) as OpenCV's ``BORDER_REFLECT`` does (``fedcba|abcdefgh|hgfedcb``, repeated
+    for reaches beyond one reflection)."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p - 1 if p < 0 else 2 * n - 1 - p
+    return p
 
-    def box(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-        return cv2.boxFilter(x, cv2.CV_32F, k, dst=out, normalize=True, borderType=cv2.BORDER_REFLECT)
 
-    g, mean, t, cov = _work_planes(gray_u8.shape, 4)
-    np.multiply(gray_u8, np.float32(1.0 / 255.0), out=g, dtype=np.float32)
-    mean = box(g, mean)
-    np.multiply(g, g, out=t)
-    cov = box(t, cov)                                 # mean of g^2, then the variance
-    np.multiply(mean, mean, out=t)
-    np.subtract(cov, t, out=cov)
-    np.add(cov, np.float32(eps), out=t)
-    np.divide(np.float32(1.0), t, out=t)
-    a = np.multiply(cov, t, out=cov)                  # a = var / (var + eps)
-    np.multiply(a, mean, out=t)
-    b = np.subtract(mean, t, out=mean)                # b = mean (1 - a)
-    q = box(a, t)
-    q *= g
-    q += box(b, a)                                    # (a is spent: its plane takes the box mean of b)
-    return cv2.convertScaleAbs(q, alpha=255.0)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _guided_kernel(src, r, eps64, out, hist):
+    """Writes :func:`guided_filter` of ``src`` (H, W) uint8 (radius ``r``, ``eps64``) into ``out`` (H, W) uint8 and
+    adds the counts of its values to ``hist`` (256,).
+
+    The steps of the written-out filter, each box mean ``float32(sum * (1 / (2 r + 1)^2))`` of an exact sum (what
+    OpenCV's float32 box filter computes: it sums in float64, exactly for these values), ``g = float32(v) *
+    float32(1 / 255)``::
+
+        m = box(g); m2 = box(float32(g g)); cov = m2 - m m; a = cov (1 / (cov + eps)); b = m - a m   (float32)
+        q = box(a) g + box(b); out = round(|255 q|) (half to even, at most 255)
+
+    Exact sums from integers: ``g`` is a multiple of 2^-31 and ``g g`` of 2^-39 (the smallest non-zero values'
+    ulps), so both are summed as int64 multiples of those. ``a`` and ``b`` are summed as int64 multiples of 2^-40
+    (each rounded to one): their box means differ from float64 sums by < 1e-12, which moves a float32 rounding only
+    at exact ties. Box sums slide along rows and columns (O(1) per pixel for any radius); a pass keeps its
+    column sums over the 2 r + 1 rows of the window, and ``a``, ``b`` of the last 2 r + 2 rows in rings, so the
+    second pass (the box means of ``a`` and ``b``) runs r rows behind the first. ``error_model="numpy"``: a float
+    division without Python's zero check, which would keep the loop from vectorising (``cov + eps`` > 0 anyway).
+    Inner loops index plain views from 0 (an index with an offset makes numba check for negative indices, which
+    also stops the vectorisation)."""
+    H, W = src.shape
+    eps = np.float32(eps64)
+    one = np.float32(1.0)
+    inv255 = np.float32(1.0 / 255.0)
+    k255 = np.float32(255.0)
+    s31 = np.float32(2.0 ** 31)
+    s39 = np.float32(2.0 ** 39)
+    u31 = 2.0 ** -31
+    u39 = 2.0 ** -39
+    s40 = 2.0 ** 40
+    u40 = 2.0 ** -40
+    magic = np.float32(8388608.0)      # 2^23: (v + 2^23) - 2^23 rounds 0 <= v < 2^23 half to even
+    n = 2 * r + 1
+    scale = 1.0 / (n * n)
+    K = 2 * r + 2
+    ra = np.empty((K, W), np.float32)    # a, b of the last K rows (row y in slot y % K)
+    rb = np.empty((K, W), np.float32)
+    vg = np.zeros(W + 2 * r, np.int64)   # column sums over the window's rows, r reflected columns each side
+    vgg = np.zeros(W + 2 * r, np.int64)
+    va = np.zeros(W + 2 * r, np.int64)
+    vb = np.zeros(W + 2 * r, np.int64)
+    h1 = np.empty(W, np.int64)           # row sums of the column sums: the box sums of one row
+    h2 = np.empty(W, np.int64)
+    part = np.zeros((4, 256), np.int64)
+    xr = np.empty(2 * r, np.int64)       # the columns the reflected margins repeat
+    for k in range(r):
+        xr[k] = _reflect(k - r, W)
+        xr[r + k] = _reflect(W + k, W)
+    cg, cgg, ca, cb = vg[r:r + W], vgg[r:r + W], va[r:r + W], vb[r:r + W]
+    for y in range(H + r):
+        if y < H:                        # first pass, row y: a and b
+            if y == 0:
+                for yy in range(-r, r + 1):
+                    row = src[_reflect(yy, H)]
+                    for x in range(W):
+                        g = np.float32(row[x]) * inv255
+                        cg[x] += np.int64(g * s31)
+                        cgg[x] += np.int64((g * g) * s39)
+            else:
+                add, sub = src[_reflect(y + r, H)], src[_reflect(y - r - 1, H)]
+                for x in range(W):
+                    g = np.float32(add[x]) * inv255
+                    z = np.float32(sub[x]) * inv255
+                    cg[x] += np.int64(g * s31) - np.int64(z * s31)
+                    cgg[x] += np.int64((g * g) * s39) - np.int64((z * z) * s39)
+            _slide(vg, vgg, xr, r, h1, h2)
+            ar, br = ra[y % K], rb[y % K]
+            for x in range(W):
+                m = np.float32((h1[x] * u31) * scale)
+                m2 = np.float32((h2[x] * u39) * scale)
+                cov = m2 - m * m
+                a = cov * (one / (cov + eps))
+                ar[x] = a
+                br[x] = m - a * m
+        yo = y - r                       # second pass, row yo: its a, b rows up to yo + r are in the rings
+        if yo < 0:
+            continue
+        if yo == 0:
+            for yy in range(-r, r + 1):
+                aa, bb = ra[_reflect(yy, H) % K], rb[_reflect(yy, H) % K]
+                for x in range(W):
+                    ca[x] += np.int64(np.float64(aa[x]) * s40 + 0.5)
+                    cb[x] += np.int64(np.float64(bb[x]) * s40 + 0.5)
+        else:
+            s1, s0 = _reflect(yo + r, H) % K, _reflect(yo - r - 1, H) % K
+            aa, bb, az, bz = ra[s1], rb[s1], ra[s0], rb[s0]
+            for x in range(W):
+                ca[x] += np.int64(np.float64(aa[x]) * s40 + 0.5) - np.int64(np.float64(az[x]) * s40 + 0.5)
+                cb[x] += np.int64(np.float64(bb[x]) * s40 + 0.5) - np.int64(np.float64(bz[x]) * s40 + 0.5)
+        _slide(va, vb, xr, r, h1, h2)
+        row, orow = src[yo], out[yo]
+        for x in range(W):
+            q = np.float32((h1[x] * u40) * scale) * (np.float32(row[x]) * inv255) + np.float32((h2[x] * u40) * scale)
+            orow[x] = np.uint8(min((abs(q * k255) + magic) - magic, k255))
+        _count(orow, part)
+    for v in range(256):
+        hist[v] += (part[0, v] + part[1, v]) + (part[2, v] + part[3, v])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _slide(v1, v2, xr, r, h1, h2):
+    """Row box sums ``h1``, ``h2`` (W,) of the column sums ``v1``, ``v2`` (W + 2 r,) int64, whose image columns are
+    ``v[r:r + W]``: their reflected margins filled from the columns ``xr`` (2 r,) first."""
+    W = h1.shape[0]
+    n = 2 * r + 1
+    for k in range(2 * r):
+        j = k if k < r else W + k
+        v1[j] = v1[r + xr[k]]
+        v2[j] = v2[r + xr[k]]
+    s1 = np.int64(0)
+    s2 = np.int64(0)
+    for k in range(n - 1):
+        s1 += v1[k]
+        s2 += v2[k]
+    p1, p2, m1, m2 = v1[n - 1:n - 1 + W], v2[n - 1:n - 1 + W], v1[:W], v2[:W]
+    for x in range(W):
+        s1 += p1[x]
+        s2 += p2[x]
+        h1[x] = s1
+        h2[x] = s2
+        s1 -= m1[x]
+        s2 -= m2[x]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _count(values, part):
+    """Adds the counts of ``values`` (n,) uint8 to the four partial histograms ``part`` (4, 256), in turn."""
+    h0, h1, h2, h3 = part[0], part[1], part[2], part[3]
+    n = values.shape[0]
+    i = 0
+    while i + 4 <= n:
+        h0[values[i]] += 1
+        h1[values[i + 1]] += 1
+        h2[values[i + 2]] += 1
+        h3[values[i + 3]] += 1
+        i += 4
+    while i < n:
+        h0[values[i]] += 1
+        i += 1
+
+
+def otsu_threshold(hist: np.ndarray) -> int:
+    """Otsu's threshold of an 8-bit image from its histogram ``hist`` (256,): the level ``t`` that maximises the
+    between-class variance of ``<= t`` and ``> t``, as ``cv2.threshold(..., THRESH_OTSU)`` computes it (the same
+    value, tested), without its own pass over the pixels (:func:`_otsu_kernel`)."""
+    return int(_otsu_kernel(np.ascontiguousarray(hist, np.int64)))
+
+
+@njit(cache=True, nogil=True)
+def _otsu_kernel(hist):
+    """:func:`otsu_threshold` of ``hist`` (256,) int64: OpenCV's float64 arithmetic in its order, classes with a
+    share below float32's epsilon skipped, the first maximum kept."""
+    scale = 1.0 / hist.sum()
+    mu = 0.0
+    for i in range(256):
+        mu += i * np.float64(hist[i])
+    mu *= scale
+    mu1 = 0.0
+    q1 = 0.0
+    max_sigma = 0.0
+    best = 0
+    eps = 1.1920928955078125e-07      # FLT_EPSILON
+    for i in range(256):
+        p_i = hist[i] * scale
+        mu1 *= q1
+        q1 += p_i
+        q2 = 1.0 - q1
+        if min(q1, q2) < eps or max(q1, q2) > 1.0 - eps:
+            continue
+        mu1 = (mu1 + i * p_i) / q1
+        mu2 = (mu - q1 * mu1) / q2
+        sigma = q1 * q2 * (mu1 - mu2) * (mu1 - mu2)
+        if sigma > max_sigma:
+            max_sigma = sigma
+            best = i
+    return best
 
 
 def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
