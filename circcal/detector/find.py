@@ -215,6 +215,7 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     partial: tuple[Recognition, list[Candidate], str] | None = None
     refusal: tuple[Recognition, list[Candidate], str] | None = None
     unrecognised: list[Candidate] = []     # candidates of scale 2 in no recognised grid (dots too small there?)
+    searched: set[tuple[int, int, int, int]] = set()   # the windows searched again at full resolution
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
@@ -237,6 +238,16 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
             rec = recognise(board, cs, (W, H), deadline)
             if scale == 2 and rec.order is None:
                 unrecognised += cs
+                if box is None and not first_only and not searched:
+                    # the first unrecognised mask of the finest shrunk scale: its clusters at full resolution now,
+                    # before the other thresholds of this scale (they cannot make dots ~3 px across any larger)
+                    got = _search_clusters(gray, board, deadline, cs, need, searched)
+                    if got is not None and got[0].complete:
+                        return got[0], got[1], got[2], max(best, got[3])
+                    if got is not None and (partial is None
+                                            or np.sum(got[0].order >= 0) > np.sum(partial[0].order >= 0)):
+                        partial = (got[0], got[1], got[2])
+                        best = max(best, got[3])
             label = name if scale == 1 else f"{name}@1/{scale}"
             if box is not None:
                 label += f"[{x0}:{x1},{y0}:{y1}]"
@@ -273,17 +284,32 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
             if partial is not None:        # a part of the board at this scale: the other scales see no more of it
                 break
     if partial is None and box is None and not first_only and unrecognised:
-        # dots ~3 px across at scale 2 are candidates but too rough for the lattice search: their clusters are
-        # searched again at full resolution, each in its own window (never the whole frame)
-        for window in _cluster_windows(unrecognised, need, (W, H)):
-            got = _segment_and_recognise(gray, board, deadline, scales=[1], box=window)
-            if got[0].order is not None:
-                return got[0], got[1], got[2], max(best, got[3])
+        got = _search_clusters(gray, board, deadline, unrecognised, need, searched)
+        if got is not None:
+            return got[0], got[1], got[2], max(best, got[3])
     if partial is not None:
         return partial[0], partial[1], partial[2], best
     if refusal is not None:
         return refusal[0], refusal[1], None, best
     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
+
+
+def _search_clusters(gray: np.ndarray, board: Board, deadline: Deadline, cands: list[Candidate], need: int,
+                     searched: set[tuple[int, int, int, int]]
+                     ) -> tuple[Recognition, list[Candidate], str | None, int] | None:
+    """The board in a window around one of the clusters of ``cands`` (:func:`_cluster_windows`), segmented again at
+    full resolution: dots ~3 px across at scale 2 are candidates but too rough for the lattice search. Each window is
+    searched once (``searched``: the windows searched so far, updated), never the whole frame. Returns what
+    :func:`_segment_and_recognise` returns for the first window whose recognition labels dots, else ``None``."""
+    H, W = gray.shape
+    for window in _cluster_windows(cands, need, (W, H)):
+        if window in searched:
+            continue
+        searched.add(window)
+        got = _segment_and_recognise(gray, board, deadline, scales=[1], box=window)
+        if got[0].order is not None:
+            return got
+    return None
 
 
 CLUSTER_LINK = 2.5
