@@ -1006,3 +1006,31 @@ def test_edge_blur_is_the_median_slope_scale():
         nominal = np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)
         expect = [max(nominal, np.median(st[d][use[d]])) if use[d].any() else nominal for d in range(D)]
         assert np.array_equal(_edge_blur(at, rise, plane, ratio, ok, sigma), expect)
+
+
+def test_compiled_curvature_shift_is_the_numpy_expression():
+    # per point in compiled code (the edge kernel calls it), numpy's vectorised expression to the bit: table
+    # interpolation (np.interp, nodes hit exactly), the asymptote beyond the table, the fade, and NaN passed on
+    from circcal.detector import curvature as C
+
+    def numpy_shift(a, b, cos_t, sin_t, sigma_t):
+        table, U = C._shift_table(), C.U_TABLE
+        a, b = a[:, None], b[:, None]
+        q = (a * sin_t) ** 2 + (b * cos_t) ** 2
+        u = q * np.sqrt(q) / (a * b) / sigma_t[:, None]
+        shift = np.where(u > U[-1], 0.5 / np.maximum(u, 1e-9), np.interp(u, U, table, left=table[0]))
+        fade = np.clip((u - C.MODEL_FROM_U) / (C.MODEL_FULL_U - C.MODEL_FROM_U), 0.0, 1.0)
+        return sigma_t[:, None] * shift * fade, sigma_t[:, None] * shift * (1.0 - fade)
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.5, 80.0, 300)
+    b = a * rng.uniform(0.05, 1.0, 300)
+    t = rng.uniform(0.0, 2.0 * np.pi, (300, 50))
+    cases = [(a, b, np.cos(t), np.sin(t), rng.uniform(0.3, 5.0, 300)),
+             (a, b, np.cos(t), np.sin(t), np.full(300, np.nan)),
+             (np.ones(len(C.U_TABLE)), np.ones(len(C.U_TABLE)), np.ones((len(C.U_TABLE), 1)),   # u on every node
+              np.zeros((len(C.U_TABLE), 1)), 1.0 / C.U_TABLE)]
+    for case in cases:
+        got = C.curvature_shift(*case, unmodelled=True)
+        want = numpy_shift(*case)
+        assert all(np.array_equal(g, w, equal_nan=True) for g, w in zip(got, want))

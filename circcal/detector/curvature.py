@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from circcal.detector.jit import njit
+
 __all__ = ["curvature_shift", "store_table"]
 
 U_TABLE = np.geomspace(1.2, 60.0, 400)
@@ -105,14 +107,53 @@ def curvature_shift(a: np.ndarray, b: np.ndarray, cos_t: np.ndarray, sin_t: np.n
 
     ``unmodelled``: also return the (D, M) part of the modelled shift (px) that the fade leaves out, the size of the
     error an edge point may carry there (the tight ends of thin ellipses: up to ~0.5 px), as ``(shift, unmodelled)``.
+    Each point by :func:`shift_at` (compiled; the kernels of :mod:`circcal.detector.edges` call it per point).
     """
-    table = _shift_table()
-    a, b = a[:, None], b[:, None]
+    a, b, sigma_t = (np.ascontiguousarray(x, np.float64) for x in (a, b, sigma_t))
+    cos_t, sin_t = np.ascontiguousarray(cos_t, np.float64), np.ascontiguousarray(sin_t, np.float64)
+    shift = np.empty(cos_t.shape)
+    rest = np.empty(cos_t.shape)
+    _shift_kernel(a, b, cos_t, sin_t, sigma_t, U_TABLE, _shift_table(), shift, rest)
+    return (shift, rest) if unmodelled else shift
+
+
+@njit(cache=True, nogil=True)
+def _shift_kernel(a, b, cos_t, sin_t, sigma_t, u_table, table, shift, rest):
+    """Writes :func:`shift_at` of every point ``(d, j)`` into ``shift`` and ``rest`` (D, M)."""
+    D, M = cos_t.shape
+    for d in range(D):
+        for j in range(M):
+            shift[d, j], rest[d, j] = shift_at(a[d], b[d], cos_t[d, j], sin_t[d, j], sigma_t[d], u_table, table)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
+    """``(shift, unmodelled)`` px of :func:`curvature_shift` at one point, numpy's expressions in numpy's order (the
+    table ``table`` at ``u_table`` interpolated as ``np.interp(u, u_table, table, left=table[0])``: the same values
+    to the bit, tested)."""
     q = (a * sin_t) ** 2 + (b * cos_t) ** 2
     rho = q * np.sqrt(q) / (a * b)  # radius of curvature
-    u = rho / sigma_t[:, None]
-    shift = np.where(u > U_TABLE[-1], 0.5 / np.maximum(u, 1e-9), np.interp(u, U_TABLE, table, left=table[0]))
-    fade = np.clip((u - MODEL_FROM_U) / (MODEL_FULL_U - MODEL_FROM_U), 0.0, 1.0)
-    if unmodelled:
-        return sigma_t[:, None] * shift * fade, sigma_t[:, None] * shift * (1.0 - fade)
-    return sigma_t[:, None] * shift * fade
+    u = rho / sigma_t
+    n = u_table.shape[0]
+    if u > u_table[n - 1]:
+        s = 0.5 / max(u, 1e-9)
+    elif u < u_table[0]:
+        s = table[0]
+    elif u == u_table[n - 1]:
+        s = table[n - 1]
+    elif u != u:        # NaN
+        s = u
+    else:               # np.interp's slope and sum: u_table[j] <= u < u_table[j + 1]
+        lo, hi = 0, n - 1
+        while hi - lo > 1:
+            mid = (lo + hi) >> 1
+            if u_table[mid] <= u:
+                lo = mid
+            else:
+                hi = mid
+        slope = (table[lo + 1] - table[lo]) / (u_table[lo + 1] - u_table[lo])
+        s = slope * (u - u_table[lo]) + table[lo]
+    fade = min(max((u - MODEL_FROM_U) / (MODEL_FULL_U - MODEL_FROM_U), 0.0), 1.0)
+    if fade != fade:
+        fade = u
+    return sigma_t * s * fade, sigma_t * s * (1.0 - fade)

@@ -12,8 +12,9 @@ the edge: each point is moved out by the shift of :mod:`circcal.detector.curvatu
 All dots are measured at once; the per-pixel work is compiled (numba, cached on disk): the profile geometry
 (:func:`_profiles_kernel`) and the nearest crossing of each profile (:func:`_crossings_kernel`: intervals examined
 nearest the current boundary first, each spline sample (:func:`_spline_at`) computed once when first needed; the
-nearest crossing is the same as with the whole profile sampled). The compiled functions call only each other (numba's
-cache sees only this file).
+nearest crossing is the same as with the whole profile sampled), and the points with their curvature shift
+(:func:`_edge_points_kernel`). The compiled functions call each other and the kernels of the modules in
+:data:`KERNEL_IMPORTS` (robust's selection, curvature's per-point shift).
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
@@ -23,14 +24,14 @@ import functools
 
 import numpy as np
 
-from circcal.detector.curvature import curvature_shift
+from circcal.detector.curvature import U_TABLE, _shift_table, shift_at
 from circcal.detector.ellipse import conic_params_batch
 from circcal.detector.jit import njit
 from circcal.detector.levels import dot_levels_from_params
 from circcal.detector.robust import _median_of
 from circcal.detector.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.robust",)
+KERNEL_IMPORTS = ("circcal.detector.robust", "circcal.detector.curvature")
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["PROFILE_SPACING_PX", "PROFILE_STEP_PX", "subpixel_edge_points_batch"]
@@ -125,11 +126,31 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     _crossings_kernel(atlas, rows, org, base, nrm, S, klen - 1, rank, todo, plane, halfk, off, at, rise, found)
     ok = found & todo
     sigma_t = _edge_blur(at, rise, plane, ratio, ok, src.sigma)
-    shift, slack = curvature_shift(a_, b_, cos_t, sin_t, sigma_t, unmodelled=True)
-    off = np.where(ok, off + shift, 0.0)
+    pts = np.empty((D, N, 2))
+    slack = np.empty((D, N))
+    _edge_points_kernel(base, nrm, off, ok, a_, b_, cos_t, sin_t, sigma_t, U_TABLE, _shift_table(), pts, slack)
     if with_slack:
-        return base + off[..., None] * nrm, ok, errors, np.where(ok, slack, 0.0)
-    return base + off[..., None] * nrm, ok, errors
+        return pts, ok, errors, slack
+    return pts, ok, errors
+
+
+@njit(cache=True, nogil=True)
+def _edge_points_kernel(base, nrm, off, ok, a, b, cos_t, sin_t, sigma_t, u_table, table, pts, slack):
+    """The edge points ``pts`` (D, N, 2): ``base + (off + shift) nrm`` where ``ok``, ``base`` elsewhere, with the
+    curvature shift of each point (:func:`~circcal.detector.curvature.shift_at`), and ``slack`` (D, N) its
+    unmodelled part where ``ok`` (0 elsewhere): numpy's expressions in numpy's order."""
+    D, N = ok.shape
+    for d in range(D):
+        for j in range(N):
+            o = 0.0
+            sl = 0.0
+            if ok[d, j]:
+                sh, rest = shift_at(a[d], b[d], cos_t[d, j], sin_t[d, j], sigma_t[d], u_table, table)
+                o = off[d, j] + sh
+                sl = rest
+            pts[d, j, 0] = base[d, j, 0] + o * nrm[d, j, 0]
+            pts[d, j, 1] = base[d, j, 1] + o * nrm[d, j, 1]
+            slack[d, j] = sl
 
 
 def _edge_blur(at: np.ndarray, rise: np.ndarray, plane: np.ndarray, ratio: np.ndarray, ok: np.ndarray,
