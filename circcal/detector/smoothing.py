@@ -58,12 +58,12 @@ class SmoothedImage:
     def __init__(self, gray: np.ndarray, sigma: float):
         self.gray = gray
         self.sigma = float(sigma)
-        self.crops: list[tuple[int, int, int, int]] = []   # x0, y0, x1, y1 (exclusive) of each crop
+        self.crops = np.zeros((0, 4), np.int64)           # x0, y0, x1, y1 (exclusive) of each crop
         self._sheets: list[np.ndarray] = []                # float32 coefficients of crops stacked top to bottom
-        self._place: list[tuple[int, int]] = []            # (sheet, first row) of each crop
+        self._place = np.zeros((0, 2), np.int64)           # (sheet, first row) of each crop
+        self._shared = np.zeros(0, bool)                   # whether each crop is a window shared by several boxes
         self._atlas: np.ndarray | None = None              # all sheets stacked
-        self._rows = np.zeros(0, int)                      # first atlas row of each crop
-        self._shared: list[bool] = []                      # whether each crop is a window shared by several boxes
+        self._rows = np.zeros(0, np.int64)                 # first atlas row of each crop
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -91,66 +91,66 @@ class SmoothedImage:
         if not np.any(todo):
             return out
         m = self.margin
-        f = np.floor(boxes[todo]).astype(int)
-        need = np.stack([np.maximum(0, f[:, 0] - m), np.maximum(0, f[:, 1] - m),
-                         np.minimum(W, f[:, 2] + 1 + m), np.minimum(H, f[:, 3] + 1 + m)], axis=1)   # (T, 4)
+        f = np.floor(boxes[todo]).astype(np.int64)
+        need = np.column_stack([np.maximum(0, f[:, 0] - m), np.maximum(0, f[:, 1] - m),
+                                np.minimum(W, f[:, 2] + 1 + m), np.minimum(H, f[:, 3] + 1 + m)])   # (T, 4)
         idx = np.nonzero(todo)[0]
-        if self.crops:
-            have = np.array(self.crops)                                                         # (C, 4)
+        if len(self.crops):
+            have = self.crops                                                                   # (C, 4)
+            holds = ((have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
+                     & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3]))
             r = 2.0 * self.REUSE_PX
-            hit = ((have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
-                   & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3])
-                   & (np.abs((have[None, :, 0] + have[None, :, 2]) - (need[:, 0] + need[:, 2])[:, None]) <= r)
-                   & (np.abs((have[None, :, 1] + have[None, :, 3]) - (need[:, 1] + need[:, 3])[:, None]) <= r))
-            shared = np.array(self._shared, bool)
-            if shared.any():   # a shared window (inside the image) serves any box it holds
-                hit |= (shared[None, :] & (have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
-                        & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3]))
+            hit = holds & (self._shared[None, :]    # a shared window (inside the image) serves any box it holds
+                           | ((np.abs((have[None, :, 0] + have[None, :, 2]) - (need[:, 0] + need[:, 2])[:, None]) <= r)
+                              & (np.abs((have[None, :, 1] + have[None, :, 3]) - (need[:, 1] + need[:, 3])[:, None])
+                                 <= r)))
             found = hit.any(axis=1)
             out[idx[found]] = np.argmax(hit[found], axis=1)
             idx, need = idx[~found], need[~found]
+        if not len(idx):
+            return out
         sl = self.SLACK
-        new = [(max(0, x0 - sl), max(0, y0 - sl), min(W, x1 + sl), min(H, y1 + sl)) for x0, y0, x1, y1 in need.tolist()]
+        new = np.column_stack([np.maximum(0, need[:, 0] - sl), np.maximum(0, need[:, 1] - sl),
+                               np.minimum(W, need[:, 2] + sl), np.minimum(H, need[:, 3] + sl)])
         grow = self.border_margin - m   # crops that reach the border are filtered in two steps, reaching further
-        new = [c if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H else
-               (max(0, c[0] - grow), max(0, c[1] - grow), min(W, c[2] + grow), min(H, c[3] + grow)) for c in new]
+        inner = (new[:, 0] > 0) & (new[:, 1] > 0) & (new[:, 2] < W) & (new[:, 3] < H)
+        b = ~inner
+        new[b] = np.column_stack([np.maximum(0, new[b, 0] - grow), np.maximum(0, new[b, 1] - grow),
+                                  np.minimum(W, new[b, 2] + grow), np.minimum(H, new[b, 3] + grow)])
         # crops inside the image are filtered together, stacked in one array (the filters reach less than the margin,
         # so each crop's box only sees its own pixels; a pixel's arithmetic does not depend on where its crop sits);
         # crops at the image border each on their own, with the borders' reflections
-        inner = [k for k, c in enumerate(new) if c[0] > 0 and c[1] > 0 and c[2] < W and c[3] < H]
-        place: dict[int, tuple[int, int]] = {}
-        shared: set[int] = set()
-        if inner:
+        place = np.zeros((len(new), 2), np.int64)
+        shared = np.zeros(len(new), bool)
+        ii = np.nonzero(inner)[0]
+        if len(ii):
             k1 = _combined_kernel(self.sigma)
-            box = np.array([new[k] for k in inner])
+            box = new[ii]
             u0, v0 = box[:, :2].min(axis=0).tolist()
             u1, v1 = box[:, 2:].max(axis=0).tolist()
             stacked_px = int(np.sum(box[:, 3] - box[:, 1])) * int(np.max(box[:, 2] - box[:, 0]))
-            if len(inner) > 1 and (u1 - u0) * (v1 - v0) < stacked_px:   # one window holding them all
+            if len(ii) > 1 and (u1 - u0) * (v1 - v0) < stacked_px:   # one window holding them all
                 win = self.gray[v0:v1, u0:u1]
                 if win.dtype != np.uint8:
                     win = win.astype(np.float32)
                 self._sheets.append(cv2.sepFilter2D(win, cv2.CV_32F, k1, k1, borderType=cv2.BORDER_REFLECT_101))
-                for k in inner:
-                    new[k] = (u0, v0, u1, v1)
-                    place[k] = (len(self._sheets) - 1, 0)
-                    shared.add(k)
+                new[ii] = (u0, v0, u1, v1)
+                place[ii] = (len(self._sheets) - 1, 0)
+                shared[ii] = True
             else:
-                stack = _stacked([self.gray[c[1]:c[3], c[0]:c[2]] for c in (new[k] for k in inner)])
+                stack = _stacked([self.gray[c[1]:c[3], c[0]:c[2]] for c in box.tolist()])
                 self._sheets.append(cv2.sepFilter2D(stack, cv2.CV_32F, k1, k1, borderType=cv2.BORDER_REFLECT_101))
-                starts = np.cumsum([0] + [new[k][3] - new[k][1] for k in inner]).tolist()
-                place.update((k, (len(self._sheets) - 1, r0)) for k, r0 in zip(inner, starts))
-        for k, c in enumerate(new):
-            if k not in place:
-                self._sheets.append(_spline_coefficients(self.gray[c[1]:c[3], c[0]:c[2]], self.sigma))
-                place[k] = (len(self._sheets) - 1, 0)
-        for k, (d, c) in enumerate(zip(idx.tolist(), new)):
-            self._place.append(place[k])
-            self.crops.append(c)
-            self._shared.append(k in shared)
-            out[d] = len(self.crops) - 1
-        if new:
-            self._atlas = None
+                place[ii, 0] = len(self._sheets) - 1
+                place[ii, 1] = np.cumsum(box[:, 3] - box[:, 1]) - (box[:, 3] - box[:, 1])
+        for k in np.nonzero(b)[0].tolist():
+            c = new[k].tolist()
+            self._sheets.append(_spline_coefficients(self.gray[c[1]:c[3], c[0]:c[2]], self.sigma))
+            place[k] = (len(self._sheets) - 1, 0)
+        out[idx] = len(self.crops) + np.arange(len(new))
+        self.crops = np.concatenate([self.crops, new])
+        self._place = np.concatenate([self._place, place])
+        self._shared = np.concatenate([self._shared, shared])
+        self._atlas = None
         return out
 
     def coefficient_atlas(self, crop: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,15 +158,20 @@ class SmoothedImage:
         from :meth:`crops_for`; -1 gives zeros) their first atlas row (D,) int and origin (D, 2) float ``x0, y0``:
         the coefficient of image pixel (x, y) of crop k is ``atlas[rows[k] + y - y0, x - x0]``."""
         if self._atlas is None:
-            self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
+            if not self._sheets:   # (no crop made: every box was empty)
+                self._atlas = np.zeros((1, 1), np.float32)
+            else:
+                self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
             first = np.cumsum([0] + [s.shape[0] for s in self._sheets])
-            self._rows = np.array([first[s] + r0 for s, r0 in self._place], np.int64)
+            self._rows = first[self._place[:, 0]] + self._place[:, 1]
         crop = np.asarray(crop, np.int64)
         valid = crop >= 0
-        rows = np.where(valid, self._rows[np.where(valid, crop, 0)] if len(self._rows) else 0, 0)
-        org = np.array(self.crops, np.float64).reshape(-1, 4)[np.where(valid, crop, 0), :2] if self.crops else\
-            np.zeros((len(crop), 2))
-        return self._atlas, rows.astype(np.int64), np.where(valid[:, None], org, 0.0)
+        k = np.where(valid, crop, 0)
+        if not len(self.crops):
+            return self._atlas, np.zeros(len(crop), np.int64), np.zeros((len(crop), 2))
+        rows = np.where(valid, self._rows[k], 0)
+        org = np.where(valid[:, None], self.crops[k, :2].astype(np.float64), 0.0)
+        return self._atlas, rows, org
 
 
 def _gauss_radius(sigma: float) -> int:
