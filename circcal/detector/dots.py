@@ -8,9 +8,13 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.detector.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
-from circcal.detector.ellipse import FIT_ERRORS, fit_ellipses_direct, sampson_distances
-from circcal.detector.robust import mad_inliers
+from circcal.detector.ellipse import FIT_ERRORS, _fit_kernel, _sampson_kernel
+from circcal.detector.jit import njit
+from circcal.detector.robust import MAD_TO_SIGMA, _mad_inliers_kernel
 from circcal.detector.smoothing import SmoothedImage
+
+KERNEL_IMPORTS = ("circcal.detector.ellipse", "circcal.detector.robust")
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "STEERING_LEVEL_STRIDE", "STEERING_SPACING_PX", "fit_dots"]
 
@@ -60,7 +64,7 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
     :data:`EDGE_SIGMA` (reused across calls). Edge points are measured :data:`FIT_PASSES` times along the normals of
     the latest ellipse (:func:`~circcal.detector.edges.subpixel_edge_points_batch`; sparser in the steering passes,
     :data:`STEERING_SPACING_PX`), each time fitted (direct least squares) and refitted once without the outliers
-    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`). Returns
+    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). Returns
     ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points are ``points[d][mask[d]]``
     and ``conics[d]`` the ellipse fitted to exactly them; ``errors[d]`` is ``None`` or why the dot could not be
     measured (then its points and conic are not meaningful). Each dot's result depends on that dot alone.
@@ -71,62 +75,91 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
     errors: list[str | None] = [None] * D
     pts = np.zeros((D, 0, 2))
     mask = np.zeros((D, 0), bool)
-    slack = np.zeros((D, 0))
     for pas in range(FIT_PASSES):
         last = pas == FIT_PASSES - 1
-        act = np.array([e is None for e in errors])
-        if not np.any(act):
+        ai = np.array([d for d in range(D) if errors[d] is None], np.int64)
+        if not len(ai):
             break
-        ai = np.nonzero(act)[0]
         p_a, m_a, err_a, sl_a = subpixel_edge_points_batch(
             src, Q[ai], with_slack=True, spacing_px=PROFILE_SPACING_PX if last else STEERING_SPACING_PX,
             level_stride=1 if last else STEERING_LEVEL_STRIDE)
-        if p_a.shape[1] != pts.shape[1]:
-            width = max(p_a.shape[1], pts.shape[1])
-            pts = np.concatenate([pts, np.zeros((D, width - pts.shape[1], 2))], axis=1)
-            mask = np.concatenate([mask, np.zeros((D, width - mask.shape[1]), bool)], axis=1)
-            slack = np.concatenate([slack, np.zeros((D, width - slack.shape[1]))], axis=1)
-        pts[ai] = 0.0
-        mask[ai] = False
-        pts[ai, :p_a.shape[1]] = p_a
-        mask[ai, :p_a.shape[1]] = m_a
-        slack[ai] = 0.0
-        slack[ai, :p_a.shape[1]] = sl_a
-        cnt = mask.sum(axis=1)
-        for d, e in zip(ai, err_a):
-            if e is not None:
-                errors[d] = e
-            elif cnt[d] < MIN_EDGE_POINTS and last:
-                errors[d] = f"only {cnt[d]} sub-pixel edge points"
-        ai = np.array([d for d in ai if errors[d] is None and cnt[d] >= MIN_EDGE_POINTS], int)   # (a steering pass
-        # leaves a dot with too few points on its previous ellipse)
-        if len(ai) == 0:
-            break
-        Qa, ferr = fit_ellipses_direct(pts[ai], mask[ai])
-        m = mask[ai] & (ferr == 0)[:, None]
-        keep = m & _inliers(sampson_distances(pts[ai], Qa), m, slack[ai])
-        nk = keep.sum(axis=1)
-        refit = (ferr == 0) & (nk < m.sum(axis=1)) & (nk >= MIN_EDGE_POINTS)
-        if np.any(refit):
-            ri = ai[refit]
-            Qr, rerr = fit_ellipses_direct(pts[ri], keep[refit])
-            mask[ri] = keep[refit]
-            Qa[refit] = Qr
-            ferr = ferr.copy()
-            ferr[refit] = rerr
+        cnt = m_a.sum(axis=1)
+        for j in range(len(ai)):
+            if err_a[j] is not None:
+                errors[ai[j]] = err_a[j]
+            elif cnt[j] < MIN_EDGE_POINTS and last:
+                errors[ai[j]] = f"only {cnt[j]} sub-pixel edge points"
+        sel = np.array([err_a[j] is None and cnt[j] >= MIN_EDGE_POINTS for j in range(len(ai))], bool)   # (a
+        # steering pass leaves a dot with too few points on its previous ellipse)
         if last:
-            for j, d in enumerate(ai):
-                if ferr[j]:
-                    errors[d] = FIT_ERRORS[int(ferr[j])]
-            Q[ai] = Qa
+            pts = np.zeros((D,) + p_a.shape[1:])
+            mask = np.zeros((D, p_a.shape[1]), bool)
+            pts[ai] = p_a
+            mask[ai] = m_a
+        if not np.any(sel):
+            break
+        fi = ai[sel]
+        P, M = p_a[sel], m_a[sel]
+        Qa = np.empty((len(fi), 3, 3))
+        ferr = np.zeros(len(fi), np.int64)
+        _fit_pass_kernel(P, M, np.ascontiguousarray(sl_a[sel]), OUTLIER_MIN_PX, OUTLIER_SIGMAS, MAD_TO_SIGMA,
+                         MIN_EDGE_POINTS, Qa, ferr)
+        if last:
+            mask[fi] = M
+            for j in np.nonzero(ferr)[0]:
+                errors[fi[j]] = FIT_ERRORS[int(ferr[j])]
+            Q[fi] = Qa
         else:   # (a steering pass's failed fit leaves the dot on its previous ellipse)
-            Q[ai[ferr == 0]] = Qa[ferr == 0]
+            Q[fi[ferr == 0]] = Qa[ferr == 0]
     return pts, mask, Q, errors
 
 
-def _inliers(dist: np.ndarray, mask: np.ndarray, slack: np.ndarray | float = 0.0) -> np.ndarray:
-    """(D, M) bool: the distances ``dist`` (D, M) px, of the points where ``mask`` (D, M), within the outlier rule:
-    ``|dist| <= max(OUTLIER_SIGMAS * robust sigma, OUTLIER_MIN_PX + slack)``, the robust sigma from the median
-    absolute deviation from the median of each row (:func:`~circcal.detector.robust.mad_inliers`), ``slack``
-    (D, M) px each point's uncorrected curvature shift."""
-    return mad_inliers(dist, mask, OUTLIER_MIN_PX + np.asarray(slack, np.float64), OUTLIER_SIGMAS)
+@njit(cache=True, nogil=True)
+def _fit_pass_kernel(P, mask, slack, min_px, sigmas, mad_to_sigma, min_points, Q, err):
+    """One pass's fit of the edge points ``P`` (D, M, 2) where ``mask`` (D, M): the direct ellipse fit of each row
+    (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.ellipse._fit_kernel`), then the points
+    within the outlier rule (the Sampson distances within ``max(sigmas * robust sigma, min_px + slack)``, the
+    robust sigma from the median absolute deviation of each row: :func:`~circcal.detector.robust.mad_inliers`;
+    ``slack`` (D, M) each point's uncorrected curvature shift), refitted once to those where some were left out and ``min_points`` remain: their
+    ``mask`` rows become the kept points, ``Q`` and ``err`` the refit's. The numpy steps' values, in their order."""
+    D, M = mask.shape
+    _fit_kernel(P, mask, Q, err)
+    m = np.zeros((D, M), np.bool_)
+    for d in range(D):
+        if err[d] == 0:
+            m[d] = mask[d]
+    dist = np.empty((D, M))
+    _sampson_kernel(P, Q, dist)
+    floor = np.empty((D, M))
+    for d in range(D):
+        for i in range(M):
+            floor[d, i] = min_px + slack[d, i]
+    inl = np.zeros((D, M), np.bool_)
+    _mad_inliers_kernel(dist, m, floor, sigmas, mad_to_sigma, inl)
+    n_refit = 0
+    refit = np.zeros(D, np.bool_)
+    for d in range(D):
+        nk = 0
+        nm = 0
+        for i in range(M):
+            inl[d, i] = m[d, i] and inl[d, i]
+            nk += inl[d, i]
+            nm += m[d, i]
+        refit[d] = err[d] == 0 and nk < nm and nk >= min_points
+        n_refit += refit[d]
+    if n_refit == 0:
+        return
+    ri = np.nonzero(refit)[0]
+    Pr = np.empty((n_refit, M, 2))
+    Kr = np.empty((n_refit, M), np.bool_)
+    for j in range(n_refit):
+        Pr[j] = P[ri[j]]
+        Kr[j] = inl[ri[j]]
+    Qr = np.empty((n_refit, 3, 3))
+    rerr = np.zeros(n_refit, np.int64)
+    _fit_kernel(Pr, Kr, Qr, rerr)
+    for j in range(n_refit):
+        d = ri[j]
+        mask[d] = Kr[j]
+        Q[d] = Qr[j]
+        err[d] = rerr[j]

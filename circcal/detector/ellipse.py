@@ -65,20 +65,41 @@ def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> t
     solve as the single version, compiled and in closed form (:func:`_direct_solves`: ~7x faster than stacked
     LAPACK solves and eigen-decompositions, the same conics to ~1e-12); it never raises for a bad row.
     """
-    p = np.asarray(points, dtype=np.float64)
+    p = np.ascontiguousarray(points, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 2:
         raise ValueError(f"points must be (D, M, 2), got shape {p.shape}")
     D = p.shape[0]
-    m = np.ones(p.shape[:2], bool) if mask is None else np.asarray(mask, bool)
-    err = np.zeros(D, int)
-    cnt = m.sum(axis=1)
-    finite = np.isfinite(p[..., 0]) & np.isfinite(p[..., 1])
-    err[np.any(m & ~finite, axis=1)] = 2
-    err[cnt < 5] = 1
-    mean, s, S1, S2, S3 = _normalised_scatter(p, m & finite)
-    Q = np.full((D, 3, 3), np.nan)
-    _direct_solves(S1, S2, S3, mean, s, err, Q)
+    m = np.ones(p.shape[:2], bool) if mask is None else np.ascontiguousarray(mask, bool)
+    err = np.zeros(D, np.int64)
+    Q = np.empty((D, 3, 3))
+    _fit_kernel(p, m, Q, err)
     return Q, err
+
+
+@njit(cache=True, nogil=True)
+def _fit_kernel(p, m, Q, err):
+    """:func:`fit_ellipses_direct` of ``p`` (D, M, 2) where ``m`` (D, M): writes ``Q`` (D, 3, 3) and ``err`` (D,)
+    (zeros on entry): code 2 for a row with a non-finite point in ``m``, 1 (overriding it) for fewer than 5 points,
+    the others by :func:`_direct_solves` on the scatter of the finite points (:func:`_normalised_scatter`); NaN
+    conics where ``err != 0``."""
+    D, M = m.shape
+    use = np.empty((D, M), np.bool_)
+    for d in range(D):
+        cnt = 0
+        bad = False
+        for i in range(M):
+            fin = np.isfinite(p[d, i, 0]) and np.isfinite(p[d, i, 1])
+            if m[d, i]:
+                cnt += 1
+                bad |= not fin
+            use[d, i] = m[d, i] and fin
+        if bad:
+            err[d] = 2
+        if cnt < 5:
+            err[d] = 1
+    mean, s, S1, S2, S3 = _normalised_scatter(p, use)
+    Q[:] = np.nan
+    _direct_solves(S1, S2, S3, mean, s, err, Q)
 
 
 @njit(cache=True, nogil=True)

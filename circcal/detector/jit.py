@@ -322,14 +322,17 @@ def _exercise() -> None:
     """Run the detector on :func:`synthetic_board` as uint8, uint16, float32 and float64 images (what image files
     and numpy callers give it: a float64 image is what a renderer hands over), so that numba compiles each kernel
     for the argument types detection gives it."""
-    from circcal.detector.find import detect
+    from circcal.detector.find import detect, recorrect
     from circcal.detector.segment import shrink
+    from circcal.model import Camera
 
     img, board = synthetic_board()
     for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0, img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
         if not d.found:
             raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
+    # a calibration re-corrects the centres under each new distortion estimate (the ellipses refitted in Python)
+    recorrect(d, board, Camera(640, 480, 600.0, 600.0, 319.5, 239.5, np.array([-0.1, 0.01, 0.0, 0.0, 0.0])))
     shrink(np.repeat(np.repeat(img, 3, axis=0), 3, axis=1), 3)   # frames of 720 px and more are segmented shrunk
 
 
