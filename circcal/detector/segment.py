@@ -11,8 +11,11 @@ from collections.abc import Iterator
 import cv2
 import numpy as np
 
-from circcal.detector.image import histogram_u8
+from circcal.detector.image import count_into, histogram_u8
 from circcal.detector.jit import njit
+
+KERNEL_IMPORTS = ("circcal.detector.image",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales", "segmentations",
            "shrink", "noise_sigma_u8", "speckled"]
@@ -172,7 +175,7 @@ def _guided_kernel(src, r, eps64, out, hist):
     vb = np.zeros(W + 2 * r, np.int64)
     h1 = np.empty(W, np.int64)           # row sums of the column sums: the box sums of one row
     h2 = np.empty(W, np.int64)
-    part = np.zeros((4, 256), np.int64)
+    part = np.zeros((8, 256), np.int32)   # partial histograms (image.count_into)
     xr = np.empty(2 * r, np.int64)       # the columns the reflected margins repeat
     for k in range(r):
         xr[k] = _reflect(k - r, W)
@@ -223,9 +226,10 @@ def _guided_kernel(src, r, eps64, out, hist):
         for x in range(W):
             q = np.float32((h1[x] * u40) * scale) * (np.float32(row[x]) * inv255) + np.float32((h2[x] * u40) * scale)
             orow[x] = np.uint8(min((abs(q * k255) + magic) - magic, k255))
-        _count(orow, part)
+        count_into(orow, part)
     for v in range(256):
-        hist[v] += (part[0, v] + part[1, v]) + (part[2, v] + part[3, v])
+        for k in range(8):
+            hist[v] += part[k, v]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -251,23 +255,6 @@ def _slide(v1, v2, xr, r, h1, h2):
         h2[x] = s2
         s1 -= m1[x]
         s2 -= m2[x]
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _count(values, part):
-    """Adds the counts of ``values`` (n,) uint8 to the four partial histograms ``part`` (4, 256), in turn."""
-    h0, h1, h2, h3 = part[0], part[1], part[2], part[3]
-    n = values.shape[0]
-    i = 0
-    while i + 4 <= n:
-        h0[values[i]] += 1
-        h1[values[i + 1]] += 1
-        h2[values[i + 2]] += 1
-        h3[values[i + 3]] += 1
-        i += 4
-    while i < n:
-        h0[values[i]] += 1
-        i += 1
 
 
 def otsu_threshold(hist: np.ndarray) -> int:
