@@ -1009,9 +1009,11 @@ def test_edge_blur_is_the_median_slope_scale():
 
 
 def test_compiled_curvature_shift_is_the_numpy_expression():
-    # per point in compiled code (the edge kernel calls it), numpy's vectorised expression to the bit: table
-    # interpolation (np.interp, nodes hit exactly), the asymptote beyond the table, the fade, and NaN passed on
+    # per point in the edge kernel (curvature.shift_at), numpy's vectorised expression to the bit: table
+    # interpolation (np.interp, nodes hit exactly), the asymptote beyond the table, the fade, and NaN passed on;
+    # the kernel's point is base + (offset + shift) * normal, here 0 + (0 + shift) * (1, 0), its slack the rest
     from circcal.detector import curvature as C
+    from circcal.detector.edges import _edge_points_kernel
 
     def numpy_shift(a, b, cos_t, sin_t, sigma_t):
         table, U = C._shift_table(), C.U_TABLE
@@ -1026,11 +1028,17 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
     a = rng.uniform(0.5, 80.0, 300)
     b = a * rng.uniform(0.05, 1.0, 300)
     t = rng.uniform(0.0, 2.0 * np.pi, (300, 50))
+    n = len(C.U_TABLE)
     cases = [(a, b, np.cos(t), np.sin(t), rng.uniform(0.3, 5.0, 300)),
              (a, b, np.cos(t), np.sin(t), np.full(300, np.nan)),
-             (np.ones(len(C.U_TABLE)), np.ones(len(C.U_TABLE)), np.ones((len(C.U_TABLE), 1)),   # u on every node
-              np.zeros((len(C.U_TABLE), 1)), 1.0 / C.U_TABLE)]
-    for case in cases:
-        got = C.curvature_shift(*case, unmodelled=True)
-        want = numpy_shift(*case)
-        assert all(np.array_equal(g, w, equal_nan=True) for g, w in zip(got, want))
+             (np.ones(n), np.ones(n), np.ones((n, 1)), np.zeros((n, 1)), 1.0 / C.U_TABLE)]   # u on every node
+    for a_, b_, cos_t, sin_t, sigma_t in cases:
+        D, N = cos_t.shape
+        nrm = np.zeros((D, N, 2))
+        nrm[..., 0] = 1.0
+        pts, slack = np.empty((D, N, 2)), np.empty((D, N))
+        _edge_points_kernel(np.zeros((D, N, 2)), nrm, np.zeros((D, N)), np.ones((D, N), bool), a_, b_, cos_t,
+                            sin_t, sigma_t, C.U_TABLE, C._shift_table(), pts, slack)
+        shift, rest = numpy_shift(a_, b_, cos_t, sin_t, sigma_t)
+        assert np.array_equal(pts[..., 0], 0.0 + (0.0 + shift) * 1.0, equal_nan=True)
+        assert np.array_equal(slack, rest, equal_nan=True)

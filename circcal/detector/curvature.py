@@ -18,7 +18,7 @@ import numpy as np
 
 from circcal.detector.jit import njit
 
-__all__ = ["curvature_shift", "store_table"]
+__all__ = ["shift_at", "store_table"]
 
 U_TABLE = np.geomspace(1.2, 60.0, 400)
 """Radii of curvature (in units of the blur sigma) the shift is tabulated at: from just above where a blurred disk
@@ -97,40 +97,17 @@ def _shift_table() -> np.ndarray:
     return table
 
 
-def curvature_shift(a: np.ndarray, b: np.ndarray, cos_t: np.ndarray, sin_t: np.ndarray,
-                    sigma_t: np.ndarray, unmodelled: bool = False
-                    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """(D, M) outward shift (px) from the half-level contour to the true edge at the points ``(a cos t, b sin t)``
-    (ellipse frame) of D ellipses with semi-axes ``a``, ``b`` (D,) px, given ``cos t``, ``sin t`` (D, M), and blur
-    scales ``sigma_t`` (D,) px: the edge modelled locally by its osculating circle blurred by a Gaussian of
-    ``sigma_t``, faded out where that model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`).
-
-    ``unmodelled``: also return the (D, M) part of the modelled shift (px) that the fade leaves out, the size of the
-    error an edge point may carry there (the tight ends of thin ellipses: up to ~0.5 px), as ``(shift, unmodelled)``.
-    Each point by :func:`shift_at` (compiled; the kernels of :mod:`circcal.detector.edges` call it per point).
-    """
-    a, b, sigma_t = (np.ascontiguousarray(x, np.float64) for x in (a, b, sigma_t))
-    cos_t, sin_t = np.ascontiguousarray(cos_t, np.float64), np.ascontiguousarray(sin_t, np.float64)
-    shift = np.empty(cos_t.shape)
-    rest = np.empty(cos_t.shape)
-    _shift_kernel(a, b, cos_t, sin_t, sigma_t, U_TABLE, _shift_table(), shift, rest)
-    return (shift, rest) if unmodelled else shift
-
-
-@njit(cache=True, nogil=True)
-def _shift_kernel(a, b, cos_t, sin_t, sigma_t, u_table, table, shift, rest):
-    """Writes :func:`shift_at` of every point ``(d, j)`` into ``shift`` and ``rest`` (D, M)."""
-    D, M = cos_t.shape
-    for d in range(D):
-        for j in range(M):
-            shift[d, j], rest[d, j] = shift_at(a[d], b[d], cos_t[d, j], sin_t[d, j], sigma_t[d], u_table, table)
-
-
 @njit(cache=True, nogil=True, inline="always")
 def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
-    """``(shift, unmodelled)`` px of :func:`curvature_shift` at one point, numpy's expressions in numpy's order (the
-    table ``table`` at ``u_table`` interpolated as ``np.interp(u, u_table, table, left=table[0])``: the same values
-    to the bit, tested)."""
+    """``(shift, unmodelled)`` px: the outward shift from the half-level contour to the true edge at the point
+    ``(a cos t, b sin t)`` (ellipse frame) of an ellipse with semi-axes ``a``, ``b`` px, for the blur scale
+    ``sigma_t`` px: the edge modelled locally by its osculating circle blurred by a Gaussian of ``sigma_t``, faded
+    out where that model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`); and the part of the modelled shift the
+    fade leaves out, the size of the error an edge point may carry there (the tight ends of thin ellipses: up to
+    ~0.5 px). ``table``: :func:`_shift_table` at ``u_table`` (:data:`U_TABLE`), interpolated as ``np.interp(u,
+    u_table, table, left=table[0])``, the asymptote ``1 / (2 u)`` beyond it. Compiled, called per point by the edge
+    kernels (:mod:`circcal.detector.edges`); the arithmetic of the vectorised numpy expressions it replaced, in
+    their order (the same values to the bit, tested)."""
     q = (a * sin_t) ** 2 + (b * cos_t) ** 2
     rho = q * np.sqrt(q) / (a * b)  # radius of curvature
     u = rho / sigma_t

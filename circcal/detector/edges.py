@@ -79,7 +79,7 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     ``points[d][mask[d]]`` (profiles without a clear edge are left out; there may be few, the caller decides);
     ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all. ``with_slack``: a fourth array ``slack``
     (D, Nmax) px, the curvature shift left uncorrected at each point where the osculating-circle model fades out
-    (:func:`~circcal.detector.curvature.curvature_shift`; 0 elsewhere): how far that point may lie off the true
+    (:func:`~circcal.detector.curvature.shift_at`; 0 elsewhere): how far that point may lie off the true
     edge without being an outlier. ``level_stride``: the dots' levels from every this many rows and columns of their
     pixels (:func:`~circcal.detector.levels.dot_levels_from_params`; for a pass that only steers the next).
     """

@@ -272,8 +272,11 @@ def compile_seconds() -> float:
 
 
 def aot_status() -> dict[str, bool]:
-    """Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable."""
-    return {m: bool(_load_aot(m)) for m in _registry}
+    """Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable (modules whose
+    kernels are all inlined into other modules' kernels, ``inline="always"``, have nothing of their own to build and
+    are not listed)."""
+    return {m: bool(_load_aot(m)) for m, ks in _registry.items()
+            if any(k.options.get("inline") != "always" for k in ks)}
 
 
 def _spec_of(t) -> list | None:
