@@ -480,23 +480,26 @@ def sampson_distances(points: np.ndarray, conics: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _sampson_kernel(P, Q, out):
-    """Writes :func:`sampson_distances` of ``P`` (D, M, 2) from ``Q`` (D, 3, 3) into ``out`` (D, M): ``h Q`` as
-    numpy's matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2``, the gradient
-    ``2 (hQ0, hQ1)``."""
+    """Writes :func:`sampson_distances` of ``P`` (D, M, 2) from ``Q`` (D, 3, 3) into ``out`` (D, M)
+    (:func:`sampson_at` per point)."""
     D, M = out.shape
     for d in range(D):
-        q00, q01, q02 = Q[d, 0, 0], Q[d, 0, 1], Q[d, 0, 2]
-        q10, q11, q12 = Q[d, 1, 0], Q[d, 1, 1], Q[d, 1, 2]
-        q20, q21, q22 = Q[d, 2, 0], Q[d, 2, 1], Q[d, 2, 2]
         for m in range(M):
-            x, y = P[d, m, 0], P[d, m, 1]
-            h0 = x * q00 + y * q10 + q20
-            h1 = x * q01 + y * q11 + q21
-            h2 = x * q02 + y * q12 + q22
-            num = (h0 * x + h1 * y) + h2
-            gx, gy = 2.0 * h0, 2.0 * h1
-            g = np.sqrt(gx * gx + gy * gy)
-            if g == 0.0:  # (numba, like Python, raises on a division by zero: numpy's values written out)
-                out[d, m] = np.nan if (num == 0.0 or np.isnan(num)) else (np.inf if num > 0 else -np.inf)
-            else:
-                out[d, m] = num / g
+            out[d, m] = sampson_at(Q[d], P[d, m, 0], P[d, m, 1])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sampson_at(Q, x, y):
+    """The Sampson distance (px, signed) of the point ``(x, y)`` from the conic ``Q`` (3, 3): ``h Q`` as numpy's
+    matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2`` over the gradient's norm
+    ``|2 (hQ0, hQ1)|``; where the gradient vanishes NaN on the conic (or for NaN), +-inf off it (numpy's division:
+    numba, like Python, would raise on a division by zero)."""
+    h0 = x * Q[0, 0] + y * Q[1, 0] + Q[2, 0]
+    h1 = x * Q[0, 1] + y * Q[1, 1] + Q[2, 1]
+    h2 = x * Q[0, 2] + y * Q[1, 2] + Q[2, 2]
+    num = (h0 * x + h1 * y) + h2
+    gx, gy = 2.0 * h0, 2.0 * h1
+    g = np.sqrt(gx * gx + gy * gy)
+    if g == 0.0:
+        return np.nan if (num == 0.0 or np.isnan(num)) else (np.inf if num > 0 else -np.inf)
+    return num / g

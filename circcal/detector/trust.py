@@ -28,11 +28,14 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.ellipse import conic_params_batch, sampson_distances
+from circcal.detector.ellipse import conic_params_batch, sampson_at
 from circcal.detector.jit import njit
 from circcal.detector.robust import median, row_medians
 
-__all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps", "sampson_rms"]
+__all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps"]
+
+KERNEL_IMPORTS = ("circcal.detector.ellipse",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 BORDER_PX = 1.0
 """A dot with an edge point within this many px of the image's outer pixel centres is cut by the border."""
@@ -106,15 +109,6 @@ DIAMETER_FACTOR = 2.5
 """The dots' diameter measured against the lattice (median dot area over cell area, as a diameter over the pitch)
 lies within this factor of the board's stated diameter either way: the default diameter is half the dot spacing,
 and printed boards use 0.2-0.8 of it. Noise specks that line up are far smaller than their spacing."""
-
-
-def sampson_rms(points: np.ndarray, mask: np.ndarray, conics: np.ndarray) -> np.ndarray:
-    """(D,) RMS Sampson distance (px) of each dot's edge points ``points`` (D, M, 2) where ``mask`` (D, M) from its
-    conic (D, 3, 3); NaN for a dot without points."""
-    d = np.where(mask, sampson_distances(points, conics), 0.0)
-    n = mask.sum(axis=1)
-    with np.errstate(invalid="ignore"):
-        return np.where(n > 0, np.sqrt(np.sum(d * d, axis=1) / np.maximum(n, 1)), np.nan)
 
 
 def _steps(board: Board) -> tuple[np.ndarray, np.ndarray]:
@@ -320,41 +314,20 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     ok &= okc
     for k in np.nonzero(~okc & np.array([e is None for e in errors]))[0]:
         out[int(points[k])] = "unmeasurable: no real ellipse"
-    with np.errstate(invalid="ignore"):
-        xs, ys = np.where(mask, edge_pts[..., 0], np.nan), np.where(mask, edge_pts[..., 1], np.nan)
-        near = (np.nanmin(xs, axis=1, initial=np.inf) < BORDER_PX) | (np.nanmin(ys, axis=1, initial=np.inf)
-                                                                       < BORDER_PX) \
-            | (np.nanmax(xs, axis=1, initial=-np.inf) > W - 1 - BORDER_PX) \
-            | (np.nanmax(ys, axis=1, initial=-np.inf) > H - 1 - BORDER_PX)
     a, b = axes[:, 0], axes[:, 1]
-    hab = ((a - b) / np.maximum(a + b, 1e-12)) ** 2
-    perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-    coverage = mask.sum(axis=1) / np.maximum(np.ceil(perim), 1.0)
-    rms = sampson_rms(edge_pts, mask, np.where(ok[:, None, None], conics, np.eye(3)))
+    J = np.full((D, 2, 2), np.nan)
+    J[ok] = local_steps(board, points[ok], c[ok])
+    near, coverage, rms, round_, fill = (np.empty(D, bool), np.empty(D), np.empty(D), np.empty(D), np.empty(D))
+    _dot_measures(np.ascontiguousarray(edge_pts, np.float64), np.ascontiguousarray(mask, np.bool_),
+                  np.ascontiguousarray(conics, np.float64), ok, np.ascontiguousarray(axes, np.float64),
+                  np.ascontiguousarray(ang, np.float64), J, float(W), float(H), BORDER_PX, near, coverage, rms,
+                  round_, fill)
     med_rms = median(rms[ok & np.isfinite(rms)]) if np.any(ok & np.isfinite(rms)) else 0.0
     res_limit = np.maximum.reduce([np.full(D, RESIDUAL_FLOOR_PX), RESIDUAL_SHARE * b,
                                    np.full(D, RESIDUAL_FACTOR * med_rms)])
     round_limit = MAX_ROUNDNESS + ROUNDNESS_PX / np.maximum(b, 1e-9)
     size_lo = SIZE_LIMITS[0] - SIZE_PX / np.maximum(b, 1e-9)
     size_hi = SIZE_LIMITS[1] + SIZE_PX / np.maximum(b, 1e-9)
-    J = local_steps(board, points[ok], c[ok])
-    round_ = np.full(D, np.nan)
-    fill = np.full(D, np.nan)
-    okJ = np.all(np.isfinite(J), axis=(1, 2))
-    detJ = np.linalg.det(J[okJ])
-    okJ[okJ] = np.abs(detJ) > 0
-    detJ = detJ[detJ != 0]
-    if np.any(okJ):
-        E = np.zeros((D, 2, 2))
-        cs, sn = np.cos(ang), np.sin(ang)
-        R = np.stack([np.stack([cs, -sn], -1), np.stack([sn, cs], -1)], 1)
-        E[:] = R @ (np.eye(2)[None] * np.stack([a * a, b * b], -1)[:, None, :]) @ R.transpose(0, 2, 1)
-        oi = np.nonzero(ok)[0][okJ]
-        Jinv = np.linalg.inv(J[okJ])
-        C = Jinv @ E[oi] @ Jinv.transpose(0, 2, 1)          # the dot on the board (pitch units)
-        w = np.linalg.eigvalsh(C)
-        round_[oi] = np.sqrt(np.maximum(w[:, 1], 1e-300) / np.maximum(w[:, 0], 1e-300))
-        fill[oi] = np.pi * a[oi] * b[oi] / np.abs(detJ)
     shade = np.zeros(D)
     grey = np.zeros(D)
     if gray is not None and np.any(ok):
@@ -388,6 +361,60 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
         elif np.isfinite(rel[k]) and rel[k] > size_hi[k] and board.has_markers:
             out[p] = f"{rel[k]:.0%} of the size of dots of its kind"
     return out
+
+
+@njit(cache=True, nogil=True)
+def _dot_measures(pts, mask, conics, ok, axes, ang, J, W, H, border_px, near, coverage, rms, round_, fill):
+    """What :func:`bad_dots` tests of each dot ``d`` (D,), written into the last five arrays: ``near``, an edge point
+    (``pts`` (D, M, 2) where ``mask``) within ``border_px`` of the image's outer pixel centres (``W``, ``H``);
+    ``coverage``, its edge points per px of its ellipse's perimeter (Ramanujan's approximation, ``axes`` (D, 2)
+    a, b); ``rms``, the RMS Sampson distance of its points from ``conics[d]`` (NaN without points); for the dots
+    where ``ok`` and the local lattice steps ``J[d]`` (2, 2) px per pitch are finite with a non-zero determinant:
+    ``round_``, the axis ratio of its ellipse (``ang`` rad) pulled back to the board by ``J^-1``, and ``fill``, its
+    area over the lattice cell's, ``pi a b / |det J|`` (NaN elsewhere). The 2 x 2 algebra in closed form
+    (numpy's LAPACK calls took ~30 us each on the few dots of a board)."""
+    D, M = mask.shape
+    for d in range(D):
+        x0 = y0 = np.inf
+        x1 = y1 = -np.inf
+        n = 0
+        ss = 0.0
+        for i in range(M):
+            if not mask[d, i]:
+                continue
+            x, y = pts[d, i, 0], pts[d, i, 1]
+            x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
+            dist = sampson_at(conics[d], x, y)
+            ss += dist * dist
+            n += 1
+        near[d] = x0 < border_px or y0 < border_px or x1 > W - 1 - border_px or y1 > H - 1 - border_px
+        a, b = axes[d, 0], axes[d, 1]
+        hab = ((a - b) / max(a + b, 1e-12)) ** 2
+        perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
+        coverage[d] = n / max(np.ceil(perim), 1.0)
+        rms[d] = np.sqrt(ss / n) if n > 0 else np.nan
+        round_[d] = np.nan
+        fill[d] = np.nan
+        j00, j01, j10, j11 = J[d, 0, 0], J[d, 0, 1], J[d, 1, 0], J[d, 1, 1]
+        det = j00 * j11 - j01 * j10
+        if not (ok[d] and np.isfinite(det) and det != 0.0):
+            continue
+        cs, sn = np.cos(ang[d]), np.sin(ang[d])
+        a2, b2 = a * a, b * b
+        e00 = cs * cs * a2 + sn * sn * b2               # E = R diag(a^2, b^2) R^T
+        e01 = cs * sn * (a2 - b2)
+        e11 = sn * sn * a2 + cs * cs * b2
+        i00, i01, i10, i11 = j11 / det, -j01 / det, -j10 / det, j00 / det
+        t00, t01 = i00 * e00 + i01 * e01, i00 * e01 + i01 * e11   # C = J^-1 E J^-T, symmetric
+        t10, t11 = i10 * e00 + i11 * e01, i10 * e01 + i11 * e11
+        c00 = t00 * i00 + t01 * i01
+        c01 = t00 * i10 + t01 * i11
+        c11 = t10 * i10 + t11 * i11
+        half_tr = 0.5 * (c00 + c11)
+        r = np.sqrt(0.25 * (c00 - c11) ** 2 + c01 * c01)
+        w_hi, w_lo = half_tr + r, half_tr - r
+        round_[d] = np.sqrt(max(w_hi, 1e-300) / max(w_lo, 1e-300))
+        fill[d] = np.pi * a * b / abs(det)
 
 
 def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray,
