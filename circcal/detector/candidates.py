@@ -105,13 +105,32 @@ def find_candidates(
     pts = np.ascontiguousarray(np.concatenate(todo).reshape(-1, 2), np.int64)
     meas = np.empty((len(todo), 12))
     _contour_measures(pts, starts, counts, float(min_area), float(max_area), meas)
-    for S, m10, m01, m20, m11, m02, P, hull, x0, y0, x1, y1 in meas.tolist():
+    geo = np.empty((len(todo), 7))
+    _blob_tests(meas, float(min_area), float(max_area), float(min_circularity), float(min_inertia),
+                float(min_convexity), W, H, geo)
+    for cx, cy, a, b, ang, S, cut in geo[geo[:, 0] == geo[:, 0]].tolist():   # (the kept blobs: no NaN)
+        c, axes, area = _upscale(np.array([cx, cy]), (a, b), S, scale)
+        out.append(Candidate(c, axes, ang, area, cut != 0.0))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _blob_tests(meas, min_area, max_area, min_circularity, min_inertia, min_convexity, W, H, out):
+    """The tests of :func:`find_candidates` on each blob's measures ``meas`` (C, 12) (:func:`_contour_measures`),
+    writing into ``out`` (C, 7) a kept blob's centre ``cx, cy``, semi-axes ``a, b``, angle, area and whether it
+    touches the border of the ``W`` x ``H`` mask (1.0), NaN rows for the others: the moments' tests first (area,
+    inertia ratio), then those of the whole contour (circularity ``4 pi S / P^2``, convexity ``S / hull area``).
+    The arithmetic of the Python expressions it replaced, in their order, but for squares as products (Python's
+    ``x ** 2`` calls libm's pow, which rounds a few squares one ulp off: starting ellipses move by ~1e-15 px, the
+    centres by < 1e-13 px on 2 of 617 views)."""
+    for i in range(len(meas)):
+        out[i, :] = np.nan
+        S, m10, m01, m20, m11, m02, P, hull = meas[i, 0], meas[i, 1], meas[i, 2], meas[i, 3], meas[i, 4], \
+            meas[i, 5], meas[i, 6], meas[i, 7]
         if not (min_area <= S <= max_area):
             continue
-        # the tests from the moments first, then those that need more of the contour (the same candidates)
         mu20, mu02, mu11 = m20 / S, m02 / S, m11 / S
         tr = mu20 + mu02
-        # (math on Python floats: numpy's values without numpy's per-scalar overhead)
         disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
         l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)   # principal second moments; a = 2 sqrt(l1) for an ellipse
         if l1 <= 0 or l2 / l1 < min_inertia:
@@ -120,12 +139,12 @@ def find_candidates(
             continue
         if hull <= 0 or S / hull < min_convexity:
             continue
-        cut = x0 <= 0 or y0 <= 0 or x1 + 1 >= W or y1 + 1 >= H
-        ang = 0.5 * math.atan2(2 * mu11, mu20 - mu02)
-        c, axes, area = _upscale(np.array([m10 / S, m01 / S]), (2.0 * math.sqrt(l1), 2.0 * math.sqrt(max(l2, 1e-12))),
-                                 S, scale)
-        out.append(Candidate(c, axes, ang, area, cut))
-    return out
+        x0, y0, x1, y1 = meas[i, 8], meas[i, 9], meas[i, 10], meas[i, 11]
+        out[i, 0], out[i, 1] = m10 / S, m01 / S
+        out[i, 2], out[i, 3] = 2.0 * math.sqrt(l1), 2.0 * math.sqrt(max(l2, 1e-12))
+        out[i, 4] = 0.5 * math.atan2(2 * mu11, mu20 - mu02)
+        out[i, 5] = S
+        out[i, 6] = 1.0 if (x0 <= 0 or y0 <= 0 or x1 + 1 >= W or y1 + 1 >= H) else 0.0
 
 
 def _upscale(centre: np.ndarray, axes: tuple[float, float], area: float, scale: int
