@@ -529,7 +529,7 @@ def _uneven_render():
 
 
 def test_batched_levels_equal_the_per_dot_estimate():
-    from circcal.detector.edges import _roi_boxes
+    from circcal.detector.edges import _pass_geometry
     from circcal.detector.ellipse import conic_params_batch
     from circcal.detector.levels import dot_levels_batch
 
@@ -537,7 +537,7 @@ def test_batched_levels_equal_the_per_dot_estimate():
     d = detect(img, BOARD)
     assert d.found, d.reason
     c, axes, _, _ = conic_params_batch(d.conics)
-    _, x0, y0, x1, y1 = _roi_boxes(c, axes, 1.5, img.shape)
+    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0)[5].T
     dark, plane, ok = dot_levels_batch(img, d.conics, np.stack([x0, y0, x1, y1], 1))
     assert np.all(ok)
     for k, Q in enumerate(d.conics):
@@ -552,7 +552,7 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     """stride 2 (a steering pass's levels): the dots of minor semi-axis >= 8 px take the levels of the pixels of
     every second row and column of their box, the smaller ones of every pixel (against the reference on those
     pixels); they agree with the full levels to the noise of a quarter of the pixels."""
-    from circcal.detector.edges import _roi_boxes
+    from circcal.detector.edges import _pass_geometry
     from circcal.detector.ellipse import conic_params_batch
     from circcal.detector.levels import STRIDE_MIN_MINOR_PX, dot_levels_from_params
 
@@ -560,7 +560,7 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     d = detect(img, BOARD)
     params = conic_params_batch(d.conics)
     c, axes = params[0], params[1]
-    _, x0, y0, x1, y1 = _roi_boxes(c, axes, 1.5, img.shape)
+    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0)[5].T
     boxes = np.stack([x0, y0, x1, y1], 1)
     dark, plane, ok = dot_levels_from_params(img, *params, boxes, 2)
     dark1, plane1, _ = dot_levels_from_params(img, *params, boxes)

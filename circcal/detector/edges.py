@@ -25,13 +25,13 @@ import functools
 import numpy as np
 
 from circcal.detector.curvature import U_TABLE, _shift_table, shift_at
-from circcal.detector.ellipse import conic_params_batch
+from circcal.detector.ellipse import _conic_params_kernel
 from circcal.detector.jit import njit
 from circcal.detector.levels import dot_levels_from_params
 from circcal.detector.robust import _median_of
 from circcal.detector.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.robust", "circcal.detector.curvature")
+KERNEL_IMPORTS = ("circcal.detector.robust", "circcal.detector.curvature", "circcal.detector.ellipse")
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
 __all__ = ["PROFILE_SPACING_PX", "PROFILE_STEP_PX", "subpixel_edge_points_batch"]
@@ -83,31 +83,18 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     edge without being an outlier. ``level_stride``: the dots' levels from every this many rows and columns of their
     pixels (:func:`~circcal.detector.levels.dot_levels_from_params`; for a pass that only steers the next).
     """
-    conics = np.asarray(conics, np.float64)
+    conics = np.ascontiguousarray(conics, np.float64)
     D = len(conics)
-    step = PROFILE_STEP_PX
-    errors: list[str | None] = [None] * D
-    c, axes, ang, okc = conic_params_batch(conics)
-    for d in np.nonzero(~okc)[0]:
-        errors[d] = "conic is not a real ellipse"
-    a_ = np.where(okc, axes[:, 0], 1.0)
-    b_ = np.where(okc, axes[:, 1], 1.0)
-    c = np.where(okc[:, None], c, 0.0)
-    ang = np.where(okc, ang, 0.0)
-    ab = np.stack([a_, b_], 1)
-    hw, x0, y0, x1, y1 = _roi_boxes(c, ab, src.sigma, src.shape)
-    live = okc & (y1 - y0 >= MIN_ROI_SIDE_PX) & (x1 - x0 >= MIN_ROI_SIDE_PX)
-    if not np.any(live):
-        return np.zeros((D, 0, 2)), np.zeros((D, 0), bool), errors
-    # one profile per spacing_px of perimeter (Ramanujan's approximation)
-    hab = ((a_ - b_) / (a_ + b_)) ** 2
-    perim = np.pi * (a_ + b_) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-    n = np.maximum(MIN_PROFILES, np.ceil(perim / spacing_px)).astype(int)
-    n[~live] = 0
-    N = int(n.max())
-    S, klen, rank = _offset_table(hw, step)
+    H, W = src.shape
+    c, ab, ang, okc, hw, boxes, live, n = _pass_geometry(conics, float(src.sigma), H, W, float(spacing_px))
+    errors: list[str | None] = [None if k else "conic is not a real ellipse" for k in okc.tolist()]
+    N = int(n.max()) if D else 0
+    if N == 0:
+        empty = (np.zeros((D, 0, 2)), np.zeros((D, 0), bool), errors)
+        return (*empty, np.zeros((D, 0))) if with_slack else empty
+    a_, b_ = np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1])
+    S, klen, rank = _offset_table(hw, PROFILE_STEP_PX)
     # base points and outward normals, profiles entirely inside the ROI, the extent of those to be sampled
-    boxes = np.stack([x0, y0, x1, y1], 1).astype(np.int64)
     base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
                                                             S[np.arange(D), klen - 1], boxes)
     crop = src.crops_for(ext)
@@ -193,19 +180,47 @@ def _edge_blur_kernel(at, rise, plane, ratio, ok, nominal, out):
         out[d] = max(nominal, _median_of(buf, n)) if n else nominal
 
 
-def _roi_boxes(c: np.ndarray, axes: np.ndarray, sigma: float, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """Per-dot profile half length ``hw`` (D,) px and region of interest ``x0, y0, x1, y1`` (D,) int (exclusive ends,
-    clipped to the image ``shape`` (H, W)) of the ellipses with centres ``c`` (D, 2) and semi-axes ``axes`` (D, 2)
-    px, for smoothing ``sigma`` px. The box is square (the major semi-axis both ways: any orientation fits)."""
-    H, W = shape
-    a, b = axes[:, 0], axes[:, 1]
-    hw = np.minimum(PROFILE_HALF_MAX_PX, np.maximum(PROFILE_HALF_MIN_PX, PROFILE_HALF_PER_MINOR * b))
-    pad = hw + ROI_PAD_SIGMAS * sigma + ROI_PAD_PX
-    x0 = np.maximum(0, np.floor(c[:, 0] - a - pad)).astype(int)
-    x1 = np.minimum(W, np.ceil(c[:, 0] + a + pad).astype(int) + 1)
-    y0 = np.maximum(0, np.floor(c[:, 1] - a - pad)).astype(int)
-    y1 = np.minimum(H, np.ceil(c[:, 1] + a + pad).astype(int) + 1)
-    return hw, x0, y0, x1, y1
+@njit(cache=True, nogil=True)
+def _pass_geometry(conics, sigma, H, W, spacing_px):
+    """What a measuring pass needs of the ellipses ``conics`` (D, 3, 3) before it samples the image (H, W) smoothed
+    by ``sigma`` px: ``(c (D, 2), ab (D, 2), ang (D,), okc (D,), hw (D,), boxes (D, 4), live (D,), n (D,))``.
+
+    The ellipses' centres, semi-axes (a, b) and angles (:func:`~circcal.detector.ellipse.conic_params_batch`'s
+    values; a conic that is no real ellipse: ``okc`` false, centre 0, axes 1, angle 0); the profile half length
+    ``hw = clip(PROFILE_HALF_PER_MINOR b, PROFILE_HALF_MIN_PX, PROFILE_HALF_MAX_PX)`` and each dot's region of
+    interest ``x0, y0, x1, y1`` int (exclusive ends, clipped to the image): square, the major semi-axis both ways
+    (any orientation fits) plus ``hw``, :data:`ROI_PAD_SIGMAS` smoothing sigmas and :data:`ROI_PAD_PX`; ``live``:
+    a real ellipse whose region is at least :data:`MIN_ROI_SIDE_PX` wide and high; ``n``: its profiles, one per
+    ``spacing_px`` of perimeter (Ramanujan's approximation), at least :data:`MIN_PROFILES` (0 where not ``live``).
+    The numpy expressions it replaced, in their order."""
+    D = len(conics)
+    c = np.empty((D, 2))
+    ab = np.empty((D, 2))
+    ang = np.empty(D)
+    okc = np.empty(D, np.bool_)
+    _conic_params_kernel(conics, c, ab, ang, okc)
+    hw = np.empty(D)
+    boxes = np.empty((D, 4), np.int64)
+    live = np.empty(D, np.bool_)
+    n = np.empty(D, np.int64)
+    for d in range(D):
+        if not okc[d]:
+            c[d, 0] = c[d, 1] = ang[d] = 0.0
+            ab[d, 0] = ab[d, 1] = 1.0
+        a, b = ab[d, 0], ab[d, 1]
+        h = min(PROFILE_HALF_MAX_PX, max(PROFILE_HALF_MIN_PX, PROFILE_HALF_PER_MINOR * b))
+        pad = h + ROI_PAD_SIGMAS * sigma + ROI_PAD_PX
+        hw[d] = h
+        x0 = int(max(0.0, np.floor(c[d, 0] - a - pad)))
+        x1 = min(W, int(np.ceil(c[d, 0] + a + pad)) + 1)
+        y0 = int(max(0.0, np.floor(c[d, 1] - a - pad)))
+        y1 = min(H, int(np.ceil(c[d, 1] + a + pad)) + 1)
+        boxes[d, 0], boxes[d, 1], boxes[d, 2], boxes[d, 3] = x0, y0, x1, y1
+        live[d] = okc[d] and y1 - y0 >= MIN_ROI_SIDE_PX and x1 - x0 >= MIN_ROI_SIDE_PX
+        hab = ((a - b) / (a + b)) ** 2
+        perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
+        n[d] = int(max(float(MIN_PROFILES), np.ceil(perim / spacing_px))) if live[d] else 0
+    return c, ab, ang, okc, hw, boxes, live, n
 
 
 def _offset_table(hw: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

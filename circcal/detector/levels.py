@@ -70,8 +70,6 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     steer a later one)."""
     D = len(okc)
     H, W = np.shape(gray)
-    boxes = np.clip(np.asarray(boxes, np.int64).reshape(D, 4), 0, np.array([W, H, W, H]))   # (the compiled pass
-    # reads only inside the image)
     dark = np.full(D, np.nan)
     plane = np.full((D, 3), np.nan)
     ok = np.zeros(D, bool)
@@ -80,17 +78,11 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     gray = np.ascontiguousarray(gray)
     if gray.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
         gray = gray.astype(np.float64)
-    # the ellipse as rho^2 = qa dx^2 + qb dx dy + qc dy^2 (1 on the boundary) and the radii bounding the regions
-    a, b = np.where(okc, axes[:, 0], 1.0), np.where(okc, axes[:, 1], 1.0)
-    ca, sa = np.cos(ang), np.sin(ang)
-    ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
-    q = np.stack([ca * ca * ia2 + sa * sa * ib2, 2.0 * ca * sa * (ia2 - ib2), sa * sa * ia2 + ca * ca * ib2], 1)
-    t_in = 1.0 - EDGE_GAP_PX / b
-    t = np.stack([np.where(t_in > 0, t_in * t_in, -1.0), (1.0 + EDGE_GAP_PX / b) ** 2,
-                  (1.0 + (EDGE_GAP_PX + np.maximum(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)) / b) ** 2], 1)
-    st = np.where(b >= STRIDE_MIN_MINOR_PX * 0.5 * stride, int(stride), 1).astype(np.int64)
-    _levels_kernel(gray, np.where(okc[:, None], c, 0.0), q, t, boxes, st, okc,
-                   _HIST_BINS_U8 if gray.dtype == np.uint8 else 0, MAD_TO_SIGMA, dark, plane, ok)
+    # (numpy's cos and sin, whose SIMD loops may round differently from the C library's the kernels call)
+    _levels_kernel(gray, np.ascontiguousarray(c, np.float64), np.ascontiguousarray(axes, np.float64),
+                   np.cos(ang), np.sin(ang), np.ascontiguousarray(boxes, np.int64).reshape(D, 4),
+                   int(stride), np.ascontiguousarray(okc, np.bool_), _HIST_BINS_U8 if gray.dtype == np.uint8 else 0,
+                   MAD_TO_SIGMA, dark, plane, ok)
     return dark, plane, ok
 
 
@@ -181,17 +173,40 @@ def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near
 
 
 @njit(cache=True, nogil=True)
-def _levels_kernel(gray, c, q, t, boxes, stride, okc, nbins, mad_to_sigma, dark, plane, ok):
+def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_to_sigma, dark, plane, ok):
     """The per-pixel work of :func:`dot_levels_batch`, one dot at a time; writes ``dark``, ``plane``, ``ok``.
 
-    ``c`` (D, 2) centres, ``q`` (D, 3) the ellipses as ``rho^2 = q0 dx^2 + q1 dx dy + q2 dy^2``, ``t`` (D, 3) the
-    ``rho^2`` bounds of the inside and of the ring, ``boxes`` (D, 4) the pixels to visit (``stride`` (D,) int: those
-    of every s-th row and column from the box's corner), ``nbins`` histogram bins
-    for the medians (0: by selection), ``mad_to_sigma`` the robust scale factor."""
+    ``c`` (D, 2) centres, ``axes`` (D, 2) semi-axes, ``cos_a``, ``sin_a`` (D,) of the angles, ``boxes`` (D, 4) the
+    pixels to visit (clipped to the image here); per dot the ellipse as ``rho^2 = q0 dx^2 + q1 dx dy + q2 dy^2``
+    (1 on the boundary) and the ``rho^2`` bounds of the inside and of the ring (the numpy expressions of
+    :func:`dot_levels_from_params` before, in their order); ``stride`` s: the pixels of every s-th row and column
+    from the box's corner for the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2; ``nbins`` histogram
+    bins for the medians (0: by selection), ``mad_to_sigma`` the robust scale factor."""
     D = len(c)
+    H, W = gray.shape
+    q = np.empty((D, 3))
+    t = np.empty((D, 3))
+    st_ = np.empty(D, np.int64)
+    bx = np.empty((D, 4), np.int64)
+    cc = np.empty((D, 2))
+    for d in range(D):
+        a, b = (axes[d, 0], axes[d, 1]) if okc[d] else (1.0, 1.0)
+        ca, sa = cos_a[d], sin_a[d]
+        ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
+        q[d, 0] = ca * ca * ia2 + sa * sa * ib2
+        q[d, 1] = 2.0 * ca * sa * (ia2 - ib2)
+        q[d, 2] = sa * sa * ia2 + ca * ca * ib2
+        t_in = 1.0 - EDGE_GAP_PX / b
+        t[d, 0] = t_in * t_in if t_in > 0 else -1.0
+        t[d, 1] = (1.0 + EDGE_GAP_PX / b) ** 2
+        t[d, 2] = (1.0 + (EDGE_GAP_PX + max(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)) / b) ** 2
+        st_[d] = stride if b >= STRIDE_MIN_MINOR_PX * 0.5 * stride else 1
+        for k, top in ((0, W), (1, H), (2, W), (3, H)):    # (the pass reads only inside the image)
+            bx[d, k] = min(max(boxes[d, k], 0), top)
+        cc[d, 0], cc[d, 1] = (c[d, 0], c[d, 1]) if okc[d] else (0.0, 0.0)
     npx = 1
     for d in range(D):
-        npx = max(npx, max(boxes[d, 2] - boxes[d, 0], 0) * max(boxes[d, 3] - boxes[d, 1], 0))
+        npx = max(npx, max(bx[d, 2] - bx[d, 0], 0) * max(bx[d, 3] - bx[d, 1], 0))
     inner = np.empty(npx)
     rx = np.empty(npx)
     ry = np.empty(npx)
@@ -207,8 +222,8 @@ def _levels_kernel(gray, c, q, t, boxes, stride, okc, nbins, mad_to_sigma, dark,
     for d in range(D):
         if not okc[d]:
             continue
-        x0, y0, x1, y1 = boxes[d, 0], boxes[d, 1], boxes[d, 2], boxes[d, 3]
-        cx, cy = c[d, 0], c[d, 1]
+        x0, y0, x1, y1 = bx[d, 0], bx[d, 1], bx[d, 2], bx[d, 3]
+        cx, cy = cc[d, 0], cc[d, 1]
         qa, qb, qc = q[d, 0], q[d, 1], q[d, 2]
         t_in, t_lo, t_hi = t[d, 0], t[d, 1], t[d, 2]
         n_in = 0
@@ -216,7 +231,7 @@ def _levels_kernel(gray, c, q, t, boxes, stride, okc, nbins, mad_to_sigma, dark,
         if counted:
             hist[:] = 0
             hist_ring[:] = 0
-        st = stride[d]
+        st = st_[d]
         for y in range(y0, y1, st):
             dy = y - cy
             xa, xb = _row_span(dy, cx, qa, qb, qc, t_hi, x0, x1)
