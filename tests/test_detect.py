@@ -536,7 +536,7 @@ def test_batched_levels_equal_the_per_dot_estimate():
     img, _ = _uneven_render()
     d = detect(img, BOARD)
     assert d.found, d.reason
-    c, axes, _, _ = conic_params_batch(d.conics)
+    c = conic_params_batch(d.conics)[0]
     x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0)[5].T
     dark, plane, ok = dot_levels_batch(img, d.conics, np.stack([x0, y0, x1, y1], 1))
     assert np.all(ok)

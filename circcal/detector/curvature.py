@@ -118,7 +118,7 @@ def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
         s = table[0]
     elif u == u_table[n - 1]:
         s = table[n - 1]
-    elif u != u:        # NaN
+    elif np.isnan(u):
         s = u
     else:               # np.interp's slope and sum: u_table[j] <= u < u_table[j + 1]
         lo, hi = 0, n - 1
@@ -131,6 +131,6 @@ def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
         slope = (table[lo + 1] - table[lo]) / (u_table[lo + 1] - u_table[lo])
         s = slope * (u - u_table[lo]) + table[lo]
     fade = min(max((u - MODEL_FROM_U) / (MODEL_FULL_U - MODEL_FROM_U), 0.0), 1.0)
-    if fade != fade:
+    if np.isnan(u):     # (min and max would not pass NaN on)
         fade = u
     return sigma_t * s * fade, sigma_t * s * (1.0 - fade)

@@ -120,8 +120,9 @@ def _fit_pass_kernel(P, mask, slack, min_px, sigmas, mad_to_sigma, min_points, Q
     (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.ellipse._fit_kernel`), then the points
     within the outlier rule (the Sampson distances within ``max(sigmas * robust sigma, min_px + slack)``, the
     robust sigma from the median absolute deviation of each row: :func:`~circcal.detector.robust.mad_inliers`;
-    ``slack`` (D, M) each point's uncorrected curvature shift), refitted once to those where some were left out and ``min_points`` remain: their
-    ``mask`` rows become the kept points, ``Q`` and ``err`` the refit's. The numpy steps' values, in their order."""
+    ``slack`` (D, M) each point's uncorrected curvature shift), refitted once to those where some were left out and
+    ``min_points`` remain: their ``mask`` rows become the kept points, ``Q`` and ``err`` the refit's. The numpy
+    steps' values, in their order."""
     D, M = mask.shape
     _fit_kernel(P, mask, Q, err)
     m = np.zeros((D, M), np.bool_)

@@ -18,7 +18,8 @@ import numpy as np
 from circcal.detector.jit import njit
 from circcal.errors import ImageError
 
-__all__ = ["as_gray", "decode_image", "histogram_u8", "normalise_u8", "read_image", "read_image_messages", "stretch_percentiles"]
+__all__ = ["as_gray", "decode_image", "histogram_u8", "normalise_u8", "read_image", "read_image_messages",
+           "stretch_percentiles"]
 
 MIN_IMAGE_SIDE = 8
 """Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""

@@ -69,7 +69,6 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     column of their box (from its corner): ~1/s^2 of the work, levels ~s times noisier (for measurements that only
     steer a later one)."""
     D = len(okc)
-    H, W = np.shape(gray)
     dark = np.full(D, np.nan)
     plane = np.full((D, 3), np.nan)
     ok = np.zeros(D, bool)

@@ -17,8 +17,8 @@ from circcal.detector.jit import njit
 KERNEL_IMPORTS = ("circcal.detector.image",)
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
 
-__all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales", "segmentations",
-           "shrink", "noise_sigma_u8", "speckled"]
+__all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales",
+           "segmentations", "shrink", "noise_sigma_u8", "speckled"]
 
 GUIDED_RADIUS_DIVISOR = 400
 """Guided-filter radius = the shorter image side / this (px): ~1 px of smoothing per 400 px, a fraction of the smallest

@@ -314,7 +314,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     ok &= okc
     for k in np.nonzero(~okc & np.array([e is None for e in errors]))[0]:
         out[int(points[k])] = "unmeasurable: no real ellipse"
-    a, b = axes[:, 0], axes[:, 1]
+    b = axes[:, 1]
     J = np.full((D, 2, 2), np.nan)
     J[ok] = local_steps(board, points[ok], c[ok])
     near, coverage, rms, round_, fill = (np.empty(D, bool), np.empty(D), np.empty(D), np.empty(D), np.empty(D))
