@@ -14,7 +14,7 @@ All dots are measured at once; the per-pixel work is compiled (numba, cached on 
 nearest the current boundary first, each spline sample (:func:`_spline_at`) computed once when first needed; the
 nearest crossing is the same as with the whole profile sampled), and the points with their curvature shift
 (:func:`_edge_points_kernel`). The compiled functions call each other and the kernels of the modules in
-:data:`KERNEL_IMPORTS` (robust's selection, curvature's per-point shift).
+:data:`KERNEL_IMPORTS` (robust's selection, curvature's per-point shift, ellipse's parameters).
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
@@ -25,7 +25,7 @@ import functools
 import numpy as np
 
 from circcal.detector.curvature import U_TABLE, _shift_table, shift_at
-from circcal.detector.ellipse import _conic_params_kernel
+from circcal.detector.ellipse import _conic_params_kernel, perimeter
 from circcal.detector.jit import njit
 from circcal.detector.levels import dot_levels_from_params
 from circcal.detector.robust import _median_of
@@ -217,9 +217,7 @@ def _pass_geometry(conics, sigma, H, W, spacing_px):
         y1 = min(H, int(np.ceil(c[d, 1] + a + pad)) + 1)
         boxes[d, 0], boxes[d, 1], boxes[d, 2], boxes[d, 3] = x0, y0, x1, y1
         live[d] = okc[d] and y1 - y0 >= MIN_ROI_SIDE_PX and x1 - x0 >= MIN_ROI_SIDE_PX
-        hab = ((a - b) / (a + b)) ** 2
-        perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-        n[d] = int(max(float(MIN_PROFILES), np.ceil(perim / spacing_px))) if live[d] else 0
+        n[d] = int(max(float(MIN_PROFILES), np.ceil(perimeter(a, b) / spacing_px))) if live[d] else 0
     return c, ab, ang, okc, hw, boxes, live, n
 
 

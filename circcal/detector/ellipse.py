@@ -489,6 +489,14 @@ def _sampson_kernel(P, Q, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def perimeter(a, b):
+    """Perimeter (px) of the ellipse of semi-axes ``a``, ``b`` px: Ramanujan's second approximation (relative error
+    5e-10 at an axis ratio of 1:2, 2.5e-7 at 1:4, 1.2e-5 at 1:10, against the complete elliptic integral)."""
+    hab = ((a - b) / max(a + b, 1e-12)) ** 2
+    return np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def sampson_at(Q, x, y):
     """The Sampson distance (px, signed) of the point ``(x, y)`` from the conic ``Q`` (3, 3): ``h Q`` as numpy's
     matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2`` over the gradient's norm

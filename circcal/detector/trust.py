@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.ellipse import conic_params_batch, sampson_at
+from circcal.detector.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.jit import njit
 from circcal.detector.robust import median, row_medians
 
@@ -389,9 +389,7 @@ def _dot_measures(pts, mask, conics, ok, axes, ang, J, W, H, border_px, near, co
             n += 1
         near[d] = x0 < border_px or y0 < border_px or x1 > W - 1 - border_px or y1 > H - 1 - border_px
         a, b = axes[d, 0], axes[d, 1]
-        hab = ((a - b) / max(a + b, 1e-12)) ** 2
-        perim = np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
-        coverage[d] = n / max(np.ceil(perim), 1.0)
+        coverage[d] = n / max(np.ceil(perimeter(a, b)), 1.0)
         rms[d] = np.sqrt(ss / n) if n > 0 else np.nan
         round_[d] = np.nan
         fill[d] = np.nan
