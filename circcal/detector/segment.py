@@ -110,7 +110,7 @@ def guided_filter(gray_u8: np.ndarray, radius: int, eps: float, hist: np.ndarray
     their steps written out with ``cv2.boxFilter`` and float32 arithmetic give them (the same to the bit, tested), in
     one compiled pass over the rows (:func:`_guided_kernel`): the rows in flight are held in small ring buffers, so a
     frame of any size streams through the cache once, where the ten whole-image passes of the written-out filter
-    each went through memory (3 MP: ~12 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own
+    each went through memory (3 MP: ~13 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own
     filter rounds a few pixels differently: at most one grey level apart, on ~1e-4 of a board image's pixels
     (0.3 % of pure noise's; tests/test_detect.py)."""
     img = np.ascontiguousarray(gray_u8, np.uint8)
