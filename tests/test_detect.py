@@ -807,6 +807,7 @@ def test_otsu_threshold_from_the_histogram_is_opencvs():
         t = otsu_threshold(np.bincount(img.ravel(), minlength=256))
         assert t == int(t_cv)
         assert np.array_equal(cv2.threshold(img, t, 255, cv2.THRESH_BINARY_INV)[1], mask_cv)
+    assert otsu_threshold(np.zeros(256, np.int64)) == 0     # (no pixels: no division by their count)
 
 
 def test_compiled_histogram_is_numpys_bincount():

@@ -260,8 +260,9 @@ def _slide(v1, v2, xr, r, h1, h2):
 def otsu_threshold(hist: np.ndarray) -> int:
     """Otsu's threshold of an 8-bit image from its histogram ``hist`` (256,): the level ``t`` that maximises the
     between-class variance of ``<= t`` and ``> t``, as ``cv2.threshold(..., THRESH_OTSU)`` computes it (the same
-    value, tested), without its own pass over the pixels (:func:`_otsu_kernel`)."""
-    return int(_otsu_kernel(np.ascontiguousarray(hist, np.int64)))
+    value, tested), without its own pass over the pixels (:func:`_otsu_kernel`); 0 for an empty histogram."""
+    h = np.ascontiguousarray(hist, np.int64)
+    return int(_otsu_kernel(h)) if h.sum() > 0 else 0
 
 
 @njit(cache=True, nogil=True)
