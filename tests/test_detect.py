@@ -1043,3 +1043,36 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
         shift, rest = numpy_shift(a_, b_, cos_t, sin_t, sigma_t)
         assert np.array_equal(pts[..., 0], 0.0 + (0.0 + shift) * 1.0, equal_nan=True)
         assert np.array_equal(slack, rest, equal_nan=True)
+
+
+def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_where_not(monkeypatch):
+    # the filter is skipped on an image whose noise is below GUIDED_MIN_NOISE: there it would move no flat pixel
+    # across a threshold, only edge pixels, and the candidates (the edge fit's starts) stay where they were
+    from circcal.detector import segment
+    from circcal.detector.candidates import find_candidates
+    from circcal.detector.image import normalise_u8
+    from circcal.detector.jit import synthetic_board
+
+    board_img, _ = synthetic_board()
+    clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
+    noisy = normalise_u8(np.clip(clean + np.random.default_rng(8).normal(0, 8.0, clean.shape), 0, 255)
+                         .astype(np.uint8))
+    calls = []
+    real = segment.guided_filter
+    monkeypatch.setattr(segment, "guided_filter", lambda *a, **k: calls.append(1) or real(*a, **k))
+    s_clean, s_noisy = segment.noise_sigma_u8(clean), segment.noise_sigma_u8(noisy)
+    assert s_clean <= segment.GUIDED_MIN_NOISE < s_noisy
+    masks = dict(segment.segmentations(clean, s_clean))
+    assert not calls
+    dict(segment.segmentations(noisy, s_noisy))
+    assert calls
+    filtered = dict(segment.segmentations(clean))        # (no noise given: always filtered)
+    for name in ("otsu", *[k for k in masks if k != "otsu"]):
+        differ = masks[name] != filtered[name]
+        edge = cv2.morphologyEx(filtered[name], cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+        assert not np.any(differ & ~edge), name         # flat areas: the same side of every threshold
+    a = find_candidates(masks["otsu"], min_area=12.0, max_area=1e5)
+    b = find_candidates(filtered["otsu"], min_area=12.0, max_area=1e5)
+    assert len(a) == len(b) == 30
+    pa, pb = np.array([c.centre for c in a]), np.array([c.centre for c in b])
+    assert np.abs(np.sort(pa, axis=0) - np.sort(pb, axis=0)).max() < 0.1

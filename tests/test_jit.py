@@ -32,7 +32,8 @@ def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy(tmp_p
             "from circcal.detector import jit\n"
             "from circcal.detector.find import detect\n"
             "img, board = jit.synthetic_board()\n"
-            "for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):\n"
+            "noisy = np.clip(img + np.random.default_rng(3).normal(0, 8, img.shape), 0, 255).astype(np.uint8)\n"
+            "for im in (noisy, img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):\n"
             "    d = detect(im, board)\n"
             "    assert d.found\n"
             f"np.save({str(tmp_path / 'aot.npy')!r}, d.centres)\n"
@@ -59,12 +60,13 @@ def test_the_stored_curvature_table_is_the_computed_one(tmp_path):
 def test_other_argument_types_run_under_numba_not_the_built_code():
     code = ("import sys, numpy as np\n"
             "from circcal.detector import ellipse\n"
-            "p = np.random.default_rng(0).normal(size=(3, 12, 2)); q = np.tile(np.eye(3), (3, 1, 1))\n"
-            "a, b = np.empty((3, 12)), np.empty((3, 12))\n"
-            "ellipse._sampson_kernel(p, q, a)\n"
+            "q = ellipse.conic_from_params_batch(np.array([[3.0, 4.0], [9.0, 1.0]]), np.array([[5.0, 2.0], [3.0, 1.0]]),"
+            " np.array([0.3, -1.0]))\n"
+            "a = ellipse.conic_params_batch(q)\n"            # (the build's types)
             "before = 'numba' in sys.modules\n"
-            "ellipse._sampson_kernel(p.astype(np.float32)[:, ::-1], q, b)\n"  # float32, not contiguous
-            "print(before, 'numba' in sys.modules, np.allclose(a[:, ::-1], b, rtol=1e-5))\n")
+            "out = np.empty((2, 2)), np.empty((2, 2)), np.empty(2), np.empty(2, bool)\n"
+            "ellipse._conic_params_kernel(q.astype(np.float32)[::-1], *out)\n"  # float32, not contiguous
+            "print(before, 'numba' in sys.modules, np.allclose(a[0][::-1], out[0], rtol=1e-5))\n")
     assert _run(code).split() == ["False", "True", "True"]
 
 

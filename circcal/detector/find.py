@@ -4,9 +4,9 @@ another camera model.
 :func:`detect` runs, on one image:
 
 1. grey conversion and a contrast stretch (:mod:`circcal.detector.image`), and segmentation that survives
-   uneven/strong/weak illumination (:mod:`circcal.detector.segment`), on a copy shrunk to a short side of 360-719 px
-   first for images of 720 px and more (full resolution when that fails, a finer scale when the dots are small; only
-   the starting ellipses come from it);
+   uneven/strong/weak illumination (:mod:`circcal.detector.segment`; the guided filter where the image is noisy), on
+   a copy shrunk to a short side of 360-719 px first for images of 720 px and more (full resolution when that fails,
+   a finer scale when the dots are small; only the starting ellipses come from it);
 2. candidate dots from contours, filtered by area (limits scaled to the image and the board's dot density),
    circularity, inertia ratio and convexity (:mod:`circcal.detector.candidates`);
 3. grid recognition and ordering in OpenCV's object-point order with circcal's orientation rule
@@ -220,9 +220,10 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
         img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2)
-        if noise_sigma_u8(img) > MAX_STRETCHED_NOISE:     # nothing but noise at this scale
+        noise = noise_sigma_u8(img)
+        if noise > MAX_STRETCHED_NOISE:     # nothing but noise at this scale
             continue
-        for name, mask in segmentations(img):
+        for name, mask in segmentations(img, noise):
             deadline.check()
             if speckled(mask):
                 continue

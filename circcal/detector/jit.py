@@ -322,15 +322,18 @@ def synthetic_board() -> tuple[np.ndarray, "Board"]:
 
 
 def _exercise() -> None:
-    """Run the detector on :func:`synthetic_board` as uint8, uint16, float32 and float64 images (what image files
-    and numpy callers give it: a float64 image is what a renderer hands over), so that numba compiles each kernel
-    for the argument types detection gives it."""
+    """Run the detector on :func:`synthetic_board` as uint8 (clean and noisy), uint16, float32 and float64 images
+    (what image files and numpy callers give it: a float64 image is what a renderer hands over), so that numba
+    compiles each kernel for the argument types detection gives it."""
     from circcal.detector.find import detect, recorrect
     from circcal.detector.segment import shrink
     from circcal.model import Camera
 
     img, board = synthetic_board()
-    for im in (img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0, img.astype(np.float64) / 255.0):
+    noisy = np.clip(img + np.random.default_rng(0).normal(0.0, 8.0, img.shape), 0, 255).astype(np.uint8)   # (the
+    # guided filter runs on noisy images only)
+    for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0,
+               img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
         if not d.found:
             raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
