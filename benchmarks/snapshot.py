@@ -113,7 +113,8 @@ def main(argv: list[str]) -> int:
     snap = record()
     print(f"{len(snap)} images detected in {time.perf_counter() - t0:.0f} s")
     if argv[0] == "record":
-        np.save(argv[1], np.array(snap, dtype=object), allow_pickle=True)
+        with open(argv[1], "wb") as f:     # (to the name given: np.save would append .npy to a path)
+            np.save(f, np.array(snap, dtype=object), allow_pickle=True)
         return 0
     base = np.load(argv[1], allow_pickle=True).item()
     return 1 if compare(base, snap) else 0

@@ -880,15 +880,26 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px,
 @pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
 @pytest.mark.parametrize("shape", [(1, 1), (3, 7), (360, 640)])
 def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top, shape):
-    from circcal.detector.image import _histogram_percentiles, normalise_u8
+    from circcal.detector.image import _counts, _histogram_percentiles, normalise_u8
 
     rng = np.random.default_rng(shape[0])
     img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)   # not the full range: the stretch acts
     q = (0.0, 0.5, 37.0, 99.5, 100.0)
-    assert np.allclose(_histogram_percentiles(img, q), np.percentile(img, q), rtol=0, atol=1e-9)
+    assert np.allclose(_histogram_percentiles(_counts(img), q), np.percentile(img, q), rtol=0, atol=1e-9)
     lo, hi = np.percentile(img, [0.5, 99.5])
     expect = np.clip((img.astype(np.float64) - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
-    assert np.array_equal(normalise_u8(img), expect)
+    hist = np.full(256, 3, np.int64)                # (added to, as the segmentation's counts are)
+    assert np.array_equal(normalise_u8(img, hist=hist), expect)
+    assert np.array_equal(hist, 3 + np.bincount(expect.ravel(), minlength=256))   # the result's counts, carried
+
+
+def test_contrast_stretch_of_a_float_image_counts_its_result():
+    from circcal.detector.image import normalise_u8
+
+    img = np.random.default_rng(3).normal(0.5, 0.2, (90, 120)).astype(np.float32)
+    hist = np.zeros(256, np.int64)
+    out = normalise_u8(img, hist=hist)
+    assert np.array_equal(hist, np.bincount(out.ravel(), minlength=256))
 
 
 def test_cli_board_rule_is_the_same_for_every_command():
@@ -1063,16 +1074,45 @@ def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_whe
     s_clean, s_noisy = segment.noise_sigma_u8(clean), segment.noise_sigma_u8(noisy)
     assert s_clean <= segment.GUIDED_MIN_NOISE < s_noisy
     masks = dict(segment.segmentations(clean, s_clean))
-    assert not calls
-    dict(segment.segmentations(noisy, s_noisy))
-    assert calls
+    assert not calls and list(masks)[0] == "otsu" and "guided-otsu" not in masks
+    noisy_masks = segment.segmentations(noisy, s_noisy)
+    assert next(noisy_masks)[0] == "otsu" and not calls     # plain Otsu first: a board found there needs no filter
+    assert next(noisy_masks)[0] == "guided-otsu" and calls
     filtered = dict(segment.segmentations(clean))        # (no noise given: always filtered)
-    for name in ("otsu", *[k for k in masks if k != "otsu"]):
-        differ = masks[name] != filtered[name]
-        edge = cv2.morphologyEx(filtered[name], cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+    for name in masks:
+        other = "guided-otsu" if name == "otsu" else name
+        differ = masks[name] != filtered[other]
+        edge = cv2.morphologyEx(filtered[other], cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
         assert not np.any(differ & ~edge), name         # flat areas: the same side of every threshold
     a = find_candidates(masks["otsu"], min_area=12.0, max_area=1e5)
-    b = find_candidates(filtered["otsu"], min_area=12.0, max_area=1e5)
+    b = find_candidates(filtered["guided-otsu"], min_area=12.0, max_area=1e5)
+    assert len(a) == len(b) == 30
+    pa, pb = np.array([c.centre for c in a]), np.array([c.centre for c in b])
+    assert np.abs(np.sort(pa, axis=0) - np.sort(pb, axis=0)).max() < 0.1
+
+
+@pytest.mark.parametrize("sigma", [8.0, 16.0])
+def test_plain_otsu_of_a_noisy_image_differs_from_the_filtered_one_only_on_edges(sigma):
+    # why a noisy image is thresholded at Otsu's level before it is filtered: that level lies ~half the contrast
+    # (here ~130 grey levels) from the dots' and the board's, many noise sigmas (4 and 8 after the stretch), so the
+    # filter would change no flat pixel's side of it
+    from circcal.detector import segment
+    from circcal.detector.candidates import find_candidates
+    from circcal.detector.image import normalise_u8
+    from circcal.detector.jit import synthetic_board
+
+    board_img, _ = synthetic_board()
+    clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
+    noisy = normalise_u8(np.clip(clean + np.random.default_rng(8).normal(0, sigma, clean.shape), 0, 255)
+                         .astype(np.uint8))
+    noise = segment.noise_sigma_u8(noisy)
+    assert noise > segment.GUIDED_MIN_NOISE
+    masks = dict(segment.segmentations(noisy, noise))
+    plain, filtered = masks["otsu"], masks["guided-otsu"]
+    edge = cv2.morphologyEx(filtered, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+    assert not np.any((plain != filtered) & ~edge)
+    a = find_candidates(plain, min_area=12.0, max_area=1e5)
+    b = find_candidates(filtered, min_area=12.0, max_area=1e5)
     assert len(a) == len(b) == 30
     pa, pb = np.array([c.centre for c in a]), np.array([c.centre for c in b])
     assert np.abs(np.sort(pa, axis=0) - np.sort(pb, axis=0)).max() < 0.1

@@ -219,11 +219,12 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     while scales:
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
-        img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2)
+        counts = np.zeros(256, np.int64)
+        img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2, counts)
         noise = noise_sigma_u8(img)
         if noise > MAX_STRETCHED_NOISE:     # nothing but noise at this scale
             continue
-        for name, mask in segmentations(img, noise):
+        for name, mask in segmentations(img, noise, counts):
             deadline.check()
             if speckled(mask):
                 continue

@@ -121,15 +121,17 @@ def stretch_percentiles(n_pixels: int, tail_px: float = STRETCH_TAIL_PX) -> tupl
     return tail, 100.0 - tail
 
 
-def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX) -> np.ndarray:
+def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX, hist: np.ndarray | None = None) -> np.ndarray:
     """(H, W) uint8: the range of ``gray`` (H, W) between the :func:`stretch_percentiles` stretched to 0..255 (for
     thresholding only; ``tail_px``: see there). Integer images (uint8/uint16, e.g. from :func:`as_gray`): percentiles
     of all pixels from their histogram, the stretch through a lookup table of the same formula (identical results);
     float images: percentiles of a subsample above :data:`FLOAT_SUBSAMPLE_ABOVE` pixels
-    (:data:`FLOAT_SUBSAMPLE_STEP`)."""
+    (:data:`FLOAT_SUBSAMPLE_STEP`). ``hist``: (256,) int64, if given the counts of the result's values are added to
+    it (integer images: the input's histogram carried through the lookup table, no second pass over the pixels)."""
     q = stretch_percentiles(gray.size, tail_px)
     if gray.dtype in (np.uint8, np.uint16):
-        lo, hi = _histogram_percentiles(gray, q)
+        counts = _counts(gray)
+        lo, hi = _histogram_percentiles(counts, q)
     else:
         step = FLOAT_SUBSAMPLE_STEP
         sub = gray[::step, ::step] if gray.size > FLOAT_SUBSAMPLE_ABOVE else gray
@@ -141,8 +143,13 @@ def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX) -> np.ndarr
     if gray.dtype in (np.uint8, np.uint16):
         lut = np.clip((np.arange(np.iinfo(gray.dtype).max + 1, dtype=np.float64) - lo) * scale, 0, 255)
         lut = lut.astype(np.uint8)
+        if hist is not None:
+            hist += np.bincount(lut[:len(counts)], weights=counts, minlength=256).astype(np.int64)
         return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
-    return np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
+    out = np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
+    if hist is not None:
+        hist += histogram_u8(out)
+    return out
 
 
 def histogram_u8(img: np.ndarray) -> np.ndarray:
@@ -182,13 +189,16 @@ def count_into(values, part):
         i += 1
 
 
-def _histogram_percentiles(img: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
+def _counts(img: np.ndarray) -> np.ndarray:
+    """(V,) int64 counts of the values 0 .. V - 1 of the integer image ``img`` (V: one past its largest value, 256
+    for uint8)."""
+    return histogram_u8(img) if img.dtype == np.uint8 else np.bincount(img.ravel(), minlength=1)
+
+
+def _histogram_percentiles(counts: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
     """``np.percentile(img, q)`` (linear interpolation between order statistics) of an integer image, from its
-    histogram: O(pixels), no sort."""
-    if img.dtype == np.uint8:
-        cum = np.cumsum(histogram_u8(img))
-    else:
-        cum = np.cumsum(np.bincount(img.ravel(), minlength=1))
+    histogram ``counts`` (:func:`_counts`): O(pixels), no sort."""
+    cum = np.cumsum(counts)
     n = int(cum[-1])
     h = (n - 1) * np.asarray(q, np.float64) / 100.0
     k = np.floor(h).astype(np.int64)

@@ -326,12 +326,14 @@ def _exercise() -> None:
     (what image files and numpy callers give it: a float64 image is what a renderer hands over), so that numba
     compiles each kernel for the argument types detection gives it."""
     from circcal.detector.find import detect, recorrect
-    from circcal.detector.segment import shrink
+    from circcal.detector.segment import GUIDED_EPS, GUIDED_MIN_RADIUS, guided_filter, shrink
     from circcal.model import Camera
 
     img, board = synthetic_board()
-    noisy = np.clip(img + np.random.default_rng(0).normal(0.0, 8.0, img.shape), 0, 255).astype(np.uint8)   # (the
-    # guided filter runs on noisy images only)
+    noisy = np.clip(img + np.random.default_rng(0).normal(0.0, 8.0, img.shape), 0, 255).astype(np.uint8)
+    # the guided filter runs on noisy images whose plain Otsu mask shows no board (not this one): called as the
+    # segmentation calls it
+    guided_filter(noisy, GUIDED_MIN_RADIUS, GUIDED_EPS, np.zeros(256, np.int64))
     for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0,
                img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that

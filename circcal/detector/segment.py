@@ -48,29 +48,40 @@ full range, a dense texture), not dots: a board of dots 6 px across at a pitch o
 (850,000 contours in a 12 MP mask: 40 s), so it is skipped (:func:`speckled`)."""
 
 
-def segmentations(gray_u8: np.ndarray, noise_sigma: float | None = None) -> Iterator[tuple[str, np.ndarray]]:
+def segmentations(gray_u8: np.ndarray, noise_sigma: float | None = None, hist: np.ndarray | None = None
+                  ) -> Iterator[tuple[str, np.ndarray]]:
     """Yield ``(name, mask)`` for ``gray_u8`` (H, W) uint8 (contrast-stretched): masks, 255 where the image is dark
     (dot candidates), in the order worth trying.
 
-    1. Otsu on the guided-filtered image (:func:`guided_filter`: edge-preserving denoise; global illumination).
-    2. Adaptive-mean thresholds of the same filtered image with windows of 1/8, 1/3 and 1/16 of the shorter image
-       side (:data:`ADAPTIVE_WINDOW_DIVISORS`: uneven illumination, shadows, weak contrast); the offset is
-       :data:`ADAPTIVE_OFFSET` (8 %) of the full contrast. Named ``adaptive<window px>``.
+    1. ``otsu``: Otsu's threshold of the image as it is (global illumination). Its threshold lies between the dots'
+       dark and the board's white, about half the contrast from either (~100 grey levels after the stretch; the
+       noise of an image worth segmenting is below :data:`MAX_STRETCHED_NOISE`, 25), so noise moves only the edge
+       pixels of this mask, and those only seed the edge fit.
+    2. ``guided-otsu``: on a noisy image (noise above :data:`GUIDED_MIN_NOISE`, or not known), Otsu on the
+       guided-filtered image (:func:`guided_filter`: edge-preserving denoise): where uneven light brings the board's
+       white near the global threshold, noise crosses it in the plain image.
+    3. Adaptive-mean thresholds (of the filtered image, on a noisy one) with windows of 1/8, 1/3 and 1/16 of the
+       shorter image side (:data:`ADAPTIVE_WINDOW_DIVISORS`: uneven illumination, shadows, weak contrast); the offset
+       is :data:`ADAPTIVE_OFFSET` (8 %) of the full contrast, 20 grey levels: there noise does cross the threshold
+       unless filtered. Named ``adaptive<window px>``.
 
     ``noise_sigma``: the image's noise (grey levels, :func:`noise_sigma_u8`), when known: an image whose noise is
-    at most :data:`GUIDED_MIN_NOISE` is thresholded as it is (the filter would change no flat pixel's side of any
-    threshold).
+    at most :data:`GUIDED_MIN_NOISE` is not filtered at all (the filter would change no flat pixel's side of any
+    threshold). ``hist``: (256,) the counts of ``gray_u8``'s values when the caller has them
+    (:func:`~circcal.detector.image.normalise_u8` gives them), for Otsu's threshold.
     """
     H, W = gray_u8.shape
-    radius = max(GUIDED_MIN_RADIUS, int(round(min(H, W) / GUIDED_RADIUS_DIVISOR)))
-    hist = np.zeros(256, np.int64)
+    counts = histogram_u8(gray_u8) if hist is None else hist
+    _, otsu = cv2.threshold(gray_u8, otsu_threshold(counts), 255, cv2.THRESH_BINARY_INV)
+    yield "otsu", otsu
     if noise_sigma is not None and noise_sigma <= GUIDED_MIN_NOISE:
         f8 = gray_u8
-        hist += histogram_u8(f8)
     else:
-        f8 = guided_filter(gray_u8, radius, GUIDED_EPS, hist)
-    _, otsu = cv2.threshold(f8, otsu_threshold(hist), 255, cv2.THRESH_BINARY_INV)
-    yield "otsu", otsu
+        radius = max(GUIDED_MIN_RADIUS, int(round(min(H, W) / GUIDED_RADIUS_DIVISOR)))
+        filtered = np.zeros(256, np.int64)
+        f8 = guided_filter(gray_u8, radius, GUIDED_EPS, filtered)
+        _, otsu = cv2.threshold(f8, otsu_threshold(filtered), 255, cv2.THRESH_BINARY_INV)
+        yield "guided-otsu", otsu
     for divisor in ADAPTIVE_WINDOW_DIVISORS:
         block = _odd_window(min(H, W) / divisor)
         yield f"adaptive{block}", cv2.adaptiveThreshold(f8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
@@ -78,12 +89,14 @@ def segmentations(gray_u8: np.ndarray, noise_sigma: float | None = None) -> Iter
 
 
 GUIDED_MIN_NOISE = 255 * ADAPTIVE_OFFSET / 5.0
-"""Grey levels (~4.1): the guided filter runs on images whose noise (:func:`noise_sigma_u8`) exceeds this. Below it
-a pixel of a flat area crosses none of the thresholds (the adaptive ones lie :data:`ADAPTIVE_OFFSET` of the range,
-20 levels, below their window's mean: a 5-sigma excursion; Otsu's between the board's white and the dots' dark),
-so the filter would move only edge pixels, by a fraction of a pixel, and the contours only seed the edge fit. The
-filter costs ~1.5 ms of a 640x480 detection; clean and lightly noisy images (renders, most photographs in good
-light) skip it, the weak-light views (5-13 levels) keep it."""
+"""Grey levels (~4.1): the guided filter runs on images whose noise (:func:`noise_sigma_u8`) exceeds this, once
+their plain Otsu mask has shown no whole board (:func:`segmentations`). Below it a pixel of a flat area crosses none
+of the thresholds (the adaptive ones lie :data:`ADAPTIVE_OFFSET` of the range, 20 levels, below their window's
+mean: a 5-sigma excursion; Otsu's between the board's white and the dots' dark), so the filter would move only edge
+pixels, by a fraction of a pixel, and the contours only seed the edge fit. The filter costs ~1.4 ms of a 640x480
+detection; clean and lightly noisy images (renders, most photographs in good light) never run it, nor do noisy ones
+whose board Otsu's plain threshold shows (the paper's weak-light views, 10-12 levels: their plain and filtered Otsu
+masks are the same)."""
 MAX_STRETCHED_NOISE = 25.0
 """Grey levels (of 255): an image whose noise, after the contrast stretch, is larger than this (a tenth of the range)
 shows nothing but noise (a board's contrast is tens of noise sigmas: the weak-light and very noisy fixtures measure
