@@ -98,6 +98,8 @@ def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, dead
     if rec.code == Reason.TOO_FEW_CANDIDATES or best < min(board.n_points, MIN_PARTIAL_POINTS):
         code = Reason.TOO_FEW_CANDIDATES
         msg = f"{grid} not found: at most {best} candidate dots, {min(board.n_points, MIN_PARTIAL_POINTS)} needed"
+        if rec.code == Reason.TOO_FEW_CANDIDATES and rec.message:
+            msg += f": {rec.message}"
     else:
         code = rec.code or Reason.GRID_NOT_RECOGNISED
         msg = f"{grid} not found: {rec.message}" if rec.message else f"{grid} not recognised among {best} " \
@@ -212,7 +214,10 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
     x0, y0, x1, y1 = box if box is not None else (0, 0, W, H)
     win = gray[y0:y1, x0:x1]
     scales = list(segmentation_scales(*win.shape) if scales is None else scales)
+    coarsest = max(scales, default=1)
     partial: tuple[Recognition, list[Candidate], str] | None = None
+    quietest = math.inf                    # the least noise of the scales left unsegmented for noise (grey levels)
+    segmented = False
     refusal: tuple[Recognition, list[Candidate], str] | None = None
     unrecognised: list[Candidate] = []     # candidates of scale 2 in no recognised grid (dots too small there?)
     searched: set[tuple[int, int, int, int]] = set()   # the windows searched again at full resolution
@@ -222,8 +227,13 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
         counts = np.zeros(256, np.int64)
         img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2, counts)
         noise = noise_sigma_u8(img)
-        if noise > MAX_STRETCHED_NOISE:     # nothing but noise at this scale
+        if noise > MAX_STRETCHED_NOISE:     # nothing but noise at this scale: the block means of a coarser one
+            quietest = min(quietest, noise)
+            if box is None and scale == coarsest and min(win.shape) // (2 * scale) >= NOISY_MIN_SIDE:
+                coarsest = 2 * scale
+                scales.insert(0, coarsest)
             continue
+        segmented = True
         for name, mask in segmentations(img, noise, counts):
             deadline.check()
             if speckled(mask):
@@ -293,6 +303,11 @@ def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *
         return partial[0], partial[1], partial[2], best
     if refusal is not None:
         return refusal[0], refusal[1], None, best
+    if not segmented and math.isfinite(quietest):
+        return Recognition(None, code=Reason.TOO_FEW_CANDIDATES,
+                           message=f"the image shows only noise at every scale tried (after the contrast stretch its "
+                                   f"noise is at least {quietest:.0f} grey levels of 255; at most "
+                                   f"{MAX_STRETCHED_NOISE:.0f} is thresholded)"), [], None, best
     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
 
 
@@ -314,6 +329,13 @@ def _search_clusters(gray: np.ndarray, board: Board, deadline: Deadline, cands: 
     return None
 
 
+NOISY_MIN_SIDE = 120
+"""A scale too noisy to segment (its stretched noise above :data:`~circcal.detector.segment.MAX_STRETCHED_NOISE`),
+the coarsest one tried, sends the search on to twice that scale (its block means: half the noise against the same
+contrast), as long as the shrunk image's shorter side is at least this (px): a board whose dots stand only a few
+noise sigmas from the white (a dim photograph at high gain) is found where its pixels are averaged, and its edges
+are measured at full resolution all the same. A frame of noise alone stays noise at every scale (the stretch scales
+its noise with its range: ~50 grey levels), so it costs a few shrunk passes more."""
 CLUSTER_LINK = 2.5
 """Candidates closer than this many times the smaller of their nearest-neighbour distances belong to one cluster
 (:func:`_cluster_windows`: the dots of a board are about equally spaced, clutter is not)."""

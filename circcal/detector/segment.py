@@ -99,8 +99,10 @@ whose board Otsu's plain threshold shows (the paper's weak-light views, 10-12 le
 masks are the same)."""
 MAX_STRETCHED_NOISE = 25.0
 """Grey levels (of 255): an image whose noise, after the contrast stretch, is larger than this (a tenth of the range)
-shows nothing but noise (a board's contrast is tens of noise sigmas: the weak-light and very noisy fixtures measure
-5-13 levels); it is not segmented (its masks would be speckle: a 48 MP frame of noise took minutes)."""
+is not segmented at that scale (its masks would be speckle: a 48 MP frame of noise took minutes). The weak-light and
+very noisy fixtures measure 5-13 levels; a board only a few noise sigmas deep (a dim photograph at high gain)
+measures more and is segmented at a coarser scale, whose block means hold less noise
+(:data:`circcal.detector.find.NOISY_MIN_SIDE`); noise alone measures ~50 at every scale."""
 
 
 def noise_sigma_u8(img: np.ndarray) -> float:
