@@ -43,7 +43,7 @@ from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognis
 from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
                                      segmentations, shrink, speckled)
 from circcal.detector.smoothing import SmoothedImage
-from circcal.detector.trust import absent_dots, bad_dots, check_grid
+from circcal.detector.trust import ABSENT_MAX_SHARE, absent_dots, bad_dots, check_grid
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
@@ -129,18 +129,21 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
         return _not_found(board, rec, best, gray, deadline)
     N = board.n_points
     seen = rec.order >= 0
+    absent = np.zeros(0, np.int64)
     if not rec.complete and not board.has_markers:
         lab = np.nonzero(seen)[0]
         absent = absent_dots(board, lab, np.array([cands[rec.order[k]].centre for k in lab]),
                              np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1])
                                        for k in lab]), gray)
-        if len(absent):
+        if len(absent) > ABSENT_MAX_SHARE * len(lab):
             return Detection(False, None, f"grid {board.rows}x{board.cols} not recognised: a lattice of "
                                           f"{int(seen.sum())} dots fits part of the board, but {len(absent)} of the "
                                           "board's other dots would lie on bare board inside the image (a dot "
                                           "lattice of another layout?)", Reason.GRID_NOT_RECOGNISED,
                              image_size=(W, H), notes=list(rec.notes))
-    dropped = {int(k): "cut by the image border" for k in np.nonzero(seen & rec.cut)[0]}
+    dropped = {int(k): "not seen: the image is as white as the bare board where it lies (glare, or no dot?)"
+               for k in absent}
+    dropped.update({int(k): "cut by the image border" for k in np.nonzero(seen & rec.cut)[0]})
     todo = np.nonzero(seen & ~rec.cut)[0]
     Q0 = conic_from_params_batch(np.array([cands[rec.order[k]].centre for k in todo]),
                                  np.array([cands[rec.order[k]].axes for k in todo]),

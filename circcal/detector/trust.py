@@ -32,7 +32,7 @@ from circcal.detector.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.jit import njit
 from circcal.detector.robust import median, row_medians
 
-__all__ = ["absent_dots", "bad_dots", "check_grid", "local_steps"]
+__all__ = ["ABSENT_MAX_SHARE", "absent_dots", "bad_dots", "check_grid", "local_steps"]
 
 KERNEL_IMPORTS = ("circcal.detector.ellipse",)
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
@@ -105,6 +105,12 @@ ABSENT_WHITE = 0.75
 """... and the dot is absent from bare board when that mean lies above the dots' dark level by this share of the
 contrast to the board's white (a dot there, even blurred or half-hidden, darkens its centre below half the
 contrast; a grey occluder (a hand) sits lower)."""
+ABSENT_MAX_SHARE = 0.05
+"""A partial labelling of an unmarked board is refused when more of the board's dots than this share of the labelled
+ones lie on bare board (:func:`absent_dots`): a lattice of another layout leaves about as many bare places as it
+labels (a staggered 5x5 lattice read as part of a 7x7 board: 24 for 25). Fewer (one dot in 20 labelled, two in 40)
+are dots washed out by glare or missing from the print: the view is kept and they are named among the dots left
+out."""
 DIAMETER_FACTOR = 2.5
 """The dots' diameter measured against the lattice (median dot area over cell area, as a diameter over the pitch)
 lies within this factor of the board's stated diameter either way: the default diameter is half the dot spacing,
