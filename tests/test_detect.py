@@ -1168,3 +1168,22 @@ def test_a_dot_washed_out_is_left_out_in_words_and_the_view_kept(how):
         assert np.nanmax(e) < 0.02
     # (under the glare's steep, curved flank its 8 neighbours move by up to 0.32 px: a planar white level cannot
     # follow a light spot that bends within one dot)
+
+
+def test_a_view_whose_dots_all_fail_alike_is_refused_as_a_whole_view_problem():
+    # 15 px of horizontal motion over dots 7 px in radius: every dot is elongated alike and left out ("not round
+    # on the board"); the refusal names the whole view (blur) rather than an occluder per dot
+    board = Board(5, 4, 30.0, 20.0, layout="asymmetric")
+    cam = Camera(640, 480, 700.0, 700.0, 319.5, 239.5)
+    rvec, tvec = pose_looking_at(cam, board, distance_mm=1000.0, tilt_deg=20.0, tilt_axis_deg=30.0, roll_deg=5.0,
+                                 target_px=(320.0, 240.0))
+    kernel = np.zeros((15, 15), np.float32)
+    kernel[7, :] = 1.0 / 15.0
+    img = cv2.filter2D(render_view(cam, board, rvec, tvec).astype(np.float32), -1, kernel,
+                       borderType=cv2.BORDER_REPLICATE)
+    d = detect(to_uint(img, 8), board)
+    assert not d.found and d.code == Reason.TOO_FEW_POINTS
+    assert "nearly every dot alike" in d.reason and "motion blur" in d.reason
+    one = {**{k: "cut by the image border" for k in range(18)}, 18: "edge found on 40% of its rim (occluded?)"}
+    from circcal.detector.find import _view_wide
+    assert _view_wide(one, 20) == ""                      # the border and single dots: no whole-view hint

@@ -159,7 +159,8 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
     if len(used) < need:
         return Detection(False, None, f"grid {board.rows}x{board.cols} recognised, but only {len(used)} of its "
                                       f"{int(seen.sum())} dots in view are measurable ({need} needed; "
-                                      f"{len(dropped)} left out: " + _why(dropped) + ")",
+                                      f"{len(dropped)} left out: " + _why(dropped) + ")"
+                                      + _view_wide(dropped, int(seen.sum())),
                          Reason.TOO_FEW_POINTS, image_size=(W, H), candidates=cand_xy, dropped=dropped,
                          notes=list(rec.notes))
     kept = tuple(p[keep] for p in params)
@@ -184,13 +185,34 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
                      complete=rec.complete, dropped=dict(sorted(dropped.items())), notes=list(rec.notes))
 
 
-def _why(dropped: dict[int, str]) -> str:
-    """The reasons of dropped dots, counted: "3 cut by the image border, 1 edge found on 60% of its rim"."""
+def _reason_counts(dropped: dict[int, str]) -> dict[str, int]:
+    """Reason (its words before any figures in brackets) -> how many dropped dots it names."""
     counts: dict[str, int] = {}
     for r in dropped.values():
         key = r.split(" (")[0]
         counts[key] = counts.get(key, 0) + 1
-    return ", ".join(f"{n} {r}" for r, n in counts.items()) or "none"
+    return counts
+
+
+def _why(dropped: dict[int, str]) -> str:
+    """The reasons of dropped dots, counted: "3 cut by the image border, 1 edge found on 60% of its rim"."""
+    return ", ".join(f"{n} {r}" for r, n in _reason_counts(dropped).items()) or "none"
+
+
+VIEW_WIDE_SHARE = 0.75
+"""When one measured reason (not the image border, not a dot unseen) leaves out at least this share of the dots in
+view, the refusal says so: what befalls nearly every dot alike is the whole view's (a shaken or defocused camera, a
+board other than the one described), not an occluder's."""
+
+
+def _view_wide(dropped: dict[int, str], in_view: int) -> str:
+    """The hint of :data:`VIEW_WIDE_SHARE` for a view whose ``in_view`` dots lost ``dropped``, or ""."""
+    counts = {r: n for r, n in _reason_counts(dropped).items()
+              if r != "cut by the image border" and not r.startswith("not seen")}
+    if not counts or max(counts.values()) < VIEW_WIDE_SHARE * in_view:
+        return ""
+    return ("; nearly every dot alike: something over the whole view (motion blur, defocus, a board other than the "
+            "one described?) rather than occluders")
 
 
 def _segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *, first_only: bool = False,
