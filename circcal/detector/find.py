@@ -69,7 +69,8 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
            time_budget_s: float | None = DEFAULT_TIME_BUDGET_S) -> Detection:
     """Find ``board``'s circle grid in ``image`` and return the images of the circle centres.
 
-    ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board. ``camera``: optional
+    ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots
+    on a dark ground is found on the inverted image, and the detection says so in its notes). ``camera``: optional
     model; when given, the centre correction accounts for its lens distortion. ``time_budget_s``: seconds this image
     may take (:data:`~circcal.detector.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
     found with :attr:`Reason.TIME_BUDGET`. The board may be partly out of frame or occluded: the dots seen are
@@ -91,8 +92,16 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
                                       f"dense dot-like texture?)", Reason.TIME_BUDGET, image_size=(W, H))
 
 
-def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, deadline: Deadline) -> Detection:
-    """The Detection of an image without the board: the recognition's reason, a hint for an inverted board."""
+BRIGHT_DOTS_NOTE = "bright dots on a dark board: found on the inverted image"
+"""The note of a detection made on the inverted image (:func:`_not_found`)."""
+
+
+def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, camera: Camera | None,
+               deadline: Deadline, inverted: bool) -> Detection:
+    """The Detection of an image without the board (dark dots on a bright board): the recognition's reason; where
+    the inverted image shows the board's lattice (bright dots on a dark board), the detection on the inverted image
+    when it is found there (noted: :data:`BRIGHT_DOTS_NOTE`), else the reason with what the inverted image gave.
+    ``inverted``: ``gray`` is the inverted image already (no second inversion)."""
     H, W = gray.shape
     grid = f"grid {board.rows}x{board.cols} ({board.layout})"
     if rec.code == Reason.TOO_FEW_CANDIDATES or best < min(board.n_points, MIN_PARTIAL_POINTS):
@@ -106,27 +115,39 @@ def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, dead
                                                                       f"candidate dots"
         if code == Reason.GRID_NOT_RECOGNISED and "candidate dots" not in msg:
             msg += f" ({best} candidate dots)"
-    if code in (Reason.TOO_FEW_CANDIDATES, Reason.GRID_NOT_RECOGNISED) and _inverted(gray, board, deadline):
-        msg += ("; the image holds a grid of bright dots on a dark ground: an inverted board? (circcal expects dark "
-                "dots on a bright board; invert the image)")
+    if not inverted and code in (Reason.TOO_FEW_CANDIDATES, Reason.GRID_NOT_RECOGNISED):
+        inv = _invert(gray)
+        if _shows_board(inv, board, deadline):
+            d = _detect(inv, board, camera, deadline, inverted=True)
+            if d.found:
+                d.notes = [*d.notes, BRIGHT_DOTS_NOTE]
+                return d
+            msg += f"; the image holds a grid of bright dots on a dark ground, but inverted: {d.reason}"
     return Detection(False, None, msg, code, image_size=(W, H), notes=list(rec.notes))
 
 
-def _inverted(gray: np.ndarray, board: Board, deadline: Deadline) -> bool:
-    """Whether the inverted image shows the board (whole or in part): the hint for white dots on black."""
-    inv = gray.max() - gray if np.issubdtype(gray.dtype, np.integer) else -gray
+def _invert(gray: np.ndarray) -> np.ndarray:
+    """``gray`` (H, W) with dark and bright swapped, in its own dtype and range (``max - gray``: non-negative, as
+    the edge levels need)."""
+    return gray.max() - gray
+
+
+def _shows_board(gray: np.ndarray, board: Board, deadline: Deadline) -> bool:
+    """Whether the first segmentation of ``gray`` shows the board's lattice (whole or in part): the quick test
+    before a whole detection on the inverted image."""
     try:
-        rec, *_ = _segment_and_recognise(inv, board, deadline, first_only=True)
+        rec, *_ = _segment_and_recognise(gray, board, deadline, first_only=True)
     except BudgetExceeded:
         return False
     return rec.order is not None
 
 
-def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline) -> Detection:
+def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline, *,
+            inverted: bool = False) -> Detection:
     H, W = gray.shape
     rec, cands, seg_name, best = _segment_and_recognise(gray, board, deadline)
     if rec.order is None:
-        return _not_found(board, rec, best, gray, deadline)
+        return _not_found(board, rec, best, gray, camera, deadline, inverted)
     N = board.n_points
     seen = rec.order >= 0
     absent = np.zeros(0, np.int64)
