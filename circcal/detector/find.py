@@ -190,10 +190,11 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
     if why is not None:
         return Detection(False, None, f"grid {board.rows}x{board.cols} not trusted: {why}", Reason.IRREGULAR_GRID,
                          image_size=(W, H), candidates=cand_xy, dropped=dropped, notes=list(rec.notes))
-    edge_points = [np.zeros((0, 2)) for _ in range(N)]
-    for k, i in enumerate(todo):
-        if keep[k]:
-            edge_points[i] = pts[k][mask[k]]
+    flat = pts[keep][mask[keep]]                  # the kept dots' points, dot after dot (one boolean index, not K)
+    ends = np.cumsum(mask[keep].sum(axis=1)).tolist()
+    edge_points = [np.zeros((0, 2))] * N          # (the empty entries share one (0, 2) array)
+    for i, a, b in zip(used.tolist(), [0] + ends[:-1], ends):
+        edge_points[i] = flat[a:b]
     try:
         centres, conics, Hb = _correct(edge_points, board, camera, conics_d[keep], used)
     except ValueError as exc:

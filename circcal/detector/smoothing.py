@@ -10,6 +10,8 @@ import functools
 import cv2
 import numpy as np
 
+from circcal.detector.jit import njit
+
 __all__ = ["COMBINED_TAIL", "PREFILTER_HALF_LENGTH", "SPLINE_SUPPORT", "SmoothedImage"]
 
 PREFILTER_HALF_LENGTH = 13
@@ -83,32 +85,20 @@ class SmoothedImage:
 
     def crops_for(self, boxes: np.ndarray) -> np.ndarray:
         """(D,) crop index for each box of ``boxes`` (D, 4) float ``x0, y0, x1, y1`` px (the extent of the points to
-        be sampled; rows with NaN get -1), making the crops that are missing."""
+        be sampled; rows with NaN get -1), making the crops that are missing. Which crop serves which box is one
+        compiled pass (:func:`_match_crops`: the measuring pass's boxes all lie in the steering pass's crops,
+        ~12 against ~90 us of numpy calls for a 640x480 paper view)."""
         H, W = self.gray.shape
-        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
-        out = np.full(len(boxes), -1)
-        todo = np.all(np.isfinite(boxes), axis=1)
-        if not np.any(todo):
-            return out
         m = self.margin
-        f = np.floor(boxes[todo]).astype(np.int64)
-        need = np.column_stack([np.maximum(0, f[:, 0] - m), np.maximum(0, f[:, 1] - m),
-                                np.minimum(W, f[:, 2] + 1 + m), np.minimum(H, f[:, 3] + 1 + m)])   # (T, 4)
-        idx = np.nonzero(todo)[0]
-        if len(self.crops):
-            have = self.crops                                                                   # (C, 4)
-            holds = ((have[None, :, 0] <= need[:, None, 0]) & (have[None, :, 1] <= need[:, None, 1])
-                     & (have[None, :, 2] >= need[:, None, 2]) & (have[None, :, 3] >= need[:, None, 3]))
-            r = 2.0 * self.REUSE_PX
-            hit = holds & (self._shared[None, :]    # a shared window (inside the image) serves any box it holds
-                           | ((np.abs((have[None, :, 0] + have[None, :, 2]) - (need[:, 0] + need[:, 2])[:, None]) <= r)
-                              & (np.abs((have[None, :, 1] + have[None, :, 3]) - (need[:, 1] + need[:, 3])[:, None])
-                                 <= r)))
-            found = hit.any(axis=1)
-            out[idx[found]] = np.argmax(hit[found], axis=1)
-            idx, need = idx[~found], need[~found]
+        boxes = np.ascontiguousarray(boxes, np.float64).reshape(-1, 4)
+        out = np.empty(len(boxes), np.int64)
+        need = np.empty((len(boxes), 4), np.int64)
+        _match_crops(boxes, self.crops, self._shared, m, W, H, 2.0 * self.REUSE_PX, need, out)
+        idx = np.nonzero(out == _NEW)[0]
+        out[idx] = -1
         if not len(idx):
             return out
+        need = need[idx]
         sl = self.SLACK
         new = np.column_stack([np.maximum(0, need[:, 0] - sl), np.maximum(0, need[:, 1] - sl),
                                np.minimum(W, need[:, 2] + sl), np.minimum(H, need[:, 3] + sl)])
@@ -172,6 +162,38 @@ class SmoothedImage:
         rows = np.where(valid, self._rows[k], 0)
         org = np.where(valid[:, None], self.crops[k, :2].astype(np.float64), 0.0)
         return self._atlas, rows, org
+
+
+_NEW = -2
+""":func:`_match_crops`' mark of a box that needs a new crop."""
+
+
+@njit(cache=True, nogil=True)
+def _match_crops(boxes, have, shared, margin, W, H, reuse, need, out):
+    """For each box of ``boxes`` (D, 4) float ``x0, y0, x1, y1``: writes into ``need`` (D, 4) int the pixels its
+    samples need (the box's floor, grown by ``margin`` px, clipped to the ``W`` x ``H`` image, exclusive ends) and
+    into ``out`` (D,) the first crop of ``have`` (C, 4) that serves it: one that holds ``need`` and is ``shared`` (a
+    window filtered for several boxes) or whose centre lies within ``reuse / 2`` px of need's in x and y (the same
+    dot); -1 for a box with a NaN or infinite coordinate, :data:`_NEW` where no crop serves."""
+    D = len(boxes)
+    for d in range(D):
+        if not (np.isfinite(boxes[d, 0]) and np.isfinite(boxes[d, 1]) and np.isfinite(boxes[d, 2])
+                and np.isfinite(boxes[d, 3])):
+            out[d] = -1
+            continue
+        n0 = max(0, np.int64(np.floor(boxes[d, 0])) - margin)
+        n1 = max(0, np.int64(np.floor(boxes[d, 1])) - margin)
+        n2 = min(W, np.int64(np.floor(boxes[d, 2])) + 1 + margin)
+        n3 = min(H, np.int64(np.floor(boxes[d, 3])) + 1 + margin)
+        need[d, 0], need[d, 1], need[d, 2], need[d, 3] = n0, n1, n2, n3
+        out[d] = _NEW
+        for c in range(len(have)):
+            if not (have[c, 0] <= n0 and have[c, 1] <= n1 and have[c, 2] >= n2 and have[c, 3] >= n3):
+                continue
+            if shared[c] or (abs(np.float64((have[c, 0] + have[c, 2]) - (n0 + n2))) <= reuse
+                             and abs(np.float64((have[c, 1] + have[c, 3]) - (n1 + n3))) <= reuse):
+                out[d] = c
+                break
 
 
 def _gauss_radius(sigma: float) -> int:
