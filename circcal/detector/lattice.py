@@ -7,8 +7,8 @@ angles on the board. In the image both are distorted by the local affine part of
 own ellipse undoes it: the map ``S = diag(1/a, 1/b) R(-angle)`` built from a dot's semi-axes takes the image of a
 circle back to a circle, so it takes the local lattice back to a square one (up to rotation and scale).
 
-1. Seeds (:func:`find_seeds`, vectorised over all candidates): each candidate's nearest neighbours (a k-d tree),
-   de-skewed by its own ellipse; the nearest one gives the lattice step ``u``, the nearest one at 60-120 deg from it
+1. Seeds (:func:`find_seeds`, vectorised over all candidates): each candidate's nearest neighbours
+   (:class:`~circcal.detector.neighbours.NeighbourGrid`), de-skewed by its own ellipse; the nearest one gives the lattice step ``u``, the nearest one at 60-120 deg from it
    (in the de-skewed frame) with a length within :data:`SEED_LENGTH_RATIO` gives ``v``; the candidate is a seed when
    the 8 positions ``+-u, +-v, +-u+-v`` hold candidates within :data:`SEED_TOLERANCE` steps whose areas agree with
    its own within :data:`MAX_AREA_RATIO`. This is the local pattern every dot of the board shows (its 8
@@ -31,15 +31,12 @@ y down, ``u_x v_y - u_y v_x > 0``), the handedness of a board seen from its fron
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from circcal.detector.budget import Deadline
-
-if TYPE_CHECKING:
-    from scipy.spatial import cKDTree
+from circcal.detector.neighbours import NeighbourGrid
 
 __all__ = ["Lattice", "find_lattices", "find_seeds", "grow", "merge_patches", "GROW_TOLERANCE", "MAX_AREA_RATIO"]
 
@@ -138,7 +135,7 @@ def _batch_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return H
 
 
-def find_seeds(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np.ndarray, tree: cKDTree
+def find_seeds(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np.ndarray, tree: NeighbourGrid
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every candidate's local lattice (vectorised; see the module docstring).
 
@@ -268,7 +265,7 @@ def _predict(lab: dict[tuple[int, int], tuple[float, float]], a: int, b: int
 
 
 def grow(seed: int, u: np.ndarray, v: np.ndarray, nbr8: np.ndarray, points: np.ndarray, area: np.ndarray,
-         tree: cKDTree, taken: np.ndarray, image_size: tuple[int, int], deadline: Deadline | None = None) -> Lattice:
+         tree: NeighbourGrid, taken: np.ndarray, image_size: tuple[int, int], deadline: Deadline | None = None) -> Lattice:
     """The patch grown from candidate ``seed`` with steps ``u``, ``v`` (2,) px and its 8 neighbours ``nbr8`` (8,)
     (:func:`find_seeds`); ``taken`` (M,) bool marks candidates of other patches (not used; this patch's are marked
     on return). ``image_size`` (W, H): predictions outside the image are not misses. Grows in waves (every
@@ -425,9 +422,7 @@ def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area:
     M = len(points)
     if M < MIN_PATCH:
         return []
-    from scipy.spatial import cKDTree  # imported on first need: ~0.1-0.3 s, more than a clean image's detection
-
-    tree = cKDTree(points)
+    tree = NeighbourGrid(points)
     score, u, v, nbr8 = find_seeds(points, np.asarray(axes, np.float64).reshape(-1, 2),
                                    np.asarray(angle, np.float64).reshape(-1), np.asarray(area, np.float64), tree)
     if deadline is not None:
