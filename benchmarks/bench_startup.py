@@ -1,5 +1,6 @@
 """What a one-image ``circcal detect`` costs as a whole process, start-up included (imports, numba's cached code,
-the first detection), against a plain Python script that imports cv2 and runs findCirclesGrid on the same image;
+the first detection), against a plain Python script that imports cv2 and runs findCirclesGrid on the same image (four images:
+:data:`CASES`);
 alternated (benchmarks/timing.py), with each process's peak resident memory. Goals (issue "Speed that holds on any
 machine"): <= 0.6 s wall and <= 120 MiB. Alternated with them: the same command with ``CIRCCAL_AOT=0`` (the
 detector's kernels from numba's on-disk cache instead of the ahead-of-time build, circcal/detector/jit.py), the
@@ -18,16 +19,21 @@ OPENCV_SCRIPT = """\
 import sys
 import cv2
 img = cv2.imread(sys.argv[3], cv2.IMREAD_GRAYSCALE)
-ok, c = cv2.findCirclesGrid(img, (int(sys.argv[2]), int(sys.argv[1])), flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+flags = cv2.CALIB_CB_ASYMMETRIC_GRID if sys.argv[4] == "asymmetric" else cv2.CALIB_CB_SYMMETRIC_GRID
+ok, c = cv2.findCirclesGrid(img, (int(sys.argv[2]), int(sys.argv[1])), flags=flags)
 print(ok)
 """
+CASES = (("small-noisy", "noisy", ""), ("paper", "normal", ""), ("asymmetric", "noise", "_asymmetric"),
+         ("distractors", "clutter", "_clutter"))
+"""(scenario, variant, key suffix) of the images timed: the paper's and a small noisy board (their grids ordered
+directly), OpenCV's 11x4 acircles board and a 7x7 board among clutter (both through the lattice search)."""
 
 
 def run(repeats: int = 9) -> dict:
     from circcal.fixtures.scenarios import fixture_dir, load_truth
 
     out: dict = {}
-    for scenario, variant in (("small-noisy", "noisy"), ("paper", "normal")):
+    for scenario, variant, suffix in CASES:
         truth = load_truth(fixture_dir(scenario, variant))
         b, image = truth.board, str(truth.views[0].image)
         circcal = Path(sys.executable).with_name("circcal")
@@ -40,10 +46,12 @@ def run(repeats: int = 9) -> dict:
                            env={**os.environ, "CIRCCAL_AOT": "0"}, capture_output=True)
             detect = [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm",
                       "--diameter", f"{b.diameter_mm}mm", "--quiet", "--json", str(Path(tmp) / "d.json")]
+            detect += ["--asymmetric"] if b.layout == "asymmetric" else []
             t = alternate_processes({"circcal": detect, "circcal_numba_jit": ["env", "CIRCCAL_AOT=0", *detect],
-                                     "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image]},
+                                     "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image,
+                                                b.layout]},
                                     repeats=repeats)
-        key = f"detect_one_{truth.camera.width}x{truth.camera.height}"
+        key = f"detect_one_{truth.camera.width}x{truth.camera.height}{suffix}"
         out.update({f"{key}_circcal_s": summary(t["circcal"]["wall_s"]),
                     f"{key}_opencv_s": summary(t["opencv"]["wall_s"]),
                     f"{key}_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
