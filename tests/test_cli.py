@@ -296,7 +296,7 @@ def test_progress_bar_hidden_does_not_import_tqdm_and_shown_draws():
 
 
 def test_a_dropped_dot_is_named_without_a_position(realdata, tmp_path, capsys):
-    # the detector drops 8 dots of one real 10x8 view (a shadow's edge touches them): the outlier list names them,
+    # the detector drops 11 dots of one real 10x8 view (a shadow's edge touches them): the outlier list names them,
     # and says no "(nan, nan) px" for the centre they never had
     from circcal.cli import main
 

@@ -192,10 +192,11 @@ def test_real_data_every_grid_found(folder, grid, layout):
     dets = detect_files(paths, board, progress=False)
     assert [p.name for p, x in zip(paths, dets) if not x.found] == []
     # sanity: the homography from our centres explains them to ~a pixel (lens distortion, real prints); dots left
-    # out (image00005: the edge of a hand's shadow across eight dots) are NaN
+    # out (image00005: the edge of a hand's shadow across 11 dots; image00001-2: 3 dots under its soft edge, lit
+    # unevenly inside) are NaN
     for x in dets:
         seen = x.seen
-        assert seen.sum() >= 0.9 * board.n_points and x.n_dropped == board.n_points - seen.sum()
+        assert seen.sum() >= 0.85 * board.n_points and x.n_dropped == board.n_points - seen.sum()
         Hm, _ = cv2.findHomography(board.object_points()[seen, :2], x.centres[seen], 0)
         p = cv2.perspectiveTransform(board.object_points()[None, seen, :2], Hm)[0]
         assert np.median(np.linalg.norm(p - x.centres[seen], axis=1)) < 2.0
@@ -1160,14 +1161,17 @@ def test_a_dot_washed_out_is_left_out_in_words_and_the_view_kept(how):
     d = detect(to_uint(img, 8), board)
     assert d.found, d.reason
     assert 1 <= ABSENT_MAX_SHARE * 48
-    assert list(d.dropped) == [k] and "not seen" in d.dropped[k] and np.all(np.isnan(d.centres[k]))
+    assert "not seen" in d.dropped[k] and np.all(np.isnan(d.centres[k]))
     e = np.linalg.norm(d.centres - truth, axis=1)
-    far = np.linalg.norm(board.object_points()[:, :2] - board.object_points()[k, :2], axis=1) > 1.5 * board.pitch_mm
-    assert e[far].max() < 0.02, e[far].max()              # the dots beyond the spot: as on a clean render
     if how == "erased":
-        assert np.nanmax(e) < 0.02
-    # (under the glare's steep, curved flank its 8 neighbours move by up to 0.32 px: a planar white level cannot
-    # follow a light spot that bends within one dot)
+        assert list(d.dropped) == [k] and np.nanmax(e) < 0.02      # the other 48: as on a clean render
+    else:
+        # the spot's light, added over its 4 axis neighbours, lights their insides unevenly (9-13 % of their
+        # contrast across them; they had moved by 0.24-0.32 px): left out in words; the rest as on a clean render
+        axis = [k - 7, k - 1, k + 1, k + 7]
+        assert sorted(d.dropped) == sorted([k, *axis])
+        assert all("uneven inside" in d.dropped[i] for i in axis)
+        assert np.nanmax(e) < 0.02, np.nanmax(e)
 
 
 def test_a_view_whose_dots_all_fail_alike_is_refused_as_a_whole_view_problem():
@@ -1207,3 +1211,21 @@ def test_a_board_of_bright_dots_is_found_on_the_inverted_image_and_said_so(kind)
     assert np.linalg.norm(d.centres - truth, axis=1).max() < 0.01
     plain = detect(to_uint(1.0 - img, 8), board)
     assert plain.found and BRIGHT_DOTS_NOTE not in plain.notes
+
+
+def test_light_added_over_a_dot_is_measured_and_multiplied_light_is_not():
+    # the inside of a dot, sampled half-way to its centre: its first harmonic is the gradient of its grey level.
+    # Light added on top (a reflection) tilts the dark inside as much as the white around; light that multiplies
+    # the albedo (the uneven light the edge model takes) tilts it only by the dark's share of the white
+    from circcal.detector.trust import UNEVEN_SHARE, _uneven_inside
+
+    yy, xx = np.mgrid[:200, :200].astype(np.float64)
+    disk = np.where((xx - 100.3) ** 2 + (yy - 99.6) ** 2 < 30.0 ** 2, 0.12, 0.85)
+    ramp = (xx - 100.0) / 100.0                           # -1 .. 1 across the image: 0.3 across a radius
+    centre, axes, ang = np.array([[100.3, 99.6]]), np.array([[30.0, 30.0]]), np.array([0.0])
+    flat = _uneven_inside(disk * 255, centre, axes, ang)[0]
+    added = _uneven_inside((disk + 0.2 * ramp) * 255, centre, axes, ang)[0]          # 0.06 of the range per radius
+    multiplied = _uneven_inside(disk * (1 + 0.2 * ramp) * 255, centre, axes, ang)[0]
+    assert flat < 1e-3
+    assert added == pytest.approx(0.06 / 0.73, rel=0.05) and added > UNEVEN_SHARE   # contrast 0.73 of the range
+    assert multiplied == pytest.approx(0.12 * 0.06 / 0.73, rel=0.15) and multiplied < UNEVEN_SHARE

@@ -120,14 +120,16 @@ def _unchanged(paths, board, *, against_plain: bool = True, bad_dots: dict[int, 
 @pytest.mark.parametrize("refine_board", [False, True])
 def test_real_photographs_keep_every_point(realdata, refine_board):
     """The README's numbers hold with outlier rejection on (the default of `circcal calibrate`): the rule rejects
-    nothing; the detector leaves out the 8 dots of the 10x8 set's image00005 that the edge of a hand's shadow
-    crosses (looked at: their rims are half in shadow, so a level-based edge is biased there)."""
+    nothing; the detector leaves out 11 dots of the 10x8 set's image00005 that the edge of a hand's shadow crosses
+    (looked at: their rims are half in shadow, so a level-based edge is biased there) and 3 dots of image00001-2
+    under the shadow's soft edge, lit unevenly inside (trust.UNEVEN_SHARE: the refined board's RMS fell from 0.052
+    to 0.047 px when they went)."""
     from circcal.report.realdata import realdata_board
 
     expected = {("boofcv_sony_hx5v_circle_asym_4x5", False): 0.185, ("boofcv_sony_hx5v_circle_asym_4x5", True): 0.071,
                 ("boofcv_sony_hx5v_circle_regular_10x8", False): 0.475,
-                ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.052}
-    bad_dots = {"boofcv_sony_hx5v_circle_asym_4x5": {}, "boofcv_sony_hx5v_circle_regular_10x8": {5: 8}}
+                ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.047}
+    bad_dots = {"boofcv_sony_hx5v_circle_asym_4x5": {}, "boofcv_sony_hx5v_circle_regular_10x8": {1: 2, 2: 1, 5: 11}}
     for folder in sorted(p for p in realdata.iterdir() if p.is_dir()):
         board, _ = realdata_board(folder)
         cal = _unchanged(sorted(glob.glob(str(folder / "image*.jpg"))), board, against_plain=not refine_board,

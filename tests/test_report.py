@@ -343,7 +343,7 @@ PROSE_CASES = {
     # both real sets' rigid RMS lie within 3% of OpenCV's (a tie); at 1e-4 they are told apart: 4x5 higher, 10x8 lower
     "tie rule": ((prose, "TIE_REL", 1e-4), 2, ("% higher.", "% lower."), "tie"),
     # the shape sentence stands on the 4x5 set only: on the 10x8 set circcal's refined RMS (the shadow-edge dots left
-    # out) is 12% below OpenCV's centres', no tie, so the sentence is not said there whatever the shape rule
+    # out) is ~20% below OpenCV's centres', no tie, so the sentence is not said there whatever the shape rule
     "shape rule, drop": ((prose, "SHAPE_RMS_DROP", 0.01), 1, "in plane. The baseline", "printed sheet's shape"),
     "shape rule, significance": ((prose, "SHAPE_SIGNIFICANCE", 100.0), 1, "in plane. The baseline",
                                  "printed sheet's shape"),

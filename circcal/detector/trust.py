@@ -86,6 +86,21 @@ GREY_SHARE = 0.05
 """A dot is left out when more than this share of the samples on that ring are grey (between the dot's dark and the
 board's white by :data:`CLEARANCE_LEVEL` of the contrast either way): the rim of a neighbouring dot crossing the
 ring gives a few such samples, an occluder an arc of them."""
+UNEVEN_SHARE = 0.04
+"""A dot is left out when the grey level inside it changes across its minor semi-axis by more than this share of its
+contrast (:func:`_uneven_inside`) and by more than :data:`UNEVEN_VIEW_FACTOR` times the view's median. Light added
+over a dot (a specular reflection's flank, a shadow's edge) moves its edge points on one side: a glare spot's
+neighbours measured 0.04-0.13 of their contrast and moved by 0.1-0.3 px; the fixtures' clear dots measure <= 0.033
+(0.000-0.002 on exact renders), the real photographs' dots mostly <= 0.04."""
+UNEVEN_VIEW_FACTOR = 5.0
+"""... (noise alone gives every dot of a view a gradient of a few noise sigmas over the contrast: the weak-light and
+very noisy fixtures' dots measure up to 2.6x their view's median, 0.14 at most)."""
+EDGE_RING_PX = 2.0
+"""... and its contrast measured against the samples this far outside its rim (past the blurred edge; a close
+neighbour's dark covers less than half of them)."""
+INSIDE_RING_SHARE = 0.5
+"""The dot's inside is sampled on its ellipse shrunk by this share of the minor semi-axis (half-way to the centre:
+clear of the blurred rim)."""
 CLEARANCE_MIN_PX = 2.0
 """The clearance rings are only sampled when the nearer one lies at least half this far (px) outside the rim: nearer,
 bilinear samples of the dot's own anti-aliased edge read dark (a dot of a 70 deg-tilted asymmetric grid 2 px from its
@@ -219,15 +234,16 @@ def _ring_points(c, axes, cs, sn, radii, cos_a, sin_a, x, y):
 
 
 def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray]:
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per dot (D,), the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`; each
-    ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`), and
+    ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`),
     the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white level is
-    measured on (:data:`LEVEL_RING_PX`); ``gray`` (H, W), ellipses ``centres`` (D, 2), ``axes`` (D, 2),
-    ``angle`` (D,). Both rings end half-way to the nearest dot."""
+    measured on (:data:`LEVEL_RING_PX`), and how unevenly lit its inside is (:func:`_uneven_inside`); ``gray``
+    (H, W), ellipses ``centres`` (D, 2), ``axes`` (D, 2), ``angle`` (D,). The outer rings end half-way to the
+    nearest dot."""
     D = len(centres)
     if D == 0:
-        return np.zeros(0), np.zeros(0)
+        return np.zeros(0), np.zeros(0), np.zeros(0)
     g = np.asarray(gray)
     if g.dtype not in (np.uint8, np.uint16, np.float32):
         g = g.astype(np.float32)
@@ -247,7 +263,28 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
     white = row_medians(v.reshape(D, -1))
     shade, grey = np.empty(D), np.empty(D)
     _ring_shares(v, white, inner, near, far, CLEARANCE_LEVEL, CLEARANCE_MIN_PX, shade, grey)
-    return shade, grey
+    return shade, grey, _uneven_inside(g, centres, axes, angle)
+
+
+def _uneven_inside(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(D,) how far the grey level inside each dot changes across its minor semi-axis, as a share of its contrast
+    (the median of the samples just outside its rim, :data:`EDGE_RING_PX`, less that of those inside; 0 where there
+    is none): the gradient from the first harmonic of the samples on the ellipse shrunk to
+    :data:`INSIDE_RING_SHARE` of the minor semi-axis inside the rim. The edge model takes a dot's dark level as the
+    white level's multiple (light that multiplies the board's albedo: the dark level of a dot 0.1 of the white
+    changes ~0.1 as much); light added on top, a specular reflection, changes it as much as the white."""
+    b = axes[:, 1]
+    rings = _rings(g, centres, axes, angle, np.stack([-INSIDE_RING_SHARE * b, np.full(len(b), EDGE_RING_PX)], 1))
+    v = rings[:, 0]                                                                  # (D, A)
+    contrast = row_medians(np.ascontiguousarray(rings[:, 1])) - row_medians(np.ascontiguousarray(v))
+    A = v.shape[1]
+    c1 = (2.0 / A) * (v @ _COS)                  # the first harmonic: a' (gx cos + gy sin) along the major axis
+    s1 = (2.0 / A) * (v @ _SIN)                  # ... and b' (-gx sin + gy cos) along the minor one
+    ga = c1 / np.maximum(axes[:, 0] - INSIDE_RING_SHARE * b, 1e-9)
+    gb = s1 / np.maximum((1.0 - INSIDE_RING_SHARE) * b, 1e-9)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.hypot(ga, gb) * b / contrast
+    return np.where(contrast > 0, out, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -336,8 +373,10 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     size_hi = SIZE_LIMITS[1] + SIZE_PX / np.maximum(b, 1e-9)
     shade = np.zeros(D)
     grey = np.zeros(D)
+    uneven = np.zeros(D)
     if gray is not None and np.any(ok):
-        shade[ok], grey[ok] = dark_neighbourhood(gray, c[ok], axes[ok], ang[ok])
+        shade[ok], grey[ok], uneven[ok] = dark_neighbourhood(gray, c[ok], axes[ok], ang[ok])
+    uneven_limit = max(UNEVEN_SHARE, UNEVEN_VIEW_FACTOR * median(uneven[ok])) if np.any(ok) else UNEVEN_SHARE
     marker = board.is_marker()[points]
     rel = np.full(D, np.nan)
     for kind in (False, True):
@@ -346,7 +385,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
             rel[sel] = fill[sel] / median(fill[sel])
     with np.errstate(invalid="ignore"):
         suspect = ok & (near | (coverage < MIN_COVERAGE) | (rms > res_limit) | (shade > CLEARANCE_SHARE)
-                        | (grey > GREY_SHARE) | (round_ > round_limit) | (rel < size_lo)
+                        | (grey > GREY_SHARE) | (uneven > uneven_limit) | (round_ > round_limit) | (rel < size_lo)
                         | ((rel > size_hi) & board.has_markers))
     for k in np.nonzero(suspect)[0]:              # the words, for the few dots left out
         p = int(points[k])
@@ -360,6 +399,9 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
             out[p] = f"a dark object touches it ({shade[k]:.0%} of the ring around it: an occluder's edge?)"
         elif grey[k] > GREY_SHARE:
             out[p] = f"something grey lies around it ({grey[k]:.0%} of the ring its white level comes from)"
+        elif uneven[k] > uneven_limit:
+            out[p] = (f"the light is uneven inside it ({uneven[k]:.0%} of its contrast across it: a reflection or a "
+                      "shadow's edge?)")
         elif np.isfinite(round_[k]) and round_[k] > round_limit[k]:
             out[p] = f"not round on the board (axis ratio {round_[k]:.2f}: cut or occluded?)"
         elif np.isfinite(rel[k]) and rel[k] < size_lo[k]:
