@@ -170,6 +170,7 @@ def correct_centres(
     board_xy: np.ndarray,
     *,
     init: np.ndarray | None = None,
+    H0: np.ndarray | None = None,
     max_iter: int = 10,
     tol_px: float = 1e-6,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -177,25 +178,28 @@ def correct_centres(
     ``tol_px``.
 
     ``conics``: (N, 3, 3) ellipses (undistorted pixel coordinates), in board order; ``board_xy``: (N, 2) board
-    coordinates of the circle centres (mm); ``init``: optional (N, 2) starting centres (default: ellipse centres).
-    Returns ``(centres (N, 2) px, H (3, 3) board -> image from the final centres)``. The iteration contracts fast
-    (the poles depend on the centres only through the vanishing line: steps of ~1e-2, 1e-7, 0 px on the paper's
-    views), so after a step below 1e-6 px the centres are within ~4e-7 px of the fixed point (tested; one iteration
-    fewer than a 1e-9 px tolerance).
+    coordinates of the circle centres (mm); ``init``: optional (N, 2) starting centres (default: ellipse centres);
+    ``H0``: optional (3, 3) :func:`fit_homography` of ``board_xy`` to those starting centres, where the caller has
+    it (the detector's lattice check fits it). Returns ``(centres (N, 2) px, H (3, 3) board -> image)``: ``H`` is
+    fitted to the centres of the last iteration's start, which lie within ``tol_px`` of the returned ones (not
+    fitted again to the final step: a step below ``tol_px`` moves ``H``'s images by as little), or to the returned
+    centres when ``max_iter`` ran out first. The iteration contracts fast (the poles depend on the centres only
+    through the vanishing line: steps of ~1e-2, 1e-7, 0 px on the paper's views), so after a step below 1e-6 px the
+    centres are within ~4e-7 px of the fixed point (tested; one iteration fewer than a 1e-9 px tolerance).
     """
     conics = np.asarray(conics, dtype=np.float64)
     frames = _local_frames(conics)
     local = frames.transpose(0, 2, 1) @ conics @ frames
     c = frames[:, :2, 2].copy() if init is None else np.asarray(init, np.float64).copy()
-    H = fit_homography(board_xy, c)
+    H = fit_homography(board_xy, c) if H0 is None else np.asarray(H0, np.float64)
     for _ in range(max_iter):
         line = vanishing_line(H)
         new = _poles_in_frames(frames, local, line)
         step = np.max(np.abs(new - c))
         c = new
-        H = fit_homography(board_xy, c)
         if step < tol_px:
             break
+        H = fit_homography(board_xy, c)
     return c, H
 
 

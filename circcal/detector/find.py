@@ -34,7 +34,7 @@ import numpy as np
 from circcal.board import Board
 from circcal.detector.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
 from circcal.detector.candidates import Candidate, area_limits, find_candidates
-from circcal.detector.centre import correct_centres, correct_centres_on_rays
+from circcal.detector.centre import correct_centres, correct_centres_on_rays, fit_homography
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
@@ -186,7 +186,11 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
                          notes=list(rec.notes))
     kept = tuple(p[keep] for p in params)
     ell_c = kept[0]
-    why = check_grid(board, used, ell_c, conics_d[keep], params=kept)
+    try:                                          # one fit serves the lattice check and the centre correction
+        H0 = fit_homography(board.object_points()[used, :2], ell_c)
+    except ValueError:
+        H0 = None
+    why = check_grid(board, used, ell_c, conics_d[keep], params=kept, H=H0)
     if why is not None:
         return Detection(False, None, f"grid {board.rows}x{board.cols} not trusted: {why}", Reason.IRREGULAR_GRID,
                          image_size=(W, H), candidates=cand_xy, dropped=dropped, notes=list(rec.notes))
@@ -196,7 +200,7 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
     for i, a, b in zip(used.tolist(), [0] + ends[:-1], ends):
         edge_points[i] = flat[a:b]
     try:
-        centres, conics, Hb = _correct(edge_points, board, camera, conics_d[keep], used)
+        centres, conics, Hb = _correct(edge_points, board, camera, conics_d[keep], used, H0=H0)
     except ValueError as exc:
         return Detection(False, None, f"centre correction failed: {exc}", Reason.CENTRE_CORRECTION_FAILED,
                          edge_points=edge_points, image_size=(W, H))
@@ -493,12 +497,13 @@ def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.n
 
 
 def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
-             conics: np.ndarray | None, used: np.ndarray, *, drop_uninvertible: bool = False
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             conics: np.ndarray | None, used: np.ndarray, *, drop_uninvertible: bool = False,
+             H0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centres (N, 2) in the observed image (NaN for points not in ``used``), conics (N, 3, 3) in the undistorted
     image (NaN likewise), H board -> undistorted image, from the ``edge_points`` (N lists of (M_k, 2) px, board
     order, observed image) of the board points ``used`` (K,). ``conics``: (K, 3, 3) the ellipses already fitted
-    to those edge points (observed image), reused when there is no distortion to remove. ``drop_uninvertible``: a
+    to those edge points (observed image), reused when there is no distortion to remove, with ``H0``, the homography
+    board -> their centres, where the caller has it. ``drop_uninvertible``: a
     dot whose rim a pinhole ``camera``'s distortion cannot invert everywhere is left out (NaN) instead of fitted.
     Raises ``ValueError`` when an ellipse cannot be fitted or no board homography fits the centres. A fisheye ``camera``: the centres from
     :func:`~circcal.detector.centre.correct_centres_on_rays`, the conics those given (observed image; else NaN) and
@@ -507,7 +512,8 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
     obj = board.object_points()[used, :2]
     fisheye = camera is not None and not camera.model.pinhole
     distorted = camera is not None and np.any(camera.dist) and not fisheye
-    if conics is None or distorted or fisheye:
+    reuse = conics is not None and not (distorted or fisheye)
+    if not reuse:
         sub = [edge_points[k] for k in used]
         counts = [len(p) for p in sub]
         width = max(counts) if counts else 0
@@ -536,7 +542,7 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
             i = int(np.argmax(err != 0))
             msg = FIT_ERRORS[int(err[i])]
             raise ValueError(f"{msg}, got {int(M[i].sum())}" if err[i] == 1 else msg)
-    c, H = correct_centres(conics, obj)
+    c, H = correct_centres(conics, obj, H0=H0 if reuse else None)
     if distorted:
         c = distort_pixels(c, camera)
     centres = np.full((N, 2), np.nan)

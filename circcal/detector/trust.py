@@ -464,18 +464,21 @@ def _dot_measures(pts, mask, conics, ok, axes, ang, J, W, H, border_px, near, co
 
 
 def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray,
-               params: tuple[np.ndarray, ...] | None = None) -> str | None:
+               params: tuple[np.ndarray, ...] | None = None, H: np.ndarray | None = None) -> str | None:
     """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
     (K, 3, 3); ``params``: ``conic_params_batch(conics)`` where the caller has it) are not trusted to be the board,
-    or ``None`` (module docstring)."""
+    or ``None`` (module docstring). ``H``: (3, 3) the least-squares homography board mm -> ``centres`` where the
+    caller has it (``cv2.findHomography``, all points; the detector hands it on to the centre correction)."""
     K = len(points)
     if K < 4:
         return f"only {K} dots measured"
-    obj = board.object_points()[points, :2] / board.pitch_mm
-    H, _ = cv2.findHomography(obj, centres, 0)
+    obj_mm = board.object_points()[points, :2]
+    obj = obj_mm / board.pitch_mm
+    if H is None:
+        H, _ = cv2.findHomography(obj_mm, centres, 0)
     if H is None or not np.all(np.isfinite(H)):
         return "no homography from the board explains the dots"
-    q = cv2.perspectiveTransform(obj.reshape(-1, 1, 2), H).reshape(-1, 2)
+    q = cv2.perspectiveTransform(obj_mm.reshape(-1, 1, 2), H).reshape(-1, 2)
     res = centres - q
     if K >= QUADRATIC_FROM:                       # lens distortion: a quadratic term in board coordinates
         x, y = (obj - obj.mean(axis=0)).T / max(float(np.ptp(obj)), 1.0)
