@@ -39,6 +39,7 @@ from circcal.detector.detection import Detection, Reason
 from circcal.detector.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
 from circcal.detector.image import STRETCH_TAIL_PX, as_gray, normalise_u8
+from circcal.detector.neighbours import linked_clusters
 from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
 from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
                                      segmentations, shrink, speckled)
@@ -398,25 +399,14 @@ def _cluster_windows(cands: list[Candidate], need: int, size: tuple[int, int]) -
     """Windows ``(x0, y0, x1, y1)`` px around the largest clusters of ``cands`` (full-image pixels) with at least
     ``need`` members (:data:`CLUSTER_LINK`, :data:`MAX_CLUSTER_WINDOWS`), each grown as :func:`_board_window` grows
     a recognised board's; windows larger than :data:`WINDOW_MAX_SHARE` of the image are left out."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     W, H = size
     P = np.array([c.centre for c in cands], np.float64)
     if len(P) < max(need, 2):
         return []
-    tree = cKDTree(P)
-    d, _ = tree.query(P, k=2)
-    nn = d[:, 1]
-    pairs = tree.query_pairs(CLUSTER_LINK * float(np.max(nn)), output_type="ndarray")
-    if len(pairs) == 0:
+    lab = linked_clusters(P, CLUSTER_LINK)
+    n = int(lab.max()) + 1
+    if n == len(P):                                   # no point linked to another
         return []
-    dist = np.linalg.norm(P[pairs[:, 0]] - P[pairs[:, 1]], axis=1)
-    keep = dist < CLUSTER_LINK * np.minimum(nn[pairs[:, 0]], nn[pairs[:, 1]])
-    pairs = pairs[keep]
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(P), len(P)))
-    n, lab = connected_components(g, directed=False)
     counts = np.bincount(lab, minlength=n)
     out = []
     for k in np.argsort(-counts)[:MAX_CLUSTER_WINDOWS]:

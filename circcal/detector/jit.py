@@ -334,10 +334,12 @@ def _exercise() -> None:
     # the guided filter runs on noisy images whose plain Otsu mask shows no board (not this one): called as the
     # segmentation calls it
     guided_filter(noisy, GUIDED_MIN_RADIUS, GUIDED_EPS, np.zeros(256, np.int64))
-    # the lattice search's neighbour queries (an asymmetric board, clutter: not this board's direct ordering)
-    from circcal.detector.neighbours import NeighbourGrid
+    # the lattice search's neighbour queries (an asymmetric board, clutter: not this board's direct ordering) and
+    # the small dots' clusters
+    from circcal.detector.neighbours import NeighbourGrid, linked_clusters
 
     NeighbourGrid(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2))).query(np.zeros((3, 2)), k=2)
+    linked_clusters(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2)), 2.5)
     for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0,
                img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that

@@ -1,9 +1,11 @@
 """Exact nearest-neighbour queries among the candidate dots (:class:`NeighbourGrid`): what the lattice search
-(:mod:`circcal.detector.lattice`) needs of a k-d tree, from a uniform grid of cells, compiled.
+(:mod:`circcal.detector.lattice`) needs of a k-d tree, from a uniform grid of cells, compiled; and the clusters of
+candidates linked to their near neighbours (:func:`linked_clusters`), where the search for small dots looks again.
 
-scipy's ``cKDTree`` answered these queries before; importing ``scipy.spatial`` costs a process 0.2-0.35 s (it
-pulls in scipy.sparse and scipy.linalg), more than the whole detection of an image, and every image of an
-asymmetric board needed it. Pixel convention: OpenCV's; points are ``(x, y)``.
+scipy's ``cKDTree`` (and ``scipy.sparse.csgraph`` for the clusters) answered these before; importing
+``scipy.spatial`` costs a process 0.2-0.35 s (it pulls in scipy.sparse and scipy.linalg), more than the whole
+detection of an image, and every image of an asymmetric board needed it. Pixel convention: OpenCV's; points are
+``(x, y)``.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import numpy as np
 
 from circcal.detector.jit import njit
 
-__all__ = ["NeighbourGrid"]
+__all__ = ["NeighbourGrid", "linked_clusters"]
 
 POINTS_PER_CELL = 2.0
 """The grid's cells hold about this many points on average (square cells over the points' bounding box)."""
@@ -48,6 +50,65 @@ class NeighbourGrid:
         _query(self.points, float(self.origin[0]), float(self.origin[1]), self.cell, self.shape[0], self.shape[1],
                self.start, self.items, q, int(k), dist, idx)
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
+
+
+def linked_clusters(points: np.ndarray, link: float) -> np.ndarray:
+    """(M,) int64 cluster label of each of ``points`` (M, 2) px: two points are linked when their distance is below
+    ``link`` times the smaller of their nearest-neighbour distances, and a cluster is what links connect. Labels
+    count from 0 in the order of each cluster's lowest point index (``scipy.sparse.csgraph.connected_components``'
+    numbering). Each point's linked partners come from its nearest neighbours, ``k`` doubled until the ``k``-th lies
+    beyond its reach (no radius common to all: one isolated point does not make every point search the image)."""
+    P = np.ascontiguousarray(points, np.float64).reshape(-1, 2)
+    M = len(P)
+    if M < 2:
+        return np.arange(M, dtype=np.int64)
+    grid = NeighbourGrid(P)
+    nn = grid.query(P, k=2)[0][:, 1]
+    reach = link * nn
+    firsts, seconds = [], []
+    todo = np.arange(M)
+    k = min(M, 16)
+    while len(todo):
+        d, idx = grid.query(P[todo], k=k)
+        done = (d[:, -1] >= reach[todo]) | (k == M)
+        i = np.repeat(todo[done], k)
+        j = idx[done].ravel()
+        # partners beyond the point itself, each pair once (i < j), within both points' reach; the pair's distance
+        # as numpy computes it (the kernel's differs in the last bit at most)
+        near = (j > i) & (d[done].ravel() <= reach[i] * (1.0 + 1e-12))
+        i, j = i[near], j[near]
+        ok = np.linalg.norm(P[i] - P[j], axis=1) < link * np.minimum(nn[i], nn[j])
+        firsts.append(i[ok])
+        seconds.append(j[ok])
+        todo = todo[~done]
+        k = min(M, 2 * k)
+    roots = np.arange(M, dtype=np.int64)
+    _union(np.concatenate(firsts), np.concatenate(seconds), roots)
+    return np.unique(roots, return_inverse=True)[1].astype(np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _union(a, b, roots):
+    """Joins the sets of ``a[e]`` and ``b[e]`` (E,) int64 for each link ``e`` in the union-find forest ``roots``
+    (M,) int64 (each point's parent; a root is its own), then points every entry at its set's root: the set's
+    lowest index."""
+    for e in range(len(a)):
+        ra, rb = _root(roots, a[e]), _root(roots, b[e])
+        if ra < rb:
+            roots[rb] = ra
+        elif rb < ra:
+            roots[ra] = rb
+    for i in range(len(roots)):
+        roots[i] = _root(roots, i)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _root(roots, i):
+    """The root of ``i`` in the forest ``roots``, halving the path on the way."""
+    while roots[i] != i:
+        roots[i] = roots[roots[i]]
+        i = roots[i]
+    return i
 
 
 @njit(cache=True, nogil=True, inline="always")
