@@ -38,7 +38,14 @@ def test_the_k_nearest_are_cKDTrees(kind, k):
     assert np.allclose(np.linalg.norm(P[np.where(ok, ii, 0)] - Q[:, None], axis=-1)[ok], dd[ok], rtol=0, atol=0)
 
 
-def test_an_asymmetric_board_is_detected_without_importing_scipy(tmp_path):
+def _printed(code: str) -> list[str]:
+    """The words ``code`` prints, run in a fresh interpreter (what a new process imports is the question)."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+    return out.stdout.split()
+
+
+def test_an_asymmetric_board_is_detected_without_importing_scipy():
     # the lattice search (every asymmetric board, any board among clutter) used scipy's k-d tree: 0.2-0.35 s of
     # import in a one-image `circcal detect`, more than the detection
     code = ("import sys, numpy as np\n"
@@ -55,8 +62,7 @@ def test_an_asymmetric_board_is_detected_without_importing_scipy(tmp_path):
             "before = 'scipy.spatial' in sys.modules\n"
             "d = detect(img, b)\n"
             "print(d.found, before, 'scipy.spatial' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["True", "False", "False"], out.stdout + out.stderr
+    assert _printed(code) == ["True", "False", "False"]
 
 
 def _scipy_clusters(P: np.ndarray, link: float) -> np.ndarray:
@@ -109,5 +115,4 @@ def test_small_dots_are_searched_without_importing_scipy():
             "F._cluster_windows = lambda *a: calls.append(1) or orig(*a)\n"
             "d = detect(img, b)\n"
             "print(d.found, len(calls) > 0, 'scipy' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["True", "True", "False"], out.stdout + out.stderr
+    assert _printed(code) == ["True", "True", "False"]
