@@ -1,8 +1,9 @@
 """Detection at any resolution (issue 17), on rendered images, against the truth (no timing: speed is in
-benchmarks/bench_detect.py): 7x7 boards of dots 6, 8 and 12 px across in a 4000x3000 frame, and a 7x7 board spanning
-300 px in an 8000x6000 frame, each on a darker background with sensor noise (what a global threshold or a
-contrast stretch over the whole frame loses: the board is 0.04-0.2 % of the pixels); boards only a few noise sigmas
-deep, found on coarser block means; frames of noise alone refused at every scale."""
+benchmarks/bench_detect.py): 7x7 boards of dots 6, 8 and 12 px across in a 4000x3000 frame, of dots 6 px across in
+an 8000x6000 (48 MP) frame, and a 7x7 board spanning 300 px in an 8000x6000 frame, each on a darker background with
+sensor noise (what a global threshold or a contrast stretch over the whole frame loses: the board is 0.02-0.2 % of
+the pixels); boards only a few noise sigmas deep, found on coarser block means; frames of noise alone refused at
+every scale."""
 from __future__ import annotations
 
 import numpy as np
@@ -20,6 +21,7 @@ BOARD = Board(7, 7, 10.0, 5.0)
     ((4000, 3000), 8.0, (2600.0, 900.0)),
     ((4000, 3000), 12.0, (2000.0, 1500.0)),
     ((8000, 6000), 20.0, (5200.0, 2100.0)),      # pitch 40 px: the board spans ~300 px
+    ((8000, 6000), 6.0, (6200.0, 4600.0)),       # the issue's floor at its largest frame: 6 px dots in 48 MP
 ])
 def test_small_board_or_small_dots_in_a_large_frame(size, dot_px, centre):
     img, truth = embedded_board(BOARD, *size, dot_px / 2, centre)
@@ -30,7 +32,7 @@ def test_small_board_or_small_dots_in_a_large_frame(size, dot_px, centre):
     e = np.min([np.linalg.norm(d.centres - truth[s.perm], axis=1).max() for s in BOARD.symmetries()])
     print(f"\n{size[0]}x{size[1]}, dots {dot_px:g} px, board spanning {span:.0f} px: found at {d.segmentation}, "
           f"max centre error {e:.4f} px")
-    if size == (8000, 6000):
+    if size == (8000, 6000) and dot_px == 20.0:
         assert 280 <= span <= 320
     assert e < 0.05    # 6 px dots under noise 0.005: measured <= 0.016 px
 
