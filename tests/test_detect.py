@@ -846,14 +846,14 @@ def test_shrink_is_opencvs_area_resize():
 
 
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):
-    from circcal.detector import find
+    from circcal.detector import search
 
     cam = Camera(1600, 1200, 2000.0, 2000.0, 799.5, 599.5)
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
     img = cv2.GaussianBlur(img, (0, 0), 1.0) + np.random.default_rng(2).normal(0, 0.01, img.shape)
     half = detect(img, BOARD)
     assert half.found and half.segmentation.endswith("@1/3")   # 1200 // 360
-    monkeypatch.setattr(find, "segmentation_scales", lambda h, w: (1,))
+    monkeypatch.setattr(search, "segmentation_scales", lambda h, w: (1,))
     full = detect(img, BOARD)
     assert full.found and "@" not in full.segmentation
     e_half, e_full = matched_errors(BOARD, half.centres, truth), matched_errors(BOARD, full.centres, truth)

@@ -106,13 +106,13 @@ def test_small_dots_are_searched_without_importing_scipy():
     code = ("import sys\n"
             "from circcal.board import Board\n"
             "from circcal.detector import detect\n"
-            "import circcal.detector.find as F\n"
+            "import circcal.detector.search as S\n"
             "from circcal.fixtures.frames import embedded_board\n"
             "b = Board(7, 7, 10.0, 5.0)\n"
             "img, _ = embedded_board(b, 4000, 3000, 3.0, (1800.0, 1650.0))\n"
             "calls = []\n"
-            "orig = F._cluster_windows\n"
-            "F._cluster_windows = lambda *a: calls.append(1) or orig(*a)\n"
+            "orig = S._cluster_windows\n"
+            "S._cluster_windows = lambda *a: calls.append(1) or orig(*a)\n"
             "d = detect(img, b)\n"
             "print(d.found, len(calls) > 0, 'scipy' in sys.modules)\n")
     assert _printed(code) == ["True", "True", "False"]
