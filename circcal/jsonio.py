@@ -6,6 +6,7 @@ from __future__ import annotations
 import enum
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,7 @@ import numpy as np
 
 from circcal.errors import InputError
 
-__all__ = ["jsonable", "dumps", "read_text", "parse_json", "read_json"]
+__all__ = ["jsonable", "dumps", "read_text", "parse_json", "read_json", "depth_over"]
 
 
 def jsonable(x: Any) -> Any:
@@ -48,31 +49,119 @@ def dumps(x: Any, **kwargs: Any) -> str:
     return json.dumps(jsonable(x), allow_nan=False, **kwargs)
 
 
-def read_text(path: str | Path, what: str = "file") -> str:
+def read_text(path: str | Path, what: str = "file", *, max_bytes: int | None = None) -> str:
     """The text in ``path``; :class:`~circcal.errors.InputError` naming the file (as ``what``) when it is missing,
-    not a file, or cannot be read or decoded."""
+    not a file, larger than ``max_bytes`` (checked before reading), or cannot be read or decoded."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} {p}: {'no such file' if not p.exists() else 'not a file'}")
     try:
-        return p.read_text()
+        if max_bytes is None:
+            return p.read_text()
+        size = p.stat().st_size
+        if size > max_bytes:
+            raise InputError(f"{what} {p}: {size} bytes, more than the {max_bytes} such a file may hold")
+        with p.open("rb") as f:
+            data = f.read(max_bytes + 1)  # (a file that grew since the stat is still cut off here)
+        if len(data) > max_bytes:
+            raise InputError(f"{what} {p}: more than the {max_bytes} bytes such a file may hold")
+        return data.decode()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{what} {p}: cannot read it ({exc})") from None
 
 
-def parse_json(text: str) -> Any:
-    """``json.loads(text)``; :class:`~circcal.errors.InputError` with the line and column of a syntax error."""
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[{}\[\]:,]|[^\s{}\[\]:,"]+')
+
+
+def depth_over(text: str, max_depth: int) -> int | None:
+    """The line where ``text``'s brackets (``[``/``{`` against ``]``/``}``, as JSON's and YAML's flow collections
+    nest) first nest deeper than ``max_depth``, or None. Double-quoted strings are left out; numpy counts the
+    brackets, so a 64 MiB text costs well under a second."""
+    bare = _STRING.sub('""', text) if '"' in text else text
+    b = np.frombuffer(bare.encode(), dtype=np.uint8)
+    step = ((b == ord("[")) | (b == ord("{"))).astype(np.int8) - ((b == ord("]")) | (b == ord("}")))
+    nz = np.flatnonzero(step)
+    if nz.size == 0:
+        return None
+    depth = np.cumsum(step[nz], dtype=np.int32)
+    over = np.flatnonzero(depth > max_depth)
+    if over.size == 0:
+        return None
+    return bare.encode()[: int(nz[over[0]])].count(b"\n") + 1
+
+
+def _duplicate_key(text: str) -> tuple[str, int] | None:
+    """The first key repeated within one JSON object of ``text``, with its line (only called once a duplicate is
+    known, to say where)."""
+    stack: list[set | None] = []
+    line, last, expect_key = 1, 0, False
+    for m in _TOKEN.finditer(text):
+        tok = m.group()
+        if tok == "{":
+            stack.append(set())
+            expect_key = True
+        elif tok == "[":
+            stack.append(None)
+        elif tok in "]}":
+            stack.pop() if stack else None
+            expect_key = False
+        elif tok == ",":
+            expect_key = bool(stack) and stack[-1] is not None
+        elif expect_key and tok.startswith('"'):
+            line += text.count("\n", last, m.start())
+            last = m.start()
+            key = json.loads(tok)
+            if key in stack[-1]:
+                return key, line
+            stack[-1].add(key)
+            expect_key = False
+    return None
+
+
+def parse_json(text: str, *, max_depth: int | None = None, max_int_digits: int | None = None,
+               unique_keys: bool = False) -> Any:
+    """``json.loads(text)``; :class:`~circcal.errors.InputError` with the line and column of a syntax error. Hostile
+    texts are refused in words, never with Python's own exceptions: nesting deeper than ``max_depth`` (checked before
+    parsing; without it, as deep as Python's recursion allows), integers of more than ``max_int_digits`` digits
+    (without it, Python's 4300), and with ``unique_keys`` a key repeated in one object (``duplicate key 'fx' at line
+    N``)."""
+    if max_depth is not None:
+        line = depth_over(text, max_depth)
+        if line is not None:
+            raise InputError(f"JSON nested deeper than {max_depth} levels (at line {line})")
+
+    def parse_int(s: str) -> int:
+        if max_int_digits is not None and len(s.lstrip("-")) > max_int_digits:
+            raise InputError(f"an integer of {len(s.lstrip('-'))} digits (at most {max_int_digits})")
+        return int(s)
+
+    def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        d = dict(pairs)
+        if len(d) != len(pairs):
+            found = _duplicate_key(text)
+            key, line = found if found is not None else ([k for k, _ in pairs if k in d][0], "?")
+            raise InputError(f"duplicate key {key!r} at line {line}")
+        return d
+
     try:
-        return json.loads(text)
+        return json.loads(text, parse_int=parse_int, object_pairs_hook=unique if unique_keys else None)
     except json.JSONDecodeError as exc:
         raise InputError(f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except RecursionError:
+        raise InputError("JSON nested too deeply to parse") from None
+    except InputError:
+        raise
+    except ValueError as exc:  # Python's own integer-digit limit
+        raise InputError(f"not readable JSON ({exc})") from None
 
 
-def read_json(path: str | Path, what: str = "JSON file") -> Any:
+def read_json(path: str | Path, what: str = "JSON file", **limits: Any) -> Any:
     """The data in ``path``; :class:`~circcal.errors.InputError` naming the file for a missing, unreadable or
-    malformed one. ``what`` names the kind of file in messages."""
-    text = read_text(path, what)
+    malformed one. ``what`` names the kind of file in messages; ``limits``: ``max_bytes`` (:func:`read_text`) and
+    the keywords of :func:`parse_json`."""
+    text = read_text(path, what, max_bytes=limits.pop("max_bytes", None))
     try:
-        return parse_json(text)
+        return parse_json(text, **limits)
     except InputError as exc:
         raise InputError(f"{what} {path}: {exc}") from None

@@ -17,8 +17,11 @@ from typing import Callable
 
 import numpy as np
 
+from circcal.errors import ModelFileError
 from circcal.formats import read_model
-from circcal.formats.mrcal import cameramodel_has_optimization_inputs
+from circcal.formats.limits import MAX_MODEL_FILE_BYTES
+from circcal.formats.mrcal import cameramodel_has_optimization_inputs, check_optimization_inputs
+from circcal.jsonio import read_text
 from circcal.model import Camera
 
 __all__ = ["LoadedModel", "load_model", "resolve_document", "RESOLVE_TOL_PX"]
@@ -67,7 +70,9 @@ def resolve_document(camera: Camera, document: dict):
 
 def load_model(path: str | Path) -> LoadedModel:
     """Read ``path`` (any format; :class:`~circcal.errors.ModelFileError` naming the file when it cannot be read)
-    and find its uncertainty (see the module)."""
+    and find its uncertainty (see the module). An mrcal file's optimisation inputs are checked before mrcal gets
+    them (:func:`circcal.formats.mrcal.check_optimization_inputs`), and mrcal's refusal of them later, when the
+    uncertainty is asked for, is a :class:`~circcal.errors.ModelFileError` naming the file too."""
     from circcal.solver.uncertainty import result_projection_stdev
 
     p = Path(path)
@@ -78,14 +83,26 @@ def load_model(path: str | Path) -> LoadedModel:
             return LoadedModel(p, camera, lambda uv, d: result_projection_stdev(res, uv, distance=d),
                                f"circcal's, from the {len(res.rvecs)} views' observations in the file")
         return LoadedModel(p, camera, None, "the model.json holds no observations of its views")
-    text = p.read_text()
+    text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     if cameramodel_has_optimization_inputs(text):
         from circcal.validators.mrcal import mrcal_python
-        from circcal.validators.mrcal_export import mrcal_uncertainty
+        from circcal.validators.mrcal_export import ExportError, mrcal_uncertainty
 
+        try:
+            check_optimization_inputs(text)
+        except ModelFileError as exc:
+            raise ModelFileError(f"camera file {p} (mrcal): {exc}") from None
         py, why, info = mrcal_python()
         if py is None:
             return LoadedModel(p, camera, None, f"it has mrcal optimisation inputs, but {why}")
-        return LoadedModel(p, camera, lambda uv, d: mrcal_uncertainty(text, uv, distance=d, python=py),
+
+        def uncertainty(uv: np.ndarray, d: float | None) -> np.ndarray:
+            try:
+                return mrcal_uncertainty(text, uv, distance=d, python=py)
+            except ExportError as exc:  # mrcal refused the file's optimisation inputs (checked only in outline)
+                raise ModelFileError(f"camera file {p} (mrcal): mrcal cannot compute the projection uncertainty "
+                                     f"from its optimization_inputs: {' '.join(str(exc).split())[-300:]}") from None
+
+        return LoadedModel(p, camera, uncertainty,
                            f"mrcal {info.get('version', '')}'s, from the file's optimisation inputs")
     return LoadedModel(p, camera, None, "the file holds no optimisation inputs or observations")

@@ -19,17 +19,20 @@ format             module and file
 
 :func:`read_camera` (every command reads models through it) and :func:`write_camera` pick the format from the file
 name and, for reading, its content. Reading checks every value and names the file and the field in its error
-(:class:`~circcal.errors.ModelFileError`); writing is atomic (a temporary file in the same folder, then a rename),
-so a failed write leaves an earlier file as it was.
+(:class:`~circcal.errors.ModelFileError`), within the limits of :mod:`~circcal.formats.limits` (one place for every
+bound and the value checks all readers share). circcal's own model.json is read strictly (an unknown field is
+refused by name); the foreign formats (OpenCV, ROS, mrcal, COLMAP) carry extra fields by custom, which are ignored.
+Writing is atomic (a temporary file in the same folder, then a rename), so a failed write leaves an earlier file
+as it was.
 """
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
 from circcal import atomic
 from circcal.errors import InputError, ModelFileError
+from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_camera
 from circcal.formats.colmap import COLMAP_PIXEL_OFFSET, camera_from_colmap, camera_to_colmap
 from circcal.formats.modeljson import MODEL_FORMAT, MODEL_SECTIONS, MODEL_VERSION, camera_from_json, model_json
 from circcal.formats.mrcal import camera_from_cameramodel, camera_to_cameramodel
@@ -57,9 +60,9 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
         head = text.lstrip()
         if head.startswith("{") and ext != ".cameramodel":
             try:
-                json.loads(text)
+                parse_json(text, **JSON_LIMITS)
                 return "json"
-            except json.JSONDecodeError:
+            except InputError:  # not JSON (a mrcal literal, YAML's flow style), or JSON refused: ext decides
                 pass
         if "lensmodel" in text and "intrinsics" in text:
             return "mrcal"
@@ -89,22 +92,24 @@ def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict |
     """The camera in ``path`` (any supported format: ``fmt``, else from its content and name) and, for a
     model.json, the whole document (None for the other formats). Errors name the file: a missing or unreadable
     file, an unknown format, a malformed file or a value outside the model (:class:`~circcal.errors.ModelFileError`,
-    an :class:`~circcal.errors.InputError`)."""
+    an :class:`~circcal.errors.InputError`). Every reader applies :mod:`circcal.formats.limits`: the file's size
+    (checked before it is read), nesting, integers' digits, repeated keys, and the camera's values
+    (:func:`~circcal.formats.limits.check_camera`)."""
     p = Path(path)
     try:
-        text = read_text(p, "camera file")
+        text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     except InputError as exc:
         raise ModelFileError(str(exc)) from None
     try:
         fmt = fmt or detect_format(p, text)
         if fmt == "json":
-            data = parse_json(text)
-            return camera_from_json(data), data
+            data = parse_json(text, **JSON_LIMITS)
+            return check_camera(camera_from_json(data)), data
         readers = {"opencv": camera_from_opencv_yaml, "mrcal": camera_from_cameramodel,
                    "colmap": camera_from_colmap, "ros": camera_from_ros_yaml}
         if fmt not in readers:
             raise InputError(f"unknown camera format {fmt!r}; expected one of {', '.join(FORMATS)}")
-        return readers[fmt](text), None
+        return check_camera(readers[fmt](text)), None
     except InputError as exc:  # the reader's and the camera's own checks: say which file
         raise ModelFileError(f"camera file {p} ({fmt or 'unknown format'}): {exc}") from None
 

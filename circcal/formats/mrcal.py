@@ -1,6 +1,7 @@
 """mrcal ``.cameramodel`` files: a Python dict literal with ``lensmodel``, ``intrinsics`` ``[fx, fy, cx, cy,
-distortion...]`` and ``imagersize`` (mrcal's pixel convention is OpenCV's). Read with ``ast.literal_eval``, so no
-mrcal is needed.
+distortion...]`` and ``imagersize`` (mrcal's pixel convention is OpenCV's). Read as a literal without evaluating
+anything (:func:`parse_cameramodel`: an ``ast`` walk that allows literals only), so no mrcal is needed; mrcal's
+other keys (extrinsics, optimisation inputs, ...) are a foreign format's extras, ignored by the camera's reader.
 
 Lens models: ``LENSMODEL_OPENCVn`` holds OpenCV's distortion vector of n coefficients in OpenCV's order, so
 ``opencv5`` is ``LENSMODEL_OPENCV5``, ``rational`` ``LENSMODEL_OPENCV8`` and ``thin-prism`` ``LENSMODEL_OPENCV12``.
@@ -9,15 +10,18 @@ stereographic), so a ``fisheye`` camera is refused with that reason."""
 from __future__ import annotations
 
 import ast
+from typing import Any
 
 import numpy as np
 
 from circcal.errors import InputError, ModelFileError
+from circcal.formats.limits import MAX_INTEGER_DIGITS, MAX_NESTING_DEPTH, integer, number_list, show
 from circcal.formats.opencv import camera_from_K_dist
 from circcal.model import Camera
 
-__all__ = ["MRCAL_LENSMODELS", "camera_to_cameramodel", "camera_from_cameramodel",
-           "cameramodel_has_optimization_inputs"]
+__all__ = ["MRCAL_LENSMODELS", "MRCAL_REQUIRED_INPUTS", "MAX_OPTIMIZATION_INPUTS_BYTES", "camera_to_cameramodel",
+           "camera_from_cameramodel", "parse_cameramodel", "cameramodel_has_optimization_inputs",
+           "check_optimization_inputs"]
 
 #: circcal's lens model -> mrcal's (the fisheye has none in mrcal 2.2).
 MRCAL_LENSMODELS: dict[str, str] = {"opencv5": "LENSMODEL_OPENCV5", "rational": "LENSMODEL_OPENCV8",
@@ -46,39 +50,145 @@ def camera_to_cameramodel(camera: Camera) -> str:
             "}\n")
 
 
+def parse_cameramodel(text: str) -> dict:
+    """The dict of mrcal ``.cameramodel`` text, read as a Python literal without evaluating anything:
+    ``ast.parse(mode="eval")``, then a walk that allows only dicts, lists, tuples, strings, bytes (mrcal's
+    optimisation inputs), numbers (a unary minus or plus on a number literal included), True, False and None.
+    Operators, names, calls, repeated keys, integers of more than
+    :data:`~circcal.formats.limits.MAX_INTEGER_DIGITS` digits and nesting deeper than
+    :data:`~circcal.formats.limits.MAX_NESTING_DEPTH` are refused by name with their line. Raises
+    :class:`~circcal.errors.ModelFileError`."""
+    try:
+        tree = ast.parse(text, mode="eval")
+    except (SyntaxError, ValueError, MemoryError, RecursionError) as exc:
+        raise ModelFileError(f"not a mrcal .cameramodel (not a Python dict literal: "
+                             f"{' '.join(str(getattr(exc, 'msg', exc)).split())[:200]})") from None
+    d = _literal(tree.body, 0)
+    if not isinstance(d, dict):
+        raise ModelFileError(f"not a mrcal .cameramodel: expected a dict literal, got a {type(d).__name__}")
+    return d
+
+
+def _literal(node: ast.AST, depth: int) -> Any:
+    """The value of a literal ``node`` (see :func:`parse_cameramodel`)."""
+    line = f"at line {getattr(node, 'lineno', '?')}"
+    if depth > MAX_NESTING_DEPTH:
+        raise ModelFileError(f"nested deeper than {MAX_NESTING_DEPTH} levels ({line})")
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)) \
+            and isinstance(node.operand, ast.Constant) and _is_num(node.operand.value):
+        v = _literal(node.operand, depth + 1)
+        return -v if isinstance(node.op, ast.USub) else v
+    if isinstance(node, ast.Constant):
+        v = node.value
+        if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 10**MAX_INTEGER_DIGITS:
+            raise ModelFileError(f"an integer of more than {MAX_INTEGER_DIGITS} digits {line}")
+        if v is None or isinstance(v, (str, bytes, bool, int, float)):
+            return v
+        raise ModelFileError(f"a {type(v).__name__} constant {line} is no camera-model value")
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_literal(e, depth + 1) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Dict):
+        out: dict = {}
+        for k, v in zip(node.keys, node.values):
+            if k is None:
+                raise ModelFileError(f"a ** unpacking {line} is not a literal")
+            key = _literal(k, depth + 1)
+            try:
+                hash(key)
+            except TypeError:
+                raise ModelFileError(f"a {type(key).__name__} as a dict key {line}") from None
+            if key in out:
+                raise ModelFileError(f"duplicate key {show(key)} at line {k.lineno}")
+            out[key] = _literal(v, depth + 1)
+        return out
+    what = type(node).__name__
+    if isinstance(node, (ast.BinOp, ast.UnaryOp, ast.BoolOp)):
+        what = f"the operator {type(node.op).__name__}"
+    raise ModelFileError(f"{what} {line} is not a literal: a .cameramodel holds only dicts, lists, tuples, "
+                         f"strings, bytes, numbers, True, False and None")
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def camera_from_cameramodel(text: str) -> Camera:
-    """Camera from mrcal ``.cameramodel`` text (read with ``ast.literal_eval``; no mrcal needed). Accepts
+    """Camera from mrcal ``.cameramodel`` text (:func:`parse_cameramodel`; no mrcal needed). Accepts
     LENSMODEL_PINHOLE and LENSMODEL_OPENCV4/5/8/12 (the lens model from the coefficients, zeros beyond k3 reading
-    as ``opencv5``: :func:`circcal.formats.opencv.pinhole_lens_of`)."""
-    try:
-        d = ast.literal_eval(text)
-    except (ValueError, SyntaxError) as exc:
-        raise ModelFileError(f"not a mrcal .cameramodel (not a Python dict literal): {exc}") from None
-    if not isinstance(d, dict) or "lensmodel" not in d or "intrinsics" not in d or "imagersize" not in d:
-        raise ModelFileError("not a mrcal .cameramodel: needs 'lensmodel', 'intrinsics' and 'imagersize'")
-    model = str(d["lensmodel"])
-    try:
-        p = np.asarray(d["intrinsics"], dtype=np.float64).ravel()
-        w, h = d["imagersize"]
-    except (TypeError, ValueError):
-        raise ModelFileError(f"{model}: 'intrinsics' must be a list of numbers and 'imagersize' [width, height], got "
-                             f"{d['intrinsics']!r} and {d['imagersize']!r}") from None
-    n = {"LENSMODEL_PINHOLE": 4, "LENSMODEL_OPENCV4": 8, "LENSMODEL_OPENCV5": 9, "LENSMODEL_OPENCV8": 12,
-         "LENSMODEL_OPENCV12": 16}.get(model)
+    as ``opencv5``: :func:`circcal.formats.opencv.pinhole_lens_of`). Keys other than ``lensmodel``, ``intrinsics``
+    and ``imagersize`` (``extrinsics``, ``optimization_inputs``, ``valid_intrinsics_region``, ...) are a foreign
+    format's extras: ignored here. Raises :class:`~circcal.errors.ModelFileError`."""
+    d = parse_cameramodel(text)
+    missing = [k for k in ("lensmodel", "intrinsics", "imagersize") if k not in d]
+    if missing:
+        raise ModelFileError(f"not a mrcal .cameramodel: no {', '.join(repr(k) for k in missing)} (it needs "
+                             f"'lensmodel', 'intrinsics' and 'imagersize')")
+    model = d["lensmodel"]
+    n = _MRCAL_INTRINSICS.get(model) if isinstance(model, str) else None
     if n is None:
-        raise ModelFileError(f"mrcal lens model {model} has no exact circcal equivalent; supported: "
+        raise ModelFileError(f"mrcal lens model {show(model)} has no exact circcal equivalent; supported: "
                              f"LENSMODEL_PINHOLE, LENSMODEL_OPENCV4/5/8/12")
-    if p.size != n:
-        raise ModelFileError(f"{model} needs {n} intrinsics, got {p.size}")
+    p = number_list(d["intrinsics"], f"{model} 'intrinsics'", n)
+    size = d["imagersize"]
+    if not isinstance(size, (list, tuple)) or len(size) != 2:
+        raise ModelFileError(f"'imagersize' must be [width, height], got {show(size)}")
+    w, h = integer(size[0], "'imagersize'[0] (width)"), integer(size[1], "'imagersize'[1] (height)")
     K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
     return camera_from_K_dist(w, h, K, p[4:], model)
 
 
+#: mrcal's lens models circcal reads, with their intrinsics' counts (fx, fy, cx, cy + the distortion).
+_MRCAL_INTRINSICS = {"LENSMODEL_PINHOLE": 4, "LENSMODEL_OPENCV4": 8, "LENSMODEL_OPENCV5": 9, "LENSMODEL_OPENCV8": 12,
+                     "LENSMODEL_OPENCV12": 16}
+#: The optimisation inputs mrcal's projection uncertainty cannot do without (mrcal.optimizer_callback's arguments
+#: with no default, and the board spacing it needs with board observations; each one's absence measured to fail in
+#: mrcal 2.2, the rest default).
+MRCAL_REQUIRED_INPUTS = ("intrinsics", "extrinsics_rt_fromref", "frames_rt_toref", "points", "observations_board",
+                         "indices_frame_camintrinsics_camextrinsics", "observations_point",
+                         "indices_point_camintrinsics_camextrinsics", "lensmodel", "imagersizes",
+                         "calibration_object_spacing")
+#: Bytes the optimisation inputs may unpack to (their npz archive's stated sizes): mrcal's inputs of a 100-view
+#: calibration are a few MiB.
+MAX_OPTIMIZATION_INPUTS_BYTES = 256 * 2**20
+
+
 def cameramodel_has_optimization_inputs(text: str) -> bool:
     """Whether ``.cameramodel`` text carries mrcal's ``optimization_inputs`` (what mrcal-show-projection-uncertainty
-    and mrcal-show-residuals need); read with ``ast.literal_eval``, no mrcal needed."""
+    and mrcal-show-residuals need); no mrcal needed. False for text that is no .cameramodel."""
     try:
-        d = ast.literal_eval(text)
-    except (ValueError, SyntaxError):
+        d = parse_cameramodel(text)
+    except ModelFileError:
         return False
-    return isinstance(d, dict) and bool(d.get("optimization_inputs"))
+    return bool(d.get("optimization_inputs"))
+
+
+def check_optimization_inputs(text: str) -> None:
+    """Check the ``optimization_inputs`` of ``.cameramodel`` text before mrcal is asked to use them: bytes (mrcal's
+    base85 npz), with ``icam_intrinsics`` an integer >= 0, unpacking to at most
+    :data:`MAX_OPTIMIZATION_INPUTS_BYTES`, and holding every array of :data:`MRCAL_REQUIRED_INPUTS`. Raises
+    :class:`~circcal.errors.ModelFileError` naming the key."""
+    import base64
+    import binascii
+    import io
+    import zipfile
+
+    d = parse_cameramodel(text)
+    blob = d.get("optimization_inputs")
+    if not isinstance(blob, bytes):
+        raise ModelFileError(f"'optimization_inputs' must be mrcal's byte string, got {show(blob)}")
+    integer(d.get("icam_intrinsics"), "'icam_intrinsics' (given with optimization_inputs)", 0, 10**6)
+    try:
+        z = zipfile.ZipFile(io.BytesIO(base64.b85decode(blob)))
+        infos = z.infolist()
+    except (ValueError, binascii.Error, zipfile.BadZipFile, OSError) as exc:
+        raise ModelFileError(f"'optimization_inputs' is not mrcal's encoded npz archive ({exc})") from None
+    total = sum(i.file_size for i in infos)
+    if total > MAX_OPTIMIZATION_INPUTS_BYTES:
+        raise ModelFileError(f"'optimization_inputs' unpack to {total} bytes, more than "
+                             f"{MAX_OPTIMIZATION_INPUTS_BYTES}")
+    names = {i.filename[:-4] if i.filename.endswith(".npy") else i.filename for i in infos}
+    missing = [k for k in MRCAL_REQUIRED_INPUTS if k not in names]
+    if missing:
+        raise ModelFileError(f"'optimization_inputs' lack {', '.join(repr(k) for k in missing)} (mrcal's projection "
+                             f"uncertainty needs {', '.join(MRCAL_REQUIRED_INPUTS)})")

@@ -3,12 +3,18 @@
 (samples/cpp/tutorial_code/calib3d/camera_calibration) writes them, with its ``fisheye_model: 1`` for a
 cv2.fisheye camera (``distortion_coefficients`` then its 4x1 ``D`` = k1..k4); and :func:`camera_from_K_dist`, the one
 conversion from an OpenCV camera matrix and distortion vector that every format holding them (OpenCV, mrcal, ROS,
-COLMAP) reads through."""
+COLMAP) reads through.
+
+Nodes beyond these (OpenCV's calibration sample writes its settings, per-view extrinsics, errors, ...) are a foreign
+format's extras: ignored."""
 from __future__ import annotations
+
+import re
 
 import numpy as np
 
 from circcal.errors import ModelFileError
+from circcal.formats.limits import check_K, check_nesting, integer, number, show
 from circcal.model import Camera
 
 __all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES",
@@ -43,36 +49,85 @@ def camera_from_opencv_yaml(text: str) -> Camera:
     """Camera from an OpenCV FileStorage text (YAML or XML). Pinhole: 4, 5, 8, 12 or 14 distortion coefficients
     (the lens model from them, :func:`pinhole_lens_of`; the tilt of 14 must be zero); with a nonzero
     ``fisheye_model`` (OpenCV's calibration sample) a cv2.fisheye camera with its 4 coefficients.
-    ``image_width``/``image_height`` (or ``image_size``) are required."""
+    ``image_width``/``image_height`` (or ``image_size``) are required. Each matrix must be an ``opencv-matrix``
+    mapping whose ``rows`` x ``cols`` match its ``data`` and whose ``dt`` is a one-channel type; every value is
+    checked (:mod:`circcal.formats.limits`). XML document types and entities, and nesting deeper than
+    :data:`~circcal.formats.limits.MAX_NESTING_DEPTH`, are refused before OpenCV's parser sees the text. Other
+    nodes (OpenCV's sample writes many) are ignored. Raises :class:`~circcal.errors.ModelFileError`."""
     import cv2
 
+    check_nesting(text)
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as exc:
-        raise ModelFileError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
+        raise ModelFileError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1][:300]})") from None
     if not fs.isOpened():
         raise ModelFileError("not an OpenCV FileStorage file")
     try:
-        K = fs.getNode("camera_matrix").mat()
-        if K is None:
-            raise ModelFileError("no camera_matrix node")
-        d = fs.getNode("distortion_coefficients").mat()
-        if d is None:
-            raise ModelFileError("no distortion_coefficients node")
+        K = _fs_matrix(fs.getNode("camera_matrix"), "camera_matrix", max_size=9)
+        if K.shape != (3, 3):
+            raise ModelFileError(f"camera_matrix must be 3x3, got {K.shape[0]}x{K.shape[1]}")
+        d = _fs_matrix(fs.getNode("distortion_coefficients"), "distortion_coefficients",
+                       max_size=max(OPENCV_DIST_SIZES))
+        if min(d.shape) > 1:
+            raise ModelFileError(f"distortion_coefficients must be one row or one column, got "
+                                 f"{d.shape[0]}x{d.shape[1]}")
         w_node, h_node = fs.getNode("image_width"), fs.getNode("image_height")
         if not w_node.empty() and not h_node.empty():
-            w, h = w_node.real(), h_node.real()
+            w, h = _fs_scalar(w_node), _fs_scalar(h_node)
+            names = ("image_width", "image_height")
         else:
             size = fs.getNode("image_size")
             if size.empty():
                 raise ModelFileError("no image_width/image_height (or image_size): the image size is needed")
-            w, h = size.at(0).real(), size.at(1).real()
+            if not size.isSeq() or size.size() != 2:
+                raise ModelFileError("image_size must be a sequence of 2 integers [width, height]")
+            w, h = _fs_scalar(size.at(0)), _fs_scalar(size.at(1))
+            names = ("image_size[0] (width)", "image_size[1] (height)")
+        w, h = integer(w, names[0]), integer(h, names[1])
         fisheye_node = fs.getNode("fisheye_model")
-        fisheye = not fisheye_node.empty() and fisheye_node.real() != 0
+        fisheye = not fisheye_node.empty() and integer(_fs_scalar(fisheye_node), "fisheye_model", 0, 1) != 0
     finally:
         fs.release()
-    return camera_from_K_dist(w, h, np.asarray(K, dtype=np.float64), np.asarray(d, dtype=np.float64).ravel(),
-                              lens="fisheye" if fisheye else None)
+    return camera_from_K_dist(w, h, K, d.ravel(), lens="fisheye" if fisheye else None)
+
+
+#: OpenCV FileStorage's one-channel element types (``dt``): u c w s i f d, and h (float16).
+_FS_DT = re.compile(r"1?[ucwsifdh]")
+
+
+def _fs_scalar(node) -> object:
+    """A FileStorage scalar as Python: a number (float), a string, or a short description of what it is instead."""
+    if node.isInt() or node.isReal():
+        return node.real()
+    if node.isString():
+        return node.string()
+    return "<a sequence>" if node.isSeq() else "<a mapping>" if node.isMap() else "<nothing>"
+
+
+def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
+    """An ``opencv-matrix`` node (``rows``, ``cols``, ``dt``, ``data``) as a float64 (rows, cols) array of at most
+    ``max_size`` elements, every element a finite number. Raises :class:`~circcal.errors.ModelFileError`."""
+    if node.empty():
+        raise ModelFileError(f"no {field} node")
+    if not node.isMap():
+        raise ModelFileError(f"{field} must be an opencv-matrix (a mapping of rows, cols, dt and data), got "
+                             f"{show(_fs_scalar(node))}")
+    rows = integer(_fs_scalar(node.getNode("rows")), f"{field} rows", 0, max_size)
+    cols = integer(_fs_scalar(node.getNode("cols")), f"{field} cols", 0, max_size)
+    dt = _fs_scalar(node.getNode("dt"))
+    if not isinstance(dt, str) or not _FS_DT.fullmatch(dt):
+        raise ModelFileError(f"{field} dt must be a one-channel OpenCV type (u, c, w, s, i, f, d or h), got {show(dt)}")
+    data = node.getNode("data")
+    if not data.isSeq():
+        raise ModelFileError(f"{field} data must be a sequence of numbers, got {show(_fs_scalar(data))}")
+    if data.size() != rows * cols:
+        raise ModelFileError(f"{field}: rows x cols = {rows} x {cols} = {rows * cols}, but its data holds "
+                             f"{data.size()} numbers")
+    if rows * cols > max_size:
+        raise ModelFileError(f"{field} holds {rows * cols} numbers, at most {max_size}")
+    vals = [number(_fs_scalar(data.at(i)), f"{field} data[{i}]") for i in range(rows * cols)]
+    return np.array(vals, dtype=np.float64).reshape(rows, cols)
 
 
 #: The pinhole lens models by the distortion coefficients they hold (each one's vector a prefix of the next's).
@@ -96,12 +151,19 @@ def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: s
     ``w`` x ``h`` image. ``lens`` None: a pinhole model, ``d`` any of :data:`OPENCV_DIST_SIZES` (the tilted
     model's tau of 14 must be zero) and the model :func:`pinhole_lens_of` ``d``; ``lens="fisheye"``: cv2.fisheye's
     ``D`` (4 coefficients). ``what`` names the model in messages (e.g. the mrcal lens model). Raises
-    :class:`~circcal.errors.ModelFileError`."""
+    :class:`~circcal.errors.ModelFileError` (also for a size that is not an integer in 1..2**20, a non-finite
+    value, or a third row of ``K`` other than (0, 0, 1))."""
     where = f"{what}: " if what else ""
+    w, h = integer(w, f"{where}image width"), integer(h, f"{where}image height")
     K = np.asarray(K, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64).ravel()
     if K.shape != (3, 3):
         raise ModelFileError(f"{where}camera matrix must be 3x3, got {K.shape}")
+    if not np.all(np.isfinite(K)):
+        raise ModelFileError(f"{where}camera matrix must hold finite numbers, got {K.tolist()}")
+    if not np.all(np.isfinite(d)):
+        raise ModelFileError(f"{where}distortion coefficients must be finite numbers, got {show(d.tolist())}")
+    check_K(K, f"{where}camera matrix")
     if abs(K[0, 1]) > SKEW_TOL * abs(K[0, 0]):
         raise ModelFileError(f"{where}skew {K[0, 1]} is not supported (circcal's model has zero skew)")
     if lens == "fisheye":

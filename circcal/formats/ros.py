@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.errors import InputError, ModelFileError
+from circcal.formats.limits import integer, load_yaml, matrix, number_list, show
 from circcal.formats.opencv import camera_from_K_dist
 from circcal.model import Camera
 
@@ -46,40 +47,52 @@ def camera_from_ros_yaml(text: str) -> Camera:
     """Camera from ROS camera_info YAML: the camera_calibration_parsers layout (``camera_matrix.data``,
     ``distortion_coefficients.data``, ``image_width``) or the message layout (``K``, ``D``, ``width``, ``height``).
     The distortion model: plumb_bob, rational_polynomial (``rational``; ``opencv5`` when k4..k6 are 0) or
-    equidistant (``fisheye``)."""
-    import yaml
-
+    equidistant (``fisheye``). Parsed with :func:`circcal.formats.limits.load_yaml` (no anchors or aliases, no
+    repeated keys, bounded depth); a matrix's ``rows`` x ``cols`` must match its data; numbers must be numbers (a
+    boolean is none). Other keys (``camera_name``, ``rectification_matrix``, ``projection_matrix``, ...) are a
+    foreign format's extras: ignored. Raises :class:`~circcal.errors.ModelFileError`."""
     try:
-        d = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ModelFileError(f"ROS camera_info: not valid YAML ({exc})") from None
+        d = load_yaml(text)
+    except ModelFileError as exc:
+        raise ModelFileError(f"ROS camera_info: {exc}") from None
     if not isinstance(d, dict):
         raise ModelFileError("ROS camera_info: expected a YAML mapping at the top level")
 
-    def data(key_file: str, key_msg: str) -> np.ndarray | None:
-        v = d.get(key_file, d.get(key_msg))
-        if v is None:
-            return None
-        try:
-            return np.asarray(v["data"] if isinstance(v, dict) else v, dtype=np.float64)
-        except (KeyError, TypeError, ValueError):
-            raise ModelFileError(f"ROS camera_info: {key_file} / {key_msg} must hold a list of numbers, got "
-                                 f"{v!r}") from None
+    def entry(key_file: str, key_msg: str) -> tuple[str, object]:
+        key = key_file if key_file in d else key_msg
+        return f"ROS camera_info {key}", d.get(key)
 
-    K = data("camera_matrix", "K")
-    D = data("distortion_coefficients", "D")
-    if K is None or K.size != 9:
+    def data(key_file: str, key_msg: str) -> tuple[object, object, object]:
+        """(data, rows, cols) of a matrix given as {rows, cols, data} or as a bare list."""
+        field, v = entry(key_file, key_msg)
+        if isinstance(v, dict):
+            if "data" not in v:
+                raise ModelFileError(f"{field} has no data")
+            return v["data"], v.get("rows"), v.get("cols")
+        return v, None, None
+
+    field, _ = entry("camera_matrix", "K")
+    k, rows, cols = data("camera_matrix", "K")
+    if k is None:
         raise ModelFileError("ROS camera_info: no 3x3 camera_matrix / K")
-    model = str(d.get("distortion_model", "plumb_bob"))
+    K = matrix(k, field, (3, 3), rows, cols)
+    dfield, _ = entry("distortion_coefficients", "D")
+    dv, rows, cols = data("distortion_coefficients", "D")
+    if dv is not None and (rows is not None or cols is not None):
+        r, c = integer(rows, f"{dfield} rows", 0, 14), integer(cols, f"{dfield} cols", 0, 14)
+        D = matrix(dv, dfield, (r, c), rows, cols).ravel()
+    else:
+        D = None if dv is None else number_list(dv, dfield)
+    model = d.get("distortion_model", "plumb_bob")
     if model not in ROS_DISTORTION_MODELS.values():
-        raise ModelFileError(f"ROS camera_info: distortion_model {model!r} is none of circcal's: "
+        raise ModelFileError(f"ROS camera_info: distortion_model {show(model)} is none of circcal's: "
                              f"{', '.join(ROS_DISTORTION_MODELS.values())}")
-    w = d.get("image_width", d.get("width"))
-    h = d.get("image_height", d.get("height"))
+    wfield, w = entry("image_width", "width")
+    hfield, h = entry("image_height", "height")
     if w is None or h is None:
         raise ModelFileError("ROS camera_info: no image_width/image_height (or width/height)")
+    w, h = integer(w, wfield), integer(h, hfield)
     fisheye = model == "equidistant"
     if D is None:
         D = np.zeros(4 if fisheye else 5)
-    return camera_from_K_dist(w, h, K.reshape(3, 3), D.ravel(), f"ROS camera_info ({model})",
-                              lens="fisheye" if fisheye else None)
+    return camera_from_K_dist(w, h, K, D, f"ROS camera_info ({model})", lens="fisheye" if fisheye else None)
