@@ -23,6 +23,7 @@ from circcal.detector import Detection, Reason, Rejection
 from circcal.errors import CalibrationError, InputError
 from circcal.formats import model_json
 from circcal.observations import MIN_VIEWS
+from circcal.pathnames import display_name, path_to_json
 from circcal.solver import CalibrationResult, calibrate, leave_one_out
 
 __all__ = ["MAX_ROUNDS", "ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections",
@@ -65,14 +66,22 @@ class ImagesCalibration:
         """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out
         (path, reason code, reason) and the re-correction rounds. Each view says which board points it used
         (``points``: indices, OpenCV's order; a partial view uses some) and which dots of it the detector left out
-        as bad (``dots_dropped``: index -> reason, e.g. cut by the image border)."""
+        as bad (``dots_dropped``: index -> reason, e.g. cut by the image border). View names and image paths are
+        stored by :func:`circcal.pathnames.path_to_json` (lossless for names of any bytes; read them back with
+        ``path_from_json``), the texts beside them by :func:`~circcal.pathnames.display_name`: no lone surrogate
+        (a byte of a name that is not UTF-8) reaches JSON."""
         sections = self.result.model_sections()
         for entry, i, c in zip(sections.get("views", []), self.used, self.centres):
+            if "name" in entry:
+                entry["name"] = path_to_json(entry["name"])
             entry["points"] = np.nonzero(np.all(np.isfinite(c), axis=1))[0].tolist()
-            entry["dots_dropped"] = {str(k): r for k, r in getattr(self.detections[i], "dropped", {}).items()}
+            entry["dots_dropped"] = {str(k): display_name(r)
+                                     for k, r in getattr(self.detections[i], "dropped", {}).items()}
+            for o in entry.get("outliers", []):
+                o["detail"] = display_name(o["detail"])
         return model_json(self.result.camera, **sections, board=board.to_dict(),
-                          failed_images=[{"path": r.path, "reason_code": r.code.value, "reason": r.reason}
-                                         for r in self.failed],
+                          failed_images=[{"path": path_to_json(r.path), "reason_code": r.code.value,
+                                          "reason": display_name(r.reason)} for r in self.failed],
                           recorrection_rounds=self.rounds)
 
     def observations(self, board) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -178,7 +187,8 @@ def calibrate_images(
     for i, d in zip(unique, found_unique):
         detections[i] = d
     for i, (j, how) in first.items():
-        detections[i] = Detection(False, None, f"{how} {paths[j]} (given earlier): counted once", Reason.DUPLICATE)
+        detections[i] = Detection(False, None, f"{how} {display_name(paths[j])} (given earlier): counted once",
+                                  Reason.DUPLICATE)
     found = [i for i, d in enumerate(detections) if d.found]
     if image_size is None and found:
         # one calibration is one camera mode: the size most images share (the first such on a tie)
@@ -199,7 +209,7 @@ def calibrate_images(
     if len(used) < MIN_VIEWS:
         raise TooFewImagesError(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least {MIN_VIEWS}"
-            + "".join(f"\n  {r.path}: {r.reason}" for r in failed), failed)
+            + "".join(f"\n  {display_name(r.path)}: {display_name(r.reason)}" for r in failed), failed)
     opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
                 fix_principal_point=fix_principal_point, refine_board=refine_board, lens=lens)
     exclude = None

@@ -5,6 +5,7 @@ uncertainty, outliers, the cross-validation map, failed images with overlays), c
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -14,8 +15,12 @@ import cv2
 import numpy as np
 import pytest
 
+from circcal.calreport import write_report
+from circcal.calreport.document import md_name, md_text
 from circcal.cli import main
+from circcal.errors import ImageError
 from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.pathnames import display_name, path_from_json
 
 #: Window widths (px) the page must fit: a laptop and a narrow window.
 WIDTHS = (1280, 800)
@@ -115,5 +120,162 @@ def test_report_folder_that_is_a_file_is_refused_before_the_work(tmp_path, capsy
     out = tmp_path / "m.json"
     assert main(["calibrate", *[str(v.image) for v in t.views[:6]], "--grid", "6x8", "--pitch", "25mm",
                  "--no-progress", "--out", str(out), "--report", str(bad)]) == 2
-    assert "is a file" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--report" in err and str(bad) in err and "file" in err
     assert not out.exists() and bad.read_text() == "not a folder"
+
+
+#: Hostile file names for `wide`-clean's 12 views (bytes: POSIX names; a name is at most 255 bytes).
+HOSTILE = [b"price$0_$x.png", b"a|b.png", b"new\nline.png", b"caf\xe9_00.png", b"<script>.png",
+           b"L" * 240 + b"_05.png", "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png".encode(),
+           "\u202egnp.exe_07.png".encode(), b"tick`s``_08.png", b"esc\x1b[31m_09.png", b"bytes:x_10.png",
+           b"plain_11.png"]
+#: Two frames without a board: one listed with an overlay, one whose image cannot be read again for its overlay.
+BLANKS = [b"<b>blank|$1$<i>\xff.png", b"unreadable.png"]
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory):
+    """The calibration (cross-validated, outlier rejection on) of `wide`-clean's views linked under hostile names,
+    plus two blank frames; (assessment, paths as given)."""
+    from circcal.crossval.assess import assess
+    from circcal.pipeline import calibrate_images
+    from circcal.solver.outliers import OutlierRule
+
+    if os.name != "posix":
+        pytest.skip("file names of any bytes: POSIX")
+    t = load_truth(fixture_dir("wide", "clean"))
+    d = os.fsencode(tmp_path_factory.mktemp("hostile"))
+    paths = []
+    for v, name in zip(t.views, HOSTILE):
+        os.symlink(os.fsencode(v.image), os.path.join(d, name))
+        paths.append(os.fsdecode(os.path.join(d, name)))
+    for grey, name in zip((200, 180), BLANKS):
+        with open(os.path.join(d, name), "wb") as f:
+            f.write(cv2.imencode(".png", np.full((960, 1280), grey, np.uint8))[1].tobytes())
+        paths.append(os.fsdecode(os.path.join(d, name)))
+    cal = calibrate_images(paths, t.board, progress=False, jobs=1, outlier_rule=OutlierRule())
+    assert len(cal.used) == len(HOSTILE) and len(cal.failed) == len(BLANKS)
+    return assess(cal, t.board, cross_validate=True, outlier_rule=OutlierRule()), paths
+
+
+@pytest.fixture(scope="module")
+def hostile_report(hostile, tmp_path_factory):
+    """The report of :func:`hostile` written into an empty folder, the second blank frame's image unreadable when
+    its overlay is drawn."""
+    import circcal.detector.image as image_mod
+
+    assessment, paths = hostile
+    folder = tmp_path_factory.mktemp("hostile-report")
+    real = image_mod.read_image
+
+    def read_image(path):
+        if Path(path).name == "unreadable.png":
+            raise ImageError(f"{display_name(path)}: header claims 100000x100000 pixels")
+        return real(path)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(image_mod, "read_image", read_image)
+        index = write_report(assessment, folder)
+    assert index == folder / "index.html"
+    return folder
+
+
+def test_hostile_names_in_html(hostile_report):
+    html = (hostile_report / "index.html").read_text(encoding="utf-8")
+    assert "<script" not in html.lower() and "<b>blank" not in html and "<i>" not in html  # names stay text
+    for shown in ("price$0_$x.png", "a|b.png", "new\\nline.png", "caf\\xe9_00.png", "&lt;script&gt;.png",
+                  "L" * 240 + "_05.png", "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png",
+                  "\\u202egnp.exe_07.png", "tick`s``_08.png", "esc\\x1b[31m_09.png", "bytes:x_10.png",
+                  "&lt;b&gt;blank|$1$&lt;i&gt;\\xff.png"):
+        assert re.search(f'<td class="name( long)?">{re.escape(shown)}</td>', html) or f"<b>{shown}</b>" in html, shown
+    assert not set(html) & {"\x1b", "\u202e", "\ufffd"}
+    # the blank frames: both listed with their reason; the one unreadable again has no overlay and says why
+    figs = re.findall(r"<figure>(.*?)</figure>", html[html.index("Images left out"):], re.S)
+    assert len(figs) == 2
+    assert '<img src="figures/failed_00.png"' in figs[0] and "too-few-candidates" in figs[0]
+    assert "<img" not in figs[1] and "no overlay: " in figs[1] and "header claims 100000x100000" in figs[1]
+    assert (hostile_report / "figures" / "failed_00.png").is_file()
+    assert not (hostile_report / "figures" / "failed_01.png").exists()
+    for name in ("views", "vectors", "histogram", "coverage", "uncertainty", "correlation", "crossval"):
+        assert (hostile_report / "figures" / f"{name}.png").stat().st_size > 5000
+
+
+def _cells(row: str) -> list[str]:
+    """A GFM table row's cells (split at the pipes no backslash escapes)."""
+    assert row.startswith("| ") and row.endswith(" |"), row
+    return [c.strip() for c in re.split(r"(?<!\\)\|", row[1:-1])]
+
+
+def test_hostile_names_keep_markdown_table_rows_intact(hostile_report):
+    md = (hostile_report / "index.md").read_text(encoding="utf-8")
+    lines = md.splitlines()
+    head = lines.index(next(ln for ln in lines if ln.startswith("| view | points |")))
+    rows = lines[head + 2: head + 2 + len(HOSTILE)]
+    assert lines[head + 2 + len(HOSTILE)] == ""                   # one line per view, then the table ends
+    width = len(_cells(lines[head]))
+    for row, raw in zip(rows, HOSTILE):
+        cells = _cells(row)
+        assert len(cells) == width, row
+        assert cells[0] == md_name(display_name(raw), cell=True)
+    assert rows[1].startswith("| `a\\|b.png` |") and rows[0].startswith("| `price$0_$x.png` |")
+    assert rows[8].startswith("| ```tick`s``_08.png``` |")
+    assert "\\n" in rows[2] and not set(md) & {"\x1b", "\u202e", "\ufffd"}
+    failed = [ln for ln in lines if ln.startswith("- **")]
+    assert failed[0].startswith("- **`<b>blank|$1$<i>\\xff.png`** (too-few-candidates): ")
+    assert failed[1].startswith("- **`unreadable.png`**") and "(no overlay: " in failed[1]
+
+
+def test_report_json_stores_hostile_names_losslessly(hostile_report, hostile):
+    text = (hostile_report / "report.json").read_text(encoding="utf-8")     # strict UTF-8
+    doc = json.loads(text)
+    json.dumps(doc, ensure_ascii=False).encode("utf-8")                   # strict: no lone surrogate in any string
+    _, paths = hostile
+    want = [os.fsencode(Path(p).name) for p in paths[:len(HOSTILE)]]
+    got = [os.fsencode(path_from_json(v["name"])) for v in doc["model"]["views"]]
+    assert got == want
+    got = [os.fsencode(path_from_json(v["name"])) for v in doc["assessment"]["cross_validation"]["views"]]
+    assert got == want
+    assert doc["model"]["views"][3]["name"] == "bytes:caf%E9_00.png"
+    assert doc["model"]["views"][10]["name"] == "bytes:bytes:x_10.png"
+    failed = [os.fsencode(path_from_json(f["path"])) for f in doc["model"]["failed_images"]]
+    assert failed == [os.fsencode(p) for p in paths[len(HOSTILE):]]
+
+
+def test_write_report_writes_only_into_an_empty_existing_folder(hostile, tmp_path):
+    assessment, _ = hostile
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "keep.txt").write_text("mine")
+    with pytest.raises(ValueError, match="not empty"):
+        write_report(assessment, full)
+    assert [p.name for p in full.iterdir()] == ["keep.txt"] and (full / "keep.txt").read_text() == "mine"
+    with pytest.raises(ValueError, match="not an existing folder"):
+        write_report(assessment, tmp_path / "missing")
+    assert not (tmp_path / "missing").exists()
+
+
+@pytest.mark.parametrize("text, md", [
+    ("a|b", "a\\|b"), ("x `y` *z* _w_", "x \\`y\\` \\*z\\* \\_w\\_"), ("<script>&amp;", "\\<script\\>\\&amp;"),
+    ("[l](u) ~s~ $m$", "\\[l\\](u) \\~s\\~ \\$m\\$"), ("a\\b", "a\\\\b"), ("two\nlines", "two\\\\nlines"),
+])
+def test_md_text_escapes_markup(text, md):
+    assert md_text(text) == md
+
+
+@pytest.mark.parametrize("name, cell, md", [
+    ("plain.png", False, "`plain.png`"), ("a|b", True, "`a\\|b`"), ("a|b", False, "`a|b`"),
+    ("a`b``c", False, "```a`b``c```"), ("`x", False, "`` `x ``"), (" x ", False, "`  x  `"),
+    ("new\nline", False, "`new\\nline`"),
+])
+def test_md_name_is_a_code_span(name, cell, md):
+    assert md_name(name, cell=cell) == md
+
+
+@pytest.mark.skipif(_chromium() is None, reason="chromium is not installed")
+@pytest.mark.parametrize("width", WIDTHS)
+def test_hostile_names_fit_the_page_in_a_headless_browser(hostile_report, width, tmp_path):
+    """A 247-character name wraps in its cell and in the text: nothing wider than the window."""
+    info = _browser_check(hostile_report / "index.html", width, tmp_path / "profile")
+    assert info["loaded"] == info["n"] >= 8
+    assert info["scroll"] <= info["inner"] and info["wide"] == [], info

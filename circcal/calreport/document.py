@@ -1,7 +1,14 @@
 """Writing the calibration report: figures (:mod:`circcal.calreport.figures`), the Jinja2 templates
 ``templates/calibration.html.j2`` and ``templates/calibration.md.j2`` (one context, two renderings), ``report.json``,
-and overlays of the images that gave no view (:func:`circcal.detector.overlay.draw_detection`). The folder is
-written atomically (:func:`circcal.atomic.folder`): a failure leaves an earlier report as it was.
+and overlays of the images that gave no view (:func:`circcal.detector.overlay.draw_detection`; an image that cannot
+be read or drawn is listed with its reason and without one). The files are written into an empty folder the caller
+gives (the command's staging folder: the caller commits all of a command's outputs together).
+
+File names and the texts that quote them (reasons, details, messages) pass through
+:func:`circcal.pathnames.display_name` (undecodable bytes as ``\\xNN``, control and bidi characters escaped), then
+through each format's escaping: HTML by Jinja2's autoescape, Markdown by :func:`md_name` (a code span) and
+:func:`md_text` (backslash escapes), figures by drawing names as plain text (no mathtext, no TeX; see
+:mod:`circcal.calreport.figures`); ``report.json`` holds names as :func:`circcal.pathnames.path_to_json` (lossless).
 
 Errors name their convention (``rms_per_point_px`` OpenCV's RMS, ``rms_per_coord_px`` mrcal's, ``mean_2d_px`` the
 paper's); uncertainties are 1-sigma, worst direction, px.
@@ -9,6 +16,8 @@ paper's); uncertainties are 1-sigma, worst direction, px.
 from __future__ import annotations
 
 import html
+import os
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -16,8 +25,10 @@ from typing import Any
 import numpy as np
 
 from circcal.calreport import figures as F
+from circcal.errors import ImageError
+from circcal.pathnames import display_name, path_to_json
 
-__all__ = ["write_report", "report_context", "OVERLAY_WIDTH_PX", "TEMPLATES"]
+__all__ = ["write_report", "report_context", "md_name", "md_text", "OVERLAY_WIDTH_PX", "TEMPLATES"]
 
 #: Overlays of failed images are scaled to this width (px) for the report (the detector's own overlay tool writes
 #: full size).
@@ -29,9 +40,37 @@ TEMPLATES = {"index.html": "calibration.html.j2", "index.md": "calibration.md.j2
 def _environment():
     import jinja2
 
-    return jinja2.Environment(loader=jinja2.PackageLoader("circcal.calreport", "templates"),
-                              autoescape=jinja2.select_autoescape(enabled_extensions=("html.j2",)),
-                              trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+    env = jinja2.Environment(loader=jinja2.PackageLoader("circcal.calreport", "templates"),
+                             autoescape=jinja2.select_autoescape(enabled_extensions=("html.j2",)),
+                             trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+    env.filters.update(fmt=_fmt, esc=html.escape, md_name=md_name, md_text=md_text)
+    return env
+
+
+#: Characters :func:`md_text` escapes with a backslash (CommonMark escapes any ASCII punctuation): emphasis,
+#: code, links and images, raw HTML and entities, GFM's table cells and strike-through, and ``$`` (math on GitHub).
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]<>|&~$])")
+
+
+def md_text(text: Any) -> str:
+    """``text`` as literal Markdown text on one line, also inside a GFM table cell: :func:`display_name` (no line
+    breaks, no control characters), then a backslash before each character Markdown or GFM would read as markup
+    (``\\ ` * _ [ ] < > | & ~ $``)."""
+    return _MD_SPECIAL.sub(r"\\\1", display_name(str(text)))
+
+
+def md_name(name: Any, cell: bool = False) -> str:
+    """A file name as a Markdown code span (shown verbatim, monospace): :func:`display_name`, fenced by one more
+    backtick than its longest run of backticks, padded with a space where it begins or ends with a backtick or a
+    space. ``cell``: inside a GFM table row, where ``|`` must be written ``\\|`` even in a code span (GFM removes the
+    backslash)."""
+    s = display_name(name)
+    fence = "`" * (max((len(r) for r in re.findall("`+", s)), default=0) + 1)
+    if s.strip(" ") and (s[0] in "` " or s[-1] in "` "):
+        s = f" {s} "
+    if cell:
+        s = s.replace("|", "\\|")
+    return f"{fence}{s}{fence}"
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -40,26 +79,30 @@ def _fmt(v: Any, digits: int = 4) -> str:
     return f"{v:.{digits}g}" if isinstance(v, float) else str(v)
 
 
-def _overlay(path: str, detection: Any, dest: Path) -> bool:
-    """A downscaled overlay of a detection on its image; False when the image cannot be read."""
+def _overlay(path: str, detection: Any, dest: Path) -> str | None:
+    """A downscaled overlay of a detection on its image, written to ``dest``; None, or why there is none (the
+    image cannot be read, decoded or drawn: another process changed it, its header claims too many pixels)."""
     import cv2
 
+    from circcal.detector.image import read_image
     from circcal.detector.overlay import draw_detection
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return False
-    vis = draw_detection(img, detection)
+    try:
+        img = read_image(Path(path))
+        if img is None:
+            return "the image cannot be read or decoded"
+        vis = draw_detection(img, detection)
+    except (ImageError, OSError) as exc:   # what a file can cause; anything else is a bug
+        return display_name(str(exc))
     if vis.shape[1] > OVERLAY_WIDTH_PX:
         s = OVERLAY_WIDTH_PX / vis.shape[1]
         vis = cv2.resize(vis, (OVERLAY_WIDTH_PX, int(round(vis.shape[0] * s))), interpolation=cv2.INTER_AREA)
     ok, png = cv2.imencode(".png", vis)
     if not ok:
-        return False
-    from circcal import atomic
-
-    atomic.write_bytes(dest, png.tobytes())
-    return True
+        raise RuntimeError(f"cv2.imencode failed on a {vis.shape} {vis.dtype} overlay")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_bytes(png.tobytes())
+    return None
 
 
 def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
@@ -75,7 +118,7 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         F.save_png(fig, figdir / f"{name}.png")
         figs[name] = f"figures/{name}.png"
 
-    names = list(res.view_names or [f"view {i}" for i in range(len(res.rvecs))])
+    names = [display_name(n) for n in (res.view_names or [f"view {i}" for i in range(len(res.rvecs))])]
     pts = [np.asarray(p) for p in (res.image_points or [])]
     allpts = np.concatenate(pts) if pts else np.zeros((0, 2))
     rej = res.outliers
@@ -113,11 +156,11 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         if heldout is not None:
             vc = cv.views[i]
             row.update(heldout=_fmt(vc.heldout_rms_per_coord_px), shift=f"{vc.shift_sigmas:.2f} ({vc.shift_param})",
-                       flag=vc.why)
+                       flag=display_name(vc.why))
         views.append(row)
     outliers = []
     if rej is not None:
-        gnames = assessment.cal_view_names()
+        gnames = [display_name(n) for n in assessment.cal_view_names()]
         for r in rej.items:
             outliers.append({"view": gnames[r.view] if r.view < len(gnames) else f"view {r.view}",
                              "point": "whole view" if r.point is None else str(r.point),
@@ -125,25 +168,26 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
                              "residual": "-" if r.residual_px is None else (
                                  f"{float(r.residual_px):.3g} RMS" if np.ndim(r.residual_px) == 0 else
                                  f"({r.residual_px[0]:+.3g}, {r.residual_px[1]:+.3g})"),
-                             "reason": r.reason.value, "detail": r.detail})
+                             "reason": r.reason.value, "detail": display_name(r.detail)})
     failed = []
     index = {p: i for i, p in enumerate(cal.paths)}
     for k, r in enumerate(cal.failed):
-        entry = {"path": Path(r.path).name, "code": getattr(r.code, "value", str(r.code)), "reason": r.reason,
-                 "overlay": None}
+        entry = {"path": display_name(Path(r.path).name), "code": getattr(r.code, "value", str(r.code)),
+                 "reason": display_name(r.reason), "overlay": None, "no_overlay": None}
         i = index.get(r.path)
         d = cal.detections[i] if i is not None else None
         if d is not None and Path(r.path).is_file():
             dest = figdir / f"failed_{k:02d}.png"
-            if _overlay(r.path, d, dest):
+            entry["no_overlay"] = _overlay(r.path, d, dest)
+            if entry["no_overlay"] is None:
                 entry["overlay"] = f"figures/{dest.name}"
         failed.append(entry)
     e = res.errors
     cvd = None
     if cv is not None:
-        cvd = {"status": cv.status, "message": cv.message, "split": cv.split, "verdict": cv.verdict,
+        cvd = {"status": cv.status, "message": display_name(cv.message), "split": cv.split, "verdict": cv.verdict,
                "halves": [[names[i] for i in hh] for hh in cv.halves] if cv.status == "ok" else [],
-               "flagged": [{"name": v.name, "why": v.why} for v in cv.flagged_views]}
+               "flagged": [{"name": display_name(v.name), "why": display_name(v.why)} for v in cv.flagged_views]}
         if cv.status == "ok":
             s = cv.diff.summary()
             cvd.update(rms=_fmt(s["rms_px"]), p95=_fmt(s["p95_px"]), max=_fmt(s["max_px"]),
@@ -154,7 +198,7 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     return {
         "title": f"Calibration report: {len(res.rvecs)} views of a {board.rows}x{board.cols} {board.layout} board",
         "generated": time.strftime("%Y-%m-%d %H:%M:%S"),
-        "verdict": assessment.verdict(),
+        "verdict": [display_name(line) for line in assessment.verdict()],
         "camera": {"width": w, "height": h},
         "board": {"rows": board.rows, "cols": board.cols, "pitch_mm": board.pitch_mm, "layout": board.layout,
                   "diameter_mm": board.diameter_mm},
@@ -170,21 +214,61 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     }
 
 
-def write_report(assessment: Any, folder: str | Path) -> Path:
-    """Write the report of ``assessment`` (:class:`circcal.crossval.assess.Assessment`) into ``folder`` (replaced
-    atomically). Returns the path of ``index.html``."""
-    from circcal import atomic
-    from circcal.jsonio import dumps
+#: A lone surrogate: a byte of a file name that is not UTF-8 (os.fsdecode), or a broken string.
+_SURROGATE = re.compile("[\ud800-\udfff]")
 
-    final = Path(folder)
+
+def _report_json(x: Any, names: bool, key: str = "") -> Any:
+    """``x`` (plain JSON data) with, where ``names``, every ``name``/``path`` string as
+    :func:`~circcal.pathnames.path_to_json` (lossless), and every other string that holds a lone surrogate (a
+    message quoting a name of undecodable bytes) as :func:`~circcal.pathnames.display_name`: no lone surrogate
+    reaches ``json.dumps``. (``names=False`` for data whose names are stored already, model.json's.)"""
+    if isinstance(x, dict):
+        return {k: _report_json(v, names, str(k)) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_report_json(v, names, key) for v in x]
+    if isinstance(x, str):
+        if names and key in ("name", "path") and x:
+            return path_to_json(x)
+        return display_name(x) if _SURROGATE.search(x) else x
+    return x
+
+
+def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
+    """Write the report of ``assessment`` into ``folder``, an existing empty folder (the command's staging folder).
+
+    Parameters
+    ----------
+    assessment : circcal.crossval.assess.Assessment
+        The calibration and its assessment.
+    folder : str or path-like
+        An existing, empty folder: ``index.html``, ``index.md``, ``report.json`` and ``figures/`` are written into
+        it; nothing is deleted or replaced. Committing the folder to its final place (together with the command's
+        other outputs) is the caller's job.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder / "index.html"``.
+
+    Raises
+    ------
+    ValueError
+        When ``folder`` is not an existing, empty folder (a bug in the caller: a command stages an empty one).
+    """
+    from circcal.jsonio import dumps, jsonable
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"write_report: {display_name(folder)} is not an existing folder")
+    if any(folder.iterdir()):
+        raise ValueError(f"write_report: {display_name(folder)} is not empty (the report goes into an empty "
+                         f"staging folder)")
     env = _environment()
-    env.filters["fmt"] = _fmt
-    env.filters["esc"] = html.escape
-    with atomic.folder(final) as tmp:
-        ctx = report_context(assessment, tmp)
-        for out, name in TEMPLATES.items():
-            (tmp / out).write_text(env.get_template(name).render(**ctx))
-        doc = {"assessment": assessment.to_dict(),
-               "model": assessment.cal.to_model_json(assessment.board)}
-        (tmp / "report.json").write_text(dumps(doc, indent=1) + "\n")
-    return final / "index.html"
+    ctx = report_context(assessment, folder)
+    doc = {"assessment": _report_json(jsonable(assessment.to_dict()), names=True),
+           "model": _report_json(jsonable(assessment.cal.to_model_json(assessment.board)), names=False)}
+    for out, name in TEMPLATES.items():
+        (folder / out).write_text(env.get_template(name).render(**ctx), encoding="utf-8")
+    (folder / "report.json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")
+    return folder / "index.html"

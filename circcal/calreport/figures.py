@@ -6,20 +6,27 @@ PNG without a software stamp (byte-stable).
 Legibility rules: panels that compare like quantities share one colour (or arrow) scale and say so; legends sit
 outside the data (below or beside the axes); every axis is labelled with its unit; images keep their aspect and
 their pixel convention (y down, integer coordinates at pixel centres).
+
+Names (image files) are drawn as plain text: :func:`name_label` makes them printable
+(:func:`circcal.pathnames.display_name`: undecodable bytes as ``\\xNN``, which FreeType could not draw, control
+characters escaped) and short, and they are drawn with :data:`PLAIN_TEXT` (no mathtext: ``price$0_$x.png`` would be
+parsed as math and fail; no TeX, whatever the user's matplotlibrc says).
 """
 from __future__ import annotations
 
 import io
 import math
 import textwrap
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from circcal import atomic
+from circcal.pathnames import display_name
 
-__all__ = ["STYLE", "save_png", "fig_diff", "fig_uncertainty", "fig_coverage", "fig_view_bars", "fig_residual_vectors",
+__all__ = ["STYLE", "PLAIN_TEXT", "NAME_CHARS", "name_label", "save_png", "fig_diff", "fig_uncertainty", "fig_coverage", "fig_view_bars", "fig_residual_vectors",
            "fig_histogram", "fig_correlation", "fig_crossval"]
 
 #: rcParams every figure is drawn under.
@@ -31,6 +38,22 @@ VECTOR_COLUMNS = 4
 ARROW_SHARE = 0.12
 #: Colour map for magnitudes (perceptually uniform, readable in grey).
 CMAP = "viridis"
+#: Text properties of every name drawn: literal text (no mathtext, no TeX).
+PLAIN_TEXT = {"parse_math": False, "usetex": False}
+#: A name drawn in a figure is shortened to this many characters (the middle replaced by an ellipsis); the tables
+#: give it in full.
+NAME_CHARS = 32
+
+
+def name_label(name: str, limit: int = NAME_CHARS) -> str:
+    """``name`` as a figure label: :func:`~circcal.pathnames.display_name`, and if longer than ``limit`` characters
+    its start and end (where image series keep their numbers and extensions) around an ellipsis. Draw it with
+    :data:`PLAIN_TEXT`."""
+    s = display_name(name)
+    if len(s) <= limit:
+        return s
+    head = (limit - 1) // 2
+    return s[:head] + "\u2026" + s[len(s) - (limit - 1 - head):]
 
 
 def _figure(width_in: float, height_in: float) -> Any:
@@ -40,13 +63,15 @@ def _figure(width_in: float, height_in: float) -> Any:
 
 
 def save_png(fig: Any, path: str | Path) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically (folders made); no software stamp. Returns the path."""
+    """Write ``fig`` as PNG to ``path`` atomically (folders made); no software stamp. Returns the path. A character
+    of a name that the font lacks (an emoji) is drawn as a box without a warning: the report's tables give it."""
     import matplotlib
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
-    with matplotlib.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"Glyph \d+ .*missing from font", UserWarning)
         fig.savefig(buf, format="png", metadata={"Software": None})
     atomic.write_bytes(path, buf.getvalue())
     return path
@@ -155,7 +180,7 @@ def fig_view_bars(names: Sequence[str], rms: Sequence[float], heldout: Sequence[
         if k:
             ax.annotate(f"{k} out", (x[i], 0), xytext=(0, -24), textcoords="offset points", ha="center",
                         fontsize=7, color="tab:red")
-    ax.set_xticks(x, names, rotation=45, ha="right", fontsize=7)
+    ax.set_xticks(x, [name_label(n) for n in names], rotation=45, ha="right", fontsize=7, **PLAIN_TEXT)
     ax.set_ylabel("RMS per coordinate (px)")
     ax.set_title("Residuals per view (RMS per coordinate, mrcal's convention)")
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
@@ -189,7 +214,7 @@ def fig_residual_vectors(names: Sequence[str], points: Sequence[np.ndarray], res
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
-        ax.set_title(names[k], fontsize=8)
+        ax.set_title(name_label(names[k]), fontsize=8, **PLAIN_TEXT)
         if k == 0:
             first = ax.collections[0]
     key = float(f"{big:.1g}")
