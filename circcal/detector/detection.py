@@ -20,6 +20,9 @@ class Reason(str, enum.Enum):
     UNREADABLE = "unreadable"
     #: the image decoded but cannot be used (too small, NaN/inf, unsupported channels or type)
     BAD_IMAGE = "bad-image"
+    #: the image file claims more pixels than the limit (``CIRCCAL_MAX_IMAGE_PIXELS``, default 2^28) in its header
+    #: (not decoded), or OpenCV's decoder refuses its size
+    IMAGE_TOO_LARGE = "image-too-large"
     #: fewer dark, dot-like blobs than the board has dots
     TOO_FEW_CANDIDATES = "too-few-candidates"
     #: enough candidates, but no arrangement of them is the board's grid

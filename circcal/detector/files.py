@@ -10,7 +10,7 @@ from typing import Callable
 from circcal.board import Board
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.find import camera_size_mismatch, detect
-from circcal.detector.image import read_image_messages
+from circcal.detector.image import ImageTooLargeError, read_image_messages
 from circcal.errors import ImageError
 from circcal.model import Camera
 from circcal.progress import progress_bar
@@ -71,24 +71,48 @@ def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, 
 
 def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
     """:func:`~circcal.detector.find.detect` on one image file. What a file can legitimately cause gives
-    ``found=False`` with its :class:`~circcal.detector.Reason`: missing (``FILE_NOT_FOUND``), unreadable or
-    undecodable (``UNREADABLE``), of another size than the camera model (``WRONG_IMAGE_SIZE``), an image the
-    detector cannot take (:class:`~circcal.errors.ImageError`: ``BAD_IMAGE``). Any other exception is a bug and
-    propagates. What the decoder prints about a corrupt file goes into the reason (or the notes), not onto the
-    console."""
+    ``found=False`` with its :class:`~circcal.detector.Reason`: missing, or not a regular file (a folder, a fifo, a
+    link to nothing or a loop of links: ``FILE_NOT_FOUND``), unreadable, empty or undecodable (``UNREADABLE``), a
+    header claiming more pixels than :func:`~circcal.detector.image.max_image_pixels` (``IMAGE_TOO_LARGE``, not
+    decoded), of another size than the camera model (``WRONG_IMAGE_SIZE``), an image the detector cannot take
+    (:class:`~circcal.errors.ImageError`: ``BAD_IMAGE``). Any other exception is a bug and propagates. What the
+    decoder prints about a corrupt file goes into the reason (or the notes), not onto the console."""
     if not path.is_file():
-        return Detection(False, None, "file not found" if not path.exists() else "not a file", Reason.FILE_NOT_FOUND)
+        return Detection(False, None, _not_a_file(path), Reason.FILE_NOT_FOUND)
     try:
         img, said = read_image_messages(path)
     except OSError as exc:  # permission denied, I/O error
         return Detection(False, None, f"cannot read the file: {exc.strerror or exc}", Reason.UNREADABLE)
+    except ImageTooLargeError as exc:
+        return Detection(False, None, str(exc), Reason.IMAGE_TOO_LARGE)
     if img is None:
-        return Detection(False, None, "unreadable file (not an image, or corrupt" + (f": {said[0]}" if said else "")
-                         + ")", Reason.UNREADABLE)
+        if not said and _is_empty(path):
+            return Detection(False, None, "unreadable file (empty: 0 bytes)", Reason.UNREADABLE)
+        said_ = f": {'; '.join(said[:3])}" if said else ""
+        return Detection(False, None, f"unreadable file (not an image, or corrupt{said_})", Reason.UNREADABLE)
     d = _detect_image(img, board, camera)
     if said:   # decoded, but the decoder found the file damaged: say so with the result
         d.notes = [*d.notes, "the file is damaged (the decoder said: " + "; ".join(said[:3]) + ")"]
     return d
+
+
+def _not_a_file(path: Path) -> str:
+    """Why ``path``, which is no regular file, cannot be read, in words."""
+    try:
+        os.stat(path)
+    except OSError as exc:   # missing, a link to nothing, a loop of links, a folder on the way that is a file
+        if path.is_symlink():
+            return f"file not found: a symbolic link that leads nowhere ({exc.strerror or exc})"
+        return "file not found" + ("" if isinstance(exc, FileNotFoundError) else f" ({exc.strerror or exc})")
+    return "not a file (a folder)" if path.is_dir() else "not a file (a device, fifo or socket)"
+
+
+def _is_empty(path: Path) -> bool:
+    """Whether the file ``path`` holds no bytes (False where it cannot be told)."""
+    try:
+        return path.stat().st_size == 0
+    except OSError:
+        return False
 
 
 def _detect_image(img, board: Board, camera: Camera | None) -> Detection:

@@ -1,24 +1,28 @@
-"""Images as the detector takes them: an image file read as stored, grey conversion, and the contrast stretch to
-uint8 that the thresholds work on.
+"""Images as the detector takes them: an image file read as stored (its header's size checked against
+:func:`max_image_pixels` before decoding), grey conversion, and the contrast stretch to uint8 that the thresholds
+work on.
 
 Arrays are (H, W) grey or (H, W, 3|4) BGR(A), of dtype uint8, uint16 or float (OpenCV's layout).
 """
 from __future__ import annotations
 
+import io
 import os
 import re
 import sys
 import tempfile
 import threading
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from circcal.detector.jit import njit
-from circcal.errors import ImageError
+from circcal.errors import ImageError, InputError
 
-__all__ = ["as_gray", "decode_image", "histogram_u8", "normalise_u8", "read_image", "read_image_messages",
+__all__ = ["MAX_IMAGE_PIXELS", "MAX_IMAGE_PIXELS_ENV", "ImageTooLargeError", "as_gray", "decode_image",
+           "histogram_u8", "max_image_pixels", "normalise_u8", "read_image", "read_image_messages",
            "stretch_percentiles"]
 
 MIN_IMAGE_SIDE = 8
@@ -35,80 +39,289 @@ FLOAT_SUBSAMPLE_STEP = 4
 """Float images larger than :data:`FLOAT_SUBSAMPLE_ABOVE` pixels take their stretch percentiles from every 4th pixel
 in each direction (1/16 of the pixels; percentiles of a smooth histogram barely move)."""
 FLOAT_SUBSAMPLE_ABOVE = 400_000
+MAX_IMAGE_PIXELS = 2 ** 28
+"""Image files whose header claims more pixels than this (268 MP) are refused before decoding
+(:class:`ImageTooLargeError`), unless :data:`MAX_IMAGE_PIXELS_ENV` says otherwise. A 74-byte PNG can claim 10^10
+pixels: the decoder would allocate them (or OpenCV refuses them with an exception of its own, beyond its 2^30).
+2^28 leaves room for the largest camera sensors sold (~150-200 MP, pixel-shift composites ~400 MP need the
+variable) while bounding what one image costs: 256 MiB as 8-bit grey, 2 GiB as 16-bit BGRA, and the detector's
+working copies (a few times the grey image) a few GiB at most."""
+MAX_IMAGE_PIXELS_ENV = "CIRCCAL_MAX_IMAGE_PIXELS"
+"""The environment variable that replaces :data:`MAX_IMAGE_PIXELS` (a positive whole number of pixels, e.g.
+``500000000`` or ``5e8``); read at each image, so it can be changed while the process runs."""
 
 
 DECODER_NOISE = re.compile(r"^(libpng (warning|error)|Corrupt JPEG data|Premature end of JPEG|Invalid SOS|"
-                           r"\[ ?WARN:.*grfmt_|\[ ?WARN:.*imgcodecs|Warning: unknown JFIF|libtiff|TIFFRead)")
-"""Lines the image decoders (libpng, libjpeg, libtiff, OpenCV's codec layer) print on stderr about a corrupt or odd
-file: caught while decoding and handed to the caller (a detection's reason or notes), never left on the console.
-Anything else written to stderr meanwhile is passed on untouched."""
+                           r"\[ ?(WARN|ERROR) ?:.*(grfmt_|imgcodecs|loadsave|imdecode)|Warning: unknown JFIF|"
+                           r"libtiff|TIFFRead)")
+"""Lines the image decoders (libpng, libjpeg, libtiff, OpenCV's codec layer: its warnings and errors, with the
+``>`` lines that continue them) print on stderr about a corrupt or odd file: caught while decoding and handed to the
+caller (a detection's reason or notes), never left on the console. Anything else written to stderr meanwhile is
+passed on untouched."""
 _DECODE_LOCK = threading.Lock()
 """Decoding swaps the process's stderr (file descriptor 2) for a buffer: one decode at a time (detection itself
 runs in parallel; decoding is a few ms of it)."""
+_HEADER_LOCK = threading.Lock()
+"""Reading a header silences Pillow's DecompressionBombWarning through the process-wide warning filters: one header
+at a time, so that concurrent readers restore the filters they found."""
+OPENCV_LOG = re.compile(r"^\[ ?(WARN|ERROR|INFO) ?:[^\]]*\]\s*global\s+\S+\s+\S+\s+")
+"""The prefix of OpenCV's log lines (``[ WARN:0@0.08] global grfmt_tiff.cpp:123 TIFF_Warning``), cut off the
+messages handed on."""
+
+
+class ImageTooLargeError(ImageError):
+    """An image of more pixels than :func:`max_image_pixels` (claimed by its file's header, or refused for its size
+    by OpenCV's decoder): not decoded. ``pixels``: the number claimed (``None`` where only the decoder knew it);
+    ``limit``: the limit it exceeds."""
+
+    def __init__(self, message: str, pixels: int | None, limit: int):
+        super().__init__(message)
+        self.pixels = pixels
+        self.limit = limit
+
+
+def max_image_pixels() -> int:
+    """The most pixels an image file may claim: the environment variable :data:`MAX_IMAGE_PIXELS_ENV` when set
+    (a positive whole number; ``5e8`` and ``500_000_000`` are accepted), else :data:`MAX_IMAGE_PIXELS`.
+
+    Raises
+    ------
+    InputError
+        The variable is set to something else (one line naming it).
+    """
+    raw = os.environ.get(MAX_IMAGE_PIXELS_ENV, "").strip()
+    if not raw:
+        return MAX_IMAGE_PIXELS
+    text = raw.replace("_", "")
+    try:
+        value = int(text) if text.isdigit() else float(text)
+    except ValueError:
+        value = 0
+    if not (np.isfinite(value) and value >= 1 and value == int(value)):
+        raise InputError(f"environment variable {MAX_IMAGE_PIXELS_ENV}={raw!r}: expected a positive whole number "
+                         f"of pixels (the default is {MAX_IMAGE_PIXELS})")
+    return int(value)
+
+
+def _too_large(claimed: str, pixels: int | None, limit: int) -> ImageTooLargeError:
+    """The error for an image whose header claims ``claimed`` (words), ``pixels`` in all, beyond ``limit``."""
+    return ImageTooLargeError(f"image too large: {claimed}, more than the limit of {limit} pixels ({_mp(limit)}; not "
+                              f"decoded: to take it, set the environment variable {MAX_IMAGE_PIXELS_ENV} to a larger "
+                              "number of pixels)", pixels, limit)
+
+
+def _mp(pixels: int) -> str:
+    """``pixels`` in megapixels, as words."""
+    return f"{pixels / 1e6:,.{0 if pixels >= 1e7 else 1}f} MP"
+
+
+def _check_header(source: Path | io.BytesIO, limit: int) -> None:
+    """Raises :class:`ImageTooLargeError` when the image file ``source`` (a path, or its bytes) claims more than
+    ``limit`` pixels in its header (:func:`_header_pixels`)."""
+    claimed = _header_pixels(source)
+    if claimed is not None and claimed[0] > limit:
+        raise _too_large(claimed[1], claimed[0], limit)
+
+
+def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:
+    """``(pixels, words)``: the size the image file ``source`` (a path, or its bytes) claims in its header, read by
+    Pillow without decoding (``words``: ``"W x H px"``, or the pixel count where Pillow refused to say more);
+    ``None`` where Pillow cannot tell (a format it does not know, a header it cannot parse, a file it cannot open:
+    the decoder, or the reading of the file, decides)."""
+    try:
+        from PIL import Image  # (imported here: start-up does not pay for it)
+    except ImportError:         # Pillow comes with matplotlib; without it the decoder decides
+        return None
+    with _HEADER_LOCK, warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            with Image.open(source) as im:
+                w, h = (int(v) for v in im.size)
+        except Image.DecompressionBombError as exc:   # beyond twice Pillow's own limit: the count is in its words
+            m = re.search(r"\((\d+) pixels\)", str(exc))
+            n = int(m.group(1)) if m else None
+            return None if n is None else (n, f"its header claims {n} pixels ({_mp(n)})")
+        except Exception:  # noqa: BLE001 - any header Pillow cannot parse, whatever it raises: the decoder decides
+            return None
+    return w * h, f"its header claims {w} x {h} px ({_mp(w * h)})"
+
+
+def _opencv_message(text: str) -> str:
+    """An OpenCV error or log text as one line: the source location, error code and function name left out."""
+    text = OPENCV_LOG.sub("", text.strip())
+    text = re.sub(r"OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s+\(-?\d+:[^)]*\)\s*", "", text)
+    text = re.sub(r"\s+in function '[^']*'", "", text)
+    text = re.sub(r"^imdecode_\([^)]*\):\s*", "", text)
+    return " ".join(ln.strip().lstrip(">").strip() for ln in text.splitlines() if ln.strip())
 
 
 def decode_image(data: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
-    """``cv2.imdecode(data, IMREAD_UNCHANGED)`` with what the decoders print about the file caught: ``(image or
-    None, messages)``, messages the lines matching :data:`DECODER_NOISE` (other stderr output is written on)."""
+    """The image in the file contents ``data`` (bytes as a (n,) uint8 array), decoded by ``cv2.imdecode(data,
+    IMREAD_UNCHANGED)`` once its header's size is checked against :func:`max_image_pixels`, with what the decoders
+    print about the file caught.
+
+    Returns
+    -------
+    image, messages
+        The image (or ``None`` when no decoder can read it, or the decoder failed on it: OpenCV's exception becomes
+        a message) and the decoders' complaints (the stderr lines matching :data:`DECODER_NOISE` and OpenCV's error
+        lines, one each; other stderr output is written on).
+
+    Raises
+    ------
+    ImageTooLargeError
+        The header claims more pixels than :func:`max_image_pixels` (nothing decoded); or, where Pillow cannot read
+        the header, OpenCV's decoder refuses the size, or the decoded image exceeds the limit.
+    InputError
+        :data:`MAX_IMAGE_PIXELS_ENV` is set to something other than a positive whole number.
+    """
+    limit = max_image_pixels()
+    _check_header(io.BytesIO(data), limit)
+    return _decode_within(data, limit)
+
+
+def _decode_within(data: np.ndarray, limit: int) -> tuple[np.ndarray | None, list[str]]:
+    """:func:`decode_image` of ``data`` whose header was checked against ``limit`` already."""
+    img, noise = _decode(data)
+    if isinstance(img, cv2.error):
+        said = _opencv_message(str(img))
+        if "CV_IO_MAX_IMAGE" in said:    # OpenCV's own size limits (a header Pillow cannot read, or a larger limit)
+            raise ImageTooLargeError(f"image too large for OpenCV's decoder: the size in its header fails its check "
+                                     f"({said}; OpenCV's limits are set by the environment variables "
+                                     "OPENCV_IO_MAX_IMAGE_PIXELS, OPENCV_IO_MAX_IMAGE_WIDTH and "
+                                     "OPENCV_IO_MAX_IMAGE_HEIGHT)", None, limit)
+        img, noise = None, [*noise, said]
+    if img is not None and img.shape[0] * img.shape[1] > limit:
+        n = img.shape[0] * img.shape[1]
+        raise _too_large(f"it decodes to {img.shape[1]} x {img.shape[0]} px ({_mp(n)})", n, limit)
+    return img, noise
+
+
+def _decode(data: np.ndarray) -> tuple[np.ndarray | cv2.error | None, list[str]]:
+    """``cv2.imdecode(data, IMREAD_UNCHANGED)`` (or the ``cv2.error`` it raised, returned) and the decoders'
+    complaints on stderr (see :func:`decode_image`)."""
     with _DECODE_LOCK:
         try:
             sys.stderr.flush()
         except (AttributeError, ValueError, OSError):   # no usable sys.stderr (closed, replaced): decode plainly
-            return cv2.imdecode(data, cv2.IMREAD_UNCHANGED), []
+            return _imdecode(data), []
         with tempfile.TemporaryFile() as buf:
             saved = os.dup(2)
             os.dup2(buf.fileno(), 2)
             try:
-                img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+                img = _imdecode(data)
             finally:
                 os.dup2(saved, 2)
                 os.close(saved)
             buf.seek(0)
             text = buf.read().decode("utf-8", errors="replace")
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    noise = [re.sub(r"^\[ ?WARN:[^\]]*\]\s*global\s+\S+\s+\S+\s+", "", ln.strip())
-             for ln in lines if DECODER_NOISE.search(ln.strip())]
-    other = [ln for ln in lines if not DECODER_NOISE.search(ln.strip())]
+    noise: list[str] = []
+    other: list[str] = []
+    last_noise = False
+    for ln in (ln.strip() for ln in text.splitlines() if ln.strip()):
+        if ln.startswith(">") and last_noise:    # the lines of a multi-line OpenCV error go with it
+            noise[-1] = f"{noise[-1]} {ln.lstrip('>').strip()}"
+        elif DECODER_NOISE.search(ln):
+            noise.append(_opencv_message(ln))
+            last_noise = True
+        else:
+            other.append(ln)
+            last_noise = False
     if other:
         sys.stderr.write("\n".join(other) + "\n")
     return img, noise
 
 
+def _imdecode(data: np.ndarray) -> np.ndarray | cv2.error | None:
+    """``cv2.imdecode(data, IMREAD_UNCHANGED)``; the ``cv2.error`` a file can make it raise (a size it refuses, a
+    corrupt stream) returned, not raised."""
+    try:
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        return exc
+
+
 def read_image_messages(path: Path) -> tuple[np.ndarray | None, list[str]]:
-    """:func:`read_image` and what the decoder said about the file (:func:`decode_image`)."""
+    """:func:`read_image` and what the decoder said about the file (:func:`decode_image`; the same errors as
+    :func:`read_image`)."""
     path = Path(path)
-    data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
-    if data is None or data.size == 0:
+    if not path.is_file():
         return None, []
-    return decode_image(data)
+    limit = max_image_pixels()
+    _check_header(path, limit)       # from the file: one that claims too much is refused before it is read whole
+    data = np.fromfile(str(path), dtype=np.uint8)
+    if data.size == 0:
+        return None, []
+    return _decode_within(data, limit)
 
 
 def read_image(path: Path) -> np.ndarray | None:
-    """The image stored in the file ``path`` (``cv2.IMREAD_UNCHANGED``: grey, BGR or BGRA, 8 or 16 bit), or ``None``
-    when there is no such file, it is empty, or no decoder can read it. Raises ``OSError`` when the file exists but
-    cannot be read (permissions, I/O). The decoders' complaints about a corrupt file are not printed
-    (:func:`read_image_messages` returns them)."""
+    """The image stored in the file ``path``, as stored.
+
+    Parameters
+    ----------
+    path
+        An image file in any format OpenCV decodes.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (H, W) grey or (H, W, 3|4) BGR(A) (``cv2.IMREAD_UNCHANGED``: 8 or 16 bit, or float for float TIFFs), or
+        ``None`` when there is no such file (or it is not a regular file), it is empty, or no decoder can read it
+        (corrupt, truncated, not an image). The decoders' complaints are not printed (:func:`read_image_messages`
+        returns them).
+
+    Raises
+    ------
+    OSError
+        The file exists but cannot be read (permissions, I/O).
+    ImageTooLargeError
+        (an :class:`~circcal.errors.ImageError`) its header claims more pixels than :func:`max_image_pixels`: not
+        decoded (see :func:`decode_image`).
+    InputError
+        :data:`MAX_IMAGE_PIXELS_ENV` is set to something other than a positive whole number.
+    """
     return read_image_messages(path)[0]
 
 
 def as_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) or (H, W, 3|4) BGR(A) image of dtype uint8, uint16 or float -> (H, W) grey in its own dtype (colour
-    converted by ``cv2.cvtColor``; float64 colour via float32). Raises :class:`~circcal.errors.ImageError` for other
-    shapes or dtypes, a side below :data:`MIN_IMAGE_SIDE`, and for NaN/inf."""
+    """The grey image the detector works on.
+
+    Parameters
+    ----------
+    image
+        (H, W), (H, W, 1) grey or (H, W, 3|4) BGR(A), of any integer or floating dtype (not bool).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) grey: uint8, uint16, float32 and float64 in their own dtype, other dtypes (signed integers, uint32,
+        uint64, float16) as float32; colour converted by ``cv2.cvtColor`` (through float32 for dtypes it does not
+        take).
+
+    Raises
+    ------
+    ImageError
+        Other shapes or dtypes, a side below :data:`MIN_IMAGE_SIDE`, NaN or inf.
+    """
     img = np.asarray(image)
+    if img.dtype == bool or not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+        raise ImageError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
-    if img.ndim == 3:
-        if img.shape[2] not in (3, 4):
-            raise ImageError(f"colour image must have 3 (BGR) or 4 (BGRA) channels, got {img.shape[2]}")
-        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        img = cv2.cvtColor(img.astype(np.float32) if img.dtype == np.float64 else img, code)
-    if img.ndim != 2:
+    if img.ndim == 3 and img.shape[2] not in (3, 4):
+        raise ImageError(f"colour image must have 3 (BGR) or 4 (BGRA) channels, got {img.shape[2]}")
+    if img.ndim not in (2, 3):
         raise ImageError(f"expected a (H, W) grey or (H, W, 3) BGR image, got shape {np.shape(image)}")
-    if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)) or img.dtype == bool:
-        raise ImageError(f"unsupported image dtype {img.dtype}; expected uint8, uint16 or float")
-    if min(img.shape) < MIN_IMAGE_SIDE:
-        raise ImageError(f"image too small: {img.shape[1]}x{img.shape[0]}")
+    if min(img.shape[:2]) < MIN_IMAGE_SIDE:
+        raise ImageError(f"image too small: {img.shape[1]}x{img.shape[0]} px (each side at least {MIN_IMAGE_SIDE})")
+    if not img.dtype.isnative:
+        img = img.astype(img.dtype.newbyteorder("="))
+    if img.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        img = img.astype(np.float32)
+    if img.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        img = cv2.cvtColor(np.ascontiguousarray(img, np.float32 if img.dtype == np.float64 else img.dtype), code)
     if np.issubdtype(img.dtype, np.floating) and not np.all(np.isfinite(img)):
         raise ImageError("image contains NaN or inf")
     return img
