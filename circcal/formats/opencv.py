@@ -59,11 +59,15 @@ def camera_from_opencv_yaml(text: str) -> Camera:
     check_nesting(text)
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as exc:
-        raise ModelFileError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1][:300]})") from None
+    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding wraps the parser's error in a SystemError
+        cause = exc if isinstance(exc, cv2.error) else exc.__cause__
+        if not isinstance(cause, cv2.error):
+            raise
+        raise ModelFileError(f"not an OpenCV FileStorage file ({str(cause).strip().splitlines()[-1][:300]})") from None
     if not fs.isOpened():
         raise ModelFileError("not an OpenCV FileStorage file")
     try:
+        _fs_unique_keys(fs.root(), "the top level")
         K = _fs_matrix(fs.getNode("camera_matrix"), "camera_matrix", max_size=9)
         if K.shape != (3, 3):
             raise ModelFileError(f"camera_matrix must be 3x3, got {K.shape[0]}x{K.shape[1]}")
@@ -105,6 +109,17 @@ def _fs_scalar(node) -> object:
     return "<a sequence>" if node.isSeq() else "<a mapping>" if node.isMap() else "<nothing>"
 
 
+def _fs_unique_keys(node, where: str) -> None:
+    """Refuse a key repeated in the FileStorage mapping ``node`` (OpenCV's parser keeps both and reads the first)."""
+    if not node.isMap():
+        raise ModelFileError(f"expected a mapping at {where}, got {show(_fs_scalar(node))}")
+    seen: set[str] = set()
+    for key in node.keys():
+        if key in seen:
+            raise ModelFileError(f"duplicate key {show(key)} at {where}")
+        seen.add(key)
+
+
 def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
     """An ``opencv-matrix`` node (``rows``, ``cols``, ``dt``, ``data``) as a float64 (rows, cols) array of at most
     ``max_size`` elements, every element a finite number. Raises :class:`~circcal.errors.ModelFileError`."""
@@ -113,6 +128,7 @@ def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
     if not node.isMap():
         raise ModelFileError(f"{field} must be an opencv-matrix (a mapping of rows, cols, dt and data), got "
                              f"{show(_fs_scalar(node))}")
+    _fs_unique_keys(node, field)
     rows = integer(_fs_scalar(node.getNode("rows")), f"{field} rows", 0, max_size)
     cols = integer(_fs_scalar(node.getNode("cols")), f"{field} cols", 0, max_size)
     dt = _fs_scalar(node.getNode("dt"))
