@@ -92,8 +92,8 @@ def test_opencv_matrix_as_string_sequence_or_two_rows(tmp_path):
     head, tail = text.split("camera_matrix:", 1)
     rest = tail[tail.index("distortion_coefficients"):]
     for i, node in enumerate(("hello", "[550., 0., 320.5, 0., 552., 240.25, 0., 0., 1.]",
-                              "!!opencv-matrix\n   rows: 2\n   cols: 3\n   dt: d\n   data: [ 550., 0., 320.5, 0., 552., "
-                              "240.25 ]")):
+                              "!!opencv-matrix\n   rows: 2\n   cols: 3\n   dt: d\n   data: [ 550., 0., 320.5, 0., "
+                              "552., 240.25 ]")):
         p = _write(tmp_path, f"m{i}.yaml", f"{head}camera_matrix: {node}\n{rest}")
         _refused(p, "camera_matrix")
 
@@ -120,7 +120,8 @@ def test_opencv_xml_entity_and_nan(tmp_path):
     ("deep_camera_info.yaml", "K: " + "[" * 100_000 + "]" * 100_000 + "\n"),
     ("deep.yaml", "%YAML:1.0\n---\ncamera_matrix: " + "[" * 100_000 + "]" * 100_000 + "\n"),
     ("dash.yaml", "%YAML:1.0\n---\ncamera_matrix: " + "- " * 100_000 + "1\n"),
-    ("deep.xml", '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * 100_000 + "</a>" * 100_000 + "</opencv_storage>"),
+    ("deep.xml", '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * 100_000 + "</a>" * 100_000
+     + "</opencv_storage>"),
     ("deep.cameramodel", "{'lensmodel': " + "[" * 150 + "]" * 150 + "}"),
 ])
 def test_deep_nesting(tmp_path, name, text):

@@ -138,12 +138,12 @@ class Camera:
         model = lens_model(self.lens)
         for name in ("width", "height"):
             v = getattr(self, name)
-            if not _is_number(v) or not np.isfinite(float(v)) or float(v) != int(v) or int(v) <= 0:
+            if not _is_number(v) or not _finite(v) or float(v) != int(v) or int(v) <= 0:
                 raise InputError(f"camera {name} must be a positive integer (pixels), got {v!r}")
             object.__setattr__(self, name, int(v))
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
-            if not _is_number(v) or not np.isfinite(float(v)):
+            if not _is_number(v) or not _finite(v):
                 raise InputError(f"camera {name} must be a finite number (pixels), got {v!r}")
             object.__setattr__(self, name, float(v))
         if not (self.fx > 0 and self.fy > 0):
@@ -158,7 +158,7 @@ class Camera:
             raise InputError(f"camera dist must hold {len(names)} coefficients {list(names)} (lens {model.name}), "
                              f"got {len(items)}")
         for name, v in zip(names, items):
-            if not _is_number(v) or not np.isfinite(float(v)):
+            if not _is_number(v) or not _finite(v):
                 raise InputError(f"camera distortion {name} must be a finite number, got {v!r}")
         object.__setattr__(self, "dist", np.array([float(v) for v in items], dtype=np.float64))
 
@@ -220,6 +220,14 @@ class Camera:
 def _is_number(v: Any) -> bool:
     """A real number that is not a boolean (``True`` is an int in Python, and no camera value)."""
     return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
+def _finite(v: Any) -> bool:
+    """A number that is finite as a float (an integer too large for a float is not: ``float`` would raise)."""
+    try:
+        return bool(np.isfinite(float(v)))
+    except OverflowError:
+        return False
 
 
 def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
