@@ -351,19 +351,25 @@ def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     return H
 
 
-def merge_patches(patches: list[Lattice], points: np.ndarray) -> list[Lattice]:
+def merge_patches(patches: list[Lattice], points: np.ndarray, deadline: Deadline | None = None) -> list[Lattice]:
     """Join patches that are parts of one lattice (a board cut by an occluder): the largest first, each other patch
     taken into it when the homography of the :data:`MERGE_NEAREST` nearest dots of the larger (lattice -> image)
     puts every dot of the smaller within :data:`BRIDGE_TOLERANCE` of a free lattice node, in one rotation and
-    shift of its own coordinates. Returns the patches, largest first."""
+    shift of its own coordinates. Returns the patches, largest first. Pairs of patches are tried (quadratic in
+    their number: clutter of thousands of small patches), so ``deadline`` is checked every
+    :data:`MERGE_CHECK_EVERY` tries (raises :class:`~circcal.detector.budget.BudgetExceeded` past it)."""
     patches = sorted(patches, key=len, reverse=True)
     out: list[Lattice] = []
+    tries = 0
     while patches:
         big = patches.pop(0)
         changed = True
         while changed:
             changed = False
             for k, small in enumerate(patches):
+                tries += 1
+                if deadline is not None and tries % MERGE_CHECK_EVERY == 0:
+                    deadline.check()
                 joined = _join(big, small, points)
                 if joined is not None:
                     big = joined
@@ -372,6 +378,10 @@ def merge_patches(patches: list[Lattice], points: np.ndarray) -> list[Lattice]:
                     break
         out.append(big)
     return out
+
+
+MERGE_CHECK_EVERY = 64
+"""Tries of :func:`merge_patches` between two checks of the deadline (a try is ~0.1 ms)."""
 
 
 def _join(big: Lattice, small: Lattice, points: np.ndarray) -> Lattice | None:
@@ -447,4 +457,4 @@ def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area:
                 break
         else:
             taken[lat.index] = True                 # a few dots that form no patch are no seeds either
-    return merge_patches(patches, points) if len(patches) > 1 else patches
+    return merge_patches(patches, points, deadline) if len(patches) > 1 else patches

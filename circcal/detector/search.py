@@ -18,7 +18,7 @@ from circcal.detector.budget import Deadline
 from circcal.detector.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.detection import Reason
 from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
-from circcal.detector.neighbours import linked_clusters
+from circcal.detector.neighbours import NeighbourGrid, linked_clusters
 from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
 from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
                                      segmentations, shrink, speckled)
@@ -58,6 +58,7 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
     unrecognised: list[Candidate] = []     # candidates of scale 2 in no recognised grid (dots too small there?)
     searched: set[tuple[int, int, int, int]] = set()   # the windows searched again at full resolution
     while scales:
+        deadline.check()                   # (each scale's shrink, stretch and masks cost O(pixels))
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
         counts = np.zeros(256, np.int64)
@@ -75,6 +76,7 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
             if speckled(mask):
                 continue
             cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2, scale=scale)
+            deadline.check()               # (the contours of a textured mask: O(pixels + candidates))
             n_whole = sum(not c.cut for c in cs)
             best = max(best, n_whole)
             if n_whole < need:
@@ -156,6 +158,7 @@ def _search_clusters(gray: np.ndarray, board: Board, deadline: Deadline, cands: 
     :func:`_segment_and_recognise` returns for the first window whose recognition labels dots, else ``None``."""
     H, W = gray.shape
     for window in _cluster_windows(cands, need, (W, H)):
+        deadline.check()
         if window in searched:
             continue
         searched.add(window)
@@ -226,9 +229,12 @@ def _board_window(cands: list[Candidate], rec: Recognition, size: tuple[int, int
     P = np.array([c.centre for c in used])
     if len(P) < 2:
         return None
-    d = np.linalg.norm(P[:, None] - P[None], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    pad = WINDOW_MARGIN_STEPS * float(np.median(d.min(axis=1))) + 2.0 * max(max(c.axes) for c in used)
+    # each dot's nearest other dot from the neighbour grid (O(n) memory: a cluster of clutter may hold thousands of
+    # candidates, and an n x n distance matrix of 8,000 took 3 GB); the distance as numpy computes it
+    nearest = NeighbourGrid(P).query(P, k=2)[1]
+    other = np.where(nearest[:, 0] != np.arange(len(P)), nearest[:, 0], nearest[:, 1])
+    step = np.linalg.norm(P - P[other], axis=1)
+    pad = WINDOW_MARGIN_STEPS * float(np.median(step)) + 2.0 * max(max(c.axes) for c in used)
     lo, hi = P.min(axis=0) - pad, P.max(axis=0) + pad
     x0, y0 = max(0, int(np.floor(lo[0]))), max(0, int(np.floor(lo[1])))
     x1, y1 = min(W, int(np.ceil(hi[0])) + 1), min(H, int(np.ceil(hi[1])) + 1)
