@@ -44,7 +44,7 @@ def run(repeats: int = 9) -> dict:
         def report() -> None:
             a = held["assessment"]
             a.crossval = held["cv"]
-            write_report(a, Path(tmp) / "report")
+            write_report(a, Path(tempfile.mkdtemp(dir=tmp)))  # into an empty folder each time, as a command stages
 
         with pinned(1) as threads:
             t = alternate({"plain": plain, "cross_validation": crossval, "report": report}, repeats=repeats)

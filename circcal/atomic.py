@@ -1,13 +1,11 @@
-"""Atomic writes: a reader sees the old file or folder, or the complete new one, never a half-written one."""
+"""Atomic writes of one file: a reader sees the old file or the complete new one, never a half-written one. (A
+command's outputs together, folders included: :mod:`circcal.outputs`.)"""
 from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 
 def write_text(path: str | Path, text: str) -> None:
@@ -44,25 +42,3 @@ def _read_umask() -> int:
 
 #: A new file gets the mode a plain ``open(path, "w")`` would give it (mkstemp's own is 0600).
 _NEW_FILE_MODE = 0o666 & ~_read_umask()
-
-
-@contextmanager
-def folder(final: str | Path) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``final``; when the block ends without an error it replaces
-    ``final`` (world-readable, like a normal folder), otherwise it is removed and ``final`` is left as it was."""
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
-    os.chmod(tmp, 0o755)  # mkdtemp makes it private
-    try:
-        yield tmp
-        if final.exists():
-            old = final.with_name(f".{final.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            final.replace(old)
-            tmp.replace(final)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.replace(final)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)

@@ -50,6 +50,10 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    for stream in (sys.stdout, sys.stderr):  # a file name of any bytes never stops a message (circcal.pathnames)
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            reconfigure(errors="backslashreplace")
     words = sys.argv[1:] if argv is None else argv
     parser = build_parser(words[0]) if words and words[0] in COMMANDS else build_parser()
     args = parser.parse_args(argv)

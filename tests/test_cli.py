@@ -89,8 +89,8 @@ def test_outputs_are_checked_before_the_work(tmp_path, capsys):
 
 
 def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys):
-    """Where the permission bits do not tell (root, read-only mounts, /proc), the check makes a probe file in the
-    nearest existing folder: an output under /proc is refused at once (exit 2, one line), nothing left behind.
+    """Where the permission bits do not tell (root, read-only mounts, /proc), the staging place made before the
+    work in the nearest existing folder is the proof: an output under /proc is refused at once (exit 2, one line), nothing left behind.
     (Before, calibrate ran to the end and only then failed.)"""
     from circcal.cli import main
 
@@ -102,9 +102,10 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
     assert main(["calibrate", "nonexistent.png", "--grid", "7x7", "--pitch", "10mm",
                  "--out", "/proc/circcal-no-such-folder/m.json"]) == 2
     err = capsys.readouterr().err
-    assert "cannot write /proc/circcal-no-such-folder/m.json" in err and len(err.strip().splitlines()) == 1
+    assert "--out /proc/circcal-no-such-folder/m.json: nothing can be made in folder /proc" in err
+    assert len(err.strip().splitlines()) == 1
     assert main(["convert", str(model), "/proc/circcal-no-such-folder/x.yaml"]) == 2
-    assert "cannot write" in capsys.readouterr().err
+    assert "nothing can be made" in capsys.readouterr().err
     out = tmp_path / "ok.yaml"
     assert main(["convert", str(model), str(out)]) == 0 and out.is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "ok.yaml"]  # no probe file left
@@ -123,7 +124,7 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
      "dist"),
     ('{"camera": {"width": 640, "height": 480, "fx": -5, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
      "focal lengths must be positive"),
-    ('{"views": []}', "lacks"),
+    ('{"views": []}', "no 'camera' block"),
     ('{"camera": ', "not valid JSON"),
 ])
 def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, capsys, content, field):
@@ -142,8 +143,9 @@ def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, ca
 
 
 def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatch, capsys):
-    """detections.json is written as results come in: a bug (or an interruption) at the third image leaves the
-    first two on disk, marked incomplete; the bug keeps its traceback (exit 70)."""
+    """A bug (or an interruption) at the third image leaves the earlier detections.json as it was and keeps the
+    first two results beside it, in detections.partial-1.json, marked incomplete; the bug keeps its traceback
+    (exit 70)."""
     import json
 
     import circcal.commands.detect as detect_cmd
@@ -165,11 +167,14 @@ def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatc
     monkeypatch.setattr(files, "detect", flaky)
     monkeypatch.setattr(detect_cmd, "SAVE_EVERY_S", 0.0)
     out = tmp_path / "detections.json"
+    out.write_text("earlier\n")
     b = truth.board
     code = main(["detect", *paths, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm", "--diameter",
                  f"{b.diameter_mm}mm", "--json", str(out), "--jobs", "1", "--quiet"])
-    assert code == 70 and "a bug in the third image" in capsys.readouterr().err
-    doc = json.loads(out.read_text())
+    err = capsys.readouterr().err
+    assert code == 70 and "a bug in the third image" in err and "detections.partial-1.json" in err
+    assert out.read_text() == "earlier\n"
+    doc = json.loads((tmp_path / "detections.partial-1.json").read_text())
     assert doc["complete"] is False and [e["image"] for e in doc["images"]] == paths[:2]
     assert all(e["found"] for e in doc["images"])
 

@@ -306,11 +306,10 @@ def to_dict(run: ValidationRun) -> dict[str, Any]:
 
 
 def write_report(run: ValidationRun, out: str | Path) -> Path:
-    """Write ``validation.json`` and ``validation.md`` into ``out`` atomically (a complete folder or none)."""
-    from circcal import atomic
-
+    """Write ``validation.json`` and ``validation.md`` into the folder ``out`` (made if missing; the command stages
+    it and commits it with its other outputs: :mod:`circcal.outputs`). Returns ``out``."""
     out = Path(out)
-    with atomic.folder(out) as tmp:
-        (tmp / "validation.json").write_text(json.dumps(to_dict(run), indent=1))
-        (tmp / "validation.md").write_text("# circcal validation\n\n" + format_table(run) + "\n")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "validation.json").write_text(json.dumps(to_dict(run), indent=1))
+    (out / "validation.md").write_text("# circcal validation\n\n" + format_table(run) + "\n")
     return out

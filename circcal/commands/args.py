@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 
 from circcal.errors import InputError
@@ -56,34 +54,31 @@ def positive_float(text: str) -> float:
     return value
 
 
-def check_output(path: Path, *, folder: bool = False) -> Path:
-    """Refuse, before any work, an output that cannot be written: a file output that is an existing folder (or a
-    folder output that is a file), or a place whose nearest existing parent folder is not writable. Missing parent
-    folders are fine (they are made when the output is written). Raises :class:`~circcal.errors.InputError` naming
-    the path; returns it."""
-    path = Path(path)
-    if path.exists():
-        if folder and not path.is_dir():
-            raise InputError(f"output folder {path} is a file")
-        if not folder and path.is_dir():
-            raise InputError(f"output file {path} is a folder")
-        if not os.access(path, os.W_OK):
-            raise InputError(f"output {path} is not writable (permission denied)")
-    parent = path.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InputError(f"cannot write {path}: {parent} is not a folder")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write {path}: folder {parent} is not writable (permission denied)")
-    try:  # the permission bits do not tell for root, read-only mounts or /proc: make (and remove) a file there
-        fd, probe = tempfile.mkstemp(prefix=".circcal-probe-", dir=parent)
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: no file can be made in folder {parent} ({exc.strerror or exc})") \
-            from None
-    os.close(fd)
-    os.unlink(probe)
-    return path
+def nonnegative_int(text: str) -> int:
+    """'5' -> 5; 0 or more (a seed: numpy's generators refuse negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text!r}")
+    return value
+
+
+def int_between(lo: int, hi: int):
+    """An argparse type: an integer within ``lo..hi`` (a size that sets memory, e.g. a grid's pixels across)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be within {lo}..{hi}, got {text!r}")
+        return value
+
+    parse.__name__ = f"integer {lo}..{hi}"
+    return parse
 
 
 DIAMETER_HELP = "dot diameter, e.g. 5mm (default: half the spacing of nearest dots)"

@@ -16,7 +16,7 @@ import argparse
 import re
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm
 
 __all__ = ["PAPERS", "add_marker_arguments", "add_parser", "board_with_markers", "draw_board", "parse_paper", "run"]
 
@@ -182,10 +182,16 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    check_output(args.out)
+    from circcal.errors import InputError
+    from circcal.outputs import Outputs
+
+    if args.out.suffix.lower() not in (".svg", ".pdf"):
+        raise InputError(f"--out {args.out}: the board is written as .svg or .pdf")
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     if args.margin is not None:
         board = replace(board, margin_mm=args.margin)
-    draw_board(board, args.out, paper=args.paper, style=args.markers)
+    with Outputs() as outputs:
+        draw_board(board, outputs.file(args.out, "--out"), paper=args.paper, style=args.markers)
+        outputs.commit()
     print(f"wrote {args.out}: " + "; ".join(geometry_text(board, args.markers)[:2]))
     return 0

@@ -5,9 +5,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, add_lens_argument, board_from_args, check_output, parse_grid,
+from circcal.commands.args import (DIAMETER_HELP, add_lens_argument, board_from_args, nonnegative_int, parse_grid,
                                    parse_length_mm, positive_float, positive_int)
 from circcal.commands.board import add_marker_arguments, board_with_markers
+from circcal.pathnames import display_name
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -48,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "combined uncertainty, and predict every view from the others (needs 6 views)")
     g.add_argument("--split", choices=("alternate", "random"), default="alternate",
                    help="how --cross-validate halves the views (default: alternate; random: seeded by --seed)")
-    g.add_argument("--seed", type=int, default=0, help="seed of --split random (default 0)")
+    g.add_argument("--seed", type=nonnegative_int, default=0, help="seed of --split random (default 0)")
     g.add_argument("--distance", type=positive_float, default=None,
                    help="distance (mm) along each pixel's ray at which uncertainty and cross-validation are "
                         "evaluated (default: infinity, as mrcal)")
@@ -80,7 +81,8 @@ def format_summary(cal, *, worst: int = 3) -> str:
                  f"(mrcal) {e['rms_per_coord_px']:.4f} px, mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px, "
                  f"max {e['max_2d_px']:.4f} px; noise estimate sigma {res.sigma_px:.4f} px")
     order = sorted(range(len(res.per_view_errors)), key=lambda i: -res.per_view_errors[i]["rms_per_point_px"])
-    names = res.view_names or [f"view {i}" for i in range(len(res.per_view_errors))]
+    names = [display_name(n) for n in res.view_names] if res.view_names else \
+        [f"view {i}" for i in range(len(res.per_view_errors))]
     lines.append("worst views (RMS per point):")
     for i in order[:worst]:
         pv = res.per_view_errors[i]
@@ -101,7 +103,7 @@ def format_summary(cal, *, worst: int = 3) -> str:
     failed = getattr(cal, "failed", None)
     if failed:
         lines.append(f"{len(failed)} image(s) left out:")
-        lines += [f"  {r.path}: {r.reason}" for r in failed]
+        lines += [f"  {display_name(r.path)}: {r.reason}" for r in failed]
     return "\n".join(lines)
 
 
@@ -112,18 +114,18 @@ def _detection_lines(cal) -> list[str]:
     if dets is None or used is None or paths is None:
         return []
     lines = []
-    partial = [(Path(paths[i]).name, int(dets[i].seen.sum())) for i in used if not dets[i].complete]
+    partial = [(display_name(Path(paths[i]).name), int(dets[i].seen.sum())) for i in used if not dets[i].complete]
     if partial:
         lines.append(f"{len(partial)} partial view(s) used (board points seen): "
                      + ", ".join(f"{n}: {k}" for n, k in partial))
-    dropped = [(Path(paths[i]).name, dets[i].n_dropped) for i in used if dets[i].dropped]
+    dropped = [(display_name(Path(paths[i]).name), dets[i].n_dropped) for i in used if dets[i].dropped]
     if dropped:
         lines.append(f"dots left out by the detector as bad (cut by the image border or an occluder, a shadow's "
                      f"edge): {sum(k for _, k in dropped)} in {len(dropped)} view(s): "
                      + ", ".join(f"{n}: {k}" for n, k in dropped))
     for i, d in enumerate(dets):
         for note in getattr(d, "notes", None) or []:
-            lines.append(f"  {Path(paths[i]).name}: {note}")
+            lines.append(f"  {display_name(Path(paths[i]).name)}: {note}")
     return lines
 
 
@@ -134,53 +136,55 @@ def run(args: argparse.Namespace) -> int:
 
     from circcal.crossval.assess import assess
     from circcal.errors import InputError
+    from circcal.outputs import Outputs
     from circcal.solver.outliers import DEFAULT_K, OutlierRule
 
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
-    check_output(args.out)  # fail before the work on an unwritable place or an unknown extension
-    if args.report is not None:
-        check_output(args.report, folder=True)
     if args.no_outlier_rejection and args.outlier_k is not None:
         raise InputError("--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
                          "off: give one of them")
-    fmt = detect_format(args.out)
-    rule = None if args.no_outlier_rejection else OutlierRule(k=args.outlier_k or DEFAULT_K)
-    opts = dict(fix_k3=args.fix_k3, fix_tangential=args.fix_tangential, fix_aspect_ratio=args.fix_aspect_ratio,
-                fix_principal_point=args.fix_principal_point, refine_board=args.refine_board, lens=args.lens)
-    if args.lens == "fisheye" and args.fix_tangential:
-        raise InputError("--fix-tangential: the fisheye lens model has no tangential coefficients (p1, p2)")
-    if fmt == "mrcal" and args.lens == "fisheye":
-        from circcal.formats.mrcal import MRCAL_UNSUPPORTED
+    with Outputs(inputs=args.images) as outputs:  # every output checked before the work, committed together
+        model_path = outputs.file(args.out, "--out")
+        report_dir = None if args.report is None else outputs.folder(args.report, "--report", kind="report")
+        fmt = detect_format(args.out)
+        rule = None if args.no_outlier_rejection else OutlierRule(k=args.outlier_k or DEFAULT_K)
+        opts = dict(fix_k3=args.fix_k3, fix_tangential=args.fix_tangential, fix_aspect_ratio=args.fix_aspect_ratio,
+                    fix_principal_point=args.fix_principal_point, refine_board=args.refine_board, lens=args.lens)
+        if args.lens == "fisheye" and args.fix_tangential:
+            raise InputError("--fix-tangential: the fisheye lens model has no tangential coefficients (p1, p2)")
+        if fmt == "mrcal" and args.lens == "fisheye":
+            from circcal.formats.mrcal import MRCAL_UNSUPPORTED
 
-        raise InputError(f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
-                         f"COLMAP cameras.txt or ROS camera_info instead")
-    try:
-        cal = calibrate_images(args.images, board, progress=not args.no_progress, jobs=args.jobs, outlier_rule=rule,
-                               **opts)
-    except CalibrationError as exc:
-        print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
-        return 1
-    print(format_summary(cal))
-    assessment = assess(cal, board, distance=args.distance, cross_validate=args.cross_validate, split=args.split,
-                        seed=args.seed, outlier_rule=rule, **opts)
-    print("\n".join(assessment.lines()))
-    model = cal.to_model_json(board)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    if fmt == "mrcal":
-        from circcal import atomic
-        from circcal.validators.mrcal_export import cameramodel_text, result_views
+            raise InputError(f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
+                             f"COLMAP cameras.txt or ROS camera_info instead")
+        try:
+            cal = calibrate_images(args.images, board, progress=not args.no_progress, jobs=args.jobs,
+                                   outlier_rule=rule, **opts)
+        except CalibrationError as exc:
+            print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
+            return 1
+        print(format_summary(cal))
+        assessment = assess(cal, board, distance=args.distance, cross_validate=args.cross_validate,
+                            split=args.split, seed=args.seed, outlier_rule=rule, **opts)
+        print("\n".join(assessment.lines()))
+        model = cal.to_model_json(board)
+        if fmt == "mrcal":
+            from circcal import atomic
+            from circcal.validators.mrcal_export import cameramodel_text, result_views
 
-        text, info = cameramodel_text(cal.result.camera, result_views(cal.result))
-        atomic.write_text(args.out, text)
-        print(f"wrote {args.out} ({fmt}, " + ("with mrcal's optimisation inputs: mrcal-show-projection-uncertainty "
-                                              "and mrcal-show-residuals work on it)" if info["optimization_inputs"]
-                                              else f"without optimisation inputs: {info['why']})"))
-    else:
-        write_camera(args.out, cal.result.camera, fmt, document=model)
-        print(f"wrote {args.out} ({fmt})")
+            text, info = cameramodel_text(cal.result.camera, result_views(cal.result))
+            atomic.write_text(model_path, text)
+            how = ("with mrcal's optimisation inputs: mrcal-show-projection-uncertainty and mrcal-show-residuals "
+                   "work on it" if info["optimization_inputs"] else f"without optimisation inputs: {info['why']}")
+        else:
+            write_camera(model_path, cal.result.camera, fmt, document=model)
+            how = ""
+        if report_dir is not None:
+            from circcal.calreport import write_report
+
+            write_report(assessment, report_dir)
+        outputs.commit()
+    print(f"wrote {display_name(args.out)} ({fmt}{', ' + how if how else ''})")
     if args.report is not None:
-        from circcal.calreport import write_report
-
-        index = write_report(assessment, args.report)
-        print(f"wrote the report {index}")
+        print(f"wrote the report {display_name(args.report / 'index.html')}")
     return 0

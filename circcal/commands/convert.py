@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import check_output
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -26,25 +25,34 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.formats import detect_format, read_model, write_camera
+    from circcal.formats import detect_format, read_model
+    from circcal.outputs import Outputs
 
-    check_output(args.output)
-    to_fmt = args.to_fmt or detect_format(args.output)
-    camera, document = read_model(args.input, args.from_fmt)
+    with Outputs(inputs=[args.input]) as outputs:
+        staged = outputs.file(args.output, "output")
+        to_fmt = args.to_fmt or detect_format(args.output)
+        camera, document = read_model(args.input, args.from_fmt)
+        fmt, note = _write(staged, camera, document, to_fmt, args.colmap_model)
+        outputs.commit()
+    print(f"{args.input} -> {args.output} ({fmt}{note}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
+          f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
+    return 0
+
+
+def _write(path, camera, document, to_fmt: str, colmap_model: str) -> tuple[str, str]:
+    """Write ``camera`` to ``path`` in ``to_fmt``; (the format written, a note on what it holds)."""
+    from circcal.formats import write_camera
+
     note = ""
     if to_fmt == "mrcal":  # with mrcal's optimisation inputs, built from the model.json's views' observations
         from circcal import atomic
         from circcal.validators.mrcal_export import cameramodel_text, document_views
 
         text, info = cameramodel_text(camera, document_views(document))
-        atomic.write_text(args.output, text)
-        fmt = "mrcal"
+        atomic.write_text(path, text)
         note = " with mrcal's optimisation inputs" if info["optimization_inputs"] else \
             f" without optimisation inputs ({info['why']})"
-    else:
-        # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
-        fmt = write_camera(args.output, camera, to_fmt, document=document if to_fmt == "json" else None,
-                           colmap_model=args.colmap_model)
-    print(f"{args.input} -> {args.output} ({fmt}{note}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
-          f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
-    return 0
+        return "mrcal", note
+    # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
+    return write_camera(path, camera, to_fmt, document=document if to_fmt == "json" else None,
+                        colmap_model=colmap_model), note

@@ -3,23 +3,24 @@
 Writes ``{"board": board.to_dict(), "complete": bool, "images": [{"image": path, "found": bool,
 "centers": [[x, y] | null, ...] | null, "reason": null | "why not", "reason_code": null | code, "complete": bool,
 "points_seen": n, "dots_dropped": {index: why}, "notes": [...]}]}``, images in the order given: a point not seen
-(out of frame, occluded, a dot left out as bad) has a null centre; ``--markers`` labels partial views. The file is rewritten (atomically) as results come in, at most every few seconds and once at the end, so an
-interruption or a failure loses nothing already done; ``"complete": false`` marks a partial file (images still
-missing are left out). ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)). ``--model``: a
+(out of frame, occluded, a dot left out as bad) has a null centre; ``--markers`` labels partial views. The JSON file and the overlay folder are written together at the end
+(:mod:`circcal.outputs`): an interruption or a failure leaves earlier ones as they were; the results done by then
+are kept in ``NAME.partial-K.json`` beside it (``"complete": false``; images still missing are left out). ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)). ``--model``: a
 camera in any format circcal reads (model.json, OpenCV YAML, mrcal, COLMAP, ROS) for the distortion-aware centre
 correction. A failed image never stops the others and always says why.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import time
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, check_output, parse_grid, parse_length_mm, \
-    positive_int
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
 from circcal.commands.board import add_marker_arguments, board_with_markers
 
-#: The partial detections.json is rewritten at most this often (s): an interruption loses at most this much work.
+#: The staged detections.json is rewritten at most this often (s): what an interruption keeps as partial results.
 SAVE_EVERY_S = 2.0
 
 
@@ -48,7 +49,9 @@ def _entry(path: Path, d) -> dict:
     """One image's record: centres (null for a point not seen: out of frame, occluded, or dropped), whether the
     view shows the whole board (``complete``), the dots left out as bad (``dots_dropped``: index -> reason) and
     what else the image shows (``notes``)."""
-    return {"image": str(path), "found": bool(d.found), "centers": d.centres.tolist() if d.found else None,
+    from circcal.pathnames import path_to_json
+
+    return {"image": path_to_json(path), "found": bool(d.found), "centers": d.centres.tolist() if d.found else None,
             "reason": d.reason, "reason_code": None if d.code is None else d.code.value,
             "complete": bool(d.complete) if d.found else None,
             "points_seen": int(d.seen.sum()) if d.found else 0,
@@ -57,54 +60,72 @@ def _entry(path: Path, d) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from circcal import atomic
-    from circcal.detector import detect_files, read_image
+    from circcal.detector import detect_files
+    from circcal.detector.overlay import overlay_file
     from circcal.formats import read_camera
     from circcal.jsonio import dumps
+    from circcal.outputs import Outputs
+    from circcal.pathnames import display_name
 
-    check_output(args.json_out)
-    if args.overlay is not None:
-        check_output(args.overlay, folder=True)
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
-    camera = read_camera(args.model) if args.model is not None else None
-    entries: dict[int, dict] = {}
-    last_save = [time.monotonic()]
+    inputs = list(args.images) + ([args.model] if args.model is not None else [])
+    with Outputs(inputs=inputs) as outputs:  # checked before the work, committed together at the end
+        json_path = outputs.file(args.json_out, "--json")
+        overlay_dir = None if args.overlay is None else outputs.folder(args.overlay, "--overlay", kind="overlays")
+        camera = read_camera(args.model) if args.model is not None else None
+        entries: dict[int, dict] = {}
+        last_save = [time.monotonic()]
 
-    def save(complete: bool) -> None:
-        doc = {"board": board.to_dict(), "complete": complete,
-               "images": [entries[i] for i in sorted(entries)]}
-        args.json_out.parent.mkdir(parents=True, exist_ok=True)
-        atomic.write_text(args.json_out, dumps(doc, indent=1) + "\n")
-        last_save[0] = time.monotonic()
+        def save(complete: bool) -> None:
+            doc = {"board": board.to_dict(), "complete": complete,
+                   "images": [entries[i] for i in sorted(entries)]}
+            atomic.write_text(json_path, dumps(doc, indent=1) + "\n")
+            last_save[0] = time.monotonic()
 
-    def on_result(i: int, d) -> None:
-        path = Path(args.images[i])
-        entries[i] = _entry(path, d)
-        if args.overlay is not None and path.is_file():
-            img = read_image(path)
-            if img is not None:
-                from circcal.detector.overlay import write_overlay
+        def on_result(i: int, d) -> None:
+            path = Path(args.images[i])
+            entries[i] = _entry(path, d)
+            if overlay_dir is not None:
+                vis = overlay_file(path, d)
+                if vis is not None:
+                    import cv2
 
-                write_overlay(Path(args.overlay) / (path.stem + "_detect.png"), img, d)
-        if time.monotonic() - last_save[0] >= SAVE_EVERY_S:
-            save(complete=False)
+                    ok, png = cv2.imencode(".png", vis)
+                    if ok:
+                        atomic.write_bytes(overlay_dir / _overlay_name(path, i, args.images), png.tobytes())
+            if time.monotonic() - last_save[0] >= SAVE_EVERY_S:
+                save(complete=False)
 
-    try:
-        dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs,
-                            on_result=on_result)
-    except BaseException:
-        if entries:
-            save(complete=False)  # keep what is done: an interruption or a failure in a later image
-        raise
-    save(complete=True)
+        try:
+            dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs,
+                                on_result=on_result)
+        except BaseException:
+            if entries:  # keep what is done, beside the earlier output, which stays as it was
+                save(complete=False)
+                kept = outputs.keep_partial(json_path)
+                print(f"circcal detect: {len(entries)} of {len(args.images)} images done; kept in "
+                      f"{display_name(kept)} ({display_name(args.json_out)} left as it was)", file=sys.stderr)
+            raise
+        save(complete=True)
+        outputs.commit()
     n = sum(d.found for d in dets)
-    print(f"circcal detect: grid found in {n} of {len(dets)} images -> {args.json_out}")
+    print(f"circcal detect: grid found in {n} of {len(dets)} images -> {display_name(args.json_out)}")
     for path, d in zip(args.images, dets):
+        name = display_name(path)
         if not d.found:
-            print(f"  {path}: {d.reason}")
+            print(f"  {name}: {d.reason}")
         elif not d.complete or d.dropped:
-            print(f"  {path}: {int(d.seen.sum())} of {board.n_points} points"
+            print(f"  {name}: {int(d.seen.sum())} of {board.n_points} points"
                   + ("" if d.complete else " (partial view)")
                   + (f", {d.n_dropped} dot(s) left out as bad" if d.dropped else ""))
         for note in d.notes:
-            print(f"  {path}: {note}")
+            print(f"  {name}: {note}")
     return 0 if n == len(dets) else 1
+
+
+def _overlay_name(path: Path, i: int, paths: list[Path]) -> str:
+    """The overlay's file name: the image's stem, numbered where two inputs share a stem (a/x.png, b/x.png)."""
+    stems = [Path(p).stem for p in paths]
+    stem = os.fsencode(path.stem)
+    safe = os.fsdecode(stem.replace(b"/", b"_"))
+    return f"{safe}_detect.png" if stems.count(path.stem) == 1 else f"{safe}_{i:04d}_detect.png"

@@ -5,7 +5,6 @@ import argparse
 import shutil
 from pathlib import Path
 
-from circcal.commands.args import check_output
 from circcal.errors import InputError
 
 
@@ -33,15 +32,21 @@ def run(args: argparse.Namespace) -> int:
         return 0 if args.list else 2
     if args.out is None:
         raise InputError("--out DIR is required")
-    check_output(args.out, folder=True)
+    from circcal.outputs import Outputs
+
     sc = get_scenario(args.scenario)
     variants = args.variant or list(sc.variants)
-    for v in variants:
-        src = fixture_dir(sc.name, v, progress=True)  # cached by content hash
-        dest = args.out / v if (len(variants) > 1 or not args.variant) else args.out
-        dest.mkdir(parents=True, exist_ok=True)
-        for f in src.iterdir():
-            shutil.copy2(f, dest / f.name)
-        print(f"{sc.name}/{v}: {sum(1 for f in dest.iterdir() if f.name != 'truth.json')} images + truth.json "
-              f"-> {dest}")
+    lines = []
+    with Outputs() as outputs:  # a new folder, or one circcal rendered before: committed whole at the end
+        staged = outputs.folder(args.out, "--out", kind="fixtures")
+        for v in variants:
+            src = fixture_dir(sc.name, v, progress=True)  # cached by content hash
+            sub = Path(v) if (len(variants) > 1 or not args.variant) else Path()
+            (staged / sub).mkdir(parents=True, exist_ok=True)
+            for f in src.iterdir():
+                shutil.copy2(f, staged / sub / f.name)
+            n = sum(1 for f in (staged / sub).iterdir() if f.name != "truth.json")
+            lines.append(f"{sc.name}/{v}: {n} images + truth.json -> {args.out / sub}")
+        outputs.commit()
+    print("\n".join(lines))
     return 0

@@ -3,10 +3,11 @@ cluster given its scheduler); resumable, one Parquet row per run, summary tables
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from circcal import atomic
-from circcal.commands.args import check_output, positive_int
+from circcal.commands.args import positive_int
 from circcal.errors import EXIT_FAILED, EXIT_OK
 
 
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.study import load_spec, run_study, write_summary
 
     spec = load_spec(args.spec)
-    check_output(args.out, folder=True)
+    _check_study_folder(args.out)
     if args.summary_only:
         if not (args.out / "study.yaml").exists():
             args.out.mkdir(parents=True, exist_ok=True)
@@ -63,3 +64,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(res.errors)} tasks failed: their runs are missing; run the same command again to finish them")
         return EXIT_FAILED
     return EXIT_OK
+
+
+def _check_study_folder(folder: Path) -> None:
+    """A study's folder grows as runs finish (resumable), so it is not staged: it must be new, empty, or an
+    earlier study's (its study.yaml); anything else is refused before any work, naming the folder."""
+    from circcal.errors import InputError
+    from circcal.outputs import check_writable_place
+
+    if folder.exists():
+        if not folder.is_dir():
+            raise InputError(f"--out {folder}: not a folder")
+        entries = os.listdir(folder)
+        if entries and "study.yaml" not in entries:
+            raise InputError(f"--out {folder}: it holds files of no circcal study ({', '.join(sorted(entries)[:3])}"
+                             f"{', ...' if len(entries) > 3 else ''}); give a new or empty folder")
+    check_writable_place(folder / "study.yaml", "--out")

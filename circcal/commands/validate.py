@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, check_output, parse_grid,
+from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, parse_grid,
                                    parse_length_mm, positive_float)
 from circcal.errors import InputError
 from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
@@ -54,39 +54,49 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
-    from circcal.validators.validate import Bounds, format_table, run_validation, write_report
+    from circcal.outputs import Outputs
+    from circcal.validators.validate import format_table, write_report
 
-    if args.report:
-        check_output(args.report, folder=True)
-    against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
-    truth_cam = None
-    if args.images:
-        if args.scenario or args.fixtures:
-            raise InputError("give a scenario, --fixtures or --images, not several")
-        if args.grid is None or args.pitch is None:
-            raise InputError("--images needs --grid ROWSxCOLS and --pitch")
-        board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
-        paths = sorted(args.images)
-        source = {"images": [str(p) for p in paths]}
-    else:
-        if args.fixtures:
-            folder = args.fixtures
-            source = {"fixtures": str(folder)}
+    with Outputs(inputs=[*(args.images or []), *([args.fixtures] if args.fixtures else [])]) as outputs:  # the report folder checked before the work
+        report = None if not args.report else outputs.folder(args.report, "--report", kind="validation")
+        against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
+        truth_cam = None
+        if args.images:
+            if args.scenario or args.fixtures:
+                raise InputError("give a scenario, --fixtures or --images, not several")
+            if args.grid is None or args.pitch is None:
+                raise InputError("--images needs --grid ROWSxCOLS and --pitch")
+            board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
+            paths = sorted(args.images)
+            source = {"images": [str(p) for p in paths]}
         else:
-            sc = get_scenario(args.scenario or DEFAULT_SCENARIO)
-            variant = args.variant or next(iter(sc.variants))
-            folder = fixture_dir(sc.name, variant, progress=not args.no_progress)
-            source = {"scenario": sc.name, "variant": variant, "version": sc.version}
-        truth = load_truth(folder)
-        board, truth_cam = truth.board, truth.camera
-        paths = [v.image for v in truth.views]
-    result = run_validation(paths, board, truth=truth_cam, against=against, mode=args.mode,
-                            observations=args.observations, fix_k3=args.fix_k3, progress=not args.no_progress,
-                            **({} if args.lens is None else {"lens": args.lens}),
-                            bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas,
-                                          truth=args.truth_tol), source=source, allow_missing=args.allow_missing)
-    print(format_table(result))
+            if args.fixtures:
+                folder = args.fixtures
+                source = {"fixtures": str(folder)}
+            else:
+                sc = get_scenario(args.scenario or DEFAULT_SCENARIO)
+                variant = args.variant or next(iter(sc.variants))
+                folder = fixture_dir(sc.name, variant, progress=not args.no_progress)
+                source = {"scenario": sc.name, "variant": variant, "version": sc.version}
+            truth = load_truth(folder)
+            board, truth_cam = truth.board, truth.camera
+            paths = [v.image for v in truth.views]
+        result = _run(args, paths, board, truth_cam, against, source)
+        print(format_table(result))
+        if report is not None:
+            write_report(result, report)
+        outputs.commit()
     if args.report:
-        print(f"\nreport: {write_report(result, args.report)}")
+        print(f"\nreport: {args.report}")
     print(f"\n{'all checks passed' if result.passed else 'SOME CHECKS FAILED'}")
     return 0 if result.passed else 1
+
+
+def _run(args: argparse.Namespace, paths, board, truth_cam, against, source):
+    from circcal.validators.validate import Bounds, run_validation
+
+    return run_validation(paths, board, truth=truth_cam, against=against, mode=args.mode,
+                          observations=args.observations, fix_k3=args.fix_k3, progress=not args.no_progress,
+                          **({} if args.lens is None else {"lens": args.lens}),
+                          bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas, truth=args.truth_tol),
+                          source=source, allow_missing=args.allow_missing)

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from circcal import atomic
+from circcal.outputs import Outputs
 from circcal.jsonio import jsonable
 from circcal.report import render
 from circcal.report.bias import bias_study
@@ -112,7 +113,9 @@ def write_report(results: dict[str, Any], out_dir: str | Path, *, name: str = "l
     published = published_results(text, stamped)
     kind = published["config"]["name"]
     header = header_line(kind, date) if header is None else header
-    with atomic.folder(out_dir / name) as tmp:
+    with Outputs() as outputs:  # the folder and the index committed together (circcal.outputs)
+        tmp = outputs.folder(out_dir / name, "--out", kind="comparison-report")
+        readme = outputs.file(out_dir / "README.md", "--out")
         (tmp / "report.json").write_text(text)
         (tmp / "timings.json").write_text(json.dumps(stamped, indent=1) + "\n")
         files = make_figures(published, tmp)
@@ -120,8 +123,8 @@ def write_report(results: dict[str, Any], out_dir: str | Path, *, name: str = "l
         (tmp / "index.md").write_text(render.to_markdown(blocks))
         images = {f: (tmp / f).read_bytes() for f in files}
         (tmp / "index.html").write_text(render.to_html(blocks, images, title=TITLE))
-    atomic.write_text(out_dir / "README.md", render.readme(name=name, date=date, kind=kind,
-                                                           headline=headline(published)))
+        atomic.write_text(readme, render.readme(name=name, date=date, kind=kind, headline=headline(published)))
+        outputs.commit()
     return out_dir / name
 
 

@@ -1,0 +1,528 @@
+"""A command's outputs as one unit: checked before the work, staged beside their final places, committed together.
+
+Rules (every ``circcal`` command that writes follows them):
+
+- An output never deletes or replaces anything circcal did not create. A file output may replace an earlier file;
+  it may not be one of the command's inputs, a folder, a device, a fifo or a socket. A symlink is written through
+  (its target is replaced, the link stays). A folder output (``--report DIR``, ``--overlay DIR``) is new, empty, or
+  an earlier circcal folder of the same kind, recognised by the manifest :data:`MARKER` that lists every file
+  circcal wrote there with its SHA-256: a folder holding anything else, or a file changed since, is refused. A folder
+  output may not hold an input, another output, or the working folder. Each refusal is an
+  :class:`~circcal.errors.InputError` naming the path, raised when the output is planned, before any work.
+- Everything is written into staging places beside the final ones (hidden names starting ``.`` and holding
+  ``.circcal-``); nothing final is touched until :meth:`Outputs.commit`. A failure or an interruption before it
+  removes the staging places and leaves every earlier output as it was.
+- The commit renames every staged output into place with SIGINT and SIGTERM held back (delivered right after): a
+  folder is swapped with ``renameat2(RENAME_EXCHANGE)`` where the kernel has it (one atomic step), else with two
+  renames. A journal written first, beside every output, lists the steps; should the process be killed
+  (``SIGKILL``, power) between two renames, :func:`recover` (called by every later command that plans an output
+  in that folder) finishes them, so the outputs of one command end all old or all new.
+
+Example
+-------
+>>> with Outputs(inputs=images) as out:                             # doctest: +SKIP
+...     model = out.file(Path("model.json"), "--out")
+...     report = out.folder(Path("report"), "--report", kind="report")
+...     ...                                                          # the work: write into model and report
+...     out.commit()
+"""
+from __future__ import annotations
+
+import ctypes
+import errno
+import glob
+import hashlib
+import json
+import os
+import shutil
+import signal
+import stat
+import tempfile
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator
+
+from circcal.errors import InputError
+from circcal.pathnames import display_name
+
+
+__all__ = ["MARKER", "Outputs", "check_folder_output", "check_writable_place", "folder_manifest", "recover",
+           "write_manifest"]
+
+MARKER = ".circcal-output.json"
+"""The manifest circcal writes into every folder output: its kind and every file it wrote with its SHA-256."""
+_STAGE = ".circcal-"
+"""Staging places, old folders and journals carry this in their (hidden) names."""
+_JOURNAL_PREFIX = ".circcal-commit-"
+
+
+def _display(path: Path | str) -> str:
+    return display_name(path)
+
+
+def _resolve(path: Path, option: str) -> Path:
+    """``path`` with every symlink followed (a dangling link: its target, which the output then creates)."""
+    try:
+        return Path(os.path.realpath(path, strict=False))
+    except OSError as exc:  # a link loop
+        raise InputError(f"{option} {_display(path)}: cannot follow the link ({exc.strerror or exc})") from None
+
+
+def _existing_ancestor(path: Path) -> Path:
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    return parent
+
+
+def check_writable_place(path: Path, option: str) -> Path:
+    """The nearest existing folder above ``path``, checked writable (permissions, a read-only mount); the staging
+    place made in it next is the final proof. Raises :class:`~circcal.errors.InputError` naming the path."""
+    parent = _existing_ancestor(path)
+    if not parent.is_dir():
+        raise InputError(f"{option} {_display(path)}: {_display(parent)} is not a folder")
+    read_only = hasattr(os, "statvfs") and bool(os.statvfs(parent).f_flag & getattr(os, "ST_RDONLY", 1))
+    if read_only or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {_display(path)}: folder {_display(parent)} is not writable ("
+                         f"{'a read-only file system' if read_only else 'permission denied'})")
+    return parent
+
+
+def _kind_of(mode: int) -> str | None:
+    """What a non-regular file is, in words (None for a regular file)."""
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISFIFO(mode):
+        return "a fifo"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def folder_manifest(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` (relative path -> SHA-256), the marker left out. Raises ``InputError`` for an
+    entry that is neither a file nor a folder (a link, a device): circcal writes none."""
+    out: dict[str, str] = {}
+    for root, dirs, files in os.walk(folder):
+        for name in sorted(dirs + files):
+            p = Path(root) / name
+            if p.is_symlink() or not (p.is_file() or p.is_dir()):
+                raise InputError(f"{_display(p)} is {'a link' if p.is_symlink() else 'not a file'}: circcal "
+                                 f"writes none")
+        for name in files:
+            p = Path(root) / name
+            rel = p.relative_to(folder).as_posix()
+            if rel != MARKER:
+                out[rel] = _sha256(p)
+    return out
+
+
+def write_manifest(folder: Path, kind: str, commit_id: str = "") -> None:
+    """Write :data:`MARKER` into ``folder``: its ``kind`` and :func:`folder_manifest`."""
+    doc = {"circcal": kind, "commit": commit_id, "files": folder_manifest(folder)}
+    (folder / MARKER).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+
+
+def _read_marker(folder: Path) -> dict | None:
+    try:
+        doc = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("files"), dict) else None
+
+
+def check_folder_output(path: Path, kind: str, option: str, shown: Path | None = None) -> str:
+    """Refuse a folder output that is not new, empty, or an earlier intact circcal folder of ``kind``; returns how
+    it stands (``"new"``, ``"empty"``, ``"earlier"``). Raises :class:`~circcal.errors.InputError` naming the folder
+    (as ``shown``, default ``path``) and the first foreign entry."""
+    shown = path if shown is None else shown
+    if not path.exists():
+        return "new"
+    if not path.is_dir():
+        raise InputError(f"{option} {_display(shown)}: {_kind_of(path.stat().st_mode) or 'a file'}, not a folder")
+    entries = sorted(os.listdir(path))
+    if not entries:
+        return "empty"
+    marker = _read_marker(path)
+    why = None
+    if marker is None:
+        listed = ", ".join(_display(e) for e in entries[:3]) + (", ..." if len(entries) > 3 else "")
+        why = f"it holds files circcal did not write ({listed})"
+    elif marker.get("circcal") != kind:
+        why = f"it is a circcal {marker.get('circcal')!r} folder, not a {kind!r} folder"
+    else:
+        try:
+            now = folder_manifest(path)
+        except InputError as exc:
+            why = str(exc)
+        else:
+            extra = sorted(set(now) - set(marker["files"]))
+            changed = sorted(k for k in now if k in marker["files"] and marker["files"][k] != now[k])
+            if extra:
+                why = f"it holds files circcal did not write there ({_display(extra[0])}" + \
+                      (f" and {len(extra) - 1} more)" if len(extra) > 1 else ")")
+            elif changed:
+                why = f"{_display(changed[0])} was changed since circcal wrote it"
+    if why is not None:
+        raise InputError(f"{option} {_display(shown)}: {why}; circcal replaces only a folder it wrote: give a new "
+                         f"or empty folder")
+    return "earlier"
+
+
+@dataclass
+class _Output:
+    shown: Path          # as the user gave it
+    final: Path          # symlinks followed
+    option: str
+    kind: str | None     # None: a file; else the folder's kind
+    staging: Path = field(default=Path())
+    old: Path | None = None
+
+
+class Outputs:
+    """The outputs of one command (see the module docstring). Plan each with :meth:`file` or :meth:`folder` before
+    the work (the checks run then), write into the staging paths they return, then :meth:`commit`. Used as a
+    context manager: leaving the block without a commit removes the staging places.
+
+    Parameters
+    ----------
+    inputs : iterable of path-like
+        The command's input files (images, models): no output may be one, and no folder output may hold one.
+    """
+
+    def __init__(self, inputs: Iterable[str | os.PathLike] = ()) -> None:
+        self._inputs = [Path(p) for p in inputs]
+        self._resolved_inputs = {Path(os.path.realpath(p)) for p in self._inputs}
+        self._outputs: list[_Output] = []
+        self.committed = False
+
+    def __enter__(self) -> "Outputs":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if not self.committed:
+            self.discard()
+
+    # planning --------------------------------------------------------------------------------------------------
+    def _plan(self, path: Path, option: str, kind: str | None) -> _Output:
+        path = Path(path)
+        final = _resolve(path, option)
+        for out in self._outputs:
+            if out.final == final or (out.kind and out.final in final.parents) or \
+                    (kind and final in out.final.parents):
+                raise InputError(f"{option} {_display(path)} and {out.option} {_display(out.shown)} overlap: give "
+                                 f"each output its own place")
+        for inp in self._resolved_inputs:
+            if inp == final or (kind and final in inp.parents):
+                raise InputError(f"{option} {_display(path)}: " + ("it is one of the inputs" if inp == final else
+                                 f"the folder holds the input {_display(inp)}") + "; choose another output")
+        recover(final.parent if final.parent.exists() else _existing_ancestor(final))
+        if final.exists() or final.is_symlink():
+            try:
+                mode = final.stat().st_mode
+            except OSError as exc:
+                raise InputError(f"{option} {_display(path)}: {exc.strerror or exc}") from None
+            what = _kind_of(mode)
+            if kind is None and what is not None:
+                raise InputError(f"{option} {_display(path)}: it is {what}; give the path of a file")
+            if kind is None:
+                for inp in self._inputs:  # hard links and bind mounts: the same file under another name
+                    try:
+                        if inp.exists() and os.path.samefile(inp, final):
+                            raise InputError(f"{option} {_display(path)}: it is the input {_display(inp)}; "
+                                             f"choose another output")
+                    except OSError:
+                        pass
+                if not os.access(final, os.W_OK):
+                    raise InputError(f"{option} {_display(path)}: not writable (permission denied)")
+        if kind is not None:
+            cwd = Path(os.path.realpath(os.getcwd()))
+            if final == cwd or final in cwd.parents or final == Path(final.anchor):
+                raise InputError(f"{option} {_display(path)}: the folder holds the working folder; give a folder "
+                                 f"of its own (e.g. {option} report)")
+            check_folder_output(final, kind, option, shown=path)
+        parent = check_writable_place(final, option)
+        _remove_stale(parent, final.name)
+        out = _Output(path, final, option, kind)
+        prefix = f".{final.name}{_STAGE}{os.getpid()}-"
+        try:
+            with _signals_held():  # made and recorded together: an interruption cannot orphan it
+                if kind is None:
+                    # the final suffix kept: writers that pick a format by extension pick the same one
+                    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=final.suffix, dir=parent)
+                    os.close(fd)
+                    out.staging = Path(tmp)
+                else:
+                    out.staging = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+                    os.chmod(out.staging, 0o755)  # mkdtemp makes it private; a folder output reads as usual
+                self._outputs.append(out)
+        except OSError as exc:
+            raise InputError(f"{option} {_display(path)}: nothing can be made in folder {_display(parent)} "
+                             f"({exc.strerror or exc})") from None
+        return out
+
+    def file(self, path: str | os.PathLike, option: str) -> Path:
+        """Plan the file output ``path`` (named ``option`` in messages, e.g. ``"--out"``) and return its staging
+        path, to write in full before :meth:`commit`. Raises :class:`~circcal.errors.InputError` (see the module
+        docstring)."""
+        return self._plan(Path(path), option, None).staging
+
+    def folder(self, path: str | os.PathLike, option: str, *, kind: str) -> Path:
+        """Plan the folder output ``path`` of ``kind`` (``"report"``, ``"overlays"``, ...) and return its staging
+        folder (empty), to fill before :meth:`commit`. Raises :class:`~circcal.errors.InputError`."""
+        return self._plan(Path(path), option, kind).staging
+
+    def final(self, staging: Path) -> Path:
+        """The final place of a staging path (for messages: what the user gave)."""
+        return next(o.shown for o in self._outputs if o.staging == staging)
+
+    # committing ------------------------------------------------------------------------------------------------
+    def commit(self) -> None:
+        """Move every staged output into its place, all together (see the module docstring). SIGINT and SIGTERM
+        are held back meanwhile and delivered after it."""
+        if self.committed:
+            raise RuntimeError("outputs already committed")
+        commit_id = os.urandom(8).hex()
+        with _signals_held():
+            for out in self._outputs:
+                if out.kind is not None:
+                    write_manifest(out.staging, out.kind, commit_id)
+                    _fsync_tree(out.staging)
+                else:
+                    _fsync_file(out.staging)
+                    if out.final.exists():  # a new file gets the mode of the one it replaces
+                        os.chmod(out.staging, out.final.stat().st_mode & 0o7777)
+                    else:
+                        os.chmod(out.staging, 0o666 & ~_UMASK)
+            journals = _write_journals(self._outputs, commit_id)
+            _apply(self._outputs, commit_id)
+            self.committed = True
+            for j in journals:
+                _unlink(j)
+            for out in self._outputs:
+                if out.old is not None:
+                    shutil.rmtree(out.old, ignore_errors=True)
+
+    def discard(self) -> None:
+        """Remove every staging place (nothing final is touched)."""
+        with _signals_held():
+            for out in self._outputs:
+                if out.kind is None:
+                    _unlink(out.staging)
+                else:
+                    shutil.rmtree(out.staging, ignore_errors=True)
+
+    def keep_partial(self, staging: Path) -> Path:
+        """Instead of committing: move the staged file ``staging`` to a new name beside its final place
+        (``NAME.partial-K.SUFFIX``, the first K free; nothing is replaced) and return it. For results done before an
+        interruption, kept without touching the earlier output."""
+        out = next(o for o in self._outputs if o.staging == staging)
+        out.final.parent.mkdir(parents=True, exist_ok=True)
+        for k in range(1, 10_000):
+            cand = out.final.with_name(f"{out.final.stem}.partial-{k}{out.final.suffix}")
+            try:
+                os.link(out.staging, cand)  # fails when cand exists: never replaces
+            except FileExistsError:
+                continue
+            _unlink(out.staging)
+            return cand
+        raise InputError(f"{out.option} {_display(out.shown)}: no free name for the partial results")
+
+
+def _remove_stale(parent: Path, name: str) -> None:
+    """Remove the staging places of ``name`` in ``parent`` whose process is gone (a killed run's leftovers: their
+    names hold the pid that made them; a live process's are never touched)."""
+    for p in parent.glob(f".{glob.escape(name)}{_STAGE}*"):
+        rest = p.name[1 + len(name) + len(_STAGE):]
+        pid = rest.split("-", 1)[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue  # an earlier folder a killed commit set aside (recover() handles it), or a live run's
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            _unlink(p)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, another user's
+        return True
+    return True
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(folder: Path) -> None:
+    for root, _, files in os.walk(folder):
+        for name in files:
+            _fsync_file(Path(root) / name)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
+class _signals_held:
+    """Hold SIGINT and SIGTERM back in the block and deliver them after it (main thread only: elsewhere Python
+    runs no signal handler). The handlers are swapped for a recorder rather than the signals masked, because a
+    signal that arrived just before the block may still be waiting for the interpreter to run its handler."""
+
+    def __enter__(self) -> None:
+        self._got: list[int] = []
+        self._old: dict[int, object] = {}
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, lambda signum, frame: self._got.append(signum))
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]
+        for sig in dict.fromkeys(self._got):
+            handler = self._old[sig]
+            if callable(handler):
+                handler(sig, None)
+            elif handler == signal.SIG_DFL and sig == signal.SIGINT:
+                raise KeyboardInterrupt
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), sig)
+
+
+def _write_journals(outputs: list[_Output], commit_id: str) -> list[Path]:
+    """The commit's steps, written (and synced) beside every output: any of them lets :func:`recover` finish."""
+    steps = [{"final": os.fsencode(o.final).hex(), "staging": os.fsencode(o.staging).hex(), "folder": o.kind}
+             for o in outputs]
+    text = json.dumps({"commit": commit_id, "steps": steps}) + "\n"
+    paths = []
+    for d in dict.fromkeys(o.staging.parent for o in outputs):
+        p = d / f"{_JOURNAL_PREFIX}{commit_id}.json"
+        with open(p, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        paths.append(p)
+    return paths
+
+
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where the system lacks it."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EPERM):
+        return False
+    raise OSError(err, os.strerror(err), os.fsdecode(b))
+
+
+def _rename(src: Path, dst: Path) -> None:
+    """One rename of the commit (a seam for the tests that interrupt at each one)."""
+    os.replace(src, dst)
+
+
+def _apply(outputs: list[_Output], commit_id: str) -> None:
+    for out in outputs:
+        out.final.parent.mkdir(parents=True, exist_ok=True)
+        if out.kind is None or not out.final.exists():
+            _rename(out.staging, out.final)
+        elif _exchange(out.staging, out.final):
+            out.old = out.staging  # the earlier folder now lies at the staging name
+        else:
+            out.old = out.final.with_name(f".{out.final.name}{_STAGE}old-{commit_id}")
+            _rename(out.final, out.old)
+            _rename(out.staging, out.final)
+
+
+def _marker_commit(folder: Path) -> str | None:
+    doc = _read_marker(folder) if folder.is_dir() else None
+    return None if doc is None else doc.get("commit")
+
+
+def recover(folder: Path) -> list[Path]:
+    """Finish the commits a killed circcal process left half done in ``folder`` (their journals name the steps):
+    the staged outputs still waiting are moved into place, the earlier folders they replace removed. Returns the
+    outputs it put in place. A journal whose staging places are all gone is removed."""
+    done: list[Path] = []
+    try:
+        journals = sorted(Path(folder).glob(f"{_JOURNAL_PREFIX}*.json"))
+    except OSError:
+        return done
+    for j in journals:
+        try:
+            doc = json.loads(j.read_text())
+            commit_id = doc["commit"]
+            steps = [(Path(os.fsdecode(bytes.fromhex(s["final"]))), Path(os.fsdecode(bytes.fromhex(s["staging"]))),
+                      s["folder"]) for s in doc["steps"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # not one of ours, or unreadable: left alone
+        for final, staging, kind in steps:
+            if kind is None:
+                if staging.is_file():
+                    final.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(staging, final)
+                    done.append(final)
+                continue
+            old = final.with_name(f".{final.name}{_STAGE}old-{commit_id}")
+            if _marker_commit(final) == commit_id:  # in place: only the earlier folder may be left
+                for leftover in (staging, old):
+                    if leftover.is_dir() and _marker_commit(leftover) != commit_id:
+                        shutil.rmtree(leftover, ignore_errors=True)
+                continue
+            if _marker_commit(staging) == commit_id:
+                if final.exists():
+                    os.replace(final, old)
+                final.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(staging, final)
+                shutil.rmtree(old, ignore_errors=True)
+                done.append(final)
+        for d in {s.parent for _, s, _ in steps}:
+            _unlink(d / j.name)
+        _unlink(j)
+    return done
+
+
+def iter_staging(folder: Path) -> Iterator[Path]:
+    """circcal's staging places left in ``folder`` by a killed process (for a clean-up or a test)."""
+    yield from (p for p in Path(folder).iterdir() if p.name.startswith(".") and _STAGE in p.name)
