@@ -8,48 +8,48 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Reason", "Detection", "Rejection"]
+__all__ = ["REASON_TEXT", "Reason", "Detection", "Rejection"]
 
 
 class Reason(str, enum.Enum):
-    """Why an image gave no grid. The values are what detections.json and model.json carry (``reason_code``)."""
+    """Why an image gave no grid. The values are what detections.json and model.json carry (``reason_code``);
+    :data:`REASON_TEXT` says each in words (the README's list is generated from it: tests/test_reasons.py)."""
 
-    #: the path does not exist (or is not a file)
     FILE_NOT_FOUND = "file-not-found"
-    #: the file is not an image a decoder can read, or it is corrupt
     UNREADABLE = "unreadable"
-    #: the image decoded but cannot be used (too small, NaN/inf, unsupported channels or type)
     BAD_IMAGE = "bad-image"
-    #: the image file claims more pixels than the limit (``CIRCCAL_MAX_IMAGE_PIXELS``, default 2^28) in its header
-    #: (not decoded), or OpenCV's decoder refuses its size
     IMAGE_TOO_LARGE = "image-too-large"
-    #: fewer dark, dot-like blobs than the board has dots
     TOO_FEW_CANDIDATES = "too-few-candidates"
-    #: enough candidates, but no arrangement of them is the board's grid
     GRID_NOT_RECOGNISED = "grid-not-recognised"
-    #: a dot lattice is there, but it is not a ``--grid`` board: it continues beyond it (the board has more dots),
-    #: it is complete and smaller, or the transposed grid fits it (the reason says which)
     GRID_MISMATCH = "grid-mismatch"
-    #: the marker dots seen match no part of the board's marker layout
     MARKERS_INCONSISTENT = "markers-inconsistent"
-    #: part of the board is seen, but which part is ambiguous (a board without markers, or no telling markers in
-    #: view): rejected rather than guessed
     AMBIGUOUS_VIEW = "ambiguous-view"
-    #: too few dots of the board seen (or left after dropping the bad ones) for a view
     TOO_FEW_POINTS = "too-few-points"
-    #: the dots sit on a lattice but fail the checks a board passes (regular spacing, elliptic edges, dot sizes)
     IRREGULAR_GRID = "irregular-grid"
-    #: the image took longer than its time budget (dense texture, thousands of blobs)
     TIME_BUDGET = "time-budget-exceeded"
-    #: a dot of the grid gives too few sub-pixel edge points, or no ellipse fits them
-    DOT_UNMEASURABLE = "dot-unmeasurable"
-    #: the projective centre correction found no consistent board homography
     CENTRE_CORRECTION_FAILED = "centre-correction-failed"
-    #: the image's size differs from the camera model's (or from the other images of a calibration)
     WRONG_IMAGE_SIZE = "wrong-image-size"
-    #: the same file (or a file with identical content) was given before: counted once, or the views it adds
-    #: would shrink the stated uncertainty without adding information
     DUPLICATE = "duplicate"
+
+
+#: Each :class:`Reason` in words (one line each; the README's list of codes is these).
+REASON_TEXT: dict[Reason, str] = {
+    Reason.FILE_NOT_FOUND: "the path does not exist (or is not a file)",
+    Reason.UNREADABLE: "the file is not an image a decoder can read, or it is corrupt",
+    Reason.BAD_IMAGE: "the image decoded but cannot be used (too small, NaN/inf, unsupported channels or type)",
+    Reason.IMAGE_TOO_LARGE: "the image file claims more pixels than the limit (`CIRCCAL_MAX_IMAGE_PIXELS`, default 2^28) in its header (not decoded), or OpenCV's decoder refuses its size",
+    Reason.TOO_FEW_CANDIDATES: "fewer dark, dot-like blobs than the board has dots",
+    Reason.GRID_NOT_RECOGNISED: "enough candidates, but no arrangement of them is the board's grid",
+    Reason.GRID_MISMATCH: "a dot lattice is there, but it is not a `--grid` board: it continues beyond it (the board has more dots), it is complete and smaller, or the transposed grid fits it (the reason says which)",
+    Reason.MARKERS_INCONSISTENT: "the marker dots seen match no part of the board's marker layout",
+    Reason.AMBIGUOUS_VIEW: "part of the board is seen, but which part is ambiguous (a board without markers, or no telling markers in view): rejected rather than guessed",
+    Reason.TOO_FEW_POINTS: "too few dots of the board seen (or left after dropping the bad ones) for a view",
+    Reason.IRREGULAR_GRID: "the dots sit on a lattice but fail the checks a board passes (regular spacing, elliptic edges, dot sizes)",
+    Reason.TIME_BUDGET: "the image took longer than its time budget (dense texture, thousands of blobs)",
+    Reason.CENTRE_CORRECTION_FAILED: "the projective centre correction found no consistent board homography",
+    Reason.WRONG_IMAGE_SIZE: "the image's size differs from the camera model's (or from the other images of a calibration)",
+    Reason.DUPLICATE: "the same file (or a file with identical content) was given before: counted once, or the views it adds would shrink the stated uncertainty without adding information",
+}
 
 
 @dataclass

@@ -51,14 +51,19 @@ MAD_TO_SIGMA = 1.4826
 
 
 class OutlierReason(str, enum.Enum):
-    """Why an observation was left out (the values are what model.json carries)."""
+    """Why an observation was left out (the values are what model.json carries; :data:`OUTLIER_TEXT` in words)."""
 
-    #: the point's residual exceeds k sigma in x or y
     POINT = "outlier-point"
-    #: the view's typical residual is an outlier, or it lost most of its points
     VIEW = "outlier-view"
-    #: the detector could tell the dot is bad (its ellipse fit, area or shape), before any solve
     BAD_DOT = "bad-dot"
+
+
+#: Each :class:`OutlierReason` in words (the README's list of codes is these).
+OUTLIER_TEXT: dict[OutlierReason, str] = {
+    OutlierReason.POINT: "the point's residual exceeds k sigma in x or y",
+    OutlierReason.VIEW: "the view's typical residual is an outlier, or it lost most of its points",
+    OutlierReason.BAD_DOT: "the detector could tell the dot is bad (its ellipse fit, area or shape), before any solve",
+}
 
 
 @dataclass(frozen=True)
