@@ -20,7 +20,7 @@ JOBS    ?= 2
 setup: $(STAMP) $(KERNELS)
 	@# byte-compiled now, as a pip install does: this environment sets PYTHONDONTWRITEBYTECODE, so without it every
 	@# process would compile circcal's modules from source (~0.17 s of a calibrate's start-up)
-	@$(VPY) -m compileall -q -j 0 circcal validators benchmarks >/dev/null
+	@$(VPY) -m compileall -q -j 0 circcal benchmarks >/dev/null
 
 # The detector's kernels compiled ahead of time (circcal/detector/jit.py: a process then starts without numba);
 # rebuilt when a detector module changes (only kernel modules whose source changed are compiled again). A failed
@@ -37,7 +37,7 @@ $(STAMP): pyproject.toml Makefile
 	$(VPY) -m pip install -q $(TORCH)
 	$(VPY) -m pip install -q -e '.[all]' $(PINS)
 	@# lensboy without its declared opencv-contrib-python, which would install a second cv2 over
-	@# opencv-contrib-python-headless; lensboy runs on that cv2 (validators/lensboy.py says where it does not)
+	@# opencv-contrib-python-headless; lensboy runs on that cv2 (circcal/validators/lensboy.py says where it does not)
 	$(VPY) -m pip install -q --no-deps lensboy==4.0.3 \
 	  || echo "lensboy: not installed; the lensboy reference will report itself unavailable"
 	@$(MAKE) --no-print-directory mrcal

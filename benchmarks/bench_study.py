@@ -112,7 +112,7 @@ def _batched() -> dict:
     from circcal.model import Camera
     from circcal.solver import calibrate
     from circcal.study.batched import solve_batch
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
 
     obj, draws, size = _problems()
     obj32 = [o.astype(np.float32) for o in obj]

@@ -11,7 +11,7 @@ from circcal.board import Board
 from circcal.pipeline import calibrate_images
 from circcal.solver import calibrate, holdout_errors
 from circcal.fixtures.scenarios import fixture_dir, load_truth
-from circcal.validators.compare import match_views
+from circcal.analysis.compare import match_views
 from circcal.validators.opencv import OpenCVCalibrator
 
 
@@ -48,7 +48,7 @@ def test_paper_projection_difference_is_at_its_cramer_rao_level(paper):
     calibrator. What can be asserted is that circcal's actual difference lies inside that predicted distribution
     (<= its 99th percentile), i.e. no bias on top of the noise. Measured (rotation fitted, whole image): normal
     0.028, uneven 0.046, strong 0.021, weak 0.20 px; predicted medians 0.023, 0.052, 0.071, 0.145 px."""
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
     from circcal.validators.conformance import predicted_truth_rms
 
     variant, truth, cal = paper

@@ -138,7 +138,7 @@ BLANKS = [b"<b>blank|$1$<i>\xff.png", b"unreadable.png"]
 def hostile(tmp_path_factory):
     """The calibration (cross-validated, outlier rejection on) of `wide`-clean's views linked under hostile names,
     plus two blank frames; (assessment, paths as given)."""
-    from circcal.crossval.assess import assess
+    from circcal.analysis.assess import assess
     from circcal.pipeline import calibrate_images
     from circcal.solver.outliers import OutlierRule
 

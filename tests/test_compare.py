@@ -1,4 +1,4 @@
-"""validators/compare.py: parameter and projection differences, grid re-matching, centre errors."""
+"""analysis/compare.py: parameter and projection differences, grid re-matching, centre errors."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,7 @@ from circcal.board import Board
 from circcal.metrics import error_stats
 from circcal.model import Camera, unproject
 from circcal.rotation import fit_rotation, rodrigues
-from circcal.validators.compare import (centre_errors, match_grid_order, param_diff,
+from circcal.analysis.compare import (centre_errors, match_grid_order, param_diff,
                                 per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff,
                                 match_views)
 

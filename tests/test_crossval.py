@@ -1,4 +1,4 @@
-"""Cross-validation of a user's own views (circcal.crossval): both directions, on rendered fixtures where the truth
+"""Cross-validation of a user's own views (circcal.analysis): both directions, on rendered fixtures where the truth
 is known. A correct pipeline is "consistent" on every paper and wide variant whose centres are unbiased; a wrong
 lens model (k1 only on `wide`), a biased pipeline (OpenCV's blob centres on `tilted-large-dots`) and biased centres
 (circcal's own under `wide`'s uneven light) are flagged, and for every flag the ground truth confirms a real problem:
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from circcal.crossval import cross_validate_detections, cross_validate_observations, model_diff
-from circcal.crossval.cross import MIN_VIEWS, split_views
+from circcal.analysis import cross_validate_detections, cross_validate_observations, model_diff
+from circcal.analysis.cross import MIN_VIEWS, split_views
 from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
 from circcal.solver.outliers import OutlierRule

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from circcal.cli import main
-from circcal.crossval import model_diff
+from circcal.analysis import model_diff
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.formats import write_camera
 from circcal.model import Camera

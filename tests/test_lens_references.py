@@ -195,7 +195,7 @@ def test_identical_observations_agreement_on_the_lens_scenarios(scenario: str, l
     lensboy 1e-2: it stops early, test_lensboy_stops_short_of_the_minimum_of_its_own_objective), or their costs tie
     (the suite's rule); one that does not fit the lens says why."""
     from circcal.validators.checks import solver_agreement, solver_bound
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
     from circcal.validators.registry import get_for_lens
     from circcal.validators.shared import ssr
 
@@ -218,7 +218,7 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
 
     from circcal.solver import calibrate
     from circcal.validators.bounds import SOLVER_PX
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
     from circcal.validators.registry import get_for_lens
 
     obj, img, size = _scenario_observations("fisheye")
@@ -254,7 +254,7 @@ def test_lensboy_stops_short_of_the_minimum_of_its_own_objective(scenario: str, 
     (Ceres's function tolerance: it takes no step that gains less than 1e-6 of the cost); started at circcal's
     solution, lensboy stays there. So the gap is lensboy stopping early, not a different model or objective."""
     from circcal.validators.bounds import SOLVER_LENSBOY_PX, SOLVER_PX
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
     from circcal.validators.lensboy import CERES_FUNCTION_TOLERANCE, LensboyCalibrator
 
     cal = LensboyCalibrator(lens=lens)

@@ -9,7 +9,7 @@ from circcal.study import parse_spec
 from circcal.study.execute import execute
 from circcal.study.plan import plan
 from circcal.validators.checks import SOLVER_PX
-from circcal.validators.compare import projection_diff
+from circcal.analysis.compare import projection_diff
 
 pytest.importorskip("kornia")
 

@@ -239,7 +239,7 @@ def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
 
     Parameters
     ----------
-    assessment : circcal.crossval.assess.Assessment
+    assessment : circcal.analysis.assess.Assessment
         The calibration and its assessment.
     folder : str or path-like
         An existing, empty folder: ``index.html``, ``index.md``, ``report.json`` and ``figures/`` are written into

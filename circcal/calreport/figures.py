@@ -112,7 +112,7 @@ def _heat(ax: Any, uv: np.ndarray, values: np.ndarray, vmax: float, label: str, 
 
 
 def fig_uncertainty(unc: Any, width: int, height: int, points: np.ndarray | None = None) -> Any:
-    """The projection-uncertainty map (:class:`circcal.crossval.assess.UncertaintyMap`), observed points as dots."""
+    """The projection-uncertainty map (:class:`circcal.analysis.assess.UncertaintyMap`), observed points as dots."""
     fig = _figure(6.4, 6.4 * height / width + 0.6)
     ax = fig.add_subplot()
     vmax = float(np.nanmax(unc.stdev)) or 1.0
@@ -263,7 +263,7 @@ def fig_correlation(corr: np.ndarray, names: Sequence[str]) -> Any:
 
 
 def fig_diff(d: Any, width: int, height: int, title: str) -> Any:
-    """A projection difference (:class:`circcal.crossval.diff.ModelDiff`): the difference map and, with both
+    """A projection difference (:class:`circcal.analysis.diff.ModelDiff`): the difference map and, with both
     uncertainties, the combined uncertainty on the same colour scale and the ratio with its 2x contour."""
     with_unc = d.ratio is not None
     panels = 3 if with_unc else 1

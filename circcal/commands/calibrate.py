@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.solver import CalibrationError
     from circcal.formats import detect_format, write_camera
 
-    from circcal.crossval.assess import assess
+    from circcal.analysis.assess import assess
     from circcal.errors import InputError
     from circcal.outputs import Outputs
     from circcal.solver.outliers import DEFAULT_K, OutlierRule

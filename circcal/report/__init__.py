@@ -12,8 +12,8 @@ generate.py, so that ``circcal.report.generate`` means one thing, the function).
 Error conventions (every key names its own): ``mean_2d_px`` = mean of the 2-D error norm (the paper's eq. 22 and its
 tables), ``rms_per_point_px`` = OpenCV's RMS, ``rms_per_coord_px`` = mrcal's. "vs truth" = RMS over a pixel grid of
 the projection difference between the true camera and the calibrated one, the implied rotation fitted
-(:func:`circcal.validators.compare.projection_diff`); "centre error" = detected centres against the exact
-projections of the true centres (:func:`circcal.validators.compare.centre_errors`).
+(:func:`circcal.analysis.compare.projection_diff`); "centre error" = detected centres against the exact
+projections of the true centres (:func:`circcal.analysis.compare.centre_errors`).
 """
 from circcal.report.config import FULL, QUICK, ReportConfig
 from circcal.report.publish import compute, generate, write_report

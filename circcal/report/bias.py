@@ -116,7 +116,7 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, A
     from tqdm import tqdm
 
     from circcal.fixtures.poses import pose_looking_at
-    from circcal.validators.compare import match_grid_order
+    from circcal.analysis.compare import match_grid_order
 
     t0 = time.perf_counter()
     distance, px_per_mm = bias_geometry()

@@ -67,7 +67,7 @@ def _corners(views: list[Any], board: Board) -> tuple[list[np.ndarray], list[int
 
 def _checkerboard_row(views: list[Any], truth: Any) -> dict[str, Any]:
     """The calibrator row of the views of one condition (``truth``: the fixture's truth)."""
-    from circcal.validators.compare import centre_errors
+    from circcal.analysis.compare import centre_errors
     from circcal.validators.opencv import OpenCVCalibrator
 
     board, cam_t = truth.board, truth.camera

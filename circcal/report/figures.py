@@ -155,7 +155,7 @@ def heatmap_panels(results: dict, condition: str) -> list[tuple[dict, str]]:
 
 def fig_heatmaps(results: dict, path: Path, condition: str) -> None:
     """Projection difference to the true camera over the image, one panel per calibrator."""
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
 
     truth = Camera.from_dict(results["fixtures"]["paper"]["camera"])
     panels = heatmap_panels(results, condition)

@@ -17,7 +17,7 @@ __all__ = ["paper_condition"]
 def _circcal_row(run: Any, views: list[Any], paths: list[str]) -> dict[str, Any]:
     """circcal's row: its model and errors from the run, per-view errors and centre errors on the float32-shared
     observations every reference fitted (``run.shared``: <= 6e-5 px from circcal's own centres)."""
-    from circcal.validators.compare import centre_errors
+    from circcal.analysis.compare import centre_errors
 
     cc, truth = run.circcal, run.truth
     if cc["status"] != "ok" or run.shared is None:
@@ -34,7 +34,7 @@ def _circcal_row(run: Any, views: list[Any], paths: list[str]) -> dict[str, Any]
 
 def _opencv_pipeline_row(paths: list[str], views: list[Any], run: Any) -> tuple[dict[str, Any], float]:
     """The OpenCV circle pipeline on the images; returns (row, seconds)."""
-    from circcal.validators.compare import centre_errors
+    from circcal.analysis.compare import centre_errors
     from circcal.validators.opencv import OpenCVCalibrator
 
     t0 = time.perf_counter()

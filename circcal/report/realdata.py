@@ -2,7 +2,7 @@
 set's OpenCV baseline (its findCirclesGrid centres, re-fitted here with OpenCV's solver so all three conventions and
 the held-out test use one solver), with a rigid board and with every board point's position estimated
 (``refine_board``: circcal on its own centres, and the same solver on the baseline's centres put into circcal's
-point order with :func:`circcal.validators.compare.match_views`).
+point order with :func:`circcal.analysis.compare.match_views`).
 
 Lengths in mm, errors in px; views are named by their image file.
 """
@@ -103,7 +103,7 @@ def _circcal_rigid(paths: list[str], board: Board, size: tuple[int, int], ocv: A
     :class:`~circcal.pipeline.ImagesCalibration` or None, its entry, with the projection difference to OpenCV's
     model)."""
     from circcal.pipeline import calibrate_images
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
 
     try:
         cal = calibrate_images(paths, board, progress=False, image_size=size)
@@ -140,7 +140,7 @@ def _opencv_refined(ocv_views: list, ours: dict[str, np.ndarray], board: Board, 
     None, the re-ordered views, the entry: which views were reversed, which had no circcal view to take the order
     from, and how the estimated board and model compare with circcal's)."""
     from circcal.solver import calibrate
-    from circcal.validators.compare import match_views, projection_diff
+    from circcal.analysis.compare import match_views, projection_diff
 
     ordered, labels = match_views([c for _, c in ocv_views], [ours.get(n) for n, _ in ocv_views], board)
     pts = board.object_points()
@@ -169,7 +169,7 @@ def _findcirclesgrid_order(paths: list[str], board: Board, ours: dict[str, np.nd
     two modes may order a symmetric grid differently, so its views can disagree among themselves. Refining the
     board in that order mixes up points; in circcal's order it does not."""
     from circcal.observations import MIN_VIEWS
-    from circcal.validators.compare import match_views
+    from circcal.analysis.compare import match_views
     from circcal.validators.opencv import OpenCVCalibrator
 
     det = OpenCVCalibrator().detect(paths, board)

@@ -3,7 +3,7 @@ one, and one calibrator's row of a condition table.
 
 "vs truth" is the projection difference between the true and the calibrated camera over a
 :data:`~circcal.report.config.PROJECTION_GRID_WIDTH`-wide pixel grid of the image: ``rms_px`` / ``max_px`` with
-the implied rotation fitted (:func:`circcal.validators.compare.projection_diff`), ``nofit_*`` without.
+the implied rotation fitted (:func:`circcal.analysis.compare.projection_diff`), ``nofit_*`` without.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def load_fixture(scenario: str, variant: str, n_views: int | None, progress: boo
 def vs_truth(truth: Camera, camera: Camera | None) -> dict[str, float] | None:
     """RMS and max projection difference (px) of ``camera`` to ``truth``, rotation fitted and not (None for no
     camera)."""
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
 
     if camera is None:
         return None

@@ -4,7 +4,7 @@ Conventions: parameters in :data:`circcal.model.PARAM_NAMES` order and units (fx
 unitless); ``err_<p>`` = estimate - truth; ``std_<p>`` = the calibrator's stated standard deviation (NaN where it
 states none; 0 for a parameter it held fixed). ``truth_rms_px`` / ``truth_max_px``: projection difference to the
 true camera over the whole imager with the implied rotation fitted
-(:func:`circcal.validators.compare.projection_diff`, the conformance suite's truth check). Reprojection errors in
+(:func:`circcal.analysis.compare.projection_diff`, the conformance suite's truth check). Reprojection errors in
 the three conventions (:mod:`circcal.metrics`): ``rms_per_point_px`` (OpenCV), ``rms_per_coord_px`` (mrcal),
 ``mean_2d_px`` (the paper). ``time_s``: the run's own calibration time (a batched solve: the batch's time / its
 size); ``fixture_s``: the time to render the fixture the run used (shared by the runs of one render; a
@@ -73,7 +73,7 @@ def make_row(run: Any, study: str, *, status: str, message: str = "", truth: Cam
     """The row of ``run`` (a :class:`circcal.study.plan.Run`): its axes, then what the calibration gave (NaN where
     it gave nothing: a failed or unsupported run keeps its status and message)."""
     import circcal
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
 
     row: dict[str, Any] = {
         "key": run.key, "study": study, "cell": run.cell, "kind": run.kind, "scenario": run.scenario,

@@ -13,7 +13,7 @@ import numpy as np
 
 from circcal.model import Camera
 from circcal.validators.bounds import COST_TIE_REL, SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
-from circcal.validators.compare import param_diff, projection_diff
+from circcal.analysis.compare import param_diff, projection_diff
 from circcal.validators.shared import ssr
 
 __all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",
@@ -83,7 +83,7 @@ def truth_checks(who: str, camera: Camera, std: dict[str, float] | None, truth: 
                  ) -> tuple[list[Check], dict[str, float]]:
     """``camera`` against the true camera: each of :data:`TRUTH_PARAMS` within ``sigmas`` of its stated standard
     deviation (``std``; a missing or zero sigma fails), and, when ``rms_px`` is given, the RMS projection difference
-    over the imager (implied rotation fitted, :func:`~circcal.validators.compare.projection_diff`) within it.
+    over the imager (implied rotation fitted, :func:`~circcal.analysis.compare.projection_diff`) within it.
     Returns ``(checks, measured)``: the checks, and every number measured (``fx_sigmas`` ..., ``truth_rms_px``,
     ``truth_max_px``) for the tables."""
     checks, measured = [], {}

@@ -21,7 +21,7 @@
 * Detector: a SimpleBlobDetector whose area limits follow the expected dot size (OpenCV's default ``maxArea`` of
   5000 px^2 misses large dots), symmetric/asymmetric flags, and a ``CALIB_CB_CLUSTERING`` retry.
   Symmetric square grids may come back rotated by 90 degrees between views: see
-  :func:`circcal.validators.compare.match_grid_order` before comparing centres one by one.
+  :func:`circcal.analysis.compare.match_grid_order` before comparing centres one by one.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Cross-validation of a calibration on the user's own images, the way mrcal validates one: split the views into two
 disjoint halves, calibrate each with the same settings, and weigh the projection difference of the two models
-(:func:`circcal.crossval.diff.model_diff`, implied transformation fitted) against their combined predicted
+(:func:`circcal.analysis.diff.model_diff`, implied transformation fitted) against their combined predicted
 uncertainty (:mod:`circcal.solver.uncertainty`, sigma_A + sigma_B per pixel). With a right model and unbiased data the
 difference stays within about 2x of it: the verdict is **consistent** when it does over at least 95% of the image,
 else a **model or data problem** (a lens model too simple, biased centres, a board that is not what was said),
@@ -29,7 +29,7 @@ import numpy as np
 
 from circcal.errors import InputError
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
-from circcal.crossval.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
+from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 
 __all__ = ["CrossValidation", "ViewCheck", "split_views", "cross_validate", "cross_validate_observations",
            "cross_validate_detections", "MIN_VIEWS", "HELDOUT_RATIO", "INFLUENCE_SIGMAS", "SPLITS"]

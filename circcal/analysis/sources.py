@@ -51,7 +51,7 @@ def resolve_document(camera: Camera, document: dict):
     when it holds none or the solve does not land on its camera."""
     from circcal.errors import InputError
     from circcal.solver import calibrate
-    from circcal.validators.compare import projection_diff
+    from circcal.analysis.compare import projection_diff
     from circcal.validators.mrcal_export import document_views
 
     views = document_views(document)

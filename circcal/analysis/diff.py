@@ -5,7 +5,7 @@ with B. With both models' projection uncertainties (:mod:`circcal.solver.uncerta
 in units of their combined uncertainty, ``sigma_A + sigma_B`` per pixel: mrcal's cross-validation rule of thumb is
 that two calibrations of one camera differ by about the sum of their uncertainties.
 
-Over the whole image (the default) the fit is :func:`circcal.validators.compare.projection_diff`'s; a focus radius
+Over the whole image (the default) the fit is :func:`circcal.analysis.compare.projection_diff`'s; a focus radius
 fits over the grid pixels within that radius of the image centre and measures everywhere. Differences are the 2-D
 distance per grid pixel (px); pixels follow OpenCV's convention; distances are mm along each ray.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera, unproject
 from circcal.rotation import fit_rotation
-from circcal.validators.compare import GRID_WIDTH, pixel_grid, projection_diff
+from circcal.analysis.compare import GRID_WIDTH, pixel_grid, projection_diff
 
 __all__ = ["ModelDiff", "model_diff", "CONSISTENT_RATIO", "CONSISTENT_SHARE", "region_names"]
 

@@ -14,7 +14,7 @@ from circcal.detector import Rejection
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.validators.base import ReferenceResult
-from circcal.validators.compare import match_grid_order
+from circcal.analysis.compare import match_grid_order
 from circcal.validators.shared import share, ssr
 
 __all__ = ["Observations", "observe", "solve_subset"]

@@ -34,7 +34,7 @@ What a case asserts (bounds below, each with its reason):
   its case reports the reason.
 
 Reprojection errors name their convention (:mod:`circcal.metrics`); projection differences come from
-:func:`circcal.validators.compare.projection_diff` (60-wide pixel grid, corners included).
+:func:`circcal.analysis.compare.projection_diff` (60-wide pixel grid, corners included).
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ from circcal.model import Camera, param_names
 from circcal.validators.base import ReferenceCalibrator, ReferenceResult, lens_support
 from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement, solver_bound,
                                        truth_checks)
-from circcal.validators.compare import projection_diff
+from circcal.analysis.compare import projection_diff
 from circcal.validators.scenario_observations import Observations, observe, solve_subset
 
 __all__ = [

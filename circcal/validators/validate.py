@@ -26,7 +26,7 @@ from circcal.validators import registry
 from circcal.validators.base import ReferenceResult, lens_support
 from circcal.validators.checks import (SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check,
                                        solver_agreement, truth_checks)
-from circcal.validators.compare import GRID_WIDTH, param_diff, projection_diff
+from circcal.analysis.compare import GRID_WIDTH, param_diff, projection_diff
 from circcal.validators.shared import SharedObservations, share
 
 __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_report"]

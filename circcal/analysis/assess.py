@@ -1,7 +1,7 @@
 """Everything that tells a user whether a calibration of their own photographs can be trusted, gathered for one
 :class:`circcal.pipeline.ImagesCalibration`: the projection-uncertainty map (:mod:`circcal.solver.uncertainty`),
-where the observations lie (:mod:`circcal.coverage`), what outlier rejection left out
-(:mod:`circcal.solver.outliers`) and, when asked, the cross-validation (:mod:`circcal.crossval.cross`). The
+where the observations lie (:mod:`circcal.analysis.coverage`), what outlier rejection left out
+(:mod:`circcal.solver.outliers`) and, when asked, the cross-validation (:mod:`circcal.analysis.cross`). The
 console summary and the calibration report (:mod:`circcal.calreport`) are drawn from it.
 
 Errors name their convention (``rms_per_point_px`` OpenCV's, ``rms_per_coord_px`` mrcal's, ``mean_2d_px`` the
@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from circcal.coverage import Coverage, coverage
-from circcal.crossval.cross import CrossValidation, cross_validate_detections
+from circcal.analysis.coverage import Coverage, coverage
+from circcal.analysis.cross import CrossValidation, cross_validate_detections
 from circcal.solver.modelfit import ModelFit, model_fit
-from circcal.validators.compare import GRID_WIDTH, pixel_grid
+from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 
 __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
 
@@ -68,7 +68,7 @@ def uncertainty_map(result: Any, *, distance: float | None = None, gridn_width: 
 @dataclass
 class Assessment:
     """``cal``: the calibration; ``board``; ``uncertainty``: :class:`UncertaintyMap` or None; ``coverage``;
-    ``crossval``: :class:`~circcal.crossval.cross.CrossValidation` or None (not asked); ``timings`` (s);
+    ``crossval``: :class:`~circcal.analysis.cross.CrossValidation` or None (not asked); ``timings`` (s);
     ``lens_fit``: whether the lens model fits (:mod:`circcal.solver.modelfit`; None: too few points to tell)."""
 
     cal: Any
