@@ -14,7 +14,7 @@ MRCAL25_PYTHON = REPO / ".venv-mrcal25" / "bin" / "python"
 def mrcal_pythons() -> list[tuple[str, str, Path]]:
     """``[(label, python, tools folder)]`` for every working mrcal here (label: its API, "2.2" or "2.5"); empty
     when there is none."""
-    from circcal.validators.mrcal import DEFAULT_PYTHON, ENV_VAR, _probe
+    from circcal.formats.mrcal_process import DEFAULT_PYTHON, ENV_VAR, _probe
 
     candidates = [os.environ.get(ENV_VAR) or DEFAULT_PYTHON, str(MRCAL25_PYTHON)]
     out, seen = [], set()

@@ -134,8 +134,8 @@ def test_mrcal_export_per_lens(lens: str) -> None:
     mrcal's own residuals at circcal's solution equal circcal's and its cost gradient vanishes there; the fisheye
     has no mrcal model and says so."""
     from circcal.solver import calibrate
-    from circcal.validators.mrcal import mrcal_python
-    from circcal.validators.mrcal_export import ExportError, export_cameramodel
+    from circcal.formats.mrcal_process import mrcal_python
+    from circcal.formats.cameramodel_export import ExportError, export_cameramodel
 
     if mrcal_python()[0] is None:
         pytest.skip(mrcal_python()[1])

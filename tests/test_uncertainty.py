@@ -97,7 +97,7 @@ def test_uncertainty_equals_mrcal(label, python, scenario):
     """circcal's map and mrcal.projection_uncertainty on the same observations (exported with mrcal's optimisation
     inputs), same noise level, over a 20-wide grid of the image, at infinity and at 1 m."""
     from circcal.analysis.compare import pixel_grid
-    from circcal.validators.mrcal_export import export_cameramodel
+    from circcal.formats.cameramodel_export import export_cameramodel
 
     _, obj, img, size = _problem(scenario)
     res = calibrate(obj, img, size)

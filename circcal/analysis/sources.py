@@ -6,7 +6,7 @@ uncertainty where the file carries what it takes:
   optimum: the file's camera to 1e-6 px, checked), and circcal's uncertainty is that solve's
   (:mod:`circcal.solver.uncertainty`);
 * an mrcal ``.cameramodel`` with optimisation inputs: mrcal's own ``projection_uncertainty`` through the worker
-  (:func:`circcal.validators.mrcal_export.mrcal_uncertainty`), when mrcal is installed;
+  (:func:`circcal.formats.cameramodel_export.mrcal_uncertainty`), when mrcal is installed;
 * anything else: no uncertainty (``LoadedModel.uncertainty`` is None, ``note`` says why).
 """
 from __future__ import annotations
@@ -52,7 +52,7 @@ def resolve_document(camera: Camera, document: dict):
     from circcal.errors import InputError
     from circcal.solver import calibrate
     from circcal.analysis.compare import projection_diff
-    from circcal.validators.mrcal_export import document_views
+    from circcal.formats.cameramodel_export import document_views
 
     views = document_views(document)
     if views is None:
@@ -85,8 +85,8 @@ def load_model(path: str | Path) -> LoadedModel:
         return LoadedModel(p, camera, None, "the model.json holds no observations of its views")
     text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     if cameramodel_has_optimization_inputs(text):
-        from circcal.validators.mrcal import mrcal_python
-        from circcal.validators.mrcal_export import ExportError, mrcal_uncertainty
+        from circcal.formats.mrcal_process import mrcal_python
+        from circcal.formats.cameramodel_export import ExportError, mrcal_uncertainty
 
         try:
             check_optimization_inputs(text)

@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         model = cal.to_model_json(board)
         if fmt == "mrcal":
             from circcal import atomic
-            from circcal.validators.mrcal_export import cameramodel_text, result_views
+            from circcal.formats.cameramodel_export import cameramodel_text, result_views
 
             text, info = cameramodel_text(cal.result.camera, result_views(cal.result))
             atomic.write_text(model_path, text)

@@ -46,7 +46,7 @@ def _write(path, camera, document, to_fmt: str, colmap_model: str) -> tuple[str,
     note = ""
     if to_fmt == "mrcal":  # with mrcal's optimisation inputs, built from the model.json's views' observations
         from circcal import atomic
-        from circcal.validators.mrcal_export import cameramodel_text, document_views
+        from circcal.formats.cameramodel_export import cameramodel_text, document_views
 
         text, info = cameramodel_text(camera, document_views(document))
         atomic.write_text(path, text)

@@ -10,7 +10,9 @@ format             module and file
 ``json``           :mod:`~circcal.formats.modeljson`: circcal model.json (the truth.json ``camera`` block plus
                    ``std``, errors, per-view poses, ...)
 ``opencv``         :mod:`~circcal.formats.opencv`: OpenCV ``cv2.FileStorage`` YAML (or .xml)
-``mrcal``          :mod:`~circcal.formats.mrcal`: mrcal ``.cameramodel`` (``LENSMODEL_OPENCV5/8/12``; no fisheye)
+``mrcal``          :mod:`~circcal.formats.mrcal`: mrcal ``.cameramodel`` (``LENSMODEL_OPENCV5/8/12``; no fisheye);
+                   with mrcal's optimisation inputs: :mod:`~circcal.formats.cameramodel_export` (mrcal
+                   run out of process: :mod:`~circcal.formats.mrcal_process`, script ``mrcal_worker.py``)
 ``colmap``         :mod:`~circcal.formats.colmap`: COLMAP ``cameras.txt`` (``OPENCV`` / ``FULL_OPENCV`` /
                    ``OPENCV_FISHEYE``; no thin prism; +0.5 px)
 ``ros``            :mod:`~circcal.formats.ros`: ROS ``camera_info`` YAML (``plumb_bob``, ``rational_polynomial``,

@@ -1,9 +1,9 @@
 """mrcal as a reference, run out of process.
 
-mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.validators.mrcal_worker` runs under another
-interpreter: ``$CIRCCAL_MRCAL_PYTHON`` if set, else ``/usr/bin/python3`` if it can ``import mrcal`` (Debian's
-``python3-mrcal``). JSON goes in on stdin and comes back on stdout. The worker uses mrcal's Python API
-(``seed_stereographic``, then staged ``mrcal.optimize``); it supports the 2.2 and 2.5 APIs.
+mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.formats.mrcal_worker` runs under another
+interpreter (the plumbing, shared with the ``.cameramodel`` export, is :mod:`circcal.formats.mrcal_process`; its
+names are re-exported here). The worker uses mrcal's Python API (``seed_stereographic``, then staged
+``mrcal.optimize``); it supports the 2.2 and 2.5 APIs.
 
 Lens models: ``LENSMODEL_OPENCV5`` / ``OPENCV8`` / ``OPENCV12`` for circcal's ``opencv5`` / ``rational`` /
 ``thin-prism``: intrinsics [fx, fy, cx, cy] + OpenCV's distortion vector in OpenCV's order (k1, k2, p1, p2, k3,
@@ -25,16 +25,12 @@ parameter standard deviations: ``std`` is None.
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
 import time
-from functools import lru_cache
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from circcal.formats.mrcal_process import LENSMODELS, NOT_FOUND_MESSAGE, UNSUPPORTED_LENSES, _probe, board_lattice, \
+    mrcal_python, run_worker
 from circcal.metrics import error_stats
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
@@ -43,69 +39,6 @@ from circcal.validators.base import BaseCalibrator, ReferenceResult, check_diver
     seed_camera
 
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE", "LENSMODELS"]
-
-#: circcal lens -> mrcal lens model (the same parameters in the same order: OpenCV's)
-LENSMODELS: dict[str, str] = {"opencv5": "LENSMODEL_OPENCV5", "rational": "LENSMODEL_OPENCV8",
-                              "thin-prism": "LENSMODEL_OPENCV12"}
-
-WORKER = Path(__file__).with_name("mrcal_worker.py")
-ENV_VAR = "CIRCCAL_MRCAL_PYTHON"
-DEFAULT_PYTHON = "/usr/bin/python3"
-NOT_FOUND_MESSAGE = ("mrcal not found: as root run `apt-get install -y mrcal python3-mrcal`, or set "
-                     "CIRCCAL_MRCAL_PYTHON to a Python that can import mrcal")
-
-
-@lru_cache(maxsize=8)
-def _probe(python: str) -> tuple[bool, str, dict]:
-    try:
-        out = subprocess.run([python, str(WORKER), "--probe"], capture_output=True, text=True, timeout=120)
-    except (OSError, subprocess.SubprocessError) as exc:
-        return False, f"{type(exc).__name__}: {exc}", {}
-    try:
-        info = json.loads(out.stdout.strip().splitlines()[-1])
-    except (json.JSONDecodeError, IndexError):
-        return False, f"probe printed no JSON (exit {out.returncode}): {out.stderr.strip()[-300:]}", {}
-    if out.returncode != 0 or "error" in info:
-        return False, info.get("error", f"exit {out.returncode}"), info
-    return True, "", info
-
-
-def mrcal_python() -> tuple[str | None, str, dict]:
-    """(interpreter, reason when none, probe info {"version", "api", "python"})."""
-    env = os.environ.get(ENV_VAR)
-    if env:
-        ok, why, info = _probe(env)
-        if ok:
-            return env, "", info
-        return None, f"{NOT_FOUND_MESSAGE} ({ENV_VAR}={env}: {why})", {}
-    if Path(DEFAULT_PYTHON).exists():
-        ok, why, info = _probe(DEFAULT_PYTHON)
-        if ok:
-            return DEFAULT_PYTHON, "", info
-        return None, f"{NOT_FOUND_MESSAGE} ({DEFAULT_PYTHON}: {why})", {}
-    return None, NOT_FOUND_MESSAGE, {}
-
-
-def run_worker(python: str, request: dict[str, Any], timeout_s: float) -> dict[str, Any]:
-    """One run of :mod:`circcal.validators.mrcal_worker` under ``python``: ``request`` as JSON on stdin, the JSON
-    reply. Raises ``RuntimeError`` with the worker's (mrcal's) words when it times out, crashes or fails."""
-    try:
-        proc = subprocess.run([python, str(WORKER)], input=json.dumps(request), capture_output=True, text=True,
-                              timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        raise RuntimeError(f"mrcal worker ran past {timeout_s:g} s") from None
-    try:
-        reply = json.loads(proc.stdout)
-    except json.JSONDecodeError:
-        raise RuntimeError(f"mrcal worker crashed (exit {proc.returncode}): "
-                           f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
-    if proc.returncode != 0 or "error" in reply:
-        raise RuntimeError(f"mrcal failed: {reply.get('error', proc.returncode)}")
-    return reply
-
-
-class UnsupportedLayout(NotImplementedError):
-    pass
 
 
 def _seed_frames(object_points: list[np.ndarray], image_points: list[np.ndarray], seed: Camera,
@@ -128,48 +61,6 @@ def _seed_frames(object_points: list[np.ndarray], image_points: list[np.ndarray]
     return frames
 
 
-def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False
-                  ) -> dict[str, Any]:
-    """Map per-view board points (N_v, 3) mm onto mrcal's rectangular lattice.
-
-    Returns ``{"spacing", "origin" (3,), "width_n", "height_n", "ij": [(N_v, 2) int (row i, column j)]}``.
-    Raises :class:`UnsupportedLayout` (a ``NotImplementedError``) for points off a square lattice or, unless
-    ``staggered``, a staggered (asymmetric) grid, ``ValueError`` for duplicated points in a view. With ``staggered``
-    an asymmetric grid maps onto the full lattice with every other point missing (the export of optimisation inputs
-    uses it: mrcal leaves missing points out exactly; a calibration by mrcal is not seeded from such boards here).
-    """
-    allp = np.concatenate(object_points)
-    xs = np.unique(np.round(allp[:, 0], 9))
-    ys = np.unique(np.round(allp[:, 1], 9))
-    d = np.concatenate([np.diff(xs), np.diff(ys)])
-    d = d[d > 0]
-    if d.size == 0:
-        raise UnsupportedLayout("board points do not span a 2-D lattice")
-    s = float(d.min())
-    origin = np.array([xs.min(), ys.min(), 0.0])
-    scale = max(1.0, float(np.max(np.abs(allp))))
-    ij = []
-    for v, o in enumerate(object_points):
-        j = (o[:, 0] - origin[0]) / s
-        i = (o[:, 1] - origin[1]) / s
-        ji, ii = np.round(j), np.round(i)
-        if np.max(np.abs(j - ji)) * s > rel_tol * scale or np.max(np.abs(i - ii)) * s > rel_tol * scale:
-            raise UnsupportedLayout(
-                f"view {v}: board points are not on a square lattice of pitch {s:g} (mrcal's board model is a "
-                "rectangular grid of equally spaced points)")
-        a = np.stack([ii, ji], -1).astype(int)
-        if len(np.unique(a, axis=0)) != len(a):
-            raise ValueError(f"view {v}: duplicated board points")
-        ij.append(a)
-    cat = np.concatenate(ij)
-    if not staggered and len(np.unique(cat, axis=0)) > 4 and np.all((cat.sum(axis=1) % 2) == 0):
-        raise UnsupportedLayout(
-            "asymmetric (staggered) circle grid: mrcal's board model needs a full rectangular W x H lattice; "
-            "only symmetric grids are supported by the mrcal reference")
-    return {"spacing": s, "origin": origin, "width_n": int(cat[:, 1].max()) + 1,
-            "height_n": int(cat[:, 0].max()) + 1, "ij": ij}
-
-
 class MrcalCalibrator(BaseCalibrator):
     """Reference: mrcal (out of process). ``lens``: the circcal lens model fitted (:data:`LENSMODELS`).
     ``python``: interpreter to use (default: ``$CIRCCAL_MRCAL_PYTHON`` or ``/usr/bin/python3``). ``timeout_s``:
@@ -178,10 +69,7 @@ class MrcalCalibrator(BaseCalibrator):
     name = "mrcal"
     modes = ("fair", "default")
     lenses = tuple(LENSMODELS)
-    unsupported_lenses = {
-        "fisheye": "mrcal has no equidistant (Kannala-Brandt) fisheye model: mrcal 2.2's supported_lensmodels() are "
-                   "PINHOLE, STEREOGRAPHIC, LONLAT, LATLON, OPENCV4/5/8/12, CAHVOR, CAHVORE and "
-                   "SPLINED_STEREOGRAPHIC, none of them cv2.fisheye's theta polynomial"}
+    unsupported_lenses = UNSUPPORTED_LENSES
 
     def __init__(self, *, lens: str = "opencv5", python: str | None = None, timeout_s: float = 300.0) -> None:
         self.lens = lens

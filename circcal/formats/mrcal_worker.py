@@ -50,7 +50,7 @@ import os
 import subprocess
 import sys
 
-# This script sits beside validators/mrcal.py: drop its own folder from the path so `import mrcal` finds mrcal.
+# This script sits beside formats/mrcal.py: drop its own folder from the path so `import mrcal` finds mrcal.
 _HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path[:] = [p for p in sys.path if os.path.realpath(p or os.curdir) != _HERE]
 

@@ -2,14 +2,15 @@
 ``mrcal-show-projection-uncertainty``, ``mrcal-show-residuals`` and ``mrcal-show-projection-diff`` work on them; and
 mrcal's own projection uncertainty of such a file.
 
-The inputs are built by the out-of-process worker (:mod:`circcal.validators.mrcal_worker`, command ``export``) from
-circcal's observations (per view, the board points on mrcal's lattice: :func:`circcal.validators.mrcal.board_lattice`,
-an asymmetric grid with every other lattice point missing) and circcal's solution: intrinsics, and each view's pose
-as mrcal's frame (``frames_rt_toref``; mrcal's board frame starts at the lattice origin). The switches are circcal's
-estimator: no board warp, no regularisation, no outlier rejection (points circcal rejected are left out). The state
-is circcal's optimum, not re-solved by mrcal: the worker reports mrcal's own residual RMS and cost gradient there as
-the check. ``LENSMODEL_OPENCV5`` (``OPENCV4`` when k3 is held at 0), ``OPENCV8`` / ``OPENCV12`` for the rational
-and thin-prism lenses (:data:`circcal.validators.mrcal.LENSMODELS`); a fisheye has no mrcal model (:class:`ExportError`).
+The inputs are built by the out-of-process worker (:mod:`circcal.formats.mrcal_worker`, command ``export``; run by
+:mod:`circcal.formats.mrcal_process`) from circcal's observations (per view, the board points on mrcal's lattice:
+:func:`~circcal.formats.mrcal_process.board_lattice`, an asymmetric grid with every other lattice point missing) and
+circcal's solution: intrinsics, and each view's pose as mrcal's frame (``frames_rt_toref``; mrcal's board frame
+starts at the lattice origin). The switches are circcal's estimator: no board warp, no regularisation, no outlier
+rejection (points circcal rejected are left out). The state is circcal's optimum, not re-solved by mrcal: the worker
+reports mrcal's own residual RMS and cost gradient there as the check. ``LENSMODEL_OPENCV5`` (``OPENCV4`` when k3
+is held at 0), ``OPENCV8`` / ``OPENCV12`` for the rational and thin-prism lenses
+(:data:`circcal.formats.mrcal_process.LENSMODELS`); a fisheye has no mrcal model (:class:`ExportError`).
 
 What mrcal's inputs cannot hold, and what happens then (:class:`ExportError`, the caller writes the plain model and
 says why): a refined board (mrcal models a board warp of 2 parameters, not every point), points off a square
@@ -26,8 +27,8 @@ import numpy as np
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.rotation import rodrigues
-from circcal.validators.mrcal import LENSMODELS, MrcalCalibrator, UnsupportedLayout, board_lattice, mrcal_python, \
-    run_worker
+from circcal.formats.mrcal_process import LENSMODELS, UNSUPPORTED_LENSES, UnsupportedLayout, board_lattice, \
+    mrcal_python, run_worker
 
 __all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "result_views", "document_views",
            "cameramodel_text", "WORKER_TIMEOUT_S"]
@@ -52,7 +53,7 @@ class ExportedModel:
 
 
 def _run_worker(req: dict[str, Any], python: str | None) -> dict[str, Any]:
-    """One worker run (:func:`circcal.validators.mrcal.run_worker`); :class:`ExportError` with mrcal's words when
+    """One worker run (:func:`circcal.formats.mrcal_process.run_worker`); :class:`ExportError` with mrcal's words when
     there is no mrcal or it fails."""
     if python is None:
         python, why, _ = mrcal_python()
@@ -81,7 +82,7 @@ def export_cameramodel(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray,
         raise ExportError("the board's shape was estimated (--refine-board): mrcal's optimisation inputs model a "
                           "rigid board (with a 2-parameter warp), so they would not reproduce this calibration")
     if camera.lens not in LENSMODELS:
-        why = MrcalCalibrator.unsupported_lenses.get(camera.lens, "no mrcal lens model")
+        why = UNSUPPORTED_LENSES.get(camera.lens, "no mrcal lens model")
         raise ExportError(f"lens {camera.lens!r}: {why}")
     rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
     tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
