@@ -6,8 +6,8 @@ Modules: the spec (:mod:`~circcal.study.spec`), what a seed means (:mod:`~circca
 axis (:mod:`~circcal.study.lens`), runs and tasks (:mod:`~circcal.study.plan`), a row (:mod:`~circcal.study.rows`),
 what a worker computes (:mod:`~circcal.study.execute`, :mod:`~circcal.study.batched`), the results on disk
 (:mod:`~circcal.study.store`), the Dask runner (:mod:`~circcal.study.engine`), intervals
-(:mod:`~circcal.study.stats`), the summary (:mod:`~circcal.study.summary`) and its figures
-(:mod:`~circcal.study.figures`).
+(:mod:`~circcal.study.stats`), the summary (:mod:`~circcal.study.summary`), its cells (:mod:`~circcal.study.cells`)
+and its figures (:mod:`~circcal.study.figures`).
 """
 from circcal.study.engine import StudyRun, run_study
 from circcal.study.spec import StudySpec, load_spec, parse_spec

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from circcal import atomic
-from circcal.study.summary import TABLE_PARAMS, CellSummary
+from circcal.study.cells import TABLE_PARAMS, CellSummary
 
 __all__ = ["draw_figures"]
 

@@ -16,7 +16,7 @@ independent. Intervals: :mod:`circcal.study.stats` (95 %).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,8 @@ import numpy as np
 from circcal import atomic
 from circcal.jsonio import dumps
 from circcal.model import PARAM_NAMES
+from circcal.study.cells import CELL_COLUMNS, TABLE_PARAMS, CellSummary, ParamSummary
+from circcal.study.figures import draw_figures
 from circcal.study.stats import CONFIDENCE, mean_interval, std_interval, wilson_interval
 from circcal.validators.checks import TRUTH_PARAMS, TRUTH_SIGMAS
 
@@ -39,64 +41,6 @@ __all__ = [
     "summary_markdown",
     "write_summary",
 ]
-
-#: The columns whose values identify a summary cell.
-CELL_COLUMNS = ("kind", "scenario", "variant", "calibrator", "lens_model")
-#: Parameters shown in the Markdown tables and figures (all nine are in summary.json).
-TABLE_PARAMS = ("fx", "fy", "cx", "cy", "k1")
-
-
-@dataclass
-class ParamSummary:
-    """One parameter of one cell (units of the parameter; see the module docstring); ``ci``: (low, high)."""
-
-    n: int
-    bias: float
-    bias_ci: tuple[float, float]
-    spread: float
-    spread_ci: tuple[float, float]
-    stated: float
-    ratio: float
-    ratio_ci: tuple[float, float]
-    bias_sigmas: float
-    bias_sigmas_ci: tuple[float, float]
-
-
-@dataclass
-class CellSummary:
-    """One cell: its identity, run counts, per-parameter summaries, the truth-check pass rate and the
-    distribution of the projection difference to the truth (px) and of the run time (s)."""
-
-    kind: str
-    scenario: str
-    variant: str
-    calibrator: str
-    lens_model: str
-    n_runs: int
-    n_ok: int
-    params: dict[str, ParamSummary] = field(default_factory=dict)
-    pass_rate: float = float("nan")
-    pass_ci: tuple[float, float] = (float("nan"), float("nan"))
-    pass_expected: float = float("nan")
-    truth_rms_median_px: float = float("nan")
-    truth_rms_p95_px: float = float("nan")
-    time_median_s: float = float("nan")
-    statuses: dict[str, int] = field(default_factory=dict)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "CellSummary":
-        """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists)."""
-        def params(v: dict[str, Any]) -> ParamSummary:
-            return ParamSummary(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})
-
-        fields = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k != "params"}
-        return cls(**fields, params={k: params(v) for k, v in (d.get("params") or {}).items()})
-
-    @property
-    def label(self) -> str:
-        return f"{self.scenario}/{self.variant}/{self.calibrator}" + (
-            "" if self.lens_model == "opencv5" else f"/{self.lens_model}")
-
 
 def _honest_pass_probability(sigmas: float, n_params: int) -> float:
     """P(|z| <= sigmas) ** n_params for standard normal z: the pass rate of an honest estimator."""
@@ -223,8 +167,6 @@ class StudySection:
 def study_section(folder: str | Path, figures_dir: str | Path | None = None, *, heading: str = "##") -> StudySection:
     """The summary of the finished study in ``folder`` (rows of its current spec only), figures drawn into
     ``figures_dir`` (default ``folder/figures``) and linked relative to that folder's parent."""
-    from circcal.study.figures import draw_figures
-
     folder = Path(folder)
     table, spec = _table_of(folder)
     cells = summarise(table)
