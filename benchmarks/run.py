@@ -79,7 +79,7 @@ def main(argv: list[str]) -> int:
              + ", ".join(f"{k}={v}" for k, v in MALLOC_ENV.items()) + " for both tools alike "
              "(benchmarks/timing.py), except where a figure says it ran under glibc's defaults "
              "(bench_detect's default_malloc, bench_calibrate's default_malloc memory: what a user's process has).",
-             ""]
+             "", "The summary quoted by the README, dated by its run: [bench-summary.md](bench-summary.md).", ""]
     for name in names:
         lines += [f"## {name}", "", "| metric | value |", "|---|---|"]
         lines += [f"| {k} | {_fmt(v)} |" for k, v in results[name].items() if k != "traceback"]
