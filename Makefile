@@ -22,11 +22,11 @@ setup: $(STAMP) $(KERNELS)
 	@# process would compile circcal's modules from source (~0.17 s of a calibrate's start-up)
 	@$(VPY) -m compileall -q -j 0 circcal benchmarks >/dev/null
 
-# The detector's kernels compiled ahead of time (circcal/detector/jit.py: a process then starts without numba);
+# The detector's kernels compiled ahead of time (circcal/detector/kernels/jit.py: a process then starts without numba);
 # rebuilt when a detector module changes (only kernel modules whose source changed are compiled again). A failed
 # build is not fatal: the detector then runs under numba's JIT (the same results, ~0.75 s more start-up).
-$(KERNELS): $(STAMP) $(wildcard circcal/detector/*.py)
-	@$(VPY) -c "import circcal.detector.jit as j; print('kernels:', j.build())" \
+$(KERNELS): $(STAMP) $(wildcard circcal/detector/*.py circcal/detector/*/*.py)
+	@$(VPY) -m circcal.detector.kernels.build \
 	  || echo "kernels: the ahead-of-time build failed; the detector runs under numba's JIT (slower start-up)"
 	@mkdir -p $(dir $(KERNELS)) && touch $(KERNELS)
 

@@ -218,10 +218,10 @@ def _exponent(ns, ts) -> float:
 
 def _scaling(det) -> dict:
     from circcal.board import Board
-    from circcal.detector.candidates import area_limits, find_candidates
+    from circcal.detector.locate.candidates import area_limits, find_candidates
     from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
-    from circcal.detector.recognise import recognise
-    from circcal.detector.segment import segmentations, shrink
+    from circcal.detector.locate.recognise import recognise
+    from circcal.detector.locate.segment import segmentations, shrink
 
     board = Board(7, 7, 10.0, 5.0)
     rows = []

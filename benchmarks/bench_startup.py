@@ -2,7 +2,7 @@
 the first detection), against a plain Python script that imports cv2 and runs findCirclesGrid on the same image (five images:
 :data:`CASES` and :data:`SMALL_DOTS`); alternated (benchmarks/timing.py), with each process's peak resident memory. Goals (issue "Speed that holds on any
 machine"): <= 0.6 s wall and <= 120 MiB. Alternated with them: the same command with ``CIRCCAL_AOT=0`` (the
-detector's kernels from numba's on-disk cache instead of the ahead-of-time build, circcal/detector/jit.py), the
+detector's kernels from numba's on-disk cache instead of the ahead-of-time build, circcal/detector/kernels/jit.py), the
 choice that build replaced; ``aot_kernels`` says whether the build was current for this run."""
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def run(repeats: int = 9) -> dict:
         script.write_text(OPENCV_SCRIPT)
         # numba's on-disk cache warmed for the CIRCCAL_AOT=0 runs (a stale cache compiles for seconds, past the
         # detector's time budget; that is not what is timed)
-        subprocess.run([sys.executable, "-c", "import circcal.detector.jit as j; j._exercise()"], check=True,
+        subprocess.run([sys.executable, "-c", "import circcal.detector.kernels.build as b; b._exercise()"], check=True,
                        env={**os.environ, "CIRCCAL_AOT": "0"}, capture_output=True)
         for suffix, b, image, (W, H) in _cases(Path(tmp)):
             detect = [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm",
@@ -80,7 +80,7 @@ def run(repeats: int = 9) -> dict:
                         f"{key}_circcal_numba_jit_s": summary(t["circcal_numba_jit"]["wall_s"]),
                         f"{key}_circcal_numba_jit_peak_mib": summary(t["circcal_numba_jit"]["peak_mib"])})
     import circcal.detector.find  # noqa: F401 - registers the kernel modules
-    from circcal.detector import jit
+    from circcal.detector.kernels import jit
 
     out["aot_kernels"] = jit.aot_status()
     out["goals"] = "circcal detect of one image: <= 0.6 s wall, <= 120 MiB"

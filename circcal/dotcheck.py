@@ -67,7 +67,7 @@ def fit_residuals(edge_points: list[np.ndarray], conics: np.ndarray) -> np.ndarr
 
 def _areas(conics: np.ndarray) -> np.ndarray:
     """(N,) px^2 ellipse areas (NaN where a conic is not an ellipse)."""
-    from circcal.detector.ellipse import conic_params_batch
+    from circcal.detector.measure.ellipse import conic_params_batch
 
     _, axes, _, ok = conic_params_batch(conics)
     a = np.pi * axes[:, 0] * axes[:, 1]
@@ -77,7 +77,7 @@ def _areas(conics: np.ndarray) -> np.ndarray:
 def _neighbour_medians(grid: np.ndarray) -> np.ndarray:
     """(rows, cols): the median of each cell's up-to-4 grid neighbours' values in ``grid`` (rows, cols), NaN values
     (and the border) left out; NaN where none is left."""
-    from circcal.detector.robust import row_medians
+    from circcal.detector.measure.robust import row_medians
 
     g = np.pad(np.asarray(grid, dtype=np.float64), 1, constant_values=np.nan)
     nb = np.stack([g[:-2, 1:-1], g[2:, 1:-1], g[1:-1, :-2], g[1:-1, 2:]], axis=-1)   # up, down, left, right

@@ -1,4 +1,4 @@
-"""The per-image time budget is kept (:mod:`circcal.detector.budget`: an image with a budget of B s returns within
+"""The per-image time budget is kept (:mod:`circcal.detector.locate.budget`: an image with a budget of B s returns within
 1.5 B), and the board's search holds no structure quadratic in the candidate dots (issue 31: an n x n distance
 matrix over 7,855 candidates took 3 GB).
 
@@ -19,11 +19,11 @@ import pytest
 
 from circcal.board import Board
 from circcal.detector import Reason, detect
-from circcal.detector.budget import BudgetExceeded, Deadline
-from circcal.detector.candidates import Candidate
-from circcal.detector.lattice import MERGE_CHECK_EVERY, Lattice, merge_patches
-from circcal.detector.recognise import Recognition
-from circcal.detector.search import WINDOW_MARGIN_STEPS, _board_window
+from circcal.detector.locate.budget import BudgetExceeded, Deadline
+from circcal.detector.locate.candidates import Candidate
+from circcal.detector.locate.lattice import MERGE_CHECK_EVERY, Lattice, merge_patches
+from circcal.detector.locate.recognise import Recognition
+from circcal.detector.locate.search import WINDOW_MARGIN_STEPS, _board_window
 from circcal.fixtures.fuzz import fuzz_image
 
 BUDGET_S = 0.3

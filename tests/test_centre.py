@@ -2,8 +2,8 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from circcal.detector.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
-from circcal.detector.ellipse import conic_centre, transform_conic
+from circcal.detector.measure.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
+from circcal.detector.measure.ellipse import conic_centre, transform_conic
 
 
 def _random_homography(seed: int) -> np.ndarray:
@@ -92,7 +92,7 @@ def test_the_default_tolerance_stops_at_the_fixed_point():
 
 
 def test_batched_poles_equal_single_poles():
-    from circcal.detector.centre import pole_centres
+    from circcal.detector.measure.centre import pole_centres
 
     H = _random_homography(7)
     gx, gy = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from circcal.board import Board
-from circcal.detector.centre import correct_centres_on_rays, rotations_to_axis
+from circcal.detector.measure.centre import correct_centres_on_rays, rotations_to_axis
 from circcal.detector.find import _correct
 from circcal.model import Camera, project, transform
 

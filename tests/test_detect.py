@@ -261,7 +261,7 @@ def test_a_bug_inside_detection_propagates_out_of_detect_files(tmp_path, monkeyp
 def test_row_medians_are_numpys_medians_of_the_values_left_in():
     import warnings
 
-    from circcal.detector.robust import row_medians
+    from circcal.detector.measure.robust import row_medians
 
     rng = np.random.default_rng(4)
     vals = rng.normal(size=(7, 10))
@@ -279,7 +279,7 @@ def test_row_medians_are_numpys_medians_of_the_values_left_in():
 def test_compiled_medians_are_numpys_on_ties_and_ordered_input():
     # the selection's partitions (three-way, drawn pivots) on the inputs that break simple quickselects: ties, all
     # equal, sorted and reverse-sorted rows, one and two values; the selection the levels kernel calls as well
-    from circcal.detector.robust import _median_of, row_medians
+    from circcal.detector.measure.robust import _median_of, row_medians
 
     rng = np.random.default_rng(11)
     rows = [rng.integers(0, 3, 500).astype(float), np.full(300, 2.5), np.arange(1001.0), np.arange(1000.0)[::-1],
@@ -292,7 +292,7 @@ def test_compiled_medians_are_numpys_on_ties_and_ordered_input():
 def test_the_band_median_is_the_median_also_where_the_sample_misses_it():
     # from BAND_SELECT_FROM values the median is selected within a band a sample bounds; inputs whose sample lies far
     # from the median (the values at the sample's positions all large) take the full selection: both numpy's median
-    from circcal.detector.robust import BAND_SAMPLE, BAND_SELECT_FROM, _band_median_of, _median_of
+    from circcal.detector.measure.robust import BAND_SAMPLE, BAND_SELECT_FROM, _band_median_of, _median_of
 
     rng = np.random.default_rng(12)
     missed = 0
@@ -311,7 +311,7 @@ def test_the_band_median_is_the_median_also_where_the_sample_misses_it():
 
 def test_median_and_mad_inliers_are_the_numpy_rule():
     # the compiled statistics against the numpy expressions they replaced, with ties, NaN, +-inf and empty rows
-    from circcal.detector.robust import MAD_TO_SIGMA, mad_inliers, median, row_medians
+    from circcal.detector.measure.robust import MAD_TO_SIGMA, mad_inliers, median, row_medians
 
     rng = np.random.default_rng(7)
     for trial in range(200):
@@ -339,8 +339,8 @@ def test_median_and_mad_inliers_are_the_numpy_rule():
 
 def test_shared_tables_are_computed_once_and_read_only():
     # detect_files runs images in threads: nothing global is mutated per call
-    from circcal.detector.curvature import _shift_table
-    from circcal.detector.edges import _profile_offsets
+    from circcal.detector.measure.curvature import _shift_table
+    from circcal.detector.measure.edges import _profile_offsets
 
     assert _profile_offsets(2.0, 0.2) is _profile_offsets(2.0, 0.2) and _shift_table() is _shift_table()
     for table in (_profile_offsets(2.0, 0.2), _shift_table()):
@@ -350,7 +350,7 @@ def test_shared_tables_are_computed_once_and_read_only():
 def test_the_compiled_contour_measures_are_opencvs():
     # find_candidates measures all contours in one compiled pass instead of cv2.moments, arcLength, convexHull +
     # contourArea and boundingRect per contour: the same values to the bit, on masks of specks, blobs and ellipses
-    from circcal.detector.candidates import _contour_measures
+    from circcal.detector.locate.candidates import _contour_measures
 
     rng = np.random.default_rng(3)
     checked = 0
@@ -385,7 +385,7 @@ def test_the_compiled_contour_measures_are_opencvs():
 def test_the_compiled_ring_shares_are_the_numpy_rule():
     # dark_neighbourhood's shares, once numpy expressions (a median of three along each ring by np.roll, the tests'
     # means), now one compiled pass: the same values on random rings, with ties, NaN samples and no contrast
-    from circcal.detector.trust import CLEARANCE_LEVEL, CLEARANCE_MIN_PX, _ring_shares
+    from circcal.detector.measure.trust import CLEARANCE_LEVEL, CLEARANCE_MIN_PX, _ring_shares
 
     rng = np.random.default_rng(21)
     for trial in range(40):
@@ -411,7 +411,7 @@ def test_the_compiled_ring_shares_are_the_numpy_rule():
 
 
 def test_the_compiled_ring_points_are_the_numpy_expression():
-    from circcal.detector.trust import _COS, _SIN, _ring_points
+    from circcal.detector.measure.trust import _COS, _SIN, _ring_points
 
     rng = np.random.default_rng(22)
     D, R = 37, 5
@@ -498,7 +498,7 @@ def test_cli_writes_json_and_overlays(tmp_path):
 def _reference_levels(img, Q, origin, edge_px=2.0, step=1):
     """The per-dot level estimate as first written (one ROI, np.median, np.linalg.lstsq); ``step``: only the pixels
     of every step-th row and column from the ROI's corner."""
-    from circcal.detector.ellipse import conic_params
+    from circcal.detector.measure.ellipse import conic_params
 
     c, (a, b), ang = conic_params(Q)
     h, w = img.shape
@@ -530,9 +530,9 @@ def _uneven_render():
 
 
 def test_batched_levels_equal_the_per_dot_estimate():
-    from circcal.detector.edges import _pass_geometry
-    from circcal.detector.ellipse import conic_params_batch
-    from circcal.detector.levels import dot_levels_batch
+    from circcal.detector.measure.edges import _pass_geometry
+    from circcal.detector.measure.ellipse import conic_params_batch
+    from circcal.detector.measure.levels import dot_levels_batch
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -553,9 +553,9 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     """stride 2 (a steering pass's levels): the dots of minor semi-axis >= 8 px take the levels of the pixels of
     every second row and column of their box, the smaller ones of every pixel (against the reference on those
     pixels); they agree with the full levels to the noise of a quarter of the pixels."""
-    from circcal.detector.edges import _pass_geometry
-    from circcal.detector.ellipse import conic_params_batch
-    from circcal.detector.levels import STRIDE_MIN_MINOR_PX, dot_levels_from_params
+    from circcal.detector.measure.edges import _pass_geometry
+    from circcal.detector.measure.ellipse import conic_params_batch
+    from circcal.detector.measure.levels import STRIDE_MIN_MINOR_PX, dot_levels_from_params
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -582,8 +582,8 @@ def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
     """A dot whose inside (the ellipse shrunk by the edge gap) holds fewer than 3 pixels takes the median of the 3
     pixels nearest its centre (in the ellipse's own metric) as its dark level: against a direct computation, for
     float and uint8 images."""
-    from circcal.detector.ellipse import conic_from_params_batch
-    from circcal.detector.levels import DARK_MIN_PIXELS, dot_levels_batch
+    from circcal.detector.measure.ellipse import conic_from_params_batch
+    from circcal.detector.measure.levels import DARK_MIN_PIXELS, dot_levels_batch
 
     rng = np.random.default_rng(11)
     img = rng.uniform(0.0, 1.0, (60, 80))
@@ -610,7 +610,7 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
     up-crossing of the half level nearest to the boundary (ties: the lower index)."""
     from scipy import ndimage
 
-    from circcal.detector.edges import PROFILE_STEP_PX
+    from circcal.detector.measure.edges import PROFILE_STEP_PX
 
     for d, j in zip(*np.nonzero(todo)):
         kk = np.arange(n_iv[d] + 1)
@@ -628,10 +628,10 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
 
 
 def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
-    from circcal.detector import edges
-    from circcal.detector.dots import EDGE_SIGMA, fit_dots
-    from circcal.detector.edges import subpixel_edge_points_batch
-    from circcal.detector.smoothing import SmoothedImage
+    from circcal.detector.measure import edges
+    from circcal.detector.measure.dots import EDGE_SIGMA, fit_dots
+    from circcal.detector.measure.edges import subpixel_edge_points_batch
+    from circcal.detector.measure.smoothing import SmoothedImage
 
     img, _ = _uneven_render()
     d = detect(img, BOARD)
@@ -644,7 +644,7 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
     assert m1.sum() > 0.9 * m1.size
     assert np.array_equal(m1, m2) and np.allclose(p1[m1], p2[m2], rtol=0, atol=1e-9)
     # all dots at once = one dot at a time (each then smoothed on its own small window)
-    from circcal.detector.ellipse import conic_from_params, conic_params_batch
+    from circcal.detector.measure.ellipse import conic_from_params, conic_params_batch
 
     c, axes, ang, _ = conic_params_batch(d.conics)                # a slightly wrong start
     cands = np.array([conic_from_params(c[k] + 0.3, axes[k] * 0.97, ang[k] + 0.05) for k in range(len(c))])
@@ -663,8 +663,8 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
 def test_sparse_steering_pass_moves_no_ellipse(radius_px, tilt, monkeypatch):
     """The steering pass measures a quarter of the profiles; from starts up to 0.5 px and 5 % off, the last pass's
     ellipses are those steered by every profile (measured <= 5e-6 px on these renders), the same points kept."""
-    from circcal.detector import dots
-    from circcal.detector.ellipse import conic_from_params, conic_params_batch
+    from circcal.detector.measure import dots
+    from circcal.detector.measure.ellipse import conic_from_params, conic_params_batch
 
     img, _, *_ = _render(CAM, radius_px, tilt)
     c, axes, ang, _ = conic_params_batch(detect(img, BOARD).conics)
@@ -684,8 +684,8 @@ def test_sparse_steering_pass_moves_no_ellipse(radius_px, tilt, monkeypatch):
 def test_a_dot_the_steering_pass_cannot_fit_is_measured_by_the_last_pass(monkeypatch):
     """A dot left with too few steering points (as a cut or occluded dot may be) is not dropped: it keeps its
     starting ellipse and the last pass measures it, as a single pass from that start would."""
-    from circcal.detector import dots
-    from circcal.detector.edges import subpixel_edge_points_batch
+    from circcal.detector.measure import dots
+    from circcal.detector.measure.edges import subpixel_edge_points_batch
 
     img, _, *_ = _render(CAM, 15, 30)
     starts = detect(img, BOARD).conics
@@ -711,11 +711,11 @@ def test_a_dot_the_steering_pass_cannot_fit_is_measured_by_the_last_pass(monkeyp
 def test_smoothed_crops_are_the_exact_smoothing_to_a_millionth_of_the_range():
     """The spline samples of a crop (truncated combined filter, float32) against scipy's exact Gaussian smoothing and
     B-spline interpolation of the whole image: within 2e-6 of the grey range (measured 8e-7; the truncation of the
-    combined kernel, :data:`~circcal.detector.smoothing.COMBINED_TAIL`, dominates float32 rounding's ~1.5e-7)."""
+    combined kernel, :data:`~circcal.detector.measure.smoothing.COMBINED_TAIL`, dominates float32 rounding's ~1.5e-7)."""
     from scipy import ndimage
 
-    from circcal.detector.edges import _spline_at
-    from circcal.detector.smoothing import SmoothedImage
+    from circcal.detector.measure.edges import _spline_at
+    from circcal.detector.measure.smoothing import SmoothedImage
 
     rng = np.random.default_rng(3)
     img = (ndimage.gaussian_filter(rng.random((200, 240)), 2.0) * 1020 - 300).clip(0, 255).astype(np.uint8)
@@ -731,8 +731,8 @@ def test_smoothed_crops_are_the_exact_smoothing_to_a_millionth_of_the_range():
 
 
 def test_guided_filter_is_opencvs_to_float32_rounding():
-    from circcal.detector.jit import synthetic_board
-    from circcal.detector.segment import GUIDED_EPS, guided_filter
+    from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate.segment import GUIDED_EPS, guided_filter
 
     board_img, _ = synthetic_board()
     noise = np.random.default_rng(0).integers(0, 256, (480, 640), dtype=np.uint8)
@@ -766,8 +766,8 @@ def test_compiled_guided_filter_is_the_written_out_filter_to_the_bit():
     # it hands over is the result's; threads share nothing (the same results from 4 at once)
     from concurrent.futures import ThreadPoolExecutor
 
-    from circcal.detector.jit import synthetic_board
-    from circcal.detector.segment import GUIDED_EPS, guided_filter
+    from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate.segment import GUIDED_EPS, guided_filter
 
     rng = np.random.default_rng(2)
     board_img, _ = synthetic_board()
@@ -792,8 +792,8 @@ def test_compiled_guided_filter_is_the_written_out_filter_to_the_bit():
 
 
 def test_otsu_threshold_from_the_histogram_is_opencvs():
-    from circcal.detector.jit import synthetic_board
-    from circcal.detector.segment import GUIDED_EPS, guided_filter, otsu_threshold
+    from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate.segment import GUIDED_EPS, guided_filter, otsu_threshold
 
     rng = np.random.default_rng(3)
     board_img, _ = synthetic_board()
@@ -824,8 +824,8 @@ def test_shrink_is_opencvs_area_resize():
     """The compiled block means of uint8 images (scales >= 3) equal ``cv2.resize(..., INTER_AREA)`` to the bit,
     ties (even block sizes) included, on noise, on a board and on sizes that are not multiples of the scale; the
     other dtypes and scale 2 are OpenCV's own call."""
-    from circcal.detector.jit import synthetic_board
-    from circcal.detector.segment import shrink
+    from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate.segment import shrink
 
     rng = np.random.default_rng(5)
     board_img, _ = synthetic_board()
@@ -846,7 +846,7 @@ def test_shrink_is_opencvs_area_resize():
 
 
 def test_shrunk_segmentation_agrees_with_full(monkeypatch):
-    from circcal.detector import search
+    from circcal.detector.locate import search
 
     cam = Camera(1600, 1200, 2000.0, 2000.0, 799.5, 599.5)
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
@@ -916,7 +916,7 @@ def test_cli_board_rule_is_the_same_for_every_command():
 def test_compiled_spline_equals_scipy_map_coordinates_including_the_mirror():
     from scipy import ndimage
 
-    from circcal.detector.edges import _spline_at
+    from circcal.detector.measure.edges import _spline_at
 
     rng = np.random.default_rng(1)
     atlas = rng.random((12, 9)).astype(np.float32)
@@ -935,13 +935,13 @@ def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
     code = ("import sys, warnings; sys.modules['numba'] = None\n"
             "with warnings.catch_warnings(record=True) as w:\n"
             "    warnings.simplefilter('always')\n"
-            "    import circcal.detector.jit\n"
+            "    import circcal.detector.kernels.jit\n"
             "import numpy as np\n"
             "from circcal.board import Board\n"
             "from circcal.detector import detect\n"
             f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
             f"np.save({str(tmp_path / 'c.npy')!r}, d.centres)\n"
-            "print(circcal.detector.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
+            "print(circcal.detector.kernels.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300,
                        env={**os.environ, "CIRCCAL_AOT": "0"})  # without the ahead-of-time kernels too
     assert r.returncode == 0, r.stderr
@@ -956,8 +956,8 @@ def test_time_numba_spends_compiling_is_not_the_images(monkeypatch):
     (it once made a clean clone's test report 'time budget exceeded')."""
     import time
 
-    from circcal.detector import jit
-    from circcal.detector.budget import BudgetExceeded, Deadline
+    from circcal.detector.kernels import jit
+    from circcal.detector.locate.budget import BudgetExceeded, Deadline
 
     d = Deadline(0.2)
     time.sleep(0.3)
@@ -974,7 +974,7 @@ def test_local_steps_are_the_neighbour_differences():
     # the compiled neighbour search against the differences written out (central where both neighbours are in
     # the set, one-sided at its edge, NaN without any), on symmetric and asymmetric boards, subsets, NaN centres
     from circcal.board import Board
-    from circcal.detector.trust import local_steps
+    from circcal.detector.measure.trust import local_steps
 
     rng = np.random.default_rng(4)
     for layout, M in (("symmetric", np.eye(2)), ("asymmetric", np.array([[1.0, 1.0], [-1.0, 1.0]]))):
@@ -1002,7 +1002,7 @@ def test_local_steps_are_the_neighbour_differences():
 def test_edge_blur_is_the_median_slope_scale():
     # the compiled pass against numpy's expressions: sigma_t = A / (sqrt(2 pi) slope) per profile, the median of
     # the finite positive ones where a crossing was found, never below the nominal blur (that without any)
-    from circcal.detector.edges import PIXEL_BOX_VARIANCE, PROFILE_STEP_PX, _edge_blur
+    from circcal.detector.measure.edges import PIXEL_BOX_VARIANCE, PROFILE_STEP_PX, _edge_blur
 
     rng = np.random.default_rng(8)
     for trial in range(50):
@@ -1025,8 +1025,8 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
     # per point in the edge kernel (curvature.shift_at), numpy's vectorised expression to the bit: table
     # interpolation (np.interp, nodes hit exactly), the asymptote beyond the table, the fade, and NaN passed on;
     # the kernel's point is base + (offset + shift) * normal, here 0 + (0 + shift) * (1, 0), its slack the rest
-    from circcal.detector import curvature as C
-    from circcal.detector.edges import _edge_points_kernel
+    from circcal.detector.measure import curvature as C
+    from circcal.detector.measure.edges import _edge_points_kernel
 
     def numpy_shift(a, b, cos_t, sin_t, sigma_t):
         table, U = C._shift_table(), C.U_TABLE
@@ -1060,10 +1060,10 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
 def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_where_not(monkeypatch):
     # the filter is skipped on an image whose noise is below GUIDED_MIN_NOISE: there it would move no flat pixel
     # across a threshold, only edge pixels, and the candidates (the edge fit's starts) stay where they were
-    from circcal.detector import segment
-    from circcal.detector.candidates import find_candidates
+    from circcal.detector.locate import segment
+    from circcal.detector.locate.candidates import find_candidates
     from circcal.detector.image import normalise_u8
-    from circcal.detector.jit import synthetic_board
+    from circcal.detector.kernels.build import synthetic_board
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
@@ -1097,10 +1097,10 @@ def test_plain_otsu_of_a_noisy_image_differs_from_the_filtered_one_only_on_edges
     # why a noisy image is thresholded at Otsu's level before it is filtered: that level lies ~half the contrast
     # (here ~130 grey levels) from the dots' and the board's, many noise sigmas (4 and 8 after the stretch), so the
     # filter would change no flat pixel's side of it
-    from circcal.detector import segment
-    from circcal.detector.candidates import find_candidates
+    from circcal.detector.locate import segment
+    from circcal.detector.locate.candidates import find_candidates
     from circcal.detector.image import normalise_u8
-    from circcal.detector.jit import synthetic_board
+    from circcal.detector.kernels.build import synthetic_board
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
@@ -1142,7 +1142,7 @@ def test_a_lattice_of_another_layout_is_refused_where_the_board_would_show_bare_
 def test_a_dot_washed_out_is_left_out_in_words_and_the_view_kept(how):
     # one dot of 49 white where it lies (glare, a dot missing from the print): within ABSENT_MAX_SHARE of the
     # labelled dots, so the lattice is still the board's; the dot is named among those left out
-    from circcal.detector.trust import ABSENT_MAX_SHARE
+    from circcal.detector.measure.trust import ABSENT_MAX_SHARE
 
     board = Board(7, 7, 10.0, 5.0)
     cam = Camera(640, 480, 900.0, 900.0, 319.5, 239.5)
@@ -1217,7 +1217,7 @@ def test_light_added_over_a_dot_is_measured_and_multiplied_light_is_not():
     # the inside of a dot, sampled half-way to its centre: its first harmonic is the gradient of its grey level.
     # Light added on top (a reflection) tilts the dark inside as much as the white around; light that multiplies
     # the albedo (the uneven light the edge model takes) tilts it only by the dark's share of the white
-    from circcal.detector.trust import UNEVEN_SHARE, _uneven_inside
+    from circcal.detector.measure.trust import UNEVEN_SHARE, _uneven_inside
 
     yy, xx = np.mgrid[:200, :200].astype(np.float64)
     disk = np.where((xx - 100.3) ** 2 + (yy - 99.6) ** 2 < 30.0 ** 2, 0.12, 0.85)

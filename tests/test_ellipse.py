@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import example, given, settings, strategies as st
 
-from circcal.detector.ellipse import (algebraic_distance, conic_centre, conic_from_params, conic_params, ellipse_normals,
+from circcal.detector.measure.ellipse import (algebraic_distance, conic_centre, conic_from_params, conic_params, ellipse_normals,
                              fit_ellipse_direct, sample_ellipse)
 
 ellipses = st.tuples(
@@ -83,7 +83,7 @@ def test_batched_fit_and_params_equal_the_single_versions():
     """The stacked fit (with per-row masks, padding that may hold NaN) gives each row's own fit, equal to the
     per-ellipse Halir-Flusser solve written out below, and the closed-form batched parameters equal an
     eigen-decomposition reference."""
-    from circcal.detector.ellipse import conic_params_batch, fit_ellipses_direct
+    from circcal.detector.measure.ellipse import conic_params_batch, fit_ellipses_direct
 
     rng = np.random.default_rng(3)
     D, M = 12, 80
@@ -130,7 +130,7 @@ def test_closed_form_solve_equals_the_lapack_reference(axes, noise):
     eigenvectors are undetermined (the ellipse is picked by its eigenvalue, not by testing all three), for exact
     points (eigenvalue 0), thin and huge ellipses. 1e-10 of the unit-norm conic: the two differ by float rounding
     of differently ordered 3x3 arithmetic (measured <= 3e-12 on the paper views)."""
-    from circcal.detector.ellipse import conic_centres, fit_ellipses_direct
+    from circcal.detector.measure.ellipse import conic_centres, fit_ellipses_direct
 
     rng = np.random.default_rng(int(axes[0] * 10 + axes[1]))
     Q0 = conic_from_params(np.array([812.3, 411.7]), axes, 0.4)
@@ -169,7 +169,7 @@ def _reference_fit(p):
 
 def test_sampson_distances_are_the_first_order_distance():
     # the compiled pass against x^T Q x / |grad| written in numpy, and the signs and limits numpy's division gives
-    from circcal.detector.ellipse import conic_from_params_batch, sampson_distances
+    from circcal.detector.measure.ellipse import conic_from_params_batch, sampson_distances
 
     rng = np.random.default_rng(3)
     Q = conic_from_params_batch(rng.uniform(0, 500, (6, 2)), np.sort(rng.uniform(2, 40, (6, 2)), 1)[:, ::-1],
@@ -189,7 +189,7 @@ def test_sampson_distances_are_the_first_order_distance():
 def test_conic_params_are_the_closed_form_on_ellipses_and_nan_elsewhere():
     # the compiled pass against the closed form written in numpy (centre by the 2x2 solve, the quadratic's value
     # there, the block's eigenvalues), to the bit, and NaN / ok False for conics that are no real ellipse
-    from circcal.detector.ellipse import conic_from_params_batch, conic_params_batch
+    from circcal.detector.measure.ellipse import conic_from_params_batch, conic_params_batch
 
     rng = np.random.default_rng(9)
     c0 = rng.uniform(-3000, 3000, (500, 2))

@@ -26,7 +26,7 @@ import pytest
 
 from circcal.board import Board
 from circcal.detector import Reason, detect
-from circcal.detector.budget import DEFAULT_TIME_BUDGET_S
+from circcal.detector.locate.budget import DEFAULT_TIME_BUDGET_S
 from circcal.fixtures.fuzz import FILE_KINDS, KINDS, fuzz_cases, fuzz_image, hostile_files
 
 REPORT = Path(__file__).resolve().parents[1] / "reports" / "fuzz.md"

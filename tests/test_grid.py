@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.detector.grid import canonical_order, order_grid, orientation_sign
+from circcal.detector.locate.grid import canonical_order, orientation_sign
+from circcal.detector.locate.recognise import order_grid
 
 
 def _view(board, angle_deg, tilt=0.2):

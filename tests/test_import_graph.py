@@ -36,23 +36,7 @@ PACKAGE = "circcal"
 
 #: The cycles that exist today, each (its modules, what will remove it). Shrink it; never add to it to make a new
 #: cycle pass: break the new cycle instead (move what both need into a smaller module, or pass a function).
-KNOWN_CYCLES: tuple[tuple[frozenset[str], str], ...] = (
-    # One component of 20 modules. Its loops: jit.build() / jit._exercise() import the kernel modules they compile
-    # (jit:328 find, jit:329 segment, jit:339 neighbours, jit:362 find, jit:390 curvature, all function-level) while
-    # every kernel module imports njit from jit at module level; and grid.order_grid() imports
-    # candidates and recognise (grid:153-154, function-level) while recognise imports grid (recognise:28). Removed
-    # by the detector's split into subpackages (issue 32): the build in a module no kernel module imports, and
-    # grid's ordering apart from its recognition. With only the jit loop gone, this entry becomes
-    # {circcal.detector.grid, circcal.detector.recognise}.
-    (frozenset({
-        "circcal.detector.budget", "circcal.detector.candidates", "circcal.detector.centre",
-        "circcal.detector.curvature", "circcal.detector.dots", "circcal.detector.edges", "circcal.detector.ellipse",
-        "circcal.detector.find", "circcal.detector.grid", "circcal.detector.image", "circcal.detector.jit",
-        "circcal.detector.lattice", "circcal.detector.levels", "circcal.detector.neighbours",
-        "circcal.detector.recognise", "circcal.detector.robust", "circcal.detector.search",
-        "circcal.detector.segment", "circcal.detector.smoothing", "circcal.detector.trust",
-    }), "detector split into subpackages (issue 32)"),
-)
+KNOWN_CYCLES: tuple[tuple[frozenset[str], str], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The detector's kernels compiled ahead of time (circcal/detector/jit.py): loaded without numba, the same results
+"""The detector's kernels compiled ahead of time (circcal/detector/kernels/jit.py): loaded without numba, the same results
 as numba's JIT to the bit, and a call with other argument types runs under numba instead of crashing."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from circcal.detector import jit
+from circcal.detector.kernels import jit
 from circcal.detector.find import detect
 
 REPO = Path(__file__).resolve().parents[1]
@@ -29,9 +29,9 @@ def _run(code: str, **env: str) -> str:
 @needs_build
 def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy(tmp_path):
     code = ("import sys, numpy as np\n"
-            "from circcal.detector import jit\n"
+            "from circcal.detector.kernels import jit\n"
             "from circcal.detector.find import detect\n"
-            "img, board = jit.synthetic_board()\n"
+            "from circcal.detector.kernels.build import synthetic_board\nimg, board = synthetic_board()\n"
             "noisy = np.clip(img + np.random.default_rng(3).normal(0, 8, img.shape), 0, 255).astype(np.uint8)\n"
             "for im in (noisy, img, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0):\n"
             "    d = detect(im, board)\n"
@@ -46,7 +46,7 @@ def test_detection_runs_the_built_kernels_without_importing_numba_or_scipy(tmp_p
 
 @needs_build
 def test_the_stored_curvature_table_is_the_computed_one(tmp_path):
-    from circcal.detector import curvature
+    from circcal.detector.measure import curvature
 
     assert np.array_equal(curvature._shift_table(), curvature._computed_table())
     path = curvature.store_table(tmp_path)
@@ -59,7 +59,7 @@ def test_the_stored_curvature_table_is_the_computed_one(tmp_path):
 @needs_build
 def test_other_argument_types_run_under_numba_not_the_built_code():
     code = ("import sys, numpy as np\n"
-            "from circcal.detector import ellipse\n"
+            "from circcal.detector.measure import ellipse\n"
             "q = ellipse.conic_from_params_batch(np.array([[3.0, 4.0], [9.0, 1.0]]), np.array([[5.0, 2.0], [3.0, 1.0]]),"
             " np.array([0.3, -1.0]))\n"
             "a = ellipse.conic_params_batch(q)\n"            # (the build's types)
@@ -96,9 +96,9 @@ def test_numba_caches_kernels_that_call_other_modules_and_drops_them_when_a_call
     pkg = tmp_path / "pkg"
     shutil.copytree(REPO / "circcal", pkg / "circcal", ignore=shutil.ignore_patterns("_aot", "__pycache__"))
     code = ("import numpy as np\n"
-            "from circcal.detector import levels\n"
-            "from circcal.detector.jit import synthetic_board\n"
-            "from circcal.detector.ellipse import conic_from_params_batch\n"
+            "from circcal.detector.measure import levels\n"
+            "from circcal.detector.kernels.build import synthetic_board\n"
+            "from circcal.detector.measure.ellipse import conic_from_params_batch\n"
             "img, _ = synthetic_board()\n"
             "Q = conic_from_params_batch(np.array([[320.0, 240.0]]), np.array([[30.0, 20.0]]), np.array([0.3]))\n"
             "dark, plane, ok = levels.dot_levels_batch(img, Q, np.array([[250, 180, 390, 300]]))\n"
@@ -114,7 +114,7 @@ def test_numba_caches_kernels_that_call_other_modules_and_drops_them_when_a_call
         return r.stdout.split()
 
     first, again = run(), run()
-    robust = pkg / "circcal" / "detector" / "robust.py"
+    robust = pkg / "circcal" / "detector" / "measure" / "robust.py"
     robust.write_text(robust.read_text() + "\n# an edited callee\n")
     edited = run()
     assert first[:2] == ["0", "1"] and again[:2] == ["1", "0"] and edited[:2] == ["0", "1"]
@@ -133,23 +133,25 @@ def test_literal_signatures_are_not_exported():
 
 def test_the_build_is_named_after_the_kernel_source():
     # an edited kernel module loads no old build: its name carries the hash of the module's source
-    key = jit._module_key("circcal.detector.edges")
-    assert len(key) == 16 and jit._aot_name("circcal.detector.edges") == f"edges_{key}"
-    assert key != jit._module_key("circcal.detector.levels")
+    key = jit._module_key("circcal.detector.measure.edges")
+    assert len(key) == 16 and jit._aot_name("circcal.detector.measure.edges") == f"edges_{key}"
+    assert key != jit._module_key("circcal.detector.measure.levels")
 
 
 def test_a_build_for_another_cpu_is_not_loaded(monkeypatch):
     # the build is compiled for the host CPU: on a machine whose CPU differs its name differs, so it is not found
     # there (numba's JIT runs instead of instructions that CPU may lack)
-    here = jit._aot_name("circcal.detector.levels")
+    here = jit._aot_name("circcal.detector.measure.levels")
     assert "flags=" in jit._host_cpu() or not Path("/proc/cpuinfo").is_file()
     monkeypatch.setattr(jit, "_host_cpu", lambda: "x86_64|model name=another|flags=fpu sse sse2")
-    assert jit._aot_name("circcal.detector.levels") != here
+    assert jit._aot_name("circcal.detector.measure.levels") != here
     monkeypatch.setattr(jit, "_aot_cache", {})
-    assert jit._load_aot("circcal.detector.levels") == {}
+    assert jit._load_aot("circcal.detector.measure.levels") == {}
 
 
 def test_synthetic_board_is_found():
-    img, board = jit.synthetic_board()
+    from circcal.detector.kernels.build import synthetic_board
+
+    img, board = synthetic_board()
     d = detect(img, board)
     assert d.found and d.centres.shape == (board.n_points, 2)

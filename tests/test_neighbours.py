@@ -1,4 +1,4 @@
-"""The lattice search's nearest-neighbour queries (circcal.detector.neighbours) against scipy's cKDTree, which they
+"""The lattice search's nearest-neighbour queries (circcal.detector.locate.neighbours) against scipy's cKDTree, which they
 replace: the same distances to the bit, the same neighbours where no two are equally far, equal distances in index
 order; and no scipy import on the way (the reason for the module)."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from circcal.detector.neighbours import NeighbourGrid
+from circcal.detector.locate.neighbours import NeighbourGrid
 
 
 @pytest.mark.parametrize("kind", ["uniform", "integer", "collinear", "duplicates", "one"])
@@ -81,7 +81,7 @@ def _scipy_clusters(P: np.ndarray, link: float) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["lattices-and-clutter", "integer", "duplicates", "isolated-far", "two"])
 def test_linked_clusters_are_scipys_components(kind):
-    from circcal.detector.neighbours import linked_clusters
+    from circcal.detector.locate.neighbours import linked_clusters
 
     rng = np.random.default_rng(len(kind))
     g = np.stack(np.meshgrid(np.arange(7), np.arange(7)), -1).reshape(-1, 2).astype(float)
@@ -106,7 +106,7 @@ def test_small_dots_are_searched_without_importing_scipy():
     code = ("import sys\n"
             "from circcal.board import Board\n"
             "from circcal.detector import detect\n"
-            "import circcal.detector.search as S\n"
+            "import circcal.detector.locate.search as S\n"
             "from circcal.fixtures.frames import embedded_board\n"
             "b = Board(7, 7, 10.0, 5.0)\n"
             "img, _ = embedded_board(b, 4000, 3000, 3.0, (1800.0, 1650.0))\n"

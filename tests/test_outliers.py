@@ -165,7 +165,7 @@ def test_a_bad_dot_is_flagged_before_the_solve_and_left_out():
     e = e.copy()
     e[half] += 1.5 * (e[half] - c) / np.linalg.norm(e[half] - c, axis=1, keepdims=True)
     d.edge_points[17] = e
-    from circcal.detector.ellipse import fit_ellipse_direct
+    from circcal.detector.measure.ellipse import fit_ellipse_direct
 
     d.conics[17] = fit_ellipse_direct(e)
     (bad,) = bad_dots(d, t.board.rows, t.board.cols)

@@ -42,7 +42,7 @@ def test_a_large_frame_of_noise_is_not_segmented_into_speckle():
     # ~850,000 specks (40 s of contour search each); the noise is measured and such scales and masks are skipped
     import cv2
 
-    from circcal.detector.segment import MAX_STRETCHED_NOISE, MAX_TRANSITIONS, noise_sigma_u8, speckled
+    from circcal.detector.locate.segment import MAX_STRETCHED_NOISE, MAX_TRANSITIONS, noise_sigma_u8, speckled
 
     rng = np.random.default_rng(3)
     noise = rng.normal(128, 20, (400, 600)).clip(0, 255).astype(np.uint8)
@@ -73,7 +73,7 @@ def test_a_board_a_few_noise_sigmas_deep_is_found_where_its_pixels_are_averaged(
     from circcal.fixtures.poses import sample_poses
     from circcal.fixtures.render import render_view
     from circcal.detector.image import normalise_u8
-    from circcal.detector.segment import MAX_STRETCHED_NOISE, noise_sigma_u8
+    from circcal.detector.locate.segment import MAX_STRETCHED_NOISE, noise_sigma_u8
     from circcal.model import Camera, project
 
     f = 4900.0 * 640 / 1920.0
@@ -94,7 +94,7 @@ def test_noise_alone_stays_noise_at_every_scale():
     # the stretch scales pure noise to the whole range at any scale (~50 grey levels of noise), so the coarser
     # scales a too-noisy image is sent on to hold no candidates either
     from circcal.detector.image import normalise_u8
-    from circcal.detector.segment import MAX_STRETCHED_NOISE, noise_sigma_u8, shrink
+    from circcal.detector.locate.segment import MAX_STRETCHED_NOISE, noise_sigma_u8, shrink
 
     noise = np.random.default_rng(5).normal(128, 30, (480, 640)).clip(0, 255).astype(np.uint8)
     for s in (1, 2, 4):

@@ -4,19 +4,19 @@ another camera model.
 :func:`detect` runs, on one image:
 
 1. grey conversion and a contrast stretch (:mod:`circcal.detector.image`), and segmentation that survives
-   uneven/strong/weak illumination (:mod:`circcal.detector.segment`; the guided filter where the image is noisy), on
+   uneven/strong/weak illumination (:mod:`circcal.detector.locate.segment`; the guided filter where the image is noisy), on
    a copy shrunk to a short side of 360-719 px first for images of 720 px and more (full resolution when that fails,
    a finer scale when the dots are small; only the starting ellipses come from it);
 2. candidate dots from contours, filtered by area (limits scaled to the image and the board's dot density),
-   circularity, inertia ratio and convexity (:mod:`circcal.detector.candidates`);
+   circularity, inertia ratio and convexity (:mod:`circcal.detector.locate.candidates`);
 3. grid recognition and ordering in OpenCV's object-point order with circcal's orientation rule
-   (:mod:`circcal.detector.grid`); steps 1-3 over the scales and windows searched: :mod:`circcal.detector.search`;
+   (:mod:`circcal.detector.locate.grid`); steps 1-3 over the scales and windows searched: :mod:`circcal.detector.locate.search`;
 4. sub-pixel edge points on each dot's boundary (half-level crossings along ellipse normals, corrected for edge
-   curvature: :mod:`circcal.detector.edges`) and a direct least-squares ellipse fit
-   (:mod:`circcal.detector.ellipse`), for all dots at once (:func:`~circcal.detector.dots.fit_dots`: one filtering
+   curvature: :mod:`circcal.detector.measure.edges`) and a direct least-squares ellipse fit
+   (:mod:`circcal.detector.measure.ellipse`), for all dots at once (:func:`~circcal.detector.measure.dots.fit_dots`: one filtering
    call for the crops around all dots, batched interpolation, stacked 3x3 solves);
 5. projective centre correction: each centre is the pole of the board's vanishing line w.r.t. its ellipse, the
-   homography re-estimated from the corrected centres until stable (:mod:`circcal.detector.centre`). With a camera
+   homography re-estimated from the corrected centres until stable (:mod:`circcal.detector.measure.centre`). With a camera
    model the edge points are undistorted first, the correction runs in the undistorted image and the centres are
    distorted back.
 
@@ -30,16 +30,16 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
-from circcal.detector.centre import correct_centres, correct_centres_on_rays, fit_homography
+from circcal.detector.locate.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
+from circcal.detector.measure.centre import correct_centres, correct_centres_on_rays, fit_homography
 from circcal.detector.detection import Detection, Reason
-from circcal.detector.dots import EDGE_SIGMA, fit_dots
-from circcal.detector.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
+from circcal.detector.measure.dots import EDGE_SIGMA, fit_dots
+from circcal.detector.measure.ellipse import FIT_ERRORS, conic_from_params_batch, conic_params_batch, fit_ellipses_direct
 from circcal.detector.image import as_gray
-from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition
-from circcal.detector.search import segment_and_recognise
-from circcal.detector.smoothing import SmoothedImage
-from circcal.detector.trust import ABSENT_MAX_SHARE, absent_dots, bad_dots, check_grid
+from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition
+from circcal.detector.locate.search import segment_and_recognise
+from circcal.detector.measure.smoothing import SmoothedImage
+from circcal.detector.measure.trust import ABSENT_MAX_SHARE, absent_dots, bad_dots, check_grid
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
@@ -68,7 +68,7 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
     ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots
     on a dark ground is found on the inverted image, and the detection says so in its notes). ``camera``: optional
     model; when given, the centre correction accounts for its lens distortion. ``time_budget_s``: seconds this image
-    may take (:data:`~circcal.detector.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
+    may take (:data:`~circcal.detector.locate.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
     found with :attr:`Reason.TIME_BUDGET`. The board may be partly out of frame or occluded: the dots seen are
     labelled when that is unambiguous (a marker board, or the board's whole extent in view), the others are NaN.
     Never raises for a grid that is not there (``found=False`` with a reason); raises
@@ -238,7 +238,7 @@ def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.n
     """(N, 2) centres of a found ``detection`` corrected with ``camera`` (its distortion), from the stored edge
     points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back
     (a fisheye: each dot on its own local perspective re-projection,
-    :func:`~circcal.detector.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN, and so do
+    :func:`~circcal.detector.measure.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN, and so do
     the dots whose rim a pinhole ``camera``'s distortion cannot invert (beyond the fold of its polynomial,
     :func:`~circcal.model.undistort`: a lens model too simple for the lens); the caller says what it does with
     those."""
@@ -260,7 +260,7 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
     board -> their centres, where the caller has it. ``drop_uninvertible``: a
     dot whose rim a pinhole ``camera``'s distortion cannot invert everywhere is left out (NaN) instead of fitted.
     Raises ``ValueError`` when an ellipse cannot be fitted or no board homography fits the centres. A fisheye ``camera``: the centres from
-    :func:`~circcal.detector.centre.correct_centres_on_rays`, the conics those given (observed image; else NaN) and
+    :func:`~circcal.detector.measure.centre.correct_centres_on_rays`, the conics those given (observed image; else NaN) and
     H board -> rays."""
     N = board.n_points
     obj = board.object_points()[used, :2]

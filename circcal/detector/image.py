@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 from circcal.errors import ImageError, InputError
 
 __all__ = ["MAX_IMAGE_PIXELS", "MAX_IMAGE_PIXELS_ENV", "ImageTooLargeError", "as_gray", "decode_image",

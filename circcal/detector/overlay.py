@@ -16,7 +16,7 @@ import numpy as np
 from circcal import atomic
 
 from circcal.detector.detection import Detection
-from circcal.detector.ellipse import conic_params, fit_ellipse_direct
+from circcal.detector.measure.ellipse import conic_params, fit_ellipse_direct
 from circcal.detector.image import as_gray, normalise_u8, read_image
 from circcal.errors import ImageError
 

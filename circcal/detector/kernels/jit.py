@@ -1,18 +1,18 @@
-"""``njit`` for the detector's compiled loops (:mod:`circcal.detector.edges`, :mod:`circcal.detector.levels`,
-:mod:`circcal.detector.ellipse`, :mod:`circcal.detector.robust`): compiled ahead of time at install, numba's JIT
+"""``njit`` for the detector's compiled loops (:mod:`circcal.detector.measure.edges`, :mod:`circcal.detector.measure.levels`,
+:mod:`circcal.detector.measure.ellipse`, :mod:`circcal.detector.measure.robust`): compiled ahead of time at install, numba's JIT
 where that build is missing or stale, plain Python where numba is missing too.
 
 Why ahead of time: numba costs a process ~0.3 s to import (it pulls in scipy) and ~0.45 s more at the first call of
 a kernel it has cached on disk (its type registries load then), which alone broke the 0.6 s a one-image
-``circcal detect`` may take. ``make setup`` therefore runs :func:`build` (``python -c "import circcal.detector.jit
-as j; j.build()"``), which compiles every kernel module with ``numba.pycc`` into an extension under
+``circcal detect`` may take. ``make setup`` therefore runs :func:`circcal.detector.kernels.build.build` (``python -m
+circcal.detector.kernels.build``), which compiles every kernel module with ``numba.pycc`` into an extension under
 ``circcal/detector/_aot/``. Loading it needs neither numba nor scipy (~1 ms), and its code is numba's own for the
 same source and the same argument types (the same results to the bit and the same speed, measured: benchmarks/
 bench_startup.py). Alternatives measured against it: numba's on-disk cache (~0.75 s of fixed cost, above), Cython or
 vectorised numpy (the loops written a second time, in a module the detector does not own, and slower for
 quickselect and per-profile early exits).
 
-* Signatures: :func:`build` runs the detector on synthetic boards (uint8, uint16 and float32 images) under numba and
+* Signatures: :func:`~circcal.detector.kernels.build.build` runs the detector on synthetic boards (uint8, uint16 and float32 images) under numba and
   exports every signature numba compiled for each kernel; a call whose arguments match none of them (checked here,
   in Python: pycc's wrappers do not check types and would crash) runs under numba instead, never wrongly.
 * Staleness: an extension is named after a hash of its kernel module's source, of the kernel modules it calls
@@ -20,7 +20,7 @@ quickselect and per-profile early exits).
   the host's, :data:`TARGET_CPU`), so an edited kernel module loads no old code, nor does another machine's CPU:
   until the next build it runs under numba's JIT. A kernel reads only its own module's constants (numba freezes
   them into the code); it calls kernels of its own module or of those it lists (numba's disk cache, which checks
-  only the caller's file, then also checks theirs: :mod:`circcal.detector.jitcache`).
+  only the caller's file, then also checks theirs: :mod:`circcal.detector.kernels.jitcache`).
 * The GIL is released inside compiled kernels (``nogil``), as under numba, so threaded detection stays parallel.
 * ``CIRCCAL_AOT=0`` ignores the ahead-of-time build (numba's JIT, as before it existed).
 
@@ -39,17 +39,14 @@ import threading
 import time
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
-if TYPE_CHECKING:  # annotations only
-    from circcal.board import Board
-
-__all__ = ["njit", "COMPILED", "Kernel", "build", "aot_status", "compile_seconds", "synthetic_board"]
+__all__ = ["njit", "COMPILED", "Kernel", "aot_status", "compile_seconds"]
 
 #: Where :func:`build` writes the compiled kernel modules (one extension + its signatures per kernel module).
-AOT_DIR = Path(__file__).resolve().parent / "_aot"
+AOT_DIR = Path(__file__).resolve().parents[1] / "_aot"
 #: Set to "0" to ignore the ahead-of-time build (numba's JIT only).
 AOT_ENV = "CIRCCAL_AOT"
 #: The CPU the ahead-of-time build generates code for: the host's (its instruction-set extensions: the levels pass
@@ -67,7 +64,7 @@ if not COMPILED:  # pragma: no cover - exercised by tests/test_detect.py in a su
 
 _lock = threading.RLock()
 #: seconds spent in calls that made numba compile (a type the ahead-of-time build lacks, or no build): the time
-#: budget of an image (:class:`circcal.detector.budget.Deadline`) does not count them
+#: budget of an image (:class:`circcal.detector.locate.budget.Deadline`) does not count them
 _compile_s = 0.0
 #: module name -> its kernels, in the order they were decorated
 _registry: dict[str, list["Kernel"]] = {}
@@ -222,7 +219,7 @@ def _jit_module(module: str) -> None:
     """Turn the kernels of ``module`` into numba dispatchers and rebind its names to them, those of the kernel modules
     it calls (:func:`_kernel_imports`) first, and its imported names of their kernels too (numba compiles a call to
     another kernel only through numba's dispatcher). A module that calls other modules' kernels is cached on disk
-    with its callees' sources in the cache's stamp (:mod:`circcal.detector.jitcache`: numba's own cache checks only
+    with its callees' sources in the cache's stamp (:mod:`circcal.detector.kernels.jitcache`: numba's own cache checks only
     the caller's file, so an edited callee would leave stale code)."""
     with _lock:
         kernels = _registry[module]
@@ -237,7 +234,7 @@ def _jit_module(module: str) -> None:
             for k in kernels:
                 k._jit = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
                 if deps and k.options.get("cache"):
-                    from circcal.detector import jitcache
+                    from circcal.detector.kernels import jitcache
 
                     jitcache.enable(k._jit, [sys.modules[m].__file__ for m in deps])
         else:
@@ -300,128 +297,3 @@ def _spec_of(t) -> list | None:
     if isinstance(t, types.Float) and t.bitwidth == 64:
         return ["float"]
     return None
-
-
-def synthetic_board() -> tuple[np.ndarray, "Board"]:
-    """A 640x480 uint8 image of a 5x6 symmetric board (dots 5 mm on a 10 mm pitch) in perspective, drawn at 8x and
-    area-averaged: what :func:`build` runs the detector on."""
-    import cv2
-
-    from circcal.board import Board
-
-    board = Board(5, 6, 10.0, 5.0)
-    obj = board.object_points()[:, :2]
-    w, h = obj.max(axis=0) + 10.0
-    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]),
-                                    np.float32([[180, 120], [470, 140], [450, 380], [170, 360]]))
-    big = np.full((480 * 8, 640 * 8), 230, np.uint8)
-    for x, y in obj:
-        px, py = cv2.perspectiveTransform(np.float64([[[x + 5.0, y + 5.0]]]), H)[0, 0]
-        cv2.circle(big, (int(px * 8), int(py * 8)), int(2.5 * 290.0 / w * 8), 30, -1)
-    return cv2.resize(big, (640, 480), interpolation=cv2.INTER_AREA), board
-
-
-def _exercise() -> None:
-    """Run the detector on :func:`synthetic_board` as uint8 (clean and noisy), uint16, float32 and float64 images
-    (what image files and numpy callers give it: a float64 image is what a renderer hands over), so that numba
-    compiles each kernel for the argument types detection gives it."""
-    from circcal.detector.find import detect, recorrect
-    from circcal.detector.segment import GUIDED_EPS, GUIDED_MIN_RADIUS, guided_filter, shrink
-    from circcal.model import Camera
-
-    img, board = synthetic_board()
-    noisy = np.clip(img + np.random.default_rng(0).normal(0.0, 8.0, img.shape), 0, 255).astype(np.uint8)
-    # the guided filter runs on noisy images whose plain Otsu mask shows no board (not this one): called as the
-    # segmentation calls it
-    guided_filter(noisy, GUIDED_MIN_RADIUS, GUIDED_EPS, np.zeros(256, np.int64))
-    # the lattice search's neighbour queries (an asymmetric board, clutter: not this board's direct ordering) and
-    # the small dots' clusters
-    from circcal.detector.neighbours import NeighbourGrid, linked_clusters
-
-    NeighbourGrid(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2))).query(np.zeros((3, 2)), k=2)
-    linked_clusters(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2)), 2.5)
-    for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0,
-               img.astype(np.float64) / 255.0):
-        d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
-        if not d.found:
-            raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
-    # a calibration re-corrects the centres under each new distortion estimate (the ellipses refitted in Python)
-    recorrect(d, board, Camera(640, 480, 600.0, 600.0, 319.5, 239.5, np.array([-0.1, 0.01, 0.0, 0.0, 0.0])))
-    shrink(np.repeat(np.repeat(img, 3, axis=0), 3, axis=1), 3)   # frames of 720 px and more are segmented shrunk
-
-
-def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
-    """Compile every kernel module ahead of time into ``out_dir`` (see the module docstring), skipping those whose
-    current source is built already (unless ``force``); builds of older sources are removed. Returns module -> the
-    kernels exported (or ``["(current)"]``). Needs numba and a C compiler (pycc compiles the module's C glue)."""
-    import tempfile
-
-    import numba.pycc.compiler as pycc_compiler
-    from numba.pycc import CC
-
-    import circcal.detector.find  # noqa: F401 - registers every kernel module the detector uses
-
-    for module in list(_registry):
-        _jit_module(module)
-    _exercise()
-
-    class _NoGilFlags(pycc_compiler.Flags):  # pycc's wrappers would hold the GIL; numba's nogil kernels do not
-        def __init__(self, *a, **kw):
-            super().__init__(*a, **kw)
-            self.release_gil = True
-
-    pycc_compiler.Flags = _NoGilFlags
-    # a kernel's own compile options that change its code (numba's njit takes them per function; pycc compiles all
-    # exports of a module with one set of flags): ``error_model="numpy"`` (a float division without Python's zero
-    # check, which keeps a loop from vectorising) is applied to that kernel's exports alone
-    models = {k.py_func: k.options["error_model"] for ks in _registry.values() for k in ks
-              if "error_model" in k.options}
-    compile_extra = pycc_compiler.compile_extra
-
-    def _compile_extra(typingctx, targetctx, func, args, return_type, flags, locals, **kw):
-        if func in models:
-            flags = flags.copy()
-            flags.error_model = models[func]
-        return compile_extra(typingctx, targetctx, func, args, return_type, flags, locals, **kw)
-
-    pycc_compiler.compile_extra = _compile_extra
-    out_dir.mkdir(parents=True, exist_ok=True)
-    done: dict[str, list[str]] = {}
-    from circcal.detector.curvature import store_table  # the curvature model's table: no scipy import at start-up
-
-    store_table(out_dir)
-    for module, kernels in _registry.items():
-        name = _aot_name(module)
-        if not force and out_dir == AOT_DIR and (out_dir / f"{name}.json").is_file():
-            done[module] = ["(current)"]
-            continue
-        cc = CC(name)
-        cc.verbose = False
-        if "flags=" in _host_cpu() or "Features=" in _host_cpu():   # the CPU is known to the build's name
-            cc.target_cpu = TARGET_CPU
-        manifest: dict[str, list] = {}
-        for k in kernels:
-            for i, sig in enumerate(k._jit.signatures):
-                specs = [_spec_of(t) for t in sig]
-                if any(s is None for s in specs):
-                    continue
-                symbol = f"{k.__name__}__{i}"
-                ret = k._jit.overloads[sig].signature.return_type
-                cc.export(symbol, ret(*sig))(k.py_func)
-                manifest.setdefault(k.__name__, []).append({"symbol": symbol, "args": specs})
-        if not manifest:
-            continue
-        with tempfile.TemporaryDirectory(dir=out_dir) as tmp:  # moved in whole: a reader never sees half a build
-            cc.output_dir = tmp
-            with warnings.catch_warnings():  # pycc's own pending-deprecation notice: stated in the module docstring
-                warnings.simplefilter("ignore")
-                cc.compile()
-            for old in out_dir.glob(f"{module.rsplit('.', 1)[-1]}_*"):
-                old.unlink()
-            for f in Path(tmp).iterdir():
-                os.replace(f, out_dir / f.name)
-            manifest_tmp = Path(tmp) / "manifest"
-            manifest_tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-            os.replace(manifest_tmp, out_dir / f"{name}.json")
-        done[module] = sorted(manifest)
-    return done

@@ -1,7 +1,7 @@
 """Which board points a lattice patch shows: the placements of the patch on the board (rotation and shift, markers
 agreeing), and what the detector may claim from them.
 
-A patch (:class:`~circcal.detector.lattice.Lattice`) has integer coordinates of its own; the board's points have
+A patch (:class:`~circcal.detector.locate.lattice.Lattice`) has integer coordinates of its own; the board's points have
 lattice coordinates too (:meth:`circcal.board.Board.lattice_coords`: ``(j, i)`` symmetric, ``(2j + i % 2, i)``
 asymmetric). A symmetric grid's lattice steps are the board's rows and columns (patch coordinates are board
 coordinates up to a rotation and shift); an asymmetric grid's nearest neighbours are its diagonals, so patch
@@ -16,7 +16,7 @@ and shift that lays the patch on board points; :func:`label_patch` decides:
 * several that no board symmetry relates: the patch could be several parts of the board (a partial view of a board
   without markers, or one whose visible markers do not tell): rejected, never guessed.
 
-The orientation rule of :mod:`circcal.detector.grid` picks among placements related by a board symmetry (an
+The orientation rule of :mod:`circcal.detector.locate.grid` picks among placements related by a board symmetry (an
 unmarked board seen whole); with markers there is one placement and every point keeps its ID across views.
 """
 from __future__ import annotations

@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 
 from circcal.detector.image import count_into, histogram_u8
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 KERNEL_IMPORTS = ("circcal.detector.image",)
-"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales",
            "segmentations", "shrink", "noise_sigma_u8", "speckled"]
@@ -102,7 +102,7 @@ MAX_STRETCHED_NOISE = 25.0
 is not segmented at that scale (its masks would be speckle: a 48 MP frame of noise took minutes). The weak-light and
 very noisy fixtures measure 5-13 levels; a board only a few noise sigmas deep (a dim photograph at high gain)
 measures more and is segmented at a coarser scale, whose block means hold less noise
-(:data:`circcal.detector.search.NOISY_MIN_SIDE`); noise alone measures ~50 at every scale."""
+(:data:`circcal.detector.locate.search.NOISY_MIN_SIDE`); noise alone measures ~50 at every scale."""
 
 
 def noise_sigma_u8(img: np.ndarray) -> float:
@@ -334,7 +334,7 @@ def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
     then halving it (rounded up) down to 2 (a grid of small dots in a large image); full resolution only for an image
     too small to shrink. At scale 2 a dot 6 px across is 3 px and still a candidate: a board recognised with dots
     smaller than :data:`SHRUNK_MIN_RADIUS` at its scale is segmented again at the coarsest scale where they are not,
-    in its own window (:mod:`circcal.detector.search`), never the whole frame (a 48 MP frame of noise alone took
+    in its own window (:mod:`circcal.detector.locate.search`), never the whole frame (a 48 MP frame of noise alone took
     minutes). The edges are always measured at full resolution, starting from these contours: only the starting
     ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on strongly
     blurred images, where the two-pass refinement still depends slightly on its start, with the same accuracy

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.ellipse import conic_params_batch
-from circcal.detector.jit import njit
-from circcal.detector.robust import MAD_TO_SIGMA, _median_of
+from circcal.detector.measure.ellipse import conic_params_batch
+from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.robust import MAD_TO_SIGMA, _median_of
 
-KERNEL_IMPORTS = ("circcal.detector.robust",)
-"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
+KERNEL_IMPORTS = ("circcal.detector.measure.robust",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["EDGE_GAP_PX", "dot_levels_batch", "dot_levels_from_params"]
 
@@ -64,7 +64,7 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
 def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
                            boxes: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2) px, semi-axes (D, 2) px, angles (D,)
-    rad, valid (D,) bool, as :func:`~circcal.detector.ellipse.conic_params_batch` gives them). ``stride`` s > 1:
+    rad, valid (D,) bool, as :func:`~circcal.detector.measure.ellipse.conic_params_batch` gives them). ``stride`` s > 1:
     the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2 px use only the pixels of every s-th row and
     column of their box (from its corner): ~1/s^2 of the work, levels ~s times noisier (for measurements that only
     steer a later one)."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.ellipse import FIT_ERRORS, conic_params, conic_params_batch, fit_ellipses_direct
+from circcal.detector.measure.ellipse import FIT_ERRORS, conic_params, conic_params_batch, fit_ellipses_direct
 from circcal.model import Camera, project_camera, unproject
 from circcal.model.rays import plane_normal, ray_homography
 

@@ -10,7 +10,7 @@ import functools
 import cv2
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = ["COMBINED_TAIL", "PREFILTER_HALF_LENGTH", "SPLINE_SUPPORT", "SmoothedImage"]
 
@@ -42,7 +42,7 @@ class SmoothedImage:
     (``cv2.sepFilter2D``), crops at the image border each on their own with the border reflections
     (``cv2.GaussianBlur`` then the prefilter, reach :attr:`border_margin` - :data:`SPLINE_SUPPORT`). The coefficients
     of all crops are held in one stacked atlas (:meth:`coefficient_atlas`, sampled by the compiled cubic B-spline
-    evaluation of :mod:`circcal.detector.edges`). A later box reuses the crop made for the same dot (a crop holding
+    evaluation of :mod:`circcal.detector.measure.edges`). A later box reuses the crop made for the same dot (a crop holding
     the box, centred within :attr:`REUSE_PX` px of it), so a dot's samples depend on that dot alone: measuring all
     dots at once gives the same points as one at a time. Where the crops inside the image overlap (the dots of a
     board seen small: the crops of a 640x480 paper view cover its board ~3.5 times over), they are filtered as one

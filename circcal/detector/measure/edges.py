@@ -1,13 +1,13 @@
 """Sub-pixel edge points of dark dots on a bright board (:func:`subpixel_edge_points_batch`).
 
 Along the normals of each dot's current ellipse the image (lightly Gaussian-smoothed, cubic-spline interpolated:
-:class:`~circcal.detector.smoothing.SmoothedImage`) is sampled, and the point where the profile crosses the local
+:class:`~circcal.detector.measure.smoothing.SmoothedImage`) is sampled, and the point where the profile crosses the local
 half level between the dot's dark level and the board's bright level (fitted as a plane around the dot,
-:mod:`circcal.detector.levels`, so an illumination gradient does not move the edges) is interpolated. For any
+:mod:`circcal.detector.measure.levels`, so an illumination gradient does not move the edges) is interpolated. For any
 symmetric blur of a straight edge this crossing is the edge itself (and it is where the gradient magnitude along the
 normal peaks); with a smoothing scale matched to the edge width it is the efficient (Cramer-Rao) estimator of the
 edge position, which the gradient-peak location is not. On a curved edge the half-level contour lies slightly inside
-the edge: each point is moved out by the shift of :mod:`circcal.detector.curvature`.
+the edge: each point is moved out by the shift of :mod:`circcal.detector.measure.curvature`.
 
 All dots are measured at once; the per-pixel work is compiled (numba, cached on disk): the profile geometry
 (:func:`_profiles_kernel`) and the nearest crossing of each profile (:func:`_crossings_kernel`: intervals examined
@@ -24,15 +24,15 @@ import functools
 
 import numpy as np
 
-from circcal.detector.curvature import U_TABLE, _shift_table, shift_at
-from circcal.detector.ellipse import _conic_params_kernel, perimeter
-from circcal.detector.jit import njit
-from circcal.detector.levels import dot_levels_from_params
-from circcal.detector.robust import _median_of
-from circcal.detector.smoothing import SmoothedImage
+from circcal.detector.measure.curvature import U_TABLE, _shift_table, shift_at
+from circcal.detector.measure.ellipse import _conic_params_kernel, perimeter
+from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.levels import dot_levels_from_params
+from circcal.detector.measure.robust import _median_of
+from circcal.detector.measure.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.robust", "circcal.detector.curvature", "circcal.detector.ellipse")
-"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
+KERNEL_IMPORTS = ("circcal.detector.measure.robust", "circcal.detector.measure.curvature", "circcal.detector.measure.ellipse")
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["PROFILE_SPACING_PX", "PROFILE_STEP_PX", "subpixel_edge_points_batch"]
 
@@ -79,9 +79,9 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     ``points[d][mask[d]]`` (profiles without a clear edge are left out; there may be few, the caller decides);
     ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all. ``with_slack``: a fourth array ``slack``
     (D, Nmax) px, the curvature shift left uncorrected at each point where the osculating-circle model fades out
-    (:func:`~circcal.detector.curvature.shift_at`; 0 elsewhere): how far that point may lie off the true
+    (:func:`~circcal.detector.measure.curvature.shift_at`; 0 elsewhere): how far that point may lie off the true
     edge without being an outlier. ``level_stride``: the dots' levels from every this many rows and columns of their
-    pixels (:func:`~circcal.detector.levels.dot_levels_from_params`; for a pass that only steers the next).
+    pixels (:func:`~circcal.detector.measure.levels.dot_levels_from_params`; for a pass that only steers the next).
     """
     conics = np.ascontiguousarray(conics, np.float64)
     D = len(conics)
@@ -124,7 +124,7 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
 @njit(cache=True, nogil=True)
 def _edge_points_kernel(base, nrm, off, ok, a, b, cos_t, sin_t, sigma_t, u_table, table, pts, slack):
     """The edge points ``pts`` (D, N, 2): ``base + (off + shift) nrm`` where ``ok``, ``base`` elsewhere, with the
-    curvature shift of each point (:func:`~circcal.detector.curvature.shift_at`), and ``slack`` (D, N) its
+    curvature shift of each point (:func:`~circcal.detector.measure.curvature.shift_at`), and ``slack`` (D, N) its
     unmodelled part where ``ok`` (0 elsewhere): numpy's expressions in numpy's order."""
     D, N = ok.shape
     for d in range(D):
@@ -185,7 +185,7 @@ def _pass_geometry(conics, sigma, H, W, spacing_px):
     """What a measuring pass needs of the ellipses ``conics`` (D, 3, 3) before it samples the image (H, W) smoothed
     by ``sigma`` px: ``(c (D, 2), ab (D, 2), ang (D,), okc (D,), hw (D,), boxes (D, 4), live (D,), n (D,))``.
 
-    The ellipses' centres, semi-axes (a, b) and angles (:func:`~circcal.detector.ellipse.conic_params_batch`'s
+    The ellipses' centres, semi-axes (a, b) and angles (:func:`~circcal.detector.measure.ellipse.conic_params_batch`'s
     values; a conic that is no real ellipse: ``okc`` false, centre 0, axes 1, angle 0); the profile half length
     ``hw = clip(PROFILE_HALF_PER_MINOR b, PROFILE_HALF_MIN_PX, PROFILE_HALF_MAX_PX)`` and each dot's region of
     interest ``x0, y0, x1, y1`` int (exclusive ends, clipped to the image): square, the major semi-axis both ways

@@ -5,10 +5,10 @@ board), in words.
 :func:`recognise` takes the candidates of one segmentation and
 
 1. for an unmarked symmetric board whose candidates are exactly its dots (the common clean case) orders them
-   directly (:func:`circcal.detector.grid.order_lattice`: hull corners, one homography);
-2. otherwise finds the lattice patches (:func:`circcal.detector.lattice.find_lattices`, about linear in the number
+   directly (:func:`circcal.detector.locate.grid.order_lattice`: hull corners, one homography);
+2. otherwise finds the lattice patches (:func:`circcal.detector.locate.lattice.find_lattices`, about linear in the number
    of candidates), reads each patch dot's marker flag from its area against the local lattice cell
-   (:func:`marker_flags`), and labels the largest patches (:func:`circcal.detector.labels.label_patch`);
+   (:func:`marker_flags`), and labels the largest patches (:func:`circcal.detector.locate.labels.label_patch`);
 3. keeps the patch that is the whole board (several: the largest, the others named in ``notes``), else the largest
    part of the board that is labelled unambiguously (a partial view), else says why not: the board has more dots
    than ``--grid``, the transposed grid fits, the markers disagree, or which part of the board is seen is ambiguous.
@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.budget import Deadline
-from circcal.detector.candidates import Candidate
+from circcal.detector.locate.budget import Deadline
+from circcal.detector.locate.candidates import Candidate
 from circcal.detector.detection import Reason
-from circcal.detector.grid import order_lattice, orient
-from circcal.detector.labels import Labelling, label_patch, seed_score_needed
-from circcal.detector.lattice import Lattice, find_lattices
+from circcal.detector.locate.grid import order_lattice, orient
+from circcal.detector.locate.labels import Labelling, label_patch, seed_score_needed
+from circcal.detector.locate.lattice import Lattice, find_lattices
 
-__all__ = ["Recognition", "recognise", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
+__all__ = ["Recognition", "recognise", "order_grid", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
 
 MAX_LABELLED = 4
 """Patches labelled per segmentation, largest first: the board, a second board, a printed logo and one more; the
@@ -46,7 +46,7 @@ plain, above the second a marker, between them unknown (not used as evidence): a
 wrong placement fit."""
 PATCH_RESIDUAL = 0.1
 """A patch counts as a lattice only when a homography from its lattice coordinates (with a quadratic term from
-:data:`~circcal.detector.trust.QUADRATIC_FROM` dots on, for lens distortion) explains its candidates' rough centres
+:data:`~circcal.detector.measure.trust.QUADRATIC_FROM` dots on, for lens distortion) explains its candidates' rough centres
 to this share of a lattice step (RMS): contour centroids of real dots err by a few hundredths of a step (perspective
 bias of large dots included); chance alignments of blobs, which growth accepts within a quarter of a step, by a
 tenth and more."""
@@ -126,7 +126,7 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
     """Whether patch ``lat`` looks like a printed lattice (:data:`PATCH_RESIDUAL`, :data:`PATCH_FILL_SPREAD`)."""
     import cv2
 
-    from circcal.detector.trust import QUADRATIC_FROM
+    from circcal.detector.measure.trust import QUADRATIC_FROM
 
     ab = lat.ab.astype(np.float64)
     P = points[lat.index]
@@ -261,3 +261,21 @@ def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts:
                         f"{len(chosen[0])} dots around ({c[0]:.0f}, {c[1]:.0f}) px"
                         f"{' (the larger board)' if two else ''}")
     return notes
+
+
+def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]
+               ) -> np.ndarray | None:
+    """Recognise the whole board among candidate dots and order it (:func:`circcal.detector.locate.recognise.recognise`
+    on round candidates).
+
+    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px; ``image_shape``: (H, W).
+    Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None`` when the
+    whole board is not among them.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    radii = np.asarray(radii, np.float64).reshape(-1)
+    cands = [Candidate(p, (float(r), float(r)), 0.0, float(np.pi * r * r)) for p, r in zip(points, radii)]
+    rec = recognise(board, cands, (int(image_shape[1]), int(image_shape[0])))
+    if rec.order is None or not rec.complete or np.any(rec.order < 0):
+        return None
+    return rec.order

@@ -1,29 +1,29 @@
 """The time budget of one image: a deadline the detector's loops check, so that no image, however hostile (dense
 texture, thousands of dot-like blobs), holds a batch for longer than the budget.
 
-The detector's search is about linear in the number of candidate dots (:mod:`circcal.detector.lattice`), so the
+The detector's search is about linear in the number of candidate dots (:mod:`circcal.detector.locate.lattice`), so the
 budget is a backstop, not the design: past it an image is reported not found with
 :attr:`~circcal.detector.Reason.TIME_BUDGET`.
 
 The bound: an image with a budget of ``B`` seconds returns within ``1.5 B`` (wall and CPU time, compile time aside).
 The deadline is checked in every loop and stage whose cost grows with the image or the candidate count: at each
-scale of the search before its shrink and stretch (:mod:`circcal.detector.search`), after each mask and after its
+scale of the search before its shrink and stretch (:mod:`circcal.detector.locate.search`), after each mask and after its
 contours, before each cluster window searched again, after the lattice seeds, at each wave of a lattice's growth,
-every few dozen tries of merging patches (:mod:`circcal.detector.lattice`), before each patch labelled
-(:mod:`circcal.detector.recognise`), and after the dots are measured (:mod:`circcal.detector.find`). So an image
+every few dozen tries of merging patches (:mod:`circcal.detector.locate.lattice`), before each patch labelled
+(:mod:`circcal.detector.locate.recognise`), and after the dots are measured (:mod:`circcal.detector.find`). So an image
 overruns its budget by at most the one step running when the deadline passes: one mask, one contour search or one
 lattice growth wave, O(pixels) or O(candidates) each, measured at most ~0.2 s of CPU on the most hostile 12 MP images
 of :mod:`circcal.fixtures.fuzz` (dense dots, leaves, stripes, checkers; ~0.7 s at 48 MP by the same rate), well
 within ``0.5 B`` for the default budget (tested with ``B = 0.3`` s on a 6 MP image, plus that step:
 tests/test_budget.py). Nothing in the search holds memory quadratic in the candidates (the neighbour grid of
-:mod:`circcal.detector.neighbours` answers every distance query): a 12 MP hostile image peaks below 0.5 GB of
+:mod:`circcal.detector.locate.neighbours` answers every distance query): a 12 MP hostile image peaks below 0.5 GB of
 resident memory in all, the interpreter and its libraries included (reports/fuzz.md).
 """
 from __future__ import annotations
 
 import time
 
-from circcal.detector.jit import compile_seconds
+from circcal.detector.kernels.jit import compile_seconds
 
 __all__ = ["DEFAULT_TIME_BUDGET_S", "BudgetExceeded", "Deadline"]
 
@@ -39,7 +39,7 @@ class BudgetExceeded(Exception):
 
 class Deadline:
     """A point in time ``budget_s`` seconds from construction (monotonic clock), pushed back by the time numba
-    spends compiling kernels meanwhile (:func:`circcal.detector.jit.compile_seconds`: the first image of a process
+    spends compiling kernels meanwhile (:func:`circcal.detector.kernels.jit.compile_seconds`: the first image of a process
     without the ahead-of-time build, or of a type it lacks, would otherwise spend its budget on the compiler).
     ``None`` or ``inf``: no limit."""
 

@@ -1,5 +1,5 @@
 """numba's on-disk cache for the kernels of a module that calls other kernel modules' kernels (the module's
-``KERNEL_IMPORTS``, :mod:`circcal.detector.jit`), kept safe against an edited callee.
+``KERNEL_IMPORTS``, :mod:`circcal.detector.kernels.jit`), kept safe against an edited callee.
 
 numba's cache checks only the caller's source file (its index stores that file's hash as the "source stamp"), so
 code compiled against an older callee would load as current. Here the stamp is the caller's together with the

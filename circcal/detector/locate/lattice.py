@@ -8,7 +8,7 @@ own ellipse undoes it: the map ``S = diag(1/a, 1/b) R(-angle)`` built from a dot
 circle back to a circle, so it takes the local lattice back to a square one (up to rotation and scale).
 
 1. Seeds (:func:`find_seeds`, vectorised over all candidates): each candidate's nearest neighbours
-   (:class:`~circcal.detector.neighbours.NeighbourGrid`), de-skewed by its own ellipse; the nearest one gives the lattice step ``u``, the nearest one at 60-120 deg from it
+   (:class:`~circcal.detector.locate.neighbours.NeighbourGrid`), de-skewed by its own ellipse; the nearest one gives the lattice step ``u``, the nearest one at 60-120 deg from it
    (in the de-skewed frame) with a length within :data:`SEED_LENGTH_RATIO` gives ``v``; the candidate is a seed when
    the 8 positions ``+-u, +-v, +-u+-v`` hold candidates within :data:`SEED_TOLERANCE` steps whose areas agree with
    its own within :data:`MAX_AREA_RATIO`. This is the local pattern every dot of the board shows (its 8
@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from circcal.detector.budget import Deadline
-from circcal.detector.neighbours import NeighbourGrid
+from circcal.detector.locate.budget import Deadline
+from circcal.detector.locate.neighbours import NeighbourGrid
 
 __all__ = ["Lattice", "find_lattices", "find_seeds", "grow", "merge_patches", "GROW_TOLERANCE", "MAX_AREA_RATIO"]
 
@@ -270,7 +270,7 @@ def grow(seed: int, u: np.ndarray, v: np.ndarray, nbr8: np.ndarray, points: np.n
     (:func:`find_seeds`); ``taken`` (M,) bool marks candidates of other patches (not used; this patch's are marked
     on return). ``image_size`` (W, H): predictions outside the image are not misses. Grows in waves (every
     position next to the dots labelled in the last wave, predicted at once and looked up in one tree query).
-    Raises :class:`~circcal.detector.budget.BudgetExceeded` past ``deadline``."""
+    Raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past ``deadline``."""
     offsets = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))
     pl = points.tolist()
     cand: dict[tuple[int, int], int] = {(0, 0): int(seed)}
@@ -357,7 +357,7 @@ def merge_patches(patches: list[Lattice], points: np.ndarray, deadline: Deadline
     puts every dot of the smaller within :data:`BRIDGE_TOLERANCE` of a free lattice node, in one rotation and
     shift of its own coordinates. Returns the patches, largest first. Pairs of patches are tried (quadratic in
     their number: clutter of thousands of small patches), so ``deadline`` is checked every
-    :data:`MERGE_CHECK_EVERY` tries (raises :class:`~circcal.detector.budget.BudgetExceeded` past it)."""
+    :data:`MERGE_CHECK_EVERY` tries (raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past it)."""
     patches = sorted(patches, key=len, reverse=True)
     out: list[Lattice] = []
     tries = 0

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = [
     "fit_ellipse_direct",

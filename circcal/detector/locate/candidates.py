@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = ["Candidate", "area_limits", "find_candidates"]
 

@@ -28,14 +28,14 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.ellipse import conic_params_batch, perimeter, sampson_at
-from circcal.detector.jit import njit
-from circcal.detector.robust import median, row_medians
+from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
+from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.robust import median, row_medians
 
 __all__ = ["ABSENT_MAX_SHARE", "absent_dots", "bad_dots", "check_grid", "local_steps"]
 
-KERNEL_IMPORTS = ("circcal.detector.ellipse",)
-"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
+KERNEL_IMPORTS = ("circcal.detector.measure.ellipse",)
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 BORDER_PX = 1.0
 """A dot with an edge point within this many px of the image's outer pixel centres is cut by the border."""
@@ -79,7 +79,7 @@ next to the rim darkens an arc, and one touching 4 % of the ring of a 37 px mark
 6 sigma darkens none; the rim of a close neighbour under 60 deg of tilt touches 2)."""
 LEVEL_RING_PX = (2.0, 2.0, 0.5)
 """The dot's white level is a plane fitted to the pixels from 2 px to 2 + max(2 px, half its minor semi-axis) px
-outside its rim (:mod:`circcal.detector.levels`), dark pixels (neighbouring dots, a dark occluder) left out; a grey
+outside its rim (:mod:`circcal.detector.measure.levels`), dark pixels (neighbouring dots, a dark occluder) left out; a grey
 occluder there (neither white nor dark) is kept and tilts the plane: a 37 px marker with one 4 px below its rim
 moved by 0.2 px."""
 GREY_SHARE = 0.05
@@ -340,7 +340,7 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
              params: tuple[np.ndarray, ...] | None = None) -> dict[int, str]:
     """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
     of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
-    :func:`~circcal.detector.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
+    :func:`~circcal.detector.measure.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
     objects next to a dot (:func:`dark_neighbourhood`; not checked without it); ``params``: ``conic_params_batch
     (conics)`` where the caller has it (only the rows without an error are read)."""
     W, H = image_size

@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
-from circcal.detector.ellipse import FIT_ERRORS, _fit_kernel, _sampson_kernel
-from circcal.detector.jit import njit
-from circcal.detector.robust import MAD_TO_SIGMA, _mad_inliers_kernel
-from circcal.detector.smoothing import SmoothedImage
+from circcal.detector.measure.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
+from circcal.detector.measure.ellipse import FIT_ERRORS, _fit_kernel, _sampson_kernel
+from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.robust import MAD_TO_SIGMA, _mad_inliers_kernel
+from circcal.detector.measure.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.ellipse", "circcal.detector.robust")
-"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.jit`)."""
+KERNEL_IMPORTS = ("circcal.detector.measure.ellipse", "circcal.detector.measure.robust")
+"""Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "STEERING_LEVEL_STRIDE", "STEERING_SPACING_PX", "fit_dots"]
 
@@ -32,8 +32,8 @@ those of the next along the previous fit's. Only the last pass's points and elli
 steer it (:data:`STEERING_SPACING_PX`)."""
 STEERING_SPACING_PX = 4.0
 """The passes before the last measure one edge profile per this many px of perimeter (at least
-:data:`~circcal.detector.edges.MIN_PROFILES`; the last pass one per
-:data:`~circcal.detector.edges.PROFILE_SPACING_PX`). They only steer the last pass: their ellipse sets its profiles'
+:data:`~circcal.detector.measure.edges.MIN_PROFILES`; the last pass one per
+:data:`~circcal.detector.measure.edges.PROFILE_SPACING_PX`). They only steer the last pass: their ellipse sets its profiles'
 normals and its regions of interest, and an error of dx px in it tilts a normal by ~dx / r, which moves the last
 pass's edge points along the edge, not across it. A fit to a quarter of the points is ~2x noisier, far inside what
 steering needs (the starting ellipses from the contours are off by up to ~0.5 px). Measured: from starts 0.5 px and
@@ -43,7 +43,7 @@ is ~7 % faster at 1080p, ~20 % at 4000x3000. A dot the steering pass cannot fit 
 cut by the border or an occluder leaves few profiles) keeps its previous ellipse, and the last pass decides."""
 STEERING_LEVEL_STRIDE = 2
 """... and take the dots' grey levels from every second row and column of their pixels
-(:func:`~circcal.detector.levels.dot_levels_from_params`: dots of minor semi-axis >= 8 px; smaller ones every
+(:func:`~circcal.detector.measure.levels.dot_levels_from_params`: dots of minor semi-axis >= 8 px; smaller ones every
 pixel): a level error moves the steering edge points all alike, the ellipse's size, not its centre, and the last
 pass takes its levels from every pixel again. ~0.4x the levels' time in that pass."""
 OUTLIER_SIGMAS = 4.0
@@ -60,9 +60,9 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
     """Sub-pixel edge points and ellipse of each dot, from rough ellipses ``conics0`` (D, 3, 3) (e.g. from the
     contours).
 
-    ``gray``: (H, W) grey image, or a :class:`~circcal.detector.smoothing.SmoothedImage` of it at
+    ``gray``: (H, W) grey image, or a :class:`~circcal.detector.measure.smoothing.SmoothedImage` of it at
     :data:`EDGE_SIGMA` (reused across calls). Edge points are measured :data:`FIT_PASSES` times along the normals of
-    the latest ellipse (:func:`~circcal.detector.edges.subpixel_edge_points_batch`; sparser in the steering passes,
+    the latest ellipse (:func:`~circcal.detector.measure.edges.subpixel_edge_points_batch`; sparser in the steering passes,
     :data:`STEERING_SPACING_PX`), each time fitted (direct least squares) and refitted once without the outliers
     (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). Returns
     ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points are ``points[d][mask[d]]``
@@ -117,9 +117,9 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
 @njit(cache=True, nogil=True)
 def _fit_pass_kernel(P, mask, slack, min_px, sigmas, mad_to_sigma, min_points, Q, err):
     """One pass's fit of the edge points ``P`` (D, M, 2) where ``mask`` (D, M): the direct ellipse fit of each row
-    (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.ellipse._fit_kernel`), then the points
+    (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.measure.ellipse._fit_kernel`), then the points
     within the outlier rule (the Sampson distances within ``max(sigmas * robust sigma, min_px + slack)``, the
-    robust sigma from the median absolute deviation of each row: :func:`~circcal.detector.robust.mad_inliers`;
+    robust sigma from the median absolute deviation of each row: :func:`~circcal.detector.measure.robust.mad_inliers`;
     ``slack`` (D, M) each point's uncorrected curvature shift), refitted once to those where some were left out and
     ``min_points`` remain: their ``mask`` rows become the kept points, ``Q`` and ``err`` the refit's. The numpy
     steps' values, in their order."""

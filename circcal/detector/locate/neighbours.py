@@ -1,5 +1,5 @@
 """Exact nearest-neighbour queries among the candidate dots (:class:`NeighbourGrid`): what the lattice search
-(:mod:`circcal.detector.lattice`) needs of a k-d tree, from a uniform grid of cells, compiled; and the clusters of
+(:mod:`circcal.detector.locate.lattice`) needs of a k-d tree, from a uniform grid of cells, compiled; and the clusters of
 candidates linked to their near neighbours (:func:`linked_clusters`), where the search for small dots looks again.
 
 scipy's ``cKDTree`` (and ``scipy.sparse.csgraph`` for the clusters) answered these before; importing
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = ["NeighbourGrid", "linked_clusters"]
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = ["MAD_TO_SIGMA", "mad_inliers", "median", "row_medians"]
 

@@ -1,9 +1,9 @@
 """Grid recognition and ordering of candidate dot centres, with one documented orientation rule.
 
-Recognition itself lives in :mod:`circcal.detector.recognise` (lattice patches grown among the candidates,
-:mod:`circcal.detector.lattice`, in time about linear in their number). Here: the direct ordering of a symmetric
+Recognition itself lives in :mod:`circcal.detector.locate.recognise` (lattice patches grown among the candidates,
+:mod:`circcal.detector.locate.lattice`, in time about linear in their number). Here: the direct ordering of a symmetric
 board whose candidates are exactly its dots (the usual clean case: :func:`order_lattice`, hull corners, one
-homography, every candidate on its own grid node), :func:`order_grid` (recognition of the whole board from bare
+homography, every candidate on its own grid node), :func:`circcal.detector.locate.recognise.order_grid` (recognition of the whole board from bare
 centres and radii), and the one orientation rule every labelling follows.
 
 Orientation rule (:func:`canonical_order`)
@@ -24,7 +24,7 @@ import numpy as np
 
 from circcal.board import Board
 
-__all__ = ["canonical_order", "order_grid", "order_lattice", "orient", "orientation_sign"]
+__all__ = ["canonical_order", "order_lattice", "orient", "orientation_sign"]
 
 LATTICE_TOLERANCE = 0.3
 """The direct ordering of a symmetric grid (:func:`order_lattice`) takes a candidate as a grid node's when the
@@ -139,24 +139,3 @@ def order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERAN
         if np.all(idx >= 0):
             return idx
     return None
-
-
-def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]
-               ) -> np.ndarray | None:
-    """Recognise the whole board among candidate dots and order it (:func:`circcal.detector.recognise.recognise`
-    on round candidates).
-
-    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px; ``image_shape``: (H, W).
-    Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None`` when the
-    whole board is not among them.
-    """
-    from circcal.detector.candidates import Candidate
-    from circcal.detector.recognise import recognise
-
-    points = np.asarray(points, np.float64).reshape(-1, 2)
-    radii = np.asarray(radii, np.float64).reshape(-1)
-    cands = [Candidate(p, (float(r), float(r)), 0.0, float(np.pi * r * r)) for p, r in zip(points, radii)]
-    rec = recognise(board, cands, (int(image_shape[1]), int(image_shape[0])))
-    if rec.order is None or not rec.complete or np.any(rec.order < 0):
-        return None
-    return rec.order

@@ -6,7 +6,7 @@ The model is exact for a disk blurred by a Gaussian (:func:`_half_level_radius`)
 ellipse's osculating circle; the shift is tabulated once (:func:`_shift_table`) and interpolated. The table is
 computed with scipy.special (~0.14 s to import, a fifth of a one-image ``circcal detect``) only where no stored copy
 of it exists: ``make setup`` stores it beside the detector's compiled kernels (:func:`store_table`, run by
-:func:`circcal.detector.jit.build`), named after a hash of this module's source, so an edited model is computed
+:func:`circcal.detector.kernels.build.build`), named after a hash of this module's source, so an edited model is computed
 afresh until the next build.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from circcal.detector.jit import njit
+from circcal.detector.kernels.jit import njit
 
 __all__ = ["shift_at", "store_table"]
 
@@ -60,7 +60,7 @@ def _computed_table() -> np.ndarray:
 
 def _stored_path(directory: Path | None = None) -> Path:
     """Where :func:`store_table` keeps the table: the compiled kernels' folder, named after this module's source."""
-    from circcal.detector import jit
+    from circcal.detector.kernels import jit
 
     return (jit.AOT_DIR if directory is None else directory) / f"curvature-table_{jit._module_key(__name__)}.npy"
 
@@ -106,7 +106,7 @@ def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
     fade leaves out, the size of the error an edge point may carry there (the tight ends of thin ellipses: up to
     ~0.5 px). ``table``: :func:`_shift_table` at ``u_table`` (:data:`U_TABLE`), interpolated as ``np.interp(u,
     u_table, table, left=table[0])``, the asymptote ``1 / (2 u)`` beyond it. Compiled, called per point by the edge
-    kernels (:mod:`circcal.detector.edges`); the arithmetic of the vectorised numpy expressions it replaced, in
+    kernels (:mod:`circcal.detector.measure.edges`); the arithmetic of the vectorised numpy expressions it replaced, in
     their order (the same values to the bit, tested)."""
     q = (a * sin_t) ** 2 + (b * cos_t) ** 2
     rho = q * np.sqrt(q) / (a * b)  # radius of curvature

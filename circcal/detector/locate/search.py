@@ -4,7 +4,7 @@ dots are small (a recognised board's window, :func:`_board_window`; the clusters
 shrunk scale, :func:`_cluster_windows`).
 
 Only the starting ellipses come from here (the candidates' contours); the edges are measured at full resolution by
-:func:`~circcal.detector.dots.fit_dots`. Candidates are in full-image pixels, OpenCV's convention (integer
+:func:`~circcal.detector.measure.dots.fit_dots`. Candidates are in full-image pixels, OpenCV's convention (integer
 coordinates are pixel centres), whatever the scale or window they were found at.
 """
 from __future__ import annotations
@@ -14,13 +14,13 @@ import math
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.budget import Deadline
-from circcal.detector.candidates import Candidate, area_limits, find_candidates
+from circcal.detector.locate.budget import Deadline
+from circcal.detector.locate.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.detection import Reason
 from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
-from circcal.detector.neighbours import NeighbourGrid, linked_clusters
-from circcal.detector.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
-from circcal.detector.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
+from circcal.detector.locate.neighbours import NeighbourGrid, linked_clusters
+from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
+from circcal.detector.locate.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
                                      segmentations, shrink, speckled)
 
 __all__ = ["segment_and_recognise"]
@@ -30,18 +30,18 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
                            scales: list[int] | None = None, box: tuple[int, int, int, int] | None = None
                            ) -> tuple[Recognition, list[Candidate], str | None, int]:
     """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
-    :func:`~circcal.detector.segment.segmentation_scales` in turn (candidates in full-image pixels).
+    :func:`~circcal.detector.locate.segment.segmentation_scales` in turn (candidates in full-image pixels).
 
     The first segmentation in which the whole board is recognised wins; otherwise the one with the largest part of
     the board labelled at the first scale that labels a part (a partial view: finer scales see no more of a board
     whose dots they resolve already); a lattice that continues beyond the board ends the search at once; otherwise
     the most telling refusal (a lattice larger than the board, an
     ambiguous part, before "not recognised"). Returns ``(recognition, candidates, segmentation name, most
-    candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.segment.SHRUNK_MIN_RADIUS` at a shrunk
+    candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.locate.segment.SHRUNK_MIN_RADIUS` at a shrunk
     scale sends the search on to the coarsest scale where they are not, in the board's window only
     (:func:`_board_window`; the whole image again when the window does not show it). ``first_only``: the first
     segmentation at the first scale only (the inverted-board hint). ``scales``: the scales to try (default
-    :func:`~circcal.detector.segment.segmentation_scales`); ``box``: ``(x0, y0, x1, y1)`` px, search this window of
+    :func:`~circcal.detector.locate.segment.segmentation_scales`); ``box``: ``(x0, y0, x1, y1)`` px, search this window of
     ``gray`` only (candidates still in full-image pixels)."""
     H, W = gray.shape
     min_area, max_area = area_limits(board, W, H)
@@ -169,7 +169,7 @@ def _search_clusters(gray: np.ndarray, board: Board, deadline: Deadline, cands: 
 
 
 NOISY_MIN_SIDE = 120
-"""A scale too noisy to segment (its stretched noise above :data:`~circcal.detector.segment.MAX_STRETCHED_NOISE`),
+"""A scale too noisy to segment (its stretched noise above :data:`~circcal.detector.locate.segment.MAX_STRETCHED_NOISE`),
 the coarsest one tried, sends the search on to twice that scale (its block means: half the noise against the same
 contrast), as long as the shrunk image's shorter side is at least this (px): a board whose dots stand only a few
 noise sigmas from the white (a dim photograph at high gain) is found where its pixels are averaged, and its edges
