@@ -89,3 +89,12 @@ def test_no_code_imports_the_folders_by_their_top_level_names(folder):
     offenders = [str(p.relative_to(REPO)) for p in (REPO / folder).rglob("*.py")
                  if not p.is_symlink() and pattern.search(p.read_text())]
     assert offenders == []
+
+
+def test_no_package_inside_circcal_is_a_link():
+    """circcal/validators and circcal/fixtures were links to top-level folders (broken on checkouts without
+    symlinks, e.g. Windows without core.symlinks): every folder and module of the package is a real one."""
+    links = [p.relative_to(REPO) for p in (REPO / "circcal").rglob("*") if p.is_symlink()]
+    assert links == []
+    for top in ("validators", "fixtures"):  # the top-level folders hold docs, no code
+        assert not list((REPO / top).glob("*.py")), f"{top}/ holds Python modules: they belong in circcal/{top}/"
