@@ -64,7 +64,7 @@ def _opencv(lens: str, obj, img, size):
 
 def _one(lens: str, cam_args, n: int, seed: int, max_theta: float, distance, repeats: int) -> dict:
     from circcal.model import Camera, project_camera, unproject
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
 
     truth = Camera(*cam_args[:6], cam_args[6], cam_args[7])
     obj, img = _views(truth, n, seed, max_theta, distance)
@@ -72,7 +72,7 @@ def _one(lens: str, cam_args, n: int, seed: int, max_theta: float, distance, rep
     obj64 = [o.astype(np.float64) for o in obj]
     img64 = [p.astype(np.float64) for p in img]
     out: dict = {}
-    t = alternate({"circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size, lens=lens)),
+    t = alternate({"circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size, CalibrationOptions(lens=lens))),
                    "opencv": lambda: out.__setitem__("ref", _opencv(lens, obj, img, size))}, repeats=repeats)
     uv = np.concatenate(img64)
     res, ref = out["res"], out["ref"]

@@ -25,20 +25,21 @@ def run(repeats: int = 9) -> dict:
     from circcal.analysis.cross import cross_validate_detections
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
     from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationOptions
     from circcal.solver.outliers import OutlierRule
 
     truth = load_truth(fixture_dir(DEFAULT_SCENARIO, "normal"))
     paths = [v.image for v in truth.views]
-    rule = OutlierRule()
+    options = CalibrationOptions(outlier_rule=OutlierRule())
     held: dict = {}
 
     def plain() -> None:
-        cal = calibrate_images(paths, truth.board, progress=False, jobs=1, outlier_rule=rule)
+        cal = calibrate_images(paths, truth.board, options, progress=False, jobs=1)
         held["cal"] = cal
-        held["assessment"] = assess(cal, truth.board, outlier_rule=rule)
+        held["assessment"] = assess(cal, truth.board, options)
 
     def crossval() -> None:
-        held["cv"] = cross_validate_detections(held["cal"], truth.board, outlier_rule=rule)
+        held["cv"] = cross_validate_detections(held["cal"], truth.board, options)
 
     with tempfile.TemporaryDirectory() as tmp:
         def report() -> None:

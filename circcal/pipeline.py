@@ -12,7 +12,7 @@ import os
 import stat
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -24,7 +24,7 @@ from circcal.errors import CalibrationError, InputError
 from circcal.formats import model_json
 from circcal.observations import MIN_VIEWS
 from circcal.pathnames import display_name, path_to_json
-from circcal.solver import CalibrationResult, calibrate, leave_one_out
+from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
 
 __all__ = ["MAX_ROUNDS", "ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections",
            "duplicates_of"]
@@ -147,35 +147,53 @@ def _sha256(path: str) -> str:
 def calibrate_images(
     paths: Sequence[str | Path],
     board,
+    options: CalibrationOptions = CalibrationOptions(),
     *,
-    fix_k3: bool = False,
-    fix_tangential: bool = False,
-    fix_aspect_ratio: bool = False,
-    fix_principal_point: bool = False,
-    refine_board: bool = False,
+    progress: bool = True,
+    jobs: int | None = None,
+    image_size: tuple[int, int] | None = None,
     max_rounds: int = MAX_ROUNDS,
     tol_px: float = 1e-4,
-    progress: bool = True,
-    image_size: tuple[int, int] | None = None,
-    jobs: int | None = None,
-    outlier_rule=None,
-    lens: str = "opencv5",
 ) -> ImagesCalibration:
     """Detect the board in every image, calibrate, then re-correct every centre under the current model
     (perspective and distortion aware, ``circcal.detector.recorrect``) and recalibrate, until no centre moves more than
     ``tol_px`` (typically 2-3 rounds) or ``max_rounds`` calibrations were made.
 
-    ``board``: :class:`circcal.board.Board`. ``refine_board``: estimate the board's 3-D shape as well (see
-    :func:`calibrate`). ``jobs``: images detected at once (``circcal.detector.detect_files``; None = one per CPU, the
-    result does not depend on it). ``image_size``: (width, height) of the camera mode to calibrate (default: the
-    size most images share). Images where the board is not found, or of another size, are left out and listed in
-    ``failed`` with their reason. ``outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule`: the dots the
-    detector can tell are bad (:mod:`circcal.dotcheck`) are left out of every solve and each solve rejects outlying
-    points and views (listed in ``result.outliers``; a dropped view's image goes to ``failed``, reason code
-    ``outlier-view``); None fits every detected centre. ``lens``: the lens model fitted (a
-    :data:`circcal.model.LENS_MODELS` name); every re-correction goes through it (the fisheye's dot by dot, on a
-    local perspective re-projection). Raises :class:`TooFewImagesError` when fewer than
-    :data:`~circcal.observations.MIN_VIEWS` images remain.
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        The image files.
+    board : circcal.board.Board
+    options : CalibrationOptions
+        How every solve is made (:class:`circcal.solver.options.CalibrationOptions`). ``options.lens``: the lens
+        model fitted; every re-correction goes through it (the fisheye's dot by dot, on a local perspective
+        re-projection). ``options.refine_board``: estimate the board's 3-D shape as well. ``options.outlier_rule``:
+        the dots the detector can tell are bad (:mod:`circcal.dotcheck`) are left out of every solve and each solve
+        rejects outlying points and views (all listed in ``result.outliers``, the bad dots first; a dropped view's
+        image goes to ``failed``, reason code ``outlier-view``); None fits every detected centre.
+    progress : bool
+        Show a progress bar.
+    jobs : int or None
+        Images detected at once (``circcal.detector.detect_files``; None = one per CPU; the result does not depend
+        on it).
+    image_size : tuple of int or None
+        (width, height) px of the camera mode to calibrate (default: the size most images share). Images where the
+        board is not found, or of another size, are left out and listed in ``failed`` with their reason.
+    max_rounds, tol_px
+        The re-correction loop's limits (:func:`calibrate_detections`).
+
+    Returns
+    -------
+    ImagesCalibration
+
+    Raises
+    ------
+    InputError
+        No images given.
+    TooFewImagesError
+        Fewer than :data:`~circcal.observations.MIN_VIEWS` images remain.
+    CalibrationError
+        The solve fails (see :func:`circcal.solver.calibrate`).
     """
     paths = [str(p) for p in paths]
     if not paths:
@@ -210,23 +228,19 @@ def calibrate_images(
         raise TooFewImagesError(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least {MIN_VIEWS}"
             + "".join(f"\n  {display_name(r.path)}: {display_name(r.reason)}" for r in failed), failed)
-    opts = dict(fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
-                fix_principal_point=fix_principal_point, refine_board=refine_board, lens=lens)
-    exclude = None
-    if outlier_rule is not None:
+    exclude = bad = None
+    if options.outlier_rule is not None:
         from circcal.dotcheck import bad_dot_rejections
 
-        opts["outlier_rule"] = outlier_rule
         exclude, bad = bad_dot_rejections([detections[i] for i in used], board)
-    result, centres, rounds = calibrate_detections([detections[i] for i in used], board, image_size,
-                                                   max_rounds=max_rounds, tol_px=tol_px, exclude=exclude, **opts)
-    if result.outliers is not None:
-        result.outliers.items[:0] = bad
-        result.outliers.view_names = [Path(paths[i]).name for i in used]
-        kept = result.outliers.kept_views
-        failed += [Rejection(paths[used[r.view]], r.reason, r.detail) for r in result.outliers.dropped_views]
-        used, centres = [used[i] for i in kept], result.outliers.kept_centres(centres, board.object_points())
-    result.view_names = [Path(paths[i]).name for i in used]
+    result, centres, rounds = calibrate_detections([detections[i] for i in used], board, image_size, options,
+                                                   max_rounds=max_rounds, tol_px=tol_px, exclude=exclude)
+    rej = result.outliers
+    if rej is not None:  # the bad dots first, then what the solve rejected; names of the views as given
+        rej = replace(rej, items=[*bad, *rej.items], view_names=[Path(paths[i]).name for i in used])
+        failed += [Rejection(paths[used[r.view]], r.reason, r.detail) for r in rej.dropped_views]
+        used, centres = [used[i] for i in rej.kept_views], rej.kept_centres(centres, board.object_points())
+    result = replace(result, outliers=rej, view_names=[Path(paths[i]).name for i in used])
     return ImagesCalibration(result, paths, detections, used, failed, rounds, centres)
 
 
@@ -234,20 +248,39 @@ def calibrate_detections(
     detections: Sequence[Any],
     board,
     image_size: tuple[int, int],
+    options: CalibrationOptions = CalibrationOptions(),
     *,
     max_rounds: int = MAX_ROUNDS,
     tol_px: float = 1e-4,
     exclude: Sequence[Sequence[int]] | None = None,
-    **options: Any,
 ) -> tuple[CalibrationResult, list[np.ndarray], list[dict]]:
-    """The loop of :func:`calibrate_images` on detections already made (``circcal.detector.Detection``, one per view,
-    all found): calibrate, re-correct every centre under the current model (``circcal.detector.recorrect``), recalibrate,
-    until no centre moves more than ``tol_px`` or ``max_rounds`` calibrations were made (then a RuntimeWarning).
-    ``options`` go to :func:`calibrate`. ``exclude``: per detection, indices of dots (board order) left out of every
-    solve (the detector's bad dots). Returns ``(result, centers, rounds)`` as :class:`ImagesCalibration` holds
-    them (with outlier rejection, ``result``'s views are ``result.outliers.kept_views`` of the detections; the
-    centres stay one per detection). Reused for held-out checks: the detector runs without a model, so detections
-    do not depend on other views.
+    """The loop of :func:`calibrate_images` on detections already made: calibrate, re-correct every centre under the
+    current model (``circcal.detector.recorrect``), recalibrate, until no centre moves more than ``tol_px`` or
+    ``max_rounds`` calibrations were made (then a RuntimeWarning). Reused for held-out checks: the detector runs
+    without a model, so detections do not depend on other views.
+
+    Parameters
+    ----------
+    detections : sequence of circcal.detector.Detection
+        One per view, all found.
+    board : circcal.board.Board
+    image_size : tuple of int
+        (width, height) px.
+    options : CalibrationOptions
+        How every solve is made (:func:`circcal.solver.calibrate`).
+    max_rounds : int
+        Calibrations at most (:data:`MAX_ROUNDS`).
+    tol_px : float
+        The largest centre shift (px) at which the loop has settled.
+    exclude : sequence of sequence of int, or None
+        Per detection, indices of dots (board order) left out of every solve (the detector's bad dots).
+
+    Returns
+    -------
+    tuple
+        ``(result, centres, rounds)`` as :class:`ImagesCalibration` holds them (with outlier rejection,
+        ``result``'s views are ``result.outliers.kept_views`` of the detections; the centres stay one per
+        detection).
     """
     board_pts = board.object_points()
 
@@ -261,7 +294,7 @@ def calibrate_detections(
 
     centres = [np.asarray(d.centres, dtype=np.float64) for d in detections]
     pairs = [_points_of(c, board_pts) for c in left_out(centres)]
-    result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, **options)
+    result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, options)
     stats = ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")
     rounds = [{"round": 0, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": float("nan")}]
     for r in range(1, max_rounds):
@@ -277,8 +310,8 @@ def calibrate_detections(
         shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centres))
         pairs = [_points_of(c, board_pts) for c in left_out(new)]
         try:
-            result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, initial=result.camera,
-                               **options)
+            result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, options,
+                               initial=result.camera)
         except CalibrationError as exc:  # the last round's model cannot start the next one: keep it, and say so
             warnings.warn(f"centre re-correction stopped after round {r - 1}, whose model is kept: {exc}",
                           RuntimeWarning, stacklevel=3)
@@ -294,17 +327,17 @@ def calibrate_detections(
     return result, centres, rounds
 
 
-def holdout_detections(detections: Sequence[Any], board, image_size: tuple[int, int], **options: Any
-                       ) -> list[dict[str, Any]]:
+def holdout_detections(detections: Sequence[Any], board, image_size: tuple[int, int],
+                       options: CalibrationOptions = CalibrationOptions()) -> list[dict[str, Any]]:
     """Leave-one-view-out prediction through the whole loop: each view k predicted by the model that
-    :func:`calibrate_detections` makes from the other views (``options`` go there, e.g. ``refine_board``), with view
+    :func:`calibrate_detections` makes from the other views with ``options`` (e.g. ``refine_board``), with view
     k's centres re-corrected under that model (the detector ran without a model, so a detection does not depend on
     the other views) and its board points that model's (refined) ones. ``detections``: found ones, one per view.
     See :func:`circcal.solver.leave_one_out` for what comes back."""
     board_pts = board.object_points()
 
     def fit(rest: list[int]):
-        return calibrate_detections([detections[i] for i in rest], board, image_size, **options)[0]
+        return calibrate_detections([detections[i] for i in rest], board, image_size, options)[0]
 
     def held_out(k: int, res: CalibrationResult):
         obj, img = _points_of(det_mod.recorrect(detections[k], board, res.camera), board_pts)

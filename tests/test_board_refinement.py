@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.solver import calibrate, fit_pose, holdout_errors
+from circcal.solver import CalibrationOptions, calibrate, fit_pose, holdout_errors
 from circcal.model import Camera, project
 from circcal.fixtures.poses import sample_poses
 
@@ -53,7 +53,7 @@ def test_equals_calibrate_camera_ro():
     the same minimum. Measured: parameters 1e-12 relative, board points 7e-6 mm (cv2 returns them as float32),
     RMS 1e-15 relative; cv2 takes ~20x longer."""
     obj, img = observations(warped_board())
-    ours = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True, board_gauge=OPENCV_GAUGE)
+    ours = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True, board_gauge=OPENCV_GAUGE))
     n = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
@@ -81,7 +81,7 @@ def test_recovers_a_warped_board():
     truth = warped_board()
     obj, img = observations(truth)
     rigid = calibrate(obj, img, (CAM.width, CAM.height))
-    ro = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True)
+    ro = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
     assert abs(rigid.camera.fx - CAM.fx) > 10 * rigid.std["fx"]
     for k in ("fx", "fy", "cx", "cy"):
         err = getattr(ro.camera, k) - getattr(CAM, k)
@@ -99,7 +99,7 @@ def test_flat_board_changes_nothing_beyond_noise():
     than their own sigma."""
     obj, img = observations(BOARD.object_points(), seed=5)
     rigid = calibrate(obj, img, (CAM.width, CAM.height))
-    ro = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True)
+    ro = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
     dev = np.abs(ro.board_points - ro.board_nominal)
     std = ro.board_std
     assert np.all(dev[std > 0] <= 5.0 * std[std > 0])
@@ -110,8 +110,8 @@ def test_flat_board_changes_nothing_beyond_noise():
 def test_gauge_choice_does_not_change_the_camera():
     """Any three non-collinear gauge points give the same intrinsics and residuals (only the board frame moves)."""
     obj, img = observations(warped_board(), n=8)
-    a = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True)
-    b = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True, board_gauge=(5, 40, 77))
+    a = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
+    b = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True, board_gauge=(5, 40, 77)))
     assert np.allclose(a.camera.intrinsics, b.camera.intrinsics, rtol=1e-8, atol=1e-10)
     assert a.errors["rms_per_point_px"] == pytest.approx(b.errors["rms_per_point_px"], rel=1e-9)
     assert np.max(similarity_residual(a.board_points, b.board_points)) <= 1e-6
@@ -120,9 +120,9 @@ def test_gauge_choice_does_not_change_the_camera():
 def test_bad_gauge_and_rarely_seen_points():
     obj, img = observations(warped_board(), n=6)
     with pytest.raises(ValueError, match="collinear"):
-        calibrate(obj, img, (CAM.width, CAM.height), refine_board=True, board_gauge=(0, 1, 2))
+        calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True, board_gauge=(0, 1, 2)))
     with pytest.raises(ValueError, match="distinct"):
-        calibrate(obj, img, (CAM.width, CAM.height), refine_board=True, board_gauge=(0, 0, 9))
+        calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True, board_gauge=(0, 0, 9)))
     # point 45 seen in only two views: held at its nominal position, with a warning naming it
     keep = [np.ones(len(o), bool) for o in obj]
     for v in range(2, 6):
@@ -130,7 +130,7 @@ def test_bad_gauge_and_rarely_seen_points():
     obj2 = [o[k] for o, k in zip(obj, keep)]
     img2 = [p[k] for p, k in zip(img, keep)]
     with pytest.warns(RuntimeWarning, match=r"fewer than 3 views.*\[45\]"):
-        res = calibrate(obj2, img2, (CAM.width, CAM.height), refine_board=True)
+        res = calibrate(obj2, img2, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
     assert np.all(res.board_std[45] == 0) and np.allclose(res.board_points[45], BOARD.object_points()[45])
 
 
@@ -139,7 +139,7 @@ def test_holdout_uses_the_refined_board():
     predicts held-out views ~10x worse."""
     obj, img = observations(warped_board(), n=8)
     rigid = holdout_errors(obj, img, (CAM.width, CAM.height))
-    ro = holdout_errors(obj, img, (CAM.width, CAM.height), refine_board=True)
+    ro = holdout_errors(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
     h_rigid = np.sqrt(np.mean([h["rms_per_coord_px"] ** 2 for h in rigid]))
     h_ro = np.sqrt(np.mean([h["rms_per_coord_px"] ** 2 for h in ro]))
     assert h_ro <= 0.03 < 5 * h_ro <= h_rigid
@@ -155,7 +155,7 @@ def test_fit_pose_on_a_non_planar_board():
 
 def test_model_json_carries_the_board():
     obj, img = observations(warped_board(), n=6)
-    res = calibrate(obj, img, (CAM.width, CAM.height), refine_board=True)
+    res = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))
     m = res.to_model_json()["board_refinement"]
     assert np.allclose(m["points_mm"], res.board_points) and m["gauge"] == list(res.board_gauge)
     assert np.allclose(res.board_lookup(BOARD.object_points()[[3, 7]]), res.board_points[[3, 7]])

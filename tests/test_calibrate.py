@@ -6,7 +6,7 @@ import pytest
 
 from circcal.board import Board
 from circcal.errors import CalibrationError, DegenerateViewsError
-from circcal.solver import calibrate
+from circcal.solver import CalibrationOptions, calibrate
 from circcal.solver.lm import EXTRAPOLATE_MAX, geometric_extension, schur_step
 from circcal.solver import problem
 from circcal.solver.problem import Problem, board_model
@@ -151,7 +151,7 @@ def test_geometric_extension_only_continues_a_shrinking_step_in_the_same_directi
 def test_scipy_least_squares_reaches_the_same_model():
     obj, img, _ = synthetic(noise=0.1, seed=4)
     a = calibrate(obj, img, (W, H))
-    b = calibrate(obj, img, (W, H), solver="scipy")
+    b = calibrate(obj, img, (W, H), CalibrationOptions(solver="scipy"))
     assert max_projection_difference(a.camera, b.camera) < 1e-4
     np.testing.assert_allclose(b.camera.intrinsics[:4], a.camera.intrinsics[:4], rtol=1e-6)
     assert b.errors["rms_per_point_px"] == pytest.approx(a.errors["rms_per_point_px"], rel=1e-9)
@@ -169,7 +169,7 @@ def test_fixed_parameters_match_opencv(option, flag, cv2_single_thread):
     init = Camera(W, H, 1600.0, 1600.0, (W - 1) / 2, (H - 1) / 2)
     ref, ref_std, ref_rms, _, _ = cv2_calibrate(obj, img, flags=flag | cv2.CALIB_USE_INTRINSIC_GUESS,
                                                 K0=init.K.copy(), d0=np.zeros(5))
-    res = calibrate(obj, img, (W, H), initial=init, **{option: True})
+    res = calibrate(obj, img, (W, H), CalibrationOptions.from_flags(**{option: True}), initial=init)
     assert res.converged
     assert max_projection_difference(Camera.from_intrinsics(W, H, ref), res.camera) <= 1e-6
     np.testing.assert_allclose(res.camera.intrinsics[:4], ref[:4], rtol=1e-7)
@@ -304,7 +304,7 @@ def test_inconsistent_correspondences_raise():
 def test_non_convergence_warns():
     obj, img, _ = synthetic(noise=0.1)
     with pytest.warns(RuntimeWarning, match="did not converge"):
-        res = calibrate(obj, img, (W, H), max_iterations=2)
+        res = calibrate(obj, img, (W, H), CalibrationOptions(max_iterations=2))
     assert not res.converged
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from circcal.board import Board
 from circcal.pipeline import calibrate_images
-from circcal.solver import calibrate, holdout_errors
+from circcal.solver import CalibrationOptions, calibrate, holdout_errors
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.analysis.compare import match_views
 from circcal.validators.opencv import OpenCVCalibrator
@@ -133,19 +133,19 @@ def test_real_photographs_board_refined(realdata, name):
     paths = sorted(folder.glob("*.jpg"))
     baseline = json.loads((folder / "opencv_baseline.json").read_text())
     rigid = calibrate_images(paths, board, progress=False)
-    cal = calibrate_images(paths, board, progress=False, refine_board=True)
+    cal = calibrate_images(paths, board, CalibrationOptions(refine_board=True), progress=False)
     assert not cal.failed and len(cal.used) == len(paths)
     rms = cal.result.errors["rms_per_point_px"]
     obj, img = cal.observations(board)
     size = (cal.result.camera.width, cal.result.camera.height)
-    h_refined = _rms(holdout_errors(obj, img, size, refine_board=True))
+    h_refined = _rms(holdout_errors(obj, img, size, CalibrationOptions(refine_board=True)))
     h_rigid = _rms(holdout_errors(*rigid.observations(board), size))
     # OpenCV's centres in circcal's point order (the adapter's plain and clustering findCirclesGrid runs number the
     # symmetric grid in opposite directions)
     theirs_img, _ = match_views(OpenCVCalibrator().detect(paths, board)["image_points"], cal.centres, board)
     theirs_obj = [board.object_points()] * len(theirs_img)
-    theirs = calibrate(theirs_obj, theirs_img, size, refine_board=True)
-    h_theirs = _rms(holdout_errors(theirs_obj, theirs_img, size, refine_board=True))
+    theirs = calibrate(theirs_obj, theirs_img, size, CalibrationOptions(refine_board=True))
+    h_theirs = _rms(holdout_errors(theirs_obj, theirs_img, size, CalibrationOptions(refine_board=True)))
     dev = np.abs(cal.result.board_points - cal.result.board_nominal)
     print(f"\n{name}: board refined: RMS per point {rms:.4f} px (OpenCV baseline, rigid: {baseline['rms_px']:.4f}; "
           f"OpenCV centres, refined: {theirs.errors['rms_per_point_px']:.4f}); held-out {h_refined:.4f} px (rigid "

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from circcal.board import Board
 from circcal.fixtures.poses import off_axis_observations
 from circcal.model import Camera, param_names, project, project_camera, unproject
-from circcal.solver import calibrate
+from circcal.solver import CalibrationOptions, calibrate
 from circcal.solver.fisheye_start import fisheye_start
 from circcal.solver.uncertainty import result_projection_stdev
 
@@ -63,7 +63,7 @@ def test_pinhole_models_equal_opencv_on_identical_points(truth, flags, cv2_singl
     differ; 30 views up to 70 deg off axis (seed 3) fix it well."""
     obj, img = views(truth, 30, 3, 70)
     ref, ref_rms, ref_std = opencv_pinhole(obj, img, truth, flags)
-    res = calibrate(obj, img, (truth.width, truth.height), lens=truth.lens)
+    res = calibrate(obj, img, (truth.width, truth.height), CalibrationOptions(lens=truth.lens))
     assert res.converged and res.camera.lens == truth.lens
     assert res.errors["rms_per_point_px"] == pytest.approx(ref_rms, rel=1e-9)
     assert projection_difference(res.camera, ref, np.concatenate(img)) <= 1e-6
@@ -81,7 +81,7 @@ def test_fisheye_equals_cv2_fisheye_calibrate(truth, cv2_single_thread):
     rms, K, D, _, _ = cv2.fisheye.calibrate([o[None] for o in obj], [p[None] for p in img],
                                             (truth.width, truth.height), None, None, flags=flags, criteria=CRIT)
     ref = Camera(truth.width, truth.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ravel(D), "fisheye")
-    res = calibrate(obj, img, (truth.width, truth.height), lens="fisheye")
+    res = calibrate(obj, img, (truth.width, truth.height), CalibrationOptions(lens="fisheye"))
     assert res.converged and res.camera.lens == "fisheye"
     assert res.errors["rms_per_point_px"] == pytest.approx(rms, rel=1e-9)
     assert projection_difference(res.camera, ref, frame_grid(truth)) <= 1e-6
@@ -98,7 +98,7 @@ def test_fisheye_start_and_solve_beyond_90_degrees():
     Xc_z = []
     cam0, rv, tv = fisheye_start(obj, img, (FISHEYE_190.width, FISHEYE_190.height))
     assert cam0.fy == pytest.approx(FISHEYE_190.fy, rel=0.1)
-    res = calibrate(obj, img, (FISHEYE_190.width, FISHEYE_190.height), lens="fisheye")
+    res = calibrate(obj, img, (FISHEYE_190.width, FISHEYE_190.height), CalibrationOptions(lens="fisheye"))
     for o, r, t in zip(obj, res.rvecs, res.tvecs):
         Xc_z.append((o @ Rotation.from_rotvec(r).as_matrix().T + t)[:, 2])
     assert np.min(np.concatenate(Xc_z)) < 0                      # some board points lie behind the camera
@@ -122,7 +122,7 @@ def test_projection_uncertainty_matches_resolves(truth, max_theta):
     rng = np.random.default_rng(11)
     size = (truth.width, truth.height)
     # the solve of the noiseless observations (the truth): every re-solve scatters about it
-    base = calibrate(obj, clean, size, lens=truth.lens)
+    base = calibrate(obj, clean, size, CalibrationOptions(lens=truth.lens))
     allp = np.concatenate(clean)
     c = np.array([truth.cx, truth.cy])
     far = allp[np.argmax(np.linalg.norm(allp - c, axis=1))]
@@ -153,7 +153,7 @@ def test_opencv_reference_fits_every_lens(truth, n, seed, max_theta, distance):
     ref = registry.get_for_lens("opencv", truth.lens).calibrate_observations(obj, img, (truth.width, truth.height))
     assert ref.status == "ok", ref.message
     assert ref.camera.lens == truth.lens
-    res = calibrate(obj, img, (truth.width, truth.height), lens=truth.lens)
+    res = calibrate(obj, img, (truth.width, truth.height), CalibrationOptions(lens=truth.lens))
     assert projection_difference(res.camera, ref.camera, frame_grid(truth)) <= 1e-6
     if truth.lens == "fisheye":
         assert ref.std is None and "no standard deviations" in ref.extra["note"]
@@ -238,11 +238,11 @@ def test_pipeline_recorrects_through_the_rational_model(rational_images, tmp_pat
     assert abs(fitted.fx - cam.fx) < 0.05 and abs(fitted.fy - cam.fy) < 0.05
     assert doc["recorrection_rounds"][-1]["max_centre_shift_px"] < 1e-4
     assert "rational" in capsys.readouterr().out
-    cal = calibrate_images(paths, board, progress=False, jobs=1, lens="rational", outlier_rule=None)
+    cal = calibrate_images(paths, board, CalibrationOptions(lens="rational"), progress=False, jobs=1)
     truth = [project(board.object_points(), rv, t, cam) for rv, t in poses]
     err = np.concatenate([c - t for c, t in zip(cal.centres, truth)])
     assert np.sqrt(np.nanmean(np.sum(err ** 2, axis=1))) <= 0.005
-    plain = calibrate_images(paths, board, progress=False, jobs=1, outlier_rule=None)
+    plain = calibrate_images(paths, board, progress=False, jobs=1)
     assert plain.result.errors["rms_per_point_px"] > 1.5 * cal.result.errors["rms_per_point_px"]
 
 
@@ -251,8 +251,8 @@ def test_fixing_a_coefficient_the_lens_lacks_is_bad_input():
 
     obj, img = views(FISHEYE, 6, 2, 60, distance=(150.0, 400.0))
     with pytest.raises(InputError, match="no p1, p2"):
-        calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_tangential=True)
-    res = calibrate(obj, img, (FISHEYE.width, FISHEYE.height), lens="fisheye", fix_k3=True)
+        calibrate(obj, img, (FISHEYE.width, FISHEYE.height), CalibrationOptions.from_flags(lens="fisheye", fix_tangential=True))
+    res = calibrate(obj, img, (FISHEYE.width, FISHEYE.height), CalibrationOptions.from_flags(lens="fisheye", fix_k3=True))
     assert res.camera.dist[2] == 0.0 and res.std["k3"] == 0.0 and "k3" in res.fixed
 
 
@@ -264,7 +264,7 @@ def test_opencv_fisheye_beyond_90_degrees_is_unsupported_with_the_reason():
     obj, img = views(FISHEYE_190, 16, 3, 95, distance=(120.0, 300.0))
     ref = registry.get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, (1280, 1024))
     assert ref.status == "unsupported" and "90 deg" in ref.message
-    res = calibrate(obj, img, (1280, 1024), lens="fisheye")
+    res = calibrate(obj, img, (1280, 1024), CalibrationOptions(lens="fisheye"))
     assert res.converged and res.errors["rms_per_coord_px"] < 0.1
 
 
@@ -279,7 +279,7 @@ def test_rational_wide_recorrection_settles_within_the_default_rounds():
     t = load_truth(fixture_dir("rational-wide", "clean"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cal = calibrate_images([v.image for v in t.views], t.board, progress=False, lens="rational")
+        cal = calibrate_images([v.image for v in t.views], t.board, CalibrationOptions(lens="rational"), progress=False)
     assert not [w for w in caught if "did not settle" in str(w.message)]
     assert len(cal.rounds) <= MAX_ROUNDS and cal.rounds[-1]["max_centre_shift_px"] < 1e-4
     assert cal.rounds[1]["max_centre_shift_px"] > 1e-2   # the slow case this default is for, not a settled one

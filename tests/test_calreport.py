@@ -140,6 +140,7 @@ def hostile(tmp_path_factory):
     plus two blank frames; (assessment, paths as given)."""
     from circcal.analysis.assess import assess
     from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationOptions
     from circcal.solver.outliers import OutlierRule
 
     if os.name != "posix":
@@ -154,9 +155,10 @@ def hostile(tmp_path_factory):
         with open(os.path.join(d, name), "wb") as f:
             f.write(cv2.imencode(".png", np.full((960, 1280), grey, np.uint8))[1].tobytes())
         paths.append(os.fsdecode(os.path.join(d, name)))
-    cal = calibrate_images(paths, t.board, progress=False, jobs=1, outlier_rule=OutlierRule())
+    options = CalibrationOptions(outlier_rule=OutlierRule())
+    cal = calibrate_images(paths, t.board, options, progress=False, jobs=1)
     assert len(cal.used) == len(HOSTILE) and len(cal.failed) == len(BLANKS)
-    return assess(cal, t.board, cross_validate=True, outlier_rule=OutlierRule()), paths
+    return assess(cal, t.board, options, cross_validate=True), paths
 
 
 @pytest.fixture(scope="module")

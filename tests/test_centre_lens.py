@@ -122,7 +122,9 @@ def test_pipeline_calibrates_fisheye_renders(tmp_path):
     for i, (rv, tv) in enumerate(poses):
         paths.append(tmp_path / f"view{i}.png")
         cv2.imwrite(str(paths[-1]), to_uint(render_view(FISHEYE, BOARD, rv, tv)))
-    cal = calibrate_images(paths, BOARD, progress=False, jobs=1, lens="fisheye")
+    from circcal.solver import CalibrationOptions
+
+    cal = calibrate_images(paths, BOARD, CalibrationOptions(lens="fisheye"), progress=False, jobs=1)
     assert len(cal.used) == 10 and cal.result.camera.lens == "fisheye"
     assert cal.rounds[-1]["max_centre_shift_px"] < 1e-4
     truth = [project(BOARD.object_points(), rv, tv, FISHEYE) for rv, tv in poses]

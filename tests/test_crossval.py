@@ -13,6 +13,7 @@ from circcal.analysis import cross_validate_detections, cross_validate_observati
 from circcal.analysis.cross import MIN_VIEWS, split_views
 from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
+from circcal.solver import CalibrationOptions
 from circcal.solver.outliers import OutlierRule
 from circcal.solver.uncertainty import result_projection_stdev
 
@@ -33,17 +34,17 @@ def _truth_share(truth_camera, res) -> float:
 
 def _circcal(scenario: str, variant: str):
     t = load_truth(fixture_dir(scenario, variant))
-    rule = OutlierRule()
-    cal = calibrate_images([v.image for v in t.views], t.board, progress=False, outlier_rule=rule)
-    return t, cal.result, cross_validate_detections(cal, t.board, outlier_rule=rule)
+    options = CalibrationOptions(outlier_rule=OutlierRule())
+    cal = calibrate_images([v.image for v in t.views], t.board, options, progress=False)
+    return t, cal.result, cross_validate_detections(cal, t.board, options)
 
 
 def _k1_only(scenario: str, variant: str):
     t = load_truth(fixture_dir(scenario, variant))
     cal = calibrate_images([v.image for v in t.views], t.board, progress=False)
     obj, img = cal.observations(t.board)
-    full, cv = cross_validate_observations(obj, img, (t.camera.width, t.camera.height), fix_k2=True, fix_k3=True,
-                                           fix_tangential=True)
+    full, cv = cross_validate_observations(obj, img, (t.camera.width, t.camera.height),
+                                           CalibrationOptions(fixed=("k2", "k3", "tangential")))
     return t, full, cv
 
 

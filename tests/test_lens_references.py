@@ -133,7 +133,7 @@ def test_mrcal_export_per_lens(lens: str) -> None:
     """A .cameramodel with mrcal's optimisation inputs for the rational (OPENCV8) and thin-prism (OPENCV12) lenses:
     mrcal's own residuals at circcal's solution equal circcal's and its cost gradient vanishes there; the fisheye
     has no mrcal model and says so."""
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
     from circcal.formats.mrcal_process import mrcal_python
     from circcal.formats.cameramodel_export import ExportError, export_cameramodel
 
@@ -143,7 +143,7 @@ def test_mrcal_export_per_lens(lens: str) -> None:
     obj, img = _views(truth, n_views=10)
     rng = np.random.default_rng(0)
     img = [q + rng.normal(0, 0.02, q.shape) for q in img]
-    cc = calibrate(obj, img, (truth.width, truth.height), lens=lens)
+    cc = calibrate(obj, img, (truth.width, truth.height), CalibrationOptions(lens=lens))
     if lens == "fisheye":
         with pytest.raises(ExportError, match="Kannala-Brandt"):
             export_cameramodel(cc.camera, cc.rvecs, cc.tvecs, obj, img, fixed=cc.fixed)
@@ -157,13 +157,14 @@ def test_mrcal_export_per_lens(lens: str) -> None:
 def _both_solves(cal, scenario: str, lens: str):
     """(obj, img, size, circcal's result, the reference's result) on the scenario's observations; skips when the
     reference is not installed."""
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
 
     ok, why = cal.available()
     if not ok:
         pytest.skip(why)
     obj, img, size = _scenario_observations(scenario)
-    return obj, img, size, calibrate(obj, img, size, lens=lens), cal.calibrate_observations(obj, img, size)
+    return (obj, img, size, calibrate(obj, img, size, CalibrationOptions(lens=lens)),
+            cal.calibrate_observations(obj, img, size))
 
 
 def _scenario_observations(scenario: str) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
@@ -216,7 +217,7 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
     (``CALIB_USE_INTRINSIC_GUESS``, nothing of circcal's solve) and it reaches circcal's minimum to 1e-6 px."""
     import cv2
 
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
     from circcal.validators.bounds import SOLVER_PX
     from circcal.analysis.compare import projection_diff
     from circcal.validators.registry import get_for_lens
@@ -230,7 +231,7 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
     res = get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, size)
     assert res.status == "ok", res.message
     assert res.extra["flags"] & cv2.CALIB_USE_INTRINSIC_GUESS
-    mine = calibrate(obj, img, size, lens="fisheye")
+    mine = calibrate(obj, img, size, CalibrationOptions(lens="fisheye"))
     assert projection_diff(mine.camera, res.camera)["max_px"] <= SOLVER_PX
 
 

@@ -10,6 +10,7 @@ import pytest
 from circcal.board import Board
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
+from circcal.solver import CalibrationOptions
 from circcal.solver.modelfit import MIN_EFFECT_PX, chi2_survival_even, model_fit, neighbour_noise
 
 
@@ -17,7 +18,7 @@ def _calibrate(scenario: str, variant: str, lens: str):
     t = load_truth(fixture_dir(scenario, variant))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cal = calibrate_images([v.image for v in t.views], t.board, progress=False, lens=lens)
+        cal = calibrate_images([v.image for v in t.views], t.board, CalibrationOptions(lens=lens), progress=False)
     return cal, [str(w.message) for w in caught]
 
 

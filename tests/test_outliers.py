@@ -13,7 +13,7 @@ import pytest
 from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
 from circcal.model import PARAM_NAMES
 from circcal.pipeline import calibrate_detections, calibrate_images
-from circcal.solver import calibrate
+from circcal.solver import CalibrationOptions, calibrate
 from circcal.solver.outliers import OutlierReason, OutlierRule
 
 #: Displacements injected (px): the issue's range.
@@ -61,7 +61,7 @@ def test_injected_outliers_are_found_and_the_model_returns(scenario, variant):
     sigma = np.array([clean.std[k] if clean.std[k] > 0 else np.inf for k in PARAM_NAMES])
     for seed in range(SEEDS):
         bad_img, displaced, extra = _inject(img, t.board.rows, t.board.cols, seed)
-        res = calibrate(obj + [obj[0]], bad_img, size, outlier_rule=OutlierRule())
+        res = calibrate(obj + [obj[0]], bad_img, size, CalibrationOptions(outlier_rule=OutlierRule()))
         pts = {(r.view, r.point) for r in res.outliers.items if r.point is not None}
         views = {r.view for r in res.outliers.dropped_views}
         assert pts == displaced, (seed, pts ^ displaced)          # every displaced point, and no other
@@ -80,7 +80,7 @@ def test_a_view_that_loses_most_of_its_points_is_dropped():
     rng = np.random.default_rng(0)
     half = rng.choice(len(img[2]), size=len(img[2]) // 2 + 3, replace=False)
     bad[2][half] += rng.normal(0.0, 3.0, (len(half), 2))
-    res = calibrate(obj, bad, size, outlier_rule=OutlierRule())
+    res = calibrate(obj, bad, size, CalibrationOptions(outlier_rule=OutlierRule()))
     assert 2 not in res.outliers.kept_views
     (view,) = res.outliers.dropped_views
     assert view.view == 2 and view.reason is OutlierReason.VIEW
@@ -92,26 +92,27 @@ def test_threshold_is_configurable():
     t, obj, img, size = _clean("wide", "clean")
     bad = [p.copy() for p in img]
     bad[4][10] += (0.2, 0.0)
-    assert calibrate(obj, bad, size, outlier_rule=OutlierRule()).outliers.items == []
-    got = calibrate(obj, bad, size, outlier_rule=OutlierRule(k=2.0)).outliers.items
+    assert calibrate(obj, bad, size, CalibrationOptions(outlier_rule=OutlierRule())).outliers.items == []
+    got = calibrate(obj, bad, size, CalibrationOptions(outlier_rule=OutlierRule(k=2.0))).outliers.items
     assert [(r.view, r.point) for r in got] == [(4, 10)]
     with pytest.raises(ValueError):
         OutlierRule(k=0.0)
 
 
-def _unchanged(paths, board, *, against_plain: bool = True, bad_dots: dict[int, int] | None = None, **options):
+def _unchanged(paths, board, options: CalibrationOptions = CalibrationOptions(), *, against_plain: bool = True,
+               bad_dots: dict[int, int] | None = None):
     """Nothing rejected by the rule, and (``against_plain``) the very numbers of the solve without rejection (with
     nothing rejected the rule returns its first solve, which is that one: the comparison is then a check of the code
     path, skipped where the solve is slow). ``bad_dots``: view -> how many dots the detector left out as bad before
     any solve (carried in the same list with their own reason; they are not the rule's rejections)."""
-    robust = calibrate_images(paths, board, progress=False, outlier_rule=OutlierRule(), **options)
+    robust = calibrate_images(paths, board, options.replace(outlier_rule=OutlierRule()), progress=False)
     items = robust.result.outliers.items
     assert [r for r in items if r.reason is not OutlierReason.BAD_DOT] == []
     got = Counter(r.view for r in items if r.reason is OutlierReason.BAD_DOT)
     assert dict(got) == (bad_dots or {})
     assert robust.result.outliers.rounds == 1
     if against_plain:
-        plain = calibrate_images(paths, board, progress=False, **options)
+        plain = calibrate_images(paths, board, options, progress=False)
         assert np.array_equal(plain.result.camera.intrinsics, robust.result.camera.intrinsics)
         assert plain.result.errors == robust.result.errors
     return robust
@@ -132,8 +133,9 @@ def test_real_photographs_keep_every_point(realdata, refine_board):
     bad_dots = {"boofcv_sony_hx5v_circle_asym_4x5": {}, "boofcv_sony_hx5v_circle_regular_10x8": {1: 2, 2: 1, 5: 11}}
     for folder in sorted(p for p in realdata.iterdir() if p.is_dir()):
         board, _ = realdata_board(folder)
-        cal = _unchanged(sorted(glob.glob(str(folder / "image*.jpg"))), board, against_plain=not refine_board,
-                         bad_dots=bad_dots[folder.name], refine_board=refine_board)
+        cal = _unchanged(sorted(glob.glob(str(folder / "image*.jpg"))), board,
+                         CalibrationOptions(refine_board=refine_board), against_plain=not refine_board,
+                         bad_dots=bad_dots[folder.name])
         assert round(cal.result.errors["rms_per_point_px"], 3) == expected[(folder.name, refine_board)]
 
 
@@ -172,6 +174,6 @@ def test_a_bad_dot_is_flagged_before_the_solve_and_left_out():
     assert bad.index == 17 and bad.reason == "fit"
     exclude, items = bad_dot_rejections(dets, t.board)
     assert exclude[3] == [17] and [(r.view, r.point, r.reason) for r in items] == [(3, 17, OutlierReason.BAD_DOT)]
-    res, _, _ = calibrate_detections(dets, t.board, (t.camera.width, t.camera.height), exclude=exclude,
-                                     outlier_rule=OutlierRule())
+    res, _, _ = calibrate_detections(dets, t.board, (t.camera.width, t.camera.height),
+                                     CalibrationOptions(outlier_rule=OutlierRule()), exclude=exclude)
     assert res.errors["n_points"] == sum(len(p) for p in [t.board.object_points()] * len(dets)) - 1

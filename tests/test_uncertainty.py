@@ -9,7 +9,7 @@ import pytest
 
 from circcal.fixtures.scenarios import get_scenario
 from circcal.model import PARAM_NAMES, project
-from circcal.solver import calibrate
+from circcal.solver import CalibrationOptions, calibrate
 from circcal.solver.uncertainty import (mean_frames_reprojection, projection_covariance, result_projection_stdev,
                                         worst_direction_stdev)
 from tests.mrcal_pythons import mrcal_pythons
@@ -52,7 +52,7 @@ def _probe_pixels(w: int, h: int) -> np.ndarray:
 def test_full_covariance_holds_the_solvers_standard_deviations():
     """The intrinsics block of the full state covariance is the solver's (poses marginalised) covariance."""
     _, obj, img, size = _problem("wide")
-    res = calibrate(obj, img, size, fix_k3=True)
+    res = calibrate(obj, img, size, CalibrationOptions(fixed=("k3",)))
     cov = res.covariance
     C = cov.unit
     nf = cov.n_intrinsics
@@ -70,7 +70,7 @@ def test_factored_covariance_equals_the_dense_inverse():
 
     _, obj, img, size = _problem("wide")
     for refine in (False, True):
-        res = calibrate(obj, img, size, refine_board=refine)
+        res = calibrate(obj, img, size, CalibrationOptions(refine_board=refine))
         cov = res.covariance
         uv = _probe_pixels(*size)
         Gg, Gp = projection_state_jacobian(res.camera, res.rvecs, res.tvecs, cov, uv, distance=1000.0)

@@ -18,6 +18,7 @@ import numpy as np
 
 from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import CrossValidation, cross_validate_detections
+from circcal.solver import CalibrationOptions
 from circcal.solver.modelfit import ModelFit, model_fit
 from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 
@@ -156,10 +157,26 @@ class Assessment:
                 "timings_s": dict(self.timings)}
 
 
-def assess(cal: Any, board: Any, *, distance: float | None = None, cross_validate: bool = False,
-           split: str = "alternate", seed: int = 0, **options: Any) -> Assessment:
-    """Assess ``cal`` (see the module). ``options``: the settings the calibration was made with (fix_k3,
-    refine_board, outlier_rule, ...), for the cross-validation's halves."""
+def assess(cal: Any, board: Any, options: CalibrationOptions = CalibrationOptions(), *,
+           distance: float | None = None, cross_validate: bool = False, split: str = "alternate", seed: int = 0
+           ) -> Assessment:
+    """Assess ``cal`` (see the module).
+
+    Parameters
+    ----------
+    cal : circcal.pipeline.ImagesCalibration
+    board : circcal.board.Board
+    options : CalibrationOptions
+        The settings ``cal`` was made with, for the cross-validation's halves.
+    distance : float or None
+        mm along each pixel's ray at which uncertainty and cross-validation are evaluated (None: infinity).
+    cross_validate : bool
+        Also cross-validate (:func:`circcal.analysis.cross.cross_validate_detections`, ``split`` and ``seed``).
+
+    Returns
+    -------
+    Assessment
+    """
     t0 = time.perf_counter()
     res = cal.result
     unc = uncertainty_map(res, distance=distance)
@@ -167,7 +184,7 @@ def assess(cal: Any, board: Any, *, distance: float | None = None, cross_validat
     cov = coverage(res.image_points or [], res.camera.width, res.camera.height)
     cv = None
     if cross_validate:
-        cv = cross_validate_detections(cal, board, split=split, seed=seed, distance=distance, **options)
+        cv = cross_validate_detections(cal, board, options, split=split, seed=seed, distance=distance)
     t2 = time.perf_counter()
     return Assessment(cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1},
                       model_fit(res))

@@ -29,6 +29,7 @@ import numpy as np
 
 from circcal.errors import InputError
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
+from circcal.solver import CalibrationOptions, calibrate, leave_one_out
 from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 
 __all__ = ["CrossValidation", "ViewCheck", "split_views", "cross_validate", "cross_validate_observations",
@@ -136,17 +137,14 @@ def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
                                      "simple for the lens, biased centres, or a board unlike the one given")
 
 
-def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, Any]) -> list[ViewCheck]:
-    from circcal.solver import calibrate, leave_one_out
-
+def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions) -> list[ViewCheck]:
     obj, img = full.object_points, full.image_points
     size = (full.camera.width, full.camera.height)
     models: dict[int, Any] = {}
 
     def fit(rest: list[int]):
         (k,) = set(range(len(obj))) - set(rest)
-        res = calibrate([obj[i] for i in rest], [img[i] for i in rest], size, initial=full.camera,
-                        **solver_options)
+        res = calibrate([obj[i] for i in rest], [img[i] for i in rest], size, options, initial=full.camera)
         models[k] = res
         return res
 
@@ -180,12 +178,31 @@ def _leave_one_out(full: Any, names: Sequence[str], solver_options: dict[str, An
     return out
 
 
-def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], *, names: Sequence[str] | None = None,
-                   split: str = "alternate", seed: int = 0, distance: float | None = None,
-                   solver_options: dict[str, Any] | None = None) -> CrossValidation:
-    """Cross-validate the calibration ``full`` (a :class:`~circcal.solver.CalibrationResult` of V views):
-    ``fit_half(view indices)`` calibrates a subset of its views with the same settings. ``solver_options``: the
-    solver's keywords (fix_k3, refine_board, ...) for the leave-one-out refits. See the module."""
+def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], options: CalibrationOptions, *,
+                   names: Sequence[str] | None = None, split: str = "alternate", seed: int = 0,
+                   distance: float | None = None) -> CrossValidation:
+    """Cross-validate the calibration ``full`` (see the module).
+
+    Parameters
+    ----------
+    full : CalibrationResult
+        The calibration of V views.
+    fit_half : callable
+        ``fit_half(view indices)``: calibrates a subset of ``full``'s views with the same settings.
+    options : CalibrationOptions
+        The settings ``full`` was made with; the leave-one-out refits use them without outlier rejection (they
+        refit ``full``'s final observations, already free of outliers).
+    names : sequence of str or None
+        The views' names (default ``view i``).
+    split : {"alternate", "random"}
+        How the views are halved (:func:`split_views`); ``seed`` seeds ``"random"``.
+    distance : float or None
+        mm along each pixel's ray at which the models are compared (None: infinity).
+
+    Returns
+    -------
+    CrossValidation
+    """
     n = len(full.rvecs)
     names = list(names) if names is not None else [f"view {i}" for i in range(n)]
     if n < MIN_VIEWS:
@@ -210,45 +227,38 @@ def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], *, names: Se
     d = model_diff(a.camera, b.camera, distance=distance,
                    uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
                    uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance))
-    views = _leave_one_out(full, names, solver_options or {})
+    views = _leave_one_out(full, names, options.replace(outlier_rule=None))
     verdict, message = _verdict(d, views)
     return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance)
 
 
-#: Solver keywords a cross-validation passes to its leave-one-out refits (outlier rejection is not among them: they
-#: refit the full model's observations, already free of outliers).
-_SOLVER_KEYS = ("fix_k3", "fix_k2", "fix_tangential", "fix_aspect_ratio", "fix_principal_point", "refine_board",
-                "lens")
-
-
 def cross_validate_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                                image_size: tuple[int, int], *, full: Any = None, names: Sequence[str] | None = None,
-                                split: str = "alternate", seed: int = 0, distance: float | None = None,
-                                **options: Any) -> tuple[Any, CrossValidation]:
-    """Calibrate fixed observations (per view (N_v, 3) mm, (N_v, 2) px; ``options`` go to
-    :func:`circcal.solver.calibrate`) and cross-validate (``full``: that calibration, if already made). Returns
-    ``(full, CrossValidation)``; with outlier rejection the halves are drawn from the views it kept."""
-    from circcal.solver import calibrate
-
+                                image_size: tuple[int, int], options: CalibrationOptions = CalibrationOptions(), *,
+                                full: Any = None, names: Sequence[str] | None = None, split: str = "alternate",
+                                seed: int = 0, distance: float | None = None) -> tuple[Any, CrossValidation]:
+    """Calibrate fixed observations (per view (N_v, 3) mm, (N_v, 2) px) with ``options``
+    (:func:`circcal.solver.calibrate`) and cross-validate (``full``: that calibration, if already made; the other
+    parameters as :func:`cross_validate`'s). Returns ``(full, CrossValidation)``; with outlier rejection the halves
+    are drawn from the views it kept."""
     if full is None:
-        full = calibrate(object_points, image_points, image_size, **options)
+        full = calibrate(object_points, image_points, image_size, options)
     kept = full.outliers.kept_views if full.outliers is not None else list(range(len(object_points)))
     obj = [object_points[i] for i in kept]
     img = [image_points[i] for i in kept]
 
     def fit_half(h: list[int]):
-        return calibrate([obj[i] for i in h], [img[i] for i in h], image_size, **options)
+        return calibrate([obj[i] for i in h], [img[i] for i in h], image_size, options)
 
-    return full, cross_validate(full, fit_half, names=[(names[i] if names else f"view {i}") for i in kept],
-                                split=split, seed=seed, distance=distance,
-                                solver_options={k: v for k, v in options.items() if k in _SOLVER_KEYS})
+    return full, cross_validate(full, fit_half, options, names=[(names[i] if names else f"view {i}") for i in kept],
+                                split=split, seed=seed, distance=distance)
 
 
-def cross_validate_detections(cal: Any, board: Any, *, split: str = "alternate", seed: int = 0,
-                              distance: float | None = None, **options: Any) -> CrossValidation:
-    """Cross-validate an :class:`circcal.pipeline.ImagesCalibration`: each half through the whole loop
-    (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct, recalibrate) from its views' detections,
-    with the same ``options`` (fix_k3, refine_board, outlier_rule, ...)."""
+def cross_validate_detections(cal: Any, board: Any, options: CalibrationOptions = CalibrationOptions(), *,
+                              split: str = "alternate", seed: int = 0, distance: float | None = None
+                              ) -> CrossValidation:
+    """Cross-validate an :class:`circcal.pipeline.ImagesCalibration` made with ``options``: each half through the
+    whole loop (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct, recalibrate) from its views'
+    detections, with the same ``options`` (the other parameters as :func:`cross_validate`'s)."""
     from circcal.pipeline import calibrate_detections
 
     full = cal.result
@@ -257,11 +267,10 @@ def cross_validate_detections(cal: Any, board: Any, *, split: str = "alternate",
 
     def fit_half(h: list[int]):
         exclude = None
-        if options.get("outlier_rule") is not None:  # the detector's bad dots stay out, as in the full model
+        if options.outlier_rule is not None:  # the detector's bad dots stay out, as in the full model
             from circcal.dotcheck import bad_dot_rejections
 
             exclude = bad_dot_rejections([dets[i] for i in h], board)[0]
-        return calibrate_detections([dets[i] for i in h], board, size, exclude=exclude, **options)[0]
+        return calibrate_detections([dets[i] for i in h], board, size, options, exclude=exclude)[0]
 
-    return cross_validate(full, fit_half, names=full.view_names, split=split, seed=seed, distance=distance,
-                          solver_options={k: v for k, v in options.items() if k in _SOLVER_KEYS})
+    return cross_validate(full, fit_half, options, names=full.view_names, split=split, seed=seed, distance=distance)

@@ -112,3 +112,54 @@ def add_lens_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lens", choices=tuple(LENS_CHOICES), default="opencv5",
                    help="lens model: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
                    + " (default opencv5)")
+
+
+#: The ``--fix-*`` flags of ``circcal calibrate``: flag -> help (what each holds:
+#: :data:`circcal.solver.options.FLAG_HOLDS`).
+FIX_FLAGS: dict[str, str] = {
+    "--fix-k2": "hold k2 at 0",
+    "--fix-k3": "hold k3 at 0",
+    "--fix-tangential": "hold p1, p2 at 0 (pinhole lens models)",
+    "--fix-aspect-ratio": "hold fx = fy",
+    "--fix-principal-point": "hold (cx, cy) at the image centre",
+}
+
+
+def add_fix_arguments(p: argparse.ArgumentParser) -> None:
+    """The ``--fix-*`` flags (:data:`FIX_FLAGS`)."""
+    for flag, text in FIX_FLAGS.items():
+        p.add_argument(flag, action="store_true", help=text)
+
+
+def calibration_options(args: argparse.Namespace):
+    """The one :class:`circcal.solver.options.CalibrationOptions` of a command's arguments: ``--lens``, the
+    ``--fix-*`` flags, ``--refine-board`` and the outlier rule (``--no-outlier-rejection``, ``--outlier-k``), each
+    read where the command has it. Built before any work, so that its errors come first.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    CalibrationOptions
+
+    Raises
+    ------
+    InputError
+        One line naming the flag: a hold the lens model does not have (``--fix-tangential`` with the fisheye),
+        ``--outlier-k`` with ``--no-outlier-rejection``.
+    """
+    from circcal.solver.options import CalibrationOptions
+    from circcal.solver.outliers import DEFAULT_K, OutlierRule
+
+    no_rejection = getattr(args, "no_outlier_rejection", True)
+    k = getattr(args, "outlier_k", None)
+    if no_rejection and k is not None:
+        raise InputError("--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
+                         "off: give one of them")
+    flags = {f[2:].replace("-", "_"): bool(getattr(args, f[2:].replace("-", "_"), False)) for f in FIX_FLAGS}
+    return CalibrationOptions.from_flags(**flags, spell=lambda name: "--" + name.replace("_", "-"),
+                                         lens=getattr(args, "lens", None) or "opencv5",
+                                         refine_board=bool(getattr(args, "refine_board", False)),
+                                         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K))

@@ -5,8 +5,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, add_lens_argument, board_from_args, nonnegative_int, parse_grid,
-                                   parse_length_mm, positive_float, positive_int)
+from circcal.commands.args import (DIAMETER_HELP, add_fix_arguments, add_lens_argument, board_from_args,
+                                   calibration_options, nonnegative_int, parse_grid, parse_length_mm, positive_float,
+                                   positive_int)
 from circcal.commands.board import add_marker_arguments, board_with_markers
 from circcal.pathnames import display_name
 
@@ -27,10 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
     add_lens_argument(p)
-    p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0")
-    p.add_argument("--fix-tangential", action="store_true", help="hold p1, p2 at 0 (pinhole lens models)")
-    p.add_argument("--fix-aspect-ratio", action="store_true", help="hold fx = fy")
-    p.add_argument("--fix-principal-point", action="store_true", help="hold (cx, cy) at the image centre")
+    add_fix_arguments(p)
     p.add_argument("--refine-board", action="store_true",
                    help="also estimate the 3-D position of every board point (a printed board that is not flat or "
                         "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json")
@@ -137,35 +135,26 @@ def run(args: argparse.Namespace) -> int:
     from circcal.analysis.assess import assess
     from circcal.errors import InputError
     from circcal.outputs import Outputs
-    from circcal.solver.outliers import DEFAULT_K, OutlierRule
 
+    options = calibration_options(args)  # the one options object: its errors come before any work
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
-    if args.no_outlier_rejection and args.outlier_k is not None:
-        raise InputError("--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
-                         "off: give one of them")
     with Outputs(inputs=args.images) as outputs:  # every output checked before the work, committed together
         model_path = outputs.file(args.out, "--out")
         report_dir = None if args.report is None else outputs.folder(args.report, "--report", kind="report")
         fmt = detect_format(args.out)
-        rule = None if args.no_outlier_rejection else OutlierRule(k=args.outlier_k or DEFAULT_K)
-        opts = dict(fix_k3=args.fix_k3, fix_tangential=args.fix_tangential, fix_aspect_ratio=args.fix_aspect_ratio,
-                    fix_principal_point=args.fix_principal_point, refine_board=args.refine_board, lens=args.lens)
-        if args.lens == "fisheye" and args.fix_tangential:
-            raise InputError("--fix-tangential: the fisheye lens model has no tangential coefficients (p1, p2)")
-        if fmt == "mrcal" and args.lens == "fisheye":
+        if fmt == "mrcal" and options.lens == "fisheye":
             from circcal.formats.mrcal import MRCAL_UNSUPPORTED
 
             raise InputError(f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
                              f"COLMAP cameras.txt or ROS camera_info instead")
         try:
-            cal = calibrate_images(args.images, board, progress=not args.no_progress, jobs=args.jobs,
-                                   outlier_rule=rule, **opts)
+            cal = calibrate_images(args.images, board, options, progress=not args.no_progress, jobs=args.jobs)
         except CalibrationError as exc:
             print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
             return 1
         print(format_summary(cal))
-        assessment = assess(cal, board, distance=args.distance, cross_validate=args.cross_validate,
-                            split=args.split, seed=args.seed, outlier_rule=rule, **opts)
+        assessment = assess(cal, board, options, distance=args.distance, cross_validate=args.cross_validate,
+                            split=args.split, seed=args.seed)
         print("\n".join(assessment.lines()))
         model = cal.to_model_json(board)
         if fmt == "mrcal":

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, parse_grid,
+from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, calibration_options, parse_grid,
                                    parse_length_mm, positive_float)
 from circcal.errors import InputError
 from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.outputs import Outputs
     from circcal.validators.validate import format_table, write_report
 
+    options = calibration_options(args)  # --lens, --fix-k3 (its lens replaced by the truth's when --lens is not given)
     with Outputs(inputs=[*(args.images or []), *([args.fixtures] if args.fixtures else [])]) as outputs:  # the report folder checked before the work
         report = None if not args.report else outputs.folder(args.report, "--report", kind="validation")
         against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
@@ -81,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
             truth = load_truth(folder)
             board, truth_cam = truth.board, truth.camera
             paths = [v.image for v in truth.views]
-        result = _run(args, paths, board, truth_cam, against, source)
+        if args.lens is None and truth_cam is not None:
+            options = options.replace(lens=truth_cam.lens)
+        result = _run(args, options, paths, board, truth_cam, against, source)
         print(format_table(result))
         if report is not None:
             write_report(result, report)
@@ -92,11 +95,10 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.passed else 1
 
 
-def _run(args: argparse.Namespace, paths, board, truth_cam, against, source):
+def _run(args: argparse.Namespace, options, paths, board, truth_cam, against, source):
     from circcal.validators.validate import Bounds, run_validation
 
-    return run_validation(paths, board, truth=truth_cam, against=against, mode=args.mode,
-                          observations=args.observations, fix_k3=args.fix_k3, progress=not args.no_progress,
-                          **({} if args.lens is None else {"lens": args.lens}),
+    return run_validation(paths, board, options, truth=truth_cam, against=against, mode=args.mode,
+                          observations=args.observations, progress=not args.no_progress,
                           bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas, truth=args.truth_tol),
                           source=source, allow_missing=args.allow_missing)

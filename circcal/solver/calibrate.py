@@ -6,39 +6,40 @@ minimises the sum of squared reprojection errors (px) with an analytic Jacobian 
 view's residuals depend only on the intrinsics and that view's six pose parameters (a dense intrinsic block beside a
 block-diagonal pose part). The default solver (:func:`circcal.solver.lm.levenberg_marquardt`) is
 Levenberg-Marquardt that solves each damped step exactly by eliminating the 6x6 pose blocks (Schur complement), as
-OpenCV does; ``solver="scipy"`` runs ``scipy.optimize.least_squares`` (TRF, sparse Jacobian, LSMR) on the same
+OpenCV does; ``CalibrationOptions(solver="scipy")`` runs ``scipy.optimize.least_squares`` (TRF, sparse Jacobian, LSMR) on the same
 residuals and Jacobian as a cross-check (it stops ~1e-7 relative short of the minimum and is
 ~10x slower, hence not the default). The covariance of the intrinsics is ``sigma^2 (J^T J)^-1`` restricted to the
 intrinsics via the Schur complement of the pose blocks (poses marginalised), ``sigma^2 = SSR / (2N - n_params)``:
 the same estimate as ``cv2.calibrateCameraExtended``'s standard deviations.
 
-Modules: the problem (:mod:`circcal.solver.problem`), the solvers (:mod:`circcal.solver.lm`), Zhang's closed form
-(:mod:`circcal.solver.zhang`), the result (:mod:`circcal.solver.result`); this module ties them together with the
-covariance. The images pipeline (detect -> calibrate -> re-correct) is :mod:`circcal.pipeline`.
+Modules: how a calibration is made (:mod:`circcal.solver.options`), the problem (:mod:`circcal.solver.problem`),
+the solvers (:mod:`circcal.solver.lm`), Zhang's closed form (:mod:`circcal.solver.zhang`), outlier rejection around
+the solve (:mod:`circcal.solver.outliers`), the result (:mod:`circcal.solver.result`); this module ties them together
+with the covariance. The images pipeline (detect -> calibrate -> re-correct) is :mod:`circcal.pipeline`.
 """
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from circcal.errors import CalibrationError, DegenerateViewsError, InputError
 from circcal.metrics import error_stats_per_view
-from circcal.model import Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
+from circcal.model import DEFAULT_LENS, Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
 from circcal.solver.covariance import state_covariance
 from circcal.solver.fisheye_start import fisheye_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
+from circcal.solver.options import ASPECT_RATIO, CalibrationOptions
+from circcal.solver.outliers import reject_outliers
 from circcal.solver.problem import Problem, board_model
 from circcal.solver.result import CalibrationResult
 from circcal.solver.zhang import homographies, poses_from_homographies, view_tilts_deg, zhang
 
-if TYPE_CHECKING:  # annotations only
-    from circcal.solver.outliers import OutlierRule
-
 __all__ = [
     "CalibrationError",
+    "CalibrationOptions",
     "DegenerateViewsError",
     "CalibrationResult",
     "calibrate",
@@ -78,86 +79,99 @@ def calibrate(
     object_points: Sequence[np.ndarray],
     image_points: Sequence[np.ndarray],
     image_size: tuple[int, int],
+    options: CalibrationOptions | None = None,
     *,
-    fix_k3: bool = False,
-    fix_k2: bool = False,
-    fix_tangential: bool = False,
-    fix_aspect_ratio: bool = False,
-    fix_principal_point: bool = False,
     initial: Camera | None = None,
-    refine_board: bool = False,
-    board_gauge: tuple[int, int, int] | None = None,
-    max_iterations: int = 200,
-    solver: str = "schur",
-    outlier_rule: "OutlierRule | None" = None,
-    lens: str | None = None,
 ) -> CalibrationResult:
     """Calibrate a camera from planar-board correspondences.
 
-    ``object_points``: per view (N_v, 3) board coordinates in mm with z = 0; ``image_points``: per view (N_v, 2)
-    pixels (OpenCV convention); views may hold different points (partial boards), N_v >= 6; ``image_size``:
-    (width, height). ``fix_k3`` / ``fix_k2`` / ``fix_tangential`` hold k3 / k2 / (p1, p2) at their initial values
-    (``initial``'s, else 0; all three together leave the one-coefficient radial model k1); ``fix_principal_point``
-    holds (cx, cy) at ``initial``'s or the image centre ((w-1)/2, (h-1)/2);
-    ``fix_aspect_ratio`` holds fx / fy at ``initial``'s ratio or 1. ``initial``: start from this camera
-    (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form. ``max_iterations``: Jacobian evaluations
-    allowed; reaching it warns and returns ``converged=False``. ``solver``: ``"schur"`` (default) is
-    Levenberg-Marquardt with exact Schur-complement solves (:func:`levenberg_marquardt`: reaches the minimum to ~1e-11
+    Parameters
+    ----------
+    object_points : sequence of ndarray
+        Per view (N_v, 3) board coordinates in mm with z = 0; views may hold different points (partial boards),
+        N_v >= 6.
+    image_points : sequence of ndarray
+        Per view (N_v, 2) pixels (OpenCV convention: pixel centres at integer coordinates).
+    image_size : tuple of int
+        (width, height) px.
+    options : CalibrationOptions or None
+        How (:class:`circcal.solver.options.CalibrationOptions`): the lens model, the parameters held, board
+        refinement, the solver, outlier rejection. None: the defaults for ``initial``'s lens model (else opencv5).
+    initial : Camera or None
+        Start from this camera (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form; its lens model
+        must be ``options.lens``.
+
+    Returns
+    -------
+    CalibrationResult
+        With ``outliers`` (:class:`circcal.solver.outliers.Rejections`) when ``options.outlier_rule`` is set.
+
+    Raises
+    ------
+    CalibrationError
+        (a ValueError) NaN, out-of-image or non-planar points, fewer than 3 views or 6 points per view, a diverged
+        solve, and (:class:`DegenerateViewsError`) views that leave the focal length unobservable (e.g. boards
+        nearly parallel to the image plane), naming those views.
+    InputError
+        fx or fy held without an initial camera.
+    ValueError
+        ``initial`` of another lens model or image size than the calibration's.
+
+    Notes
+    -----
+    Held parameters (``options.fixed``) stay at ``initial``'s values, else at their defaults: 0 for a distortion
+    coefficient (k3, k2 and p1, p2 held together leave the one-coefficient radial model k1), the image centre
+    ((w-1)/2, (h-1)/2) for cx and cy (both held: Zhang's closed form is solved with that principal point), 1 for
+    ``aspect_ratio`` (fx = aspect * fy). ``options.max_iterations``: Jacobian evaluations allowed; reaching it
+    warns and returns ``converged=False``. ``options.solver``: ``"schur"`` (default) is Levenberg-Marquardt with
+    exact Schur-complement solves (:func:`circcal.solver.lm.levenberg_marquardt`: reaches the minimum to ~1e-11
     relative, like OpenCV); ``"scipy"`` is ``scipy.optimize.least_squares`` (trust-region reflective, sparse
     analytic Jacobian, LSMR) on the same residuals and Jacobian, slower and stopping ~1e-7 relative short of the
     minimum: an independent cross-check.
 
-    ``refine_board``: also estimate the 3-D position of every board point (a printed board is rarely flat or printed
-    to scale; the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``). Board points are
-    identified across views by their nominal coordinates. ``board_gauge`` (a, b, c): indices of distinct points, in
-    order of first appearance across the views, held at their nominal positions (a and b in x, y, z; c in z only):
-    the 7 constraints that fix the board's frame and scale, exactly like calibrateCameraRO's first point,
-    ``iFixedPoint`` and last point's z. Default: the first point, the point farthest from it, and the point farthest
-    from the line through both. Points seen in fewer than 3 views are held. The refined points come back in
-    ``CalibrationResult.board_points``.
+    ``options.refine_board``: also estimate the 3-D position of every board point (a printed board is rarely flat or
+    printed to scale; the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``). Board
+    points are identified across views by their nominal coordinates. ``options.board_gauge`` (a, b, c): indices of
+    distinct points, in order of first appearance across the views, held at their nominal positions (a and b in x,
+    y, z; c in z only): the 7 constraints that fix the board's frame and scale, exactly like calibrateCameraRO's
+    first point, ``iFixedPoint`` and last point's z. Default: the first point, the point farthest from it, and the
+    point farthest from the line through both. Points seen in fewer than 3 views are held. The refined points come
+    back in ``CalibrationResult.board_points``.
 
-    ``outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule` to reject outlying points and views (each
-    rejection listed in ``CalibrationResult.outliers``, the solve repeated until none is left); None (the default)
-    fits every observation given, as every reference calibrator does.
+    ``options.outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule` to reject outlying points and views
+    (each rejection listed in ``CalibrationResult.outliers``, the solve repeated until none is left,
+    :func:`circcal.solver.outliers.reject_outliers`); None fits every observation given, as every reference
+    calibrator does.
 
-    ``lens``: the lens model fitted (a :data:`circcal.model.LENS_MODELS` name; default ``initial``'s, else
-    ``opencv5``); the ``fix_*`` options hold the coefficients of those names (the fisheye has k1-k4 and no p1,
-    p2: ``fix_tangential`` is then an InputError). Pinhole models start from Zhang's closed form with ``k1, k2``
-    (every other coefficient 0), as ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal
-    length is searched for (:func:`circcal.solver.fisheye_start.fisheye_start`).
-
-    Raises :class:`CalibrationError` (a ValueError) for NaN, out-of-image or non-planar points, fewer than 3 views or
-    6 points per view, a diverged solve, and (:class:`DegenerateViewsError`) views that leave the focal length
-    unobservable (e.g. boards nearly parallel to the image plane), naming those views.
+    Pinhole models start from Zhang's closed form with ``k1, k2`` (every other coefficient 0), as
+    ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal length is searched for
+    (:func:`circcal.solver.fisheye_start.fisheye_start`).
     """
-    if outlier_rule is not None:
-        from circcal.solver.outliers import calibrate_rejecting
+    if options is None:
+        options = CalibrationOptions(lens=initial.lens if initial is not None else DEFAULT_LENS)
+    if options.outlier_rule is not None:
+        plain = options.replace(outlier_rule=None)
+        return reject_outliers(lambda o, i, start: calibrate(o, i, image_size, plain, initial=start),
+                               object_points, image_points, image_size, options.outlier_rule, initial)
+    return _calibrate(object_points, image_points, image_size, options, initial)
 
-        return calibrate_rejecting(object_points, image_points, image_size, outlier_rule, fix_k3=fix_k3,
-                                   fix_k2=fix_k2, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
-                                   fix_principal_point=fix_principal_point, initial=initial,
-                                   refine_board=refine_board, board_gauge=board_gauge,
-                                   max_iterations=max_iterations, solver=solver, lens=lens)
-    if lens is None:
-        lens = initial.lens if initial is not None else "opencv5"
+
+def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], image_size: tuple[int, int],
+               options: CalibrationOptions, initial: Camera | None) -> CalibrationResult:
+    """One plain solve (:func:`calibrate` without outlier rejection)."""
+    lens = options.lens
     model = lens_model(lens)
     if initial is not None and initial.lens != lens:
         raise ValueError(f"initial camera has lens {initial.lens!r} but lens={lens!r}")
     names = model.param_names
     obj, img, (w, h) = check_observations(object_points, image_points, image_size)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
-    fixed: list[str] = []
-    if fix_aspect_ratio:
-        fixed.append("aspect_ratio")
-    if fix_principal_point:
-        fixed += ["cx", "cy"]
-    if fix_k2:
-        fixed.append("k2")
-    if fix_tangential:
-        fixed += ["p1", "p2"]
-    if fix_k3:
-        fixed.append("k3")
-    aspect = (initial.fx / initial.fy if initial is not None else 1.0) if fix_aspect_ratio else None
+    fixed = options.fixed
+    if initial is None and {"fx", "fy"} & set(fixed):
+        raise InputError("fixed: fx and fy can be held only at an initial camera's values (give initial=)")
+    fix_principal_point = "cx" in fixed and "cy" in fixed
+    held_dist = [k for k, name in enumerate(names) if k >= 4 and name in fixed]
+    aspect = (initial.fx / initial.fy if initial is not None else 1.0) if ASPECT_RATIO in fixed else None
 
     def zhang_start(distortion_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Intrinsics (4 + n_dist,) and poses from Zhang's closed form (fisheye: the equidistant start),
@@ -177,8 +191,6 @@ def calibrate(
             else:
                 c, rvecs, tvecs = z.camera, z.rvecs, z.tvecs
                 start[4:6] = c.dist[0], c.dist[1]
-                if fix_k2:
-                    start[5] = 0.0
             if c is None:
                 c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
                                                 else None, aspect_ratio=aspect)
@@ -187,8 +199,10 @@ def calibrate(
             c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
                                             else None, aspect_ratio=aspect)
         start[:4] = c.fx, c.fy, c.cx, c.cy
-        if fix_principal_point:
-            start[2:4] = centre
+        start[held_dist] = 0.0  # held coefficients stay at 0 (the rational fallback's k1, k4 included)
+        for k, name in ((2, "cx"), (3, "cy")):
+            if name in fixed:
+                start[k] = centre[k - 2]
         if aspect is not None:
             start[0] = aspect * start[1]
         return start, rvecs, tvecs
@@ -203,17 +217,15 @@ def calibrate(
     if aspect is not None:
         intr[0] = aspect * intr[1]
 
-    missing = [name for name in fixed if name not in names and name not in ("aspect_ratio", "cx", "cy")]
-    if missing:
-        raise InputError(f"the {lens} lens model has no {', '.join(missing)} to hold fixed")
     free = [k for k, name in enumerate(names) if name not in fixed and not (aspect is not None and k == 0)]
-    board = board_model(obj, board_gauge) if refine_board else None
+    board = board_model(obj, options.board_gauge) if options.refine_board else None
     if board is not None and board.held_unseen:
         warnings.warn(f"board refinement: {len(board.held_unseen)} point(s) seen in fewer than 3 views are held at "
-                      f"their nominal positions (indices {board.held_unseen[:10]})", RuntimeWarning, stacklevel=2)
+                      f"their nominal positions (indices {board.held_unseen[:10]})", RuntimeWarning, stacklevel=3)
     prob = Problem(obj, img, intr, free, aspect, board, lens)
     x0 = prob.pack(intr, rvecs, tvecs)
 
+    max_iterations, solver = options.max_iterations, options.solver
     x, n_iter, converged, message = solve(prob, x0, max_iterations, solver)
     if initial is None and model.pinhole and not is_sane(prob, x, converged):
         # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
@@ -240,7 +252,7 @@ def calibrate(
         raise CalibrationError(f"the solver diverged: board points {where} in view(s) {bad}")
     if not converged:
         warnings.warn(f"calibration did not converge ({message}); the model may be inaccurate", RuntimeWarning,
-                      stacklevel=2)
+                      stacklevel=3)
 
     camera = Camera.from_intrinsics(w, h, p, lens)
     rv, tv = prob.poses(x)
@@ -294,7 +306,7 @@ def calibrate(
     if errors["rms_per_coord_px"] > LARGE_RESIDUAL_PX:
         warnings.warn(f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
                       f"coordinate): outliers, wrong board geometry or a lens the {lens} model cannot fit",
-                      RuntimeWarning, stacklevel=2)
+                      RuntimeWarning, stacklevel=3)
     return CalibrationResult(
         camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,
         per_view_errors=per_view_errors, sigma_px=float(np.sqrt(sigma2)),

@@ -16,6 +16,7 @@ from circcal.errors import CalibrationError, InputError
 from circcal.metrics import error_stats
 from circcal.model import Camera, project
 from circcal.solver.calibrate import calibrate
+from circcal.solver.options import CalibrationOptions
 
 __all__ = ["fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
 
@@ -71,12 +72,13 @@ def leave_one_out(n_views: int, fit: Callable[[list[int]], Any],
 
 
 def holdout_errors(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                   image_size: tuple[int, int], **options: Any) -> list[dict[str, Any]]:
+                   image_size: tuple[int, int], options: CalibrationOptions | None = None) -> list[dict[str, Any]]:
     """Leave-one-view-out check of :func:`~circcal.solver.calibrate` on fixed observations: each view predicted by
-    the model calibrated on all the others (``options`` go to ``calibrate``; with ``refine_board=True`` the view's
-    board points are that model's refined ones). See :func:`leave_one_out` for what comes back."""
+    the model calibrated on all the others with ``options`` (:class:`~circcal.solver.options.CalibrationOptions`;
+    None: the defaults; with ``refine_board`` the view's board points are that model's refined ones). See
+    :func:`leave_one_out` for what comes back."""
     def fit(rest: list[int]):
-        return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, **options)
+        return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, options)
 
     def held_out(k: int, res) -> tuple[np.ndarray, np.ndarray, Camera]:
         return res.board_lookup(np.asarray(object_points[k], dtype=np.float64)), image_points[k], res.camera

@@ -25,15 +25,15 @@ from __future__ import annotations
 
 import enum
 import warnings
-from dataclasses import dataclass, field
-from typing import Any, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from circcal.errors import CalibrationError
+from circcal.errors import CalibrationError, InputError
 from circcal.observations import MIN_POINTS_PER_VIEW, check_observations
 
-__all__ = ["OutlierReason", "OutlierRule", "Rejected", "Rejections", "calibrate_rejecting", "DEFAULT_K",
+__all__ = ["OutlierReason", "OutlierRule", "Rejected", "Rejections", "reject_outliers", "DEFAULT_K",
            "SIGMA_FLOOR_PX", "MAX_VIEW_LOSS", "MAX_ROUNDS", "MAD_TO_SIGMA"]
 
 #: Threshold in standard deviations: mrcal's (mrcal.c markOutliers, k1 = 5).
@@ -77,8 +77,6 @@ class OutlierRule:
     max_rounds: int = MAX_ROUNDS
 
     def __post_init__(self) -> None:
-        from circcal.errors import InputError
-
         if not (np.isfinite(self.k) and self.k > 0):
             raise InputError(f"outlier threshold k must be a positive number of sigmas, got {self.k!r}")
         if not (np.isfinite(self.sigma_floor_px) and self.sigma_floor_px >= 0):
@@ -168,38 +166,58 @@ def _view_scale(r: np.ndarray) -> float:
     return float(MAD_TO_SIGMA * np.median(np.abs(r)))
 
 
-def calibrate_rejecting(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                        image_size: tuple[int, int], rule: OutlierRule, *, pre_rejected: Sequence[Rejected] = (),
-                        **options: Any):
-    """:func:`circcal.solver.calibrate` with outlier rejection by ``rule`` (see the module): solve, leave out what
-    the rule rejects, re-solve from the current camera, until nothing more is rejected. ``options`` go to every
-    solve. ``pre_rejected``: rejections made before the solve (e.g. the detector's bad dots), listed with the rest
-    (their points must already be absent from the observations given). Returns the final
-    :class:`~circcal.solver.CalibrationResult` (its views are the kept ones) with ``outliers`` set to
-    :class:`Rejections`; when nothing is rejected it is exactly the plain solve. Raises
-    :class:`~circcal.errors.CalibrationError` when too few views or points remain."""
-    from circcal.solver.calibrate import calibrate
+#: One solve for :func:`reject_outliers`: (object points per view, image points per view, initial camera or None)
+#: -> a :class:`~circcal.solver.CalibrationResult` (:func:`circcal.solver.calibrate` with the calibration's options).
+Solve = Callable[[list[np.ndarray], list[np.ndarray], Any], Any]
 
+
+def reject_outliers(solve: Solve, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
+                    image_size: tuple[int, int], rule: OutlierRule, initial: Any = None):
+    """Outlier rejection by ``rule`` around a solver (see the module): solve, leave out what the rule rejects,
+    re-solve from the current camera, until nothing more is rejected.
+
+    Parameters
+    ----------
+    solve : callable
+        ``solve(object_points, image_points, initial)``: one plain solve of the kept observations (per view (N_v, 3)
+        mm and (N_v, 2) px) from ``initial`` (a Camera or None), with the calibration's options (the caller's
+        :func:`circcal.solver.calibrate`: this module does not import the solver).
+    object_points, image_points : sequence of ndarray
+        Per view (N_v, 3) mm and (N_v, 2) px, as given to the calibration.
+    image_size : tuple of int
+        (width, height) px.
+    rule : OutlierRule
+    initial : Camera or None
+        The first solve's start.
+
+    Returns
+    -------
+    CalibrationResult
+        The final solve (its views are the kept ones) with ``outliers`` set to :class:`Rejections`; when nothing is
+        rejected it is the plain solve's. Only the final solve's warnings are issued.
+
+    Raises
+    ------
+    CalibrationError
+        Too few views or points remain, or the rule does not settle in ``rule.max_rounds`` rounds.
+    """
     obj, img, size = check_observations(object_points, image_points, image_size)
     active = [np.ones(len(o), dtype=bool) for o in obj]
     kept = list(range(len(obj)))
-    out = Rejections(rule, kept, len(obj), int(sum(len(o) for o in obj)), items=list(pre_rejected))
+    out = Rejections(rule, kept, len(obj), int(sum(len(o) for o in obj)))
 
     caught: list[warnings.WarningMessage] = []
 
-    def solve(initial):
+    def solve_kept(start):
         # a solve's warnings (non-convergence, large residuals) matter only for the final one: they are re-issued
         # for it alone, the intermediate solves still hold the outliers being removed
-        opts = dict(options)
-        if initial is not None:
-            opts["initial"] = initial
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
-            r = calibrate([obj[v][active[v]] for v in kept], [img[v][active[v]] for v in kept], size, **opts)
+            r = solve([obj[v][active[v]] for v in kept], [img[v][active[v]] for v in kept], start)
         caught[:] = w
         return r
 
-    res = solve(options.pop("initial", None))
+    res = solve_kept(initial)
     for rnd in range(1, rule.max_rounds + 1):
         out.rounds = rnd
         resid = res.residuals                                          # per kept view (n_active, 2), observed - proj
@@ -215,7 +233,7 @@ def calibrate_rejecting(object_points: Sequence[np.ndarray], image_points: Seque
                                       f"{rule.k:g} x the views' noise level {sigma_views:.3g} px: a mislabelled or "
                                       f"foreign view"))
             kept.remove(v)
-            res = solve(res.camera)
+            res = solve_kept(res.camera)
             continue
         sigma = max(float(res.sigma_px), rule.sigma_floor_px)
         changed = False
@@ -241,12 +259,11 @@ def calibrate_rejecting(object_points: Sequence[np.ndarray], image_points: Seque
             break
         if len(kept) == 0:
             raise CalibrationError("outlier rejection left no view")
-        res = solve(res.camera)
+        res = solve_kept(res.camera)
     else:
         raise CalibrationError(f"outlier rejection did not settle in {rule.max_rounds} rounds: the model cannot "
                                f"explain these observations (wrong board geometry or lens model?)")
     out.kept_views = list(kept)
-    res.outliers = out
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return res
+    return replace(res, outliers=out)

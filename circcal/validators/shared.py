@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from circcal.solver import CalibrationResult, calibrate
+from circcal.solver import CalibrationOptions, CalibrationResult, calibrate
 
 __all__ = ["SharedObservations", "share", "ssr"]
 
@@ -42,11 +42,26 @@ class SharedObservations:
         return ssr(self.result.residuals)
 
 
-def share(cal: Any, board: Any, **options: Any) -> SharedObservations:
-    """The shared observations of a :class:`circcal.pipeline.ImagesCalibration` of ``board``; ``options`` go to
-    :func:`circcal.solver.calibrate` (the same as the calibration's, e.g. ``fix_k3``)."""
+def share(cal: Any, board: Any, options: CalibrationOptions | None = None) -> SharedObservations:
+    """The shared observations of a :class:`circcal.pipeline.ImagesCalibration` of ``board``.
+
+    Parameters
+    ----------
+    cal : circcal.pipeline.ImagesCalibration
+    board : circcal.board.Board
+    options : CalibrationOptions or None
+        The calibration's options (its held parameters, board refinement, lens model), for circcal's solve on the
+        shared points; outlier rejection is not repeated (the points are the final ones, outliers already out).
+        None: the defaults for the calibration's lens model.
+
+    Returns
+    -------
+    SharedObservations
+    """
     obj, img = cal.observations(board)
     obj = [np.asarray(o, np.float32).astype(np.float64) for o in obj]
     img = [np.asarray(p, np.float32).astype(np.float64) for p in img]
     size = (cal.result.camera.width, cal.result.camera.height)
-    return SharedObservations(obj, img, size, calibrate(obj, img, size, initial=cal.result.camera, **options))
+    if options is not None:
+        options = options.replace(outlier_rule=None)
+    return SharedObservations(obj, img, size, calibrate(obj, img, size, options, initial=cal.result.camera))

@@ -13,7 +13,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 
@@ -21,7 +21,8 @@ from circcal.board import Board
 from circcal.errors import InputError
 from circcal.formatting import fmt_number
 from circcal.jsonio import jsonable
-from circcal.model import Camera, lens_model, param_names
+from circcal.model import DEFAULT_LENS, Camera, param_names
+from circcal.solver import CalibrationOptions
 from circcal.validators import registry
 from circcal.validators.base import ReferenceResult, lens_support
 from circcal.validators.checks import (SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check,
@@ -102,20 +103,27 @@ def _compare(name: str, camera: Camera | None, std: dict | None, truth: Camera |
     return row
 
 
+#: What :func:`run_validation` runs each reference in: its ``fair`` mode, its ``default`` one, or both.
+RUN_MODES: tuple[str, ...] = ("fair", "default", "both")
+RunMode = Literal["fair", "default", "both"]
+#: Whose centres the references fit: circcal's final ones, or each reference's own detector's.
+OBSERVATIONS: tuple[str, ...] = ("circcal", "own")
+ObservationSource = Literal["circcal", "own"]
+
+
 def run_validation(
     paths: Sequence[str | Path],
     board: Board,
+    options: CalibrationOptions | None = None,
     *,
     truth: Camera | None = None,
     against: Sequence[str] = ("all",),
-    mode: str = "both",
-    observations: str = "circcal",
+    mode: RunMode = "both",
+    observations: ObservationSource = "circcal",
     bounds: Bounds = Bounds(),
-    fix_k3: bool = False,
     progress: bool = True,
     source: dict[str, Any] | None = None,
     allow_missing: bool = False,
-    lens: str | None = None,
 ) -> ValidationRun:
     """Calibrate ``paths`` with circcal, then with each reference in ``against`` ("all" = every registered one),
     and compare. ``mode``: "fair", "default" or "both" (a reference with one estimator runs once).
@@ -127,34 +135,40 @@ def run_validation(
     or, under "all", a built-in reference (``make setup`` installs every one), unless ``allow_missing`` (then each
     one missing is listed as skipped).
 
-    ``lens``: the lens model circcal and every reference fit (default: the true camera's, else ``opencv5``). A
-    reference that does not fit it is a row with status "unsupported" and its reason (no check: nothing to compare).
+    ``options``: how circcal calibrates (:class:`~circcal.solver.options.CalibrationOptions`; default: the
+    defaults for the true camera's lens model, else ``opencv5``). ``options.lens`` is the lens model circcal and
+    every reference fit; a reference that does not fit it is a row with status "unsupported" and its reason (no
+    check: nothing to compare). A held k3 (``"k3" in options.fixed``) is held by the references that can (opencv,
+    kornia). Raises :class:`~circcal.errors.InputError` for an unknown ``mode`` (:data:`RUN_MODES`),
+    ``observations`` (:data:`OBSERVATIONS`) or reference name.
     """
     from circcal.pipeline import calibrate_images
 
-    if observations not in ("circcal", "own"):
-        raise ValueError(f"observations must be 'circcal' or 'own', got {observations!r}")
-    if mode not in ("fair", "default", "both"):
-        raise ValueError(f"mode must be fair, default or both, got {mode!r}")
+    if observations not in OBSERVATIONS:
+        raise InputError(f"observations must be one of {', '.join(OBSERVATIONS)}, got {observations!r}")
+    if mode not in RUN_MODES:
+        raise InputError(f"mode must be one of {', '.join(RUN_MODES)}, got {mode!r}")
     names = registry.names() if "all" in against else list(dict.fromkeys(against))
     for n in names:
         if n not in registry.names():
             raise InputError(f"unknown reference calibrator {n!r}; known: {', '.join(registry.names())}, all")
     paths = [str(p) for p in paths]
-    lens = lens if lens is not None else (truth.lens if truth is not None else "opencv5")
-    lens_model(lens)  # an unknown name is bad input
+    if options is None:
+        options = CalibrationOptions(lens=truth.lens if truth is not None else DEFAULT_LENS)
+    lens = options.lens
+    fix_k3 = options.holds("k3")
 
     t0 = time.perf_counter()
     cc: dict[str, Any] = {"status": "ok", "message": "", "camera": None}
     shared: SharedObservations | None = None
     image_size = (truth.width, truth.height) if truth is not None else None
     try:
-        cal = calibrate_images(paths, board, fix_k3=fix_k3, progress=progress, image_size=image_size, lens=lens)
+        cal = calibrate_images(paths, board, options, progress=progress, image_size=image_size)
     except InputError as exc:
         cc.update(status="failed", message=str(exc))
     else:
         res = cal.result
-        shared = share(cal, board, fix_k3=fix_k3)
+        shared = share(cal, board, options)
         image_size = shared.image_size
         cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
                   n_views=len(cal.used), converged=res.converged, solver_camera=shared.result.camera,
