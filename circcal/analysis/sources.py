@@ -30,11 +30,6 @@ __all__ = ["LoadedModel", "load_model", "resolve_document", "RESOLVE_TOL_PX"]
 #: the image): the file's numbers are the optimum's to ~1e-9 relative.
 RESOLVE_TOL_PX = 1e-6
 
-#: model.json "fixed" names -> circcal.solver.calibrate keywords.
-_FIX_OPTIONS = {"k3": "fix_k3", "k2": "fix_k2", "p1": "fix_tangential", "p2": "fix_tangential",
-                "cx": "fix_principal_point", "cy": "fix_principal_point", "aspect_ratio": "fix_aspect_ratio"}
-
-
 @dataclass
 class LoadedModel:
     """``camera``; ``uncertainty``: pixels (N, 2) -> worst-direction projection standard deviation (N,) px at
@@ -50,17 +45,18 @@ def resolve_document(camera: Camera, document: dict):
     """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module), or None
     when it holds none or the solve does not land on its camera."""
     from circcal.errors import InputError
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
     from circcal.analysis.compare import projection_diff
     from circcal.formats.cameramodel_export import document_views
 
     views = document_views(document)
     if views is None:
         return None
-    opts = {_FIX_OPTIONS[n]: True for n in views["fixed"] if n in _FIX_OPTIONS}
-    try:
-        res = calibrate(views["object_points"], views["image_points"], (camera.width, camera.height),
-                        initial=camera, refine_board=views["refined_board"], **opts)
+    try:  # the file's holds by name (any the lens model has), refused like any option when it has not
+        options = CalibrationOptions(lens=camera.lens, fixed=tuple(views["fixed"]),
+                                     refine_board=bool(views["refined_board"]))
+        res = calibrate(views["object_points"], views["image_points"], (camera.width, camera.height), options,
+                        initial=camera)
     except InputError:
         return None
     if projection_diff(camera, res.camera)["max_px"] > RESOLVE_TOL_PX or res.covariance is None:

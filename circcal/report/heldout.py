@@ -68,19 +68,20 @@ def heldout_block(cal: Any, board: Board, size: tuple[int, int], *, refined: boo
     circcal's point order (``opencv_ordered``, None when their board-refined fit failed). A loop needs
     :data:`MIN_HELDOUT_VIEWS` views."""
     from circcal.pipeline import holdout_detections
-    from circcal.solver import holdout_errors
+    from circcal.solver import CalibrationOptions, holdout_errors
 
     per: dict[str, list[dict]] = {}
     if cal is not None and len(cal.used) >= MIN_HELDOUT_VIEWS:
         detections = [cal.detections[i] for i in cal.used]
         names = [Path(cal.paths[i]).name for i in cal.used]
-        per["circcal"] = _named(holdout_detections(detections, board, size, refine_board=False), names)
+        per["circcal"] = _named(holdout_detections(detections, board, size), names)
         if refined:
-            per["circcal_refined"] = _named(holdout_detections(detections, board, size, refine_board=True), names)
+            per["circcal_refined"] = _named(holdout_detections(detections, board, size,
+                                                                            CalibrationOptions(refine_board=True)), names)
     names = [n for n, _ in opencv_views]
     if opencv_ok and len(opencv_views) >= MIN_HELDOUT_VIEWS:
         per["opencv"] = _named(_opencv_heldout(opencv_views, board, size), names)
     if opencv_ordered is not None and len(opencv_ordered) >= MIN_HELDOUT_VIEWS:
         pts = [board.object_points()] * len(opencv_ordered)
-        per["opencv_refined"] = _named(holdout_errors(pts, opencv_ordered, size, refine_board=True), names)
+        per["opencv_refined"] = _named(holdout_errors(pts, opencv_ordered, size, CalibrationOptions(refine_board=True)), names)
     return {k: mean_of_views(v) for k, v in per.items()}

@@ -69,10 +69,10 @@ def refined_entry(res: Any, views: list[str]) -> dict[str, Any]:
 def _refined_errors(views: list[np.ndarray], board: Board, size: tuple[int, int]) -> dict[str, Any]:
     """The reprojection errors of :func:`circcal.solver.calibrate` with the board refined on ``views`` (each (N, 2)
     px in ``board``'s point order, as given)."""
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
 
     try:
-        r = calibrate([board.object_points()] * len(views), views, size, refine_board=True)
+        r = calibrate([board.object_points()] * len(views), views, size, CalibrationOptions(refine_board=True))
     except InputError as exc:
         return failure(exc)
     return {"status": "ok", "errors": error_summary(r.errors)}
@@ -124,11 +124,13 @@ def _circcal_refined(cal: Any, board: Board, size: tuple[int, int]) -> tuple[Any
     """circcal's loop on its stored detections with the board refined (what ``calibrate_images(refine_board=True)``
     does, without detecting again): (the result or None, its entry)."""
     from circcal.pipeline import calibrate_detections
+    from circcal.solver import CalibrationOptions
 
     if cal is None:
         return None, {"status": "failed", "message": "circcal found no calibration to refine"}
     try:
-        res = calibrate_detections([cal.detections[i] for i in cal.used], board, size, refine_board=True)[0]
+        res = calibrate_detections([cal.detections[i] for i in cal.used], board, size,
+                                   CalibrationOptions(refine_board=True))[0]
     except InputError as exc:
         return None, failure(exc)
     return res, refined_entry(res, [Path(cal.paths[i]).name for i in cal.used])
@@ -139,14 +141,14 @@ def _opencv_refined(ocv_views: list, ours: dict[str, np.ndarray], board: Board, 
     """The same solver, board refined, on the baseline's centres put into circcal's point order: (the result or
     None, the re-ordered views, the entry: which views were reversed, which had no circcal view to take the order
     from, and how the estimated board and model compare with circcal's)."""
-    from circcal.solver import calibrate
+    from circcal.solver import CalibrationOptions, calibrate
     from circcal.analysis.compare import match_views, projection_diff
 
     ordered, labels = match_views([c for _, c in ocv_views], [ours.get(n) for n, _ in ocv_views], board)
     pts = board.object_points()
     res = None
     try:
-        res = calibrate([pts] * len(ordered), ordered, size, refine_board=True)
+        res = calibrate([pts] * len(ordered), ordered, size, CalibrationOptions(refine_board=True))
     except InputError as exc:
         entry = failure(exc)
     else:

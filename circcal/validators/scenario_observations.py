@@ -85,6 +85,7 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
     """
     from circcal.fixtures.scenarios import fixture_dir, load_truth
     from circcal.pipeline import TooFewImagesError, calibrate_images
+    from circcal.solver import CalibrationOptions
 
     folder = fixture_dir(scenario, variant, progress=progress)
     truth = load_truth(folder)
@@ -93,7 +94,8 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
     obs = Observations(scenario, variant, str(folder), truth.camera, truth.board, paths, lens)
     t0 = time.perf_counter()
     try:
-        cal = calibrate_images(paths, truth.board, progress=progress, image_size=obs.image_size, lens=lens)
+        cal = calibrate_images(paths, truth.board, CalibrationOptions(lens=lens), progress=progress,
+                               image_size=obs.image_size)
     except InputError as exc:
         obs.status, obs.message = "failed", f"{type(exc).__name__}: {exc}"
         if isinstance(exc, TooFewImagesError):
