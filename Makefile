@@ -14,7 +14,7 @@ TORCH   := torch==2.13.0
 PINS    := opencv-contrib-python-headless==5.0.0.93
 JOBS    ?= 2
 
-.PHONY: setup demo test bench study study-reports study-paper-2000 study-paper-2000-subset conformance mrcal mrcal-2.5 clean \
+.PHONY: setup demo test lint format bench study study-reports study-paper-2000 study-paper-2000-subset conformance mrcal mrcal-2.5 clean \
         clean-cache chromium realdata-reports
 
 setup: $(STAMP) $(KERNELS)
@@ -122,6 +122,18 @@ study-reports: setup
 
 conformance: setup
 	$(VPY) -m pytest -n $(JOBS) -q -m 'slow or not slow' tests/conformance
+
+# ruff (lint and format, checked, never rewritten here) and mypy over the typed packages (pyproject.toml's [tool.mypy]);
+# `make format` rewrites.
+LINTED := circcal tests benchmarks
+lint: setup
+	$(VENV)/bin/ruff check $(LINTED)
+	$(VENV)/bin/ruff format --check $(LINTED)
+	$(VENV)/bin/mypy
+
+format: setup
+	$(VENV)/bin/ruff check --fix $(LINTED)
+	$(VENV)/bin/ruff format $(LINTED)
 
 bench: setup
 	$(VPY) -m benchmarks.run

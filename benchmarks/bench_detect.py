@@ -160,7 +160,8 @@ def _small_dots(det) -> dict:
             small, _ = embedded_board(board, *size, dot_px / 2, (0.45 * size[0], 0.55 * size[1]))
             normal, _ = _paper_views(1, size, "normal")
             found = [bool(det.detect(small, board).found), bool(det.detect(normal[0], board).found)]
-            t = alternate({"small": lambda: det.detect(small, board), "normal": lambda: det.detect(normal[0], board)})
+            t = alternate({"small": lambda: det.detect(small, board),  # noqa: B023 - timed in this iteration
+                           "normal": lambda: det.detect(normal[0], board)})  # noqa: B023
             out[f"{size[0]}x{size[1]}"] = {"small_dots_px": dot_px, "small_s": summary(t["small"]),
                                            "normal_s": summary(t["normal"]),
                                            "ratio_small_over_normal": ratio(t["small"], t["normal"]),
@@ -218,8 +219,8 @@ def _exponent(ns, ts) -> float:
 
 def _scaling(det) -> dict:
     from circcal.board import Board
-    from circcal.detector.locate.candidates import area_limits, find_candidates
     from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
+    from circcal.detector.locate.candidates import area_limits, find_candidates
     from circcal.detector.locate.recognise import recognise
     from circcal.detector.locate.segment import segmentations, shrink
 
@@ -233,8 +234,9 @@ def _scaling(det) -> dict:
             s = 3
             mask = next(segmentations(normalise_u8(shrink(img, s), STRETCH_TAIL_PX / s ** 2)))[1]
             cands = find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2, scale=s)
-            t = alternate({"detect": lambda: det.detect(img, board),
-                           "grid_search": lambda: recognise(board, cands, (W, H))}, repeats=SCALING_REPEATS)
+            t = alternate({"detect": lambda: det.detect(img, board),  # noqa: B023 - timed in this iteration
+                           "grid_search": lambda: recognise(board, cands, (W, H))},  # noqa: B023
+                          repeats=SCALING_REPEATS)
             row = {"dots": n, "candidates": len(cands), "circcal_detect_s": summary(t["detect"]),
                    "circcal_grid_search_s": summary(t["grid_search"])}
             if n <= OPENCV_MAX_DOTS:
@@ -260,7 +262,7 @@ def _hostile(det) -> dict:
     with pinned(1):
         for name, img in (("1500 random dots", _dots(1500, 7)), ("45x45 dot lattice", _lattice(45, 45, 22.0))):
             d = det.detect(img, board)
-            t = alternate({"d": lambda: det.detect(img, board)})["d"]
+            t = alternate({"d": lambda: det.detect(img, board)})["d"]  # noqa: B023 - timed in this iteration
             out[name] = {"circcal_detect_s": summary(t), "found": bool(d.found),
                          "reason": d.reason, "was": "past 90 s before the bounded grid search"}
     return out

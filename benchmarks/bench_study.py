@@ -109,10 +109,10 @@ def _batched() -> dict:
     import cv2
     import torch
 
+    from circcal.analysis.compare import projection_diff
     from circcal.model import Camera
     from circcal.solver import calibrate
     from circcal.study.batched import solve_batch
-    from circcal.analysis.compare import projection_diff
 
     obj, draws, size = _problems()
     obj32 = [o.astype(np.float32) for o in obj]

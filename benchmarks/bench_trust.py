@@ -20,9 +20,9 @@ REPORT_BAR_S = 10.0
 
 
 def run(repeats: int = 9) -> dict:
-    from circcal.calreport import write_report
     from circcal.analysis.assess import assess
     from circcal.analysis.cross import cross_validate_detections
+    from circcal.calreport import write_report
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
     from circcal.pipeline import calibrate_images
     from circcal.solver import CalibrationOptions

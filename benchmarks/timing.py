@@ -19,8 +19,8 @@ import os
 import statistics
 import subprocess
 import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Callable, Iterator, Sequence
 
 __all__ = ["MIN_REPEATS", "MALLOC_ENV", "pinned", "alternate", "summary", "ratio", "alternate_processes",
            "fmt_spread"]

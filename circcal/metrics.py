@@ -9,7 +9,7 @@ Every number circcal prints or writes names its convention in the key.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -9,7 +9,7 @@ hold different subsets of the board's points.
 from __future__ import annotations
 
 import numbers
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -93,13 +93,13 @@ def _all_valid(obj: list[np.ndarray], img: list[np.ndarray], w: int, h: int) -> 
     counts = np.array([len(o) for o in obj])
     if len(obj) == 0 or np.any(counts < MIN_POINTS_PER_VIEW):
         return len(obj) == 0
-    O, P = np.concatenate(obj), np.concatenate(img)
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(O))):
+    obj_all, P = np.concatenate(obj), np.concatenate(img)
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(obj_all))):
         return False
     if not np.all((P[:, 0] >= -0.5) & (P[:, 0] <= w - 0.5) & (P[:, 1] >= -0.5) & (P[:, 1] <= h - 0.5)):
         return False
-    scale = np.maximum(1.0, np.maximum.reduceat(np.abs(O[:, :2]).max(axis=1), np.cumsum(counts) - counts))
-    return bool(np.all(np.abs(O[:, 2]) <= PLANAR_TOL * np.repeat(scale, counts)))
+    scale = np.maximum(1.0, np.maximum.reduceat(np.abs(obj_all[:, :2]).max(axis=1), np.cumsum(counts) - counts))
+    return bool(np.all(np.abs(obj_all[:, 2]) <= PLANAR_TOL * np.repeat(scale, counts)))
 
 
 def _check_view(v: int, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:

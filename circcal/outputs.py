@@ -39,13 +39,12 @@ import signal
 import stat
 import tempfile
 import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
 
 from circcal.errors import InputError
 from circcal.pathnames import display_name
-
 
 __all__ = ["MARKER", "Outputs", "check_folder_output", "check_writable_place", "folder_manifest", "recover",
            "write_manifest"]
@@ -209,7 +208,7 @@ class Outputs:
         self._outputs: list[_Output] = []
         self.committed = False
 
-    def __enter__(self) -> "Outputs":
+    def __enter__(self) -> Outputs:
         return self
 
     def __exit__(self, *exc: object) -> None:

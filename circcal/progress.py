@@ -24,7 +24,7 @@ class _Hidden:
     def close(self) -> None:
         pass
 
-    def __enter__(self) -> "_Hidden":
+    def __enter__(self) -> _Hidden:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.solver import CalibrationOptions, calibrate, fit_pose, holdout_errors
-from circcal.model import Camera, project
 from circcal.fixtures.poses import sample_poses
+from circcal.model import Camera, project
+from circcal.solver import CalibrationOptions, calibrate, fit_pose, holdout_errors
 
 BOARD = Board(8, 10, 25.0, 15.0)
 CAM = Camera(1280, 960, 1000.0, 1002.0, 645.0, 478.0, np.array([-0.2, 0.08, 0.0005, -0.0003, -0.01]))

@@ -6,12 +6,20 @@ import pytest
 
 from circcal.board import Board
 from circcal.errors import CalibrationError, DegenerateViewsError
-from circcal.solver import CalibrationOptions, calibrate
-from circcal.solver.lm import EXTRAPOLATE_MAX, geometric_extension, schur_step
-from circcal.solver import problem
-from circcal.solver.problem import Problem, board_model
-from circcal.model import PARAM_NAMES, Camera, project_jacobian, distort, normalized_to_pixel, pixel_to_normalized, project, undistort
 from circcal.fixtures.poses import sample_poses
+from circcal.model import (
+    PARAM_NAMES,
+    Camera,
+    distort,
+    normalized_to_pixel,
+    pixel_to_normalized,
+    project,
+    project_jacobian,
+    undistort,
+)
+from circcal.solver import CalibrationOptions, calibrate, problem
+from circcal.solver.lm import EXTRAPOLATE_MAX, geometric_extension, schur_step
+from circcal.solver.problem import Problem, board_model
 
 BOARD = Board(7, 7, 10.0, 5.0)
 W, H = 1920, 1080
@@ -322,11 +330,11 @@ def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     re-correction rounds, the paper's mean 2-D error bar (<= 0.05 px) holds, and the model lies within 4 stated
     sigmas of the true camera."""
     pytest.importorskip("circcal.detector")
-    from circcal.cli import main
-    from circcal.formats import read_camera
-    from circcal.fixtures.scenarios import fixture_dir
-
     import json
+
+    from circcal.cli import main
+    from circcal.fixtures.scenarios import fixture_dir
+    from circcal.formats import read_camera
     d = fixture_dir("paper", "normal")
     truth = json.loads((d / "truth.json").read_text())
     images = [str(d / v["image"]) for v in truth["views"]] + [str(tmp_path / "missing.png")]

@@ -7,11 +7,11 @@ import shutil
 import numpy as np
 import pytest
 
+from circcal.analysis.compare import match_views
 from circcal.board import Board
+from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
 from circcal.solver import CalibrationOptions, calibrate, holdout_errors
-from circcal.fixtures.scenarios import fixture_dir, load_truth
-from circcal.analysis.compare import match_views
 from circcal.validators.opencv import OpenCVCalibrator
 
 

@@ -13,7 +13,6 @@ from circcal.fixtures.poses import off_axis_observations
 from circcal.model import Camera, param_names, project, project_camera, unproject
 from circcal.solver import CalibrationOptions, calibrate
 from circcal.solver.fisheye_start import fisheye_start
-from circcal.solver.uncertainty import result_projection_stdev
 
 BOARD = Board(9, 9, 20.0, 8.0)
 CRIT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 1000, 1e-15)

@@ -1,6 +1,7 @@
 """Projective centre correction: pole of the vanishing line vs the truth, vs the tangent/chord construction."""
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from circcal.detector.measure.centre import correct_centres, pole_centre, tangent_chord_centre, vanishing_line
 from circcal.detector.measure.ellipse import conic_centre, transform_conic

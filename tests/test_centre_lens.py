@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from circcal.board import Board
-from circcal.detector.measure.centre import correct_centres_on_rays, rotations_to_axis
 from circcal.detector.find import _correct
+from circcal.detector.measure.centre import correct_centres_on_rays, rotations_to_axis
 from circcal.model import Camera, project, transform
 
 BOARD = Board(6, 8, 25.0, 12.0)

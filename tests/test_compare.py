@@ -4,13 +4,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from circcal.analysis.compare import (
+    centre_errors,
+    match_grid_order,
+    match_views,
+    param_diff,
+    per_coord_to_per_point,
+    per_point_to_per_coord,
+    pixel_grid,
+    projection_diff,
+)
 from circcal.board import Board
 from circcal.metrics import error_stats
 from circcal.model import Camera, unproject
 from circcal.rotation import fit_rotation, rodrigues
-from circcal.analysis.compare import (centre_errors, match_grid_order, param_diff,
-                                per_coord_to_per_point, per_point_to_per_coord, pixel_grid, projection_diff,
-                                match_views)
 
 CAM = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.12, 0.08, 4e-4, -3e-4, -0.02]))
 PINHOLE = Camera(1920, 1080, 1500.0, 1500.0, 959.5, 539.5, np.zeros(5))

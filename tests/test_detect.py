@@ -980,7 +980,7 @@ def test_local_steps_are_the_neighbour_differences():
     for layout, M in (("symmetric", np.eye(2)), ("asymmetric", np.array([[1.0, 1.0], [-1.0, 1.0]]))):
         board = Board(5, 6, 10.0, 5.0, layout=layout)
         L = board.lattice_coords()
-        for trial in range(30):
+        for _ in range(30):
             pts = np.sort(rng.choice(board.n_points, int(rng.integers(1, board.n_points + 1)), replace=False))
             c = rng.normal(size=(len(pts), 2)) * 100.0
             c[rng.random(len(pts)) < 0.1] = np.nan
@@ -1005,7 +1005,7 @@ def test_edge_blur_is_the_median_slope_scale():
     from circcal.detector.measure.edges import PIXEL_BOX_VARIANCE, PROFILE_STEP_PX, _edge_blur
 
     rng = np.random.default_rng(8)
-    for trial in range(50):
+    for _ in range(50):
         D, N = int(rng.integers(1, 6)), int(rng.integers(1, 60))
         at = rng.uniform(0, 400, (D, N, 2))
         rise = rng.normal(size=(D, N)) * rng.choice([1e-6, 0.1, 10.0])
@@ -1060,10 +1060,10 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
 def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_where_not(monkeypatch):
     # the filter is skipped on an image whose noise is below GUIDED_MIN_NOISE: there it would move no flat pixel
     # across a threshold, only edge pixels, and the candidates (the edge fit's starts) stay where they were
-    from circcal.detector.locate import segment
-    from circcal.detector.locate.candidates import find_candidates
     from circcal.detector.image import normalise_u8
     from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate import segment
+    from circcal.detector.locate.candidates import find_candidates
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
@@ -1097,10 +1097,10 @@ def test_plain_otsu_of_a_noisy_image_differs_from_the_filtered_one_only_on_edges
     # why a noisy image is thresholded at Otsu's level before it is filtered: that level lies ~half the contrast
     # (here ~130 grey levels) from the dots' and the board's, many noise sigmas (4 and 8 after the stretch), so the
     # filter would change no flat pixel's side of it
-    from circcal.detector.locate import segment
-    from circcal.detector.locate.candidates import find_candidates
     from circcal.detector.image import normalise_u8
     from circcal.detector.kernels.build import synthetic_board
+    from circcal.detector.locate import segment
+    from circcal.detector.locate.candidates import find_candidates
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from circcal.cli import main
 from circcal.analysis import model_diff
+from circcal.cli import main
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.formats import write_camera
 from circcal.model import Camera

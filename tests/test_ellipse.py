@@ -1,10 +1,18 @@
 """Direct ellipse fit (Halir-Flusser) and conic conversions: exact recovery on random ellipses."""
 import numpy as np
 import pytest
-from hypothesis import example, given, settings, strategies as st
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
-from circcal.detector.measure.ellipse import (algebraic_distance, conic_centre, conic_from_params, conic_params, ellipse_normals,
-                             fit_ellipse_direct, sample_ellipse)
+from circcal.detector.measure.ellipse import (
+    algebraic_distance,
+    conic_centre,
+    conic_from_params,
+    conic_params,
+    ellipse_normals,
+    fit_ellipse_direct,
+    sample_ellipse,
+)
 
 ellipses = st.tuples(
     st.floats(-2000, 4000), st.floats(-2000, 4000),  # centre, px (far from the origin on purpose)

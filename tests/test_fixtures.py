@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.model import Camera, project
 from circcal.fixtures.perturb import KINDS, apply_perturbations, validate
 from circcal.fixtures.poses import pose_looking_at
 from circcal.fixtures.render import Levels, render_coverage
 from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario, load_truth, render_fixture
+from circcal.model import Camera, project
 
 CAM = Camera(320, 240, 300.0, 300.0, 159.5, 119.5, [0, 0, 0, 0, 0])
 ONE_DOT = Board(2, 2, 30.0, 10.0, margin_mm=20.0)

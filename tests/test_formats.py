@@ -8,9 +8,17 @@ import numpy as np
 import pytest
 
 from circcal.cli import main
-from circcal.formats import (camera_from_colmap, camera_from_cameramodel, camera_from_ros_yaml,
-                             camera_to_cameramodel, camera_to_colmap, camera_to_ros_yaml, detect_format,
-                             read_camera, write_camera)
+from circcal.formats import (
+    camera_from_cameramodel,
+    camera_from_colmap,
+    camera_from_ros_yaml,
+    camera_to_cameramodel,
+    camera_to_colmap,
+    camera_to_ros_yaml,
+    detect_format,
+    read_camera,
+    write_camera,
+)
 from circcal.model import Camera, project
 
 CAM = Camera(1920, 1080, 1498.123456789012, 1500.987654321098, 955.4321, 545.6789,

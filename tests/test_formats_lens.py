@@ -8,8 +8,16 @@ import numpy as np
 import pytest
 
 from circcal.errors import InputError
-from circcal.formats import (camera_from_colmap, camera_from_opencv_yaml, camera_from_ros_yaml, camera_to_colmap,
-                             camera_to_cameramodel, camera_to_ros_yaml, read_camera, write_camera)
+from circcal.formats import (
+    camera_from_colmap,
+    camera_from_opencv_yaml,
+    camera_from_ros_yaml,
+    camera_to_cameramodel,
+    camera_to_colmap,
+    camera_to_ros_yaml,
+    read_camera,
+    write_camera,
+)
 from circcal.model import Camera, project, project_camera
 
 LENS_CAMS = {

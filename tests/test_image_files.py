@@ -21,8 +21,15 @@ import pytest
 
 from circcal.board import Board
 from circcal.detector import Detection, Reason, detect, detect_files
-from circcal.detector.image import (MAX_IMAGE_PIXELS, MAX_IMAGE_PIXELS_ENV, ImageTooLargeError, as_gray,
-                                    max_image_pixels, normalise_u8, read_image)
+from circcal.detector.image import (
+    MAX_IMAGE_PIXELS,
+    MAX_IMAGE_PIXELS_ENV,
+    ImageTooLargeError,
+    as_gray,
+    max_image_pixels,
+    normalise_u8,
+    read_image,
+)
 from circcal.detector.overlay import draw_detection, overlay_file, write_overlay, write_overlay_file
 from circcal.errors import ImageError, InputError
 from circcal.fixtures.poses import pose_looking_at

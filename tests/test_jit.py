@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from circcal.detector.kernels import jit
 from circcal.detector.find import detect
+from circcal.detector.kernels import jit
 
 REPO = Path(__file__).resolve().parents[1]
 BUILT = all(jit.aot_status().values()) and bool(jit.aot_status())
@@ -103,8 +103,8 @@ def test_numba_caches_kernels_that_call_other_modules_and_drops_them_when_a_call
             "Q = conic_from_params_batch(np.array([[320.0, 240.0]]), np.array([[30.0, 20.0]]), np.array([0.3]))\n"
             "dark, plane, ok = levels.dot_levels_batch(img, Q, np.array([[250, 180, 390, 300]]))\n"
             "st = levels._levels_kernel.stats\n"
-            "assert levels.__file__.startswith(%r)\n"
-            "print(sum(st.cache_hits.values()), sum(st.cache_misses.values()), repr(float(dark[0])))\n" % str(pkg))
+            f"assert levels.__file__.startswith({str(pkg)!r})\n"
+            "print(sum(st.cache_hits.values()), sum(st.cache_misses.values()), repr(float(dark[0])))\n")
     env = {**os.environ, "CIRCCAL_AOT": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
 
     def run() -> list[str]:   # (in the copy's folder: the copy comes first on sys.path)

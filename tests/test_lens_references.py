@@ -133,9 +133,9 @@ def test_mrcal_export_per_lens(lens: str) -> None:
     """A .cameramodel with mrcal's optimisation inputs for the rational (OPENCV8) and thin-prism (OPENCV12) lenses:
     mrcal's own residuals at circcal's solution equal circcal's and its cost gradient vanishes there; the fisheye
     has no mrcal model and says so."""
-    from circcal.solver import CalibrationOptions, calibrate
-    from circcal.formats.mrcal_process import mrcal_python
     from circcal.formats.cameramodel_export import ExportError, export_cameramodel
+    from circcal.formats.mrcal_process import mrcal_python
+    from circcal.solver import CalibrationOptions, calibrate
 
     if mrcal_python()[0] is None:
         pytest.skip(mrcal_python()[1])
@@ -195,8 +195,8 @@ def test_identical_observations_agreement_on_the_lens_scenarios(scenario: str, l
     suite shares them): circcal's solver and the reference agree to the reference's bound (1e-6 px; mrcal 1e-4,
     lensboy 1e-2: it stops early, test_lensboy_stops_short_of_the_minimum_of_its_own_objective), or their costs tie
     (the suite's rule); one that does not fit the lens says why."""
-    from circcal.validators.checks import solver_agreement, solver_bound
     from circcal.analysis.compare import projection_diff
+    from circcal.validators.checks import solver_agreement, solver_bound
     from circcal.validators.registry import get_for_lens
     from circcal.validators.shared import ssr
 
@@ -217,9 +217,9 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
     (``CALIB_USE_INTRINSIC_GUESS``, nothing of circcal's solve) and it reaches circcal's minimum to 1e-6 px."""
     import cv2
 
+    from circcal.analysis.compare import projection_diff
     from circcal.solver import CalibrationOptions, calibrate
     from circcal.validators.bounds import SOLVER_PX
-    from circcal.analysis.compare import projection_diff
     from circcal.validators.registry import get_for_lens
 
     obj, img, size = _scenario_observations("fisheye")
@@ -254,8 +254,8 @@ def test_lensboy_stops_short_of_the_minimum_of_its_own_objective(scenario: str, 
     here, and on lensboy's own objective circcal's solution is the lower one, by less than lensboy's stopping rule
     (Ceres's function tolerance: it takes no step that gains less than 1e-6 of the cost); started at circcal's
     solution, lensboy stays there. So the gap is lensboy stopping early, not a different model or objective."""
-    from circcal.validators.bounds import SOLVER_LENSBOY_PX, SOLVER_PX
     from circcal.analysis.compare import projection_diff
+    from circcal.validators.bounds import SOLVER_LENSBOY_PX, SOLVER_PX
     from circcal.validators.lensboy import CERES_FUNCTION_TOLERANCE, LensboyCalibrator
 
     cal = LensboyCalibrator(lens=lens)

@@ -7,10 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from circcal.rotation import rodrigues
-from circcal.model import (Camera, distort, distort_jacobian, project, undistort, undistort_pixels,
-                           distort_pixels)
 from circcal.fixtures.scenarios import SCENARIOS
+from circcal.model import Camera, distort, distort_jacobian, distort_pixels, project, undistort, undistort_pixels
+from circcal.rotation import rodrigues
 
 #: the scenarios' pinhole cameras (cv2.projectPoints' models; the fisheye ones are tested against cv2.fisheye below)
 CAMERAS = {name: s.camera for name, s in SCENARIOS.items() if s.camera.model.pinhole}
@@ -94,11 +93,13 @@ def test_distort_jacobian_matches_finite_differences():
     assert np.allclose(xd, distort(x, dist), atol=0, rtol=1e-15)
     h = 1e-7
     for j in range(2):
-        e = np.zeros(2); e[j] = h
+        e = np.zeros(2)
+        e[j] = h
         fd = (distort(x + e, dist) - distort(x - e, dist)) / (2 * h)
         assert np.max(np.abs(fd - Jx[:, :, j])) < 1e-8
     for j in range(5):
-        e = np.zeros(5); e[j] = h
+        e = np.zeros(5)
+        e[j] = h
         fd = (distort(x, dist + e) - distort(x, dist - e)) / (2 * h)
         assert np.max(np.abs(fd - Jd[:, :, j])) < 1e-8
 
@@ -123,9 +124,16 @@ def test_camera_block_round_trip_and_errors():
 
 # --- the lens models beyond opencv5 -----------------------------------------------------------------------------
 
+from circcal.model import (  # noqa: E402
+    LENS_MODELS,
+    param_names,
+    project_camera,
+    project_camera_jacobian,
+    project_jacobian,
+    theta_max,
+    unproject,
+)
 from circcal.model.fisheye import theta_distort  # noqa: E402
-from circcal.model import (LENS_MODELS, param_names, project_camera, project_camera_jacobian,  # noqa: E402
-                           project_jacobian, theta_max, unproject)
 
 #: Wide-angle cameras as OpenCV users fit them (coefficients of the size calibrateCamera returns for such lenses).
 LENS_CAMERAS = {
@@ -282,7 +290,7 @@ def test_lens_camera_api():
     assert param_names("opencv5") == PARAM_NAMES_OPENCV5
     assert param_names("fisheye") == ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
     assert param_names("thin-prism")[-4:] == ("s1", "s2", "s3", "s4")
-    for name, cam in LENS_CAMERAS.items():
+    for cam in LENS_CAMERAS.values():
         d = cam.to_dict()
         assert d["lens"] == cam.lens
         back = Camera.from_dict(d)

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from circcal.analysis.compare import projection_diff
 from circcal.fixtures.scenarios import fixture_dir, load_truth
 from circcal.pipeline import calibrate_images
-from circcal.analysis.compare import projection_diff
 
 CORNER_SHARE = 1.0 / 3.0
 """The image corners: grid points beyond this share of the half-width and of the half-height from the centre

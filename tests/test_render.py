@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.model import Camera, project
 from circcal.fixtures.poses import fully_visible, pose_looking_at, sample_poses
 from circcal.fixtures.render import Levels, area_centroids, render_coverage, render_view, to_uint
+from circcal.model import Camera, project
 
 PINHOLE = Camera(960, 720, 900.0, 900.0, 479.3, 360.8, [0, 0, 0, 0, 0])
 BARREL = Camera(960, 720, 700.0, 702.0, 482.1, 357.4, [-0.3, 0.1, 0.0008, -0.0005, -0.01])

@@ -69,11 +69,11 @@ def test_a_board_a_few_noise_sigmas_deep_is_found_where_its_pixels_are_averaged(
     # noise) are segmented instead, the edges measured at full resolution. findCirclesGrid finds none of these
     # views, with its blob detector's minThreshold at 5 neither. Measured centre RMS against the truth: 0.11-0.14 px
     # at contrast 0.15, 0.15-0.18 px at 0.1 (the noise's share: 0.08 px at contrast 0.22, ~1 / contrast)
+    from circcal.detector.image import normalise_u8
+    from circcal.detector.locate.segment import MAX_STRETCHED_NOISE, noise_sigma_u8
     from circcal.fixtures.perturb import apply_perturbations
     from circcal.fixtures.poses import sample_poses
     from circcal.fixtures.render import render_view
-    from circcal.detector.image import normalise_u8
-    from circcal.detector.locate.segment import MAX_STRETCHED_NOISE, noise_sigma_u8
     from circcal.model import Camera, project
 
     f = 4900.0 * 640 / 1920.0

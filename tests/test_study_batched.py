@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import pytest
 
+from circcal.analysis.compare import projection_diff
 from circcal.model import PARAM_NAMES, Camera
 from circcal.study import parse_spec
 from circcal.study.execute import execute
 from circcal.study.plan import plan
 from circcal.validators.checks import SOLVER_PX
-from circcal.analysis.compare import projection_diff
 
 pytest.importorskip("kornia")
 

@@ -10,8 +10,12 @@ import pytest
 from circcal.fixtures.scenarios import get_scenario
 from circcal.model import PARAM_NAMES, project
 from circcal.solver import CalibrationOptions, calibrate
-from circcal.solver.uncertainty import (mean_frames_reprojection, projection_covariance, result_projection_stdev,
-                                        worst_direction_stdev)
+from circcal.solver.uncertainty import (
+    mean_frames_reprojection,
+    projection_covariance,
+    result_projection_stdev,
+    worst_direction_stdev,
+)
 from tests.mrcal_pythons import mrcal_pythons
 
 #: Per-coordinate noise (px) added to the exact centre projections: a real detector's level (circcal's weak-light

@@ -13,15 +13,14 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import skip_unless_available
 
+from circcal.analysis.compare import param_diff, projection_diff
 from circcal.board import Board
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
 from circcal.validators import registry
 from circcal.validators.base import BaseCalibrator, ReferenceResult, run_safely
-from circcal.analysis.compare import param_diff, projection_diff
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.model import Camera, project
 from circcal.errors import DegenerateViewsError
-from circcal.solver.zhang import homography, pose_from_homography, view_tilts_deg, zhang
 from circcal.fixtures.poses import sample_poses
+from circcal.model import Camera, project
+from circcal.solver.zhang import homography, pose_from_homography, view_tilts_deg, zhang
 
 BOARD = Board(7, 7, 10.0, 5.0)
 

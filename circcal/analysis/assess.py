@@ -16,11 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import CrossValidation, cross_validate_detections
 from circcal.solver import CalibrationOptions
 from circcal.solver.modelfit import ModelFit, model_fit
-from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 
 __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
 

@@ -15,7 +15,8 @@ All projection and unprojection goes through :mod:`circcal.model` (pixel centres
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

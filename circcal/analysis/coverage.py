@@ -8,8 +8,8 @@ observed). Pixels follow OpenCV's convention (integer coordinates are pixel cent
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 

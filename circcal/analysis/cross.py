@@ -22,15 +22,16 @@ needed (3 per half, the solver's minimum); with fewer the cross-validation says 
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
+from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 from circcal.errors import InputError
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
 from circcal.solver import CalibrationOptions, calibrate, leave_one_out
-from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 
 __all__ = ["CrossValidation", "ViewCheck", "split_views", "cross_validate", "cross_validate_observations",
            "cross_validate_detections", "MIN_VIEWS", "HELDOUT_RATIO", "INFLUENCE_SIGMAS", "SPLITS"]

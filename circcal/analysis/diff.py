@@ -11,15 +11,15 @@ distance per grid pixel (px); pixels follow OpenCV's convention; distances are m
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
+from circcal.analysis.compare import GRID_WIDTH, pixel_grid, projection_diff
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera, unproject
 from circcal.rotation import fit_rotation
-from circcal.analysis.compare import GRID_WIDTH, pixel_grid, projection_diff
 
 __all__ = ["ModelDiff", "model_diff", "CONSISTENT_RATIO", "CONSISTENT_SHARE", "region_names"]
 

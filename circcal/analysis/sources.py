@@ -11,9 +11,9 @@ uncertainty where the file carries what it takes:
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -44,10 +44,10 @@ class LoadedModel:
 def resolve_document(camera: Camera, document: dict):
     """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module), or None
     when it holds none or the solve does not land on its camera."""
-    from circcal.errors import InputError
-    from circcal.solver import CalibrationOptions, calibrate
     from circcal.analysis.compare import projection_diff
+    from circcal.errors import InputError
     from circcal.formats.cameramodel_export import document_views
+    from circcal.solver import CalibrationOptions, calibrate
 
     views = document_views(document)
     if views is None:
@@ -81,8 +81,8 @@ def load_model(path: str | Path) -> LoadedModel:
         return LoadedModel(p, camera, None, "the model.json holds no observations of its views")
     text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     if cameramodel_has_optimization_inputs(text):
-        from circcal.formats.mrcal_process import mrcal_python
         from circcal.formats.cameramodel_export import ExportError, mrcal_uncertainty
+        from circcal.formats.mrcal_process import mrcal_python
 
         try:
             check_optimization_inputs(text)

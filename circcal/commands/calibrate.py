@@ -5,9 +5,18 @@ import argparse
 import sys
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, add_fix_arguments, add_lens_argument, board_from_args,
-                                   calibration_options, nonnegative_int, parse_grid, parse_length_mm, positive_float,
-                                   positive_int)
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    add_fix_arguments,
+    add_lens_argument,
+    board_from_args,
+    calibration_options,
+    nonnegative_int,
+    parse_grid,
+    parse_length_mm,
+    positive_float,
+    positive_int,
+)
 from circcal.commands.board import add_marker_arguments, board_with_markers
 from circcal.pathnames import display_name
 
@@ -128,13 +137,12 @@ def _detection_lines(cal) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from circcal.pipeline import calibrate_images
-    from circcal.solver import CalibrationError
-    from circcal.formats import detect_format, write_camera
-
     from circcal.analysis.assess import assess
     from circcal.errors import InputError
+    from circcal.formats import detect_format, write_camera
     from circcal.outputs import Outputs
+    from circcal.pipeline import calibrate_images
+    from circcal.solver import CalibrationError
 
     options = calibration_options(args)  # the one options object: its errors come before any work
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))

@@ -5,7 +5,6 @@ import argparse
 from pathlib import Path
 
 
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from circcal.formats import FORMATS
 

@@ -20,10 +20,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def summarize(name: str) -> None:
     """Print the scenario's camera, board and per-variant geometry: dot sizes, tilts, blob-centroid bias."""
-    from circcal.model import project
-    from circcal.rotation import rodrigues
     from circcal.fixtures.render import area_centroids
     from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
+    from circcal.model import project
+    from circcal.rotation import rodrigues
 
     sc = get_scenario(name)
     cam, board = sc.camera, sc.board

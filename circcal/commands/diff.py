@@ -57,11 +57,11 @@ def run(args: argparse.Namespace) -> int:
 def _diff(args: argparse.Namespace, heatmap, json_out) -> int:
     """The comparison, written to the staged ``heatmap`` and ``json_out`` where given."""
     from circcal import atomic
+    from circcal.analysis.compare import GRID_WIDTH
     from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, model_diff
     from circcal.analysis.sources import load_model
     from circcal.errors import InputError
     from circcal.jsonio import dumps
-    from circcal.analysis.compare import GRID_WIDTH
 
     a, b = load_model(args.a), load_model(args.b)
     ca, cb = a.camera, b.camera

@@ -5,8 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from circcal.commands.args import (DIAMETER_HELP, LENS_CHOICES, board_from_args, calibration_options, parse_grid,
-                                   parse_length_mm, positive_float)
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    LENS_CHOICES,
+    board_from_args,
+    calibration_options,
+    parse_grid,
+    parse_length_mm,
+    positive_float,
+)
 from circcal.errors import InputError
 from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 

@@ -4,8 +4,8 @@ anything else is a bug and propagates with its traceback."""
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from circcal.board import Board
 from circcal.detector.detection import Detection, Reason

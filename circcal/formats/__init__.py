@@ -34,8 +34,8 @@ from pathlib import Path
 
 from circcal import atomic
 from circcal.errors import InputError, ModelFileError
-from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_camera
 from circcal.formats.colmap import COLMAP_PIXEL_OFFSET, camera_from_colmap, camera_to_colmap
+from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_camera
 from circcal.formats.modeljson import MODEL_FORMAT, MODEL_SECTIONS, MODEL_VERSION, camera_from_json, model_json
 from circcal.formats.mrcal import camera_from_cameramodel, camera_to_cameramodel
 from circcal.formats.opencv import camera_from_K_dist, camera_from_opencv_yaml, opencv_yaml_text

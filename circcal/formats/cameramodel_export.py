@@ -19,16 +19,23 @@ inputs: the file says so in its note, and mrcal's uncertainty then treats them a
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from circcal.errors import InputError
+from circcal.formats.mrcal_process import (
+    LENSMODELS,
+    UNSUPPORTED_LENSES,
+    UnsupportedLayout,
+    board_lattice,
+    mrcal_python,
+    run_worker,
+)
 from circcal.model import Camera
 from circcal.rotation import rodrigues
-from circcal.formats.mrcal_process import LENSMODELS, UNSUPPORTED_LENSES, UnsupportedLayout, board_lattice, \
-    mrcal_python, run_worker
 
 __all__ = ["ExportError", "ExportedModel", "export_cameramodel", "mrcal_uncertainty", "result_views", "document_views",
            "cameramodel_text", "WORKER_TIMEOUT_S"]

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ JSON_LIMITS: dict[str, Any] = {"max_depth": MAX_NESTING_DEPTH, "max_int_digits":
 
 _SHOW_CHARS = 60
 #: YAML block indicators nested on one line ("- - - - 1"): each opens a level
-_COMPACT_NESTING = re.compile(r"(?:[-?:][ \t]+){%d}" % MAX_NESTING_DEPTH)
+_COMPACT_NESTING = re.compile(rf"(?:[-?:][ \t]+){{{MAX_NESTING_DEPTH}}}")
 _MARKUP_DECLARATION = re.compile(r"<!\s*(DOCTYPE|ENTITY|ELEMENT|ATTLIST)", re.I)
 
 

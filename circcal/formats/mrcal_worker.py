@@ -86,9 +86,8 @@ def _names(api: str) -> tuple[str, str]:
 
 
 def solve(req: dict) -> dict:
-    import numpy as np
-
     import mrcal
+    import numpy as np
 
     api = _api(mrcal)
     k_ext, k_frames = _names(api)
@@ -234,9 +233,8 @@ def export(req: dict) -> dict:
     packed state: ~0 at an optimum), "uncertainty_stdev" (px, when asked)}``."""
     import io
 
-    import numpy as np
-
     import mrcal
+    import numpy as np
 
     api = _api(mrcal)
     version, vsrc = _version(mrcal)

@@ -37,6 +37,7 @@ from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
 __all__ = [
     "Camera",
+    "fisheye_distort_jacobian",
     "LensModel",
     "LENS_MODELS",
     "DEFAULT_LENS",
@@ -178,7 +179,7 @@ class Camera:
         return np.concatenate([[self.fx, self.fy, self.cx, self.cy], self.dist])
 
     @classmethod
-    def from_intrinsics(cls, width: int, height: int, params: np.ndarray, lens: str = DEFAULT_LENS) -> "Camera":
+    def from_intrinsics(cls, width: int, height: int, params: np.ndarray, lens: str = DEFAULT_LENS) -> Camera:
         """Inverse of :attr:`intrinsics`: ``params`` = (4 + n_dist,) fx, fy, cx, cy, then ``lens``'s coefficients."""
         p = np.asarray(params, dtype=np.float64)
         n = lens_model(lens).n_dist
@@ -203,7 +204,7 @@ class Camera:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Camera":
+    def from_dict(cls, d: dict[str, Any]) -> Camera:
         """Read a ``camera`` block (``lens`` optional, default ``opencv5``); every value is checked (see the class)
         and a missing key named (:class:`~circcal.errors.InputError`)."""
         if not isinstance(d, dict):

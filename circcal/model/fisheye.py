@@ -156,15 +156,15 @@ def fisheye_rays(xd: np.ndarray, dist: np.ndarray, *, tol: float = 1e-15, max_it
         t = th[active]
         f, df = theta_distort(t, d, True)
         f = f - target[active]
-        l, h = lo[active], hi[active]
-        l = np.where(f < 0, t, l)
-        h = np.where(f > 0, t, h)
+        lo_a, hi_a = lo[active], hi[active]
+        lo_a = np.where(f < 0, t, lo_a)
+        hi_a = np.where(f > 0, t, hi_a)
         with np.errstate(divide="ignore", invalid="ignore"):
             nt = t - f / df
-        bad = ~((nt > l) & (nt < h))
-        nt = np.where(f == 0, t, np.where(bad, 0.5 * (l + h), nt))
+        bad = ~((nt > lo_a) & (nt < hi_a))
+        nt = np.where(f == 0, t, np.where(bad, 0.5 * (lo_a + hi_a), nt))
         step = np.abs(nt - t)
-        th[active], lo[active], hi[active] = nt, l, h
+        th[active], lo[active], hi[active] = nt, lo_a, hi_a
         idx = np.flatnonzero(active)
         active[idx[(step <= tol * np.maximum(1.0, nt)) | (f == 0)]] = False
     with np.errstate(invalid="ignore", divide="ignore"):

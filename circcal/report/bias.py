@@ -115,8 +115,8 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, A
     (NaN where a detector found no grid, with a note why). Returns (numbers, seconds)."""
     from tqdm import tqdm
 
-    from circcal.fixtures.poses import pose_looking_at
     from circcal.analysis.compare import match_grid_order
+    from circcal.fixtures.poses import pose_looking_at
 
     t0 = time.perf_counter()
     distance, px_per_mm = bias_geometry()

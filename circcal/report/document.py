@@ -9,8 +9,14 @@ from circcal.report.blocks import Block, Bullets, Heading, Image, Paragraph
 from circcal.report.figures import figure_files
 from circcal.report.notes import bias_notes, paper_notes, realdata_notes
 from circcal.report.results import dig, paper_conditions, realdata_sets
-from circcal.report.tables import (bias_table, condition_table, parameter_table, realdata_table, study_tables,
-                                   timings_table)
+from circcal.report.tables import (
+    bias_table,
+    condition_table,
+    parameter_table,
+    realdata_table,
+    study_tables,
+    timings_table,
+)
 
 __all__ = ["document"]
 

@@ -9,14 +9,14 @@ import math
 from typing import Any
 
 from circcal.board import Board
+from circcal.formatting import fmt_number, fmt_scientific
 from circcal.metrics import SQRT2
 from circcal.model import PARAM_NAMES
 from circcal.report import config
 from circcal.report.environment import VERSION_ORDER
 from circcal.report.figures import gauge_counts, refined_boards
-from circcal.validators import checks
-from circcal.formatting import fmt_number, fmt_scientific
 from circcal.report.results import calibrator_keys, dig, paper_conditions, realdata_sets
+from circcal.validators import checks
 from circcal.validators.checks import solver_bound
 
 __all__ = ["MEAN_2D_PER_SIGMA", "REALDATA_PROVENANCE", "RMS_POINT_PER_SIGMA", "SHAPE_RMS_DROP", "SHAPE_SIGNIFICANCE",

@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from circcal import atomic
-from circcal.outputs import Outputs
 from circcal.jsonio import jsonable
+from circcal.outputs import Outputs
 from circcal.report import render
 from circcal.report.bias import bias_study
 from circcal.report.capture import study_warnings
@@ -30,9 +30,9 @@ from circcal.report.figures import make_figures
 from circcal.report.paper import paper_condition
 from circcal.report.precision import CHECK_QUANTUM, precision_note, quantise, round_sig
 from circcal.report.prose import header_line, headline
-from circcal.report.studies import study_results
 from circcal.report.realdata import realdata_entry
 from circcal.report.rendered import fixture_summary
+from circcal.report.studies import study_results
 
 __all__ = ["compute", "generate", "published_results", "write_report"]
 

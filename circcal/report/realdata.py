@@ -102,8 +102,8 @@ def _circcal_rigid(paths: list[str], board: Board, size: tuple[int, int], ocv: A
     """circcal's whole loop on the images (:func:`circcal.pipeline.calibrate_images`): (the
     :class:`~circcal.pipeline.ImagesCalibration` or None, its entry, with the projection difference to OpenCV's
     model)."""
-    from circcal.pipeline import calibrate_images
     from circcal.analysis.compare import projection_diff
+    from circcal.pipeline import calibrate_images
 
     try:
         cal = calibrate_images(paths, board, progress=False, image_size=size)
@@ -141,8 +141,8 @@ def _opencv_refined(ocv_views: list, ours: dict[str, np.ndarray], board: Board, 
     """The same solver, board refined, on the baseline's centres put into circcal's point order: (the result or
     None, the re-ordered views, the entry: which views were reversed, which had no circcal view to take the order
     from, and how the estimated board and model compare with circcal's)."""
-    from circcal.solver import CalibrationOptions, calibrate
     from circcal.analysis.compare import match_views, projection_diff
+    from circcal.solver import CalibrationOptions, calibrate
 
     ordered, labels = match_views([c for _, c in ocv_views], [ours.get(n) for n, _ in ocv_views], board)
     pts = board.object_points()
@@ -170,8 +170,8 @@ def _findcirclesgrid_order(paths: list[str], board: Board, ours: dict[str, np.nd
     """findCirclesGrid as the OpenCV adapter runs it (plain first, CALIB_CB_CLUSTERING only where that fails): the
     two modes may order a symmetric grid differently, so its views can disagree among themselves. Refining the
     board in that order mixes up points; in circcal's order it does not."""
-    from circcal.observations import MIN_VIEWS
     from circcal.analysis.compare import match_views
+    from circcal.observations import MIN_VIEWS
     from circcal.validators.opencv import OpenCVCalibrator
 
     det = OpenCVCalibrator().detect(paths, board)

@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from circcal.formatting import fmt_number
 from circcal.model import PARAM_NAMES, Camera
 from circcal.report.blocks import Table
 from circcal.report.config import PAPER_PUBLISHED
-from circcal.formatting import fmt_number
 from circcal.report.results import all_conditions, calibrator_keys, dig, paper_conditions, realdata_sets
 
 __all__ = ["REALDATA_ROWS", "bias_table", "condition_table", "parameter_table", "realdata_table", "study_tables",

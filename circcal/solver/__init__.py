@@ -3,8 +3,8 @@ the covariance of the result (:mod:`circcal.solver.calibrate`), made as :class:`
 (:mod:`circcal.solver.options`); held-out prediction (:mod:`circcal.solver.holdout`)."""
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.solver.calibrate import CalibrationResult, calibrate
-from circcal.solver.options import CalibrationOptions
 from circcal.solver.holdout import fit_pose, holdout_errors, leave_one_out, prediction_error
+from circcal.solver.options import CalibrationOptions
 
 __all__ = ["CalibrationError", "CalibrationOptions", "CalibrationResult", "DegenerateViewsError", "calibrate",
            "fit_pose", "holdout_errors", "leave_one_out", "prediction_error"]

@@ -20,7 +20,7 @@ with the covariance. The images pipeline (detect -> calibrate -> re-correct) is 
 from __future__ import annotations
 
 import warnings
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -14,7 +14,7 @@ candidate). With the right ``f`` the equidistant lens is within a few percent of
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -81,12 +81,12 @@ def _fit(groups, f: float, aspect: float, centre) -> tuple[float, np.ndarray | N
     V = sum(len(idx) for idx, _, _ in groups)
     rv, tv = np.empty((V, 3)), np.empty((V, 3))
     ssr, n = 0.0, 0
-    for idx, O, P in groups:
-        H = model_rays.ray_homographies(O[..., :2], _equidistant_rays(P, f, aspect, centre))
+    for idx, Ob, P in groups:
+        H = model_rays.ray_homographies(Ob[..., :2], _equidistant_rays(P, f, aspect, centre))
         if not np.all(np.isfinite(H)):
             return float("inf"), None, None
         r, t = poses_from_homographies(H, np.eye(3), signed=True)
-        Xc = O @ rodrigues(r).transpose(0, 2, 1) + t[:, None, :]
+        Xc = Ob @ rodrigues(r).transpose(0, 2, 1) + t[:, None, :]
         res = _equidistant_pixels(Xc, f, aspect, centre) - P
         ssr += float(np.sum(res * res))
         n += res.size

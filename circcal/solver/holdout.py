@@ -8,7 +8,8 @@ held-out views worse; the residual of a held-out view has 2N - 6 degrees of free
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 

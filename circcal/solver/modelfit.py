@@ -22,9 +22,9 @@ dots); the message says so. Residuals are observed - projected (px, OpenCV's pix
 from __future__ import annotations
 
 import math
-
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

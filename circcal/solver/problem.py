@@ -11,8 +11,8 @@ whole views (:data:`EVALUATE_CHUNK` points): the solver's normal equations are s
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 

@@ -20,8 +20,8 @@ that fits but is poorly determined is caught after the refinement, from its cova
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

@@ -57,7 +57,7 @@ class CellSummary:
     statuses: dict[str, int] = field(default_factory=dict)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "CellSummary":
+    def from_dict(cls, d: dict[str, Any]) -> CellSummary:
         """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists)."""
         def params(v: dict[str, Any]) -> ParamSummary:
             return ParamSummary(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})

@@ -33,8 +33,15 @@ from typing import Any
 
 from filelock import FileLock
 
-from circcal.fixtures.scenarios import (Scenario, ViewGeometry, cache_root, fixture_dir, get_scenario, render_fixture,
-                                        render_geometry)
+from circcal.fixtures.scenarios import (
+    Scenario,
+    ViewGeometry,
+    cache_root,
+    fixture_dir,
+    get_scenario,
+    render_fixture,
+    render_geometry,
+)
 from circcal.study.spec import VARY
 
 __all__ = ["GEOMETRY_CACHE", "GEOMETRY_CACHE_SIZE", "SeededScenario", "geometry", "rendered", "seeded_scenario"]

@@ -329,7 +329,9 @@ def _cell(i: int, v: Any) -> CellSpec:
     try:
         sigmas = tuple(float(s) for s in noise)
     except (TypeError, ValueError):
-        raise InputError(f"{where}.noise_px: expected a number or a list of numbers, got {v.get('noise_px')!r}")
+        raise InputError(
+            f"{where}.noise_px: expected a number or a list of numbers, got {v.get('noise_px')!r}"
+        ) from None
     if not sigmas or not all(0 < s < float("inf") for s in sigmas) or len(set(sigmas)) != len(sigmas):
         raise InputError(f"{where}.noise_px: expected distinct finite numbers above 0 (px), got {v.get('noise_px')!r}")
     device = v.get("device", "auto")

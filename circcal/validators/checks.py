@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from circcal.analysis.compare import param_diff, projection_diff
 from circcal.model import Camera
 from circcal.validators.bounds import COST_TIE_REL, SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
-from circcal.analysis.compare import param_diff, projection_diff
 from circcal.validators.shared import ssr
 
 __all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",

@@ -38,19 +38,27 @@ Reprojection errors name their convention (:mod:`circcal.metrics`); projection d
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
+from circcal.analysis.compare import projection_diff
 from circcal.detector import Reason
 from circcal.formatting import fmt_number
 from circcal.model import Camera, param_names
 from circcal.validators.base import ReferenceCalibrator, ReferenceResult, lens_support
-from circcal.validators.checks import (SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check, solver_agreement, solver_bound,
-                                       truth_checks)
-from circcal.analysis.compare import projection_diff
+from circcal.validators.checks import (
+    SOLVER_MRCAL_PX,
+    SOLVER_PX,
+    TRUTH_SIGMAS,
+    Check,
+    solver_agreement,
+    solver_bound,
+    truth_checks,
+)
 from circcal.validators.scenario_observations import Observations, observe, solve_subset
 
 __all__ = [
@@ -304,7 +312,7 @@ def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
                 key = (name, variant)
                 in_fast = key in fast and not lens
 
-                def slow_for(ref: str) -> bool:
+                def slow_for(ref: str, in_fast: bool = in_fast, key: tuple = key) -> bool:
                     return not (in_fast and (fast[key] is None or ref in fast[key]))
 
                 if not user:

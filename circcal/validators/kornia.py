@@ -30,7 +30,8 @@ estimator (plain least squares).
 from __future__ import annotations
 
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -278,7 +279,7 @@ def _lm(theta, obj, img, w, free, *, max_iter: int = 200, tol: float = 1e-20, le
     gn_steps = torch.zeros(B, dtype=torch.int64, device=theta.device)
     it = 0
     J = None
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - `it` is returned: the iterations done
         _, J = _residuals_and_jacobian(theta, obj, img, w, lens=lens)
         J = J * freef[:, None, :]
         A = J.transpose(1, 2) @ J

@@ -29,14 +29,20 @@ import time
 
 import numpy as np
 
-from circcal.formats.mrcal_process import LENSMODELS, NOT_FOUND_MESSAGE, UNSUPPORTED_LENSES, _probe, board_lattice, \
-    mrcal_python, run_worker
+from circcal.formats.mrcal_process import (
+    LENSMODELS,
+    NOT_FOUND_MESSAGE,
+    UNSUPPORTED_LENSES,
+    _probe,
+    board_lattice,
+    mrcal_python,
+    run_worker,
+)
 from circcal.metrics import error_stats
 from circcal.model import Camera, project
-from circcal.rotation import rodrigues
 from circcal.observations import check_observations
-from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, \
-    seed_camera
+from circcal.rotation import rodrigues
+from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, seed_camera
 
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE", "LENSMODELS"]
 

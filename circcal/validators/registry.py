@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from circcal.validators.base import ReferenceCalibrator, lens_support, missing_members
 

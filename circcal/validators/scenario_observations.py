@@ -4,17 +4,17 @@ and circcal's solve on a subset of them (:func:`solve_subset`: for a reference t
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 
+from circcal.analysis.compare import match_grid_order
 from circcal.board import Board
 from circcal.detector import Rejection
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.validators.base import ReferenceResult
-from circcal.analysis.compare import match_grid_order
 from circcal.validators.shared import share, ssr
 
 __all__ = ["Observations", "observe", "solve_subset"]

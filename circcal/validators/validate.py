@@ -11,12 +11,14 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 import numpy as np
 
+from circcal.analysis.compare import GRID_WIDTH, param_diff, projection_diff
 from circcal.board import Board
 from circcal.errors import InputError
 from circcal.formatting import fmt_number
@@ -25,9 +27,15 @@ from circcal.model import DEFAULT_LENS, Camera, param_names
 from circcal.solver import CalibrationOptions
 from circcal.validators import registry
 from circcal.validators.base import ReferenceResult, lens_support
-from circcal.validators.checks import (SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS, Check,
-                                       solver_agreement, truth_checks)
-from circcal.analysis.compare import GRID_WIDTH, param_diff, projection_diff
+from circcal.validators.checks import (
+    SOLVER_LENSBOY_PX,
+    SOLVER_MRCAL_PX,
+    SOLVER_PX,
+    TRUTH_SIGMAS,
+    Check,
+    solver_agreement,
+    truth_checks,
+)
 from circcal.validators.shared import SharedObservations, share
 
 __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_report"]

@@ -101,7 +101,9 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
     pycc_compiler.compile_extra = _compile_extra
     out_dir.mkdir(parents=True, exist_ok=True)
     done: dict[str, list[str]] = {}
-    from circcal.detector.measure.curvature import store_table  # the curvature model's table: no scipy import at start-up
+    from circcal.detector.measure.curvature import (
+        store_table,  # the curvature model's table: no scipy import at start-up
+    )
 
     store_table(out_dir)
     for module, kernels in _registry.items():

@@ -38,8 +38,9 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -67,7 +68,7 @@ _lock = threading.RLock()
 #: budget of an image (:class:`circcal.detector.locate.budget.Deadline`) does not count them
 _compile_s = 0.0
 #: module name -> its kernels, in the order they were decorated
-_registry: dict[str, list["Kernel"]] = {}
+_registry: dict[str, list[Kernel]] = {}
 #: module name -> {kernel name: [(argument specs, compiled function)]}, loaded once per module
 _aot_cache: dict[str, dict[str, list[tuple[list, Callable]]]] = {}
 

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from circcal.board import Board
+from circcal.detector.detection import Reason
 from circcal.detector.locate.budget import Deadline
 from circcal.detector.locate.candidates import Candidate
-from circcal.detector.detection import Reason
 from circcal.detector.locate.grid import order_lattice, orient
 from circcal.detector.locate.labels import Labelling, label_patch, seed_score_needed
 from circcal.detector.locate.lattice import Lattice, find_lattices

@@ -14,14 +14,21 @@ import math
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.locate.budget import Deadline
-from circcal.detector.locate.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.detection import Reason
 from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
+from circcal.detector.locate.budget import Deadline
+from circcal.detector.locate.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.locate.neighbours import NeighbourGrid, linked_clusters
 from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
-from circcal.detector.locate.segment import (MAX_STRETCHED_NOISE, SHRUNK_MIN_RADIUS, noise_sigma_u8, segmentation_scales,
-                                     segmentations, shrink, speckled)
+from circcal.detector.locate.segment import (
+    MAX_STRETCHED_NOISE,
+    SHRUNK_MIN_RADIUS,
+    noise_sigma_u8,
+    segmentation_scales,
+    segmentations,
+    shrink,
+    speckled,
+)
 
 __all__ = ["segment_and_recognise"]
 

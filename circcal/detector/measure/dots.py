@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from circcal.detector.kernels.jit import njit
 from circcal.detector.measure.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
 from circcal.detector.measure.ellipse import FIT_ERRORS, _fit_kernel, _sampson_kernel
-from circcal.detector.kernels.jit import njit
 from circcal.detector.measure.robust import MAD_TO_SIGMA, _mad_inliers_kernel
 from circcal.detector.measure.smoothing import SmoothedImage
 

@@ -24,9 +24,9 @@ import functools
 
 import numpy as np
 
+from circcal.detector.kernels.jit import njit
 from circcal.detector.measure.curvature import U_TABLE, _shift_table, shift_at
 from circcal.detector.measure.ellipse import _conic_params_kernel, perimeter
-from circcal.detector.kernels.jit import njit
 from circcal.detector.measure.levels import dot_levels_from_params
 from circcal.detector.measure.robust import _median_of
 from circcal.detector.measure.smoothing import SmoothedImage

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.measure.ellipse import conic_params_batch
 from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.ellipse import conic_params_batch
 from circcal.detector.measure.robust import MAD_TO_SIGMA, _median_of
 
 KERNEL_IMPORTS = ("circcal.detector.measure.robust",)

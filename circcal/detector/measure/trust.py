@@ -28,8 +28,8 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
-from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.kernels.jit import njit
+from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.measure.robust import median, row_medians
 
 __all__ = ["ABSENT_MAX_SHARE", "absent_dots", "bad_dots", "check_grid", "local_steps"]
