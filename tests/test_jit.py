@@ -155,3 +155,20 @@ def test_synthetic_board_is_found():
     img, board = synthetic_board()
     d = detect(img, board)
     assert d.found and d.centres.shape == (board.n_points, 2)
+
+
+def test_threads_meeting_cold_kernels_all_get_compiled_code(tmp_path):
+    """Under numba's JIT on a cold cache (no ahead-of-time build), four threads detecting at once: every kernel's
+    names are rebound before its dispatcher is published, so no thread meets a caller compiled against a Kernel
+    object (numba's "Untyped global name '_fit_kernel'" in 1 of 6 such runs before)."""
+    code = ("from concurrent.futures import ThreadPoolExecutor\n"
+            "from circcal.detector import detect\n"
+            "from circcal.detector.kernels.build import synthetic_board\n"
+            "img, board = synthetic_board()\n"
+            "with ThreadPoolExecutor(4) as pool:\n"
+            "    found = list(pool.map(lambda _: detect(img, board, time_budget_s=None).found, range(4)))\n"
+            "print(found)\n")
+    env = {**os.environ, "CIRCCAL_AOT": "0", "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.split() == ["[True,", "True,", "True,", "True]"]

@@ -122,10 +122,10 @@ def _sweep(tmp_path: Path, before: list[str], args: list[str], file: str, folder
             run = _run(work, args, at=k, signal=sig)
             got = _state(work, file, folder)
             if sig == "INT":
-                assert run.returncode in (130, 0, 1), (k, run.returncode, run.stderr[-2000:])
+                assert run.returncode in (130, 0, 1), (k, run.returncode, run.stderr[-6000:])
                 assert "Traceback" not in run.stderr, (k, run.stderr[-2000:])
             else:
-                assert run.returncode == -9, (k, run.returncode, run.stderr[-2000:])
+                assert run.returncode == -9, (k, run.returncode, run.stderr[-6000:])
             # each output on its own is the old one or the new one, complete
             assert got[0] in (old[0], new[0]) or _same_model(got[0], new[0]), (sig, k, kinds[k - 1])
             assert got[1] in (old[1], new[1], None) or _same_figures(got[1], new[1]), (sig, k, kinds[k - 1])

@@ -229,25 +229,30 @@ def _jit_module(module: str) -> None:
         deps = _kernel_imports(module)
         for dep in deps:
             _jit_module(dep)
+        made: dict[Kernel, Callable] = {}
         if _HAVE_NUMBA:
             import numba
 
             for k in kernels:
-                k._jit = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
+                made[k] = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
                 if deps and k.options.get("cache"):
                     from circcal.detector.kernels import jitcache
 
-                    jitcache.enable(k._jit, [sys.modules[m].__file__ for m in deps])
+                    jitcache.enable(made[k], [sys.modules[m].__file__ for m in deps])
         else:
-            for k in kernels:
-                k._jit = k.py_func
+            made = {k: k.py_func for k in kernels}
+        # the module's names are rebound before any kernel publishes its dispatcher (k._jit): a thread that finds a
+        # dispatcher may run it at once, and numba resolves the kernels it calls through these names (published
+        # first, a caller compiled in another thread met a Kernel object: "Untyped global name")
         namespace = sys.modules[module].__dict__
         for k in kernels:
             if namespace.get(k.__name__) is k:
-                namespace[k.__name__] = k._jit
+                namespace[k.__name__] = made[k]
         for name, value in list(namespace.items()):
             if isinstance(value, Kernel) and value.module in deps:
                 namespace[name] = value._jit
+        for k in kernels:
+            k._jit = made[k]
 
 
 def njit(*args, **kwargs):
