@@ -23,6 +23,7 @@ and stated).
   at 1000 views, here and in the timing: its dense (9 + 6V)^2 covariance makes it quadratic in memory (6.4 KB per
   point at 100 views) and cubic in time (tens of seconds a solve).
 """
+
 from __future__ import annotations
 
 import functools
@@ -93,8 +94,9 @@ def _problem(n_views: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     poses = sample_poses(cam, board, n_views, seed, max_tilt_deg=40.0)
     obj = [board.object_points().astype(np.float32) for _ in poses]
-    img = [(project(board.object_points(), r, t, cam) + rng.normal(0.0, 0.1, (49, 2))).astype(np.float32)
-           for r, t in poses]
+    img = [
+        (project(board.object_points(), r, t, cam) + rng.normal(0.0, 0.1, (49, 2))).astype(np.float32) for r, t in poses
+    ]
     return obj, img, (cam.width, cam.height)
 
 
@@ -110,24 +112,32 @@ def _solver(n_views: int, repeats: int, extended: bool = True) -> dict:
     img64 = [p.astype(np.float64) for p in img]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 1000, 1e-15)
     out = {}
-    fns = {"circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size)),
-           "opencv_plain": lambda: out.__setitem__("ref", cv2.calibrateCamera(obj, img, size, None, None,
-                                                                              criteria=crit))}
+    fns = {
+        "circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size)),
+        "opencv_plain": lambda: out.__setitem__("ref", cv2.calibrateCamera(obj, img, size, None, None, criteria=crit)),
+    }
     if extended:
-        fns["opencv"] = lambda: out.__setitem__("ref", cv2.calibrateCameraExtended(obj, img, size, None, None,
-                                                                                  criteria=crit))
+        fns["opencv"] = lambda: out.__setitem__(
+            "ref", cv2.calibrateCameraExtended(obj, img, size, None, None, criteria=crit)
+        )
     t = alternate(fns, repeats=repeats)
     K, d = out["ref"][1], out["ref"][2].ravel()
     ref_p = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d[:5]])
     p = out["res"].camera.intrinsics
     key = f"solve_{n_views}_views"
-    res = {f"{key}_points": int(sum(len(o) for o in obj)), f"{key}_circcal_s": summary(t["circcal"]),
-           f"{key}_opencv_calibrateCamera_s": summary(t["opencv_plain"]),
-           f"{key}_ratio_to_calibrateCamera": ratio(t["circcal"], t["opencv_plain"])}
+    res = {
+        f"{key}_points": int(sum(len(o) for o in obj)),
+        f"{key}_circcal_s": summary(t["circcal"]),
+        f"{key}_opencv_calibrateCamera_s": summary(t["opencv_plain"]),
+        f"{key}_ratio_to_calibrateCamera": ratio(t["circcal"], t["opencv_plain"]),
+    }
     if extended:
         res.update({f"{key}_opencv_s": summary(t["opencv"]), f"{key}_ratio": ratio(t["circcal"], t["opencv"])})
-    return {**res, f"{key}_iterations": out["res"].n_iterations,
-            f"{key}_max_rel_param_diff_vs_opencv": float(np.max(np.abs(p - ref_p) / np.abs(ref_p)))}
+    return {
+        **res,
+        f"{key}_iterations": out["res"].n_iterations,
+        f"{key}_max_rel_param_diff_vs_opencv": float(np.max(np.abs(p - ref_p) / np.abs(ref_p))),
+    }
 
 
 def _memory(n_views: int, repeats: int) -> dict:
@@ -153,17 +163,24 @@ def _memory(n_views: int, repeats: int) -> dict:
         for _ in range(repeats):
             for alloc, extra in allocators.items():
                 for tool in tools:
-                    r = subprocess.run([sys.executable, str(script), tool, str(data)], capture_output=True,
-                                       text=True, env={**base_env, **extra}, check=True)
+                    r = subprocess.run(
+                        [sys.executable, str(script), tool, str(data)],
+                        capture_output=True,
+                        text=True,
+                        env={**base_env, **extra},
+                        check=True,
+                    )
                     per_point[tool, alloc].append(float(r.stdout.split()[-1]))
     key = f"memory_{n_views}_views"
     out: dict = {f"{key}_points": int(sum(len(o) for o in obj))}
     for alloc in allocators:
         out.update({f"{key}_{alloc}_{t}_bytes_per_point": summary(per_point[t, alloc]) for t in tools})
         out[f"{key}_{alloc}_ratio_to_calibrateCamera"] = ratio(per_point["circcal", alloc], per_point["opencv", alloc])
-    out[f"{key}_note"] = ("peak RSS above the RSS before the solve, per point; circcal computes its covariance, "
-                          "calibrateCamera none; default_malloc: glibc as a user runs it; bench_malloc: under "
-                          "MALLOC_ENV (freed memory kept by the process, which raises a peak); goal <= 3x")
+    out[f"{key}_note"] = (
+        "peak RSS above the RSS before the solve, per point; circcal computes its covariance, "
+        "calibrateCamera none; default_malloc: glibc as a user runs it; bench_malloc: under "
+        "MALLOC_ENV (freed memory kept by the process, which raises a peak); goal <= 3x"
+    )
     return out
 
 
@@ -177,16 +194,23 @@ def _pipeline(repeats: int) -> dict:
     paths = [v.image for v in truth.views]
     size = (truth.camera.width, truth.camera.height)
     held: dict = {}
-    t = alternate({"circcal": lambda: held.__setitem__("cal", calibrate_images(paths, truth.board, progress=False,
-                                                                                  jobs=1)),
-                   "opencv": lambda: OpenCVCalibrator().calibrate_images(paths, truth.board, size),
-                   "circcal_parallel": lambda: calibrate_images(paths, truth.board, progress=False, jobs=None)},
-                  repeats=repeats)
-    return {"paper_pipeline_views": len(paths), "paper_circcal_rounds": len(held["cal"].rounds),
-            "paper_circcal_calibrate_s": summary(t["circcal"]), "paper_opencv_pipeline_s": summary(t["opencv"]),
-            "paper_pipeline_ratio": ratio(t["circcal"], t["opencv"]),
-            "paper_circcal_calibrate_parallel_s": summary(t["circcal_parallel"]),
-            "paper_pipeline_parallel_ratio": ratio(t["circcal_parallel"], t["opencv"])}
+    t = alternate(
+        {
+            "circcal": lambda: held.__setitem__("cal", calibrate_images(paths, truth.board, progress=False, jobs=1)),
+            "opencv": lambda: OpenCVCalibrator().calibrate_images(paths, truth.board, size),
+            "circcal_parallel": lambda: calibrate_images(paths, truth.board, progress=False, jobs=None),
+        },
+        repeats=repeats,
+    )
+    return {
+        "paper_pipeline_views": len(paths),
+        "paper_circcal_rounds": len(held["cal"].rounds),
+        "paper_circcal_calibrate_s": summary(t["circcal"]),
+        "paper_opencv_pipeline_s": summary(t["opencv"]),
+        "paper_pipeline_ratio": ratio(t["circcal"], t["opencv"]),
+        "paper_circcal_calibrate_parallel_s": summary(t["circcal_parallel"]),
+        "paper_pipeline_parallel_ratio": ratio(t["circcal_parallel"], t["opencv"]),
+    }
 
 
 def _whole_process(repeats: int) -> dict:
@@ -199,25 +223,45 @@ def _whole_process(repeats: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         script = Path(tmp) / "opencv_calibrate.py"
         script.write_text(OPENCV_SCRIPT)
-        t = alternate_processes({
-            "circcal": [str(circcal), "calibrate", *paths, "--grid", f"{b.rows}x{b.cols}", "--pitch",
-                        f"{b.pitch_mm}mm", "--diameter", f"{b.diameter_mm}mm", "--no-progress", "--out",
-                        str(Path(tmp) / "model.json")],
-            "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), str(b.pitch_mm), *paths]},
-            repeats=repeats)
-    return {"process_calibrate_circcal_s": summary(t["circcal"]["wall_s"]),
-            "process_calibrate_opencv_s": summary(t["opencv"]["wall_s"]),
-            "process_calibrate_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
-            "process_calibrate_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
-            "process_calibrate_opencv_peak_mib": summary(t["opencv"]["peak_mib"]),
-            "process_note": "circcal calibrate (default parallel detection) vs a plain cv2 script: findCirclesGrid "
-                            "on each image + calibrateCamera, both whole processes, start-up included"}
+        t = alternate_processes(
+            {
+                "circcal": [
+                    str(circcal),
+                    "calibrate",
+                    *paths,
+                    "--grid",
+                    f"{b.rows}x{b.cols}",
+                    "--pitch",
+                    f"{b.pitch_mm}mm",
+                    "--diameter",
+                    f"{b.diameter_mm}mm",
+                    "--no-progress",
+                    "--out",
+                    str(Path(tmp) / "model.json"),
+                ],
+                "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), str(b.pitch_mm), *paths],
+            },
+            repeats=repeats,
+        )
+    return {
+        "process_calibrate_circcal_s": summary(t["circcal"]["wall_s"]),
+        "process_calibrate_opencv_s": summary(t["opencv"]["wall_s"]),
+        "process_calibrate_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
+        "process_calibrate_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
+        "process_calibrate_opencv_peak_mib": summary(t["opencv"]["peak_mib"]),
+        "process_note": "circcal calibrate (default parallel detection) vs a plain cv2 script: findCirclesGrid "
+        "on each image + calibrateCamera, both whole processes, start-up included",
+    }
 
 
 def run(repeats: int = 15) -> dict:
     with pinned(1) as threads:
-        out = {"threads": threads, **_solver(14, repeats), **_solver(1000, REPEATS_LARGE, extended=False),
-               **_pipeline(9)}
+        out = {
+            "threads": threads,
+            **_solver(14, repeats),
+            **_solver(1000, REPEATS_LARGE, extended=False),
+            **_pipeline(9),
+        }
     out.update(_whole_process(9))
     out.update(_memory(1000, 9))
     return out

@@ -26,6 +26,7 @@ alternated, at least 9 repeats, median [min-max], threads pinned and stated).
   :data:`~benchmarks.timing.MALLOC_ENV`). A tool whose large buffers fault in anew on every call is slower there
   (circcal's guided filter was: 16.1 against 10.9 ms per 640x480 image), so this figure is the one a user sees.
 """
+
 from __future__ import annotations
 
 import json
@@ -49,8 +50,14 @@ EXPONENT_FROM = 100
 """The growth exponent is fitted over images of at least this many dots (below, the per-image baseline of
 segmentation dominates)."""
 SCALING_REPEATS = MIN_REPEATS
-VARIANTS = (("wide", "clutter"), ("distractors", "clutter"), ("partial", "out-of-frame"), ("partial", "occlusion"),
-            ("markers", "clean"), ("occluded", "hand"))
+VARIANTS = (
+    ("wide", "clutter"),
+    ("distractors", "clutter"),
+    ("partial", "out-of-frame"),
+    ("partial", "occlusion"),
+    ("markers", "clean"),
+    ("occluded", "hand"),
+)
 """(scenario, variant) timed beside the paper images: clutter, and partial views (the markers set's last 8 views
 are its corner views)."""
 VARIANT_VIEWS = 6
@@ -102,10 +109,13 @@ def _pair(imgs, board, det, repeats: int = MIN_REPEATS, blob_detector=None) -> d
     found["opencv"] = sum(bool(ok) for ok, _ in theirs())
     t = alternate({"circcal": ours, "opencv": theirs}, repeats=repeats)
     n = len(imgs)
-    return {"circcal_s_per_image": summary([x / n for x in t["circcal"]]),
-            "opencv_s_per_image": summary([x / n for x in t["opencv"]]),
-            "ratio_circcal_over_opencv": ratio(t["circcal"], t["opencv"]),
-            "found": found, "images": n}
+    return {
+        "circcal_s_per_image": summary([x / n for x in t["circcal"]]),
+        "opencv_s_per_image": summary([x / n for x in t["opencv"]]),
+        "ratio_circcal_over_opencv": ratio(t["circcal"], t["opencv"]),
+        "found": found,
+        "images": n,
+    }
 
 
 def _paper(det) -> dict:
@@ -113,8 +123,11 @@ def _paper(det) -> dict:
     t0 = time.perf_counter()
     det.detect(imgs[0], board)  # first call: numba's compile (or cache load), imports, tables
     first_call = time.perf_counter() - t0
-    out: dict = {"image": "1920x1080 uint8, 7x7 symmetric grid (paper setup), clean", "views": len(imgs),
-                 "circcal_first_call_s": first_call}
+    out: dict = {
+        "image": "1920x1080 uint8, 7x7 symmetric grid (paper setup), clean",
+        "views": len(imgs),
+        "circcal_first_call_s": first_call,
+    }
     default = cv2.getNumThreads()
     cv2.setNumThreads(-1)
     try:
@@ -126,13 +139,15 @@ def _paper(det) -> dict:
     det.detect(imgs[0], board)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    out["circcal_peak_python_memory_mb"] = peak / 2 ** 20
+    out["circcal_peak_python_memory_mb"] = peak / 2**20
     return out
 
 
 def _resolutions(det) -> dict:
-    out: dict = {"bar": "one thread: circcal <= 0.8x findCirclesGrid at 640x480 and 1920x1080, < 1.0x at 4000x3000 "
-                        "and 8000x6000 (ratio medians)"}
+    out: dict = {
+        "bar": "one thread: circcal <= 0.8x findCirclesGrid at 640x480 and 1920x1080, < 1.0x at 4000x3000 "
+        "and 8000x6000 (ratio medians)"
+    }
     with pinned(1) as threads:
         out["threads"] = threads
         for size in RESOLUTIONS:
@@ -143,7 +158,8 @@ def _resolutions(det) -> dict:
                     params = cv2.SimpleBlobDetector_Params()
                     params.minThreshold = WEAK_MIN_THRESHOLD
                     out[f"{size[0]}x{size[1]} weak, OpenCV minThreshold {WEAK_MIN_THRESHOLD:g}"] = _pair(
-                        imgs, board, det, blob_detector=cv2.SimpleBlobDetector_create(params))
+                        imgs, board, det, blob_detector=cv2.SimpleBlobDetector_create(params)
+                    )
                 del imgs
     return out
 
@@ -160,12 +176,19 @@ def _small_dots(det) -> dict:
             small, _ = embedded_board(board, *size, dot_px / 2, (0.45 * size[0], 0.55 * size[1]))
             normal, _ = _paper_views(1, size, "normal")
             found = [bool(det.detect(small, board).found), bool(det.detect(normal[0], board).found)]
-            t = alternate({"small": lambda: det.detect(small, board),  # noqa: B023 - timed in this iteration
-                           "normal": lambda: det.detect(normal[0], board)})  # noqa: B023
-            out[f"{size[0]}x{size[1]}"] = {"small_dots_px": dot_px, "small_s": summary(t["small"]),
-                                           "normal_s": summary(t["normal"]),
-                                           "ratio_small_over_normal": ratio(t["small"], t["normal"]),
-                                           "found_small_normal": found}
+            t = alternate(
+                {
+                    "small": lambda: det.detect(small, board),  # noqa: B023 - timed in this iteration
+                    "normal": lambda: det.detect(normal[0], board),  # noqa: B023
+                }
+            )
+            out[f"{size[0]}x{size[1]}"] = {
+                "small_dots_px": dot_px,
+                "small_s": summary(t["small"]),
+                "normal_s": summary(t["normal"]),
+                "ratio_small_over_normal": ratio(t["small"], t["normal"]),
+                "found_small_normal": found,
+            }
     return out
 
 
@@ -192,6 +215,7 @@ def _dots(n: int, seed: int, size: tuple[int, int] = (1080, 1920)) -> np.ndarray
     def draw(c, S):
         for _ in range(n):
             cv2.circle(c, _pt(rng.uniform(0, w), rng.uniform(0, h), S), int(rng.uniform(4, 9) * S), 255, -1)
+
     return np.clip(np.rint(_fine(draw, h, w, 0.85, 0.1) * 255), 0, 255).astype(np.uint8)
 
 
@@ -208,6 +232,7 @@ def _lattice(rows: int, cols: int, pitch_px: float, size: tuple[int, int] = (108
             for j in range(cols):
                 p = R @ (np.array([j - (cols - 1) / 2, i - (rows - 1) / 2]) * pitch_px) + [w / 2, h / 2]
                 cv2.circle(c, _pt(*p, S), int(0.25 * pitch_px * S), 255, -1)
+
     return np.clip(np.rint(_fine(draw, h, w, 0.85, 0.1) * 255), 0, 255).astype(np.uint8)
 
 
@@ -232,13 +257,21 @@ def _scaling(det) -> dict:
             H, W = img.shape
             lo, hi = area_limits(board, W, H)
             s = 3
-            mask = next(segmentations(normalise_u8(shrink(img, s), STRETCH_TAIL_PX / s ** 2)))[1]
-            cands = find_candidates(mask, min_area=lo / s ** 2, max_area=hi / s ** 2, scale=s)
-            t = alternate({"detect": lambda: det.detect(img, board),  # noqa: B023 - timed in this iteration
-                           "grid_search": lambda: recognise(board, cands, (W, H))},  # noqa: B023
-                          repeats=SCALING_REPEATS)
-            row = {"dots": n, "candidates": len(cands), "circcal_detect_s": summary(t["detect"]),
-                   "circcal_grid_search_s": summary(t["grid_search"])}
+            mask = next(segmentations(normalise_u8(shrink(img, s), STRETCH_TAIL_PX / s**2)))[1]
+            cands = find_candidates(mask, min_area=lo / s**2, max_area=hi / s**2, scale=s)
+            t = alternate(
+                {
+                    "detect": lambda: det.detect(img, board),  # noqa: B023 - timed in this iteration
+                    "grid_search": lambda: recognise(board, cands, (W, H)),  # noqa: B023
+                },
+                repeats=SCALING_REPEATS,
+            )
+            row = {
+                "dots": n,
+                "candidates": len(cands),
+                "circcal_detect_s": summary(t["detect"]),
+                "circcal_grid_search_s": summary(t["grid_search"]),
+            }
             if n <= OPENCV_MAX_DOTS:
                 t0 = time.perf_counter()
                 cv2.findCirclesGrid(img, board.pattern_size, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
@@ -246,12 +279,15 @@ def _scaling(det) -> dict:
             rows.append(row)
     ns = [r["dots"] for r in rows]
     cv = [(r["dots"], r["opencv_findCirclesGrid_s_once"]) for r in rows if "opencv_findCirclesGrid_s_once" in r]
-    return {"threads": threads, "rows": rows,
-            "exponent_circcal_detect": _exponent(ns, [r["circcal_detect_s"]["median"] for r in rows]),
-            "exponent_circcal_grid_search": _exponent(ns, [r["circcal_grid_search_s"]["median"] for r in rows]),
-            "exponent_opencv": _exponent([a for a, _ in cv], [b for _, b in cv]),
-            "note": f"time ~ dots^exponent fitted over dots >= {EXPONENT_FROM}; findCirclesGrid timed once per "
-                    f"image up to {OPENCV_MAX_DOTS} dots"}
+    return {
+        "threads": threads,
+        "rows": rows,
+        "exponent_circcal_detect": _exponent(ns, [r["circcal_detect_s"]["median"] for r in rows]),
+        "exponent_circcal_grid_search": _exponent(ns, [r["circcal_grid_search_s"]["median"] for r in rows]),
+        "exponent_opencv": _exponent([a for a, _ in cv], [b for _, b in cv]),
+        "note": f"time ~ dots^exponent fitted over dots >= {EXPONENT_FROM}; findCirclesGrid timed once per "
+        f"image up to {OPENCV_MAX_DOTS} dots",
+    }
 
 
 def _hostile(det) -> dict:
@@ -263,8 +299,12 @@ def _hostile(det) -> dict:
         for name, img in (("1500 random dots", _dots(1500, 7)), ("45x45 dot lattice", _lattice(45, 45, 22.0))):
             d = det.detect(img, board)
             t = alternate({"d": lambda: det.detect(img, board)})["d"]  # noqa: B023 - timed in this iteration
-            out[name] = {"circcal_detect_s": summary(t), "found": bool(d.found),
-                         "reason": d.reason, "was": "past 90 s before the bounded grid search"}
+            out[name] = {
+                "circcal_detect_s": summary(t),
+                "found": bool(d.found),
+                "reason": d.reason,
+                "was": "past 90 s before the bounded grid search",
+            }
     return out
 
 
@@ -289,8 +329,13 @@ def _default_malloc_pairs() -> dict:
 def _default_malloc() -> dict:
     """:func:`_default_malloc_pairs` in a fresh child process whose environment has no MALLOC_* variables."""
     env = {k: v for k, v in os.environ.items() if k not in MALLOC_ENV}
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_detect", "--default-malloc-pairs"], env=env,
-                          cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.bench_detect", "--default-malloc-pairs"],
+        env=env,
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+    )
     if proc.returncode != 0:
         raise RuntimeError(f"the default-malloc child exited {proc.returncode}:\n{proc.stderr[-2000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -299,9 +344,15 @@ def _default_malloc() -> dict:
 def run() -> dict:
     import circcal.detector.find as det
 
-    return {"paper": _paper(det), "resolutions": _resolutions(det), "small_dots": _small_dots(det),
-            "variants": _variants(det), "scaling": _scaling(det), "hostile": _hostile(det),
-            "default_malloc": _default_malloc()}
+    return {
+        "paper": _paper(det),
+        "resolutions": _resolutions(det),
+        "small_dots": _small_dots(det),
+        "variants": _variants(det),
+        "scaling": _scaling(det),
+        "hostile": _hostile(det),
+        "default_malloc": _default_malloc(),
+    }
 
 
 if __name__ == "__main__":

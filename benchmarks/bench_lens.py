@@ -13,6 +13,7 @@ ratio <= 1.0.
   fisheye's equidistant focal search) + Levenberg-Marquardt + covariance.
 * Agreement: the largest difference between the two cameras' projections of every observed pixel's ray (px).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,15 +22,47 @@ from benchmarks.timing import MIN_REPEATS, alternate, pinned, ratio, summary
 
 #: (lens, camera, views, seed, max_theta_deg, distance range mm) of each problem
 PROBLEMS = (
-    ("opencv5", (1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001],
-                 "rational"), 20, 1, 55, (250.0, 600.0)),
-    ("rational", (1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001],
-                  "rational"), 30, 3, 70, (250.0, 600.0)),
-    ("thin-prism", (1920, 1080, 900.0, 905.0, 962.3, 541.7,
-                    [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1e-3, -2e-5, -8e-4, 3e-5], "thin-prism"),
-     30, 3, 70, (250.0, 600.0)),
-    ("fisheye", (1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -1e-4], "fisheye"), 20, 2, 75,
-     (150.0, 400.0)),
+    (
+        "opencv5",
+        (1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001], "rational"),
+        20,
+        1,
+        55,
+        (250.0, 600.0),
+    ),
+    (
+        "rational",
+        (1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001], "rational"),
+        30,
+        3,
+        70,
+        (250.0, 600.0),
+    ),
+    (
+        "thin-prism",
+        (
+            1920,
+            1080,
+            900.0,
+            905.0,
+            962.3,
+            541.7,
+            [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1e-3, -2e-5, -8e-4, 3e-5],
+            "thin-prism",
+        ),
+        30,
+        3,
+        70,
+        (250.0, 600.0),
+    ),
+    (
+        "fisheye",
+        (1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -1e-4], "fisheye"),
+        20,
+        2,
+        75,
+        (150.0, 400.0),
+    ),
 )
 
 
@@ -50,12 +83,21 @@ def _opencv(lens: str, obj, img, size):
 
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 1000, 1e-15)
     if lens == "fisheye":
-        _, K, D, _, _ = cv2.fisheye.calibrate([o[None].astype(np.float64) for o in obj],
-                                              [p[None].astype(np.float64) for p in img], size, None, None,
-                                              flags=cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW, criteria=crit)
+        _, K, D, _, _ = cv2.fisheye.calibrate(
+            [o[None].astype(np.float64) for o in obj],
+            [p[None].astype(np.float64) for p in img],
+            size,
+            None,
+            None,
+            flags=cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW,
+            criteria=crit,
+        )
         return Camera(size[0], size[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ravel(D), "fisheye")
-    flags = {"opencv5": 0, "rational": cv2.CALIB_RATIONAL_MODEL,
-             "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL}[lens]
+    flags = {
+        "opencv5": 0,
+        "rational": cv2.CALIB_RATIONAL_MODEL,
+        "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+    }[lens]
     out = cv2.calibrateCameraExtended(obj, img, size, None, None, flags=flags, criteria=crit)
     n = {"opencv5": 5, "rational": 8, "thin-prism": 12}[lens]
     K, d = out[1], np.ravel(out[2])
@@ -72,15 +114,25 @@ def _one(lens: str, cam_args, n: int, seed: int, max_theta: float, distance, rep
     obj64 = [o.astype(np.float64) for o in obj]
     img64 = [p.astype(np.float64) for p in img]
     out: dict = {}
-    t = alternate({"circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size, CalibrationOptions(lens=lens))),
-                   "opencv": lambda: out.__setitem__("ref", _opencv(lens, obj, img, size))}, repeats=repeats)
+    t = alternate(
+        {
+            "circcal": lambda: out.__setitem__("res", calibrate(obj64, img64, size, CalibrationOptions(lens=lens))),
+            "opencv": lambda: out.__setitem__("ref", _opencv(lens, obj, img, size)),
+        },
+        repeats=repeats,
+    )
     uv = np.concatenate(img64)
     res, ref = out["res"], out["ref"]
     diff = float(np.max(np.abs(project_camera(unproject(uv, res.camera), ref) - uv)))
     key = f"lens_{lens}"
-    return {f"{key}_views": n, f"{key}_circcal_s": summary(t["circcal"]), f"{key}_opencv_s": summary(t["opencv"]),
-            f"{key}_ratio": ratio(t["circcal"], t["opencv"]), f"{key}_iterations": res.n_iterations,
-            f"{key}_max_projection_diff_vs_opencv_px": diff}
+    return {
+        f"{key}_views": n,
+        f"{key}_circcal_s": summary(t["circcal"]),
+        f"{key}_opencv_s": summary(t["opencv"]),
+        f"{key}_ratio": ratio(t["circcal"], t["opencv"]),
+        f"{key}_iterations": res.n_iterations,
+        f"{key}_max_projection_diff_vs_opencv_px": diff,
+    }
 
 
 def run(repeats: int = MIN_REPEATS) -> dict:

@@ -1,4 +1,5 @@
 """Renderer speed: one 1920x1080 view of the `paper` scenario, geometry and full variant pipeline, on one core."""
+
 from __future__ import annotations
 
 import time

@@ -4,6 +4,7 @@ the first detection), against a plain Python script that imports cv2 and runs fi
 machine"): <= 0.6 s wall and <= 120 MiB. Alternated with them: the same command with ``CIRCCAL_AOT=0`` (the
 detector's kernels from numba's on-disk cache instead of the ahead-of-time build, circcal/detector/kernels/jit.py), the
 choice that build replaced; ``aot_kernels`` says whether the build was current for this run."""
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,12 @@ flags = cv2.CALIB_CB_ASYMMETRIC_GRID if sys.argv[4] == "asymmetric" else cv2.CAL
 ok, c = cv2.findCirclesGrid(img, (int(sys.argv[2]), int(sys.argv[1])), flags=flags)
 print(ok)
 """
-CASES = (("small-noisy", "noisy", ""), ("paper", "normal", ""), ("asymmetric", "noise", "_asymmetric"),
-         ("distractors", "clutter", "_clutter"))
+CASES = (
+    ("small-noisy", "noisy", ""),
+    ("paper", "normal", ""),
+    ("asymmetric", "noise", "_asymmetric"),
+    ("distractors", "clutter", "_clutter"),
+)
 """(scenario, variant, key suffix) of the images timed: the paper's and a small noisy board (their grids ordered
 directly), OpenCV's 11x4 acircles board and a 7x7 board among clutter (both through the lattice search)."""
 
@@ -61,24 +66,48 @@ def run(repeats: int = 9) -> dict:
         script.write_text(OPENCV_SCRIPT)
         # numba's on-disk cache warmed for the CIRCCAL_AOT=0 runs (a stale cache compiles for seconds, past the
         # detector's time budget; that is not what is timed)
-        subprocess.run([sys.executable, "-c", "import circcal.detector.kernels.build as b; b._exercise()"], check=True,
-                       env={**os.environ, "CIRCCAL_AOT": "0"}, capture_output=True)
+        subprocess.run(
+            [sys.executable, "-c", "import circcal.detector.kernels.build as b; b._exercise()"],
+            check=True,
+            env={**os.environ, "CIRCCAL_AOT": "0"},
+            capture_output=True,
+        )
         for suffix, b, image, (W, H) in _cases(Path(tmp)):
-            detect = [str(circcal), "detect", image, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm",
-                      "--diameter", f"{b.diameter_mm}mm", "--quiet", "--json", str(Path(tmp) / "d.json")]
+            detect = [
+                str(circcal),
+                "detect",
+                image,
+                "--grid",
+                f"{b.rows}x{b.cols}",
+                "--pitch",
+                f"{b.pitch_mm}mm",
+                "--diameter",
+                f"{b.diameter_mm}mm",
+                "--quiet",
+                "--json",
+                str(Path(tmp) / "d.json"),
+            ]
             detect += ["--asymmetric"] if b.layout == "asymmetric" else []
-            t = alternate_processes({"circcal": detect, "circcal_numba_jit": ["env", "CIRCCAL_AOT=0", *detect],
-                                     "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image,
-                                                b.layout]},
-                                    repeats=repeats)
+            t = alternate_processes(
+                {
+                    "circcal": detect,
+                    "circcal_numba_jit": ["env", "CIRCCAL_AOT=0", *detect],
+                    "opencv": [sys.executable, str(script), str(b.rows), str(b.cols), image, b.layout],
+                },
+                repeats=repeats,
+            )
             key = f"detect_one_{W}x{H}{suffix}"
-            out.update({f"{key}_circcal_s": summary(t["circcal"]["wall_s"]),
-                        f"{key}_opencv_s": summary(t["opencv"]["wall_s"]),
-                        f"{key}_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
-                        f"{key}_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
-                        f"{key}_opencv_peak_mib": summary(t["opencv"]["peak_mib"]),
-                        f"{key}_circcal_numba_jit_s": summary(t["circcal_numba_jit"]["wall_s"]),
-                        f"{key}_circcal_numba_jit_peak_mib": summary(t["circcal_numba_jit"]["peak_mib"])})
+            out.update(
+                {
+                    f"{key}_circcal_s": summary(t["circcal"]["wall_s"]),
+                    f"{key}_opencv_s": summary(t["opencv"]["wall_s"]),
+                    f"{key}_ratio": ratio(t["circcal"]["wall_s"], t["opencv"]["wall_s"]),
+                    f"{key}_circcal_peak_mib": summary(t["circcal"]["peak_mib"]),
+                    f"{key}_opencv_peak_mib": summary(t["opencv"]["peak_mib"]),
+                    f"{key}_circcal_numba_jit_s": summary(t["circcal_numba_jit"]["wall_s"]),
+                    f"{key}_circcal_numba_jit_peak_mib": summary(t["circcal_numba_jit"]["peak_mib"]),
+                }
+            )
     import circcal.detector.find  # noqa: F401 - registers the kernel modules
     from circcal.detector.kernels import jit
 

@@ -14,6 +14,7 @@ Batched solves: ``N_BATCH`` problems (the same views, different noise draws, flo
 kornia batch, against cv2.calibrateCamera on each in turn (one OpenCV thread, 500 iterations / eps 1e-16 as the
 OpenCV adapter), alternated; solves per second and the batch's largest projection difference to circcal's solver.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -36,9 +37,21 @@ SIGMA_PX = 0.0146
 def _spec(n_runs: int):
     from circcal.study import parse_spec
 
-    return parse_spec({"name": "bench", "cells": [{
-        "kind": "observations", "scenario": "paper", "noise_px": [SIGMA_PX], "seeds": n_runs,
-        "calibrators": ["circcal"], "batch": BATCH}]})
+    return parse_spec(
+        {
+            "name": "bench",
+            "cells": [
+                {
+                    "kind": "observations",
+                    "scenario": "paper",
+                    "noise_px": [SIGMA_PX],
+                    "seeds": n_runs,
+                    "calibrators": ["circcal"],
+                    "batch": BATCH,
+                }
+            ],
+        }
+    )
 
 
 def _throughput() -> dict:
@@ -64,8 +77,9 @@ def _throughput() -> dict:
     try:
         for n in (1, 2):
             t0 = time.perf_counter()
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   silence_logs=40)
+            cluster = LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40
+            )
             clusters[n] = (cluster, Client(cluster))
             startup[n] = time.perf_counter() - t0
         with pinned(1) as threads:
@@ -75,8 +89,12 @@ def _throughput() -> dict:
             client.close()
             cluster.close()
     return {
-        "study_runs": N_RUNS, "study_runs_per_task": BATCH, "repeats": MIN_REPEATS, **threads,
-        "inprocess_s": summary(t["inprocess"]), "runner_1_worker_s": summary(t["runner_1"]),
+        "study_runs": N_RUNS,
+        "study_runs_per_task": BATCH,
+        "repeats": MIN_REPEATS,
+        **threads,
+        "inprocess_s": summary(t["inprocess"]),
+        "runner_1_worker_s": summary(t["runner_1"]),
         "runner_2_workers_s": summary(t["runner_2"]),
         "inprocess_ms_per_run": 1e3 * summary(t["inprocess"])["median"] / N_RUNS,
         "runs_per_s_1_worker": N_RUNS / summary(t["runner_1"])["median"],
@@ -85,7 +103,8 @@ def _throughput() -> dict:
         "runner_over_inprocess_ratio": ratio(t["runner_1"], t["inprocess"]),
         "runner_overhead_fraction": {k: v - 1.0 for k, v in ratio(t["runner_1"], t["inprocess"]).items()},
         "runner_overhead_goal": 0.05,
-        "cluster_start_s_1_worker": startup[1], "cluster_start_s_2_workers": startup[2],
+        "cluster_start_s_1_worker": startup[1],
+        "cluster_start_s_2_workers": startup[2],
         "note": "the first (warm-up) round pays each worker's imports; the timed rounds are warm",
     }
 
@@ -124,6 +143,7 @@ def _batched() -> dict:
     def kornia(d: str):
         def go():
             results[d] = solve_batch(obj, draws, size, device=d)
+
         return go
 
     def cv2_loop():
@@ -132,8 +152,13 @@ def _batched() -> dict:
 
     with pinned(1) as threads:
         t = alternate({**{f"kornia_{d}": kornia(d) for d in devices}, "cv2_loop": cv2_loop})
-    out = {"batch_problems": N_BATCH, "batch_views": len(obj), "torch_threads": torch.get_num_threads(), **threads,
-           "cv2_calibrateCamera_solves_per_s": N_BATCH / summary(t["cv2_loop"])["median"]}
+    out = {
+        "batch_problems": N_BATCH,
+        "batch_views": len(obj),
+        "torch_threads": torch.get_num_threads(),
+        **threads,
+        "cv2_calibrateCamera_solves_per_s": N_BATCH / summary(t["cv2_loop"])["median"],
+    }
     for d in devices:
         worst = 0.0
         for img, r in zip(draws, results[d]):

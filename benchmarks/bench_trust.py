@@ -7,6 +7,7 @@ outlier rejection, re-correct, recalibrate, and the projection-uncertainty map a
 difference, leave-one-view-out refits); ``report`` = ``--report`` (every figure, both renderings, the failed-image
 overlays, report.json). Bars: plain + cross-validation <= 3x plain; the report <= 10 s for the 14 views.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -42,6 +43,7 @@ def run(repeats: int = 9) -> dict:
         held["cv"] = cross_validate_detections(held["cal"], truth.board, options)
 
     with tempfile.TemporaryDirectory() as tmp:
+
         def report() -> None:
             a = held["assessment"]
             a.crossval = held["cv"]
@@ -52,12 +54,16 @@ def run(repeats: int = 9) -> dict:
     total = [p + c for p, c in zip(t["plain"], t["cross_validation"])]
     r = ratio(total, t["plain"])
     rep = summary(t["report"])
-    return {"threads": threads, "views": len(paths),
-            "plain_calibrate_s": summary(t["plain"]), "cross_validation_s": summary(t["cross_validation"]),
-            "calibrate_with_cross_validation_ratio": r,
-            "cross_validation_bar": f"<= {CROSSVAL_RATIO_BAR:g}x plain: "
-                                    f"{'met' if r['median'] <= CROSSVAL_RATIO_BAR else 'MISSED'}",
-            "report_s": rep,
-            "report_bar": f"<= {REPORT_BAR_S:g} s for {len(paths)} views: "
-                          f"{'met' if rep['median'] <= REPORT_BAR_S else 'MISSED'}",
-            "cross_validation_verdict": held["cv"].verdict}
+    return {
+        "threads": threads,
+        "views": len(paths),
+        "plain_calibrate_s": summary(t["plain"]),
+        "cross_validation_s": summary(t["cross_validation"]),
+        "calibrate_with_cross_validation_ratio": r,
+        "cross_validation_bar": f"<= {CROSSVAL_RATIO_BAR:g}x plain: "
+        f"{'met' if r['median'] <= CROSSVAL_RATIO_BAR else 'MISSED'}",
+        "report_s": rep,
+        "report_bar": f"<= {REPORT_BAR_S:g} s for {len(paths)} views: "
+        f"{'met' if rep['median'] <= REPORT_BAR_S else 'MISSED'}",
+        "cross_validation_verdict": held["cv"].verdict,
+    }

@@ -8,6 +8,7 @@ The process runs with BLAS at one thread and glibc's malloc settings of :data:`b
 set before numpy is first imported (the script re-executes itself with them when they are missing), so every timing
 says which threads it had.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -21,8 +22,16 @@ from pathlib import Path
 
 #: BLAS pools fixed at one thread before numpy's first import (benchmarks pin OpenCV and BLAS again per timing)
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-MODULES = ("bench_render", "bench_detect", "bench_calibrate", "bench_lens", "bench_startup", "bench_validate",
-           "bench_study", "bench_trust")
+MODULES = (
+    "bench_render",
+    "bench_detect",
+    "bench_calibrate",
+    "bench_lens",
+    "bench_startup",
+    "bench_validate",
+    "bench_study",
+    "bench_trust",
+)
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
 
@@ -44,13 +53,15 @@ def main(argv: list[str]) -> int:
     from benchmarks.timing import MALLOC_ENV
 
     if not _environment_ready():
-        os.execve(sys.executable, [sys.executable, "-m", "benchmarks.run", *argv],
-                  {**os.environ, **THREAD_ENV, **MALLOC_ENV})
+        os.execve(
+            sys.executable, [sys.executable, "-m", "benchmarks.run", *argv], {**os.environ, **THREAD_ENV, **MALLOC_ENV}
+        )
     names = argv or list(MODULES)
-    results: dict = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(),
-                                 "cpus": os.cpu_count()},
-                     "environment": {**THREAD_ENV, **MALLOC_ENV},
-                     "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+    results: dict = {
+        "machine": {"python": sys.version.split()[0], "platform": platform.platform(), "cpus": os.cpu_count()},
+        "environment": {**THREAD_ENV, **MALLOC_ENV},
+        "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     failed = False
     for name in names:
         mod = importlib.import_module(f"benchmarks.{name}")
@@ -60,8 +71,11 @@ def main(argv: list[str]) -> int:
             results[name] = mod.run()
         except Exception as exc:  # noqa: BLE001 - a failing benchmark is reported with its traceback
             failed = True
-            results[name] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}",
-                             "traceback": traceback.format_exc()}
+            results[name] = {
+                "status": "failed",
+                "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(),
+            }
         results[name]["bench_wall_s"] = round(time.perf_counter() - t0, 1)  # the module's own run, to plan a rerun
         for k, v in results[name].items():
             if k != "traceback":
@@ -71,15 +85,21 @@ def main(argv: list[str]) -> int:
     from circcal import atomic
 
     atomic.write_text(REPORTS / "bench.json", json.dumps(results, indent=1) + "\n")
-    lines = ["# Benchmarks", "",
-             f"Run {results['started']} on {results['machine']['platform']}, Python {results['machine']['python']}, "
-             f"{results['machine']['cpus']} CPUs. Every ratio is timed alternately in one process (A B A B ..., at "
-             "least 9 repeats) and given as median [min-max] of the per-round ratios; BLAS and OpenCV threads are "
-             "pinned and stated per benchmark; glibc malloc runs with "
-             + ", ".join(f"{k}={v}" for k, v in MALLOC_ENV.items()) + " for both tools alike "
-             "(benchmarks/timing.py), except where a figure says it ran under glibc's defaults "
-             "(bench_detect's default_malloc, bench_calibrate's default_malloc memory: what a user's process has).",
-             "", "The summary quoted by the README, dated by its run: [bench-summary.md](bench-summary.md).", ""]
+    lines = [
+        "# Benchmarks",
+        "",
+        f"Run {results['started']} on {results['machine']['platform']}, Python {results['machine']['python']}, "
+        f"{results['machine']['cpus']} CPUs. Every ratio is timed alternately in one process (A B A B ..., at "
+        "least 9 repeats) and given as median [min-max] of the per-round ratios; BLAS and OpenCV threads are "
+        "pinned and stated per benchmark; glibc malloc runs with "
+        + ", ".join(f"{k}={v}" for k, v in MALLOC_ENV.items())
+        + " for both tools alike "
+        "(benchmarks/timing.py), except where a figure says it ran under glibc's defaults "
+        "(bench_detect's default_malloc, bench_calibrate's default_malloc memory: what a user's process has).",
+        "",
+        "The summary quoted by the README, dated by its run: [bench-summary.md](bench-summary.md).",
+        "",
+    ]
     for name in names:
         lines += [f"## {name}", "", "| metric | value |", "|---|---|"]
         lines += [f"| {k} | {_fmt(v)} |" for k, v in results[name].items() if k != "traceback"]

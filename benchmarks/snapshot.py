@@ -14,6 +14,7 @@ when an outcome changed. A speed change is meant to leave all of it bit-identica
 rounding, a different start for the edge fit) says so with the moves it measured, and its accuracy against the
 truth (tests/test_hard_views.py, tests/test_detect.py) decides.
 """
+
 from __future__ import annotations
 
 import sys
@@ -25,9 +26,10 @@ import cv2
 import numpy as np
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "realdata"
-REAL_SETS = (("boofcv_sony_hx5v_circle_regular_10x8", dict(rows=8, cols=10, pitch_mm=25.0, diameter_mm=15.0)),
-             ("boofcv_sony_hx5v_circle_asym_4x5", dict(rows=5, cols=4, pitch_mm=30.0, diameter_mm=20.0,
-                                                       layout="asymmetric")))
+REAL_SETS = (
+    ("boofcv_sony_hx5v_circle_regular_10x8", dict(rows=8, cols=10, pitch_mm=25.0, diameter_mm=15.0)),
+    ("boofcv_sony_hx5v_circle_asym_4x5", dict(rows=5, cols=4, pitch_mm=30.0, diameter_mm=20.0, layout="asymmetric")),
+)
 HOSTILE_IMAGES = 90
 """Images of :mod:`circcal.fixtures.fuzz` in the set (10 of each kind)."""
 
@@ -73,8 +75,14 @@ def record() -> dict:
     out = {}
     for key, im, board in cases():
         d = detect(im, board, time_budget_s=None)
-        out[key] = (d.found, d.code.value if d.code is not None else "", d.reason or "",
-                    d.centres if d.found else np.zeros((0, 2)), d.segmentation or "", sorted(d.dropped.items()))
+        out[key] = (
+            d.found,
+            d.code.value if d.code is not None else "",
+            d.reason or "",
+            d.centres if d.found else np.zeros((0, 2)),
+            d.segmentation or "",
+            sorted(d.dropped.items()),
+        )
     return out
 
 
@@ -96,8 +104,10 @@ def compare(base: dict, new: dict, show: int = 12) -> int:
             moves.append((float(np.abs(x[seen] - bx[seen]).max()) if seen.any() else 0.0, key, bs, s))
     moves.sort(reverse=True)
     d = np.array([m[0] for m in moves])
-    print(f"{len(new)} images; outcome changed on {changed}; centres bit-identical on {int(np.sum(d == 0))} of "
-          f"{len(d)} found, largest move {d.max() if len(d) else 0.0:.2e} px, median {np.median(d) if len(d) else 0:.2e}")
+    print(
+        f"{len(new)} images; outcome changed on {changed}; centres bit-identical on {int(np.sum(d == 0))} of "
+        f"{len(d)} found, largest move {d.max() if len(d) else 0.0:.2e} px, median {np.median(d) if len(d) else 0:.2e}"
+    )
     for m, key, bs, s in moves[:show]:
         if m > 0:
             print(f"  {m:.3e} px  {key}  ({bs} -> {s})")
@@ -113,7 +123,7 @@ def main(argv: list[str]) -> int:
     snap = record()
     print(f"{len(snap)} images detected in {time.perf_counter() - t0:.0f} s")
     if argv[0] == "record":
-        with open(argv[1], "wb") as f:     # (to the name given: np.save would append .npy to a path)
+        with open(argv[1], "wb") as f:  # (to the name given: np.save would append .npy to a path)
             np.save(f, np.array(snap, dtype=object), allow_pickle=True)
         return 0
     base = np.load(argv[1], allow_pickle=True).item()

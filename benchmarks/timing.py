@@ -13,6 +13,7 @@
   the in-process figures; peak memory from ``wait4`` of each command, run by a small fresh launcher (a child's
   ``ru_maxrss`` starts at its parent's high-water mark, which in a benchmark process is large).
 """
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
-__all__ = ["MIN_REPEATS", "MALLOC_ENV", "pinned", "alternate", "summary", "ratio", "alternate_processes",
-           "fmt_spread"]
+__all__ = ["MIN_REPEATS", "MALLOC_ENV", "pinned", "alternate", "summary", "ratio", "alternate_processes", "fmt_spread"]
 
 #: Repeats of every alternated timing at the least (medians of fewer swing with the machine's load).
 MIN_REPEATS = 9
@@ -42,14 +42,18 @@ def pinned(threads: int = 1) -> Iterator[dict]:
     cv2.setNumThreads(threads)
     try:
         with threadpool_limits(limits=threads):
-            yield {"blas_threads": threads, "opencv_threads": threads,
-                   "malloc_env": all(os.environ.get(k) == v for k, v in MALLOC_ENV.items())}
+            yield {
+                "blas_threads": threads,
+                "opencv_threads": threads,
+                "malloc_env": all(os.environ.get(k) == v for k, v in MALLOC_ENV.items()),
+            }
     finally:
         cv2.setNumThreads(before)
 
 
-def alternate(fns: dict[str, Callable[[], object]], repeats: int = MIN_REPEATS, warmup: int = 1
-              ) -> dict[str, list[float]]:
+def alternate(
+    fns: dict[str, Callable[[], object]], repeats: int = MIN_REPEATS, warmup: int = 1
+) -> dict[str, list[float]]:
     """Wall times (s) of each function, run in turn A B C A B C ... ``repeats`` times after ``warmup`` untimed
     rounds. Returns name -> the ``repeats`` samples, in order (sample i of every name comes from round i)."""
     if repeats < MIN_REPEATS:
@@ -90,8 +94,9 @@ with open(sys.argv[1], "w") as f:
 """
 
 
-def alternate_processes(cmds: dict[str, Sequence[str]], repeats: int = MIN_REPEATS, env: dict | None = None,
-                        warmup: int = 1) -> dict[str, dict[str, list[float]]]:
+def alternate_processes(
+    cmds: dict[str, Sequence[str]], repeats: int = MIN_REPEATS, env: dict | None = None, warmup: int = 1
+) -> dict[str, dict[str, list[float]]]:
     """Whole-process wall times (s) and peak resident memory (MiB) of each command, run in turn like
     :func:`alternate`, each through a small launcher process (see :data:`_LAUNCHER`: the peak is the command's own).
     A command that fails raises ``RuntimeError`` with its output (a benchmark of a failing command measures
@@ -107,12 +112,17 @@ def alternate_processes(cmds: dict[str, Sequence[str]], repeats: int = MIN_REPEA
         result = os.path.join(tmp, "result")
         for r in range(warmup + repeats):
             for name, cmd in cmds.items():
-                proc = subprocess.run([sys.executable, "-c", _LAUNCHER, result, *cmd], stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, env=full_env)
+                proc = subprocess.run(
+                    [sys.executable, "-c", _LAUNCHER, result, *cmd],
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.STDOUT,
+                    env=full_env,
+                )
                 output = proc.stdout.decode(errors="replace")
                 if proc.returncode != 0 or not os.path.exists(result):
-                    raise RuntimeError(f"{name}: launcher for {' '.join(cmd)} exited {proc.returncode}:\n"
-                                       f"{output[-2000:]}")
+                    raise RuntimeError(
+                        f"{name}: launcher for {' '.join(cmd)} exited {proc.returncode}:\n{output[-2000:]}"
+                    )
                 with open(result) as f:
                     dt, maxrss_kib, code = f.read().split()
                 os.unlink(result)
@@ -127,4 +137,3 @@ def alternate_processes(cmds: dict[str, Sequence[str]], repeats: int = MIN_REPEA
 def fmt_spread(s: dict[str, float], unit: str = "", digits: int = 3) -> str:
     """``median [min-max] unit`` of a :func:`summary` or :func:`ratio`."""
     return f"{s['median']:.{digits}g} [{s['min']:.{digits}g}-{s['max']:.{digits}g}]{(' ' + unit) if unit else ''}"
-

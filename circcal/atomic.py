@@ -1,5 +1,6 @@
 """Atomic writes of one file: a reader sees the old file or the complete new one, never a half-written one. (A
 command's outputs together, folders included: :mod:`circcal.outputs`.)"""
+
 from __future__ import annotations
 
 import contextlib

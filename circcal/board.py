@@ -34,6 +34,7 @@ be labelled. Two designs (:func:`with_markers`):
   from a normal dot by its area alone: perspective changes the area ratio of neighbouring dots by a few percent,
   threshold blur by ~10 %.
 """
+
 from __future__ import annotations
 
 import functools
@@ -137,25 +138,32 @@ class Board:
                 raise InputError(f"board {name} must be an integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         if not (2 <= self.rows <= MAX_GRID_SIDE and 2 <= self.cols <= MAX_GRID_SIDE):
-            raise InputError(f"a grid needs at least 2x2 points (and at most {MAX_GRID_SIDE} per side), got "
-                             f"{self.rows}x{self.cols}")
+            raise InputError(
+                f"a grid needs at least 2x2 points (and at most {MAX_GRID_SIDE} per side), got {self.rows}x{self.cols}"
+            )
         for name in ("pitch_mm", "diameter_mm") + (("margin_mm",) if self.margin_mm is not None else ()):
             v = getattr(self, name)
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.floating, np.integer)) \
-                    or not np.isfinite(v):
+            if (
+                isinstance(v, (bool, np.bool_))
+                or not isinstance(v, (int, float, np.floating, np.integer))
+                or not np.isfinite(v)
+            ):
                 raise InputError(f"board {name} must be a finite number (mm), got {v!r}")
             object.__setattr__(self, name, float(v))
         if self.pitch_mm <= 0:
             raise InputError(f"pitch must be positive, got {self.pitch_mm} mm")
         if not MIN_LENGTH_MM <= self.pitch_mm <= MAX_LENGTH_MM:
-            raise InputError(f"pitch must lie between {MIN_LENGTH_MM:g} and {MAX_LENGTH_MM:g} mm, got "
-                             f"{self.pitch_mm:g} mm (a unit mix-up? lengths take mm, cm, m or in)")
+            raise InputError(
+                f"pitch must lie between {MIN_LENGTH_MM:g} and {MAX_LENGTH_MM:g} mm, got "
+                f"{self.pitch_mm:g} mm (a unit mix-up? lengths take mm, cm, m or in)"
+            )
         if self.layout != "checkerboard":
-            spacing = self.pitch_mm * (2 ** 0.5 if self.layout == "asymmetric" else 1.0)
+            spacing = self.pitch_mm * (2**0.5 if self.layout == "asymmetric" else 1.0)
             if not 0 < self.diameter_mm < spacing:
                 raise InputError(
                     f"dot diameter {self.diameter_mm} mm must be positive and below the nearest-neighbour "
-                    f"spacing {spacing:.3g} mm (dots would touch)")
+                    f"spacing {spacing:.3g} mm (dots would touch)"
+                )
         self._check_markers()
 
     def _check_markers(self) -> None:
@@ -171,8 +179,11 @@ class Board:
             idx.append(int(v))
         object.__setattr__(self, "markers", tuple(sorted(set(idx))))
         v = self.marker_diameter_mm
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.floating, np.integer)) \
-                or not np.isfinite(v):
+        if (
+            isinstance(v, (bool, np.bool_))
+            or not isinstance(v, (int, float, np.floating, np.integer))
+            or not np.isfinite(v)
+        ):
             raise InputError(f"board marker_diameter_mm must be a finite number (mm), got {v!r}")
         object.__setattr__(self, "marker_diameter_mm", float(v))
         if not self.markers:
@@ -185,19 +196,25 @@ class Board:
             raise InputError(f"board markers repeat a point: {sorted(idx)}")
         bad = [i for i in self.markers if not 0 <= i < self.n_points]
         if bad:
-            raise InputError(f"board markers {bad} are not points of a {self.rows}x{self.cols} grid "
-                             f"(indices 0..{self.n_points - 1})")
+            raise InputError(
+                f"board markers {bad} are not points of a {self.rows}x{self.cols} grid (indices 0..{self.n_points - 1})"
+            )
         spacing = self.spacing_mm
         if not self.diameter_mm < self.marker_diameter_mm:
-            raise InputError(f"marker diameter {self.marker_diameter_mm:g} mm must exceed the dot diameter "
-                             f"{self.diameter_mm:g} mm")
+            raise InputError(
+                f"marker diameter {self.marker_diameter_mm:g} mm must exceed the dot diameter {self.diameter_mm:g} mm"
+            )
         gap = spacing - 0.5 * (self.marker_diameter_mm + self.diameter_mm)
         if gap < MIN_GAP_SHARE * spacing:
-            raise InputError(f"marker diameter {self.marker_diameter_mm:g} mm leaves {gap:.3g} mm to the nearest "
-                             f"dot, less than {MIN_GAP_SHARE:.0%} of the spacing {spacing:.3g} mm (dots would merge)")
+            raise InputError(
+                f"marker diameter {self.marker_diameter_mm:g} mm leaves {gap:.3g} mm to the nearest "
+                f"dot, less than {MIN_GAP_SHARE:.0%} of the spacing {spacing:.3g} mm (dots would merge)"
+            )
         if self.marker_diameter_mm > (1.0 - MIN_GAP_SHARE) * spacing and _adjacent_markers(self):
-            raise InputError(f"two markers of {self.marker_diameter_mm:g} mm are neighbours at {spacing:.3g} mm "
-                             "spacing: they would touch")
+            raise InputError(
+                f"two markers of {self.marker_diameter_mm:g} mm are neighbours at {spacing:.3g} mm "
+                "spacing: they would touch"
+            )
 
     @property
     def n_points(self) -> int:
@@ -215,7 +232,7 @@ class Board:
     @property
     def spacing_mm(self) -> float:
         """Distance between nearest dots (mm): the pitch, or sqrt(2) pitches on an asymmetric grid."""
-        return self.pitch_mm * (2 ** 0.5 if self.layout == "asymmetric" else 1.0)
+        return self.pitch_mm * (2**0.5 if self.layout == "asymmetric" else 1.0)
 
     @property
     def has_markers(self) -> bool:
@@ -257,8 +274,12 @@ class Board:
         if self.layout == "checkerboard":
             return (-self.pitch_mm, -self.pitch_mm, self.cols * self.pitch_mm, self.rows * self.pitch_mm)
         r = self.radii_mm()
-        return (float((p[:, 0] - r).min()), float((p[:, 1] - r).min()), float((p[:, 0] + r).max()),
-                float((p[:, 1] + r).max()))
+        return (
+            float((p[:, 0] - r).min()),
+            float((p[:, 1] - r).min()),
+            float((p[:, 0] + r).max()),
+            float((p[:, 1] + r).max()),
+        )
 
     def extent_mm(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the white board including its margin, mm."""
@@ -288,9 +309,16 @@ class Board:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Board:
         """The board of a ``board`` block (:meth:`to_dict`); the marker fields may be absent (no markers)."""
-        return cls(int(d["rows"]), int(d["cols"]), float(d["pitch_mm"]), float(d.get("diameter_mm", 0.0)),
-                   d.get("layout", "symmetric"), d.get("margin_mm"), tuple(d.get("markers") or ()),
-                   float(d.get("marker_diameter_mm") or 0.0))
+        return cls(
+            int(d["rows"]),
+            int(d["cols"]),
+            float(d["pitch_mm"]),
+            float(d.get("diameter_mm", 0.0)),
+            d.get("layout", "symmetric"),
+            d.get("margin_mm"),
+            tuple(d.get("markers") or ()),
+            float(d.get("marker_diameter_mm") or 0.0),
+        )
 
     def signed_distance_mm(self, xy: np.ndarray) -> np.ndarray:
         """Signed distance (mm) from board points ``xy`` (..., 2) to the nearest feature edge; negative on dark
@@ -350,11 +378,15 @@ def _symmetries(board: Board) -> tuple[Symmetry, ...]:
                 t = np.column_stack([-t[:, 1], t[:, 0]])
             dist = np.linalg.norm(t[:, None, :] - d[None, :, :], axis=-1)
             j = np.argmin(dist, axis=1)
-            one_to_one = np.bincount(j, minlength=len(d)).max() == 1   # (np.unique would import numpy.ma: 9 ms)
-            if np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm) and one_to_one \
-                    and np.array_equal(board.is_marker()[j], board.is_marker()):  # markers onto markers
-                label = f"rot{90 * quarter}" if not mirror else ("mirror" if quarter == 0 else
-                                                                 f"mirror+rot{90 * quarter}")
+            one_to_one = np.bincount(j, minlength=len(d)).max() == 1  # (np.unique would import numpy.ma: 9 ms)
+            if (
+                np.all(dist[np.arange(len(d)), j] < 1e-6 * board.pitch_mm)
+                and one_to_one
+                and np.array_equal(board.is_marker()[j], board.is_marker())
+            ):  # markers onto markers
+                label = (
+                    f"rot{90 * quarter}" if not mirror else ("mirror" if quarter == 0 else f"mirror+rot{90 * quarter}")
+                )
                 if not any(np.array_equal(j, s.perm) for s in out):
                     j.setflags(write=False)
                     out.append(Symmetry(label, j, -1 if mirror else 1))
@@ -364,7 +396,8 @@ def _symmetries(board: Board) -> tuple[Symmetry, ...]:
 #: The four rotations of the integer lattice (quarter turns, x right and y down as in the board frame): rotation
 #: ``q`` maps lattice coordinates ``xy`` to ``xy @ LATTICE_ROTATIONS[q].T``.
 LATTICE_ROTATIONS: tuple[np.ndarray, ...] = tuple(
-    np.linalg.matrix_power(np.array([[0, -1], [1, 0]], np.int64), q) for q in range(4))
+    np.linalg.matrix_power(np.array([[0, -1], [1, 0]], np.int64), q) for q in range(4)
+)
 
 
 @dataclass(frozen=True)
@@ -379,8 +412,9 @@ class Placement:
     mismatches: int
 
 
-def placements(board: Board, xy: np.ndarray, flags: np.ndarray | None = None, *, max_mismatches: int = 0
-               ) -> list[Placement]:
+def placements(
+    board: Board, xy: np.ndarray, flags: np.ndarray | None = None, *, max_mismatches: int = 0
+) -> list[Placement]:
     """Every placement of the observed lattice points ``xy`` (K, 2) int onto ``board``'s points by a rotation and
     an integer translation (no reflection: ``xy`` must have the board frame's handedness) that puts every observed
     point on a board point and has at most ``max_mismatches`` marker disagreements. ``flags`` (K,) int: 1 for a
@@ -402,8 +436,8 @@ def placements(board: Board, xy: np.ndarray, flags: np.ndarray | None = None, *,
             continue
         tx, ty = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
         T = np.stack([tx.ravel(), ty.ravel()], -1)
-        for c in range(0, len(T), max(1, (1 << 20) // max(K, 1))):   # bounded memory
-            Tc = T[c:c + (1 << 20) // max(K, 1)]
+        for c in range(0, len(T), max(1, (1 << 20) // max(K, 1))):  # bounded memory
+            Tc = T[c : c + (1 << 20) // max(K, 1)]
             P = G[None] + Tc[:, None]
             idx = occ[P[..., 1], P[..., 0]]
             ok = np.all(idx >= 0, axis=1)
@@ -422,7 +456,7 @@ def _lattice_grid(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     of the board's lattice coordinates."""
     L = board.lattice_coords()
     origin = L.min(axis=0)
-    W, H = (L.max(axis=0) - origin + 1)
+    W, H = L.max(axis=0) - origin + 1
     occ = np.full((H, W), -1, np.int64)
     occ[L[:, 1] - origin[1], L[:, 0] - origin[0]] = np.arange(len(L))
     mk = np.zeros((H, W), bool)
@@ -445,7 +479,7 @@ def _adjacent_markers(board: Board) -> bool:
 def _windows(board: Board, k: int) -> list[np.ndarray]:
     """Point indices of every ``k`` x ``k`` window of rows and columns (indices, OpenCV's order) of ``board``."""
     idx = np.arange(board.n_points).reshape(board.rows, board.cols)
-    return [idx[i:i + k, j:j + k].ravel() for i in range(board.rows - k + 1) for j in range(board.cols - k + 1)]
+    return [idx[i : i + k, j : j + k].ravel() for i in range(board.rows - k + 1) for j in range(board.cols - k + 1)]
 
 
 def _window_pairs(board: Board, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -481,18 +515,25 @@ def pattern_window(rows: int, cols: int) -> int:
 
 @functools.lru_cache(maxsize=32)
 def _pattern(rows: int, cols: int, layout: str) -> tuple[tuple[int, ...], int]:
-    probe = Board(rows, cols, 10.0, 5.0 if layout != "asymmetric" else 7.0, layout)   # geometry only
+    probe = Board(rows, cols, 10.0, 5.0 if layout != "asymmetric" else 7.0, layout)  # geometry only
     if probe.n_points > PATTERN_MAX_POINTS:
-        raise InputError(f"circcal's marker pattern is made for boards of up to {PATTERN_MAX_POINTS} dots, not "
-                         f"{rows}x{cols}: use --markers origin")
+        raise InputError(
+            f"circcal's marker pattern is made for boards of up to {PATTERN_MAX_POINTS} dots, not "
+            f"{rows}x{cols}: use --markers origin"
+        )
     L = probe.lattice_coords().astype(np.float64)
     near = (np.linalg.norm(L[:, None] - L[None], axis=-1) * probe.pitch_mm) < 1.01 * probe.spacing_mm
     np.fill_diagonal(near, False)
-    first = min(rows, cols, PATTERN_SMALL_WINDOW + 1 if max(rows, cols) <= PATTERN_LARGE_FROM
-                else PATTERN_SMALL_WINDOW + 2)
+    first = min(
+        rows, cols, PATTERN_SMALL_WINDOW + 1 if max(rows, cols) <= PATTERN_LARGE_FROM else PATTERN_SMALL_WINDOW + 2
+    )
     for k in range(first, min(rows, cols) + 1):
-        m = _search_pattern(probe, k, near, np.random.default_rng(PATTERN_SEED + 1000 * rows + cols + 97 * k
-                                                                  + (7 if layout == "asymmetric" else 0)))
+        m = _search_pattern(
+            probe,
+            k,
+            near,
+            np.random.default_rng(PATTERN_SEED + 1000 * rows + cols + 97 * k + (7 if layout == "asymmetric" else 0)),
+        )
         if m is not None:
             return tuple(int(i) for i in np.nonzero(m)[0]), k
     raise InputError(f"no marker pattern found for a {rows}x{cols} {layout} grid: use --markers origin")
@@ -505,7 +546,7 @@ def _search_pattern(board: Board, k: int, near: np.ndarray, rng: np.random.Gener
     A, B = _window_pairs(board, k)
     N = board.n_points
     m = np.zeros(N, bool)
-    for i in rng.permutation(N)[:max(1, round(PATTERN_DENSITY * N))]:
+    for i in rng.permutation(N)[: max(1, round(PATTERN_DENSITY * N))]:
         if not np.any(near[i] & m):
             m[i] = True
     if len(A) == 0:

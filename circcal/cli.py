@@ -8,6 +8,7 @@ Exit codes (:mod:`circcal.errors`): 0 done; 1 the job's answer is negative (a ch
 without its grid); 2 bad input (the message names it); 70 a bug in circcal (the traceback is printed: please
 report it); 130 interrupted.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,10 +31,11 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="circcal",
         description="Circle-grid camera calibration with unbiased centres, and cross-validation against "
-                    "reference calibrators. Reprojection errors name their convention: per point (2-D, "
-                    "OpenCV's RMS), per coordinate (mrcal's RMS) or mean 2-D (the paper's).",
+        "reference calibrators. Reprojection errors name their convention: per point (2-D, "
+        "OpenCV's RMS), per coordinate (mrcal's RMS) or mean 2-D (the paper's).",
         epilog="Exit codes: 0 done, 1 negative answer (a check failed, no model), 2 bad input, 70 internal error "
-               "(a bug: the traceback is printed), 130 interrupted.")
+        "(a bug: the traceback is printed), 130 interrupted.",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in (only,) if only in COMMANDS else COMMANDS:
         importlib.import_module(f"circcal.commands.{name}").add_parser(sub)
@@ -80,8 +82,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except Exception:  # noqa: BLE001 - a bug: keep its traceback, and an exit code of its own
         traceback.print_exc()
-        print(f"circcal {args.command}: internal error (a bug in circcal, not in your input); please report it "
-              f"with the traceback above", file=sys.stderr)
+        print(
+            f"circcal {args.command}: internal error (a bug in circcal, not in your input); please report it "
+            f"with the traceback above",
+            file=sys.stderr,
+        )
         return EXIT_INTERNAL_ERROR
     finally:
         warnings.showwarning = old_show

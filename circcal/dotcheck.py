@@ -16,6 +16,7 @@ Measured on every rendered fixture variant (clean to defocused, motion-blurred, 
 the worst dot's fit residual is 8x its image's median and 0.16 px at most, neighbouring areas agree within 1.4x
 (1.8x for ``small-noisy``'s 11 px dots in heavy noise); nothing is flagged there.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -55,9 +56,9 @@ def fit_residuals(edge_points: list[np.ndarray], conics: np.ndarray) -> np.ndarr
         return np.full(n, np.nan)
     P = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in edge_points if p is not None])
     dot = np.repeat(np.arange(n), sizes)
-    Q = np.asarray(conics, dtype=np.float64)[dot]                        # (M, 3, 3)
+    Q = np.asarray(conics, dtype=np.float64)[dot]  # (M, 3, 3)
     h = np.column_stack([P, np.ones(len(P))])
-    Qh = np.einsum("mjk,mk->mj", Q, h)                                   # Q is symmetric: Q h = (h^T Q)^T
+    Qh = np.einsum("mjk,mk->mj", Q, h)  # Q is symmetric: Q h = (h^T Q)^T
     alg = np.einsum("mj,mj->m", h, Qh)
     grad = 2.0 * np.hypot(Qh[:, 0], Qh[:, 1])
     sq = np.bincount(dot, weights=(alg / np.maximum(grad, 1e-300)) ** 2, minlength=n)
@@ -80,7 +81,7 @@ def _neighbour_medians(grid: np.ndarray) -> np.ndarray:
     from circcal.detector.measure.robust import row_medians
 
     g = np.pad(np.asarray(grid, dtype=np.float64), 1, constant_values=np.nan)
-    nb = np.stack([g[:-2, 1:-1], g[2:, 1:-1], g[1:-1, :-2], g[1:-1, 2:]], axis=-1)   # up, down, left, right
+    nb = np.stack([g[:-2, 1:-1], g[2:, 1:-1], g[1:-1, :-2], g[1:-1, 2:]], axis=-1)  # up, down, left, right
     return row_medians(nb.reshape(-1, 4)).reshape(grid.shape)
 
 
@@ -98,8 +99,15 @@ def bad_dots(detection, rows: int, cols: int) -> list[BadDot]:
         return out
     med = float(np.nanmedian(res))
     for k in np.flatnonzero(res > max(FIT_RATIO * med, FIT_FLOOR_PX)):
-        out.append(BadDot(int(k), float(res[k]), "fit", f"its ellipse misses its edge points by {res[k]:.2f} px RMS "
-                          f"({res[k] / med:.0f}x the image's median dot)"))
+        out.append(
+            BadDot(
+                int(k),
+                float(res[k]),
+                "fit",
+                f"its ellipse misses its edge points by {res[k]:.2f} px RMS "
+                f"({res[k] / med:.0f}x the image's median dot)",
+            )
+        )
     area = _areas(detection.conics)
     if len(area) == rows * cols:
         area[list(dropped)] = np.nan
@@ -109,8 +117,9 @@ def bad_dots(detection, rows: int, cols: int) -> list[BadDot]:
             far = np.isfinite(ratio) & (ratio > 0) & (np.maximum(ratio, 1.0 / ratio) > AREA_RATIO)
         for k in np.flatnonzero(far):
             if int(k) not in flagged:
-                out.append(BadDot(int(k), float(ratio[k]), "area", f"its area is {ratio[k]:.2f}x its neighbours' "
-                                  "median"))
+                out.append(
+                    BadDot(int(k), float(ratio[k]), "area", f"its area is {ratio[k]:.2f}x its neighbours' median")
+                )
     return sorted(out, key=lambda b: b.index)
 
 
@@ -127,6 +136,17 @@ def bad_dot_rejections(detections, board) -> tuple[list[list[int]], list]:
         bad = bad_dots(d, board.rows, board.cols)
         exclude.append([b.index for b in bad])
         for b in bad:
-            items.append(Rejected(v, b.index, board_pts[b.index], np.asarray(d.centres[b.index], dtype=np.float64),
-                                  None, float("nan"), 0, OutlierReason.BAD_DOT, f"{b.reason}: {b.detail}"))
+            items.append(
+                Rejected(
+                    v,
+                    b.index,
+                    board_pts[b.index],
+                    np.asarray(d.centres[b.index], dtype=np.float64),
+                    None,
+                    float("nan"),
+                    0,
+                    OutlierReason.BAD_DOT,
+                    f"{b.reason}: {b.detail}",
+                )
+            )
     return exclude, items

@@ -4,10 +4,21 @@ The command line prints an :class:`InputError` as one line and exits with :data:
 exception keeps its traceback and exits with :data:`EXIT_INTERNAL_ERROR`, so a bug is never mistaken for a bad
 file. Library callers catch :class:`InputError` (a ``ValueError``) for everything a user can fix.
 """
+
 from __future__ import annotations
 
-__all__ = ["InputError", "ImageError", "ModelFileError", "CalibrationError", "DegenerateViewsError",
-           "EXIT_OK", "EXIT_FAILED", "EXIT_BAD_INPUT", "EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED"]
+__all__ = [
+    "InputError",
+    "ImageError",
+    "ModelFileError",
+    "CalibrationError",
+    "DegenerateViewsError",
+    "EXIT_OK",
+    "EXIT_FAILED",
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERNAL_ERROR",
+    "EXIT_INTERRUPTED",
+]
 
 #: Exit codes of every ``circcal`` command.
 EXIT_OK = 0

@@ -1,5 +1,6 @@
 """Numbers as circcal prints them (tables of validate, conformance and the reports), so a missing or non-finite
 value reads "-" everywhere."""
+
 from __future__ import annotations
 
 import math

@@ -1,6 +1,7 @@
 """JSON in and out, written once: :func:`jsonable` turns circcal's values (numpy arrays and scalars, enums, named
 tuples, objects with ``to_dict()``) into plain JSON data, with non-finite floats as ``null`` (JSON has no NaN);
 :func:`read_json` reads a file and names it in every error."""
+
 from __future__ import annotations
 
 import enum
@@ -31,7 +32,7 @@ def jsonable(x: Any) -> Any:
         return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
         if x.dtype.kind in "biu" or (x.dtype.kind == "f" and bool(np.isfinite(x).all())):
-            return x.tolist()   # (plain Python values already: no element-wise walk, ~3x faster for model.json)
+            return x.tolist()  # (plain Python values already: no element-wise walk, ~3x faster for model.json)
         return jsonable(x.tolist())
     if isinstance(x, (bool, np.bool_)):
         return bool(x)
@@ -119,8 +120,9 @@ def _duplicate_key(text: str) -> tuple[str, int] | None:
     return None
 
 
-def parse_json(text: str, *, max_depth: int | None = None, max_int_digits: int | None = None,
-               unique_keys: bool = False) -> Any:
+def parse_json(
+    text: str, *, max_depth: int | None = None, max_int_digits: int | None = None, unique_keys: bool = False
+) -> Any:
     """``json.loads(text)``; :class:`~circcal.errors.InputError` with the line and column of a syntax error. Hostile
     texts are refused in words, never with Python's own exceptions: nesting deeper than ``max_depth`` (checked before
     parsing; without it, as deep as Python's recursion allows), integers of more than ``max_int_digits`` digits

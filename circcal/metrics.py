@@ -7,6 +7,7 @@
 
 Every number circcal prints or writes names its convention in the key.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -25,10 +26,9 @@ def error_stats(residuals: np.ndarray) -> dict[str, float]:
     r = r[np.all(np.isfinite(r), axis=1)]
     if len(r) == 0:
         nan = float("nan")
-        return {"n_points": 0, "rms_per_point_px": nan, "rms_per_coord_px": nan, "mean_2d_px": nan,
-                "max_2d_px": nan}
+        return {"n_points": 0, "rms_per_point_px": nan, "rms_per_coord_px": nan, "mean_2d_px": nan, "max_2d_px": nan}
     norm = np.hypot(r[:, 0], r[:, 1])
-    ms = float(np.mean(norm ** 2))
+    ms = float(np.mean(norm**2))
     return {
         "n_points": int(len(r)),
         "rms_per_point_px": float(np.sqrt(ms)),
@@ -63,8 +63,13 @@ def error_stats_per_view(residuals: Sequence[np.ndarray]) -> tuple[dict[str, flo
     with np.errstate(invalid="ignore", divide="ignore"):
         empty = n == 0
         ms = np.where(empty, np.nan, ss / n)
-        cols = (n.tolist(), np.sqrt(ms).tolist(), np.sqrt(ms / 2.0).tolist(),
-                np.where(empty, np.nan, s1 / n).tolist(), np.where(empty, np.nan, mx).tolist())
+        cols = (
+            n.tolist(),
+            np.sqrt(ms).tolist(),
+            np.sqrt(ms / 2.0).tolist(),
+            np.where(empty, np.nan, s1 / n).tolist(),
+            np.where(empty, np.nan, mx).tolist(),
+        )
     keys = ("n_points", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_2d_px")
     per_view = [dict(zip(keys, row)) for row in zip(*cols)]
     return error_stats(r), per_view

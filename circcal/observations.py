@@ -6,6 +6,7 @@ taken as z = 0; OpenCV's (N_v, 1, 3) is accepted), ``image_points`` (N_v, 2) px 
 coordinates are pixel centres; (N_v, 1, 2) accepted), and one ``image_size`` (width, height) in pixels. Views may
 hold different subsets of the board's points.
 """
+
 from __future__ import annotations
 
 import numbers
@@ -15,8 +16,15 @@ import numpy as np
 
 from circcal.errors import CalibrationError, InputError
 
-__all__ = ["MIN_VIEWS", "MIN_POINTS_PER_VIEW", "PLANAR_TOL", "BOARD_KEY_DECIMALS", "check_image_size",
-           "check_observations", "distinct_points"]
+__all__ = [
+    "MIN_VIEWS",
+    "MIN_POINTS_PER_VIEW",
+    "PLANAR_TOL",
+    "BOARD_KEY_DECIMALS",
+    "check_image_size",
+    "check_observations",
+    "distinct_points",
+]
 
 #: Views a calibration needs at the least: Zhang's closed form needs 2 for the four intrinsics, and a third view is
 #: the least that leaves the distortion and the poses any redundancy (10-20 well-tilted views are what a good
@@ -39,16 +47,25 @@ def check_image_size(image_size: object) -> tuple[int, int]:
         raise InputError(f"image_size must be (width, height) in pixels, got {image_size!r}") from None
     out = []
     for v in (w, h):
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not np.isfinite(float(v)) \
-                or float(v) != int(v) or int(v) <= 0:
+        if (
+            isinstance(v, (bool, np.bool_))
+            or not isinstance(v, numbers.Real)
+            or not np.isfinite(float(v))
+            or float(v) != int(v)
+            or int(v) <= 0
+        ):
             raise InputError(f"image_size must be (width, height) as positive integers, got {image_size!r}")
         out.append(int(v))
     return out[0], out[1]
 
 
-def check_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                       image_size: object, *, min_views: int = MIN_VIEWS
-                       ) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
+def check_observations(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: object,
+    *,
+    min_views: int = MIN_VIEWS,
+) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
     """Check and normalise observations; raises :class:`~circcal.errors.CalibrationError` (an ``InputError``)
     naming the view and what is wrong.
 
@@ -59,8 +76,10 @@ def check_observations(object_points: Sequence[np.ndarray], image_points: Sequen
     """
     w, h = check_image_size(image_size)
     if len(object_points) != len(image_points):
-        raise CalibrationError(f"got {len(object_points)} object-point sets but {len(image_points)} image-point "
-                               f"sets; expected one of each per view")
+        raise CalibrationError(
+            f"got {len(object_points)} object-point sets but {len(image_points)} image-point "
+            f"sets; expected one of each per view"
+        )
     obj, img = [], []
     for v, (o, p) in enumerate(zip(object_points, image_points)):
         o = np.asarray(o, dtype=np.float64)
@@ -83,8 +102,10 @@ def check_observations(object_points: Sequence[np.ndarray], image_points: Sequen
         for v, (o, p) in enumerate(zip(obj, img)):
             _check_view(v, o, p, w, h)
     if len(obj) < min_views:
-        raise CalibrationError(f"{len(obj)} usable view(s); calibration needs at least {min_views} views of the "
-                               f"board (10-20 well-tilted views recommended)")
+        raise CalibrationError(
+            f"{len(obj)} usable view(s); calibration needs at least {min_views} views of the "
+            f"board (10-20 well-tilted views recommended)"
+        )
     return obj, img, (w, h)
 
 
@@ -108,22 +129,28 @@ def _check_view(v: int, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:
     if bad.size:
         raise CalibrationError(
             f"view {v}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
-            f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points")
+            f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points"
+        )
     if not np.all(np.isfinite(o)):
         raise CalibrationError(f"view {v}: object points contain NaN/inf (non-finite)")
     if len(o) < MIN_POINTS_PER_VIEW:
-        raise CalibrationError(f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
-                               f"has 6 parameters and the homography 8). Remove the view or detect more points")
+        raise CalibrationError(
+            f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
+            f"has 6 parameters and the homography 8). Remove the view or detect more points"
+        )
     out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
     if out.size:
         raise CalibrationError(
             f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
             f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
-            f"image_size or a bad detection")
+            f"image_size or a bad detection"
+        )
     scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
     if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
-        raise CalibrationError(f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
-                               f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm")
+        raise CalibrationError(
+            f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
+            f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm"
+        )
 
 
 #: Board points are the same point when their coordinates agree to this many decimals (mm): 1e-6 mm, far below any

@@ -26,6 +26,7 @@ Example
 ...     ...                                                          # the work: write into model and report
 ...     out.commit()
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -46,8 +47,15 @@ from pathlib import Path
 from circcal.errors import InputError
 from circcal.pathnames import display_name
 
-__all__ = ["MARKER", "Outputs", "check_folder_output", "check_writable_place", "folder_manifest", "recover",
-           "write_manifest"]
+__all__ = [
+    "MARKER",
+    "Outputs",
+    "check_folder_output",
+    "check_writable_place",
+    "folder_manifest",
+    "recover",
+    "write_manifest",
+]
 
 MARKER = ".circcal-output.json"
 """The manifest circcal writes into every folder output: its kind and every file it wrote with its SHA-256."""
@@ -83,8 +91,10 @@ def check_writable_place(path: Path, option: str) -> Path:
         raise InputError(f"{option} {_display(path)}: {_display(parent)} is not a folder")
     read_only = hasattr(os, "statvfs") and bool(os.statvfs(parent).f_flag & getattr(os, "ST_RDONLY", 1))
     if read_only or not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"{option} {_display(path)}: folder {_display(parent)} is not writable ("
-                         f"{'a read-only file system' if read_only else 'permission denied'})")
+        raise InputError(
+            f"{option} {_display(path)}: folder {_display(parent)} is not writable ("
+            f"{'a read-only file system' if read_only else 'permission denied'})"
+        )
     return parent
 
 
@@ -119,8 +129,9 @@ def folder_manifest(folder: Path) -> dict[str, str]:
         for name in sorted(dirs + files):
             p = Path(root) / name
             if p.is_symlink() or not (p.is_file() or p.is_dir()):
-                raise InputError(f"{_display(p)} is {'a link' if p.is_symlink() else 'not a file'}: circcal "
-                                 f"writes none")
+                raise InputError(
+                    f"{_display(p)} is {'a link' if p.is_symlink() else 'not a file'}: circcal writes none"
+                )
         for name in files:
             p = Path(root) / name
             rel = p.relative_to(folder).as_posix()
@@ -171,22 +182,24 @@ def check_folder_output(path: Path, kind: str, option: str, shown: Path | None =
             extra = sorted(set(now) - set(marker["files"]))
             changed = sorted(k for k in now if k in marker["files"] and marker["files"][k] != now[k])
             if extra:
-                why = f"it holds files circcal did not write there ({_display(extra[0])}" + \
-                      (f" and {len(extra) - 1} more)" if len(extra) > 1 else ")")
+                why = f"it holds files circcal did not write there ({_display(extra[0])}" + (
+                    f" and {len(extra) - 1} more)" if len(extra) > 1 else ")"
+                )
             elif changed:
                 why = f"{_display(changed[0])} was changed since circcal wrote it"
     if why is not None:
-        raise InputError(f"{option} {_display(shown)}: {why}; circcal replaces only a folder it wrote: give a new "
-                         f"or empty folder")
+        raise InputError(
+            f"{option} {_display(shown)}: {why}; circcal replaces only a folder it wrote: give a new or empty folder"
+        )
     return "earlier"
 
 
 @dataclass
 class _Output:
-    shown: Path          # as the user gave it
-    final: Path          # symlinks followed
+    shown: Path  # as the user gave it
+    final: Path  # symlinks followed
     option: str
-    kind: str | None     # None: a file; else the folder's kind
+    kind: str | None  # None: a file; else the folder's kind
     staging: Path = field(default=Path())
     old: Path | None = None
 
@@ -220,14 +233,18 @@ class Outputs:
         path = Path(path)
         final = _resolve(path, option)
         for out in self._outputs:
-            if out.final == final or (out.kind and out.final in final.parents) or \
-                    (kind and final in out.final.parents):
-                raise InputError(f"{option} {_display(path)} and {out.option} {_display(out.shown)} overlap: give "
-                                 f"each output its own place")
+            if out.final == final or (out.kind and out.final in final.parents) or (kind and final in out.final.parents):
+                raise InputError(
+                    f"{option} {_display(path)} and {out.option} {_display(out.shown)} overlap: give "
+                    f"each output its own place"
+                )
         for inp in self._resolved_inputs:
             if inp == final or (kind and final in inp.parents):
-                raise InputError(f"{option} {_display(path)}: " + ("it is one of the inputs" if inp == final else
-                                 f"the folder holds the input {_display(inp)}") + "; choose another output")
+                raise InputError(
+                    f"{option} {_display(path)}: "
+                    + ("it is one of the inputs" if inp == final else f"the folder holds the input {_display(inp)}")
+                    + "; choose another output"
+                )
         recover(final.parent if final.parent.exists() else _existing_ancestor(final))
         if final.exists() or final.is_symlink():
             try:
@@ -241,8 +258,9 @@ class Outputs:
                 for inp in self._inputs:  # hard links and bind mounts: the same file under another name
                     try:
                         if inp.exists() and os.path.samefile(inp, final):
-                            raise InputError(f"{option} {_display(path)}: it is the input {_display(inp)}; "
-                                             f"choose another output")
+                            raise InputError(
+                                f"{option} {_display(path)}: it is the input {_display(inp)}; choose another output"
+                            )
                     except OSError:
                         pass
                 if not os.access(final, os.W_OK):
@@ -250,8 +268,10 @@ class Outputs:
         if kind is not None:
             cwd = Path(os.path.realpath(os.getcwd()))
             if final == cwd or final in cwd.parents or final == Path(final.anchor):
-                raise InputError(f"{option} {_display(path)}: the folder holds the working folder; give a folder "
-                                 f"of its own (e.g. {option} report)")
+                raise InputError(
+                    f"{option} {_display(path)}: the folder holds the working folder; give a folder "
+                    f"of its own (e.g. {option} report)"
+                )
             check_folder_output(final, kind, option, shown=path)
         parent = check_writable_place(final, option)
         _remove_stale(parent, final.name)
@@ -269,8 +289,9 @@ class Outputs:
                     os.chmod(out.staging, 0o755)  # mkdtemp makes it private; a folder output reads as usual
                 self._outputs.append(out)
         except OSError as exc:
-            raise InputError(f"{option} {_display(path)}: nothing can be made in folder {_display(parent)} "
-                             f"({exc.strerror or exc})") from None
+            raise InputError(
+                f"{option} {_display(path)}: nothing can be made in folder {_display(parent)} ({exc.strerror or exc})"
+            ) from None
         return out
 
     def file(self, path: str | os.PathLike, option: str) -> Path:
@@ -345,7 +366,7 @@ def _remove_stale(parent: Path, name: str) -> None:
     """Remove the staging places of ``name`` in ``parent`` whose process is gone (a killed run's leftovers: their
     names hold the pid that made them; a live process's are never touched)."""
     for p in parent.glob(f".{glob.escape(name)}{_STAGE}*"):
-        rest = p.name[1 + len(name) + len(_STAGE):]
+        rest = p.name[1 + len(name) + len(_STAGE) :]
         pid = rest.split("-", 1)[0]
         if not pid.isdigit() or _alive(int(pid)):
             continue  # an earlier folder a killed commit set aside (recover() handles it), or a live run's
@@ -423,8 +444,10 @@ class _signals_held:
 
 def _write_journals(outputs: list[_Output], commit_id: str) -> list[Path]:
     """The commit's steps, written (and synced) beside every output: any of them lets :func:`recover` finish."""
-    steps = [{"final": os.fsencode(o.final).hex(), "staging": os.fsencode(o.staging).hex(), "folder": o.kind}
-             for o in outputs]
+    steps = [
+        {"final": os.fsencode(o.final).hex(), "staging": os.fsencode(o.staging).hex(), "folder": o.kind}
+        for o in outputs
+    ]
     text = json.dumps({"commit": commit_id, "steps": steps}) + "\n"
     paths = []
     for d in dict.fromkeys(o.staging.parent for o in outputs):
@@ -492,8 +515,14 @@ def recover(folder: Path) -> list[Path]:
         try:
             doc = json.loads(j.read_text())
             commit_id = doc["commit"]
-            steps = [(Path(os.fsdecode(bytes.fromhex(s["final"]))), Path(os.fsdecode(bytes.fromhex(s["staging"]))),
-                      s["folder"]) for s in doc["steps"]]
+            steps = [
+                (
+                    Path(os.fsdecode(bytes.fromhex(s["final"]))),
+                    Path(os.fsdecode(bytes.fromhex(s["staging"]))),
+                    s["folder"],
+                )
+                for s in doc["steps"]
+            ]
         except (OSError, ValueError, KeyError, TypeError):
             continue  # not one of ours, or unreadable: left alone
         for final, staging, kind in steps:

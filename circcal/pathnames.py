@@ -21,6 +21,7 @@ One-line summary (ARCHITECTURE): file names in JSON: ``path_to_json``/``path_fro
 names as is, any other (or one beginning ``bytes:``) as ``"bytes:"`` + its bytes with non-UTF-8 bytes and ``%`` as
 ``%XX``; in messages and reports: ``display_name`` (``\\xNN`` for such bytes, control and bidi characters escaped).
 """
+
 from __future__ import annotations
 
 import os
@@ -53,9 +54,9 @@ def _escape_char(m: re.Match) -> str:
     if ch in _NAMED:
         return _NAMED[ch]
     if o < 0x80:
-        return f"\\x{o:02x}"            # C0 / DEL: a byte < 0x80 is always valid UTF-8, so never ambiguous
+        return f"\\x{o:02x}"  # C0 / DEL: a byte < 0x80 is always valid UTF-8, so never ambiguous
     if 0xDC80 <= o <= 0xDCFF:
-        return f"\\x{o - 0xDC00:02x}"   # an undecodable byte, as os.fsencode(...).decode(backslashreplace) shows it
+        return f"\\x{o - 0xDC00:02x}"  # an undecodable byte, as os.fsencode(...).decode(backslashreplace) shows it
     return f"\\u{o:04x}"
 
 
@@ -109,7 +110,7 @@ def path_to_json(path: str | bytes | os.PathLike) -> str:
     if text is not None and not text.startswith(BYTES_PREFIX):
         return text
     parts = []
-    for ch in raw.decode("utf-8", "surrogateescape"):   # each undecodable byte XX becomes the surrogate U+DCXX
+    for ch in raw.decode("utf-8", "surrogateescape"):  # each undecodable byte XX becomes the surrogate U+DCXX
         o = ord(ch)
         parts.append(f"%{o - 0xDC00:02X}" if 0xDC80 <= o <= 0xDCFF else "%25" if ch == "%" else ch)
     return BYTES_PREFIX + "".join(parts)
@@ -144,13 +145,15 @@ def path_from_json(value: Any, what: str = "file name") -> Path:
     try:
         if value.startswith(BYTES_PREFIX):
             raw = bytearray()
-            rest = value[len(BYTES_PREFIX):]
+            rest = value[len(BYTES_PREFIX) :]
             pos = 0
             for m in _PERCENT.finditer(rest):
-                raw += rest[pos:m.start()].encode("utf-8")
+                raw += rest[pos : m.start()].encode("utf-8")
                 if not _HEX2.fullmatch(m.group(1)):
-                    raise InputError(f"{what}: {display_name(value)}: '%' must be followed by two hex digits "
-                                     f"(the byte), at character {len(BYTES_PREFIX) + m.start() + 1}")
+                    raise InputError(
+                        f"{what}: {display_name(value)}: '%' must be followed by two hex digits "
+                        f"(the byte), at character {len(BYTES_PREFIX) + m.start() + 1}"
+                    )
                 raw.append(int(m.group(1), 16))
                 pos = m.end()
             raw += rest[pos:].encode("utf-8")
@@ -158,8 +161,10 @@ def path_from_json(value: Any, what: str = "file name") -> Path:
         else:
             raw = value.encode("utf-8", "surrogateescape")
     except UnicodeEncodeError:
-        raise InputError(f"{what}: {display_name(value)}: holds a lone surrogate that stands for no byte "
-                         f"(expected UTF-8 text, or 'bytes:' with each other byte as %XX)") from None
+        raise InputError(
+            f"{what}: {display_name(value)}: holds a lone surrogate that stands for no byte "
+            f"(expected UTF-8 text, or 'bytes:' with each other byte as %XX)"
+        ) from None
     if not raw or b"\x00" in raw:
         raise InputError(f"{what}: {display_name(value)}: not a file name (empty, or holds a NUL byte)")
     return Path(os.fsdecode(raw))

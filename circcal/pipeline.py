@@ -5,6 +5,7 @@
 :func:`circcal.detector.recorrect`) and recalibrates until no centre moves more than ``tol_px``;
 :func:`calibrate_detections` is that loop on detections already made.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -27,8 +28,15 @@ from circcal.observations import MIN_VIEWS
 from circcal.pathnames import display_name, path_to_json
 from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
 
-__all__ = ["MAX_ROUNDS", "ImagesCalibration", "TooFewImagesError", "calibrate_images", "calibrate_detections", "holdout_detections",
-           "duplicates_of"]
+__all__ = [
+    "MAX_ROUNDS",
+    "ImagesCalibration",
+    "TooFewImagesError",
+    "calibrate_images",
+    "calibrate_detections",
+    "holdout_detections",
+    "duplicates_of",
+]
 
 
 MAX_ROUNDS = 8
@@ -76,14 +84,21 @@ class ImagesCalibration:
             if "name" in entry:
                 entry["name"] = path_to_json(entry["name"])
             entry["points"] = np.nonzero(np.all(np.isfinite(c), axis=1))[0].tolist()
-            entry["dots_dropped"] = {str(k): display_name(r)
-                                     for k, r in getattr(self.detections[i], "dropped", {}).items()}
+            entry["dots_dropped"] = {
+                str(k): display_name(r) for k, r in getattr(self.detections[i], "dropped", {}).items()
+            }
             for o in entry.get("outliers", []):
                 o["detail"] = display_name(o["detail"])
-        return model_json(self.result.camera, **sections, board=board.to_dict(),
-                          failed_images=[{"path": path_to_json(r.path), "reason_code": r.code.value,
-                                          "reason": display_name(r.reason)} for r in self.failed],
-                          recorrection_rounds=self.rounds)
+        return model_json(
+            self.result.camera,
+            **sections,
+            board=board.to_dict(),
+            failed_images=[
+                {"path": path_to_json(r.path), "reason_code": r.code.value, "reason": display_name(r.reason)}
+                for r in self.failed
+            ],
+            recorrection_rounds=self.rounds,
+        )
 
     def observations(self, board) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """(object_points, image_points) per used view: the final centres with their board points (finite only),
@@ -206,36 +221,46 @@ def calibrate_images(
     for i, d in zip(unique, found_unique):
         detections[i] = d
     for i, (j, how) in first.items():
-        detections[i] = Detection(False, None, f"{how} {display_name(paths[j])} (given earlier): counted once",
-                                  Reason.DUPLICATE)
+        detections[i] = Detection(
+            False, None, f"{how} {display_name(paths[j])} (given earlier): counted once", Reason.DUPLICATE
+        )
     found = [i for i, d in enumerate(detections) if d.found]
     if image_size is None and found:
         # one calibration is one camera mode: the size most images share (the first such on a tie)
         sizes = Counter(detections[i].image_size for i in found)
-        image_size = max(sizes, key=lambda s: (sizes[s], -found.index(next(i for i in found
-                                                                            if detections[i].image_size == s))))
+        image_size = max(
+            sizes, key=lambda s: (sizes[s], -found.index(next(i for i in found if detections[i].image_size == s)))
+        )
     failed: list[Rejection] = []
     used: list[int] = []
     for i, d in enumerate(detections):
         if not d.found:
             failed.append(Rejection(paths[i], d.code, d.reason))
         elif tuple(d.image_size) != tuple(image_size):
-            failed.append(Rejection(paths[i], Reason.WRONG_IMAGE_SIZE,
-                                    f"image is {d.image_size[0]}x{d.image_size[1]}, the calibration's images are "
-                                    f"{image_size[0]}x{image_size[1]}"))
+            failed.append(
+                Rejection(
+                    paths[i],
+                    Reason.WRONG_IMAGE_SIZE,
+                    f"image is {d.image_size[0]}x{d.image_size[1]}, the calibration's images are "
+                    f"{image_size[0]}x{image_size[1]}",
+                )
+            )
         else:
             used.append(i)
     if len(used) < MIN_VIEWS:
         raise TooFewImagesError(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least {MIN_VIEWS}"
-            + "".join(f"\n  {display_name(r.path)}: {display_name(r.reason)}" for r in failed), failed)
+            + "".join(f"\n  {display_name(r.path)}: {display_name(r.reason)}" for r in failed),
+            failed,
+        )
     exclude = bad = None
     if options.outlier_rule is not None:
         from circcal.dotcheck import bad_dot_rejections
 
         exclude, bad = bad_dot_rejections([detections[i] for i in used], board)
-    result, centres, rounds = calibrate_detections([detections[i] for i in used], board, image_size, options,
-                                                   max_rounds=max_rounds, tol_px=tol_px, exclude=exclude)
+    result, centres, rounds = calibrate_detections(
+        [detections[i] for i in used], board, image_size, options, max_rounds=max_rounds, tol_px=tol_px, exclude=exclude
+    )
     rej = result.outliers
     if rej is not None:  # the bad dots first, then what the solve rejected; names of the views as given
         rej = replace(rej, items=[*bad, *rej.items], view_names=[Path(paths[i]).name for i in used])
@@ -304,18 +329,24 @@ def calibrate_detections(
         if any(s.any() for s in stuck):
             for a, b, s in zip(new, centres, stuck):
                 a[s] = b[s]
-            warnings.warn(f"centre re-correction: the {result.camera.lens} model has no inverse over the rims of "
-                          f"{sum(int(s.sum()) for s in stuck)} dot(s) in {sum(bool(s.any()) for s in stuck)} view(s) "
-                          f"(beyond the fold of its distortion polynomial: a lens model too simple for this lens?); "
-                          f"those centres keep the previous round's", RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"centre re-correction: the {result.camera.lens} model has no inverse over the rims of "
+                f"{sum(int(s.sum()) for s in stuck)} dot(s) in {sum(bool(s.any()) for s in stuck)} view(s) "
+                f"(beyond the fold of its distortion polynomial: a lens model too simple for this lens?); "
+                f"those centres keep the previous round's",
+                RuntimeWarning,
+                stacklevel=3,
+            )
         shift = max(float(np.nanmax(np.linalg.norm(a - b, axis=1))) for a, b in zip(new, centres))
         pairs = [_points_of(c, board_pts) for c in left_out(new)]
         try:
-            result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, options,
-                               initial=result.camera)
+            result = calibrate([o for o, _ in pairs], [p for _, p in pairs], image_size, options, initial=result.camera)
         except CalibrationError as exc:  # the last round's model cannot start the next one: keep it, and say so
-            warnings.warn(f"centre re-correction stopped after round {r - 1}, whose model is kept: {exc}",
-                          RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"centre re-correction stopped after round {r - 1}, whose model is kept: {exc}",
+                RuntimeWarning,
+                stacklevel=3,
+            )
             break
         centres = new
         rounds.append({"round": r, **{k: result.errors[k] for k in stats}, "max_centre_shift_px": shift})
@@ -323,13 +354,18 @@ def calibrate_detections(
             break
     else:
         if max_rounds > 1:
-            warnings.warn(f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
-                          f"(last shift {rounds[-1]['max_centre_shift_px']:.3g} px)", RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"centre re-correction did not settle below {tol_px:g} px in {max_rounds} rounds "
+                f"(last shift {rounds[-1]['max_centre_shift_px']:.3g} px)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
     return result, centres, rounds
 
 
-def holdout_detections(detections: Sequence[Any], board, image_size: tuple[int, int],
-                       options: CalibrationOptions = CalibrationOptions()) -> list[dict[str, Any]]:
+def holdout_detections(
+    detections: Sequence[Any], board, image_size: tuple[int, int], options: CalibrationOptions = CalibrationOptions()
+) -> list[dict[str, Any]]:
     """Leave-one-view-out prediction through the whole loop: each view k predicted by the model that
     :func:`calibrate_detections` makes from the other views with ``options`` (e.g. ``refine_board``), with view
     k's centres re-corrected under that model (the detector ran without a model, so a detection does not depend on

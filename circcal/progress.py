@@ -1,6 +1,7 @@
 """Progress bars, written once: :func:`progress_bar` is a tqdm bar when it is shown and a do-nothing stand-in when it
 is not, so a run with progress off (``--no-progress``, a test, a worker) does not import tqdm (~0.03 s of a
 process's start-up, most of it ``importlib.metadata``)."""
+
 from __future__ import annotations
 
 from typing import Any

@@ -5,6 +5,7 @@ Convention: ``R(rvec)`` is Rodrigues' formula, ``rvec`` in radians (its directio
 as ``cv2.Rodrigues``. Derivatives perturb a rotation on the left: ``R(r + dr) = Exp(J_l(r) dr) R(r)`` to first
 order, with :func:`left_jacobian` ``J_l``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,7 +21,7 @@ _SMALL_ANGLE2_JACOBIAN = 1e-10
 def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x`` (``[v]x w = v x w``)."""
     v = np.asarray(v, dtype=np.float64)
-    K = np.zeros(v.shape[:-1] + (3, 3))     # six entries written in place (four nested np.stack calls cost ~3x)
+    K = np.zeros(v.shape[:-1] + (3, 3))  # six entries written in place (four nested np.stack calls cost ~3x)
     K[..., 0, 1] = -v[..., 2]
     K[..., 0, 2] = v[..., 1]
     K[..., 1, 0] = v[..., 2]
@@ -36,7 +37,7 @@ def rodrigues(rvec: np.ndarray) -> np.ndarray:
     r = np.asarray(rvec, dtype=np.float64)
     theta2 = np.sum(r * r, axis=-1)[..., None, None]
     small = theta2 < _SMALL_ANGLE2_ROTATION
-    tiny = bool(small.any())                      # the series (and its np.where) only where an angle needs it
+    tiny = bool(small.any())  # the series (and its np.where) only where an angle needs it
     safe = np.where(small, 1.0, np.sqrt(theta2)) if tiny else np.sqrt(theta2)
     a = np.sin(safe) / safe
     b = (1.0 - np.cos(safe)) / (safe * safe)

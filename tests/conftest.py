@@ -1,4 +1,5 @@
 """Shared test setup: a per-session fixture cache (unless CIRCCAL_CACHE is set) and paths to shared data."""
+
 from __future__ import annotations
 
 import os

@@ -1,6 +1,7 @@
 """The interpreters that can run mrcal here, for tests that check circcal against every mrcal version present:
 Debian's mrcal 2.2 (``/usr/bin/python3``, or ``$CIRCCAL_MRCAL_PYTHON``) and PyPI's 2.5 in ``.venv-mrcal25`` (``make
 mrcal-2.5``). Each comes with the folder of its command-line tools."""
+
 from __future__ import annotations
 
 import os

@@ -1,4 +1,5 @@
 """Board layouts in OpenCV's object-point order and their geometry."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,24 +40,30 @@ def test_signed_distance_is_exact_for_dots():
     assert np.allclose(a.signed_distance_mm(np.array([[10.0, 10.0], [0.0, 10.0]])), [-3.0, 10.0 - 3.0])
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(rows=1, cols=5, pitch_mm=10, diameter_mm=5), "at least 2x2"),
-    (dict(rows=5, cols=5, pitch_mm=10, diameter_mm=10), "would touch"),
-    (dict(rows=5, cols=5, pitch_mm=-1, diameter_mm=0.5), "pitch must be positive"),
-    (dict(rows=5, cols=5, pitch_mm=10, diameter_mm=5, layout="hex"), "unknown layout"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(rows=1, cols=5, pitch_mm=10, diameter_mm=5), "at least 2x2"),
+        (dict(rows=5, cols=5, pitch_mm=10, diameter_mm=10), "would touch"),
+        (dict(rows=5, cols=5, pitch_mm=-1, diameter_mm=0.5), "pitch must be positive"),
+        (dict(rows=5, cols=5, pitch_mm=10, diameter_mm=5, layout="hex"), "unknown layout"),
+    ],
+)
 def test_invalid_boards_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         Board(**kwargs)
 
 
-@pytest.mark.parametrize("board,n", [
-    (Board(4, 5, 10, 5), 4),                   # rectangle: identity, 180 deg, two mirrors
-    (Board(5, 5, 10, 5), 8),                   # square: dihedral group
-    (Board(5, 4, 10, 5, "asymmetric"), 2),     # odd rows: identity and a mirror only
-    (Board(11, 4, 10, 7, "asymmetric"), 2),
-    (Board(6, 4, 10, 5, "asymmetric"), 2),     # even rows: identity and 180 deg
-])
+@pytest.mark.parametrize(
+    "board,n",
+    [
+        (Board(4, 5, 10, 5), 4),  # rectangle: identity, 180 deg, two mirrors
+        (Board(5, 5, 10, 5), 8),  # square: dihedral group
+        (Board(5, 4, 10, 5, "asymmetric"), 2),  # odd rows: identity and a mirror only
+        (Board(11, 4, 10, 7, "asymmetric"), 2),
+        (Board(6, 4, 10, 5, "asymmetric"), 2),  # even rows: identity and 180 deg
+    ],
+)
 def test_board_symmetries(board, n):
     syms = board.symmetries()
     assert len(syms) == n
@@ -74,15 +81,18 @@ def test_board_symmetries(board, n):
         assert np.allclose(c @ A, c[p]) and np.sign(np.linalg.det(A)) == s.det
 
 
-@pytest.mark.parametrize("args, message", [
-    ((7, 7, 1e-300, 0.5e-300), "between 0.001 and 100000 mm"),   # was ZeroDivisionError deep in the detector
-    ((7, 7, 2e5, 1e5), "between 0.001 and 100000 mm"),
-    ((7, 7, float("nan"), 5.0), "finite number"),
-    ((7, 7, 10.0, float("inf")), "finite number"),
-    ((True, 7, 10.0, 5.0), "rows must be an integer"),
-    ((7, 7.5, 10.0, 5.0), "cols must be an integer"),
-    ((7, 1001, 10.0, 5.0), "at most 1000"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        ((7, 7, 1e-300, 0.5e-300), "between 0.001 and 100000 mm"),  # was ZeroDivisionError deep in the detector
+        ((7, 7, 2e5, 1e5), "between 0.001 and 100000 mm"),
+        ((7, 7, float("nan"), 5.0), "finite number"),
+        ((7, 7, 10.0, float("inf")), "finite number"),
+        ((True, 7, 10.0, 5.0), "rows must be an integer"),
+        ((7, 7.5, 10.0, 5.0), "cols must be an integer"),
+        ((7, 1001, 10.0, 5.0), "at most 1000"),
+    ],
+)
 def test_board_values_are_checked(args, message):
     with pytest.raises(InputError, match=message):
         Board(*args)

@@ -31,8 +31,10 @@ def warped_board(bend_mm: float = 1.0, twist_mm: float = 0.3, scale_x: float = 1
 def observations(truth_points: np.ndarray, n: int = 12, noise: float = 0.02, seed: int = 3):
     """Nominal object points and float32-rounded projections of ``truth_points`` (what cv2 takes) per view."""
     rng = np.random.default_rng(seed)
-    img = [project(truth_points, r, t, CAM) + rng.normal(0.0, noise, (len(truth_points), 2))
-           for r, t in sample_poses(CAM, BOARD, n, seed)]
+    img = [
+        project(truth_points, r, t, CAM) + rng.normal(0.0, noise, (len(truth_points), 2))
+        for r, t in sample_poses(CAM, BOARD, n, seed)
+    ]
     img = [p.astype(np.float32).astype(np.float64) for p in img]
     return [BOARD.object_points()] * n, img
 
@@ -58,9 +60,14 @@ def test_equals_calibrate_camera_ro():
     cv2.setNumThreads(1)
     try:
         rms, K, d, _, _, new_obj = cv2.calibrateCameraRO(
-            [o.astype(np.float32) for o in obj], [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
-            (CAM.width, CAM.height), OPENCV_GAUGE[1], None, None,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15))
+            [o.astype(np.float32) for o in obj],
+            [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
+            (CAM.width, CAM.height),
+            OPENCV_GAUGE[1],
+            None,
+            None,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15),
+        )
     finally:
         cv2.setNumThreads(n)
     theirs = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.ravel(d)[:5]])
@@ -172,8 +179,22 @@ def test_cli_refine_board_on_real_photographs(realdata, tmp_path, capsys):
 
     images = sorted(str(p) for p in (realdata / "boofcv_sony_hx5v_circle_regular_10x8").glob("*.jpg"))
     out = tmp_path / "model.json"
-    rc = main(["calibrate", *images, "--grid", "8x10", "--pitch", "25mm", "--diameter", "15mm", "--refine-board",
-               "--out", str(out), "--no-progress"])
+    rc = main(
+        [
+            "calibrate",
+            *images,
+            "--grid",
+            "8x10",
+            "--pitch",
+            "25mm",
+            "--diameter",
+            "15mm",
+            "--refine-board",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     text = capsys.readouterr().out
     assert rc == 0 and "board shape (refined" in text
     model = json.loads(out.read_text())

@@ -8,6 +8,7 @@ loaded machine, whose wall clock runs on while the process waits: the deadline i
 spent by the deadline is at most the budget) with OpenCV held to one thread (so CPU time is not the sum of several
 threads'), plus a fixed allowance for the one uninterruptible step running when the deadline passes.
 """
+
 from __future__ import annotations
 
 import time
@@ -50,7 +51,7 @@ def test_hostile_image_stops_within_one_and_a_half_budgets(one_thread):
     # ten budgets, spent in every stage (scales, masks, contours, lattice seeds, cluster windows)
     img = fuzz_image("dense-dots", 1, None, (2000, 3000))
     board = Board(7, 7, 10.0, 5.0)
-    detect(img[:200, :300], board)                     # imports and kernels loaded before the clock starts
+    detect(img[:200, :300], board)  # imports and kernels loaded before the clock starts
     c0, t0 = time.process_time(), time.perf_counter()
     d = detect(img, board, time_budget_s=BUDGET_S)
     cpu, wall = time.process_time() - c0, time.perf_counter() - t0

@@ -44,8 +44,15 @@ def synthetic(camera=TRUE, n=14, seed=0, noise=0.1, max_tilt=40.0, drop=0.0):
 
 
 def cv2_calibrate(obj, img, flags=0, K0=None, d0=None):
-    out = cv2.calibrateCameraExtended([o.astype(np.float32) for o in obj], [p.astype(np.float32) for p in img],
-                                      (W, H), K0, d0, flags=flags, criteria=CRIT)
+    out = cv2.calibrateCameraExtended(
+        [o.astype(np.float32) for o in obj],
+        [p.astype(np.float32) for p in img],
+        (W, H),
+        K0,
+        d0,
+        flags=flags,
+        criteria=CRIT,
+    )
     rms, K, d, rv, tv, std_i = out[:6]
     params = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.ravel(d)[:5]])
     return params, std_i.ravel()[:9], rms, np.array(rv).reshape(-1, 3), np.array(tv).reshape(-1, 3)
@@ -56,8 +63,9 @@ def max_projection_difference(a: Camera, b: Camera) -> float:
     u, v = np.meshgrid(np.linspace(0, W - 1, 40), np.linspace(0, H - 1, 24))
     uv = np.column_stack([u.ravel(), v.ravel()])
     xn = undistort(pixel_to_normalized(uv, a), a.dist)
-    return float(np.max(np.abs(normalized_to_pixel(distort(xn, a.dist), a)
-                               - normalized_to_pixel(distort(xn, b.dist), b))))
+    return float(
+        np.max(np.abs(normalized_to_pixel(distort(xn, a.dist), a) - normalized_to_pixel(distort(xn, b.dist), b)))
+    )
 
 
 def test_projection_jacobian_matches_finite_differences():
@@ -67,14 +75,24 @@ def test_projection_jacobian_matches_finite_differences():
         tv = np.array([-30.0, -20.0, 400.0])
         _, Ji, Jp = project_jacobian(X, rv, tv, TRUE)
         e = 1e-6
-        num_r = np.stack([(project(X, rv + e * d, tv, TRUE) - project(X, rv - e * d, tv, TRUE)) / (2 * e)
-                          for d in np.eye(3)], -1)
-        num_t = np.stack([(project(X, rv, tv + e * d, TRUE) - project(X, rv, tv - e * d, TRUE)) / (2 * e)
-                          for d in np.eye(3)], -1)
+        num_r = np.stack(
+            [(project(X, rv + e * d, tv, TRUE) - project(X, rv - e * d, tv, TRUE)) / (2 * e) for d in np.eye(3)], -1
+        )
+        num_t = np.stack(
+            [(project(X, rv, tv + e * d, TRUE) - project(X, rv, tv - e * d, TRUE)) / (2 * e) for d in np.eye(3)], -1
+        )
         p = TRUE.intrinsics
-        num_i = np.stack([(project(X, rv, tv, Camera.from_intrinsics(W, H, p + e * d))
-                           - project(X, rv, tv, Camera.from_intrinsics(W, H, p - e * d))) / (2 * e)
-                          for d in np.eye(9)], -1)
+        num_i = np.stack(
+            [
+                (
+                    project(X, rv, tv, Camera.from_intrinsics(W, H, p + e * d))
+                    - project(X, rv, tv, Camera.from_intrinsics(W, H, p - e * d))
+                )
+                / (2 * e)
+                for d in np.eye(9)
+            ],
+            -1,
+        )
         assert np.max(np.abs(num_r - Jp[:, :, :3])) < 1e-6 * np.max(np.abs(num_r))
         assert np.max(np.abs(num_t - Jp[:, :, 3:])) < 1e-6 * np.max(np.abs(num_t))
         assert np.max(np.abs(num_i - Ji)) < 1e-6 * np.max(np.abs(num_i))
@@ -135,7 +153,7 @@ def test_normal_equations_equal_the_whole_jacobians(refine, drop, monkeypatch):
     J[:, : prob.ng] = Jg.reshape(-1, prob.ng)
     for v in range(prob.n_views):
         rows = np.repeat(prob.view == v, 2)
-        J[rows, prob.ng + 6 * v: prob.ng + 6 * v + 6] = Jp.reshape(-1, 6)[rows]
+        J[rows, prob.ng + 6 * v : prob.ng + 6 * v + 6] = Jp.reshape(-1, 6)[rows]
     JtJ, g = J.T @ J, J.T @ f
     scale = np.max(np.abs(JtJ))
     np.testing.assert_allclose(A, JtJ[: prob.ng, : prob.ng], rtol=0, atol=1e-12 * scale)
@@ -149,11 +167,11 @@ def test_normal_equations_equal_the_whole_jacobians(refine, drop, monkeypatch):
 
 def test_geometric_extension_only_continues_a_shrinking_step_in_the_same_direction():
     e = np.array([1.0, 0.0, 0.0])
-    assert geometric_extension(e, 0.2 * e) == pytest.approx(1.25)               # 0.2 + 0.04 + ... = 0.2 / 0.8
+    assert geometric_extension(e, 0.2 * e) == pytest.approx(1.25)  # 0.2 + 0.04 + ... = 0.2 / 0.8
     assert geometric_extension(e, 0.9 * e) == EXTRAPOLATE_MAX
-    assert geometric_extension(e, 1.1 * e) == 1.0                               # growing: no sequence
-    assert geometric_extension(e, -0.5 * e) == 1.0                              # reversed: an overshoot
-    assert geometric_extension(e, np.array([0.2, 0.1, 0.0])) == 1.0             # turned by 27 deg
+    assert geometric_extension(e, 1.1 * e) == 1.0  # growing: no sequence
+    assert geometric_extension(e, -0.5 * e) == 1.0  # reversed: an overshoot
+    assert geometric_extension(e, np.array([0.2, 0.1, 0.0])) == 1.0  # turned by 27 deg
 
 
 def test_scipy_least_squares_reaches_the_same_model():
@@ -165,24 +183,32 @@ def test_scipy_least_squares_reaches_the_same_model():
     assert b.errors["rms_per_point_px"] == pytest.approx(a.errors["rms_per_point_px"], rel=1e-9)
 
 
-@pytest.mark.parametrize("option,flag", [
-    ("fix_k3", cv2.CALIB_FIX_K3),
-    ("fix_tangential", cv2.CALIB_ZERO_TANGENT_DIST),
-    ("fix_aspect_ratio", cv2.CALIB_FIX_ASPECT_RATIO),
-    ("fix_principal_point", cv2.CALIB_FIX_PRINCIPAL_POINT),
-])
+@pytest.mark.parametrize(
+    "option,flag",
+    [
+        ("fix_k3", cv2.CALIB_FIX_K3),
+        ("fix_tangential", cv2.CALIB_ZERO_TANGENT_DIST),
+        ("fix_aspect_ratio", cv2.CALIB_FIX_ASPECT_RATIO),
+        ("fix_principal_point", cv2.CALIB_FIX_PRINCIPAL_POINT),
+    ],
+)
 def test_fixed_parameters_match_opencv(option, flag, cv2_single_thread):
     obj, img, _ = synthetic(noise=0.08, seed=5)
     # same start for both: the ratio / principal point held is the initial camera's
     init = Camera(W, H, 1600.0, 1600.0, (W - 1) / 2, (H - 1) / 2)
-    ref, ref_std, ref_rms, _, _ = cv2_calibrate(obj, img, flags=flag | cv2.CALIB_USE_INTRINSIC_GUESS,
-                                                K0=init.K.copy(), d0=np.zeros(5))
+    ref, ref_std, ref_rms, _, _ = cv2_calibrate(
+        obj, img, flags=flag | cv2.CALIB_USE_INTRINSIC_GUESS, K0=init.K.copy(), d0=np.zeros(5)
+    )
     res = calibrate(obj, img, (W, H), CalibrationOptions.from_flags(**{option: True}), initial=init)
     assert res.converged
     assert max_projection_difference(Camera.from_intrinsics(W, H, ref), res.camera) <= 1e-6
     np.testing.assert_allclose(res.camera.intrinsics[:4], ref[:4], rtol=1e-7)
-    held = {"fix_k3": ["k3"], "fix_tangential": ["p1", "p2"], "fix_aspect_ratio": [],
-            "fix_principal_point": ["cx", "cy"]}[option]
+    held = {
+        "fix_k3": ["k3"],
+        "fix_tangential": ["p1", "p2"],
+        "fix_aspect_ratio": [],
+        "fix_principal_point": ["cx", "cy"],
+    }[option]
     for name in held:
         i = PARAM_NAMES.index(name)
         assert res.camera.intrinsics[i] == init.intrinsics[i]
@@ -228,17 +254,18 @@ def test_error_conventions_and_noise_estimate():
     e = res.errors
     assert e["n_points"] == 14 * 49
     r = np.concatenate(res.residuals)
-    assert e["rms_per_point_px"] == pytest.approx(np.sqrt(np.mean(np.sum(r ** 2, 1))))
+    assert e["rms_per_point_px"] == pytest.approx(np.sqrt(np.mean(np.sum(r**2, 1))))
     assert e["rms_per_coord_px"] == pytest.approx(e["rms_per_point_px"] / np.sqrt(2))
     assert e["mean_2d_px"] == pytest.approx(np.mean(np.hypot(r[:, 0], r[:, 1])))
     # sigma estimate: SSR / (2N - n_params), n_params = 9 + 6 * 14
     assert res.n_params == 9 + 6 * 14
-    assert res.sigma_px == pytest.approx(np.sqrt(np.sum(r ** 2) / (2 * 686 - 93)))
+    assert res.sigma_px == pytest.approx(np.sqrt(np.sum(r**2) / (2 * 686 - 93)))
     assert res.sigma_px == pytest.approx(sigma, rel=0.1)
     assert len(res.per_view_errors) == 14
     # residuals are observed - projected
-    np.testing.assert_allclose(res.residuals[0], img[0] - project(obj[0], res.rvecs[0], res.tvecs[0], res.camera),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        res.residuals[0], img[0] - project(obj[0], res.rvecs[0], res.tvecs[0], res.camera), atol=1e-12
+    )
     np.testing.assert_allclose(np.diag(res.correlation), 1.0)
     m = res.to_model_json()
     assert m["camera"] == res.camera.to_dict()
@@ -247,6 +274,7 @@ def test_error_conventions_and_noise_estimate():
 
 
 # ---- degenerate input ----------------------------------------------------------------------------------------------
+
 
 def test_fewer_than_three_views():
     obj, img, _ = synthetic(n=2)
@@ -325,6 +353,7 @@ def test_non_convergence_warns():
 
 # ---- images -> model (needs the detector and the fixture renderer) -------------------------------------------------
 
+
 def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     """`circcal calibrate` end to end on the rendered paper setup (normal illumination): the centres settle in a few
     re-correction rounds, the paper's mean 2-D error bar (<= 0.05 px) holds, and the model lies within 4 stated
@@ -335,12 +364,26 @@ def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     from circcal.cli import main
     from circcal.fixtures.scenarios import fixture_dir
     from circcal.formats import read_camera
+
     d = fixture_dir("paper", "normal")
     truth = json.loads((d / "truth.json").read_text())
     images = [str(d / v["image"]) for v in truth["views"]] + [str(tmp_path / "missing.png")]
     out = tmp_path / "model.json"
-    rc = main(["calibrate", *images, "--grid", "7x7", "--pitch", "10mm", "--diameter", "5mm", "--out", str(out),
-               "--no-progress"])
+    rc = main(
+        [
+            "calibrate",
+            *images,
+            "--grid",
+            "7x7",
+            "--pitch",
+            "10mm",
+            "--diameter",
+            "5mm",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     text = capsys.readouterr().out
     assert rc == 0
     assert "missing.png: file not found" in text and "RMS per coordinate (mrcal)" in text

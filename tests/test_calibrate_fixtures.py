@@ -1,4 +1,5 @@
 """The whole pipeline (detect -> calibrate -> re-correct) against ground truth and against OpenCV's pipeline."""
+
 from __future__ import annotations
 
 import json
@@ -55,8 +56,10 @@ def test_paper_projection_difference_is_at_its_cramer_rao_level(paper):
     res = cal.result
     measured = projection_diff(truth.camera, res.camera, fit=True)["rms_px"]
     pred = predicted_truth_rms(res.camera, res.std, res.correlation, n=200)
-    print(f"\n{variant}: projection difference to the truth {measured:.4f} px; predicted by the stated covariance: "
-          f"median {pred['p50']:.4f}, p95 {pred['p95']:.4f}, p99 {pred['p99']:.4f} px")
+    print(
+        f"\n{variant}: projection difference to the truth {measured:.4f} px; predicted by the stated covariance: "
+        f"median {pred['p50']:.4f}, p95 {pred['p95']:.4f}, p99 {pred['p99']:.4f} px"
+    )
     assert measured <= pred["p99"]
 
 
@@ -104,11 +107,12 @@ def test_real_photographs(realdata, name):
     obj, img = cal.observations(board)
     ours = holdout_errors(obj, img, (cal.result.camera.width, cal.result.camera.height))
     det = OpenCVCalibrator().detect(paths, board)
-    theirs = holdout_errors([board.object_points()] * len(det["image_points"]), det["image_points"],
-                            det["image_size"])
+    theirs = holdout_errors([board.object_points()] * len(det["image_points"]), det["image_points"], det["image_size"])
     h_ours, h_theirs = _rms(ours), _rms(theirs)
-    print(f"\n{name}: RMS per point {rms:.4f} px (OpenCV baseline {baseline['rms_px']:.4f}); held-out "
-          f"{h_ours:.4f} px (OpenCV {h_theirs:.4f})")
+    print(
+        f"\n{name}: RMS per point {rms:.4f} px (OpenCV baseline {baseline['rms_px']:.4f}); held-out "
+        f"{h_ours:.4f} px (OpenCV {h_theirs:.4f})"
+    )
     assert rms <= 1.02 * baseline["rms_px"]
     assert h_ours <= 1.02 * h_theirs
 
@@ -147,10 +151,12 @@ def test_real_photographs_board_refined(realdata, name):
     theirs = calibrate(theirs_obj, theirs_img, size, CalibrationOptions(refine_board=True))
     h_theirs = _rms(holdout_errors(theirs_obj, theirs_img, size, CalibrationOptions(refine_board=True)))
     dev = np.abs(cal.result.board_points - cal.result.board_nominal)
-    print(f"\n{name}: board refined: RMS per point {rms:.4f} px (OpenCV baseline, rigid: {baseline['rms_px']:.4f}; "
-          f"OpenCV centres, refined: {theirs.errors['rms_per_point_px']:.4f}); held-out {h_refined:.4f} px (rigid "
-          f"{h_rigid:.4f}, OpenCV centres refined {h_theirs:.4f}); board deviates up to {dev.max():.2f} mm "
-          f"(median sigma {np.median(cal.result.board_std[cal.result.board_std > 0]):.3f} mm)")
+    print(
+        f"\n{name}: board refined: RMS per point {rms:.4f} px (OpenCV baseline, rigid: {baseline['rms_px']:.4f}; "
+        f"OpenCV centres, refined: {theirs.errors['rms_per_point_px']:.4f}); held-out {h_refined:.4f} px (rigid "
+        f"{h_rigid:.4f}, OpenCV centres refined {h_theirs:.4f}); board deviates up to {dev.max():.2f} mm "
+        f"(median sigma {np.median(cal.result.board_std[cal.result.board_std > 0]):.3f} mm)"
+    )
     assert rms <= 0.5 * baseline["rms_px"]
     assert h_refined <= 0.7 * h_rigid
     assert rms <= 1.03 * theirs.errors["rms_per_point_px"] and h_refined <= 1.03 * h_theirs

@@ -1,6 +1,7 @@
 """The solver for every lens model against OpenCV on identical observations: cv2.calibrateCamera with
 CALIB_RATIONAL_MODEL / CALIB_THIN_PRISM_MODEL and cv2.fisheye.calibrate (CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW),
 the fisheye start, and the uncertainty of each model."""
+
 from __future__ import annotations
 
 import cv2
@@ -17,10 +18,17 @@ from circcal.solver.fisheye_start import fisheye_start
 BOARD = Board(9, 9, 20.0, 8.0)
 CRIT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 1000, 1e-15)
 #: a wide lens OpenCV users fit with the rational model (about 125 deg across the diagonal)
-RATIONAL = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001],
-                  "rational")
-THIN_PRISM = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
-                    [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1e-3, -2e-5, -8e-4, 3e-5], "thin-prism")
+RATIONAL = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001], "rational")
+THIN_PRISM = Camera(
+    1920,
+    1080,
+    900.0,
+    905.0,
+    962.3,
+    541.7,
+    [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1e-3, -2e-5, -8e-4, 3e-5],
+    "thin-prism",
+)
 FISHEYE = Camera(1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -1e-4], "fisheye")
 #: a 190-deg lens: boards up to 95 deg off axis
 FISHEYE_190 = Camera(1280, 1024, 310.0, 310.0, 639.5, 511.5, [-0.012, 0.003, -6e-4, 5e-5], "fisheye")
@@ -42,18 +50,29 @@ def frame_grid(cam: Camera) -> np.ndarray:
 
 
 def opencv_pinhole(obj, img, cam: Camera, flags: int):
-    out = cv2.calibrateCameraExtended([o.astype(np.float32) for o in obj], [p.astype(np.float32) for p in img],
-                                      (cam.width, cam.height), None, None, flags=flags, criteria=CRIT)
+    out = cv2.calibrateCameraExtended(
+        [o.astype(np.float32) for o in obj],
+        [p.astype(np.float32) for p in img],
+        (cam.width, cam.height),
+        None,
+        None,
+        flags=flags,
+        criteria=CRIT,
+    )
     rms, K, d, std = out[0], out[1], np.ravel(out[2]), np.ravel(out[5])
     n = len(cam.dist)
     ref = Camera(cam.width, cam.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], d[:n], cam.lens)
-    return ref, rms, std[:4 + n]
+    return ref, rms, std[: 4 + n]
 
 
-@pytest.mark.parametrize("truth,flags", [
-    (RATIONAL, cv2.CALIB_RATIONAL_MODEL),
-    (THIN_PRISM, cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL),
-], ids=["rational", "thin-prism"])
+@pytest.mark.parametrize(
+    "truth,flags",
+    [
+        (RATIONAL, cv2.CALIB_RATIONAL_MODEL),
+        (THIN_PRISM, cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL),
+    ],
+    ids=["rational", "thin-prism"],
+)
 def test_pinhole_models_equal_opencv_on_identical_points(truth, flags, cv2_single_thread):
     """Same observations -> the same camera as cv2.calibrateCamera to 1e-6 px over every observed pixel, the same
     RMS and standard deviations (1 %), here over the whole frame too. Both models are nearly degenerate in (k1, k2,
@@ -77,8 +96,15 @@ def test_fisheye_equals_cv2_fisheye_calibrate(truth, cv2_single_thread):
     FIX_SKEW) to 1e-6 px over the whole frame, and lies within a few sigmas of the truth."""
     obj, img = views(truth, 20, 2, 75, distance=(150.0, 400.0))
     flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW
-    rms, K, D, _, _ = cv2.fisheye.calibrate([o[None] for o in obj], [p[None] for p in img],
-                                            (truth.width, truth.height), None, None, flags=flags, criteria=CRIT)
+    rms, K, D, _, _ = cv2.fisheye.calibrate(
+        [o[None] for o in obj],
+        [p[None] for p in img],
+        (truth.width, truth.height),
+        None,
+        None,
+        flags=flags,
+        criteria=CRIT,
+    )
     ref = Camera(truth.width, truth.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ravel(D), "fisheye")
     res = calibrate(obj, img, (truth.width, truth.height), CalibrationOptions(lens="fisheye"))
     assert res.converged and res.camera.lens == "fisheye"
@@ -100,7 +126,7 @@ def test_fisheye_start_and_solve_beyond_90_degrees():
     res = calibrate(obj, img, (FISHEYE_190.width, FISHEYE_190.height), CalibrationOptions(lens="fisheye"))
     for o, r, t in zip(obj, res.rvecs, res.tvecs):
         Xc_z.append((o @ Rotation.from_rotvec(r).as_matrix().T + t)[:, 2])
-    assert np.min(np.concatenate(Xc_z)) < 0                      # some board points lie behind the camera
+    assert np.min(np.concatenate(Xc_z)) < 0  # some board points lie behind the camera
     grid = frame_grid(FISHEYE_190)
     grid = grid[np.all(np.isfinite(unproject(grid, FISHEYE_190)), axis=1)]
     assert projection_difference(FISHEYE_190, res.camera, grid) <= 1e-6
@@ -131,17 +157,21 @@ def test_projection_uncertainty_matches_resolves(truth, max_theta):
     for _ in range(24):
         r = calibrate(obj, [p + rng.normal(0, sigma, p.shape) for p in clean], size, initial=base.camera)
         d.append(mean_frames_reprojection(base.camera, base.rvecs, base.tvecs, r.camera, r.rvecs, r.tvecs, uv) - uv)
-    d = np.array(d)                                                    # (24, 3, 2)
+    d = np.array(d)  # (24, 3, 2)
     emp = np.einsum("kni,knj->nij", d, d) / len(d)
     ratio = np.sqrt(np.linalg.eigvalsh(emp)[:, -1] / np.linalg.eigvalsh(pred)[:, -1])
     assert np.all((0.6 < ratio) & (ratio < 1.6)), ratio
 
 
-@pytest.mark.parametrize("truth,n,seed,max_theta,distance", [
-    (RATIONAL, 30, 3, 70, (250.0, 600.0)),
-    (THIN_PRISM, 30, 3, 70, (250.0, 600.0)),
-    (FISHEYE, 20, 2, 75, (150.0, 400.0)),
-], ids=["rational", "thin-prism", "fisheye"])
+@pytest.mark.parametrize(
+    "truth,n,seed,max_theta,distance",
+    [
+        (RATIONAL, 30, 3, 70, (250.0, 600.0)),
+        (THIN_PRISM, 30, 3, 70, (250.0, 600.0)),
+        (FISHEYE, 20, 2, 75, (150.0, 400.0)),
+    ],
+    ids=["rational", "thin-prism", "fisheye"],
+)
 def test_opencv_reference_fits_every_lens(truth, n, seed, max_theta, distance):
     """The OpenCV reference adapter (validators/opencv.py) with ``lens=``: the matching OpenCV call reaches
     circcal's solve on the same float32 observations to 1e-6 px over the frame, with the standard deviations of
@@ -161,7 +191,8 @@ def test_opencv_reference_fits_every_lens(truth, n, seed, max_theta, distance):
         np.testing.assert_allclose([ref.std[k] for k in names], [res.std[k] for k in names], rtol=0.01)
     # started from circcal's answer (CALIB_USE_INTRINSIC_GUESS), OpenCV stays there
     again = registry.get_for_lens("opencv", truth.lens).calibrate_observations(
-        obj, img, (truth.width, truth.height), initial=res.camera)
+        obj, img, (truth.width, truth.height), initial=res.camera
+    )
     assert again.status == "ok" and projection_difference(res.camera, again.camera, frame_grid(truth)) <= 1e-6
 
 
@@ -175,10 +206,23 @@ def test_lens_choices_of_the_cli_are_the_models():
 def test_cli_refuses_a_fisheye_cameramodel_before_the_work(tmp_path, capsys):
     from circcal.cli import main
 
-    code = main(["calibrate", str(tmp_path / "a.png"), "--grid", "7x7", "--pitch", "10mm", "--lens", "fisheye",
-                 "--out", str(tmp_path / "x.cameramodel"), "--no-progress"])
+    code = main(
+        [
+            "calibrate",
+            str(tmp_path / "a.png"),
+            "--grid",
+            "7x7",
+            "--pitch",
+            "10mm",
+            "--lens",
+            "fisheye",
+            "--out",
+            str(tmp_path / "x.cameramodel"),
+            "--no-progress",
+        ]
+    )
     assert code == 2 and "no equidistant" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exc:                     # argparse's own usage error
+    with pytest.raises(SystemExit) as exc:  # argparse's own usage error
         main(["calibrate", str(tmp_path / "a.png"), "--grid", "7x7", "--pitch", "10mm", "--lens", "kb8"])
     assert exc.value.code == 2
 
@@ -201,8 +245,10 @@ def rational_images(tmp_path_factory):
         x = np.cross([0.0, 1.0, 0.0], d)
         x /= np.linalg.norm(x)
         ax = rng.normal(size=3)
-        R = np.column_stack([x, np.cross(d, x), d]) @ Rotation.from_rotvec(
-            ax / np.linalg.norm(ax) * np.radians(rng.uniform(15, 40))).as_matrix()
+        R = (
+            np.column_stack([x, np.cross(d, x), d])
+            @ Rotation.from_rotvec(ax / np.linalg.norm(ax) * np.radians(rng.uniform(15, 40))).as_matrix()
+        )
         t = rng.uniform(220, 330) * d - R @ c
         rv = Rotation.from_rotvec(Rotation.from_matrix(R).as_rotvec()).as_rotvec()
         p = project(o, rv, t, cam)
@@ -227,8 +273,25 @@ def test_pipeline_recorrects_through_the_rational_model(rational_images, tmp_pat
 
     cam, board, poses, paths = rational_images
     out = tmp_path / "model.json"
-    code = main(["calibrate", *map(str, paths), "--grid", "7x9", "--pitch", "15mm", "--diameter", "8mm",
-                 "--lens", "rational", "--out", str(out), "--no-progress", "--jobs", "1"])
+    code = main(
+        [
+            "calibrate",
+            *map(str, paths),
+            "--grid",
+            "7x9",
+            "--pitch",
+            "15mm",
+            "--diameter",
+            "8mm",
+            "--lens",
+            "rational",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--jobs",
+            "1",
+        ]
+    )
     assert code == 0
     doc = json.loads(out.read_text())
     assert doc["camera"]["lens"] == "rational" and len(doc["camera"]["dist"]) == 8
@@ -240,7 +303,7 @@ def test_pipeline_recorrects_through_the_rational_model(rational_images, tmp_pat
     cal = calibrate_images(paths, board, CalibrationOptions(lens="rational"), progress=False, jobs=1)
     truth = [project(board.object_points(), rv, t, cam) for rv, t in poses]
     err = np.concatenate([c - t for c, t in zip(cal.centres, truth)])
-    assert np.sqrt(np.nanmean(np.sum(err ** 2, axis=1))) <= 0.005
+    assert np.sqrt(np.nanmean(np.sum(err**2, axis=1))) <= 0.005
     plain = calibrate_images(paths, board, progress=False, jobs=1)
     assert plain.result.errors["rms_per_point_px"] > 1.5 * cal.result.errors["rms_per_point_px"]
 
@@ -250,8 +313,15 @@ def test_fixing_a_coefficient_the_lens_lacks_is_bad_input():
 
     obj, img = views(FISHEYE, 6, 2, 60, distance=(150.0, 400.0))
     with pytest.raises(InputError, match="no p1, p2"):
-        calibrate(obj, img, (FISHEYE.width, FISHEYE.height), CalibrationOptions.from_flags(lens="fisheye", fix_tangential=True))
-    res = calibrate(obj, img, (FISHEYE.width, FISHEYE.height), CalibrationOptions.from_flags(lens="fisheye", fix_k3=True))
+        calibrate(
+            obj,
+            img,
+            (FISHEYE.width, FISHEYE.height),
+            CalibrationOptions.from_flags(lens="fisheye", fix_tangential=True),
+        )
+    res = calibrate(
+        obj, img, (FISHEYE.width, FISHEYE.height), CalibrationOptions.from_flags(lens="fisheye", fix_k3=True)
+    )
     assert res.camera.dist[2] == 0.0 and res.std["k3"] == 0.0 and "k3" in res.fixed
 
 
@@ -281,4 +351,4 @@ def test_rational_wide_recorrection_settles_within_the_default_rounds():
         cal = calibrate_images([v.image for v in t.views], t.board, CalibrationOptions(lens="rational"), progress=False)
     assert not [w for w in caught if "did not settle" in str(w.message)]
     assert len(cal.rounds) <= MAX_ROUNDS and cal.rounds[-1]["max_centre_shift_px"] < 1e-4
-    assert cal.rounds[1]["max_centre_shift_px"] > 1e-2   # the slow case this default is for, not a settled one
+    assert cal.rounds[1]["max_centre_shift_px"] > 1e-2  # the slow case this default is for, not a settled one

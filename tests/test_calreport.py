@@ -2,6 +2,7 @@
 with sigmas and correlations, per-view residual bars, residual vectors, the residual histogram, coverage,
 uncertainty, outliers, the cross-validation map, failed images with overlays), checked in a real headless browser
 (Debian's chromium) where it is installed: every figure loads and nothing overflows the page."""
+
 from __future__ import annotations
 
 import json
@@ -42,16 +43,35 @@ def report(tmp_path_factory):
     blank = d / "blank.png"
     cv2.imwrite(str(blank), np.full((960, 1280), 200, np.uint8))
     folder = d / "report"
-    assert main(["calibrate", *[str(v.image) for v in t.views], str(blank), "--grid", "6x8", "--pitch", "25mm",
-                 "--diameter", "12mm", "--no-progress", "--cross-validate", "--out", str(d / "m.json"),
-                 "--report", str(folder)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                *[str(v.image) for v in t.views],
+                str(blank),
+                "--grid",
+                "6x8",
+                "--pitch",
+                "25mm",
+                "--diameter",
+                "12mm",
+                "--no-progress",
+                "--cross-validate",
+                "--out",
+                str(d / "m.json"),
+                "--report",
+                str(folder),
+            ]
+        )
+        == 0
+    )
     return folder
 
 
 def test_report_holds_every_part(report):
     html = (report / "index.html").read_text()
     md = (report / "index.md").read_text()
-    body = html[html.index('<div class="verdict"'):]
+    body = html[html.index('<div class="verdict"') :]
     lines = re.findall(r"<p>(.*?)</p>", body[: body.index("</div>")])
     assert len(lines) == 3
     assert "RMS per point (OpenCV)" in lines[0] and "RMS per coordinate (mrcal)" in lines[0] and "mean 2-D" in lines[0]
@@ -64,7 +84,7 @@ def test_report_holds_every_part(report):
     assert "blank.png" in html and "too-few-candidates" in html
     assert list((report / "figures").glob("failed_*.png"))
     for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"):
-        assert f"<td class=\"text\">{name}</td>" in html
+        assert f'<td class="text">{name}</td>' in html
     doc = json.loads((report / "report.json").read_text())
     assert doc["assessment"]["cross_validation"]["verdict"] == "consistent"
     assert doc["model"]["camera"]["width"] == 1280
@@ -77,23 +97,38 @@ def _browser_check(page: Path, width: int, tmp: Path) -> dict:
     """Load ``page`` in headless chromium at ``width`` px; returns what a script saw after the load event: images
     (count, loaded), the document's scroll width and the window's."""
     probe = page.with_name(f".probe-{width}.html")
-    script = ("<script>window.addEventListener('load', function () {"
-              "var imgs = Array.from(document.images);"
-              "var info = {n: imgs.length, loaded: imgs.filter(function (i) {"
-              "return i.complete && i.naturalWidth > 0; }).length,"
-              "scroll: document.documentElement.scrollWidth, inner: window.innerWidth,"
-              "wide: Array.from(document.querySelectorAll('body *')).filter(function (e) {"
-              "return e.getBoundingClientRect().right > window.innerWidth + 1; }).map(function (e) {"
-              "return e.tagName; }).slice(0, 5)};"
-              "document.body.setAttribute('data-check', JSON.stringify(info)); });</script>")
+    script = (
+        "<script>window.addEventListener('load', function () {"
+        "var imgs = Array.from(document.images);"
+        "var info = {n: imgs.length, loaded: imgs.filter(function (i) {"
+        "return i.complete && i.naturalWidth > 0; }).length,"
+        "scroll: document.documentElement.scrollWidth, inner: window.innerWidth,"
+        "wide: Array.from(document.querySelectorAll('body *')).filter(function (e) {"
+        "return e.getBoundingClientRect().right > window.innerWidth + 1; }).map(function (e) {"
+        "return e.tagName; }).slice(0, 5)};"
+        "document.body.setAttribute('data-check', JSON.stringify(info)); });</script>"
+    )
     probe.write_text(page.read_text().replace("</body>", script + "</body>"))
     try:
-        run = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu",
-                              "--disable-background-networking", "--no-first-run", f"--user-data-dir={tmp}",
-                              f"--window-size={width},900", "--virtual-time-budget=10000",
-                              "--allow-file-access-from-files", "--dump-dom", probe.as_uri()],
-                             capture_output=True, text=True,
-                             timeout=BROWSER_TIMEOUT_S)
+        run = subprocess.run(
+            [
+                _chromium(),
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-background-networking",
+                "--no-first-run",
+                f"--user-data-dir={tmp}",
+                f"--window-size={width},900",
+                "--virtual-time-budget=10000",
+                "--allow-file-access-from-files",
+                "--dump-dom",
+                probe.as_uri(),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=BROWSER_TIMEOUT_S,
+        )
     finally:
         probe.unlink()
     m = re.search(r'data-check="([^"]*)"', run.stdout)
@@ -101,8 +136,10 @@ def _browser_check(page: Path, width: int, tmp: Path) -> dict:
     return json.loads(m.group(1).replace("&quot;", '"'))
 
 
-@pytest.mark.skipif(_chromium() is None, reason="chromium is not installed (as root: apt-get install -y chromium; "
-                                                "`make setup` does it where it can)")
+@pytest.mark.skipif(
+    _chromium() is None,
+    reason="chromium is not installed (as root: apt-get install -y chromium; `make setup` does it where it can)",
+)
 @pytest.mark.parametrize("width", WIDTHS)
 def test_report_in_a_headless_browser(report, width, tmp_path):
     info = _browser_check(report / "index.html", width, tmp_path / "profile")
@@ -118,18 +155,44 @@ def test_report_folder_that_is_a_file_is_refused_before_the_work(tmp_path, capsy
     bad = tmp_path / "report"
     bad.write_text("not a folder")
     out = tmp_path / "m.json"
-    assert main(["calibrate", *[str(v.image) for v in t.views[:6]], "--grid", "6x8", "--pitch", "25mm",
-                 "--no-progress", "--out", str(out), "--report", str(bad)]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                *[str(v.image) for v in t.views[:6]],
+                "--grid",
+                "6x8",
+                "--pitch",
+                "25mm",
+                "--no-progress",
+                "--out",
+                str(out),
+                "--report",
+                str(bad),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "--report" in err and str(bad) in err and "file" in err
     assert not out.exists() and bad.read_text() == "not a folder"
 
 
 #: Hostile file names for `wide`-clean's 12 views (bytes: POSIX names; a name is at most 255 bytes).
-HOSTILE = [b"price$0_$x.png", b"a|b.png", b"new\nline.png", b"caf\xe9_00.png", b"<script>.png",
-           b"L" * 240 + b"_05.png", "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png".encode(),
-           "\u202egnp.exe_07.png".encode(), b"tick`s``_08.png", b"esc\x1b[31m_09.png", b"bytes:x_10.png",
-           b"plain_11.png"]
+HOSTILE = [
+    b"price$0_$x.png",
+    b"a|b.png",
+    b"new\nline.png",
+    b"caf\xe9_00.png",
+    b"<script>.png",
+    b"L" * 240 + b"_05.png",
+    "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png".encode(),
+    "\u202egnp.exe_07.png".encode(),
+    b"tick`s``_08.png",
+    b"esc\x1b[31m_09.png",
+    b"bytes:x_10.png",
+    b"plain_11.png",
+]
 #: Two frames without a board: one listed with an overlay, one whose image cannot be read again for its overlay.
 BLANKS = [b"<b>blank|$1$<i>\xff.png", b"unreadable.png"]
 
@@ -186,14 +249,24 @@ def hostile_report(hostile, tmp_path_factory):
 def test_hostile_names_in_html(hostile_report):
     html = (hostile_report / "index.html").read_text(encoding="utf-8")
     assert "<script" not in html.lower() and "<b>blank" not in html and "<i>" not in html  # names stay text
-    for shown in ("price$0_$x.png", "a|b.png", "new\\nline.png", "caf\\xe9_00.png", "&lt;script&gt;.png",
-                  "L" * 240 + "_05.png", "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png",
-                  "\\u202egnp.exe_07.png", "tick`s``_08.png", "esc\\x1b[31m_09.png", "bytes:x_10.png",
-                  "&lt;b&gt;blank|$1$&lt;i&gt;\\xff.png"):
+    for shown in (
+        "price$0_$x.png",
+        "a|b.png",
+        "new\\nline.png",
+        "caf\\xe9_00.png",
+        "&lt;script&gt;.png",
+        "L" * 240 + "_05.png",
+        "\U0001f600\U0001f3af \U0001f469\u200d\U0001f52c.png",
+        "\\u202egnp.exe_07.png",
+        "tick`s``_08.png",
+        "esc\\x1b[31m_09.png",
+        "bytes:x_10.png",
+        "&lt;b&gt;blank|$1$&lt;i&gt;\\xff.png",
+    ):
         assert re.search(f'<td class="name( long)?">{re.escape(shown)}</td>', html) or f"<b>{shown}</b>" in html, shown
     assert not set(html) & {"\x1b", "\u202e", "\ufffd"}
     # the blank frames: both listed with their reason; the one unreadable again has no overlay and says why
-    figs = re.findall(r"<figure>(.*?)</figure>", html[html.index("Images left out"):], re.S)
+    figs = re.findall(r"<figure>(.*?)</figure>", html[html.index("Images left out") :], re.S)
     assert len(figs) == 2
     assert '<img src="figures/failed_00.png"' in figs[0] and "too-few-candidates" in figs[0]
     assert "<img" not in figs[1] and "no overlay: " in figs[1] and "header claims 100000x100000" in figs[1]
@@ -213,8 +286,8 @@ def test_hostile_names_keep_markdown_table_rows_intact(hostile_report):
     md = (hostile_report / "index.md").read_text(encoding="utf-8")
     lines = md.splitlines()
     head = lines.index(next(ln for ln in lines if ln.startswith("| view | points |")))
-    rows = lines[head + 2: head + 2 + len(HOSTILE)]
-    assert lines[head + 2 + len(HOSTILE)] == ""                   # one line per view, then the table ends
+    rows = lines[head + 2 : head + 2 + len(HOSTILE)]
+    assert lines[head + 2 + len(HOSTILE)] == ""  # one line per view, then the table ends
     width = len(_cells(lines[head]))
     for row, raw in zip(rows, HOSTILE):
         cells = _cells(row)
@@ -229,11 +302,11 @@ def test_hostile_names_keep_markdown_table_rows_intact(hostile_report):
 
 
 def test_report_json_stores_hostile_names_losslessly(hostile_report, hostile):
-    text = (hostile_report / "report.json").read_text(encoding="utf-8")     # strict UTF-8
+    text = (hostile_report / "report.json").read_text(encoding="utf-8")  # strict UTF-8
     doc = json.loads(text)
-    json.dumps(doc, ensure_ascii=False).encode("utf-8")                   # strict: no lone surrogate in any string
+    json.dumps(doc, ensure_ascii=False).encode("utf-8")  # strict: no lone surrogate in any string
     _, paths = hostile
-    want = [os.fsencode(Path(p).name) for p in paths[:len(HOSTILE)]]
+    want = [os.fsencode(Path(p).name) for p in paths[: len(HOSTILE)]]
     got = [os.fsencode(path_from_json(v["name"])) for v in doc["model"]["views"]]
     assert got == want
     got = [os.fsencode(path_from_json(v["name"])) for v in doc["assessment"]["cross_validation"]["views"]]
@@ -241,7 +314,7 @@ def test_report_json_stores_hostile_names_losslessly(hostile_report, hostile):
     assert doc["model"]["views"][3]["name"] == "bytes:caf%E9_00.png"
     assert doc["model"]["views"][10]["name"] == "bytes:bytes:x_10.png"
     failed = [os.fsencode(path_from_json(f["path"])) for f in doc["model"]["failed_images"]]
-    assert failed == [os.fsencode(p) for p in paths[len(HOSTILE):]]
+    assert failed == [os.fsencode(p) for p in paths[len(HOSTILE) :]]
 
 
 def test_write_report_writes_only_into_an_empty_existing_folder(hostile, tmp_path):
@@ -257,19 +330,33 @@ def test_write_report_writes_only_into_an_empty_existing_folder(hostile, tmp_pat
     assert not (tmp_path / "missing").exists()
 
 
-@pytest.mark.parametrize("text, md", [
-    ("a|b", "a\\|b"), ("x `y` *z* _w_", "x \\`y\\` \\*z\\* \\_w\\_"), ("<script>&amp;", "\\<script\\>\\&amp;"),
-    ("[l](u) ~s~ $m$", "\\[l\\](u) \\~s\\~ \\$m\\$"), ("a\\b", "a\\\\b"), ("two\nlines", "two\\\\nlines"),
-])
+@pytest.mark.parametrize(
+    "text, md",
+    [
+        ("a|b", "a\\|b"),
+        ("x `y` *z* _w_", "x \\`y\\` \\*z\\* \\_w\\_"),
+        ("<script>&amp;", "\\<script\\>\\&amp;"),
+        ("[l](u) ~s~ $m$", "\\[l\\](u) \\~s\\~ \\$m\\$"),
+        ("a\\b", "a\\\\b"),
+        ("two\nlines", "two\\\\nlines"),
+    ],
+)
 def test_md_text_escapes_markup(text, md):
     assert md_text(text) == md
 
 
-@pytest.mark.parametrize("name, cell, md", [
-    ("plain.png", False, "`plain.png`"), ("a|b", True, "`a\\|b`"), ("a|b", False, "`a|b`"),
-    ("a`b``c", False, "```a`b``c```"), ("`x", False, "`` `x ``"), (" x ", False, "`  x  `"),
-    ("new\nline", False, "`new\\nline`"),
-])
+@pytest.mark.parametrize(
+    "name, cell, md",
+    [
+        ("plain.png", False, "`plain.png`"),
+        ("a|b", True, "`a\\|b`"),
+        ("a|b", False, "`a|b`"),
+        ("a`b``c", False, "```a`b``c```"),
+        ("`x", False, "`` `x ``"),
+        (" x ", False, "`  x  `"),
+        ("new\nline", False, "`new\\nline`"),
+    ],
+)
 def test_md_name_is_a_code_span(name, cell, md):
     assert md_name(name, cell=cell) == md
 

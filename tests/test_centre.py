@@ -1,4 +1,5 @@
 """Projective centre correction: pole of the vanishing line vs the truth, vs the tangent/chord construction."""
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -83,9 +84,14 @@ def test_the_default_tolerance_stops_at_the_fixed_point():
         gx, gy = np.meshgrid(np.arange(7) * 10.0, np.arange(6) * 10.0)
         board = np.column_stack([gx.ravel(), gy.ravel()]) - [30, 25]
         shifts = rng.normal(0, 0.02, (len(board), 2))
-        conics = np.array([transform_conic(transform_conic(_circle(x, y, 4.5), H),
-                                           np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]))
-                           for (x, y), (dx, dy) in zip(board, shifts)])
+        conics = np.array(
+            [
+                transform_conic(
+                    transform_conic(_circle(x, y, 4.5), H), np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+                )
+                for (x, y), (dx, dy) in zip(board, shifts)
+            ]
+        )
         c, _ = correct_centres(conics, board)
         c0, _ = correct_centres(conics, board, tol_px=1e-13, max_iter=50)
         worst = max(worst, float(np.max(np.abs(c - c0))))
@@ -99,7 +105,7 @@ def test_batched_poles_equal_single_poles():
     gx, gy = np.meshgrid(np.arange(5) * 10.0, np.arange(4) * 10.0)
     conics = np.array([transform_conic(_circle(x, y, 3.0), H) for x, y in zip(gx.ravel(), gy.ravel())])
     line = vanishing_line(H)
-    direct = np.array([np.linalg.solve(E, line) for E in conics])   # the closed form E^-1 l
+    direct = np.array([np.linalg.solve(E, line) for E in conics])  # the closed form E^-1 l
     direct = direct[:, :2] / direct[:, 2:]
     assert np.allclose(pole_centres(conics, line), direct, rtol=0, atol=1e-7)
     assert np.allclose(np.array([pole_centre(E, line) for E in conics]), pole_centres(conics, line), atol=1e-9)

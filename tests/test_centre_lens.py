@@ -1,5 +1,6 @@
 """The distortion-aware centre correction through every lens model, on exact rim points: each dot's rim (a circle
 on the board) sampled in 3-D and projected through the lens, so the only error left is the method's."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,10 +15,17 @@ from circcal.model import Camera, project, transform
 BOARD = Board(6, 8, 25.0, 12.0)
 FISHEYE = Camera(1280, 1024, 420.0, 420.4, 641.3, 510.8, [0.03, -0.01, 0.002, -0.0004], "fisheye")
 FISHEYE_190 = Camera(1280, 1024, 310.0, 310.0, 639.5, 511.5, [-0.012, 0.003, -6e-4, 5e-5], "fisheye")
-RATIONAL = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.2, 0.01, 2e-4, -3e-4, 5e-4, 0.5, 0.01, 0.001],
-                  "rational")
-THIN_PRISM = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
-                    [0.2, 0.01, 2e-4, -3e-4, 5e-4, 0.5, 0.01, 0.001, 1e-3, -2e-5, -8e-4, 3e-5], "thin-prism")
+RATIONAL = Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7, [0.2, 0.01, 2e-4, -3e-4, 5e-4, 0.5, 0.01, 0.001], "rational")
+THIN_PRISM = Camera(
+    1920,
+    1080,
+    900.0,
+    905.0,
+    962.3,
+    541.7,
+    [0.2, 0.01, 2e-4, -3e-4, 5e-4, 0.5, 0.01, 0.001, 1e-3, -2e-5, -8e-4, 3e-5],
+    "thin-prism",
+)
 
 
 def board_pose(theta_deg: float, phi_deg: float, distance: float, tilt_deg: float):
@@ -41,10 +49,18 @@ def rims(camera: Camera, rvec, tvec, n=96):
     return P, project(o, rvec, tvec, camera)
 
 
-@pytest.mark.parametrize("camera,theta,tilt", [
-    (FISHEYE, 0, 40), (FISHEYE, 45, 30), (FISHEYE, 70, 20), (FISHEYE, 75, 50),
-    (FISHEYE_190, 88, 20), (FISHEYE_190, 92, 30),
-], ids=["axis", "45deg", "70deg", "75deg-tilted", "190-88deg", "190-92deg"])
+@pytest.mark.parametrize(
+    "camera,theta,tilt",
+    [
+        (FISHEYE, 0, 40),
+        (FISHEYE, 45, 30),
+        (FISHEYE, 70, 20),
+        (FISHEYE, 75, 50),
+        (FISHEYE_190, 88, 20),
+        (FISHEYE_190, 92, 30),
+    ],
+    ids=["axis", "45deg", "70deg", "75deg-tilted", "190-88deg", "190-92deg"],
+)
 def test_local_correction_is_exact_on_fisheye_rims(camera, theta, tilt):
     """Rims of 48 dots of a board up to 92 deg off axis (the board partly behind the camera): every centre back to
     its true image to 1e-6 px, where the rim ellipse's own centre is off by 0.01-1 px."""
@@ -55,7 +71,7 @@ def test_local_correction_is_exact_on_fisheye_rims(camera, theta, tilt):
         assert np.any(transform(BOARD.object_points(), rv, tv)[:, 2] < 0)
     c, H = correct_centres_on_rays(P, np.ones(P.shape[:2], bool), BOARD.object_points()[:, :2], camera)
     assert np.max(np.abs(c - truth)) <= 1e-6
-    naive = np.array([np.mean(p, axis=0) for p in P])            # the rim's mean: no correction at all
+    naive = np.array([np.mean(p, axis=0) for p in P])  # the rim's mean: no correction at all
     assert np.max(np.abs(naive - truth)) > 0.01
 
 
@@ -129,7 +145,7 @@ def test_pipeline_calibrates_fisheye_renders(tmp_path):
     assert cal.rounds[-1]["max_centre_shift_px"] < 1e-4
     truth = [project(BOARD.object_points(), rv, tv, FISHEYE) for rv, tv in poses]
     err = np.concatenate([c - t for c, t in zip(cal.centres, truth)])
-    assert np.sqrt(np.mean(np.sum(err ** 2, axis=1))) <= 0.005
+    assert np.sqrt(np.mean(np.sum(err**2, axis=1))) <= 0.005
     for k, i in (("fx", 0), ("fy", 1), ("cx", 2), ("cy", 3)):
         assert abs(cal.result.camera.intrinsics[i] - FISHEYE.intrinsics[i]) < 4 * cal.result.std[k], k
     with pytest.warns(RuntimeWarning):
@@ -140,8 +156,28 @@ def test_pipeline_calibrates_fisheye_renders(tmp_path):
     from circcal.formats import read_camera
 
     out = tmp_path / "fisheye.yaml"
-    assert main(["calibrate", *map(str, paths), "--grid", "6x8", "--pitch", "25mm", "--diameter", "12mm",
-                 "--lens", "fisheye", "--cross-validate", "--out", str(out),
-                 "--no-progress", "--jobs", "1"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                *map(str, paths),
+                "--grid",
+                "6x8",
+                "--pitch",
+                "25mm",
+                "--diameter",
+                "12mm",
+                "--lens",
+                "fisheye",
+                "--cross-validate",
+                "--out",
+                str(out),
+                "--no-progress",
+                "--jobs",
+                "1",
+            ]
+        )
+        == 0
+    )
     back = read_camera(out)
     assert back.lens == "fisheye" and abs(back.fx - FISHEYE.fx) < 4 * cal.result.std["fx"]

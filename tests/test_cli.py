@@ -1,5 +1,6 @@
 """The command line's contract: exit codes that tell bad input from a bug, one line for bad input, a traceback for a
 bug."""
+
 from __future__ import annotations
 
 import argparse
@@ -13,6 +14,7 @@ from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, InputError
 
 def _with_command(monkeypatch, fn) -> None:
     """Replace the parser so that the command ``x`` runs ``fn``."""
+
     def build() -> argparse.ArgumentParser:
         parser = argparse.ArgumentParser(prog="circcal")
         sub = parser.add_subparsers(dest="command")
@@ -44,6 +46,7 @@ def test_a_missing_file_is_bad_input(monkeypatch, capsys):
 @pytest.mark.parametrize("exc", [RuntimeError("boom"), ValueError("an internal shape mismatch"), KeyError("k")])
 def test_a_bug_keeps_its_traceback_and_exits_70(monkeypatch, capsys, exc):
     """A ValueError from inside circcal is a bug, not bad input: only InputError (and file errors) mean bad input."""
+
     def buggy(args):
         raise exc
 
@@ -65,8 +68,9 @@ def test_outputs_are_checked_before_the_work(tmp_path, capsys):
     from circcal.cli import main
 
     model = tmp_path / "model.json"
-    model.write_text('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, '
-                     '"dist": [0, 0, 0, 0, 0]}}')
+    model.write_text(
+        '{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0, 0, 0, 0, 0]}}'
+    )
     out_dir = tmp_path / "adir"
     out_dir.mkdir()
     assert main(["convert", str(model), str(out_dir)]) == 2
@@ -80,6 +84,7 @@ def test_outputs_are_checked_before_the_work(tmp_path, capsys):
     locked.chmod(0o500)
     try:
         import os
+
         if os.access(locked, os.W_OK):  # running as root: permissions are not enforced
             pytest.skip("permissions are not enforced for this user (root)")
         assert main(["convert", str(model), str(locked / "x.yaml")]) == 2
@@ -97,10 +102,24 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
     if not Path("/proc/self").is_dir():
         pytest.skip("no /proc here (not Linux)")
     model = tmp_path / "model.json"
-    model.write_text('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, '
-                     '"dist": [0, 0, 0, 0, 0]}}')
-    assert main(["calibrate", "nonexistent.png", "--grid", "7x7", "--pitch", "10mm",
-                 "--out", "/proc/circcal-no-such-folder/m.json"]) == 2
+    model.write_text(
+        '{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0, 0, 0, 0, 0]}}'
+    )
+    assert (
+        main(
+            [
+                "calibrate",
+                "nonexistent.png",
+                "--grid",
+                "7x7",
+                "--pitch",
+                "10mm",
+                "--out",
+                "/proc/circcal-no-such-folder/m.json",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "--out /proc/circcal-no-such-folder/m.json: nothing can be made in folder /proc" in err
     assert len(err.strip().splitlines()) == 1
@@ -111,22 +130,37 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "ok.yaml"]  # no probe file left
 
 
-@pytest.mark.parametrize("content, field", [
-    ('{"camera": {"width": 640, "height": 480, "fx": true, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
-     "fx"),
-    ('{"camera": {"width": 640, "height": 480, "fx": NaN, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
-     "fx"),
-    ('{"camera": {"width": 640.5, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
-     "width"),
-    ('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": null, "cy": 240, "dist": [0,0,0,0,0]}}',
-     "cx"),
-    ('{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0, 0]}}',
-     "dist"),
-    ('{"camera": {"width": 640, "height": 480, "fx": -5, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
-     "focal lengths must be positive"),
-    ('{"views": []}', "no 'camera' block"),
-    ('{"camera": ', "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "content, field",
+    [
+        (
+            '{"camera": {"width": 640, "height": 480, "fx": true, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+            "fx",
+        ),
+        (
+            '{"camera": {"width": 640, "height": 480, "fx": NaN, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+            "fx",
+        ),
+        (
+            '{"camera": {"width": 640.5, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+            "width",
+        ),
+        (
+            '{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": null, "cy": 240, "dist": [0,0,0,0,0]}}',
+            "cx",
+        ),
+        (
+            '{"camera": {"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "dist": [0, 0]}}',
+            "dist",
+        ),
+        (
+            '{"camera": {"width": 640, "height": 480, "fx": -5, "fy": 500, "cx": 320, "cy": 240, "dist": [0,0,0,0,0]}}',
+            "focal lengths must be positive",
+        ),
+        ('{"views": []}', "no 'camera' block"),
+        ('{"camera": ', "not valid JSON"),
+    ],
+)
 def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, capsys, content, field):
     """NaN, inf, booleans, null, non-integer sizes and distortion of the wrong length never pass into another file;
     the message names the file and the field; an earlier output is left as it was."""
@@ -169,8 +203,23 @@ def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatc
     out = tmp_path / "detections.json"
     out.write_text("earlier\n")
     b = truth.board
-    code = main(["detect", *paths, "--grid", f"{b.rows}x{b.cols}", "--pitch", f"{b.pitch_mm}mm", "--diameter",
-                 f"{b.diameter_mm}mm", "--json", str(out), "--jobs", "1", "--quiet"])
+    code = main(
+        [
+            "detect",
+            *paths,
+            "--grid",
+            f"{b.rows}x{b.cols}",
+            "--pitch",
+            f"{b.pitch_mm}mm",
+            "--diameter",
+            f"{b.diameter_mm}mm",
+            "--json",
+            str(out),
+            "--jobs",
+            "1",
+            "--quiet",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 70 and "a bug in the third image" in err and "detections.partial-1.json" in err
     assert out.read_text() == "earlier\n"
@@ -192,9 +241,23 @@ def test_detect_reads_the_model_in_any_format(tmp_path):
     write_camera(model, truth.camera)
     out = tmp_path / "d.json"
     board = truth.board
-    code = main(["detect", str(truth.views[0].image), "--grid", f"{board.rows}x{board.cols}", "--pitch",
-                 f"{board.pitch_mm}mm", "--diameter", f"{board.diameter_mm}mm", "--model", str(model), "--json",
-                 str(out), "--quiet"])
+    code = main(
+        [
+            "detect",
+            str(truth.views[0].image),
+            "--grid",
+            f"{board.rows}x{board.cols}",
+            "--pitch",
+            f"{board.pitch_mm}mm",
+            "--diameter",
+            f"{board.diameter_mm}mm",
+            "--model",
+            str(model),
+            "--json",
+            str(out),
+            "--quiet",
+        ]
+    )
     doc = json.loads(out.read_text())
     assert code == 0 and doc["complete"] and doc["images"][0]["found"] and doc["images"][0]["reason_code"] is None
 
@@ -210,6 +273,7 @@ def test_sigterm_unwinds_cleanly(monkeypatch, capsys):
         try:
             os.kill(os.getpid(), signal.SIGTERM)
             import time
+
             time.sleep(5)  # the handler raises before this returns
         finally:
             cleaned.append(True)
@@ -229,11 +293,13 @@ def test_pycolmap_import_leaves_sigterm_alone():
     import subprocess
     import sys
 
-    code = ("import os, signal\n"
-            "from circcal.validators.pycolmap import PycolmapCalibrator\n"
-            "ok, why = PycolmapCalibrator().available()\n"
-            "assert ok, why\n"
-            "os.kill(os.getpid(), signal.SIGTERM)\n")
+    code = (
+        "import os, signal\n"
+        "from circcal.validators.pycolmap import PycolmapCalibrator\n"
+        "ok, why = PycolmapCalibrator().available()\n"
+        "assert ok, why\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+    )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == -signal_number("SIGTERM"), (run.returncode, run.stderr[-2000:])
     assert "stack trace" not in run.stderr and "*** SIGTERM" not in run.stderr
@@ -255,8 +321,10 @@ def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
     import sys
 
     big = tmp_path / "model.json"
-    doc = {"camera": {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0,
-                      "dist": [0.0] * 5}, "views": [{"rvec": [0.1, 0.2, 0.3], "tvec_mm": [1.0, 2.0, 300.0]}] * 200}
+    doc = {
+        "camera": {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "dist": [0.0] * 5},
+        "views": [{"rvec": [0.1, 0.2, 0.3], "tvec_mm": [1.0, 2.0, 300.0]}] * 200,
+    }
     big.write_text(json.dumps(doc))
     out = tmp_path / "previous.json"
     out.write_text('{"previous": true}\n')
@@ -265,8 +333,13 @@ def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write then fails with EFBIG instead of a kill
         resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
 
-    run = subprocess.run([sys.executable, "-m", "circcal.cli", "convert", str(big), str(out)], capture_output=True,
-                         text=True, timeout=120, preexec_fn=limit)
+    run = subprocess.run(
+        [sys.executable, "-m", "circcal.cli", "convert", str(big), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=limit,
+    )
     assert run.returncode == 2, run.stderr
     assert "File too large" in run.stderr and "Traceback" not in run.stderr
     assert out.read_text() == '{"previous": true}\n'
@@ -283,7 +356,8 @@ def test_warnings_are_one_readable_line(monkeypatch, capsys):
     _with_command(monkeypatch, warns)
     assert cli.main(["x"]) == 0
     assert capsys.readouterr().err.strip() == (
-        "circcal x: warning: calibration did not converge (iteration limit 200 reached)")
+        "circcal x: warning: calibration did not converge (iteration limit 200 reached)"
+    )
 
 
 def test_progress_bar_hidden_does_not_import_tqdm_and_shown_draws():
@@ -291,10 +365,12 @@ def test_progress_bar_hidden_does_not_import_tqdm_and_shown_draws():
     import subprocess
     import sys
 
-    code = ("import sys\nfrom circcal.progress import progress_bar\n"
-            "with progress_bar(3, 'x', 'it', False) as b:\n    b.update(); b.set_postfix_str('y')\n"
-            "assert 'tqdm' not in sys.modules, 'tqdm imported for a hidden bar'\n"
-            "b = progress_bar(3, 'detect', 'img', True)\nb.update(3); b.close()\n")
+    code = (
+        "import sys\nfrom circcal.progress import progress_bar\n"
+        "with progress_bar(3, 'x', 'it', False) as b:\n    b.update(); b.set_postfix_str('y')\n"
+        "assert 'tqdm' not in sys.modules, 'tqdm imported for a hidden bar'\n"
+        "b = progress_bar(3, 'detect', 'img', True)\nb.update(3); b.close()\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "detect" in r.stderr and "3/3" in r.stderr
@@ -306,7 +382,23 @@ def test_a_dropped_dot_is_named_without_a_position(realdata, tmp_path, capsys):
     from circcal.cli import main
 
     folder = realdata / "boofcv_sony_hx5v_circle_regular_10x8"
-    assert main(["calibrate", *map(str, sorted(folder.glob("image*.jpg"))), "--grid", "8x10", "--pitch", "25mm",
-                 "--diameter", "15mm", "--no-progress", "--out", str(tmp_path / "m.json")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                *map(str, sorted(folder.glob("image*.jpg"))),
+                "--grid",
+                "8x10",
+                "--pitch",
+                "25mm",
+                "--diameter",
+                "15mm",
+                "--no-progress",
+                "--out",
+                str(tmp_path / "m.json"),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "image00005.jpg: point 34: bad-dot: detector:" in out and "(nan" not in out

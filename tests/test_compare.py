@@ -1,4 +1,5 @@
 """analysis/compare.py: parameter and projection differences, grid re-matching, centre errors."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -89,8 +90,9 @@ def test_fit_rotation_recovers_a_rotation():
     assert np.allclose(Rf, R, atol=1e-12) and np.allclose(t, [1, 2, 3], atol=1e-12)
 
 
-@pytest.mark.parametrize("rows,cols,label", [(7, 7, "rot90"), (7, 7, "rot270"), (7, 7, "rot180"), (8, 10, "rot180"),
-                                             (8, 10, "rot0")])
+@pytest.mark.parametrize(
+    "rows,cols,label", [(7, 7, "rot90"), (7, 7, "rot270"), (7, 7, "rot180"), (8, 10, "rot180"), (8, 10, "rot0")]
+)
 def test_match_grid_order_undoes_rotations(rows, cols, label):
     rng = np.random.default_rng(0)
     truth = np.stack(np.meshgrid(np.arange(cols) * 30.0, np.arange(rows) * 30.0), -1).reshape(-1, 2) + 100.0

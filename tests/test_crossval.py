@@ -4,6 +4,7 @@ lens model (k1 only on `wide`), a biased pipeline (OpenCV's blob centres on `til
 (circcal's own under `wide`'s uneven light) are flagged, and for every flag the ground truth confirms a real problem:
 a half model, or the whole model, is off from the true camera by more than twice its own stated uncertainty over
 most of the image. Fewer than 6 views: it says why and the calibration stands."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,8 +28,12 @@ BIASED_CENTRES = {("wide", "uneven")}
 
 def _truth_share(truth_camera, res) -> float:
     """Share of the image where ``res``'s model is within 2x its own uncertainty of the true camera."""
-    d = model_diff(truth_camera, res.camera, uncertainty_a=lambda uv: np.zeros(len(uv)),
-                   uncertainty_b=lambda uv: result_projection_stdev(res, uv))
+    d = model_diff(
+        truth_camera,
+        res.camera,
+        uncertainty_a=lambda uv: np.zeros(len(uv)),
+        uncertainty_b=lambda uv: result_projection_stdev(res, uv),
+    )
     return d.share_within
 
 
@@ -43,8 +48,9 @@ def _k1_only(scenario: str, variant: str):
     t = load_truth(fixture_dir(scenario, variant))
     cal = calibrate_images([v.image for v in t.views], t.board, progress=False)
     obj, img = cal.observations(t.board)
-    full, cv = cross_validate_observations(obj, img, (t.camera.width, t.camera.height),
-                                           CalibrationOptions(fixed=("k2", "k3", "tangential")))
+    full, cv = cross_validate_observations(
+        obj, img, (t.camera.width, t.camera.height), CalibrationOptions(fixed=("k2", "k3", "tangential"))
+    )
     return t, full, cv
 
 
@@ -54,19 +60,20 @@ def _opencv(scenario: str, variant: str):
     t = load_truth(fixture_dir(scenario, variant))
     det = OpenCVCalibrator().detect([v.image for v in t.views], t.board)
     img = det["image_points"]
-    full, cv = cross_validate_observations([t.board.object_points()] * len(img), img,
-                                           (t.camera.width, t.camera.height))
+    full, cv = cross_validate_observations([t.board.object_points()] * len(img), img, (t.camera.width, t.camera.height))
     return t, full, cv
 
 
 def _check(t, full, cv, *, expect_problem: bool, label: str) -> None:
     assert cv.status == "ok", cv.message
     shares = [_truth_share(t.camera, m) for m in (*cv.models, full)]
-    print(f"\n{label}: {cv.message}\n  flagged views: {[(v.name, v.why) for v in cv.flagged_views]}\n  truth: "
-          f"half A / half B / whole model within 2x of their uncertainty over {np.round(shares, 2)} of the image")
+    print(
+        f"\n{label}: {cv.message}\n  flagged views: {[(v.name, v.why) for v in cv.flagged_views]}\n  truth: "
+        f"half A / half B / whole model within 2x of their uncertainty over {np.round(shares, 2)} of the image"
+    )
     if expect_problem:
         assert cv.verdict == "model-or-data-problem"
-        assert min(shares) < TRUTH_CONFIRMS_SHARE             # the truth confirms it
+        assert min(shares) < TRUTH_CONFIRMS_SHARE  # the truth confirms it
         assert cv.message.startswith("a model or data problem")
     else:
         assert cv.verdict == "consistent", cv.message
@@ -78,8 +85,10 @@ CORRECT = [(s, v) for s in ("paper", "wide") for v in SCENARIOS[s].variants]
 FAST_CORRECT = [("paper", "normal"), ("wide", "clean")]
 
 
-@pytest.mark.parametrize("scenario,variant", FAST_CORRECT + [pytest.param(s, v, marks=pytest.mark.slow)
-                                                             for s, v in CORRECT if (s, v) not in FAST_CORRECT])
+@pytest.mark.parametrize(
+    "scenario,variant",
+    FAST_CORRECT + [pytest.param(s, v, marks=pytest.mark.slow) for s, v in CORRECT if (s, v) not in FAST_CORRECT],
+)
 def test_correct_pipeline(scenario, variant):
     t, full, cv = _circcal(scenario, variant)
     _check(t, full, cv, expect_problem=(scenario, variant) in BIASED_CENTRES, label=f"circcal {scenario}-{variant}")
@@ -106,11 +115,23 @@ def test_fewer_than_six_views_says_why_and_the_calibration_stands(tmp_path):
 
     t = load_truth(fixture_dir("wide", "clean"))
     out = tmp_path / "m.json"
-    args = ["calibrate", *[str(v.image) for v in t.views[:MIN_VIEWS - 1]], "--grid", "6x8", "--pitch", "25mm",
-            "--diameter", "12mm", "--no-progress", "--cross-validate", "--out", str(out)]
+    args = [
+        "calibrate",
+        *[str(v.image) for v in t.views[: MIN_VIEWS - 1]],
+        "--grid",
+        "6x8",
+        "--pitch",
+        "25mm",
+        "--diameter",
+        "12mm",
+        "--no-progress",
+        "--cross-validate",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     assert out.is_file()
-    cal = calibrate_images([v.image for v in t.views[:MIN_VIEWS - 1]], t.board, progress=False)
+    cal = calibrate_images([v.image for v in t.views[: MIN_VIEWS - 1]], t.board, progress=False)
     cv = cross_validate_detections(cal, t.board)
     assert cv.status == "too-few-views" and cv.verdict is None
     assert f"need at least {MIN_VIEWS}" in cv.message and "calibration above stands" in cv.message

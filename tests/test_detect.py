@@ -4,6 +4,7 @@ Errors are distances between detected centres and the exact projections of the c
 are matched to the truth up to the board's symmetries (the orientation rule picks one labelling; the truth's
 labelling follows the pose). OpenCV's ``findCirclesGrid`` error on the same images is printed beside ours.
 """
+
 from __future__ import annotations
 
 import json
@@ -50,8 +51,15 @@ BOARD = Board(4, 5, 10.0, 5.0)
 
 
 def _render(camera, radius_px, tilt, axis=30.0, target=(700.0, 500.0)):
-    rvec, tvec = pose_looking_at(camera, BOARD, distance_mm=camera.fx * BOARD.radius_mm / radius_px,
-                                 tilt_deg=tilt, tilt_axis_deg=axis, roll_deg=10.0, target_px=target)
+    rvec, tvec = pose_looking_at(
+        camera,
+        BOARD,
+        distance_mm=camera.fx * BOARD.radius_mm / radius_px,
+        tilt_deg=tilt,
+        tilt_axis_deg=axis,
+        roll_deg=10.0,
+        target_px=target,
+    )
     return render_view(camera, BOARD, rvec, tvec), project(BOARD.object_points(), rvec, tvec, camera), rvec, tvec
 
 
@@ -63,11 +71,13 @@ def test_clean_perspective_bar(radius_px, tilt):
     assert d.found, d.reason
     e = matched_errors(BOARD, d.centres, truth)
     ocv = opencv_errors(to_uint(img), BOARD, truth)
-    ocv_txt = f"{ocv.mean():.4f}/{np.sqrt(np.mean(ocv ** 2)):.4f}" if ocv is not None else "not found"
-    print(f"\nR={radius_px} px tilt={tilt} deg: circcal mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e ** 2)):.4f} px "
-          f"(max {e.max():.4f}); OpenCV findCirclesGrid {ocv_txt} px")
+    ocv_txt = f"{ocv.mean():.4f}/{np.sqrt(np.mean(ocv**2)):.4f}" if ocv is not None else "not found"
+    print(
+        f"\nR={radius_px} px tilt={tilt} deg: circcal mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e**2)):.4f} px "
+        f"(max {e.max():.4f}); OpenCV findCirclesGrid {ocv_txt} px"
+    )
     assert e.mean() <= 0.005
-    assert np.sqrt(np.mean(e ** 2)) <= 0.005
+    assert np.sqrt(np.mean(e**2)) <= 0.005
 
 
 @pytest.mark.parametrize("k1", [-0.3, -0.1, 0.2])
@@ -79,9 +89,11 @@ def test_distortion_with_true_model(k1, radius_px, tilt):
     assert d.found, d.reason
     e = matched_errors(BOARD, d.centres, truth)
     plain = matched_errors(BOARD, detect(img, BOARD).centres, truth)
-    print(f"\nk1={k1} R={radius_px} tilt={tilt}: with model mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e ** 2)):.4f};"
-          f" perspective-only {plain.mean():.4f}")
-    assert e.mean() <= 0.005 and np.sqrt(np.mean(e ** 2)) <= 0.005
+    print(
+        f"\nk1={k1} R={radius_px} tilt={tilt}: with model mean/RMS {e.mean():.4f}/{np.sqrt(np.mean(e**2)):.4f};"
+        f" perspective-only {plain.mean():.4f}"
+    )
+    assert e.mean() <= 0.005 and np.sqrt(np.mean(e**2)) <= 0.005
     # cheap re-correction from the stored edge points gives the same centres
     assert np.allclose(recorrect(d, BOARD, cam), d.centres, atol=1e-9)
     d0 = detect(img, BOARD)
@@ -103,15 +115,14 @@ def _fisher_bound(camera, board_img_fn, truth, sigma_n, eps=0.05):
     spacing = np.min(np.linalg.norm(truth[1:] - truth[:-1], axis=1))
     for c in truth:
         m = np.hypot(xx - c[0], yy - c[1]) < 0.5 * spacing
-        out.append([1.0 / np.sqrt(np.sum(g[m] ** 2) / sigma_n ** 2) for g in grads])
+        out.append([1.0 / np.sqrt(np.sum(g[m] ** 2) / sigma_n**2) for g in grads])
     return np.array(out)
 
 
 @pytest.mark.parametrize("cnr", [30, 100])
 def test_noise_within_cramer_rao(cnr):
     cam = Camera(640, 480, 800.0, 800.0, 319.5, 239.5)
-    rvec, tvec = pose_looking_at(cam, BOARD, distance_mm=800 * 2.5 / 10.0, tilt_deg=30, tilt_axis_deg=30,
-                                 roll_deg=10)
+    rvec, tvec = pose_looking_at(cam, BOARD, distance_mm=800 * 2.5 / 10.0, tilt_deg=30, tilt_axis_deg=30, roll_deg=10)
     blur = 1.0  # optics: a Gaussian PSF of 1 px
 
     def render(c):
@@ -124,7 +135,7 @@ def test_noise_within_cramer_rao(cnr):
     crb = _fisher_bound(cam, render, truth, sigma_n)
     # check the numeric bound against the disk formula of notes/accuracy.md (tilt 30: ellipse, so roughly)
     R = 10.0
-    formula = (sigma_n / contrast) * np.sqrt(2 * np.sqrt(blur ** 2 + 1 / 12) / (np.sqrt(np.pi) * R))
+    formula = (sigma_n / contrast) * np.sqrt(2 * np.sqrt(blur**2 + 1 / 12) / (np.sqrt(np.pi) * R))
     assert 0.7 < np.median(crb) / formula < 1.5
     rng = np.random.default_rng(cnr)
     errs = []
@@ -133,10 +144,12 @@ def test_noise_within_cramer_rao(cnr):
         assert d.found, d.reason
         errs.append(d.centres - truth)
     errs = np.array(errs)
-    rms = np.sqrt(np.mean(errs ** 2, axis=(0, 1)))           # per coordinate (x, y)
-    bound = np.sqrt(np.mean(crb ** 2, axis=0))
-    print(f"\ncontrast/noise {cnr}: centre RMS x,y {rms.round(5)} px; Cramer-Rao {bound.round(5)} px; "
-          f"ratio {(rms / bound).round(2)} (formula {formula:.5f})")
+    rms = np.sqrt(np.mean(errs**2, axis=(0, 1)))  # per coordinate (x, y)
+    bound = np.sqrt(np.mean(crb**2, axis=0))
+    print(
+        f"\ncontrast/noise {cnr}: centre RMS x,y {rms.round(5)} px; Cramer-Rao {bound.round(5)} px; "
+        f"ratio {(rms / bound).round(2)} (formula {formula:.5f})"
+    )
     assert np.all(rms <= 1.5 * bound)
 
 
@@ -175,13 +188,16 @@ def test_scenario_detection_rate(name, variant):
 @pytest.mark.slow
 @pytest.mark.parametrize("name,variant", _scenario_params())
 def test_scenario_detection_rate_all_views(name, variant):
-    _scenario_rate(name, variant, n_views=10 ** 6)
+    _scenario_rate(name, variant, n_views=10**6)
 
 
-@pytest.mark.parametrize("folder,grid,layout", [
-    ("boofcv_sony_hx5v_circle_asym_4x5", (5, 4), "asymmetric"),      # 5 rows of 4 (patternSize (4, 5))
-    ("boofcv_sony_hx5v_circle_regular_10x8", (8, 10), "symmetric"),  # 8 rows of 10 (patternSize (10, 8))
-])
+@pytest.mark.parametrize(
+    "folder,grid,layout",
+    [
+        ("boofcv_sony_hx5v_circle_asym_4x5", (5, 4), "asymmetric"),  # 5 rows of 4 (patternSize (4, 5))
+        ("boofcv_sony_hx5v_circle_regular_10x8", (8, 10), "symmetric"),  # 8 rows of 10 (patternSize (10, 8))
+    ],
+)
 def test_real_data_every_grid_found(folder, grid, layout):
     d = REALDATA / folder
     if not d.is_dir():
@@ -228,8 +244,14 @@ def test_detect_files_gives_each_file_problem_its_reason_code(tmp_path, jobs):
     cv2.imwrite(str(blank), np.full((100, 120), 200, np.uint8))
     paths = [corrupt, tmp_path / "missing.png", tmp_path, empty, tiny, blank]
     dets = detect_files(paths, BOARD, progress=False, jobs=jobs)
-    assert [d.code for d in dets] == [Reason.UNREADABLE, Reason.FILE_NOT_FOUND, Reason.FILE_NOT_FOUND,
-                                      Reason.UNREADABLE, Reason.BAD_IMAGE, Reason.TOO_FEW_CANDIDATES]
+    assert [d.code for d in dets] == [
+        Reason.UNREADABLE,
+        Reason.FILE_NOT_FOUND,
+        Reason.FILE_NOT_FOUND,
+        Reason.UNREADABLE,
+        Reason.BAD_IMAGE,
+        Reason.TOO_FEW_CANDIDATES,
+    ]
     assert not any(d.found for d in dets) and "not a file" in dets[2].reason and "too small" in dets[4].reason
     (wrong,) = detect_files([blank], BOARD, CAM, progress=False, jobs=jobs)
     assert wrong.code == Reason.WRONG_IMAGE_SIZE and "1280x960" in wrong.reason and wrong.image_size == (120, 100)
@@ -266,8 +288,8 @@ def test_row_medians_are_numpys_medians_of_the_values_left_in():
     rng = np.random.default_rng(4)
     vals = rng.normal(size=(7, 10))
     keep = rng.random((7, 10)) < 0.6
-    keep[2] = False                                   # a row without values: NaN, and no warning
-    keep[3] = np.arange(10) < 4                       # even and odd counts
+    keep[2] = False  # a row without values: NaN, and no warning
+    keep[3] = np.arange(10) < 4  # even and odd counts
     keep[4] = np.arange(10) < 1
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -282,8 +304,16 @@ def test_compiled_medians_are_numpys_on_ties_and_ordered_input():
     from circcal.detector.measure.robust import _median_of, row_medians
 
     rng = np.random.default_rng(11)
-    rows = [rng.integers(0, 3, 500).astype(float), np.full(300, 2.5), np.arange(1001.0), np.arange(1000.0)[::-1],
-            np.round(rng.normal(size=777), 2), np.array([3.0]), np.array([4.0, -1.0]), rng.normal(size=2048)]
+    rows = [
+        rng.integers(0, 3, 500).astype(float),
+        np.full(300, 2.5),
+        np.arange(1001.0),
+        np.arange(1000.0)[::-1],
+        np.round(rng.normal(size=777), 2),
+        np.array([3.0]),
+        np.array([4.0, -1.0]),
+        rng.normal(size=2048),
+    ]
     for r in rows:
         assert row_medians(r[None])[0] == np.median(r)
         assert _median_of(r.copy(), len(r)) == np.median(r)
@@ -298,9 +328,14 @@ def test_the_band_median_is_the_median_also_where_the_sample_misses_it():
     missed = 0
     for n in (BAND_SELECT_FROM, BAND_SELECT_FROM + 1, 1000, 1401, 4096):
         for kind in range(5):
-            r = [rng.normal(size=n), np.abs(rng.normal(size=n)) ** 3, rng.integers(0, 4, n).astype(float),
-                 np.sort(rng.normal(size=n)), rng.normal(size=n)][kind]
-            if kind == 4:   # the sampled positions hold the largest values: the band misses the median
+            r = [
+                rng.normal(size=n),
+                np.abs(rng.normal(size=n)) ** 3,
+                rng.integers(0, 4, n).astype(float),
+                np.sort(rng.normal(size=n)),
+                rng.normal(size=n),
+            ][kind]
+            if kind == 4:  # the sampled positions hold the largest values: the band misses the median
                 pos = ((2 * np.arange(BAND_SAMPLE) + 1) * n) // (2 * BAND_SAMPLE)
                 r[pos] = 1e6 + np.arange(BAND_SAMPLE)
                 missed += 1
@@ -318,12 +353,12 @@ def test_median_and_mad_inliers_are_the_numpy_rule():
         D, M = int(rng.integers(1, 6)), int(rng.integers(1, 40))
         vals = rng.normal(size=(D, M)) * rng.choice([1e-3, 1.0, 50.0])
         if trial % 3 == 0:
-            vals = np.round(vals, 1)                           # ties
+            vals = np.round(vals, 1)  # ties
         special = rng.random((D, M))
         vals[special < 0.05] = np.nan
         vals[(special >= 0.05) & (special < 0.08)] = np.inf * rng.choice([-1, 1])
         mask = rng.random((D, M)) < 0.8
-        mask[0] = mask[0] if trial % 4 else False              # a row without values keeps nothing
+        mask[0] = mask[0] if trial % 4 else False  # a row without values keeps nothing
         floor = rng.random((D, M)) * 0.2
         sigmas = float(rng.choice([1.0, 4.0]))
         with np.errstate(invalid="ignore"):
@@ -362,22 +397,42 @@ def test_the_compiled_contour_measures_are_opencvs():
         if trial % 3 == 0:
             m = np.zeros((H, W), np.uint8)
             for _ in range(int(rng.integers(1, 30))):
-                cv2.ellipse(m, (int(rng.integers(0, W)), int(rng.integers(0, H))),
-                            (int(rng.integers(1, 60)), int(rng.integers(1, 60))), float(rng.uniform(0, 180)), 0, 360,
-                            255, -1)
+                cv2.ellipse(
+                    m,
+                    (int(rng.integers(0, W)), int(rng.integers(0, H))),
+                    (int(rng.integers(1, 60)), int(rng.integers(1, 60))),
+                    float(rng.uniform(0, 180)),
+                    0,
+                    360,
+                    255,
+                    -1,
+                )
         cs = [c for c in cv2.findContours(m, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)[0] if len(c) >= 3]
         if not cs:
             continue
         counts = np.array([len(c) for c in cs], np.int64)
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         out = np.empty((len(cs), 12))
-        _contour_measures(np.ascontiguousarray(np.concatenate(cs).reshape(-1, 2), np.int64), starts, counts, 0.0,
-                          np.inf, out)
+        _contour_measures(
+            np.ascontiguousarray(np.concatenate(cs).reshape(-1, 2), np.int64), starts, counts, 0.0, np.inf, out
+        )
         for c, got in zip(cs, out.tolist()):
             mm = cv2.moments(c)
             x, y, w, h = cv2.boundingRect(c)
-            assert got == [mm["m00"], mm["m10"], mm["m01"], mm["mu20"], mm["mu11"], mm["mu02"], cv2.arcLength(c, True),
-                           cv2.contourArea(cv2.convexHull(c)), x, y, x + w - 1, y + h - 1]
+            assert got == [
+                mm["m00"],
+                mm["m10"],
+                mm["m01"],
+                mm["mu20"],
+                mm["mu11"],
+                mm["mu02"],
+                cv2.arcLength(c, True),
+                cv2.contourArea(cv2.convexHull(c)),
+                x,
+                y,
+                x + w - 1,
+                y + h - 1,
+            ]
             checked += 1
     assert checked > 10000
 
@@ -400,11 +455,14 @@ def test_the_compiled_ring_shares_are_the_numpy_rule():
         level = v[:, 2:].reshape(D, -1)
         contrast = white - inner
         dark = ring < (white - CLEARANCE_LEVEL * contrast)[:, None]
-        mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (level > (inner + CLEARANCE_LEVEL
-                                                                                   * contrast)[:, None])
+        mid = (level < (white - CLEARANCE_LEVEL * contrast)[:, None]) & (
+            level > (inner + CLEARANCE_LEVEL * contrast)[:, None]
+        )
         ok = contrast > 0
-        want = (np.where(ok & (near >= CLEARANCE_MIN_PX), dark.mean(axis=1), 0.0),
-                np.where(ok & (far > near), mid.mean(axis=1), 0.0))
+        want = (
+            np.where(ok & (near >= CLEARANCE_MIN_PX), dark.mean(axis=1), 0.0),
+            np.where(ok & (far > near), mid.mean(axis=1), 0.0),
+        )
         got = np.empty(D), np.empty(D)
         _ring_shares(v, white, inner, near, far, CLEARANCE_LEVEL, CLEARANCE_MIN_PX, *got)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
@@ -427,8 +485,10 @@ def test_the_compiled_ring_points_are_the_numpy_expression():
 
 
 def test_importing_the_detector_does_not_load_scipy_ndimage_or_special():
-    code = ("import sys\nimport circcal.detector, circcal.detector.overlay\n"
-            "print([m for m in ('scipy.ndimage', 'scipy.special') if m in sys.modules])\n")
+    code = (
+        "import sys\nimport circcal.detector, circcal.detector.overlay\n"
+        "print([m for m in ('scipy.ndimage', 'scipy.special') if m in sys.modules])\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
@@ -474,9 +534,30 @@ def test_cli_writes_json_and_overlays(tmp_path):
     bad = tmp_path / "bad.jpg"
     bad.write_bytes(b"\x00\x01")
     out = tmp_path / "det.json"
-    r = subprocess.run([sys.executable, "-m", "circcal.cli", "detect", str(good), str(bad), "--grid", "4x5",
-                        "--pitch", "10", "--diameter", "5", "--json", str(out), "--overlay", str(tmp_path / "ov"),
-                        "--quiet"], capture_output=True, text=True, cwd=REPO)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "circcal.cli",
+            "detect",
+            str(good),
+            str(bad),
+            "--grid",
+            "4x5",
+            "--pitch",
+            "10",
+            "--diameter",
+            "5",
+            "--json",
+            str(out),
+            "--overlay",
+            str(tmp_path / "ov"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     assert r.returncode == 1, r.stderr  # one image failed
     data = json.loads(out.read_text())
     assert data["board"]["rows"] == 4 and data["board"]["cols"] == 5
@@ -485,15 +566,24 @@ def test_cli_writes_json_and_overlays(tmp_path):
     assert matched_errors(BOARD, np.array(g["centers"]), truth).mean() < 0.01
     assert not b["found"] and b["centers"] is None and "unreadable" in b["reason"]
     assert (tmp_path / "ov" / "good_detect.png").exists()
-    r = subprocess.run([sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4x5", "--json",
-                        str(out), "--jobs", "0"], capture_output=True, text=True, cwd=REPO)
+    r = subprocess.run(
+        [sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4x5", "--json", str(out), "--jobs", "0"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     assert r.returncode == 2 and "--jobs" in r.stderr and "at least 1" in r.stderr
-    r = subprocess.run([sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4by5", "--json",
-                        str(out)], capture_output=True, text=True, cwd=REPO)
+    r = subprocess.run(
+        [sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4by5", "--json", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     assert r.returncode == 2 and "--grid" in r.stderr and "ROWSxCOLS" in r.stderr
 
 
 # ---- the vectorised detector against the per-dot formulation it replaced -------------------------------------
+
 
 def _reference_levels(img, Q, origin, edge_px=2.0, step=1):
     """The per-dot level estimate as first written (one ROI, np.median, np.linalg.lstsq); ``step``: only the pixels
@@ -524,8 +614,8 @@ def _reference_levels(img, Q, origin, edge_px=2.0, step=1):
 
 def _uneven_render():
     img, truth, *_ = _render(CAM, 12, 45)
-    yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
-    img = img * (0.6 + 0.4 * xx / img.shape[1]) + 0.02 * yy / img.shape[0]   # illumination gradient
+    yy, xx = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+    img = img * (0.6 + 0.4 * xx / img.shape[1]) + 0.02 * yy / img.shape[0]  # illumination gradient
     return img + np.random.default_rng(5).normal(0, 0.01, img.shape), truth
 
 
@@ -542,7 +632,7 @@ def test_batched_levels_equal_the_per_dot_estimate():
     dark, plane, ok = dot_levels_batch(img, d.conics, np.stack([x0, y0, x1, y1], 1))
     assert np.all(ok)
     for k, Q in enumerate(d.conics):
-        rd, rp = _reference_levels(img[y0[k]:y1[k], x0[k]:x1[k]], Q, (x0[k], y0[k]))
+        rd, rp = _reference_levels(img[y0[k] : y1[k], x0[k] : x1[k]], Q, (x0[k], y0[k]))
         assert dark[k] == pytest.approx(rd, abs=1e-12)
         # the plane at the dot's centre and its slopes
         assert plane[k] @ [*c[k], 1.0] == pytest.approx(rp @ [*c[k], 1.0], abs=1e-9)
@@ -566,16 +656,16 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     dark, plane, ok = dot_levels_from_params(img, *params, boxes, 2)
     dark1, plane1, _ = dot_levels_from_params(img, *params, boxes)
     big = axes[:, 1] >= STRIDE_MIN_MINOR_PX
-    assert np.all(ok) and 0 < big.sum() < len(big)        # (both kinds of dot on this render)
+    assert np.all(ok) and 0 < big.sum() < len(big)  # (both kinds of dot on this render)
     for k, Q in enumerate(d.conics):
-        rd, rp = _reference_levels(img[y0[k]:y1[k], x0[k]:x1[k]], Q, (x0[k], y0[k]), step=2 if big[k] else 1)
+        rd, rp = _reference_levels(img[y0[k] : y1[k], x0[k] : x1[k]], Q, (x0[k], y0[k]), step=2 if big[k] else 1)
         assert dark[k] == pytest.approx(rd, abs=1e-12)
         assert plane[k] @ [*c[k], 1.0] == pytest.approx(rp @ [*c[k], 1.0], abs=1e-9)
         assert np.allclose(plane[k][:2], rp[:2], atol=1e-11)
     assert np.array_equal(dark[~big], dark1[~big]) and np.array_equal(plane[~big], plane1[~big])
     bright = np.einsum("kj,kj->k", plane, np.column_stack([c, np.ones(len(c))]))
     bright1 = np.einsum("kj,kj->k", plane1, np.column_stack([c, np.ones(len(c))]))
-    assert np.abs(bright - bright1)[big].max() < 0.01 and np.abs(dark - dark1)[big].max() < 0.01   # (noise 0.01)
+    assert np.abs(bright - bright1)[big].max() < 0.01 and np.abs(dark - dark1)[big].max() < 0.01  # (noise 0.01)
 
 
 def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
@@ -604,8 +694,9 @@ def test_levels_of_dots_too_small_for_an_inside_are_their_nearest_pixels():
             assert dark[k] == pytest.approx(float(np.median(im[y0:y1, x0:x1].ravel()[near])), abs=1e-12)
 
 
-def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out,
-                             rise_out, found_out):
+def _whole_profile_crossings(
+    atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out, rise_out, found_out
+):
     """Reference for ``edges._crossings_kernel``: every sample of every profile (scipy's map_coordinates), then the
     up-crossing of the half level nearest to the boundary (ties: the lower index)."""
     from scipy import ndimage
@@ -615,8 +706,14 @@ def _whole_profile_crossings(atlas, rows, org, base, nrm, S, n_iv, rank, todo, p
     for d, j in zip(*np.nonzero(todo)):
         kk = np.arange(n_iv[d] + 1)
         px, py = base[d, j, 0] + S[d, kk] * nrm[d, j, 0], base[d, j, 1] + S[d, kk] * nrm[d, j, 1]
-        v = ndimage.map_coordinates(atlas, [(py - org[d, 1]) + rows[d], px - org[d, 0]], order=3, mode="mirror",
-                                    prefilter=False, output=np.float64)
+        v = ndimage.map_coordinates(
+            atlas,
+            [(py - org[d, 1]) + rows[d], px - org[d, 0]],
+            order=3,
+            mode="mirror",
+            prefilter=False,
+            output=np.float64,
+        )
         F = v - (px * plane[d, 0] + py * plane[d, 1] + plane[d, 2]) * halfk[d]
         up = np.nonzero((F[:-1] < 0) & (F[1:] >= 0))[0]
         if len(up):
@@ -646,12 +743,12 @@ def test_nearest_first_sampling_and_batching_change_no_edge_point(monkeypatch):
     # all dots at once = one dot at a time (each then smoothed on its own small window)
     from circcal.detector.measure.ellipse import conic_from_params, conic_params_batch
 
-    c, axes, ang, _ = conic_params_batch(d.conics)                # a slightly wrong start
+    c, axes, ang, _ = conic_params_batch(d.conics)  # a slightly wrong start
     cands = np.array([conic_from_params(c[k] + 0.3, axes[k] * 0.97, ang[k] + 0.05) for k in range(len(c))])
     P, M, Qs, err = fit_dots(img, cands)
     assert err == [None] * len(cands)
     for k in range(len(cands)):
-        p_k, m_k, q_k, e_k = fit_dots(img, cands[k:k + 1])
+        p_k, m_k, q_k, e_k = fit_dots(img, cands[k : k + 1])
         assert e_k == [None]
         pts, Q = p_k[0][m_k[0]], q_k[0]
         assert np.array_equal(M[k].sum(), len(pts))
@@ -669,8 +766,12 @@ def test_sparse_steering_pass_moves_no_ellipse(radius_px, tilt, monkeypatch):
     img, _, *_ = _render(CAM, radius_px, tilt)
     c, axes, ang, _ = conic_params_batch(detect(img, BOARD).conics)
     rng = np.random.default_rng(1)
-    starts = np.array([conic_from_params(c[k] + rng.uniform(-0.5, 0.5, 2), axes[k] * rng.uniform(0.95, 1.05),
-                                         ang[k] + 0.05) for k in range(len(c))])
+    starts = np.array(
+        [
+            conic_from_params(c[k] + rng.uniform(-0.5, 0.5, 2), axes[k] * rng.uniform(0.95, 1.05), ang[k] + 0.05)
+            for k in range(len(c))
+        ]
+    )
     assert dots.STEERING_SPACING_PX > dots.PROFILE_SPACING_PX
     _, M, Q, err = dots.fit_dots(img, starts)
     monkeypatch.setattr(dots, "STEERING_SPACING_PX", dots.PROFILE_SPACING_PX)
@@ -693,7 +794,7 @@ def test_a_dot_the_steering_pass_cannot_fit_is_measured_by_the_last_pass(monkeyp
 
     def starved(src, conics, spacing_px=dots.PROFILE_SPACING_PX, **kw):
         out = real(src, conics, spacing_px=spacing_px, **kw)
-        if spacing_px == dots.STEERING_SPACING_PX:          # the steering pass: dot 0 keeps 5 points
+        if spacing_px == dots.STEERING_SPACING_PX:  # the steering pass: dot 0 keeps 5 points
             mask = out[1]
             mask[0, np.nonzero(mask[0])[0][5:]] = False
         return out
@@ -719,11 +820,12 @@ def test_smoothed_crops_are_the_exact_smoothing_to_a_millionth_of_the_range():
 
     rng = np.random.default_rng(3)
     img = (ndimage.gaussian_filter(rng.random((200, 240)), 2.0) * 1020 - 300).clip(0, 255).astype(np.uint8)
-    img[60:120, 80:150] = 20                                        # a hard-edged dark block inside the box
+    img[60:120, 80:150] = 20  # a hard-edged dark block inside the box
     src = SmoothedImage(img, 1.5)
     atlas, rows, org = src.coefficient_atlas(src.crops_for(np.array([[70.0, 50.0, 160.0, 130.0]])))
-    exact = ndimage.spline_filter(ndimage.gaussian_filter(img.astype(np.float64), 1.5, mode="reflect"), order=3,
-                                  mode="mirror")
+    exact = ndimage.spline_filter(
+        ndimage.gaussian_filter(img.astype(np.float64), 1.5, mode="reflect"), order=3, mode="mirror"
+    )
     pts = np.column_stack([rng.uniform(70, 160, 2000), rng.uniform(50, 130, 2000)])
     mine = np.array([_spline_at(atlas, (y - org[0, 1]) + rows[0], x - org[0, 0]) for x, y in pts])
     ref = ndimage.map_coordinates(exact, [pts[:, 1], pts[:, 0]], order=3, mode="mirror", prefilter=False)
@@ -771,10 +873,16 @@ def test_compiled_guided_filter_is_the_written_out_filter_to_the_bit():
 
     rng = np.random.default_rng(2)
     board_img, _ = synthetic_board()
-    images = [board_img, cv2.GaussianBlur(board_img, (0, 0), 2.0), board_img[::2, ::3],
-              np.full((40, 50), 77, np.uint8), np.full((1, 9), 200, np.uint8)]
-    images += [rng.integers(0, 256, (int(rng.integers(1, 120)), int(rng.integers(1, 160))), dtype=np.uint8)
-               for _ in range(12)]
+    images = [
+        board_img,
+        cv2.GaussianBlur(board_img, (0, 0), 2.0),
+        board_img[::2, ::3],
+        np.full((40, 50), 77, np.uint8),
+        np.full((1, 9), 200, np.uint8),
+    ]
+    images += [
+        rng.integers(0, 256, (int(rng.integers(1, 120)), int(rng.integers(1, 160))), dtype=np.uint8) for _ in range(12)
+    ]
     for img in images:
         for radius in (1, 2, 3, 5, 8, 13):
             hist = np.zeros(256, np.int64)
@@ -784,8 +892,10 @@ def test_compiled_guided_filter_is_the_written_out_filter_to_the_bit():
     expect = [guided_filter(im, 3, GUIDED_EPS) for im in images]
 
     def run(k: int) -> bool:
-        return all(np.array_equal(guided_filter(images[(k + j) % len(images)], 3, GUIDED_EPS),
-                                  expect[(k + j) % len(images)]) for j in range(40))
+        return all(
+            np.array_equal(guided_filter(images[(k + j) % len(images)], 3, GUIDED_EPS), expect[(k + j) % len(images)])
+            for j in range(40)
+        )
 
     with ThreadPoolExecutor(4) as pool:
         assert all(pool.map(run, range(4)))
@@ -797,18 +907,23 @@ def test_otsu_threshold_from_the_histogram_is_opencvs():
 
     rng = np.random.default_rng(3)
     board_img, _ = synthetic_board()
-    images = [board_img, guided_filter(board_img, 2, GUIDED_EPS), np.full((30, 40), 9, np.uint8),
-              np.where(rng.random((50, 60)) < 0.01, 255, 0).astype(np.uint8)]
-    images += [rng.integers(int(lo), 256, (int(rng.integers(1, 200)), int(rng.integers(1, 200))), dtype=np.uint8)
-               for lo in rng.integers(0, 250, 20)]
-    images += [np.clip(rng.normal(m, s, (120, 90)), 0, 255).astype(np.uint8) for m, s in ((60, 5), (128, 40),
-                                                                                         (250, 3))]
+    images = [
+        board_img,
+        guided_filter(board_img, 2, GUIDED_EPS),
+        np.full((30, 40), 9, np.uint8),
+        np.where(rng.random((50, 60)) < 0.01, 255, 0).astype(np.uint8),
+    ]
+    images += [
+        rng.integers(int(lo), 256, (int(rng.integers(1, 200)), int(rng.integers(1, 200))), dtype=np.uint8)
+        for lo in rng.integers(0, 250, 20)
+    ]
+    images += [np.clip(rng.normal(m, s, (120, 90)), 0, 255).astype(np.uint8) for m, s in ((60, 5), (128, 40), (250, 3))]
     for img in images:
         t_cv, mask_cv = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
         t = otsu_threshold(np.bincount(img.ravel(), minlength=256))
         assert t == int(t_cv)
         assert np.array_equal(cv2.threshold(img, t, 255, cv2.THRESH_BINARY_INV)[1], mask_cv)
-    assert otsu_threshold(np.zeros(256, np.int64)) == 0     # (no pixels: no division by their count)
+    assert otsu_threshold(np.zeros(256, np.int64)) == 0  # (no pixels: no division by their count)
 
 
 def test_compiled_histogram_is_numpys_bincount():
@@ -830,14 +945,16 @@ def test_shrink_is_opencvs_area_resize():
     rng = np.random.default_rng(5)
     board_img, _ = synthetic_board()
     images = [board_img, np.repeat(np.repeat(board_img, 3, axis=0), 3, axis=1)]
-    images += [rng.integers(0, 256, (int(rng.integers(20, 500)), int(rng.integers(20, 700))), dtype=np.uint8)
-               for _ in range(12)]
+    images += [
+        rng.integers(0, 256, (int(rng.integers(20, 500)), int(rng.integers(20, 700))), dtype=np.uint8)
+        for _ in range(12)
+    ]
     for img in images:
         for s in range(2, 10):
             H, W = img.shape
             if H < s or W < s:
                 continue
-            ref = cv2.resize(img[:H // s * s, :W // s * s], (W // s, H // s), interpolation=cv2.INTER_AREA)
+            ref = cv2.resize(img[: H // s * s, : W // s * s], (W // s, H // s), interpolation=cv2.INTER_AREA)
             out = shrink(img, s)
             assert out.dtype == np.uint8 and out.shape == ref.shape
             assert np.array_equal(out, ref), (img.shape, s, int(np.count_nonzero(out != ref)))
@@ -852,20 +969,24 @@ def test_shrunk_segmentation_agrees_with_full(monkeypatch):
     img, truth, *_ = _render(cam, 14, 40, target=(850.0, 600.0))
     img = cv2.GaussianBlur(img, (0, 0), 1.0) + np.random.default_rng(2).normal(0, 0.01, img.shape)
     half = detect(img, BOARD)
-    assert half.found and half.segmentation.endswith("@1/3")   # 1200 // 360
+    assert half.found and half.segmentation.endswith("@1/3")  # 1200 // 360
     monkeypatch.setattr(search, "segmentation_scales", lambda h, w: (1,))
     full = detect(img, BOARD)
     assert full.found and "@" not in full.segmentation
     e_half, e_full = matched_errors(BOARD, half.centres, truth), matched_errors(BOARD, full.centres, truth)
-    print(f"\nshrunk segmentation: RMS {np.sqrt(np.mean(e_half ** 2)):.5f} px; full: "
-          f"{np.sqrt(np.mean(e_full ** 2)):.5f} px; max difference {np.abs(half.centres - full.centres).max():.2e}")
+    print(
+        f"\nshrunk segmentation: RMS {np.sqrt(np.mean(e_half**2)):.5f} px; full: "
+        f"{np.sqrt(np.mean(e_full**2)):.5f} px; max difference {np.abs(half.centres - full.centres).max():.2e}"
+    )
     # only the starting ellipses differ: the same centres to well below the noise-limited accuracy
     assert np.abs(half.centres - full.centres).max() < 2e-3
-    assert np.sqrt(np.mean(e_half ** 2)) <= 0.01
+    assert np.sqrt(np.mean(e_half**2)) <= 0.01
 
 
-@pytest.mark.parametrize("size,radius_px,scale", [((1920, 1080), 7.5, "@1/2"), ((1920, 1080), 5.0, None),
-                                                   ((3840, 2160), 8.0, "@1/2"), ((3840, 2160), 25.0, "@1/6")])
+@pytest.mark.parametrize(
+    "size,radius_px,scale",
+    [((1920, 1080), 7.5, "@1/2"), ((1920, 1080), 5.0, None), ((3840, 2160), 8.0, "@1/2"), ((3840, 2160), 25.0, "@1/6")],
+)
 def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px, scale):
     # 1920x1080 starts at 1/3; dots of 7.5 px are 2.5 px there (too small), 3.75 px at 1/2; 5 px dots need full size.
     # 3840x2160 tries 1/6, 1/3, 1/2: 8 px dots are not found at 1/6 or 1/3.
@@ -873,7 +994,7 @@ def test_small_dots_go_to_the_coarsest_scale_that_resolves_them(size, radius_px,
     img, truth, *_ = _render(cam, radius_px, 20, target=(size[0] * 0.47, size[1] * 0.46))
     d = detect(img, BOARD)
     assert d.found, d.reason
-    seg = d.segmentation.split("[")[0]              # "[x0:x1,y0:y1]": segmented in the board's window only
+    seg = d.segmentation.split("[")[0]  # "[x0:x1,y0:y1]": segmented in the board's window only
     assert seg.endswith(scale) if scale else "@" not in seg
     assert np.sqrt(np.mean(matched_errors(BOARD, d.centres, truth) ** 2)) <= 0.005
 
@@ -884,14 +1005,14 @@ def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top
     from circcal.detector.image import _counts, _histogram_percentiles, normalise_u8
 
     rng = np.random.default_rng(shape[0])
-    img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)   # not the full range: the stretch acts
+    img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)  # not the full range: the stretch acts
     q = (0.0, 0.5, 37.0, 99.5, 100.0)
     assert np.allclose(_histogram_percentiles(_counts(img), q), np.percentile(img, q), rtol=0, atol=1e-9)
     lo, hi = np.percentile(img, [0.5, 99.5])
     expect = np.clip((img.astype(np.float64) - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
-    hist = np.full(256, 3, np.int64)                # (added to, as the segmentation's counts are)
+    hist = np.full(256, 3, np.int64)  # (added to, as the segmentation's counts are)
     assert np.array_equal(normalise_u8(img, hist=hist), expect)
-    assert np.array_equal(hist, 3 + np.bincount(expect.ravel(), minlength=256))   # the result's counts, carried
+    assert np.array_equal(hist, 3 + np.bincount(expect.ravel(), minlength=256))  # the result's counts, carried
 
 
 def test_contrast_stretch_of_a_float_image_counts_its_result():
@@ -908,7 +1029,7 @@ def test_cli_board_rule_is_the_same_for_every_command():
 
     asym = board_from_args((11, 4), 10.0, None, True)
     assert asym.layout == "asymmetric" and (asym.rows, asym.cols) == (11, 4)
-    assert asym.diameter_mm == pytest.approx(5.0 * np.sqrt(2.0))   # half the nearest-dot spacing, sqrt(2) pitches
+    assert asym.diameter_mm == pytest.approx(5.0 * np.sqrt(2.0))  # half the nearest-dot spacing, sqrt(2) pitches
     assert board_from_args((7, 7), 10.0, None, False).diameter_mm == 5.0
     assert board_from_args((7, 7), 10.0, 4.0, True).diameter_mm == 4.0
 
@@ -932,18 +1053,26 @@ def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
     # the compiled loops are ordinary Python too: blocked numba import -> warning, identical centres
     img, truth, *_ = _render(CAM, 10, 30)
     np.save(tmp_path / "img.npy", img)
-    code = ("import sys, warnings; sys.modules['numba'] = None\n"
-            "with warnings.catch_warnings(record=True) as w:\n"
-            "    warnings.simplefilter('always')\n"
-            "    import circcal.detector.kernels.jit\n"
-            "import numpy as np\n"
-            "from circcal.board import Board\n"
-            "from circcal.detector import detect\n"
-            f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
-            f"np.save({str(tmp_path / 'c.npy')!r}, d.centres)\n"
-            "print(circcal.detector.kernels.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300,
-                       env={**os.environ, "CIRCCAL_AOT": "0"})  # without the ahead-of-time kernels too
+    code = (
+        "import sys, warnings; sys.modules['numba'] = None\n"
+        "with warnings.catch_warnings(record=True) as w:\n"
+        "    warnings.simplefilter('always')\n"
+        "    import circcal.detector.kernels.jit\n"
+        "import numpy as np\n"
+        "from circcal.board import Board\n"
+        "from circcal.detector import detect\n"
+        f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
+        f"np.save({str(tmp_path / 'c.npy')!r}, d.centres)\n"
+        "print(circcal.detector.kernels.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+        env={**os.environ, "CIRCCAL_AOT": "0"},
+    )  # without the ahead-of-time kernels too
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["False", "True"]
     d = detect(img, BOARD)
@@ -1013,8 +1142,11 @@ def test_edge_blur_is_the_median_slope_scale():
         plane = np.column_stack([rng.normal(size=(D, 2)) * 1e-3, rng.uniform(100, 200, D)])
         ratio, ok, sigma = rng.uniform(0, 1.2, D), rng.random((D, N)) < 0.7, float(rng.choice([0.0, 1.5]))
         with np.errstate(divide="ignore", invalid="ignore"):
-            st = ((at[..., 0] * plane[:, :1] + at[..., 1] * plane[:, 1:2]) + plane[:, 2:]) * (1.0 - ratio)[:, None] \
+            st = (
+                ((at[..., 0] * plane[:, :1] + at[..., 1] * plane[:, 1:2]) + plane[:, 2:])
+                * (1.0 - ratio)[:, None]
                 / (np.sqrt(2.0 * np.pi) * (rise / PROFILE_STEP_PX))
+            )
         use = ok & np.isfinite(st) & (st > 0)
         nominal = np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)
         expect = [max(nominal, np.median(st[d][use[d]])) if use[d].any() else nominal for d in range(D)]
@@ -1042,16 +1174,31 @@ def test_compiled_curvature_shift_is_the_numpy_expression():
     b = a * rng.uniform(0.05, 1.0, 300)
     t = rng.uniform(0.0, 2.0 * np.pi, (300, 50))
     n = len(C.U_TABLE)
-    cases = [(a, b, np.cos(t), np.sin(t), rng.uniform(0.3, 5.0, 300)),
-             (a, b, np.cos(t), np.sin(t), np.full(300, np.nan)),
-             (np.ones(n), np.ones(n), np.ones((n, 1)), np.zeros((n, 1)), 1.0 / C.U_TABLE)]   # u on every node
+    cases = [
+        (a, b, np.cos(t), np.sin(t), rng.uniform(0.3, 5.0, 300)),
+        (a, b, np.cos(t), np.sin(t), np.full(300, np.nan)),
+        (np.ones(n), np.ones(n), np.ones((n, 1)), np.zeros((n, 1)), 1.0 / C.U_TABLE),
+    ]  # u on every node
     for a_, b_, cos_t, sin_t, sigma_t in cases:
         D, N = cos_t.shape
         nrm = np.zeros((D, N, 2))
         nrm[..., 0] = 1.0
         pts, slack = np.empty((D, N, 2)), np.empty((D, N))
-        _edge_points_kernel(np.zeros((D, N, 2)), nrm, np.zeros((D, N)), np.ones((D, N), bool), a_, b_, cos_t,
-                            sin_t, sigma_t, C.U_TABLE, C._shift_table(), pts, slack)
+        _edge_points_kernel(
+            np.zeros((D, N, 2)),
+            nrm,
+            np.zeros((D, N)),
+            np.ones((D, N), bool),
+            a_,
+            b_,
+            cos_t,
+            sin_t,
+            sigma_t,
+            C.U_TABLE,
+            C._shift_table(),
+            pts,
+            slack,
+        )
         shift, rest = numpy_shift(a_, b_, cos_t, sin_t, sigma_t)
         assert np.array_equal(pts[..., 0], 0.0 + (0.0 + shift) * 1.0, equal_nan=True)
         assert np.array_equal(slack, rest, equal_nan=True)
@@ -1067,8 +1214,7 @@ def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_whe
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
-    noisy = normalise_u8(np.clip(clean + np.random.default_rng(8).normal(0, 8.0, clean.shape), 0, 255)
-                         .astype(np.uint8))
+    noisy = normalise_u8(np.clip(clean + np.random.default_rng(8).normal(0, 8.0, clean.shape), 0, 255).astype(np.uint8))
     calls = []
     real = segment.guided_filter
     monkeypatch.setattr(segment, "guided_filter", lambda *a, **k: calls.append(1) or real(*a, **k))
@@ -1077,14 +1223,14 @@ def test_guided_filter_runs_where_the_image_has_noise_and_changes_only_edges_whe
     masks = dict(segment.segmentations(clean, s_clean))
     assert not calls and list(masks)[0] == "otsu" and "guided-otsu" not in masks
     noisy_masks = segment.segmentations(noisy, s_noisy)
-    assert next(noisy_masks)[0] == "otsu" and not calls     # plain Otsu first: a board found there needs no filter
+    assert next(noisy_masks)[0] == "otsu" and not calls  # plain Otsu first: a board found there needs no filter
     assert next(noisy_masks)[0] == "guided-otsu" and calls
-    filtered = dict(segment.segmentations(clean))        # (no noise given: always filtered)
+    filtered = dict(segment.segmentations(clean))  # (no noise given: always filtered)
     for name in masks:
         other = "guided-otsu" if name == "otsu" else name
         differ = masks[name] != filtered[other]
         edge = cv2.morphologyEx(filtered[other], cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
-        assert not np.any(differ & ~edge), name         # flat areas: the same side of every threshold
+        assert not np.any(differ & ~edge), name  # flat areas: the same side of every threshold
     a = find_candidates(masks["otsu"], min_area=12.0, max_area=1e5)
     b = find_candidates(filtered["guided-otsu"], min_area=12.0, max_area=1e5)
     assert len(a) == len(b) == 30
@@ -1104,8 +1250,9 @@ def test_plain_otsu_of_a_noisy_image_differs_from_the_filtered_one_only_on_edges
 
     board_img, _ = synthetic_board()
     clean = normalise_u8(cv2.GaussianBlur(board_img, (0, 0), 1.0))
-    noisy = normalise_u8(np.clip(clean + np.random.default_rng(8).normal(0, sigma, clean.shape), 0, 255)
-                         .astype(np.uint8))
+    noisy = normalise_u8(
+        np.clip(clean + np.random.default_rng(8).normal(0, sigma, clean.shape), 0, 255).astype(np.uint8)
+    )
     noise = segment.noise_sigma_u8(noisy)
     assert noise > segment.GUIDED_MIN_NOISE
     masks = dict(segment.segmentations(noisy, noise))
@@ -1146,17 +1293,18 @@ def test_a_dot_washed_out_is_left_out_in_words_and_the_view_kept(how):
 
     board = Board(7, 7, 10.0, 5.0)
     cam = Camera(640, 480, 900.0, 900.0, 319.5, 239.5)
-    rvec, tvec = pose_looking_at(cam, board, distance_mm=180.0, tilt_deg=20.0, tilt_axis_deg=30.0, roll_deg=5.0,
-                                 target_px=(320.0, 240.0))
+    rvec, tvec = pose_looking_at(
+        cam, board, distance_mm=180.0, tilt_deg=20.0, tilt_axis_deg=30.0, roll_deg=5.0, target_px=(320.0, 240.0)
+    )
     truth = project(board.object_points(), rvec, tvec, cam)
     img = render_view(cam, board, rvec, tvec)
-    k = 24                                                # the middle dot
+    k = 24  # the middle dot
     r = 900.0 * board.radius_mm / 180.0 * 1.4
     yy, xx = np.mgrid[:480, :640]
-    near = (xx - truth[k, 0]) ** 2 + (yy - truth[k, 1]) ** 2 < r ** 2
+    near = (xx - truth[k, 0]) ** 2 + (yy - truth[k, 1]) ** 2 < r**2
     if how == "erased":
         img[near] = img[~near].max()
-    else:                                                 # a bright specular spot over it, saturating the white
+    else:  # a bright specular spot over it, saturating the white
         img = np.clip(img + 2.0 * np.exp(-((xx - truth[k, 0]) ** 2 + (yy - truth[k, 1]) ** 2) / (2 * r * r)), 0, 1)
     d = detect(to_uint(img, 8), board)
     assert d.found, d.reason
@@ -1164,7 +1312,7 @@ def test_a_dot_washed_out_is_left_out_in_words_and_the_view_kept(how):
     assert "not seen" in d.dropped[k] and np.all(np.isnan(d.centres[k]))
     e = np.linalg.norm(d.centres - truth, axis=1)
     if how == "erased":
-        assert list(d.dropped) == [k] and np.nanmax(e) < 0.02      # the other 48: as on a clean render
+        assert list(d.dropped) == [k] and np.nanmax(e) < 0.02  # the other 48: as on a clean render
     else:
         # the spot's light, added over its 4 axis neighbours, lights their insides unevenly (9-13 % of their
         # contrast across them; they had moved by 0.24-0.32 px): left out in words; the rest as on a clean render
@@ -1179,18 +1327,21 @@ def test_a_view_whose_dots_all_fail_alike_is_refused_as_a_whole_view_problem():
     # on the board"); the refusal names the whole view (blur) rather than an occluder per dot
     board = Board(5, 4, 30.0, 20.0, layout="asymmetric")
     cam = Camera(640, 480, 700.0, 700.0, 319.5, 239.5)
-    rvec, tvec = pose_looking_at(cam, board, distance_mm=1000.0, tilt_deg=20.0, tilt_axis_deg=30.0, roll_deg=5.0,
-                                 target_px=(320.0, 240.0))
+    rvec, tvec = pose_looking_at(
+        cam, board, distance_mm=1000.0, tilt_deg=20.0, tilt_axis_deg=30.0, roll_deg=5.0, target_px=(320.0, 240.0)
+    )
     kernel = np.zeros((15, 15), np.float32)
     kernel[7, :] = 1.0 / 15.0
-    img = cv2.filter2D(render_view(cam, board, rvec, tvec).astype(np.float32), -1, kernel,
-                       borderType=cv2.BORDER_REPLICATE)
+    img = cv2.filter2D(
+        render_view(cam, board, rvec, tvec).astype(np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE
+    )
     d = detect(to_uint(img, 8), board)
     assert not d.found and d.code == Reason.TOO_FEW_POINTS
     assert "nearly every dot alike" in d.reason and "motion blur" in d.reason
     one = {**{k: "cut by the image border" for k in range(18)}, 18: "edge found on 40% of its rim (occluded?)"}
     from circcal.detector.find import _view_wide
-    assert _view_wide(one, 20) == ""                      # the border and single dots: no whole-view hint
+
+    assert _view_wide(one, 20) == ""  # the border and single dots: no whole-view hint
 
 
 @pytest.mark.parametrize("kind", ["uint8", "float"])
@@ -1202,8 +1353,9 @@ def test_a_board_of_bright_dots_is_found_on_the_inverted_image_and_said_so(kind)
 
     board = Board(7, 7, 10.0, 5.0)
     cam = Camera(640, 480, 900.0, 900.0, 319.5, 239.5)
-    rvec, tvec = pose_looking_at(cam, board, distance_mm=220.0, tilt_deg=25.0, tilt_axis_deg=30.0, roll_deg=5.0,
-                                 target_px=(320.0, 240.0))
+    rvec, tvec = pose_looking_at(
+        cam, board, distance_mm=220.0, tilt_deg=25.0, tilt_axis_deg=30.0, roll_deg=5.0, target_px=(320.0, 240.0)
+    )
     truth = project(board.object_points(), rvec, tvec, cam)
     img = 1.0 - render_view(cam, board, rvec, tvec)
     d = detect(to_uint(img, 8) if kind == "uint8" else img, board)
@@ -1220,12 +1372,12 @@ def test_light_added_over_a_dot_is_measured_and_multiplied_light_is_not():
     from circcal.detector.measure.trust import UNEVEN_SHARE, _uneven_inside
 
     yy, xx = np.mgrid[:200, :200].astype(np.float64)
-    disk = np.where((xx - 100.3) ** 2 + (yy - 99.6) ** 2 < 30.0 ** 2, 0.12, 0.85)
-    ramp = (xx - 100.0) / 100.0                           # -1 .. 1 across the image: 0.3 across a radius
+    disk = np.where((xx - 100.3) ** 2 + (yy - 99.6) ** 2 < 30.0**2, 0.12, 0.85)
+    ramp = (xx - 100.0) / 100.0  # -1 .. 1 across the image: 0.3 across a radius
     centre, axes, ang = np.array([[100.3, 99.6]]), np.array([[30.0, 30.0]]), np.array([0.0])
     flat = _uneven_inside(disk * 255, centre, axes, ang)[0]
-    added = _uneven_inside((disk + 0.2 * ramp) * 255, centre, axes, ang)[0]          # 0.06 of the range per radius
+    added = _uneven_inside((disk + 0.2 * ramp) * 255, centre, axes, ang)[0]  # 0.06 of the range per radius
     multiplied = _uneven_inside(disk * (1 + 0.2 * ramp) * 255, centre, axes, ang)[0]
     assert flat < 1e-3
-    assert added == pytest.approx(0.06 / 0.73, rel=0.05) and added > UNEVEN_SHARE   # contrast 0.73 of the range
+    assert added == pytest.approx(0.06 / 0.73, rel=0.05) and added > UNEVEN_SHARE  # contrast 0.73 of the range
     assert multiplied == pytest.approx(0.12 * 0.06 / 0.73, rel=0.15) and multiplied < UNEVEN_SHARE

@@ -1,6 +1,7 @@
 """`circcal diff A B`: the projection difference between two models in any format, the implied transformation fitted
 over a focus region, RMS / p95 / max / centre, a heatmap, and the difference in units of the combined uncertainty
 where both files carry one; bad input (an unreadable file, two image sizes) is a clear error that writes nothing."""
+
 from __future__ import annotations
 
 import json
@@ -23,8 +24,24 @@ def halves(tmp_path_factory):
     out = []
     for k in (0, 1):
         path = d / f"half{k}.json"
-        assert main(["calibrate", *[str(v.image) for v in t.views[k::2]], "--grid", "6x8", "--pitch", "25mm",
-                     "--diameter", "12mm", "--no-progress", "--out", str(path)]) == 0
+        assert (
+            main(
+                [
+                    "calibrate",
+                    *[str(v.image) for v in t.views[k::2]],
+                    "--grid",
+                    "6x8",
+                    "--pitch",
+                    "25mm",
+                    "--diameter",
+                    "12mm",
+                    "--no-progress",
+                    "--out",
+                    str(path),
+                ]
+            )
+            == 0
+        )
         out.append(path)
     return t, out
 
@@ -61,8 +78,8 @@ def test_a_model_against_itself_and_against_a_rotation(tmp_path, capsys):
     fit = json.loads((tmp_path / "fit.json").read_text())
     raw = json.loads((tmp_path / "raw.json").read_text())
     assert raw["centre_px"] == pytest.approx(1000.0 * np.tan(np.radians(0.2)), rel=1e-6)
-    assert fit["rms_px"] < 0.2 * raw["rms_px"]          # the implied rotation takes most of it
-    assert fit["share_within"] is None                    # no uncertainty in these files
+    assert fit["rms_px"] < 0.2 * raw["rms_px"]  # the implied rotation takes most of it
+    assert fit["share_within"] is None  # no uncertainty in these files
     out = capsys.readouterr().out
     assert "uncertainty of A: none" in out
     # a focus region: the fit is made near the centre, where the difference is then smallest

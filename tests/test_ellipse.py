@@ -1,4 +1,5 @@
 """Direct ellipse fit (Halir-Flusser) and conic conversions: exact recovery on random ellipses."""
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
@@ -15,15 +16,17 @@ from circcal.detector.measure.ellipse import (
 )
 
 ellipses = st.tuples(
-    st.floats(-2000, 4000), st.floats(-2000, 4000),  # centre, px (far from the origin on purpose)
-    st.floats(2.0, 400.0), st.floats(0.1, 1.0),       # a, b/a
-    st.floats(-np.pi / 2 + 1e-3, np.pi / 2),          # angle
+    st.floats(-2000, 4000),
+    st.floats(-2000, 4000),  # centre, px (far from the origin on purpose)
+    st.floats(2.0, 400.0),
+    st.floats(0.1, 1.0),  # a, b/a
+    st.floats(-np.pi / 2 + 1e-3, np.pi / 2),  # angle
 )
 
 
 @settings(max_examples=60, deadline=None)
 @given(ellipses, st.integers(6, 200), st.floats(0.0, 2 * np.pi))
-@example(e=(1.0, 3999.0, 2.0, 0.1, 0.0625), n=61, t0=0.0)   # a thin ellipse the unrefined closed form missed by 1.4e-7
+@example(e=(1.0, 3999.0, 2.0, 0.1, 0.0625), n=61, t0=0.0)  # a thin ellipse the unrefined closed form missed by 1.4e-7
 def test_fit_recovers_exact_ellipse(e, n, t0):
     cx, cy, a, ratio, ang = e
     b = a * ratio
@@ -129,9 +132,18 @@ def test_batched_fit_and_params_equal_the_single_versions():
     assert not conic_params_batch(np.diag([1.0, -1.0, 1.0])[None])[3][0]  # a hyperbola
 
 
-@pytest.mark.parametrize("axes,noise", [((10.0, 10.0), 0.0), ((10.0, 10.0), 0.02), ((40.0, 39.9), 0.0),
-                                          ((30.0, 3.0), 0.01), ((6.0, 0.6), 0.005), ((1500.0, 1500.0), 0.1),
-                                          ((3.0, 3.0), 0.3)])
+@pytest.mark.parametrize(
+    "axes,noise",
+    [
+        ((10.0, 10.0), 0.0),
+        ((10.0, 10.0), 0.02),
+        ((40.0, 39.9), 0.0),
+        ((30.0, 3.0), 0.01),
+        ((6.0, 0.6), 0.005),
+        ((1500.0, 1500.0), 0.1),
+        ((3.0, 3.0), 0.3),
+    ],
+)
 def test_closed_form_solve_equals_the_lapack_reference(axes, noise):
     """The compiled closed-form solve (largest root of the characteristic cubic, eigenvector from a cross product)
     gives the LAPACK eig reference's conic, also for circles, where the two negative eigenvalues coincide and their
@@ -180,8 +192,9 @@ def test_sampson_distances_are_the_first_order_distance():
     from circcal.detector.measure.ellipse import conic_from_params_batch, sampson_distances
 
     rng = np.random.default_rng(3)
-    Q = conic_from_params_batch(rng.uniform(0, 500, (6, 2)), np.sort(rng.uniform(2, 40, (6, 2)), 1)[:, ::-1],
-                                rng.uniform(-1.5, 1.5, 6))
+    Q = conic_from_params_batch(
+        rng.uniform(0, 500, (6, 2)), np.sort(rng.uniform(2, 40, (6, 2)), 1)[:, ::-1], rng.uniform(-1.5, 1.5, 6)
+    )
     P = rng.uniform(0, 500, (6, 30, 2))
     h = np.concatenate([P, np.ones((6, 30, 1))], axis=2)
     hQ = h @ Q
@@ -209,14 +222,23 @@ def test_conic_params_are_the_closed_form_on_ellipses_and_nan_elsewhere():
     p, q, r = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
     det = p * r - q * q
     cx, cy = (r * -Q[:, 0, 2] - q * -Q[:, 1, 2]) / det, (p * -Q[:, 1, 2] - q * -Q[:, 0, 2]) / det
-    f0 = ((p * cx + 2.0 * q * cy) * cx + r * cy * cy + 2.0 * (Q[:, 0, 2] * cx + Q[:, 1, 2] * cy) + Q[:, 2, 2])
+    f0 = (p * cx + 2.0 * q * cy) * cx + r * cy * cy + 2.0 * (Q[:, 0, 2] * cx + Q[:, 1, 2] * cy) + Q[:, 2, 2]
     pn, qn, rn = p / -f0, q / -f0, r / -f0
     l_big = 0.5 * (pn + rn) + np.hypot(0.5 * (pn - rn), qn)
     assert np.array_equal(c, np.stack([cx, cy], 1))
     assert np.array_equal(axes, np.stack([1.0 / np.sqrt((pn * rn - qn * qn) / l_big), 1.0 / np.sqrt(l_big)], 1))
     # a hyperbola, an imaginary ellipse, a parabola (singular block), a point, zeros, NaN, inf
-    bad = np.array([np.diag([1.0, -1.0, -1.0]), np.diag([1.0, 1.0, 1.0]), [[0, 0, 1], [0, 1, 0], [1, 0, 0]],
-                    np.diag([1.0, 1.0, 0.0]), np.zeros((3, 3)), np.full((3, 3), np.nan), np.full((3, 3), np.inf)])
+    bad = np.array(
+        [
+            np.diag([1.0, -1.0, -1.0]),
+            np.diag([1.0, 1.0, 1.0]),
+            [[0, 0, 1], [0, 1, 0], [1, 0, 0]],
+            np.diag([1.0, 1.0, 0.0]),
+            np.zeros((3, 3)),
+            np.full((3, 3), np.nan),
+            np.full((3, 3), np.inf),
+        ]
+    )
     c, axes, ang, ok = conic_params_batch(bad)
     assert not ok.any() and np.isnan(c).all() and np.isnan(axes).all() and np.isnan(ang).all()
     assert [x.shape for x in conic_params_batch(np.zeros((0, 3, 3)))] == [(0, 2), (0, 2), (0,), (0,)]

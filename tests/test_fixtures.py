@@ -1,4 +1,5 @@
 """Perturbations keep the geometric truth; scenarios are deterministic, cached and self-describing."""
+
 from __future__ import annotations
 
 import json
@@ -30,25 +31,29 @@ def single():
 
 def _dark_centroid(img: np.ndarray, centre: np.ndarray, r: int, white: float) -> np.ndarray:
     u0, v0 = np.rint(centre).astype(int)
-    w = np.clip(white - img[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1], 0, None)
-    vv, uu = np.mgrid[v0 - r:v0 + r + 1, u0 - r:u0 + r + 1]
+    w = np.clip(white - img[v0 - r : v0 + r + 1, u0 - r : u0 + r + 1], 0, None)
+    vv, uu = np.mgrid[v0 - r : v0 + r + 1, u0 - r : u0 + r + 1]
     return np.array([(w * uu).sum() / w.sum(), (w * vv).sum() / w.sum()])
 
 
-@pytest.mark.parametrize("step", [
-    {"kind": "gaussian_blur", "sigma_px": 2.0},
-    {"kind": "defocus", "radius_px": 3.5},
-    {"kind": "motion_blur", "length_px": 7.0, "angle_deg": 33.0},
-])
+@pytest.mark.parametrize(
+    "step",
+    [
+        {"kind": "gaussian_blur", "sigma_px": 2.0},
+        {"kind": "defocus", "radius_px": 3.5},
+        {"kind": "motion_blur", "length_px": 7.0, "angle_deg": 33.0},
+    ],
+)
 def test_blur_does_not_move_dots(single, step):
     """Centred symmetric PSFs keep the dark-weighted centroid of a dot (to 1e-9 px in float before quantisation)."""
     img, mask, centres = single
     from circcal.fixtures import perturb
 
-    kernel_img = {"gaussian_blur": lambda: cv2.GaussianBlur(img, (0, 0), step["sigma_px"]),
-                  "defocus": lambda: cv2.filter2D(img, -1, perturb._disk_kernel(step["radius_px"])),
-                  "motion_blur": lambda: cv2.filter2D(img, -1, perturb._motion_kernel(step["length_px"],
-                                                                                       step["angle_deg"]))}
+    kernel_img = {
+        "gaussian_blur": lambda: cv2.GaussianBlur(img, (0, 0), step["sigma_px"]),
+        "defocus": lambda: cv2.filter2D(img, -1, perturb._disk_kernel(step["radius_px"])),
+        "motion_blur": lambda: cv2.filter2D(img, -1, perturb._motion_kernel(step["length_px"], step["angle_deg"])),
+    }
     blurred = kernel_img[step["kind"]]()
     before = _dark_centroid(img, centres[0], 18, 0.9)
     after = _dark_centroid(blurred, centres[0], 18, 0.9)
@@ -58,28 +63,38 @@ def test_blur_does_not_move_dots(single, step):
 
 def test_every_kind_applies_and_is_seeded(single):
     img, mask, _ = single
-    all_steps = [{"kind": "clutter", "n": 3, "radius_px": (3, 6)}, {"kind": "uneven"}, {"kind": "vignetting"},
-                 {"kind": "strong", "gain": 1.2}, {"kind": "weak"}, {"kind": "gaussian_blur", "sigma_px": 1.0},
-                 {"kind": "defocus", "radius_px": 1.5}, {"kind": "motion_blur", "length_px": 3.0},
-                 {"kind": "noise", "sigma": 0.01, "full_well": 1000}, {"kind": "occlusion", "fraction": 0.2,
-                                                                        "side": "left"}]
-    scene = [{"kind": "bar", "width_frac": 0.05}, {"kind": "hand", "side": "right", "size_frac": 0.2},
-             {"kind": "second_board", "rows": 2, "cols": 2, "pitch_px": 8.0, "diameter_px": 4.0},
-             {"kind": "logo", "n": 5, "radius_px": 6.0, "dot_px": 3.0}]
+    all_steps = [
+        {"kind": "clutter", "n": 3, "radius_px": (3, 6)},
+        {"kind": "uneven"},
+        {"kind": "vignetting"},
+        {"kind": "strong", "gain": 1.2},
+        {"kind": "weak"},
+        {"kind": "gaussian_blur", "sigma_px": 1.0},
+        {"kind": "defocus", "radius_px": 1.5},
+        {"kind": "motion_blur", "length_px": 3.0},
+        {"kind": "noise", "sigma": 0.01, "full_well": 1000},
+        {"kind": "occlusion", "fraction": 0.2, "side": "left"},
+    ]
+    scene = [
+        {"kind": "bar", "width_frac": 0.05},
+        {"kind": "hand", "side": "right", "size_frac": 0.2},
+        {"kind": "second_board", "rows": 2, "cols": 2, "pitch_px": 8.0, "diameter_px": 4.0},
+        {"kind": "logo", "n": 5, "radius_px": 6.0, "dot_px": 3.0},
+    ]
     assert {s["kind"] for s in all_steps + scene} | {"jpeg"} == set(KINDS)
     a, occ, jpg = apply_perturbations(img, all_steps, 5, board_mask=mask)
     b, _, _ = apply_perturbations(img, all_steps, 5, board_mask=mask)
     c, _, _ = apply_perturbations(img, all_steps, 6, board_mask=mask)
     assert a.dtype == np.uint8 and np.array_equal(a, b) and not np.array_equal(a, c) and jpg is None
     assert occ is not None and occ[:, 0].all() and not occ[:, -1].any()
-    for step in scene:                       # each scene object is drawn, seeded; occluders say what they hide
+    for step in scene:  # each scene object is drawn, seeded; occluders say what they hide
         one, occ1, _ = apply_perturbations(img, [step], 3, board_mask=mask)
         assert np.array_equal(one, apply_perturbations(img, [step], 3, board_mask=mask)[0])
         changed = one != apply_perturbations(img, [], 3)[0]
         assert changed.any()
         if step["kind"] in ("bar", "hand"):
             assert occ1 is not None and (occ1 & mask).any() and not (changed & ~occ1).any()
-        else:                                # drawn off the board
+        else:  # drawn off the board
             assert occ1 is None and not (changed & mask).any()
     j, _, jpg = apply_perturbations(img, [{"kind": "jpeg", "quality": 60}], 0)
     assert jpg[:2] == b"\xff\xd8" and np.array_equal(cv2.imdecode(np.frombuffer(jpg, np.uint8), 0), j)
@@ -89,8 +104,9 @@ def test_every_kind_applies_and_is_seeded(single):
 
 def test_clutter_stays_off_the_board(single):
     img, mask, _ = single
-    out, _, _ = apply_perturbations(img, [{"kind": "clutter", "n": 6, "radius_px": (3, 8), "level": 0.0}], 1,
-                                    board_mask=mask)
+    out, _, _ = apply_perturbations(
+        img, [{"kind": "clutter", "n": 6, "radius_px": (3, 8), "level": 0.0}], 1, board_mask=mask
+    )
     clean = apply_perturbations(img, [], 1)[0]
     changed = out != clean
     assert changed.any() and not (changed & mask).any()
@@ -123,8 +139,10 @@ def test_catalogue_has_the_required_sets():
     assert (p.board.rows, p.board.cols, p.board.diameter_mm, p.board.pitch_mm) == (7, 7, 5.0, 10.0)
     assert (p.camera.width, p.camera.height, p.n_views) == (1920, 1080, 14) and abs(p.camera.fx - 4900) < 50
     assert list(p.variants) == ["normal", "uneven", "strong", "weak"]
-    assert SCENARIOS["asymmetric"].board.layout == "asymmetric" and SCENARIOS["asymmetric"].board.pattern_size\
-        == (4, 11)
+    assert SCENARIOS["asymmetric"].board.layout == "asymmetric" and SCENARIOS["asymmetric"].board.pattern_size == (
+        4,
+        11,
+    )
     assert SCENARIOS["wide"].camera.dist[0] == pytest.approx(-0.3)
 
 
@@ -173,12 +191,12 @@ def test_corner_views_are_partly_out_of_frame():
     poses = sc.poses()
     assert len(poses) == sc.n_views + sc.corner_views and sc.view_kind(sc.n_views) == "corner"
     shares = [out_of_frame_share(sc.camera, sc.board, *p) for p in poses]
-    assert all(s == 0.0 for s in shares[:sc.n_views])
+    assert all(s == 0.0 for s in shares[: sc.n_views])
     # the drawn share, to the sampling of the measure (1/24 of a side)
-    assert all(sc.corner_out[0] - 0.01 <= s <= sc.corner_out[1] + 0.01 for s in shares[sc.n_views:]), shares
+    assert all(sc.corner_out[0] - 0.01 <= s <= sc.corner_out[1] + 0.01 for s in shares[sc.n_views :]), shares
     t = load_truth(fixture_dir("markers", "clean"))
     assert [v.kind for v in t.views] == ["full"] * sc.n_views + ["corner"] * sc.corner_views
-    assert all(not v.visible.all() for v in t.views[sc.n_views:])
+    assert all(not v.visible.all() for v in t.views[sc.n_views :])
 
 
 def test_fixture_cache_hits(tmp_path, monkeypatch):
@@ -233,8 +251,9 @@ def test_lens_model_scenarios():
     img = [project(rw.board.object_points(), rv, tv, rw.camera).astype(np.float32) for rv, tv in rw.poses()]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
     rms5 = cv2.calibrateCamera(obj, img, (rw.camera.width, rw.camera.height), None, None, criteria=crit)[0]
-    rms8 = cv2.calibrateCamera(obj, img, (rw.camera.width, rw.camera.height), None, None,
-                               flags=cv2.CALIB_RATIONAL_MODEL, criteria=crit)[0]
+    rms8 = cv2.calibrateCamera(
+        obj, img, (rw.camera.width, rw.camera.height), None, None, flags=cv2.CALIB_RATIONAL_MODEL, criteria=crit
+    )[0]
     assert rms5 > 0.1 and rms8 < 1e-3
 
 

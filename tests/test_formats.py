@@ -1,4 +1,5 @@
 """Camera-model files: round trips for every format, OpenCV and COLMAP (pycolmap) reading ours, the COLMAP offset."""
+
 import json
 import shutil
 import subprocess
@@ -21,8 +22,15 @@ from circcal.formats import (
 )
 from circcal.model import Camera, project
 
-CAM = Camera(1920, 1080, 1498.123456789012, 1500.987654321098, 955.4321, 545.6789,
-             np.array([-0.2012345678901, 0.1023456789, 0.00123456789, -0.000567891234, -0.0234567891]))
+CAM = Camera(
+    1920,
+    1080,
+    1498.123456789012,
+    1500.987654321098,
+    955.4321,
+    545.6789,
+    np.array([-0.2012345678901, 0.1023456789, 0.00123456789, -0.000567891234, -0.0234567891]),
+)
 CAM_NO_K3 = Camera(640, 480, 500.5, 501.25, 320.1, 239.9, np.array([0.1, -0.05, 0.001, 0.002, 0.0]))
 
 
@@ -31,8 +39,9 @@ def same(a: Camera, b: Camera, tol=0.0):
     np.testing.assert_allclose(b.intrinsics, a.intrinsics, rtol=tol, atol=tol)
 
 
-@pytest.mark.parametrize("name", ["model.json", "cam.yaml", "cam.yml", "cam.xml", "cam.cameramodel", "cameras.txt",
-                                  "camera_info.yaml"])
+@pytest.mark.parametrize(
+    "name", ["model.json", "cam.yaml", "cam.yml", "cam.xml", "cam.cameramodel", "cameras.txt", "camera_info.yaml"]
+)
 @pytest.mark.parametrize("camera", [CAM, CAM_NO_K3])
 def test_round_trip(tmp_path, name, camera):
     path = tmp_path / name
@@ -89,7 +98,7 @@ def test_opencv_file_with_extra_zero_coefficients(tmp_path):
     fs.write("camera_matrix", CAM_NO_K3.K)
     fs.write("distortion_coefficients", np.array([[0.1, 0.0, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0]]))
     fs.release()
-    cam = read_camera(p)                                 # a nonzero k4: OpenCV's rational model
+    cam = read_camera(p)  # a nonzero k4: OpenCV's rational model
     assert cam.lens == "rational" and cam.dist[5] == 0.01
 
 
@@ -106,7 +115,7 @@ def test_colmap_offset_and_k3():
     assert float(full[12]) == CAM.dist[4]
     same(CAM, camera_from_colmap(camera_to_colmap(CAM)), tol=1e-12)
     rational = camera_from_colmap("1 FULL_OPENCV 640 480 500 500 320 240 0 0 0 0 0 0.1 0 0")
-    assert rational.lens == "rational" and rational.dist[5] == 0.1            # k4
+    assert rational.lens == "rational" and rational.dist[5] == 0.1  # k4
     simple = camera_from_colmap("# c\n7 SIMPLE_RADIAL 640 480 500 320.5 240.5 -0.1\n")
     assert (simple.fx, simple.fy, simple.cx, simple.cy, simple.dist[0]) == (500, 500, 320.0, 240.0, -0.1)
 
@@ -143,9 +152,11 @@ def test_mrcal_reads_our_cameramodel(tmp_path):
         pytest.skip("mrcal not importable by /usr/bin/python3")
     p = tmp_path / "cam.cameramodel"
     write_camera(p, CAM)
-    code = ("import mrcal, numpy as np, sys; m = mrcal.cameramodel(sys.argv[1]); "
-            "print(' '.join(repr(float(v)) for v in mrcal.project(np.array([[0.1, -0.05, 1.0], [-0.3, 0.2, 1.0]]), "
-            "*m.intrinsics()).ravel()))")
+    code = (
+        "import mrcal, numpy as np, sys; m = mrcal.cameramodel(sys.argv[1]); "
+        "print(' '.join(repr(float(v)) for v in mrcal.project(np.array([[0.1, -0.05, 1.0], [-0.3, 0.2, 1.0]]), "
+        "*m.intrinsics()).ravel()))"
+    )
     out = subprocess.run(["/usr/bin/python3", "-c", code, str(p)], capture_output=True, text=True, check=True)
     uv = np.array([float(v) for v in out.stdout.split()]).reshape(-1, 2)
     Xc = np.array([[0.1, -0.05, 1.0], [-0.3, 0.2, 1.0]])
@@ -182,8 +193,12 @@ P: [500.5, 0.0, 320.1, 0.0, 0.0, 501.25, 239.9, 0.0, 0.0, 0.0, 1.0, 0.0]
 
 
 def test_model_json_keeps_result(tmp_path):
-    model = {"format": "circcal-model", "camera": CAM.to_dict(), "std": {"fx": 0.5},
-             "errors": {"rms_per_point_px": 0.1}}
+    model = {
+        "format": "circcal-model",
+        "camera": CAM.to_dict(),
+        "std": {"fx": 0.5},
+        "errors": {"rms_per_point_px": 0.1},
+    }
     p = tmp_path / "model.json"
     write_camera(p, CAM, document=model)
     assert json.loads(p.read_text())["std"]["fx"] == 0.5

@@ -1,6 +1,7 @@
 """Camera files for every lens model: round trips through each format that has the model, the refusals (with the
 reason) of those that lack it, and files as OpenCV, ROS and COLMAP users write them, read and projected by those
 tools' own code."""
+
 from __future__ import annotations
 
 import cv2
@@ -21,21 +22,48 @@ from circcal.formats import (
 from circcal.model import Camera, project, project_camera
 
 LENS_CAMS = {
-    "opencv5": Camera(1920, 1080, 1498.123456789012, 1500.987654321098, 955.4321, 545.6789,
-                      [-0.2012345678901, 0.1023456789, 0.00123456789, -0.000567891234, -0.0234567891]),
-    "rational": Camera(1920, 1080, 900.123456789, 905.987654321, 962.3, 541.7,
-                       [0.2712345678, 0.0112345, 2.1e-4, -3.3e-4, 5.5e-4, 0.6012345, 0.0212345, 0.00123], "rational"),
-    "thin-prism": Camera(1920, 1080, 900.1, 905.2, 962.3, 541.7,
-                         [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1.1e-3, -2.2e-5, -8.3e-4, 3.4e-5],
-                         "thin-prism"),
-    "fisheye": Camera(1280, 1024, 520.123456789, 521.5, 641.2, 509.8, [0.0212345, -0.0061234, 0.0012345, -1.2345e-4],
-                      "fisheye"),
+    "opencv5": Camera(
+        1920,
+        1080,
+        1498.123456789012,
+        1500.987654321098,
+        955.4321,
+        545.6789,
+        [-0.2012345678901, 0.1023456789, 0.00123456789, -0.000567891234, -0.0234567891],
+    ),
+    "rational": Camera(
+        1920,
+        1080,
+        900.123456789,
+        905.987654321,
+        962.3,
+        541.7,
+        [0.2712345678, 0.0112345, 2.1e-4, -3.3e-4, 5.5e-4, 0.6012345, 0.0212345, 0.00123],
+        "rational",
+    ),
+    "thin-prism": Camera(
+        1920,
+        1080,
+        900.1,
+        905.2,
+        962.3,
+        541.7,
+        [0.27, 0.01, 2e-4, -3e-4, 5e-4, 0.6, 0.02, 0.001, 1.1e-3, -2.2e-5, -8.3e-4, 3.4e-5],
+        "thin-prism",
+    ),
+    "fisheye": Camera(
+        1280, 1024, 520.123456789, 521.5, 641.2, 509.8, [0.0212345, -0.0061234, 0.0012345, -1.2345e-4], "fisheye"
+    ),
 }
 #: file name -> the lens models its format cannot hold (and the words of the refusal)
-FILES = {"model.json": {}, "cam.yaml": {}, "cam.xml": {},
-         "cam.cameramodel": {"fisheye": "equidistant"},
-         "cameras.txt": {"thin-prism": "no thin-prism"},
-         "camera_info.yaml": {"thin-prism": "no thin-prism"}}
+FILES = {
+    "model.json": {},
+    "cam.yaml": {},
+    "cam.xml": {},
+    "cam.cameramodel": {"fisheye": "equidistant"},
+    "cameras.txt": {"thin-prism": "no thin-prism"},
+    "camera_info.yaml": {"thin-prism": "no thin-prism"},
+}
 
 
 @pytest.mark.parametrize("name", sorted(FILES))
@@ -100,8 +128,9 @@ def test_opencv_written_fisheye_yaml_reads_and_projects_as_cv2_fisheye(tmp_path)
     assert fs.getNode("fisheye_model").real() == 1
     np.testing.assert_array_equal(fs.getNode("distortion_coefficients").mat().ravel(), D)
     fs.release()
-    plain = camera_from_opencv_yaml((tmp_path / "ours.yaml").read_text().replace("fisheye_model: 1",
-                                                                                 "fisheye_model: 0"))
+    plain = camera_from_opencv_yaml(
+        (tmp_path / "ours.yaml").read_text().replace("fisheye_model: 1", "fisheye_model: 0")
+    )
     assert plain.lens == "opencv5" and np.array_equal(plain.dist, [*D, 0.0])
 
 
@@ -116,8 +145,7 @@ def test_opencv_yaml_vector_projects_as_cv2(tmp_path, lens):
     assert d.size == len(cam.dist)
     X = np.array([[10.0, -20.0, 0.0], [200.0, 100.0, 0.0], [-150.0, 90.0, 0.0]])
     rv, tv = np.array([0.2, -0.1, 0.05]), np.array([-50.0, -30.0, 400.0])
-    np.testing.assert_allclose(cv2.projectPoints(X, rv, tv, K, d)[0].reshape(-1, 2), project(X, rv, tv, cam),
-                               atol=1e-9)
+    np.testing.assert_allclose(cv2.projectPoints(X, rv, tv, K, d)[0].reshape(-1, 2), project(X, rv, tv, cam), atol=1e-9)
 
 
 def test_ros_distortion_models():
@@ -127,8 +155,10 @@ def test_ros_distortion_models():
         text = camera_to_ros_yaml(LENS_CAMS[lens])
         assert f"distortion_model: {model}" in text
         assert camera_from_ros_yaml(text).lens == lens
-    msg = ("width: 1280\nheight: 1024\ndistortion_model: equidistant\nD: [0.02, -0.006, 0.001, -0.0001]\n"
-           "K: [520.0, 0.0, 641.2, 0.0, 521.5, 509.8, 0.0, 0.0, 1.0]\n")
+    msg = (
+        "width: 1280\nheight: 1024\ndistortion_model: equidistant\nD: [0.02, -0.006, 0.001, -0.0001]\n"
+        "K: [520.0, 0.0, 641.2, 0.0, 521.5, 509.8, 0.0, 0.0, 1.0]\n"
+    )
     cam = camera_from_ros_yaml(msg)
     assert cam.lens == "fisheye" and cam.dist[3] == -0.0001 and cam.cx == 641.2
     with pytest.raises(ValueError, match="4 distortion coefficients"):

@@ -11,6 +11,7 @@ hostile files (:func:`circcal.fixtures.fuzz.hostile_files`: truncated and corrup
 100000 x 100000 pixels, 5000 x 1 images, float32 TIFFs of NaN, 16-bit images, names with ``$``, spaces and bytes not
 UTF-8) through the command line in batches, each batch a fresh process, so that exit codes are counted.
 """
+
 from __future__ import annotations
 
 import json
@@ -46,24 +47,31 @@ FILE_BATCH = 47
 MAX_PEAK_RSS_MB = 1000.0
 """The peak resident memory of one ``circcal detect`` process on one 12 MP image must stay below this (MB of
 10^6 bytes; the interpreter and its libraries included)."""
-_CHILD = ("import json, resource, sys\n"
-          "from circcal.cli import main\n"
-          "rc = main(sys.argv[2:])\n"
-          "try:\n"
-          "    hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
-          "    kb = int(hwm[0].split()[1])\n"
-          "except (OSError, IndexError):\n"
-          "    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
-          "with open(sys.argv[1], 'w') as f:\n"
-          "    json.dump({'rc': rc, 'maxrss_kb': kb}, f)\n"
-          "sys.exit(rc)\n")
+_CHILD = (
+    "import json, resource, sys\n"
+    "from circcal.cli import main\n"
+    "rc = main(sys.argv[2:])\n"
+    "try:\n"
+    "    hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
+    "    kb = int(hwm[0].split()[1])\n"
+    "except (OSError, IndexError):\n"
+    "    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+    "with open(sys.argv[1], 'w') as f:\n"
+    "    json.dump({'rc': rc, 'maxrss_kb': kb}, f)\n"
+    "sys.exit(rc)\n"
+)
 """A fresh process: ``circcal detect`` through :func:`circcal.cli.main`, then its exit code and peak resident memory
 (KiB) written to the file named first. The peak is Linux's ``VmHWM`` (the high-water mark of this program's own
 memory): ``ru_maxrss`` would not do, as Linux carries the parent's resident size into it across the fork and exec
 (a child of this test process, 0.7-1 GB after thousands of images, would report that much however small it is);
 ``ru_maxrss`` only where ``/proc`` is missing."""
-BOARDS = (Board(7, 7, 10.0, 5.0), Board(11, 4, 10.0, 7.0, "asymmetric"), Board(3, 3, 10.0, 5.0),
-          Board(4, 5, 10.0, 5.0), Board(10, 10, 20.0, 8.0, "symmetric", None, (90,), 16.0))
+BOARDS = (
+    Board(7, 7, 10.0, 5.0),
+    Board(11, 4, 10.0, 7.0, "asymmetric"),
+    Board(3, 3, 10.0, 5.0),
+    Board(4, 5, 10.0, 5.0),
+    Board(10, 10, 20.0, 8.0, "symmetric", None, (90,), 16.0),
+)
 """The boards looked for, in turn: the paper's 7x7, OpenCV's 4x11 acircles, a 3x3 (the smallest claim: issue 14
 found 6 false grids of noise specks among ~960 images with it), a 4x5, ROS-I's 10x10 origin-marker board."""
 
@@ -106,8 +114,10 @@ def _table(tally: dict) -> list[str]:
     for kind in KINDS:
         row = tally["per_kind"][kind]
         codes = ", ".join(f"{c}: {n}" for c, n in sorted(row["codes"].items()))
-        lines.append(f"| {kind} | {row['images']} | {row['found']} | {np.median(row['times']):.3f} | "
-                     f"{max(row['times']):.3f} | {codes} |")
+        lines.append(
+            f"| {kind} | {row['images']} | {row['found']} | {np.median(row['times']):.3f} | "
+            f"{max(row['times']):.3f} | {codes} |"
+        )
     return lines
 
 
@@ -121,15 +131,32 @@ def _cli(tmp: Path, files: list[bytes], tag: str, board_args: list[str]) -> dict
     """``circcal detect`` on ``files`` (bytes paths) in a fresh process: its exit code (as the shell sees it), peak
     resident memory (MB), wall time (s) and the JSON's image entries (``None`` when it wrote none)."""
     out, stat = tmp / f"{tag}.json", tmp / f"{tag}.stat"
-    argv = [sys.executable, "-c", _CHILD, str(stat), "detect", *files, *board_args, "--json", str(out), "--quiet",
-            "--jobs", "1"]
+    argv = [
+        sys.executable,
+        "-c",
+        _CHILD,
+        str(stat),
+        "detect",
+        *files,
+        *board_args,
+        "--json",
+        str(out),
+        "--quiet",
+        "--jobs",
+        "1",
+    ]
     t0 = time.perf_counter()
     proc = subprocess.run(argv, capture_output=True, timeout=600)
     wall = time.perf_counter() - t0
     peak = json.loads(stat.read_text())["maxrss_kb"] * 1024 / 1e6 if stat.exists() else float("nan")
     images = json.loads(out.read_text())["images"] if out.exists() else None
-    return {"rc": proc.returncode, "peak_mb": peak, "wall": wall, "images": images,
-            "stderr": proc.stderr.decode(errors="backslashreplace")[-2000:]}
+    return {
+        "rc": proc.returncode,
+        "peak_mb": peak,
+        "wall": wall,
+        "images": images,
+        "stderr": proc.stderr.decode(errors="backslashreplace")[-2000:],
+    }
 
 
 def run_large(tmp: Path) -> list[dict]:
@@ -145,9 +172,17 @@ def run_large(tmp: Path) -> list[dict]:
             cv2.imwrite(str(path), img.max() - img if inv % 2 else img)
             got = _cli(tmp, [os.fsencode(path)], f"large-{kind}-{inv}", ["--grid", "7x7"])
             entry = (got["images"] or [{}])[0]
-            rows.append({"kind": kind, "rc": got["rc"], "peak_mb": got["peak_mb"], "wall": got["wall"],
-                         "code": entry.get("reason_code") or ("found" if entry.get("found") else "none"),
-                         "found": bool(entry.get("found")), "stderr": got["stderr"]})
+            rows.append(
+                {
+                    "kind": kind,
+                    "rc": got["rc"],
+                    "peak_mb": got["peak_mb"],
+                    "wall": got["wall"],
+                    "code": entry.get("reason_code") or ("found" if entry.get("found") else "none"),
+                    "found": bool(entry.get("found")),
+                    "stderr": got["stderr"],
+                }
+            )
             path.unlink()
     return rows
 
@@ -162,7 +197,7 @@ def run_files(tmp: Path) -> dict:
     rcs: Counter = Counter()
     found, bugs, peak = [], [], 0.0
     for b in range(0, len(files), FILE_BATCH):
-        batch = files[b:b + FILE_BATCH]
+        batch = files[b : b + FILE_BATCH]
         got = _cli(tmp, [p for _, p in batch], f"files-{b}", ["--grid", "4x5"])
         rcs[got["rc"]] += 1
         peak = max(peak, got["peak_mb"])
@@ -172,8 +207,15 @@ def run_files(tmp: Path) -> dict:
             codes[kind][entry["reason_code"] or "found"] += 1
             if entry["found"]:
                 found.append(os.fsdecode(path))
-    return {"files": len(files), "batches": sum(rcs.values()), "rcs": rcs, "codes": dict(codes), "found": found,
-            "bugs": bugs, "peak_mb": peak}
+    return {
+        "files": len(files),
+        "batches": sum(rcs.values()),
+        "rcs": rcs,
+        "codes": dict(codes),
+        "found": found,
+        "bugs": bugs,
+        "peak_mb": peak,
+    }
 
 
 @pytest.mark.slow
@@ -190,55 +232,88 @@ def test_fuzz_study_writes_its_counts(tmp_path):
     large_rcs = Counter(r["rc"] for r in large)
     n_all = images + len(large) + files["files"]
     false_grids = found + sum(r["found"] for r in large) + len(files["found"])
-    text = ["# Fuzz: hostile images without a board", "",
+    text = (
+        [
+            "# Fuzz: hostile images without a board",
+            "",
             f"`tests/test_fuzz.py::test_fuzz_study_writes_its_counts` (`make study`), seeds 2, 31000 and 3: "
             f"**{n_all} hostile images and files, {false_grids} grids found** (false detections), "
             f"{len(files['bugs']) + sum(n for rc, n in large_rcs.items() if rc not in (0, 1, 2))} exits 70 "
             f"(a bug) or crashes; {wall:.0f} s in all on {os.cpu_count()} CPUs (one detection at a time). Default "
-            f"time budget {DEFAULT_TIME_BUDGET_S:g} s per image.", "",
-            f"## {images} seeded images, in this process", "",
+            f"time budget {DEFAULT_TIME_BUDGET_S:g} s per image.",
+            "",
+            f"## {images} seeded images, in this process",
+            "",
             "Drawn by `circcal.fixtures.fuzz` (noise, blobs, dense dots, stripes, checkers, leaves, dot lattices of "
             "other sizes than the board, 15-45 x 45 lattices, shapes and text; 240x320 to 480x640 px), each searched "
             "for one of the boards in turn: 7x7, 4x11 asymmetric, 3x3, 4x5 and ROS-I's 10x10 origin-marker board; "
-            "every second image inverted (bright on dark: the bright-dot search meets it too).", "",
+            "every second image inverted (bright on dark: the bright-dot search meets it too).",
+            "",
             f"{found} grids found, 0 exceptions, 0 images stopped by the time budget; the slowest image took "
-            f"{slowest[0]:.3f} s ({slowest[1]}).", ""] + _table(tally) + [
-            "", f"## {len(large)} images of 12 MP (4000 x 3000), `circcal detect` in a fresh process each", "",
+            f"{slowest[0]:.3f} s ({slowest[1]}).",
+            "",
+        ]
+        + _table(tally)
+        + [
+            "",
+            f"## {len(large)} images of 12 MP (4000 x 3000), `circcal detect` in a fresh process each",
+            "",
             "Each kind at 12 MP at the same texture density (the counts of shapes scale with the area: ~70 times as "
             "many dots as at 480x360), as drawn and inverted, written as PNG, searched for the 7x7 board. Peak "
             "resident memory of the whole process (Linux's `VmHWM` at its end: the interpreter, numpy, OpenCV, numba "
             "and the decoded image included; ~300 MB of it is the interpreter and its libraries), bound asserted: "
-            f"< {MAX_PEAK_RSS_MB:g} MB.", "",
+            f"< {MAX_PEAK_RSS_MB:g} MB.",
+            "",
             f"Exit codes: {', '.join(f'{rc}: {n}' for rc, n in sorted(large_rcs.items()))}; "
             f"{sum(r['found'] for r in large)} grids found; peak memory at most **{worst['peak_mb']:.0f} MB** "
             f"({worst['kind']}); median {np.median([r['peak_mb'] for r in large]):.0f} MB; slowest process "
-            f"{max(r['wall'] for r in large):.1f} s (start-up and PNG decoding included).", "",
-            "| kind | exit codes | reasons | peak MB (max) | process s (max) |", "|---|---|---|---|---|"]
+            f"{max(r['wall'] for r in large):.1f} s (start-up and PNG decoding included).",
+            "",
+            "| kind | exit codes | reasons | peak MB (max) | process s (max) |",
+            "|---|---|---|---|---|",
+        ]
+    )
     for kind in KINDS:
         rows = [r for r in large if r["kind"] == kind]
-        text.append(f"| {kind} | {', '.join(str(r['rc']) for r in rows)} | "
-                    f"{', '.join(sorted({r['code'] for r in rows}))} | {max(r['peak_mb'] for r in rows):.0f} | "
-                    f"{max(r['wall'] for r in rows):.1f} |")
-    text += ["", f"## {files['files']} hostile files, `circcal detect` in {files['batches']} batches", "",
-             "`circcal.fixtures.fuzz.hostile_files` (kinds in turn), named with `$`, spaces, quotes and bytes that "
-             "are not UTF-8 (written and passed as bytes paths), searched for a 4x5 board, "
-             f"{FILE_BATCH} files per fresh process. Exit codes of the batches: "
-             f"{', '.join(f'{rc}: {n}' for rc, n in sorted(files['rcs'].items()))} (1: some image not found, as "
-             f"expected; 70: a bug); {len(files['found'])} grids found; peak memory of a batch "
-             f"{files['peak_mb']:.0f} MB.", "",
-             "| file kind | reasons (code: files) |", "|---|---|"]
+        text.append(
+            f"| {kind} | {', '.join(str(r['rc']) for r in rows)} | "
+            f"{', '.join(sorted({r['code'] for r in rows}))} | {max(r['peak_mb'] for r in rows):.0f} | "
+            f"{max(r['wall'] for r in rows):.1f} |"
+        )
+    text += [
+        "",
+        f"## {files['files']} hostile files, `circcal detect` in {files['batches']} batches",
+        "",
+        "`circcal.fixtures.fuzz.hostile_files` (kinds in turn), named with `$`, spaces, quotes and bytes that "
+        "are not UTF-8 (written and passed as bytes paths), searched for a 4x5 board, "
+        f"{FILE_BATCH} files per fresh process. Exit codes of the batches: "
+        f"{', '.join(f'{rc}: {n}' for rc, n in sorted(files['rcs'].items()))} (1: some image not found, as "
+        f"expected; 70: a bug); {len(files['found'])} grids found; peak memory of a batch "
+        f"{files['peak_mb']:.0f} MB.",
+        "",
+        "| file kind | reasons (code: files) |",
+        "|---|---|",
+    ]
     for kind in FILE_KINDS:
         codes = files["codes"].get(kind, Counter())
         text.append(f"| {kind} | {', '.join(f'{c}: {n}' for c, n in sorted(codes.items())) or 'none (batch failed)'} |")
-    text += ["", "Reason codes: `too-few-candidates` (fewer dot-like blobs than the board needs), `grid-not-recognised` "
-             "(no lattice of dots, or none regular), `grid-mismatch` (a lattice of another size: larger, smaller or "
-             "transposed, said so in the message), `too-few-points` / `ambiguous-view` (a lattice that could be part "
-             "of the board, too small or ambiguous to label), `irregular-grid` (a labelled lattice that failed the "
-             "trust checks), `unreadable` / `bad-image` (a file that is no image, or not one the detector takes), "
-             "`time-budget-exceeded` (stopped by the budget).", ""]
+    text += [
+        "",
+        "Reason codes: `too-few-candidates` (fewer dot-like blobs than the board needs), `grid-not-recognised` "
+        "(no lattice of dots, or none regular), `grid-mismatch` (a lattice of another size: larger, smaller or "
+        "transposed, said so in the message), `too-few-points` / `ambiguous-view` (a lattice that could be part "
+        "of the board, too small or ambiguous to label), `irregular-grid` (a labelled lattice that failed the "
+        "trust checks), `unreadable` / `bad-image` (a file that is no image, or not one the detector takes), "
+        "`time-budget-exceeded` (stopped by the budget).",
+        "",
+    ]
     if files["bugs"] or any(r["rc"] not in (0, 1, 2) for r in large):
-        text += ["## Failures", "", "```"] + [b for b in files["bugs"]] + [
-            r["stderr"] for r in large if r["rc"] not in (0, 1, 2)] + ["```", ""]
+        text += (
+            ["## Failures", "", "```"]
+            + [b for b in files["bugs"]]
+            + [r["stderr"] for r in large if r["rc"] not in (0, 1, 2)]
+            + ["```", ""]
+        )
     REPORT.write_text("\n".join(text))
     print("\n".join(text))
     _check(tally)

@@ -1,4 +1,5 @@
 """Grid ordering: board symmetries, the orientation rule, clutter."""
+
 import numpy as np
 import pytest
 
@@ -19,8 +20,10 @@ def _view(board, angle_deg, tilt=0.2):
     return p[:, :2] / p[:, 2:]
 
 
-@pytest.mark.parametrize("board", [Board(4, 5, 10, 5), Board(5, 5, 10, 5), Board(5, 4, 10, 5, "asymmetric"),
-                                   Board(6, 4, 10, 5, "asymmetric")])
+@pytest.mark.parametrize(
+    "board",
+    [Board(4, 5, 10, 5), Board(5, 5, 10, 5), Board(5, 4, 10, 5, "asymmetric"), Board(6, 4, 10, 5, "asymmetric")],
+)
 @pytest.mark.parametrize("angle", [0, 30, 100, 200, 290])
 def test_canonical_order_is_unique_and_front_facing(board, angle):
     pts = _view(board, angle)

@@ -8,6 +8,7 @@ centres, with the true camera model given, are within :data:`EXACT_RMS_PX` RMS o
 blur or noise (the ``clean`` and ``exact-*`` variants, the occluders' own) and within :data:`NOISY_RMS_PX` on the
 others. Beside it: wherever OpenCV's findCirclesGrid (plain or CLUSTERING) finds the grid, circcal does too.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -45,8 +46,10 @@ def _opencv_finds(img: np.ndarray, board) -> tuple[bool, bool]:
     if g.dtype != np.uint8:
         g = cv2.convertScaleAbs(g, alpha=255.0 / max(float(g.max()), 1.0))
     flags = cv2.CALIB_CB_ASYMMETRIC_GRID if board.layout == "asymmetric" else cv2.CALIB_CB_SYMMETRIC_GRID
-    return (bool(cv2.findCirclesGrid(g, board.pattern_size, flags=flags)[0]),
-            bool(cv2.findCirclesGrid(g, board.pattern_size, flags=flags | cv2.CALIB_CB_CLUSTERING)[0]))
+    return (
+        bool(cv2.findCirclesGrid(g, board.pattern_size, flags=flags)[0]),
+        bool(cv2.findCirclesGrid(g, board.pattern_size, flags=flags | cv2.CALIB_CB_CLUSTERING)[0]),
+    )
 
 
 def labelled_errors(board, centres: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -81,9 +84,11 @@ def test_hard_views_labelled_right_and_accurate(name, variant):
         share = float(np.sum(seen & clear)) / max(int(clear.sum()), 1)
         wrong = int(np.sum(e[seen] > MISLABEL_PX))
         rms = float(np.sqrt(np.mean(e[seen] ** 2)))
-        lines.append(f"view {k:2d} ({v.kind:6s}): {int(seen.sum()):3d} labelled, {share:6.1%} of {int(clear.sum())} "
-                     f"clear, {wrong} wrong, RMS {rms:.4f} px, {d.n_dropped} dropped; OpenCV plain/clustering "
-                     f"{ocv[0]}/{ocv[1]}")
+        lines.append(
+            f"view {k:2d} ({v.kind:6s}): {int(seen.sum()):3d} labelled, {share:6.1%} of {int(clear.sum())} "
+            f"clear, {wrong} wrong, RMS {rms:.4f} px, {d.n_dropped} dropped; OpenCV plain/clustering "
+            f"{ocv[0]}/{ocv[1]}"
+        )
         if share < MIN_LABELLED:
             failures.append(f"view {k}: {share:.1%} of the clear dots labelled (dropped: {d.dropped})")
         if wrong:
@@ -111,7 +116,7 @@ def _parity(name: str, variant: str, n: int | None) -> None:
         rows[2] += d.found
         if (plain or clus) and not d.found:
             missed.append(f"view {k}: {d.reason}")
-        elif d.found:     # a found grid is the right one, every dot with its own ID (perspective-only correction,
+        elif d.found:  # a found grid is the right one, every dot with its own ID (perspective-only correction,
             # no lens model: up to 0.6 px off on the partial scenario's large dots near the corners of a k1 -0.15 lens)
             e, _ = labelled_errors(tr.board, d.centres, v.centres)
             assert np.nanmax(e) < MISLABEL_PX, f"view {k}: a found grid off the truth by {np.nanmax(e):.2f} px"
@@ -147,8 +152,15 @@ def test_opencv_parity_on_the_test_renders():
     both = 0
     for radius in (7, 15, 30):
         for tilt in (0, 30, 45, 60):
-            rvec, tvec = pose_looking_at(cam, board, distance_mm=cam.fx * board.radius_mm / radius, tilt_deg=tilt,
-                                         tilt_axis_deg=30.0, roll_deg=10.0, target_px=(700.0, 500.0))
+            rvec, tvec = pose_looking_at(
+                cam,
+                board,
+                distance_mm=cam.fx * board.radius_mm / radius,
+                tilt_deg=tilt,
+                tilt_axis_deg=30.0,
+                roll_deg=10.0,
+                target_px=(700.0, 500.0),
+            )
             img = to_uint(render_view(cam, board, rvec, tvec), 8)
             plain, clus = _opencv_finds(img, board)
             d = detect(img, board)
@@ -158,13 +170,16 @@ def test_opencv_parity_on_the_test_renders():
             if d.found:
                 truth = project(board.object_points(), rvec, tvec, cam)
                 assert np.nanmax(labelled_errors(board, d.centres, truth)[0]) < 0.05
-    assert both >= 6   # OpenCV finds most of them: the comparison is not empty
+    assert both >= 6  # OpenCV finds most of them: the comparison is not empty
 
 
-@pytest.mark.parametrize("folder,board_args", [
-    ("boofcv_sony_hx5v_circle_asym_4x5", (5, 4, 30.0, 20.0, "asymmetric")),
-    ("boofcv_sony_hx5v_circle_regular_10x8", (8, 10, 25.0, 15.0, "symmetric")),
-])
+@pytest.mark.parametrize(
+    "folder,board_args",
+    [
+        ("boofcv_sony_hx5v_circle_asym_4x5", (5, 4, 30.0, 20.0, "asymmetric")),
+        ("boofcv_sony_hx5v_circle_regular_10x8", (8, 10, 25.0, 15.0, "symmetric")),
+    ],
+)
 def test_opencv_parity_on_the_real_photographs(realdata, folder, board_args):
     from circcal.board import Board
 
@@ -178,5 +193,6 @@ def test_opencv_parity_on_the_real_photographs(realdata, folder, board_args):
         d = detect(img, board)
         counts = [counts[0] + plain, counts[1] + clus, counts[2] + d.found]
         assert d.found, f"{p.name}: {d.reason} (OpenCV plain/clustering {plain}/{clus})"
-    print(f"\n{folder}: {len(paths)} photographs; OpenCV plain {counts[0]}, CLUSTERING {counts[1]}; circcal "
-          f"{counts[2]}")
+    print(
+        f"\n{folder}: {len(paths)} photographs; OpenCV plain {counts[0]}, CLUSTERING {counts[1]}; circcal {counts[2]}"
+    )

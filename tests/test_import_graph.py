@@ -21,6 +21,7 @@ The strongly connected components of that graph (Tarjan's algorithm) with more t
 known ones are listed in :data:`KNOWN_CYCLES`, each with what removes it; the list only shrinks: a cycle outside it
 fails, and so does an entry whose cycle no longer exists exactly as listed (remove or narrow it).
 """
+
 from __future__ import annotations
 
 import ast
@@ -69,7 +70,8 @@ def module_files(root: Path, package: str) -> dict[str, Path]:
 
 def _is_type_checking(test: ast.expr) -> bool:
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
 
 
 def _imports(tree: ast.Module) -> list[tuple[ast.Import | ast.ImportFrom, bool]]:
@@ -91,10 +93,12 @@ def _imports(tree: ast.Module) -> list[tuple[ast.Import | ast.ImportFrom, bool]]
     return sorted(out, key=lambda x: x[0].lineno)
 
 
-def _targets(node: ast.Import | ast.ImportFrom, importer: str, is_package: bool, modules: set[str],
-             package: str) -> list[str]:
+def _targets(
+    node: ast.Import | ast.ImportFrom, importer: str, is_package: bool, modules: set[str], package: str
+) -> list[str]:
     """The modules of ``package`` one statement imports (see the module docstring); a name that is no module of
     ``package`` and no name taken from one is returned as is, for the caller to report."""
+
     def ours(name: str) -> bool:
         return name == package or name.startswith(package + ".")
 
@@ -102,7 +106,7 @@ def _targets(node: ast.Import | ast.ImportFrom, importer: str, is_package: bool,
         return [a.name for a in node.names if ours(a.name)]
     if node.level:
         parts = importer.split(".") if is_package else importer.split(".")[:-1]
-        parts = parts[:len(parts) - (node.level - 1)]
+        parts = parts[: len(parts) - (node.level - 1)]
         base = ".".join(parts + ([node.module] if node.module else []))
     else:
         base = node.module or ""
@@ -197,15 +201,21 @@ def _shortest_cycle(graph: dict[str, list[Edge]], comp: frozenset[str]) -> list[
 
 def describe(graph: dict[str, list[Edge]], comp: frozenset[str]) -> str:
     """A cycle in words: its modules, a shortest loop and every edge between its modules, with line numbers."""
-    edges = sorted((e for m in comp for e in graph[m] if e.imported in comp),
-                   key=lambda e: (e.importer, e.line, e.imported))
+    edges = sorted(
+        (e for m in comp for e in graph[m] if e.imported in comp), key=lambda e: (e.importer, e.line, e.imported)
+    )
     loop = _shortest_cycle(graph, comp)
-    return "\n".join([f"cycle of {len(comp)} modules: {', '.join(sorted(comp))}",
-                      "  shortest loop: " + " -> ".join([e.importer for e in loop] + [loop[0].importer]),
-                      *(f"    {e}" for e in edges)])
+    return "\n".join(
+        [
+            f"cycle of {len(comp)} modules: {', '.join(sorted(comp))}",
+            "  shortest loop: " + " -> ".join([e.importer for e in loop] + [loop[0].importer]),
+            *(f"    {e}" for e in edges),
+        ]
+    )
 
 
 # --- the checker itself, on a package generated here ---------------------------------------------------------------
+
 
 def _write_package(root: Path, files: dict[str, str]) -> Path:
     for rel, text in files.items():
@@ -217,17 +227,22 @@ def _write_package(root: Path, files: dict[str, str]) -> Path:
 def test_checker_resolves_imports_as_python_runs_them(tmp_path):
     """Relative imports, submodule vs name, function-level imports, ``TYPE_CHECKING`` left out (its else kept),
     outside packages ignored, broken names reported."""
-    root = _write_package(tmp_path, {
-        "pkg/__init__.py": "from pkg.sub import thing\n",
-        "pkg/base.py": "import os\nimport pkg.sub.leaf\n",
-        "pkg/sub/__init__.py": "from .leaf import x\nfrom . import other\n",
-        "pkg/sub/leaf.py": ("import typing\nfrom typing import TYPE_CHECKING\n"
-                            "if TYPE_CHECKING:\n    from pkg import base\nelse:\n    from ..base import os\n"
-                            "if typing.TYPE_CHECKING:\n    import pkg.sub.other\n"
-                            "def f():\n    from pkg.sub import other, x\n    from pkg.nothere import y\n"
-                            "    return other, x, y\n"),
-        "pkg/sub/other.py": "class A:\n    from pkg.sub import leaf as _l\n",
-    })
+    root = _write_package(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from pkg.sub import thing\n",
+            "pkg/base.py": "import os\nimport pkg.sub.leaf\n",
+            "pkg/sub/__init__.py": "from .leaf import x\nfrom . import other\n",
+            "pkg/sub/leaf.py": (
+                "import typing\nfrom typing import TYPE_CHECKING\n"
+                "if TYPE_CHECKING:\n    from pkg import base\nelse:\n    from ..base import os\n"
+                "if typing.TYPE_CHECKING:\n    import pkg.sub.other\n"
+                "def f():\n    from pkg.sub import other, x\n    from pkg.nothere import y\n"
+                "    return other, x, y\n"
+            ),
+            "pkg/sub/other.py": "class A:\n    from pkg.sub import leaf as _l\n",
+        },
+    )
     graph, unresolved, modules = import_graph(root, "pkg")
     assert modules == {"pkg", "pkg.base", "pkg.sub", "pkg.sub.leaf", "pkg.sub.other"}
     got = {(e.importer, e.imported, e.line, e.in_function) for es in graph.values() for e in es}
@@ -252,13 +267,16 @@ def test_checker_resolves_imports_as_python_runs_them(tmp_path):
 def test_checker_finds_no_cycle_in_a_chain_and_each_of_several_cycles(tmp_path):
     """A diamond without a cycle has no component; two separate loops are two components; a self-import is no
     cycle."""
-    root = _write_package(tmp_path, {
-        "pkg/__init__.py": "",
-        "pkg/a.py": "from pkg import b, c\nimport pkg.a\n",
-        "pkg/b.py": "import pkg.d\n",
-        "pkg/c.py": "def f():\n    import pkg.d\n",
-        "pkg/d.py": "",
-    })
+    root = _write_package(
+        tmp_path,
+        {
+            "pkg/__init__.py": "",
+            "pkg/a.py": "from pkg import b, c\nimport pkg.a\n",
+            "pkg/b.py": "import pkg.d\n",
+            "pkg/c.py": "def f():\n    import pkg.d\n",
+            "pkg/d.py": "",
+        },
+    )
     graph, unresolved, _ = import_graph(root, "pkg")
     assert unresolved == [] and strongly_connected(graph) == []
     (root / "d.py").write_text("def f():\n    from pkg import c\n")
@@ -269,6 +287,7 @@ def test_checker_finds_no_cycle_in_a_chain_and_each_of_several_cycles(tmp_path):
 
 
 # --- circcal -------------------------------------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def circcal_graph():
@@ -288,8 +307,10 @@ def test_no_import_cycles_beyond_the_shrinking_allow_list(circcal_graph):
     listed (a fixed or narrowed one must leave the list)."""
     graph, _, _ = circcal_graph
     per_module = Counter(e.importer for es in graph.values() for e in es if e.in_function)
-    print(f"\nfunction-level imports of circcal modules (statement x module imported): {sum(per_module.values())}"
-          f" in {len(per_module)} modules")
+    print(
+        f"\nfunction-level imports of circcal modules (statement x module imported): {sum(per_module.values())}"
+        f" in {len(per_module)} modules"
+    )
     for m, n in sorted(per_module.items(), key=lambda x: (-x[1], x[0])):
         print(f"  {n:3d}  {m}")
     comps = strongly_connected(graph)
@@ -300,7 +321,13 @@ def test_no_import_cycles_beyond_the_shrinking_allow_list(circcal_graph):
     problems = [describe(graph, c) + "\n  (new: break it; do not add it to KNOWN_CYCLES)" for c in new]
     for mods, why in stale:
         now = [c for c in comps if c & mods]
-        problems.append(f"KNOWN_CYCLES entry {sorted(mods)} ({why}) no longer exists as listed: "
-                        + ("".join(f"its modules now form {sorted(c)}; " for c in now)
-                           + "replace the entry by a narrower cycle, break a wider one" if now else "fixed: remove it"))
+        problems.append(
+            f"KNOWN_CYCLES entry {sorted(mods)} ({why}) no longer exists as listed: "
+            + (
+                "".join(f"its modules now form {sorted(c)}; " for c in now)
+                + "replace the entry by a narrower cycle, break a wider one"
+                if now
+                else "fixed: remove it"
+            )
+        )
     assert not problems, "\n\n".join(problems)

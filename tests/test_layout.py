@@ -1,6 +1,7 @@
 """The repository's layout promises: one installed import package (``circcal``), layers that import only downward
 (the import-linter contract in pyproject.toml), and no code that imports the repository folders by their own
 top-level names."""
+
 from __future__ import annotations
 
 import os
@@ -33,13 +34,18 @@ def test_import_contract_holds_and_covers_every_module():
     import grimp
 
     exe = Path(sys.executable).with_name("lint-imports")
-    run = subprocess.run([str(exe), "--config", str(REPO / "pyproject.toml")], cwd=REPO, capture_output=True,
-                         text=True, timeout=120)
+    run = subprocess.run(
+        [str(exe), "--config", str(REPO / "pyproject.toml")], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     assert run.returncode == 0, run.stdout + run.stderr
     assert "1 kept, 0 broken" in run.stdout, run.stdout
     graph = grimp.build_graph("circcal")
-    on_disk = {".".join((Path(d) / f).relative_to(REPO).with_suffix("").parts).removesuffix(".__init__")
-               for d, _, files in os.walk(REPO / "circcal", followlinks=True) for f in files if f.endswith(".py")}
+    on_disk = {
+        ".".join((Path(d) / f).relative_to(REPO).with_suffix("").parts).removesuffix(".__init__")
+        for d, _, files in os.walk(REPO / "circcal", followlinks=True)
+        for f in files
+        if f.endswith(".py")
+    }
     assert on_disk - set(graph.modules) == set()
     for layer in _layers():
         assert any(m == layer or m.startswith(layer + ".") for m in graph.modules), f"layer {layer} is empty"
@@ -54,8 +60,9 @@ def test_wheel_installs_only_circcal(tmp_path):
     # built from a copy of what git would commit (so a build leaves nothing in the checkout, and a file that is
     # not added cannot make the test pass); links are copied as links
     src = tmp_path / "src"
-    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True,
-                           text=True, check=True).stdout.split()
+    files = subprocess.run(
+        ["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout.split()
     for f in files:
         dest = src / f
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -63,17 +70,38 @@ def test_wheel_installs_only_circcal(tmp_path):
             dest.symlink_to(os.readlink(REPO / f))
         elif (REPO / f).is_file():
             shutil.copy2(REPO / f, dest)
-    run = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
-                          "-w", str(tmp_path), str(src)], capture_output=True, text=True, timeout=300,
-                         cwd=tmp_path)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(tmp_path),
+            str(src),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
     assert run.returncode == 0, run.stdout + run.stderr
     (wheel,) = tmp_path.glob("circcal-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith((".dist-info", ".data"))} == {"circcal"}, sorted(top)
-    for sub in ("circcal/validators/base.py", "circcal/fixtures/scenarios.py", "circcal/report/__init__.py",
-                "circcal/detector/__init__.py", "circcal/solver/__init__.py", "circcal/report/templates/report.md.j2",
-                "circcal/report/templates/report.html.j2"):
+    for sub in (
+        "circcal/validators/base.py",
+        "circcal/fixtures/scenarios.py",
+        "circcal/report/__init__.py",
+        "circcal/detector/__init__.py",
+        "circcal/solver/__init__.py",
+        "circcal/report/templates/report.md.j2",
+        "circcal/report/templates/report.html.j2",
+    ):
         assert sub in names
     info = next(n for n in names if n.endswith(".dist-info/top_level.txt"))
     assert zipfile.ZipFile(wheel).read(info).decode().split() == ["circcal"]
@@ -86,8 +114,11 @@ def test_no_code_imports_the_folders_by_their_top_level_names(folder):
     """Inside the checkout ``import validators`` would work (the repository root is on the path) and break for
     every user of the installed package: the code says circcal.validators / circcal.fixtures everywhere."""
     pattern = re.compile(r"^\s*(from|import)\s+(validators|fixtures)\b", re.M)
-    offenders = [str(p.relative_to(REPO)) for p in (REPO / folder).rglob("*.py")
-                 if not p.is_symlink() and pattern.search(p.read_text())]
+    offenders = [
+        str(p.relative_to(REPO))
+        for p in (REPO / folder).rglob("*.py")
+        if not p.is_symlink() and pattern.search(p.read_text())
+    ]
     assert offenders == []
 
 

@@ -1,6 +1,7 @@
 """The reference adapters on every lens model: each one that fits a model recovers the true camera from exact
 observations made through circcal.model, and each one that does not says so ("unsupported" with the reason, never an
 error and never a silent pass)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,11 +29,19 @@ UNSUPPORTED = {
 
 TRUTH = {
     "opencv5": Camera(1280, 960, 700.0, 701.0, 641.0, 479.0, [-0.25, 0.08, 1e-3, -5e-4, -0.01]),
-    "rational": Camera(1280, 960, 700.0, 701.0, 641.0, 479.0, [0.3, -0.05, 1e-3, -5e-4, 0.002, 0.6, -0.02, 0.005],
-                       lens="rational"),
-    "thin-prism": Camera(1280, 960, 700.0, 701.0, 641.0, 479.0,
-                         [0.3, -0.05, 1e-3, -5e-4, 0.002, 0.6, -0.02, 0.005, 2e-3, -1e-4, 1e-3, 2e-4],
-                         lens="thin-prism"),
+    "rational": Camera(
+        1280, 960, 700.0, 701.0, 641.0, 479.0, [0.3, -0.05, 1e-3, -5e-4, 0.002, 0.6, -0.02, 0.005], lens="rational"
+    ),
+    "thin-prism": Camera(
+        1280,
+        960,
+        700.0,
+        701.0,
+        641.0,
+        479.0,
+        [0.3, -0.05, 1e-3, -5e-4, 0.002, 0.6, -0.02, 0.005, 2e-3, -1e-4, 1e-3, 2e-4],
+        lens="thin-prism",
+    ),
     "fisheye": Camera(1280, 1024, 380.0, 381.0, 641.0, 511.0, [0.02, -0.01, 0.003, -5e-4], lens="fisheye"),
 }
 
@@ -57,8 +66,13 @@ def _views(camera: Camera, n_views: int = 8, seed: int = 3) -> tuple[list[np.nda
         rv = cv2.Rodrigues(R)[0].ravel()
         t = d * rng.uniform(300, 600)
         q = project(g, rv, t, camera)
-        if np.all((g @ R.T + t)[:, 2] > 0) and np.all(np.isfinite(q)) and np.all(q >= 0) \
-                and np.all(q[:, 0] <= camera.width - 1) and np.all(q[:, 1] <= camera.height - 1):
+        if (
+            np.all((g @ R.T + t)[:, 2] > 0)
+            and np.all(np.isfinite(q))
+            and np.all(q >= 0)
+            and np.all(q[:, 0] <= camera.width - 1)
+            and np.all(q[:, 1] <= camera.height - 1)
+        ):
             obj.append(g.copy())
             img.append(q)
     return obj, img
@@ -163,8 +177,13 @@ def _both_solves(cal, scenario: str, lens: str):
     if not ok:
         pytest.skip(why)
     obj, img, size = _scenario_observations(scenario)
-    return (obj, img, size, calibrate(obj, img, size, CalibrationOptions(lens=lens)),
-            cal.calibrate_observations(obj, img, size))
+    return (
+        obj,
+        img,
+        size,
+        calibrate(obj, img, size, CalibrationOptions(lens=lens)),
+        cal.calibrate_observations(obj, img, size),
+    )
 
 
 def _scenario_observations(scenario: str) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
@@ -206,8 +225,9 @@ def test_identical_observations_agreement_on_the_lens_scenarios(scenario: str, l
         assert res.status == "unsupported" and res.message
         return
     assert res.status == "ok", res.message
-    check = solver_agreement(ref, res, projection_diff(mine.camera, res.camera)["max_px"], ssr(mine.residuals),
-                             solver_bound(ref))
+    check = solver_agreement(
+        ref, res, projection_diff(mine.camera, res.camera)["max_px"], ssr(mine.residuals), solver_bound(ref)
+    )
     assert check.passed, f"{check.value:.3g} px (bound {check.bound:g}): {check.note}"
 
 
@@ -224,9 +244,15 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
 
     obj, img, size = _scenario_observations("fisheye")
     flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW
-    rms, K, *_ = cv2.fisheye.calibrate([o[None] for o in obj], [q[None] for q in img], size, np.eye(3),
-                                       np.zeros((4, 1)), flags=flags,
-                                       criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16))
+    rms, K, *_ = cv2.fisheye.calibrate(
+        [o[None] for o in obj],
+        [q[None] for q in img],
+        size,
+        np.eye(3),
+        np.zeros((4, 1)),
+        flags=flags,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16),
+    )
     assert rms > 10.0 and abs(K[0, 0] - 420.0) > 50.0
     res = get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, size)
     assert res.status == "ok", res.message
@@ -235,8 +261,9 @@ def test_opencv_fisheye_needs_a_start_and_then_equals_circcal(cv2_single_thread)
     assert projection_diff(mine.camera, res.camera)["max_px"] <= SOLVER_PX
 
 
-def _lensboy_cost(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, obj: list[np.ndarray],
-                  img: list[np.ndarray]) -> float:
+def _lensboy_cost(
+    camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, obj: list[np.ndarray], img: list[np.ndarray]
+) -> float:
     """lensboy's own fair-mode objective (px^2): the squared residuals of ``lensboy.OpenCV.project_points`` of the
     board points moved by ``lensboy.Pose``, summed over the views."""
     import lensboy as lb
@@ -244,8 +271,12 @@ def _lensboy_cost(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, obj: lis
     from circcal.validators.lensboy import to_lensboy
 
     model = to_lensboy(camera)
-    return float(sum(np.sum((model.project_points(lb.Pose.from_rotvec_trans(rotvec=r, trans=t).apply(o)) - q) ** 2)
-                     for o, q, r, t in zip(obj, img, rvecs, tvecs)))
+    return float(
+        sum(
+            np.sum((model.project_points(lb.Pose.from_rotvec_trans(rotvec=r, trans=t).apply(o)) - q) ** 2)
+            for o, q, r, t in zip(obj, img, rvecs, tvecs)
+        )
+    )
 
 
 @pytest.mark.parametrize("scenario, lens", [("rational-wide", "rational"), ("paper", "opencv5")])

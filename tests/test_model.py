@@ -1,4 +1,5 @@
 """The camera model against OpenCV and against itself (round trips), over the full frame."""
+
 from __future__ import annotations
 
 import cv2
@@ -13,8 +14,7 @@ from circcal.rotation import rodrigues
 
 #: the scenarios' pinhole cameras (cv2.projectPoints' models; the fisheye ones are tested against cv2.fisheye below)
 CAMERAS = {name: s.camera for name, s in SCENARIOS.items() if s.camera.model.pinhole}
-FISHEYE_SCENARIO_CAMERAS = {f"scenario-{name}": s.camera for name, s in SCENARIOS.items()
-                            if not s.camera.model.pinhole}
+FISHEYE_SCENARIO_CAMERAS = {f"scenario-{name}": s.camera for name, s in SCENARIOS.items() if not s.camera.model.pinhole}
 
 
 def _full_frame_points(cam: Camera, rvec, tvec, n=41):
@@ -41,12 +41,26 @@ def test_project_equals_opencv_full_frame(name):
 
 
 @settings(max_examples=60, deadline=None)
-@given(k1=st.floats(-0.4, 0.3), k2=st.floats(-0.1, 0.2), p1=st.floats(-0.003, 0.003), p2=st.floats(-0.003, 0.003),
-       k3=st.floats(-0.02, 0.02), f=st.floats(300, 6000), seed=st.integers(0, 2**31 - 1))
+@given(
+    k1=st.floats(-0.4, 0.3),
+    k2=st.floats(-0.1, 0.2),
+    p1=st.floats(-0.003, 0.003),
+    p2=st.floats(-0.003, 0.003),
+    k3=st.floats(-0.02, 0.02),
+    f=st.floats(300, 6000),
+    seed=st.integers(0, 2**31 - 1),
+)
 def test_project_matches_opencv_random(k1, k2, p1, p2, k3, f, seed):
     rng = np.random.default_rng(seed)
-    cam = Camera(1280, 960, f, f * rng.uniform(0.98, 1.02), 640 + rng.normal(0, 20), 480 + rng.normal(0, 20),
-                 [k1, k2, p1, p2, k3])
+    cam = Camera(
+        1280,
+        960,
+        f,
+        f * rng.uniform(0.98, 1.02),
+        640 + rng.normal(0, 20),
+        480 + rng.normal(0, 20),
+        [k1, k2, p1, p2, k3],
+    )
     P = rng.uniform([-200, -200, 0], [200, 200, 0], (200, 3))
     rvec = rng.normal(0, 0.4, 3)
     tvec = np.array([0, 0, 600.0]) + rng.normal(0, 10, 3)  # normalised coordinates within about +-0.5
@@ -66,8 +80,13 @@ def test_undistort_everywhere_in_image(name):
 
 
 @settings(max_examples=60, deadline=None)
-@given(k1=st.floats(-0.3, 0.3), k2=st.floats(0.0, 0.2), p1=st.floats(-0.002, 0.002), p2=st.floats(-0.002, 0.002),
-       seed=st.integers(0, 2**31 - 1))
+@given(
+    k1=st.floats(-0.3, 0.3),
+    k2=st.floats(0.0, 0.2),
+    p1=st.floats(-0.002, 0.002),
+    p2=st.floats(-0.002, 0.002),
+    seed=st.integers(0, 2**31 - 1),
+)
 def test_round_trip_undistort_distort(k1, k2, p1, p2, seed):
     """undistort(distort(x)) == x to <= 1e-9 px (f = 1000) inside a 90-degree field of view."""
     dist = np.array([k1, k2, p1, p2, 0.0])
@@ -137,11 +156,19 @@ from circcal.model.fisheye import theta_distort  # noqa: E402
 
 #: Wide-angle cameras as OpenCV users fit them (coefficients of the size calibrateCamera returns for such lenses).
 LENS_CAMERAS = {
-    "rational": Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
-                       [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1], "rational"),
-    "thin-prism": Camera(1920, 1080, 900.0, 905.0, 962.3, 541.7,
-                         [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1, 1e-3, -2e-6, -8e-4, 3e-6],
-                         "thin-prism"),
+    "rational": Camera(
+        1920, 1080, 900.0, 905.0, 962.3, 541.7, [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1], "rational"
+    ),
+    "thin-prism": Camera(
+        1920,
+        1080,
+        900.0,
+        905.0,
+        962.3,
+        541.7,
+        [2.5, 0.6, 4e-4, -6e-4, 0.01, 2.9, 1.4, 0.1, 1e-3, -2e-6, -8e-4, 3e-6],
+        "thin-prism",
+    ),
     # a 1280x1024 fisheye whose corners see ~85 deg off axis (cv2.fisheye projects only z > 0)
     "fisheye": Camera(1280, 1024, 520.0, 521.5, 641.2, 509.8, [0.02, -0.006, 0.001, -1e-4], "fisheye"),
     # a 190-deg lens: the image circle holds rays beyond 90 deg
@@ -173,7 +200,7 @@ def test_pinhole_lens_models_equal_opencv_full_frame(name):
     ours = project(P, rvec, tvec, cam)
     ref = cv2.projectPoints(P, rvec, tvec, cam.K, cam.dist)[0][:, 0]
     assert np.max(np.abs(ours - ref)) <= 1e-9
-    assert np.max(np.abs(ours - _pixel_grid(cam))) <= 1e-9       # and the grid came back
+    assert np.max(np.abs(ours - _pixel_grid(cam))) <= 1e-9  # and the grid came back
     assert ours[:, 0].min() < 0 and ours[:, 0].max() > cam.width - 1
 
 
@@ -183,7 +210,7 @@ def test_fisheye_equals_cv2_fisheye_full_frame():
     P = _frame_board_points(cam, rvec, tvec)
     Xc = P @ rodrigues(rvec).T + tvec
     theta = np.degrees(np.arctan2(np.hypot(Xc[:, 0], Xc[:, 1]), Xc[:, 2]))
-    assert 80 < theta.max() < 90                                   # the frame's corners, all in front
+    assert 80 < theta.max() < 90  # the frame's corners, all in front
     ours = project(P, rvec, tvec, cam)
     ref = cv2.fisheye.projectPoints(P[:, None, :], rvec, tvec, cam.K, cam.dist)[0][:, 0]
     assert np.max(np.abs(ours - ref)) <= 1e-9
@@ -231,7 +258,7 @@ def test_fisheye_round_trips_over_its_whole_field(name):
 
 
 def test_theta_max_is_the_fold():
-    d = np.array([-0.05, 0.0, 0.0, 0.0])         # theta_d' = 1 - 0.15 t^2 = 0 at t = sqrt(1/0.15) > pi? no: 2.58
+    d = np.array([-0.05, 0.0, 0.0, 0.0])  # theta_d' = 1 - 0.15 t^2 = 0 at t = sqrt(1/0.15) > pi? no: 2.58
     assert theta_max(d) == pytest.approx(np.sqrt(1 / 0.15), rel=1e-12)
     assert theta_max(np.zeros(4)) == np.pi
     cam = Camera(800, 800, 200.0, 200.0, 400.0, 400.0, d, "fisheye")
@@ -248,7 +275,7 @@ def _fd_check(f, x, J, rel=1e-7, scale_by_norm=False):
         e[j] = h
         fd = (f(x + e) - f(x - e)) / (2 * h)
         col = J[..., j]
-        scale = np.max(np.abs(col)) or np.max(np.abs(J))   # a column that is 0 (on the axis) against J's size
+        scale = np.max(np.abs(col)) or np.max(np.abs(J))  # a column that is 0 (on the axis) against J's size
         assert np.max(np.abs(fd - col)) <= rel * scale, (j, np.max(np.abs(fd - col)) / scale)
 
 
@@ -256,8 +283,7 @@ def _fd_check(f, x, J, rel=1e-7, scale_by_norm=False):
 def test_analytic_jacobians_equal_finite_differences(name):
     """d uv / d intrinsics, d uv / d camera point and d uv / d pose agree with central differences to 1e-7
     relative over the frame (for the 190-deg fisheye also beyond 90 deg)."""
-    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0,
-                                           [-0.3, 0.12, 1e-3, -2e-3, -0.02])
+    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0, [-0.3, 0.12, 1e-3, -2e-3, -0.02])
     rays = unproject(_pixel_grid(cam, (9, 7)), cam)
     rng = np.random.default_rng(3)
     Xc = rays / np.linalg.norm(rays, axis=1, keepdims=True) * rng.uniform(200, 2000, (len(rays), 1))
@@ -296,7 +322,7 @@ def test_lens_camera_api():
         back = Camera.from_dict(d)
         assert back.lens == cam.lens and np.array_equal(back.intrinsics, cam.intrinsics)
         assert np.array_equal(Camera.from_intrinsics(cam.width, cam.height, cam.intrinsics, cam.lens).dist, cam.dist)
-    assert "lens" not in CAMERAS["paper"].to_dict()              # old files and content hashes unchanged
+    assert "lens" not in CAMERAS["paper"].to_dict()  # old files and content hashes unchanged
     assert Camera(10, 10, 1, 1, 0, 0, lens="fisheye").dist.shape == (4,)
     with pytest.raises(ValueError, match="unknown lens model 'kb8'"):
         Camera(10, 10, 1, 1, 0, 0, lens="kb8")
@@ -316,12 +342,11 @@ def test_projection_jacobian_equals_its_parts(name):
     Jacobians distort_jacobian's / fisheye_distort_jacobian's to 1e-13 relative."""
     from circcal.model import fisheye_distort, fisheye_distort_jacobian
 
-    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0,
-                                           [-0.3, 0.12, 1e-3, -2e-3, -0.02])
+    cam = LENS_CAMERAS.get(name) or Camera(1280, 960, 1100.0, 1102.0, 641.0, 479.0, [-0.3, 0.12, 1e-3, -2e-3, -0.02])
     rays = unproject(_pixel_grid(cam, (23, 17)), cam)
     Xc = rays * np.random.default_rng(4).uniform(200, 2000, (len(rays), 1))
     if name.startswith("fisheye"):
-        Xc[0] = [0.0, 0.0, 300.0]                                # on the axis: the pinhole limit
+        Xc[0] = [0.0, 0.0, 300.0]  # on the axis: the pinhole limit
     p, f = cam.intrinsics, cam.intrinsics[:2]
     uv, Ji, JX = project_camera_jacobian(Xc, p, cam.lens)
     if cam.model.pinhole:

@@ -1,5 +1,6 @@
 """Is the lens model the right one? circcal.solver.modelfit on rendered fixtures (truth known: which model made
 the images) and on synthetic residuals (noise of known size, a radial pattern of known size)."""
+
 from __future__ import annotations
 
 import warnings
@@ -29,15 +30,16 @@ def test_neighbour_noise_measures_noise_under_a_smooth_error():
     obj = Board(7, 7, 25.0, 12.5).object_points()
     objs, res = [], []
     for _ in range(10):
-        smooth = 0.2 * np.stack([(obj[:, 0] / 150.0) ** 2, -(obj[:, 1] / 150.0) ** 2], axis=1)
+        smooth = 0.2 * np.stack([(obj[:, 0] / 150.0) ** 2, -((obj[:, 1] / 150.0) ** 2)], axis=1)
         objs.append(obj)
         res.append(smooth + rng.normal(0.0, 0.05, (len(obj), 2)))
     assert np.std(np.concatenate(res)) > 0.06  # the field is there
     assert neighbour_noise(objs, res) == pytest.approx(0.05, rel=0.1)
 
 
-@pytest.mark.parametrize("scenario,variant,true_lens", [("rational-wide", "clean", "rational"),
-                                                         ("rational-wide", "perturbed", "rational")])
+@pytest.mark.parametrize(
+    "scenario,variant,true_lens", [("rational-wide", "clean", "rational"), ("rational-wide", "perturbed", "rational")]
+)
 def test_too_simple_model_is_flagged_and_the_true_one_fits(scenario, variant, true_lens):
     """rational-wide's lens: the 5 coefficients miss it by ~0.13 px RMS; the rational model fits it to noise."""
     simple, _ = _calibrate(scenario, variant, "opencv5")

@@ -1,6 +1,7 @@
 """The lattice search's nearest-neighbour queries (circcal.detector.locate.neighbours) against scipy's cKDTree, which they
 replace: the same distances to the bit, the same neighbours where no two are equally far, equal distances in index
 order; and no scipy import on the way (the reason for the module)."""
+
 from __future__ import annotations
 
 import subprocess
@@ -18,22 +19,24 @@ from circcal.detector.locate.neighbours import NeighbourGrid
 def test_the_k_nearest_are_cKDTrees(kind, k):
     rng = np.random.default_rng(len(kind) * 10 + k)
     M = 1 if kind == "one" else 300
-    P = {"uniform": lambda: rng.uniform(0, 1000, (M, 2)),
-         "integer": lambda: np.round(rng.uniform(0, 30, (M, 2))),          # many exact ties
-         "collinear": lambda: np.column_stack([rng.uniform(0, 500, M), np.full(M, 7.0)]),
-         "duplicates": lambda: np.repeat(rng.uniform(0, 100, (M // 3, 2)), 3, axis=0),
-         "one": lambda: rng.uniform(0, 10, (1, 2))}[kind]()
-    Q = np.concatenate([rng.uniform(-200, 1200, (200, 2)), P[:20], [[1e6, -1e6]]])   # inside, on points, far out
+    P = {
+        "uniform": lambda: rng.uniform(0, 1000, (M, 2)),
+        "integer": lambda: np.round(rng.uniform(0, 30, (M, 2))),  # many exact ties
+        "collinear": lambda: np.column_stack([rng.uniform(0, 500, M), np.full(M, 7.0)]),
+        "duplicates": lambda: np.repeat(rng.uniform(0, 100, (M // 3, 2)), 3, axis=0),
+        "one": lambda: rng.uniform(0, 10, (1, 2)),
+    }[kind]()
+    Q = np.concatenate([rng.uniform(-200, 1200, (200, 2)), P[:20], [[1e6, -1e6]]])  # inside, on points, far out
     d_ref, i_ref = cKDTree(P).query(Q, k=k)
     d, i = NeighbourGrid(P).query(Q, k=k)
     assert d.shape == d_ref.shape and i.shape == i_ref.shape
-    assert np.array_equal(d, d_ref)                                   # (inf and index M where fewer than k)
+    assert np.array_equal(d, d_ref)  # (inf and index M where fewer than k)
     if kind == "uniform":
         assert np.array_equal(i, i_ref)
     dd = d.reshape(len(Q), -1)
     ii = i.reshape(len(Q), -1)
     same = (dd[:, 1:] == dd[:, :-1]) & np.isfinite(dd[:, 1:])
-    assert np.all(ii[:, 1:][same] > ii[:, :-1][same])                # ties in index order
+    assert np.all(ii[:, 1:][same] > ii[:, :-1][same])  # ties in index order
     ok = np.isfinite(dd)
     assert np.allclose(np.linalg.norm(P[np.where(ok, ii, 0)] - Q[:, None], axis=-1)[ok], dd[ok], rtol=0, atol=0)
 
@@ -48,20 +51,22 @@ def _printed(code: str) -> list[str]:
 def test_an_asymmetric_board_is_detected_without_importing_scipy():
     # the lattice search (every asymmetric board, any board among clutter) used scipy's k-d tree: 0.2-0.35 s of
     # import in a one-image `circcal detect`, more than the detection
-    code = ("import sys, numpy as np\n"
-            "from circcal.board import Board\n"
-            "from circcal.detector import detect\n"
-            "from circcal.fixtures.render import render_view, to_uint\n"
-            "from circcal.fixtures.poses import pose_looking_at\n"
-            "from circcal.model import Camera\n"
-            "cam = Camera(640, 480, 600.0, 600.0, 319.5, 239.5)\n"
-            "b = Board(11, 4, 20.0, 10.0, 'asymmetric')\n"
-            "r, t = pose_looking_at(cam, b, distance_mm=500, tilt_deg=20, tilt_axis_deg=30, roll_deg=10,"
-            " target_px=(320.0, 240.0))\n"
-            "img = to_uint(render_view(cam, b, r, t), 8)\n"
-            "before = 'scipy.spatial' in sys.modules\n"
-            "d = detect(img, b)\n"
-            "print(d.found, before, 'scipy.spatial' in sys.modules)\n")
+    code = (
+        "import sys, numpy as np\n"
+        "from circcal.board import Board\n"
+        "from circcal.detector import detect\n"
+        "from circcal.fixtures.render import render_view, to_uint\n"
+        "from circcal.fixtures.poses import pose_looking_at\n"
+        "from circcal.model import Camera\n"
+        "cam = Camera(640, 480, 600.0, 600.0, 319.5, 239.5)\n"
+        "b = Board(11, 4, 20.0, 10.0, 'asymmetric')\n"
+        "r, t = pose_looking_at(cam, b, distance_mm=500, tilt_deg=20, tilt_axis_deg=30, roll_deg=10,"
+        " target_px=(320.0, 240.0))\n"
+        "img = to_uint(render_view(cam, b, r, t), 8)\n"
+        "before = 'scipy.spatial' in sys.modules\n"
+        "d = detect(img, b)\n"
+        "print(d.found, before, 'scipy.spatial' in sys.modules)\n"
+    )
     assert _printed(code) == ["True", "False", "False"]
 
 
@@ -85,34 +90,39 @@ def test_linked_clusters_are_scipys_components(kind):
 
     rng = np.random.default_rng(len(kind))
     g = np.stack(np.meshgrid(np.arange(7), np.arange(7)), -1).reshape(-1, 2).astype(float)
-    P = {"lattices-and-clutter": lambda: np.concatenate([g * 12 + 100 + rng.normal(0, 0.3, g.shape),
-                                                         g * 30 + [400, 50], rng.uniform(0, 900, (400, 2))]),
-         "integer": lambda: np.round(rng.uniform(0, 40, (500, 2))),            # ties at the link distance
-         # a point twice: nearest neighbour at 0, linked to nothing, beside a lattice that links
-         "duplicates": lambda: np.concatenate([g * 10, g[:10] * 10, rng.uniform(0, 300, (60, 2))]),
-         # one point far from the rest: a radius common to all would be the whole image
-         "isolated-far": lambda: np.concatenate([g * 10, rng.uniform(200, 260, (300, 2)), [[5000.0, 5000.0]]]),
-         "two": lambda: np.array([[0.0, 0.0], [3.0, 4.0]])}[kind]()
+    P = {
+        "lattices-and-clutter": lambda: np.concatenate(
+            [g * 12 + 100 + rng.normal(0, 0.3, g.shape), g * 30 + [400, 50], rng.uniform(0, 900, (400, 2))]
+        ),
+        "integer": lambda: np.round(rng.uniform(0, 40, (500, 2))),  # ties at the link distance
+        # a point twice: nearest neighbour at 0, linked to nothing, beside a lattice that links
+        "duplicates": lambda: np.concatenate([g * 10, g[:10] * 10, rng.uniform(0, 300, (60, 2))]),
+        # one point far from the rest: a radius common to all would be the whole image
+        "isolated-far": lambda: np.concatenate([g * 10, rng.uniform(200, 260, (300, 2)), [[5000.0, 5000.0]]]),
+        "two": lambda: np.array([[0.0, 0.0], [3.0, 4.0]]),
+    }[kind]()
     lab = linked_clusters(P, 2.5)
     ref = _scipy_clusters(P, 2.5)
     assert np.array_equal(lab, ref)
-    assert lab.max() + 1 < len(P)                     # something was linked (not a vacuous equality)
+    assert lab.max() + 1 < len(P)  # something was linked (not a vacuous equality)
 
 
 def test_small_dots_are_searched_without_importing_scipy():
     # dots too small for the shrunk scale are searched again at full resolution in their clusters' windows; the
     # clusters came from scipy (cKDTree, csgraph) until linked_clusters: 0.18 s and 27 MiB of a one-image
     # `circcal detect` of a 12 MP frame
-    code = ("import sys\n"
-            "from circcal.board import Board\n"
-            "from circcal.detector import detect\n"
-            "import circcal.detector.locate.search as S\n"
-            "from circcal.fixtures.frames import embedded_board\n"
-            "b = Board(7, 7, 10.0, 5.0)\n"
-            "img, _ = embedded_board(b, 4000, 3000, 3.0, (1800.0, 1650.0))\n"
-            "calls = []\n"
-            "orig = S._cluster_windows\n"
-            "S._cluster_windows = lambda *a: calls.append(1) or orig(*a)\n"
-            "d = detect(img, b)\n"
-            "print(d.found, len(calls) > 0, 'scipy' in sys.modules)\n")
+    code = (
+        "import sys\n"
+        "from circcal.board import Board\n"
+        "from circcal.detector import detect\n"
+        "import circcal.detector.locate.search as S\n"
+        "from circcal.fixtures.frames import embedded_board\n"
+        "b = Board(7, 7, 10.0, 5.0)\n"
+        "img, _ = embedded_board(b, 4000, 3000, 3.0, (1800.0, 1650.0))\n"
+        "calls = []\n"
+        "orig = S._cluster_windows\n"
+        "S._cluster_windows = lambda *a: calls.append(1) or orig(*a)\n"
+        "d = detect(img, b)\n"
+        "print(d.found, len(calls) > 0, 'scipy' in sys.modules)\n"
+    )
     assert _printed(code) == ["True", "True", "False"]

@@ -1,4 +1,5 @@
 """CalibrationOptions: one frozen, checked object from the command line to the solver (issue 32)."""
+
 from __future__ import annotations
 
 import ast
@@ -26,8 +27,9 @@ def views():
     board = Board(7, 9, 10.0, 5.0)
     rng = np.random.default_rng(3)
     obj = [board.object_points()] * 10
-    img = [project(obj[0], r, t, CAM) + rng.normal(0, 0.05, (len(obj[0]), 2)) for r, t in sample_poses(CAM, board,
-                                                                                                       10, 5)]
+    img = [
+        project(obj[0], r, t, CAM) + rng.normal(0, 0.05, (len(obj[0]), 2)) for r, t in sample_poses(CAM, board, 10, 5)
+    ]
     return obj, img
 
 
@@ -40,21 +42,24 @@ def test_holds_are_expanded_checked_and_ordered():
     assert hash(o) == hash(CalibrationOptions(fixed=("aspect_ratio", "cx", "p1", "p2", "k3")))
 
 
-@pytest.mark.parametrize("kw,words", [
-    (dict(lens="fisheye", fixed=("tangential",)), "fixed: the fisheye lens model has no p1, p2"),
-    (dict(fixed=("k9",)), "fixed: the opencv5 lens model has no k9"),
-    (dict(fixed=("aspect_ratio", "fy")), "fixed: aspect_ratio"),
-    (dict(fixed=3), "fixed must be parameter names"),
-    (dict(fixed=(None,)), "fixed must be parameter names"),
-    (dict(lens="pinhole"), "unknown lens model 'pinhole'"),
-    (dict(solver="lm"), "solver must be one of schur, scipy"),
-    (dict(max_iterations=0), "max_iterations"),
-    (dict(max_iterations=True), "max_iterations"),
-    (dict(board_gauge=(0, 1)), "board_gauge"),
-    (dict(board_gauge=(0, 1, -2)), "board_gauge"),
-    (dict(refine_board="yes"), "refine_board"),
-    (dict(outlier_rule=5.0), "outlier_rule"),
-])
+@pytest.mark.parametrize(
+    "kw,words",
+    [
+        (dict(lens="fisheye", fixed=("tangential",)), "fixed: the fisheye lens model has no p1, p2"),
+        (dict(fixed=("k9",)), "fixed: the opencv5 lens model has no k9"),
+        (dict(fixed=("aspect_ratio", "fy")), "fixed: aspect_ratio"),
+        (dict(fixed=3), "fixed must be parameter names"),
+        (dict(fixed=(None,)), "fixed must be parameter names"),
+        (dict(lens="pinhole"), "unknown lens model 'pinhole'"),
+        (dict(solver="lm"), "solver must be one of schur, scipy"),
+        (dict(max_iterations=0), "max_iterations"),
+        (dict(max_iterations=True), "max_iterations"),
+        (dict(board_gauge=(0, 1)), "board_gauge"),
+        (dict(board_gauge=(0, 1, -2)), "board_gauge"),
+        (dict(refine_board="yes"), "refine_board"),
+        (dict(outlier_rule=5.0), "outlier_rule"),
+    ],
+)
 def test_bad_options_are_one_line_input_errors(kw, words):
     with pytest.raises(InputError) as e:
         CalibrationOptions(**kw)
@@ -73,12 +78,11 @@ def test_frozen_variants_are_checked_copies():
 
 def test_flags_map_onto_holds():
     for flag, names in FLAG_HOLDS.items():
-        assert CalibrationOptions.from_flags(**{flag: True}).fixed == tuple(n for n in ("aspect_ratio", "cx", "cy",
-                                                                                        "k2", "p1", "p2", "k3")
-                                                                            if n in names)
+        assert CalibrationOptions.from_flags(**{flag: True}).fixed == tuple(
+            n for n in ("aspect_ratio", "cx", "cy", "k2", "p1", "p2", "k3") if n in names
+        )
     with pytest.raises(InputError, match=r"^--fix-tangential: the fisheye lens model has no p1, p2"):
-        CalibrationOptions.from_flags(lens="fisheye", fix_tangential=True,
-                                      spell=lambda f: "--" + f.replace("_", "-"))
+        CalibrationOptions.from_flags(lens="fisheye", fix_tangential=True, spell=lambda f: "--" + f.replace("_", "-"))
 
 
 def test_general_holds_in_the_solver(views):
@@ -109,20 +113,59 @@ def test_outlier_rule_through_the_options(views):
 def test_the_command_line_builds_one_options_object_first(tmp_path, capsys):
     from circcal.commands.args import calibration_options
 
-    args = cli.build_parser().parse_args(["calibrate", "a.png", "--grid", "4x5", "--pitch", "10mm", "--fix-k2",
-                                          "--fix-k3", "--refine-board", "--outlier-k", "4"])
+    args = cli.build_parser().parse_args(
+        [
+            "calibrate",
+            "a.png",
+            "--grid",
+            "4x5",
+            "--pitch",
+            "10mm",
+            "--fix-k2",
+            "--fix-k3",
+            "--refine-board",
+            "--outlier-k",
+            "4",
+        ]
+    )
     o = calibration_options(args)
     assert o.fixed == ("k2", "k3") and o.refine_board and o.outlier_rule == OutlierRule(k=4.0)
     assert o.lens == "opencv5"
     # a hold the lens does not have is refused before any image is read (the images do not exist)
     missing = str(tmp_path / "none.png")
-    code = cli.main(["calibrate", missing, "--grid", "4x5", "--pitch", "10mm", "--lens", "fisheye",
-                     "--fix-tangential", "--out", str(tmp_path / "m.json")])
+    code = cli.main(
+        [
+            "calibrate",
+            missing,
+            "--grid",
+            "4x5",
+            "--pitch",
+            "10mm",
+            "--lens",
+            "fisheye",
+            "--fix-tangential",
+            "--out",
+            str(tmp_path / "m.json"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == EXIT_BAD_INPUT and "--fix-tangential: the fisheye lens model has no p1, p2" in err
     assert len(err.splitlines()) == 1
-    code = cli.main(["calibrate", missing, "--grid", "4x5", "--pitch", "10mm", "--no-outlier-rejection",
-                     "--outlier-k", "3", "--out", str(tmp_path / "m.json")])
+    code = cli.main(
+        [
+            "calibrate",
+            missing,
+            "--grid",
+            "4x5",
+            "--pitch",
+            "10mm",
+            "--no-outlier-rejection",
+            "--outlier-k",
+            "3",
+            "--out",
+            str(tmp_path / "m.json"),
+        ]
+    )
     assert code == EXIT_BAD_INPUT and "--outlier-k" in capsys.readouterr().err
 
 

@@ -2,6 +2,7 @@
 points and a mislabelled view are every one found, and nothing else; the model returns to within 1 sigma of the
 clean solve; on rendered fixtures and the real photographs, where there are no outliers, nothing is rejected and
 every result is bit-identical to the plain solve."""
+
 from __future__ import annotations
 
 import glob
@@ -64,12 +65,14 @@ def test_injected_outliers_are_found_and_the_model_returns(scenario, variant):
         res = calibrate(obj + [obj[0]], bad_img, size, CalibrationOptions(outlier_rule=OutlierRule()))
         pts = {(r.view, r.point) for r in res.outliers.items if r.point is not None}
         views = {r.view for r in res.outliers.dropped_views}
-        assert pts == displaced, (seed, pts ^ displaced)          # every displaced point, and no other
-        assert views == {extra}                                    # the mislabelled view, and no other
+        assert pts == displaced, (seed, pts ^ displaced)  # every displaced point, and no other
+        assert views == {extra}  # the mislabelled view, and no other
         assert all(r.reason is OutlierReason.POINT for r in res.outliers.items if r.point is not None)
         dev = np.abs(res.camera.intrinsics - clean.camera.intrinsics) / sigma
-        print(f"\n{scenario} seed {seed}: {len(displaced)} points + view {extra} found in {res.outliers.rounds} "
-              f"rounds; largest parameter change {dev.max():.3f} sigma")
+        print(
+            f"\n{scenario} seed {seed}: {len(displaced)} points + view {extra} found in {res.outliers.rounds} "
+            f"rounds; largest parameter change {dev.max():.3f} sigma"
+        )
         assert dev.max() < 1.0
         assert res.outliers.kept_views == list(range(len(img)))
 
@@ -99,8 +102,14 @@ def test_threshold_is_configurable():
         OutlierRule(k=0.0)
 
 
-def _unchanged(paths, board, options: CalibrationOptions = CalibrationOptions(), *, against_plain: bool = True,
-               bad_dots: dict[int, int] | None = None):
+def _unchanged(
+    paths,
+    board,
+    options: CalibrationOptions = CalibrationOptions(),
+    *,
+    against_plain: bool = True,
+    bad_dots: dict[int, int] | None = None,
+):
     """Nothing rejected by the rule, and (``against_plain``) the very numbers of the solve without rejection (with
     nothing rejected the rule returns its first solve, which is that one: the comparison is then a check of the code
     path, skipped where the solve is slow). ``bad_dots``: view -> how many dots the detector left out as bad before
@@ -127,25 +136,34 @@ def test_real_photographs_keep_every_point(realdata, refine_board):
     to 0.047 px when they went)."""
     from circcal.report.realdata import realdata_board
 
-    expected = {("boofcv_sony_hx5v_circle_asym_4x5", False): 0.185, ("boofcv_sony_hx5v_circle_asym_4x5", True): 0.071,
-                ("boofcv_sony_hx5v_circle_regular_10x8", False): 0.475,
-                ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.047}
+    expected = {
+        ("boofcv_sony_hx5v_circle_asym_4x5", False): 0.185,
+        ("boofcv_sony_hx5v_circle_asym_4x5", True): 0.071,
+        ("boofcv_sony_hx5v_circle_regular_10x8", False): 0.475,
+        ("boofcv_sony_hx5v_circle_regular_10x8", True): 0.047,
+    }
     bad_dots = {"boofcv_sony_hx5v_circle_asym_4x5": {}, "boofcv_sony_hx5v_circle_regular_10x8": {1: 2, 2: 1, 5: 11}}
     for folder in sorted(p for p in realdata.iterdir() if p.is_dir()):
         board, _ = realdata_board(folder)
-        cal = _unchanged(sorted(glob.glob(str(folder / "image*.jpg"))), board,
-                         CalibrationOptions(refine_board=refine_board), against_plain=not refine_board,
-                         bad_dots=bad_dots[folder.name])
+        cal = _unchanged(
+            sorted(glob.glob(str(folder / "image*.jpg"))),
+            board,
+            CalibrationOptions(refine_board=refine_board),
+            against_plain=not refine_board,
+            bad_dots=bad_dots[folder.name],
+        )
         assert round(cal.result.errors["rms_per_point_px"], 3) == expected[(folder.name, refine_board)]
 
 
 FAST = [("paper", "normal"), ("wide", "clean")]
-ALL = [(s, v) for s in ("paper", "wide", "tilted-large-dots", "small-noisy", "asymmetric")
-       for v in SCENARIOS[s].variants]
+ALL = [
+    (s, v) for s in ("paper", "wide", "tilted-large-dots", "small-noisy", "asymmetric") for v in SCENARIOS[s].variants
+]
 
 
-@pytest.mark.parametrize("scenario,variant", FAST + [pytest.param(s, v, marks=pytest.mark.slow)
-                                                     for s, v in ALL if (s, v) not in FAST])
+@pytest.mark.parametrize(
+    "scenario,variant", FAST + [pytest.param(s, v, marks=pytest.mark.slow) for s, v in ALL if (s, v) not in FAST]
+)
 def test_fixtures_keep_every_point(scenario, variant):
     t = load_truth(fixture_dir(scenario, variant))
     _unchanged([v.image for v in t.views], t.board)
@@ -174,6 +192,11 @@ def test_a_bad_dot_is_flagged_before_the_solve_and_left_out():
     assert bad.index == 17 and bad.reason == "fit"
     exclude, items = bad_dot_rejections(dets, t.board)
     assert exclude[3] == [17] and [(r.view, r.point, r.reason) for r in items] == [(3, 17, OutlierReason.BAD_DOT)]
-    res, _, _ = calibrate_detections(dets, t.board, (t.camera.width, t.camera.height),
-                                     CalibrationOptions(outlier_rule=OutlierRule()), exclude=exclude)
+    res, _, _ = calibrate_detections(
+        dets,
+        t.board,
+        (t.camera.width, t.camera.height),
+        CalibrationOptions(outlier_rule=OutlierRule()),
+        exclude=exclude,
+    )
     assert res.errors["n_points"] == sum(len(p) for p in [t.board.object_points()] * len(dets)) - 1

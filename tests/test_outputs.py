@@ -1,6 +1,7 @@
 """Outputs never destroy what circcal did not write (issue 31, cases 1, 2, 7 and 9): :mod:`circcal.outputs` and the
 commands that plan their outputs through it. Every refusal happens before the work: the tests make the work itself
 fail loudly if it is reached."""
+
 from __future__ import annotations
 
 import json
@@ -129,8 +130,12 @@ def test_a_symlinked_output_is_written_through(tmp_path, capsys):
     from circcal.model import Camera
 
     src = tmp_path / "in.json"
-    write_camera(src, Camera.from_dict({"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0,
-                                        "cy": 240.0, "dist": [0.0] * 5}))
+    write_camera(
+        src,
+        Camera.from_dict(
+            {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "dist": [0.0] * 5}
+        ),
+    )
     target = tmp_path / "real" / "cam.yaml"
     target.parent.mkdir()
     target.write_text("old\n")
@@ -148,9 +153,12 @@ def test_a_symlink_to_an_input_is_refused(tmp_path, capsys, no_work):
     assert code == 2 and "input" in err and (tmp_path / "out.json").is_symlink()
 
 
-@pytest.mark.parametrize("args, word", [
-    (["--split", "random", "--seed", "-5"], "--seed"),
-])
+@pytest.mark.parametrize(
+    "args, word",
+    [
+        (["--split", "random", "--seed", "-5"], "--seed"),
+    ],
+)
 def test_options_are_checked_before_the_work(tmp_path, capsys, no_work, args, word):
     """Case 9: `--seed -5` crashed (exit 70) after the whole calibration."""
     img = _png(tmp_path / "v.png")

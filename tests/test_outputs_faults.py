@@ -8,6 +8,7 @@ ends the process where it stands. ``make test`` injects at every step of the com
 the first, middle and last step of the staging (where nothing final is touched, by construction); ``make study``
 injects at every step.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,7 +22,7 @@ import pytest
 
 from circcal.outputs import MARKER, folder_manifest, recover
 
-WRAPPER = r'''
+WRAPPER = r"""
 import builtins, io, json, os, signal, sys
 import circcal.outputs as O
 plan = json.loads(os.environ["CIRCCAL_FAULT"])
@@ -66,14 +67,17 @@ finally:
         with real_open(plan["log"], "w") as f:
             json.dump(log, f)
 sys.exit(code)
-'''
+"""
 
 
 def _run(root: Path, args: list[str], at: int = -1, signal: str = "KILL", log: Path | None = None):
-    env = dict(os.environ, CIRCCAL_FAULT=json.dumps({"root": str(root), "at": at, "signal": signal,
-                                                     "log": str(log) if log else ""}))
-    return subprocess.run([sys.executable, "-c", WRAPPER, *args], cwd=root, env=env, capture_output=True, text=True,
-                          timeout=300)
+    env = dict(
+        os.environ,
+        CIRCCAL_FAULT=json.dumps({"root": str(root), "at": at, "signal": signal, "log": str(log) if log else ""}),
+    )
+    return subprocess.run(
+        [sys.executable, "-c", WRAPPER, *args], cwd=root, env=env, capture_output=True, text=True, timeout=300
+    )
 
 
 def _state(root: Path, file: str, folder: str) -> tuple[bytes | None, dict | None]:
@@ -88,8 +92,9 @@ def _state(root: Path, file: str, folder: str) -> tuple[bytes | None, dict | Non
     return data, marker["files"]
 
 
-def _sweep(tmp_path: Path, before: list[str], args: list[str], file: str, folder: str, steps: str,
-           signals=("KILL", "INT")):
+def _sweep(
+    tmp_path: Path, before: list[str], args: list[str], file: str, folder: str, steps: str, signals=("KILL", "INT")
+):
     """Make the earlier outputs (``before``: a run on other images, so old and new differ), count the steps of a
     run of ``args``, then fault it at each chosen step and check."""
     base = tmp_path / "base"
@@ -112,8 +117,11 @@ def _sweep(tmp_path: Path, before: list[str], args: list[str], file: str, folder
     # the commit's steps up to the journal's removal and one after it (the rest removes the earlier folder, like it)
     end = next(i for i in commit if kinds[i - 1][0] == "unlink" and ".circcal-commit-" in kinds[i - 1][1])
     renames = [i for i in commit if i <= end + 1]
-    chosen = sorted(set(range(1, len(kinds) + 1)) if steps == "all" else
-                    set(renames) | {staging[0], staging[len(staging) // 2], staging[-1]})
+    chosen = sorted(
+        set(range(1, len(kinds) + 1))
+        if steps == "all"
+        else set(renames) | {staging[0], staging[len(staging) // 2], staging[-1]}
+    )
     outcomes = {"old": 0, "new": 0}
     for sig in signals:
         for k in chosen:
@@ -148,8 +156,12 @@ def _same_model(a: bytes | None, b: bytes | None) -> bool:
         da, db = json.loads(a), json.loads(b)
     except ValueError:
         return False
-    return isinstance(da, dict) and da.get("camera") == db.get("camera") or \
-        isinstance(da, dict) and da.get("images") == db.get("images")
+    return (
+        isinstance(da, dict)
+        and da.get("camera") == db.get("camera")
+        or isinstance(da, dict)
+        and da.get("images") == db.get("images")
+    )
 
 
 def _same_figures(a: dict | None, b: dict | None) -> bool:
@@ -161,9 +173,21 @@ def _calibrate_args(views: slice) -> list[str]:
 
     truth = load_truth(fixture_dir("small-noisy"))
     b = truth.board
-    return ["calibrate", *[str(v.image) for v in truth.views[views]], "--grid", f"{b.rows}x{b.cols}", "--pitch",
-            f"{b.pitch_mm}mm", "--diameter", f"{b.diameter_mm}mm", "--no-progress", "--report", "rep", "--out",
-            "model.json"]
+    return [
+        "calibrate",
+        *[str(v.image) for v in truth.views[views]],
+        "--grid",
+        f"{b.rows}x{b.cols}",
+        "--pitch",
+        f"{b.pitch_mm}mm",
+        "--diameter",
+        f"{b.diameter_mm}mm",
+        "--no-progress",
+        "--report",
+        "rep",
+        "--out",
+        "model.json",
+    ]
 
 
 def _detect_args(views: slice) -> list[str]:
@@ -171,9 +195,23 @@ def _detect_args(views: slice) -> list[str]:
 
     truth = load_truth(fixture_dir("small-noisy"))
     b = truth.board
-    return ["detect", *[str(v.image) for v in truth.views[views]], "--grid", f"{b.rows}x{b.cols}", "--pitch",
-            f"{b.pitch_mm}mm", "--diameter", f"{b.diameter_mm}mm", "--quiet", "--jobs", "1", "--json",
-            "detections.json", "--overlay", "overlays"]
+    return [
+        "detect",
+        *[str(v.image) for v in truth.views[views]],
+        "--grid",
+        f"{b.rows}x{b.cols}",
+        "--pitch",
+        f"{b.pitch_mm}mm",
+        "--diameter",
+        f"{b.diameter_mm}mm",
+        "--quiet",
+        "--jobs",
+        "1",
+        "--json",
+        "detections.json",
+        "--overlay",
+        "overlays",
+    ]
 
 
 def test_calibrate_report_killed_or_interrupted_at_each_commit_step(tmp_path):

@@ -2,6 +2,7 @@
 detector's :class:`~circcal.detector.Reason` (an image left out) and the solver's
 :class:`~circcal.solver.outliers.OutlierReason` (an observation left out). On a mismatch the test prints the block
 to paste between the README's markers."""
+
 from __future__ import annotations
 
 import re
@@ -18,8 +19,9 @@ def reason_block() -> str:
     """The README's list of codes, from the code."""
     rows = ["| code | what it means |", "|---|---|"]
     rows += [f"| `{r.value}` | {REASON_TEXT[r]} |" for r in Reason]
-    rows += [f"| `{r.value}` | {OUTLIER_TEXT[r]} (an observation left out by the outlier rule) |"
-             for r in OutlierReason]
+    rows += [
+        f"| `{r.value}` | {OUTLIER_TEXT[r]} (an observation left out by the outlier rule) |" for r in OutlierReason
+    ]
     return "\n".join(rows)
 
 

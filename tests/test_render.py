@@ -1,4 +1,5 @@
 """The renderer adds no bias of its own: dark-weighted centroids equal exact area centroids of projected dots."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,7 +21,7 @@ def _dark_centroids(dark_cov: np.ndarray, truth_area: np.ndarray) -> np.ndarray:
 
     labels, n = ndimage.label(dark_cov > 0)
     assert n == len(truth_area), f"{n} dark regions for {len(truth_area)} dots"
-    vv, uu = np.mgrid[0:dark_cov.shape[0], 0:dark_cov.shape[1]]
+    vv, uu = np.mgrid[0 : dark_cov.shape[0], 0 : dark_cov.shape[1]]
     idx = np.arange(1, n + 1)
     w = ndimage.sum(dark_cov, labels, idx)
     cu = ndimage.sum(dark_cov * uu, labels, idx) / w
@@ -37,13 +38,20 @@ def test_centroid_bar(camera, tilt, diameter_px):
     """Clean renders: dark-weighted centroids within 0.002 px RMS of the exact area centroids (the issue's bar)."""
     board = Board(5, 6, 10.0, 5.0) if diameter_px < 30 else Board(3, 3, 10.0, 5.0, margin_mm=3.0)
     distance = camera.fx * board.diameter_mm / diameter_px
-    rvec, tvec = pose_looking_at(camera, board, distance_mm=distance, tilt_deg=tilt, tilt_axis_deg=37.0,
-                                 roll_deg=8.0, target_px=(0.56 * camera.width, 0.45 * camera.height))
+    rvec, tvec = pose_looking_at(
+        camera,
+        board,
+        distance_mm=distance,
+        tilt_deg=tilt,
+        tilt_axis_deg=37.0,
+        roll_deg=8.0,
+        target_px=(0.56 * camera.width, 0.45 * camera.height),
+    )
     assert fully_visible(camera, board, rvec, tvec)
     _, dark = render_coverage(camera, board, rvec, tvec)
     exact = area_centroids(camera, board, rvec, tvec)
     err = _dark_centroids(dark, exact) - exact
-    rms = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     assert rms <= 0.002, f"renderer centroid RMS {rms:.5f} px"
     # and the bias being measured is real: area centroids differ from the projected centres under tilt
     if tilt >= 35 and diameter_px >= 60:
@@ -92,6 +100,7 @@ def test_pose_sampler_is_deterministic_and_calibration_like():
     quads = {(cx > cam.width / 2, cy > cam.height / 2) for cx, cy in centres}
     assert len(quads) == 4
     from circcal.rotation import rodrigues
+
     tilts = [np.degrees(np.arccos(abs(rodrigues(r)[2, 2]))) for r, _ in a]
     assert max(tilts) > 30 and max(tilts) <= 50 + 15  # tilt about the line of sight + off-axis angle
 
@@ -108,7 +117,7 @@ def _scenario_bias(name: str, views: list[int] | None = None) -> list[float]:
         _, dark = render_coverage(sc.camera, sc.board, rvec, tvec, supersample=sc.supersample)
         exact = area_centroids(sc.camera, sc.board, rvec, tvec)
         err = _dark_centroids(dark, exact) - exact
-        out.append(float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))))
+        out.append(float(np.sqrt(np.mean(np.sum(err**2, axis=1)))))
     return out
 
 

@@ -1,6 +1,7 @@
 """The comparison report generator: end to end on its --quick configuration (~25 s per run on 2 cores), the published
 report against what the code renders from its own report.json, and the report's prose against the constants and
 results it states."""
+
 from __future__ import annotations
 
 import fnmatch
@@ -64,8 +65,17 @@ def _markdown(results: dict) -> str:
 
 def test_files_exist_and_html_is_self_contained(quick):
     folder = quick[1]
-    for name in ("index.md", "index.html", "report.json", "timings.json", "bias.png", "per_view_errors.png",
-                 "truth_vs_residual.png", "bias_grid.png", "heatmap_normal.png"):
+    for name in (
+        "index.md",
+        "index.html",
+        "report.json",
+        "timings.json",
+        "bias.png",
+        "per_view_errors.png",
+        "truth_vs_residual.png",
+        "bias_grid.png",
+        "heatmap_normal.png",
+    ):
         assert (folder / name).is_file() and (folder / name).stat().st_size > 0, name
     html = (folder / "index.html").read_text()
     assert html.count("data:image/png;base64,") == len(list(folder.glob("*.png")))
@@ -121,9 +131,12 @@ def test_warnings_recorded_per_study_and_nothing_global(quick):
     matplotlib's rcParams as it found them."""
     _, folder, before, after = quick
     data = json.loads((folder / "report.json").read_text())
-    assert set(data["warnings"]) == ({f"paper/{c}" for c in QUICK.conditions}
-                                     | {f"checkerboard/{c}" for c in QUICK.checkerboard_conditions}
-                                     | {"bias"} | {f"realdata/{n}" for n in QUICK.realdata})
+    assert set(data["warnings"]) == (
+        {f"paper/{c}" for c in QUICK.conditions}
+        | {f"checkerboard/{c}" for c in QUICK.checkerboard_conditions}
+        | {"bias"}
+        | {f"realdata/{n}" for n in QUICK.realdata}
+    )
     for entries in data["warnings"].values():
         for w in entries:
             assert set(w) == {"category", "message", "count"} and w["count"] >= 1
@@ -144,9 +157,11 @@ def test_study_warnings_counts_and_restores():
             warnings.warn("calibration did not converge (y)", RuntimeWarning)
             warnings.warn("held", UserWarning)
             warnings.warn("old API", DeprecationWarning)
-    assert log["s"] == [{"category": "RuntimeWarning", "message": "calibration did not converge (x)", "count": 3},
-                        {"category": "RuntimeWarning", "message": "calibration did not converge (y)", "count": 1},
-                        {"category": "UserWarning", "message": "held", "count": 1}]
+    assert log["s"] == [
+        {"category": "RuntimeWarning", "message": "calibration did not converge (x)", "count": 3},
+        {"category": "RuntimeWarning", "message": "calibration did not converge (y)", "count": 1},
+        {"category": "UserWarning", "message": "held", "count": 1},
+    ]
     assert [str(w.message) for w in outer] == ["old API"]
     assert list(warnings.filters) == before
     with pytest.raises(KeyError), study_warnings(log, "t"):
@@ -159,8 +174,9 @@ def test_warnings_printed_in_the_notes(quick, tmp_path):
     """A warning a study recorded appears in its section's notes, with its count."""
     results, _, _, _ = quick
     results = json.loads(json.dumps(results))
-    results["warnings"]["bias"] = [{"category": "RuntimeWarning", "message": "calibration did not converge (m)",
-                                    "count": 2}]
+    results["warnings"]["bias"] = [
+        {"category": "RuntimeWarning", "message": "calibration did not converge (m)", "count": 2}
+    ]
     name = f"realdata/{QUICK.realdata[0]}"
     results["warnings"][name] = [{"category": "RuntimeWarning", "message": "did not settle", "count": 1}]
     md = (write_report(results, tmp_path) / "index.md").read_text()
@@ -221,7 +237,8 @@ def test_realdata_board_refined_rows(quick):
         assert ho[refined]["mean_of_views"]["rms_per_point_px"] < ho[rigid]["mean_of_views"]["rms_per_point_px"]
         assert ho[refined]["mean_of_views"]["mean_2d_px"] > s[refined]["errors"]["mean_2d_px"]
     assert ho["circcal_refined"]["mean_of_views"]["rms_per_point_px"] == pytest.approx(
-        ho["opencv_refined"]["mean_of_views"]["rms_per_point_px"], rel=0.03)
+        ho["opencv_refined"]["mean_of_views"]["rms_per_point_px"], rel=0.03
+    )
     # an asymmetric grid has no 180-degree ambiguity: no view reversed
     assert orf["reversed"] == [] and orf["unmatched"] == []
     bd = cr["board"]
@@ -234,8 +251,10 @@ def test_realdata_board_refined_rows(quick):
     assert orf["board_vs_circcal_max_mm"] < 0.5 * bd["max_abs_dev_mm"]  # both detectors see the same sheet
     # published: the four computed rows, the paragraph (its numbers formatted in), the board figure, the headline
     md = (folder / "index.md").read_text()
-    for label, key in (("circcal, board refined", "circcal_refined"),
-                       ("OpenCV centres (circcal's order), board refined", "opencv_refined")):
+    for label, key in (
+        ("circcal, board refined", "circcal_refined"),
+        ("OpenCV centres (circcal's order), board refined", "opencv_refined"),
+    ):
         line = next(x for x in md.splitlines() if f"| {label} |" in x)
         assert f"| {s[key]['errors']['rms_per_point_px']:.4f} |" in line, line
         assert f"| {ho[key]['mean_of_views']['mean_2d_px']:.4f} |" in line, line
@@ -300,8 +319,9 @@ def test_published_report_is_what_the_code_renders():
     assert render.to_markdown(blocks) == (PUBLISHED / "index.md").read_text()
     images = {f: (PUBLISHED / f).read_bytes() for f in figure_files(results)}
     assert render.to_html(blocks, images, title=TITLE) == (PUBLISHED / "index.html").read_text()
-    readme = render.readme(name="latest", date=timings["date"], kind=results["config"]["name"],
-                           headline=prose.headline(results))
+    readme = render.readme(
+        name="latest", date=timings["date"], kind=results["config"]["name"], headline=prose.headline(results)
+    )
     assert readme == (PUBLISHED.parent / "README.md").read_text()
     assert sorted(p.name for p in PUBLISHED.glob("*.png")) == sorted(images)
 
@@ -345,20 +365,36 @@ PROSE_CASES = {
     # the shape sentence stands on the 4x5 set only: on the 10x8 set circcal's refined RMS (the shadow-edge dots left
     # out) is ~20% below OpenCV's centres', no tie, so the sentence is not said there whatever the shape rule
     "shape rule, drop": ((prose, "SHAPE_RMS_DROP", 0.01), 1, "in plane. The baseline", "printed sheet's shape"),
-    "shape rule, significance": ((prose, "SHAPE_SIGNIFICANCE", 100.0), 1, "in plane. The baseline",
-                                 "printed sheet's shape"),
-    "bias blur": (lambda r: r["bias"]["perturbations"][0].update(sigma_px=0.37), 1, "(blur 0.37 px, 8-bit",
-                  "blur 0.7 px"),
+    "shape rule, significance": (
+        (prose, "SHAPE_SIGNIFICANCE", 100.0),
+        1,
+        "in plane. The baseline",
+        "printed sheet's shape",
+    ),
+    "bias blur": (
+        lambda r: r["bias"]["perturbations"][0].update(sigma_px=0.37),
+        1,
+        "(blur 0.37 px, 8-bit",
+        "blur 0.7 px",
+    ),
     "bias bits": (lambda r: r["bias"].update(bits=12), 1, "0.7 px, 12-bit, no noise", "8-bit"),
     "bias camera": (_bias_camera, 1, "camera 1281x960, f 1234.5 px, k1 -0.125, k2 0.05.", "f 1500 px"),
     "bias board": (_bias_board, 2, ("a 5x6 grid of dots", "over the 30 dots"), "49"),
     "bias distance": (lambda r: r["bias"].update(distance_mm=512.3), 1, "512 mm away", "341 mm"),
     "views": (_views, 1, "; 13 views each.", "14 views"),
-    "fixture dots": (lambda r: r["fixtures"]["paper"]["board"].update(diameter_mm=4.25), 1, "dots of 4.25 mm",
-                     "dots of 5 mm"),
+    "fixture dots": (
+        lambda r: r["fixtures"]["paper"]["board"].update(diameter_mm=4.25),
+        1,
+        "dots of 4.25 mm",
+        "dots of 5 mm",
+    ),
     "fixture camera": (_fixture_camera, "1 + conditions", ("fx 4321 px", "| fx | 4321 |"), "4900 px"),
-    "checkerboard squares": (lambda r: r["fixtures"]["paper-checkerboard"]["board"].update(pitch_mm=16.5), 1,
-                             "squares of 16.5 mm", "14 mm"),
+    "checkerboard squares": (
+        lambda r: r["fixtures"]["paper-checkerboard"]["board"].update(pitch_mm=16.5),
+        1,
+        "squares of 16.5 mm",
+        "14 mm",
+    ),
     "CPUs": (lambda r: r["environment"].update(cpu_count=7), 2, "7 CPUs", "2 CPUs"),
 }
 
@@ -395,7 +431,8 @@ def test_templates_ship_as_package_data():
     import tomllib  # Python 3.11+
 
     patterns = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
-        "circcal.report"]
+        "circcal.report"
+    ]
     folder = REPO / "circcal" / "report" / render.TEMPLATES
     names = sorted(p.name for p in folder.iterdir())
     assert names == ["readme.md.j2", "report.html.j2", "report.md.j2"]

@@ -1,5 +1,6 @@
 """A study's solver-only cells solved in batches through kornia (CPU here; CUDA when present, untested without a
 GPU) equal circcal's solver on the same noise draws to 1e-6 px."""
+
 from __future__ import annotations
 
 import pytest
@@ -15,9 +16,22 @@ pytest.importorskip("kornia")
 
 
 def test_batched_kornia_equals_circcals_solver():
-    spec = parse_spec({"name": "batched", "cells": [{
-        "kind": "observations", "scenario": "paper", "noise_px": [0.0146], "seeds": 4,
-        "calibrators": ["circcal", "kornia"], "batch": 4, "device": "cpu"}]})
+    spec = parse_spec(
+        {
+            "name": "batched",
+            "cells": [
+                {
+                    "kind": "observations",
+                    "scenario": "paper",
+                    "noise_px": [0.0146],
+                    "seeds": 4,
+                    "calibrators": ["circcal", "kornia"],
+                    "batch": 4,
+                    "device": "cpu",
+                }
+            ],
+        }
+    )
     tasks = plan(spec)
     assert [len(t.runs) for t in tasks] == [4, 4]
     circcal_rows, kornia_rows = (execute(t) for t in tasks)

@@ -2,6 +2,7 @@
 user starts them on a cluster) gives the embedded cluster's rows; killing a worker mid-study loses no finished run
 (Dask re-runs its task elsewhere); killing the client mid-study keeps every row written, and rerunning computes
 exactly the rest."""
+
 from __future__ import annotations
 
 import math
@@ -64,17 +65,28 @@ def external_cluster(logs: Path, n_workers: int = 2):
     logs.mkdir(parents=True, exist_ok=True)
     procs: list[subprocess.Popen] = []
     with ExitStack() as files:
+
         def start(args: list[str], log: str) -> subprocess.Popen:
             out = files.enter_context(open(logs / log, "w"))
-            procs.append(subprocess.Popen([str(DASK), *args], cwd=REPO, start_new_session=True, stdout=out,
-                                          stderr=subprocess.STDOUT))
+            procs.append(
+                subprocess.Popen(
+                    [str(DASK), *args], cwd=REPO, start_new_session=True, stdout=out, stderr=subprocess.STDOUT
+                )
+            )
             return procs[-1]
 
         try:
-            start(["scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--no-dashboard"],
-                  "scheduler.log")
-            workers = [start(["worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name",
-                              f"w{i}"], f"worker{i}.log") for i in range(n_workers)]
+            start(
+                ["scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1], "--no-dashboard"],
+                "scheduler.log",
+            )
+            workers = [
+                start(
+                    ["worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name", f"w{i}"],
+                    f"worker{i}.log",
+                )
+                for i in range(n_workers)
+            ]
             yield address, workers
         finally:
             for p in reversed(procs):
@@ -83,11 +95,14 @@ def external_cluster(logs: Path, n_workers: int = 2):
 
 def _rows_by_key(folder: Path) -> dict[str, dict]:
     """Stored rows by key, without the time columns, NaN as "nan" (so equal rows compare equal)."""
+
     def value(v):
         return "nan" if isinstance(v, float) and math.isnan(v) else v
 
-    return {r["key"]: {k: value(v) for k, v in r.items() if k not in TIME_COLUMNS}
-            for r in RowStore(folder).read().to_pylist()}
+    return {
+        r["key"]: {k: value(v) for k, v in r.items() if k not in TIME_COLUMNS}
+        for r in RowStore(folder).read().to_pylist()
+    }
 
 
 def _wait_for_rows(store: RowStore, n: int, alive) -> int:
@@ -101,11 +116,28 @@ def _wait_for_rows(store: RowStore, n: int, alive) -> int:
 
 
 def test_external_cluster_gives_the_embedded_clusters_rows(tmp_path):
-    spec = parse_spec({"name": "same", "cells": [
-        {"kind": "observations", "scenario": "paper", "noise_px": [0.0146, 0.05], "seeds": 4,
-         "calibrators": ["circcal", "opencv"], "batch": 2},
-        {"kind": "images", "scenario": "small-noisy", "variants": ["noisy"], "seeds": [1], "calibrators": ["circcal"]},
-    ]})
+    spec = parse_spec(
+        {
+            "name": "same",
+            "cells": [
+                {
+                    "kind": "observations",
+                    "scenario": "paper",
+                    "noise_px": [0.0146, 0.05],
+                    "seeds": 4,
+                    "calibrators": ["circcal", "opencv"],
+                    "batch": 2,
+                },
+                {
+                    "kind": "images",
+                    "scenario": "small-noisy",
+                    "variants": ["noisy"],
+                    "seeds": [1],
+                    "calibrators": ["circcal"],
+                },
+            ],
+        }
+    )
     embedded = run_study(spec, tmp_path / "embedded", workers=2, progress=False)
     with external_cluster(tmp_path / "logs") as (address, _):
         external = run_study(spec, tmp_path / "external", scheduler=address, workers=2, progress=False)
@@ -115,14 +147,29 @@ def test_external_cluster_gives_the_embedded_clusters_rows(tmp_path):
 
 
 def test_killing_a_worker_mid_study_loses_no_finished_run(tmp_path):
-    spec = parse_spec({"name": "kill-worker", "cells": [
-        {"kind": "observations", "scenario": "paper", "noise_px": [0.0146], "seeds": 24,
-         "calibrators": [{"plugin": SLOW_PLUGIN}], "batch": 1}]})
+    spec = parse_spec(
+        {
+            "name": "kill-worker",
+            "cells": [
+                {
+                    "kind": "observations",
+                    "scenario": "paper",
+                    "noise_px": [0.0146],
+                    "seeds": 24,
+                    "calibrators": [{"plugin": SLOW_PLUGIN}],
+                    "batch": 1,
+                }
+            ],
+        }
+    )
     folder, store = tmp_path / "study", RowStore(tmp_path / "study")
     with external_cluster(tmp_path / "logs") as (address, workers):
         result: dict = {}
-        thread = threading.Thread(target=lambda: result.update(run=run_study(
-            spec, folder, scheduler=address, workers=2, progress=False, flush_rows=1)))
+        thread = threading.Thread(
+            target=lambda: result.update(
+                run=run_study(spec, folder, scheduler=address, workers=2, progress=False, flush_rows=1)
+            )
+        )
         thread.start()
         _wait_for_rows(store, 4, thread.is_alive)
         before = {p: p.read_bytes() for p in store.parts()}
@@ -139,13 +186,30 @@ def test_killing_a_worker_mid_study_loses_no_finished_run(tmp_path):
 
 def test_killing_the_study_mid_way_keeps_its_rows_and_a_rerun_finishes_the_rest(tmp_path):
     spec_file = tmp_path / "s.yaml"
-    spec_file.write_text(f"name: kill-client\ncells:\n- kind: observations\n  scenario: paper\n  noise_px: [0.0146]\n"
-                         f"  seeds: 24\n  batch: 1\n  calibrators: [{{plugin: '{SLOW_PLUGIN}'}}]\n")
+    spec_file.write_text(
+        f"name: kill-client\ncells:\n- kind: observations\n  scenario: paper\n  noise_px: [0.0146]\n"
+        f"  seeds: 24\n  batch: 1\n  calibrators: [{{plugin: '{SLOW_PLUGIN}'}}]\n"
+    )
     folder, store = tmp_path / "study", RowStore(tmp_path / "study")
     with open(tmp_path / "study.log", "w") as log:
-        proc = subprocess.Popen([str(Path(sys.executable).with_name("circcal")), "study", str(spec_file), "--out",
-                                 str(folder), "--workers", "2", "--flush-rows", "1", "--no-progress"], cwd=REPO,
-                                start_new_session=True, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            [
+                str(Path(sys.executable).with_name("circcal")),
+                "study",
+                str(spec_file),
+                "--out",
+                str(folder),
+                "--workers",
+                "2",
+                "--flush-rows",
+                "1",
+                "--no-progress",
+            ],
+            cwd=REPO,
+            start_new_session=True,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
         try:
             _wait_for_rows(store, 4, lambda: proc.poll() is None)
             os.killpg(proc.pid, signal.SIGKILL)  # the client and its embedded cluster, mid-study

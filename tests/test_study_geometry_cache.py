@@ -1,6 +1,7 @@
 """The noise-free render kept per worker process (:func:`circcal.study.seeded.geometry`): the seeds of a
 ``vary: noise`` cell start from one render of their shared views and give the same images, bit for bit, and the
 same rows as rendering every seed afresh."""
+
 from __future__ import annotations
 
 import math
@@ -50,9 +51,21 @@ def _same(a: dict, b: dict) -> list[str]:
 
 
 def test_rows_with_and_without_the_geometry_cache_are_identical(monkeypatch, fresh_cache, cv2_single_thread):
-    spec = parse_spec({"name": "geometry-cache", "cells": [
-        {"kind": "images", "scenario": "small-noisy", "variants": ["noisy"], "vary": "noise", "seeds": [0, 1, 2],
-         "calibrators": ["circcal", "opencv"]}]})
+    spec = parse_spec(
+        {
+            "name": "geometry-cache",
+            "cells": [
+                {
+                    "kind": "images",
+                    "scenario": "small-noisy",
+                    "variants": ["noisy"],
+                    "vary": "noise",
+                    "seeds": [0, 1, 2],
+                    "calibrators": ["circcal", "opencv"],
+                }
+            ],
+        }
+    )
     tasks = plan(spec)
     monkeypatch.setattr(seeded, "GEOMETRY_CACHE", False)
     uncached = [row for t in tasks for row in execute(t)]

@@ -2,6 +2,7 @@
 through the study runner (embedded Dask cluster); pytest reads the finished table and asserts. These were
 test_calibrate.py's test_monte_carlo_uncertainty_is_consistent and test_paper_geometry_monte_carlo, with the same
 views, noise draws (numpy.random.default_rng(seed), one draw per view in order) and bounds."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -55,8 +56,10 @@ def test_paper_geometry_monte_carlo(table, sigma):
     0.120 px (2 %) in weak light: the issue's 0.02 px bar is a coin toss even for a perfect detector."""
     rows = _cell(table, 1, f"noise{sigma:g}px")
     diffs = np.array([r["truth_rms_px"] for r in rows])
-    print(f"\nsigma {sigma} px: projection difference to the truth median {np.median(diffs):.4f} px, p95 "
-          f"{np.percentile(diffs, 95):.4f} px, {100 * np.mean(diffs <= 0.02):.0f} % of draws <= 0.02 px")
+    print(
+        f"\nsigma {sigma} px: projection difference to the truth median {np.median(diffs):.4f} px, p95 "
+        f"{np.percentile(diffs, 95):.4f} px, {100 * np.mean(diffs <= 0.02):.0f} % of draws <= 0.02 px"
+    )
     for name in ("fx", "cx"):
         est = np.array([r[f"est_{name}"] for r in rows])
         ratio = est.std(ddof=1) / np.mean([r[f"std_{name}"] for r in rows])

@@ -1,6 +1,7 @@
 """The study runner on the embedded cluster: one row per run with every column, resumable (a rerun computes
 nothing), rows written atomically in batches, summary and figures, the CLI; and the worker-side computation of a
 run (rendered images and observations-only) without a cluster."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,8 +16,14 @@ from circcal.study.execute import execute
 from circcal.study.plan import plan
 from circcal.study.rows import COLUMNS
 
-OBS = {"kind": "observations", "scenario": "paper", "noise_px": [0.0146, 0.05], "seeds": 6,
-       "calibrators": ["circcal", "opencv"], "batch": 4}
+OBS = {
+    "kind": "observations",
+    "scenario": "paper",
+    "noise_px": [0.0146, 0.05],
+    "seeds": 6,
+    "calibrators": ["circcal", "opencv"],
+    "batch": 4,
+}
 
 
 def test_observations_study_embedded_is_resumable(tmp_path):
@@ -53,9 +60,11 @@ def test_observations_study_embedded_is_resumable(tmp_path):
 
 
 def test_summary_tables_and_figures(tmp_path):
-    spec = parse_spec({"name": "obs", "cells": [{**OBS, "calibrators": ["circcal"]}]},
-                      source="name: obs\ncells:\n- {kind: observations, scenario: paper, noise_px: [0.0146, 0.05], "
-                             "seeds: 6, calibrators: [circcal], batch: 4}\n")
+    spec = parse_spec(
+        {"name": "obs", "cells": [{**OBS, "calibrators": ["circcal"]}]},
+        source="name: obs\ncells:\n- {kind: observations, scenario: paper, noise_px: [0.0146, 0.05], "
+        "seeds: 6, calibrators: [circcal], batch: 4}\n",
+    )
     rows = [row for t in plan(spec) for row in execute(t)]
     RowStore(tmp_path).append(rows)
     (tmp_path / "study.yaml").write_text(spec.source)
@@ -75,9 +84,20 @@ def test_summary_tables_and_figures(tmp_path):
 
 
 def test_images_task_renders_on_the_worker_and_runs_every_calibrator():
-    spec = parse_spec({"name": "img", "cells": [{
-        "kind": "images", "scenario": "small-noisy", "variants": ["noisy"], "seeds": [1],
-        "calibrators": ["circcal", "opencv", {"name": "opencv", "observations": "circcal"}]}]})
+    spec = parse_spec(
+        {
+            "name": "img",
+            "cells": [
+                {
+                    "kind": "images",
+                    "scenario": "small-noisy",
+                    "variants": ["noisy"],
+                    "seeds": [1],
+                    "calibrators": ["circcal", "opencv", {"name": "opencv", "observations": "circcal"}],
+                }
+            ],
+        }
+    )
     (task,) = plan(spec)
     rows = {r["calibrator"]: r for r in execute(task)}
     assert set(rows) == {"circcal", "opencv", "opencv-on-circcal"}
@@ -96,8 +116,10 @@ def test_cli_study_and_summary_only(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 2.0)
     spec = tmp_path / "s.yaml"
-    spec.write_text("name: cli\ncells:\n- {kind: observations, scenario: paper, noise_px: 0.0146, seeds: 3, "
-                    "calibrators: [circcal], batch: 3}\n")
+    spec.write_text(
+        "name: cli\ncells:\n- {kind: observations, scenario: paper, noise_px: 0.0146, seeds: 3, "
+        "calibrators: [circcal], batch: 3}\n"
+    )
     out = tmp_path / "out"
     assert main(["study", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
     text = capsys.readouterr().out
@@ -109,8 +131,10 @@ def test_cli_study_and_summary_only(tmp_path, capsys, monkeypatch):
     assert "file not found" in capsys.readouterr().err
     (tmp_path / "file").write_text("")
     assert main(["study", str(spec), "--out", str(tmp_path / "file")]) == 2
-    assert main(["study", str(spec), "--out", str(tmp_path / "o2"), "--scheduler", "tcp://127.0.0.1:1",
-                 "--no-progress"]) == 2
+    assert (
+        main(["study", str(spec), "--out", str(tmp_path / "o2"), "--scheduler", "tcp://127.0.0.1:1", "--no-progress"])
+        == 2
+    )
     assert "cannot connect" in capsys.readouterr().err
 
 
@@ -129,8 +153,12 @@ class Broken:
 
 def test_a_failing_task_is_reported_and_the_other_runs_are_kept(tmp_path):
     plugin = f"{Path(__file__).resolve()}:Broken"
-    spec = parse_spec({"name": "broken", "cells": [
-        {**OBS, "noise_px": [0.0146], "seeds": 2, "calibrators": ["circcal", {"plugin": plugin}]}]})
+    spec = parse_spec(
+        {
+            "name": "broken",
+            "cells": [{**OBS, "noise_px": [0.0146], "seeds": 2, "calibrators": ["circcal", {"plugin": plugin}]}],
+        }
+    )
     res = run_study(spec, tmp_path, workers=1, progress=False)
     assert not res.complete and res.n_computed == 2 and len(res.errors) == 1
     assert "RuntimeError: a bug in the calibrator" in res.errors[0]

@@ -1,5 +1,6 @@
 """Study specs (YAML -> StudySpec, every mistake an InputError naming the field), what a seed means for a rendered
 scenario, and the run keys (content hashes: stable, distinct, independent of the study's name)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,8 +17,13 @@ from circcal.study.seeded import seeded_scenario
 REPO = Path(__file__).resolve().parents[1]
 
 OBS = {"kind": "observations", "scenario": "paper", "noise_px": [0.01, 0.02], "seeds": 5, "calibrators": ["circcal"]}
-IMG = {"kind": "images", "scenario": "paper", "variants": ["normal", "weak"], "seeds": {"start": 3, "count": 2},
-       "calibrators": ["circcal", "opencv", {"name": "opencv", "observations": "circcal"}]}
+IMG = {
+    "kind": "images",
+    "scenario": "paper",
+    "variants": ["normal", "weak"],
+    "seeds": {"start": 3, "count": 2},
+    "calibrators": ["circcal", "opencv", {"name": "opencv", "observations": "circcal"}],
+}
 
 
 def spec(*cells, name="t"):
@@ -42,29 +48,32 @@ def test_axes_and_counts():
     assert every.variants == tuple(SCENARIOS["paper"].variants)
 
 
-@pytest.mark.parametrize("bad,match", [
-    ({**OBS, "seeds": 0}, r"cells\[0\].seeds: must be at least 1"),
-    ({**OBS, "seeds": [1, 1]}, "listed twice"),
-    ({**OBS, "seeds": {"count": 2, "stop": 3}}, "unknown key"),
-    ({**OBS, "noise_px": [0.0]}, "noise_px"),
-    ({**OBS, "noise_px": "x"}, "noise_px"),
-    ({**OBS, "calibrators": ["nope"]}, "unknown calibrator 'nope'"),
-    ({**OBS, "calibrators": ["circcal", "circcal"]}, "listed twice"),
-    ({**OBS, "calibrators": [{"name": "opencv", "mode": "best"}]}, "mode"),
-    ({**OBS, "calibrators": [{"name": "opencv", "observations": "circcal"}]}, "same points"),
-    ({**OBS, "lens_models": ["fisheye"]}, "unknown lens model 'fisheye'"),
-    ({**OBS, "variants": ["normal"]}, "only for images cells"),
-    ({**OBS, "device": "tpu"}, "device"),
-    ({**OBS, "batch": 0}, "batch"),
-    ({**OBS, "geometry": {"views": 3}}, "a scenario or a geometry"),
-    ({**IMG, "scenario": "nope"}, "unknown scenario 'nope'"),
-    ({**IMG, "variants": ["dark"]}, "no variant 'dark'"),
-    ({**IMG, "vary": "poses"}, "vary"),
-    ({**IMG, "noise_px": [0.1]}, "only for observations cells"),
-    ({**IMG, "kind": "video"}, "kind"),
-    ({**IMG, "extra": 1}, "unknown key"),
-    ({**IMG, "calibrators": [{"plugin": "no_such_module_xyz:fn"}]}, "cannot import"),
-])
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        ({**OBS, "seeds": 0}, r"cells\[0\].seeds: must be at least 1"),
+        ({**OBS, "seeds": [1, 1]}, "listed twice"),
+        ({**OBS, "seeds": {"count": 2, "stop": 3}}, "unknown key"),
+        ({**OBS, "noise_px": [0.0]}, "noise_px"),
+        ({**OBS, "noise_px": "x"}, "noise_px"),
+        ({**OBS, "calibrators": ["nope"]}, "unknown calibrator 'nope'"),
+        ({**OBS, "calibrators": ["circcal", "circcal"]}, "listed twice"),
+        ({**OBS, "calibrators": [{"name": "opencv", "mode": "best"}]}, "mode"),
+        ({**OBS, "calibrators": [{"name": "opencv", "observations": "circcal"}]}, "same points"),
+        ({**OBS, "lens_models": ["fisheye"]}, "unknown lens model 'fisheye'"),
+        ({**OBS, "variants": ["normal"]}, "only for images cells"),
+        ({**OBS, "device": "tpu"}, "device"),
+        ({**OBS, "batch": 0}, "batch"),
+        ({**OBS, "geometry": {"views": 3}}, "a scenario or a geometry"),
+        ({**IMG, "scenario": "nope"}, "unknown scenario 'nope'"),
+        ({**IMG, "variants": ["dark"]}, "no variant 'dark'"),
+        ({**IMG, "vary": "poses"}, "vary"),
+        ({**IMG, "noise_px": [0.1]}, "only for observations cells"),
+        ({**IMG, "kind": "video"}, "kind"),
+        ({**IMG, "extra": 1}, "unknown key"),
+        ({**IMG, "calibrators": [{"plugin": "no_such_module_xyz:fn"}]}, "cannot import"),
+    ],
+)
 def test_bad_cells_are_input_errors_naming_the_field(bad, match):
     with pytest.raises(InputError, match=match):
         spec(bad)

@@ -2,6 +2,7 @@
 equal to mrcal.projection_uncertainty on the same observations (every mrcal version present), consistent with the
 solver's own standard deviations, and honest: over >= 100 noise seeds the spread of the re-solved projection matches
 the prediction within 25% at the centre, an edge and a corner (slow study)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -49,8 +50,9 @@ def _problem(name: str, seed: int = 1):
 
 def _probe_pixels(w: int, h: int) -> np.ndarray:
     """The image centre, the middle of the left edge, the middle of the top edge and two corners (px)."""
-    return np.array([[(w - 1) / 2, (h - 1) / 2], [0.0, (h - 1) / 2], [(w - 1) / 2, 0.0], [0.0, 0.0],
-                     [w - 1.0, h - 1.0]])
+    return np.array(
+        [[(w - 1) / 2, (h - 1) / 2], [0.0, (h - 1) / 2], [(w - 1) / 2, 0.0], [0.0, 0.0], [w - 1.0, h - 1.0]]
+    )
 
 
 def test_full_covariance_holds_the_solvers_standard_deviations():
@@ -60,7 +62,7 @@ def test_full_covariance_holds_the_solvers_standard_deviations():
     cov = res.covariance
     C = cov.unit
     nf = cov.n_intrinsics
-    cov9 = cov.intrinsics_map @ C[:nf, :nf] @ cov.intrinsics_map.T * cov.sigma_px ** 2
+    cov9 = cov.intrinsics_map @ C[:nf, :nf] @ cov.intrinsics_map.T * cov.sigma_px**2
     for k, name in enumerate(PARAM_NAMES):
         assert np.sqrt(cov9[k, k]) == pytest.approx(res.std[name], rel=1e-9, abs=1e-15), name
     assert cov.unit.shape == (res.n_params, res.n_params)
@@ -89,13 +91,15 @@ def test_reprojection_of_a_solve_onto_itself_is_the_identity():
     res = calibrate(obj, img, size)
     uv = _probe_pixels(*size)
     for d in DISTANCES:
-        q = mean_frames_reprojection(res.camera, res.rvecs, res.tvecs, res.camera, res.rvecs, res.tvecs, uv,
-                                     distance=d)
+        q = mean_frames_reprojection(res.camera, res.rvecs, res.tvecs, res.camera, res.rvecs, res.tvecs, uv, distance=d)
         assert np.max(np.abs(q - uv)) < 1e-8
 
 
-@pytest.mark.parametrize("label,python", [(lab, py) for lab, py, _ in mrcal_pythons()] or
-                         [pytest.param("none", None, marks=pytest.mark.skip(reason="mrcal not installed"))])
+@pytest.mark.parametrize(
+    "label,python",
+    [(lab, py) for lab, py, _ in mrcal_pythons()]
+    or [pytest.param("none", None, marks=pytest.mark.skip(reason="mrcal not installed"))],
+)
 @pytest.mark.parametrize("scenario", ["paper", "wide"])
 def test_uncertainty_equals_mrcal(label, python, scenario):
     """circcal's map and mrcal.projection_uncertainty on the same observations (exported with mrcal's optimisation
@@ -108,13 +112,22 @@ def test_uncertainty_equals_mrcal(label, python, scenario):
     uv = pixel_grid(res.camera, 20)
     for d in DISTANCES:
         ours = result_projection_stdev(res, uv, distance=d)
-        ex = export_cameramodel(res.camera, res.rvecs, res.tvecs, res.object_points, res.image_points,
-                                fixed=res.fixed, python=python,
-                                uncertainty={"uv": uv, "distance": d, "observed_pixel_uncertainty": res.sigma_px})
+        ex = export_cameramodel(
+            res.camera,
+            res.rvecs,
+            res.tvecs,
+            res.object_points,
+            res.image_points,
+            fixed=res.fixed,
+            python=python,
+            uncertainty={"uv": uv, "distance": d, "observed_pixel_uncertainty": res.sigma_px},
+        )
         theirs = np.asarray(ex.info["uncertainty_stdev"])
         rel = np.abs(ours / theirs - 1.0)
-        print(f"\n{label} {scenario} distance {d}: circcal/mrcal - 1 max {rel.max():.2e}; worst "
-              f"{ours.max():.4f} px, centre-ish median {np.median(ours):.4f} px")
+        print(
+            f"\n{label} {scenario} distance {d}: circcal/mrcal - 1 max {rel.max():.2e}; worst "
+            f"{ours.max():.4f} px, centre-ish median {np.median(ours):.4f} px"
+        )
         assert rel.max() < MRCAL_REL_TOL
         # the export is at circcal's optimum: mrcal's residuals are circcal's, its cost gradient ~0
         assert ex.info["rms_per_coord_px"] == pytest.approx(res.errors["rms_per_coord_px"], rel=1e-9)
@@ -133,7 +146,7 @@ def test_pose_uncertainty_matters():
     nf = res.covariance.n_intrinsics
     _, Ji, _ = project_camera_jacobian(unproject(uv, res.camera), res.camera.intrinsics)
     Gi = Ji @ res.covariance.intrinsics_map
-    intr_only = worst_direction_stdev(res.sigma_px ** 2 * np.einsum("nai,ij,nbj->nab", Gi, C[:nf, :nf], Gi))
+    intr_only = worst_direction_stdev(res.sigma_px**2 * np.einsum("nai,ij,nbj->nab", Gi, C[:nf, :nf], Gi))
     assert np.max(np.abs(intr_only / full - 1.0)) > 0.1
 
 
@@ -153,17 +166,25 @@ def test_uncertainty_is_honest_monte_carlo(scenario):
     base = calibrate(obj, exact, size)
     uv = _probe_pixels(*size)
     for d in DISTANCES:
-        pred = worst_direction_stdev(projection_covariance(base.camera, base.rvecs, base.tvecs, base.covariance,
-                                                           uv, distance=d, sigma_px=NOISE_PX))
+        pred = worst_direction_stdev(
+            projection_covariance(
+                base.camera, base.rvecs, base.tvecs, base.covariance, uv, distance=d, sigma_px=NOISE_PX
+            )
+        )
         qs = []
         for seed in range(MC_SEEDS):
             rng = np.random.default_rng(seed)
             r = calibrate(obj, [c + rng.normal(0.0, NOISE_PX, c.shape) for c in exact], size, initial=base.camera)
-            qs.append(mean_frames_reprojection(base.camera, base.rvecs, base.tvecs, r.camera, r.rvecs, r.tvecs, uv,
-                                               distance=d))
+            qs.append(
+                mean_frames_reprojection(
+                    base.camera, base.rvecs, base.tvecs, r.camera, r.rvecs, r.tvecs, uv, distance=d
+                )
+            )
         q = np.asarray(qs)
         dev = q - q.mean(axis=0)
         emp = worst_direction_stdev(np.einsum("sna,snb->nab", dev, dev) / (len(q) - 1))
-        print(f"\n{scenario} distance {d}: predicted {np.round(pred, 4)} px, Monte-Carlo {np.round(emp, 4)} "
-              f"px, ratio {np.round(emp / pred, 3)} (centre, left edge, top edge, corner, corner)")
+        print(
+            f"\n{scenario} distance {d}: predicted {np.round(pred, 4)} px, Monte-Carlo {np.round(emp, 4)} "
+            f"px, ratio {np.round(emp / pred, 3)} (centre, left edge, top edge, corner, corner)"
+        )
         assert np.all(np.abs(emp / pred - 1.0) < MC_REL_TOL)

@@ -1,4 +1,5 @@
 """`circcal validate`: every reference on circcal's observations, per-reference statuses, gating exit codes."""
+
 from __future__ import annotations
 
 import json
@@ -39,8 +40,13 @@ def run_with_broken(small):
     mp = pytest.MonkeyPatch()
     mp.setitem(registry.BUILTINS, "broken", "tests.test_validate:Broken")
     try:
-        yield run_validation([v.image for v in small.views], small.board, truth=small.camera,
-                             against=["opencv", "broken", "pycolmap"], progress=False)
+        yield run_validation(
+            [v.image for v in small.views],
+            small.board,
+            truth=small.camera,
+            against=["opencv", "broken", "pycolmap"],
+            progress=False,
+        )
     finally:
         mp.undo()
 
@@ -119,8 +125,9 @@ def test_validate_cannot_pass_vacuously(tmp_path):
     truth = load_truth(fixture_dir("small-noisy"))
     run = run_validation([v.image for v in truth.views], truth.board, against=[], progress=False)
     assert [c.name for c in run.checks] == ["something was checked"] and not run.passed
-    run = run_validation([v.image for v in truth.views], truth.board, against=["opencv"], observations="own",
-                         progress=False)
+    run = run_validation(
+        [v.image for v in truth.views], truth.board, against=["opencv"], observations="own", progress=False
+    )
     assert not run.passed and any("nothing was checked" in c.note for c in run.checks)
 
 

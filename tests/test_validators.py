@@ -6,6 +6,7 @@ what the others see) opencv, kornia, pycolmap and mrcal "fair" reach cv2.calibra
 same ones to 1%. mrcal "default" (board warp, regularisation, outlier rejection) is a different estimator: its
 difference is measured and printed, not asserted small. Bad input gives a clear per-reference status.
 """
+
 from __future__ import annotations
 
 import importlib.metadata
@@ -29,8 +30,9 @@ TRUE_CAMERA = Camera(1920, 1080, 1500.0, 1502.0, 955.0, 545.0, np.array([-0.12, 
 BOARD = Board(7, 7, 10.0, 5.0)
 
 
-def make_problem(seed: int = 0, n_views: int = 14, noise: float = 0.05, board: Board = BOARD,
-                 camera: Camera = TRUE_CAMERA) -> dict:
+def make_problem(
+    seed: int = 0, n_views: int = 14, noise: float = 0.05, board: Board = BOARD, camera: Camera = TRUE_CAMERA
+) -> dict:
     """Synthetic observations: ``n_views`` poses tilted up to 35 deg about x and y, board 180-260 mm away, spread
     over the image; centres projected with circcal.model.project plus Gaussian noise, rounded to float32."""
     rng = np.random.default_rng(seed)
@@ -50,8 +52,13 @@ def make_problem(seed: int = 0, n_views: int = 14, noise: float = 0.05, board: B
         img.append(q.astype(np.float32).astype(np.float64))
         rvecs.append(r)
         tvecs.append(t)
-    return {"object_points": obj, "image_points": img, "image_size": (camera.width, camera.height),
-            "rvecs": np.array(rvecs), "tvecs": np.array(tvecs)}
+    return {
+        "object_points": obj,
+        "image_points": img,
+        "image_size": (camera.width, camera.height),
+        "rvecs": np.array(rvecs),
+        "tvecs": np.array(tvecs),
+    }
 
 
 def cv2_calibrate(problem: dict, *, fix_k3: bool = False) -> tuple[Camera, dict]:
@@ -65,8 +72,12 @@ def cv2_calibrate(problem: dict, *, fix_k3: bool = False) -> tuple[Camera, dict]
         out = cv2.calibrateCameraExtended(
             [o.astype(np.float32).reshape(-1, 1, 3) for o in problem["object_points"]],
             [p.astype(np.float32).reshape(-1, 1, 2) for p in problem["image_points"]],
-            problem["image_size"], None, None, flags=flags,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16))
+            problem["image_size"],
+            None,
+            None,
+            flags=flags,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16),
+        )
     finally:
         cv2.setNumThreads(n_threads)
     _, K, d, _, _, std, _, _ = out
@@ -92,8 +103,12 @@ def mrcal_results(problem):
 
     cal = MrcalCalibrator()
     skip_unless_available(cal)
-    return {r.mode: r for r in cal.calibrate_modes(problem["object_points"], problem["image_points"],
-                                                   problem["image_size"], modes=("fair", "default"))}
+    return {
+        r.mode: r
+        for r in cal.calibrate_modes(
+            problem["object_points"], problem["image_points"], problem["image_size"], modes=("fair", "default")
+        )
+    }
 
 
 # name, factory kwargs, fix_k3 of the cv2 yardstick, projection tolerance px
@@ -111,9 +126,11 @@ def _std_rel(std: dict, ref: dict) -> dict:
     return {k: abs(std[k] / ref[k] - 1.0) for k in ref if ref[k] > 0}
 
 
-@pytest.mark.parametrize("name,kwargs,fix_k3,tol", CASES,
-                         ids=["opencv", "opencv-FIX_K3", "kornia", "kornia-fix_k3", "pycolmap-FULL_OPENCV",
-                              "pycolmap-OPENCV-vs-FIX_K3"])
+@pytest.mark.parametrize(
+    "name,kwargs,fix_k3,tol",
+    CASES,
+    ids=["opencv", "opencv-FIX_K3", "kornia", "kornia-fix_k3", "pycolmap-FULL_OPENCV", "pycolmap-OPENCV-vs-FIX_K3"],
+)
 def test_same_observations_same_calibration(problem, cv_ref, name, kwargs, fix_k3, tol):
     cal = registry.get(name, **kwargs)
     skip_unless_available(cal)
@@ -149,8 +166,7 @@ def test_mrcal_fair_equals_opencv(problem, cv_ref, mrcal_results):
     assert res.extra["max_abs_residual_diff_vs_mrcal_px"] < 1e-6
     # RMS conventions: mrcal's per-coordinate RMS equals ours per coordinate
     assert res.errors["rms_per_coord_px"] == pytest.approx(res.extra["rms_per_coord_px_mrcal"], rel=1e-6)
-    assert res.errors["rms_per_point_px"] == pytest.approx(math.sqrt(2) * res.extra["rms_per_coord_px_mrcal"],
-                                                           rel=1e-6)
+    assert res.errors["rms_per_point_px"] == pytest.approx(math.sqrt(2) * res.extra["rms_per_coord_px_mrcal"], rel=1e-6)
     assert np.max(np.abs(res.tvecs - problem["tvecs"])) < 2.0  # mm, against the true poses
 
 
@@ -161,10 +177,12 @@ def test_mrcal_default_measured(cv_ref, mrcal_results):
     raw = projection_diff(ref_cam, res.camera)
     fit = projection_diff(ref_cam, res.camera, fit=True, distance=None)
     pd = param_diff(ref_cam, res.camera, ref_std)
-    print(f"\nmrcal default vs cv2: projection max {raw['max_px']:.3f} px rms {raw['rms_px']:.3f} px; with implied "
-          f"rotation max {fit['max_px']:.3f} rms {fit['rms_px']:.3f} px; fx {pd['fx']['diff']:+.3f} px "
-          f"({pd['fx']['diff_sigmas']:+.2f} sigma); warp {res.extra['calobject_warp']}; "
-          f"outliers {res.extra['n_outliers']}")
+    print(
+        f"\nmrcal default vs cv2: projection max {raw['max_px']:.3f} px rms {raw['rms_px']:.3f} px; with implied "
+        f"rotation max {fit['max_px']:.3f} rms {fit['rms_px']:.3f} px; fx {pd['fx']['diff']:+.3f} px "
+        f"({pd['fx']['diff_sigmas']:+.2f} sigma); warp {res.extra['calobject_warp']}; "
+        f"outliers {res.extra['n_outliers']}"
+    )
     # a different estimator: it solved a board warp, and its answer moved off the plain least-squares one
     assert res.extra["calobject_warp"] is not None and len(res.extra["calobject_warp"]) == 2
     assert raw["max_px"] > 1e-4
@@ -205,10 +223,13 @@ def test_circcal_solver_equals_opencv(problem, cv_ref):
 # ---------------------------------------------------------------------------------------------------------------------
 # images: OpenCV's own detector on the real photographs (baselines in their SOURCE.txt)
 # ---------------------------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("folder,board,n_found,rms,fx", [
-    ("boofcv_sony_hx5v_circle_regular_10x8", Board(8, 10, 25.0, 15.0), 6, 0.4755, 456.6),
-    ("boofcv_sony_hx5v_circle_asym_4x5", Board(5, 4, 30.0, 20.0, layout="asymmetric"), 9, 0.1830, 701.1),
-])
+@pytest.mark.parametrize(
+    "folder,board,n_found,rms,fx",
+    [
+        ("boofcv_sony_hx5v_circle_regular_10x8", Board(8, 10, 25.0, 15.0), 6, 0.4755, 456.6),
+        ("boofcv_sony_hx5v_circle_asym_4x5", Board(5, 4, 30.0, 20.0, layout="asymmetric"), 9, 0.1830, 701.1),
+    ],
+)
 def test_opencv_images_reproduce_baseline(realdata, folder, board, n_found, rms, fx):
     paths = sorted((realdata / folder).glob("*.jpg"))
     res = registry.get("opencv").calibrate_images(paths, board)
@@ -260,8 +281,12 @@ def test_missing_mrcal_is_unavailable(monkeypatch, problem):
     assert "apt-get install -y mrcal python3-mrcal" in res.message
     assert registry.all_available()["mrcal"][0] is False
     # the others are unaffected
-    assert registry.get("opencv").calibrate_observations(
-        problem["object_points"], problem["image_points"], problem["image_size"]).status == "ok"
+    assert (
+        registry.get("opencv")
+        .calibrate_observations(problem["object_points"], problem["image_points"], problem["image_size"])
+        .status
+        == "ok"
+    )
 
 
 def test_asymmetric_grid_unsupported_by_mrcal():
@@ -278,8 +303,10 @@ def test_asymmetric_grid_unsupported_by_mrcal():
     lat = board_lattice([Board(8, 10, 25.0, 15.0).object_points()])
     assert (lat["width_n"], lat["height_n"], lat["spacing"]) == (10, 8, 25.0)
     # and OpenCV handles the asymmetric set
-    assert registry.get("opencv").calibrate_observations(
-        p["object_points"], p["image_points"], p["image_size"]).status == "ok"
+    assert (
+        registry.get("opencv").calibrate_observations(p["object_points"], p["image_points"], p["image_size"]).status
+        == "ok"
+    )
 
 
 class _Crashing(BaseCalibrator):
@@ -295,8 +322,9 @@ class _Diverging(BaseCalibrator):
     def _calibrate(self, object_points, image_points, image_size, *, mode, initial):
         cam = Camera(*image_size, 1e6, 1e6, 0.0, 0.0, np.array([50.0, 0, 0, 0, 0]))
         v = len(object_points)
-        return self.finish(mode, cam, np.zeros((v, 3)), np.tile([0, 0, 100.0], (v, 1)), object_points,
-                           image_points, 0.0)
+        return self.finish(
+            mode, cam, np.zeros((v, 3)), np.tile([0, 0, 100.0], (v, 1)), object_points, image_points, 0.0
+        )
 
 
 class _Missing(BaseCalibrator):
@@ -332,8 +360,9 @@ def test_bad_input_reported_by_every_reference(problem):
     nan_img[3][5] = np.nan
     res = registry.get("opencv").calibrate_observations(obj, nan_img, problem["image_size"])
     assert res.status == "failed" and "view 3" in res.message and "non-finite" in res.message
-    res = registry.get("opencv").calibrate_observations(obj, problem["image_points"], problem["image_size"],
-                                                        mode="nonsense")
+    res = registry.get("opencv").calibrate_observations(
+        obj, problem["image_points"], problem["image_size"], mode="nonsense"
+    )
     assert res.status == "failed" and "unknown mode" in res.message
 
 
@@ -364,9 +393,12 @@ def test_registry_builtins_and_plugins(monkeypatch, problem):
     with pytest.raises(KeyError, match="unknown reference calibrator 'nope'"):
         registry.get("nope")
     # run every reference on the same problem: the crashing plug-in fails, the others are unaffected
-    results = {n: registry.get(n).calibrate_observations(problem["object_points"][:5],
-                                                         problem["image_points"][:5], problem["image_size"])
-               for n in ["opencv", "crashing"]}
+    results = {
+        n: registry.get(n).calibrate_observations(
+            problem["object_points"][:5], problem["image_points"][:5], problem["image_size"]
+        )
+        for n in ["opencv", "crashing"]
+    }
     assert results["crashing"].status == "failed" and results["opencv"].status == "ok"
     avail = registry.all_available()
     assert avail["opencv"] == (True, "") and avail["crashing"][0] is True
@@ -404,7 +436,7 @@ def test_pycolmap_leaves_out_single_view_points_and_equals_circcal_on_the_rest()
     p = make_problem(5)
     obj = [o.copy() for o in p["object_points"]]
     img = [q.copy() for q in p["image_points"]]
-    for v in range(1, len(obj)):   # board point 3 stays in view 0 only, point 10 in view 2 only
+    for v in range(1, len(obj)):  # board point 3 stays in view 0 only, point 10 in view 2 only
         drop = [3] if v == 2 else [3, 10]
         keep = np.ones(len(obj[v]), bool)
         keep[drop] = False
@@ -414,7 +446,7 @@ def test_pycolmap_leaves_out_single_view_points_and_equals_circcal_on_the_rest()
     obj[0], img[0] = obj[0][keep0], img[0][keep0]
     res = cal.calibrate_observations(obj, img, p["image_size"])
     assert res.status == "ok", res.message
-    assert res.extra["left_out"] == {0: [3], 2: [9]} and "seen in one view" in res.extra["note"]   # (2 lacks 3)
+    assert res.extra["left_out"] == {0: [3], 2: [9]} and "seen in one view" in res.extra["note"]  # (2 lacks 3)
     assert np.array_equal(obj[0][3], p["object_points"][0][3]) and np.array_equal(obj[2][9], p["object_points"][2][10])
     sub_o = [np.delete(o, res.extra["left_out"].get(v, []), axis=0) for v, o in enumerate(obj)]
     sub_i = [np.delete(q, res.extra["left_out"].get(v, []), axis=0) for v, q in enumerate(img)]

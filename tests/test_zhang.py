@@ -1,4 +1,5 @@
 """Zhang's closed form: exact on noiseless distortion-free data, close with distortion, clear on degenerate views."""
+
 import numpy as np
 import pytest
 
@@ -33,8 +34,9 @@ def test_exact_without_distortion():
     obj, img, poses = _views(cam)
     z = zhang(obj, img, (1920, 1080))
     assert not z.principal_point_fixed
-    np.testing.assert_allclose([z.camera.fx, z.camera.fy, z.camera.cx, z.camera.cy], [1500, 1502, 955, 545],
-                               rtol=0, atol=1e-8)
+    np.testing.assert_allclose(
+        [z.camera.fx, z.camera.fy, z.camera.cx, z.camera.cy], [1500, 1502, 955, 545], rtol=0, atol=1e-8
+    )
     np.testing.assert_allclose(z.rvecs, [r for r, _ in poses], atol=1e-10)
     np.testing.assert_allclose(z.tvecs, [t for _, t in poses], atol=1e-8)
 

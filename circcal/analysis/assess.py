@@ -8,6 +8,7 @@ Errors name their convention (``rms_per_point_px`` OpenCV's, ``rms_per_coord_px`
 paper's); uncertainties are worst-direction standard deviations in px, at ``distance_mm`` along each pixel's ray
 (None: at infinity, mrcal's default).
 """
+
 from __future__ import annotations
 
 import time
@@ -39,16 +40,23 @@ class UncertaintyMap:
     sigma_px: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {"worst_px": self.worst_px, "worst_at_px": list(self.worst_uv), "centre_px": self.centre_px,
-                "distance_mm": self.distance_mm, "sigma_px": self.sigma_px, "grid_shape": list(self.stdev.shape),
-                "definition": "worst-direction standard deviation of the projection of a pixel's ray (at the "
-                              "distance, or at infinity) through the calibration objects' frames and back, first "
-                              "order, from the covariance of the intrinsics and every board pose (mrcal's "
-                              "projection_uncertainty)"}
+        return {
+            "worst_px": self.worst_px,
+            "worst_at_px": list(self.worst_uv),
+            "centre_px": self.centre_px,
+            "distance_mm": self.distance_mm,
+            "sigma_px": self.sigma_px,
+            "grid_shape": list(self.stdev.shape),
+            "definition": "worst-direction standard deviation of the projection of a pixel's ray (at the "
+            "distance, or at infinity) through the calibration objects' frames and back, first "
+            "order, from the covariance of the intrinsics and every board pose (mrcal's "
+            "projection_uncertainty)",
+        }
 
 
-def uncertainty_map(result: Any, *, distance: float | None = None, gridn_width: int = GRID_WIDTH
-                    ) -> UncertaintyMap | None:
+def uncertainty_map(
+    result: Any, *, distance: float | None = None, gridn_width: int = GRID_WIDTH
+) -> UncertaintyMap | None:
     """The projection-uncertainty map of a :class:`~circcal.solver.CalibrationResult` over a ``gridn_width``-wide
     grid of its image (None when it has no finite covariance)."""
     from circcal.solver.uncertainty import result_projection_stdev
@@ -60,10 +68,18 @@ def uncertainty_map(result: Any, *, distance: float | None = None, gridn_width: 
     ny = len(uv) // gridn_width
     s = result_projection_stdev(result, uv, distance=distance)
     k = int(np.nanargmax(s))
-    c = float(result_projection_stdev(result, np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]),
-                                      distance=distance)[0])
-    return UncertaintyMap(uv.reshape(ny, gridn_width, 2), s.reshape(ny, gridn_width), float(s[k]),
-                          (float(uv[k, 0]), float(uv[k, 1])), c, distance, float(result.sigma_px))
+    c = float(
+        result_projection_stdev(result, np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]), distance=distance)[0]
+    )
+    return UncertaintyMap(
+        uv.reshape(ny, gridn_width, 2),
+        s.reshape(ny, gridn_width),
+        float(s[k]),
+        (float(uv[k, 0]), float(uv[k, 1])),
+        c,
+        distance,
+        float(result.sigma_px),
+    )
 
 
 @dataclass
@@ -88,24 +104,31 @@ class Assessment:
         """Three lines: the error in the three conventions, the cross-validation, the worst uncertainty."""
         e = self.result.errors
         v = len(self.result.rvecs)
-        lines = [f"reprojection error over {e['n_points']} points of {v} views: RMS per point (OpenCV) "
-                 f"{e['rms_per_point_px']:.4f} px, RMS per coordinate (mrcal) {e['rms_per_coord_px']:.4f} px, "
-                 f"mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px"]
+        lines = [
+            f"reprojection error over {e['n_points']} points of {v} views: RMS per point (OpenCV) "
+            f"{e['rms_per_point_px']:.4f} px, RMS per coordinate (mrcal) {e['rms_per_coord_px']:.4f} px, "
+            f"mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px"
+        ]
         cv = self.crossval
         if cv is None:
             lines.append("cross-validation: not run (--cross-validate splits the views in two and compares)")
         elif cv.status != "ok":
             lines.append(f"cross-validation: {cv.message}")
         else:
-            lines.append(f"cross-validation: {cv.verdict.replace('-', ' ')}" + (
-                f", {len(cv.flagged_views)} view(s) disagree" if cv.flagged_views else "") +
-                f" (halves within 2x their combined uncertainty over {100 * cv.diff.share_within:.1f}% of the "
-                f"image)")
+            lines.append(
+                f"cross-validation: {cv.verdict.replace('-', ' ')}"
+                + (f", {len(cv.flagged_views)} view(s) disagree" if cv.flagged_views else "")
+                + f" (halves within 2x their combined uncertainty over {100 * cv.diff.share_within:.1f}% of the "
+                f"image)"
+            )
         u = self.uncertainty
         at = "at infinity" if (u is None or u.distance_mm is None) else f"at {u.distance_mm:g} mm"
-        lines.append(f"projection uncertainty {at}: worst {u.worst_px:.3g} px at ({u.worst_uv[0]:.0f}, "
-                     f"{u.worst_uv[1]:.0f}), centre {u.centre_px:.3g} px (1 sigma, worst direction)" if u is not None
-                     else "projection uncertainty: none (the information matrix is singular)")
+        lines.append(
+            f"projection uncertainty {at}: worst {u.worst_px:.3g} px at ({u.worst_uv[0]:.0f}, "
+            f"{u.worst_uv[1]:.0f}), centre {u.centre_px:.3g} px (1 sigma, worst direction)"
+            if u is not None
+            else "projection uncertainty: none (the information matrix is singular)"
+        )
         return lines
 
     def lines(self) -> list[str]:
@@ -116,8 +139,10 @@ class Assessment:
         rej = self.result.outliers
         if rej is not None:
             if rej.items:
-                out.append(f"outliers: {len(rej.items)} left out (rule: residual beyond {rej.rule.k:g} sigma in x "
-                           f"or y, sigma floored at {rej.rule.sigma_floor_px:g} px; {rej.rounds} solve(s)):")
+                out.append(
+                    f"outliers: {len(rej.items)} left out (rule: residual beyond {rej.rule.k:g} sigma in x "
+                    f"or y, sigma floored at {rej.rule.sigma_floor_px:g} px; {rej.rounds} solve(s)):"
+                )
                 names = self.cal_view_names()
                 for r in rej.items:
                     where = names[r.view] if r.view < len(names) else f"view {r.view}"
@@ -125,17 +150,21 @@ class Assessment:
                         what = "whole view"
                     elif np.all(np.isfinite(r.image_px)):
                         what = f"point {r.point} at ({r.image_px[0]:.1f}, {r.image_px[1]:.1f}) px"
-                    else:      # a dot the detector dropped has no measured centre: "(nan, nan) px" said nothing
+                    else:  # a dot the detector dropped has no measured centre: "(nan, nan) px" said nothing
                         what = f"point {r.point}"
                     out.append(f"  {where}: {what}: {r.reason.value}: {r.detail}")
             else:
-                out.append(f"outliers: none (rule: residual beyond {rej.rule.k:g} sigma in x or y, sigma floored "
-                           f"at {rej.rule.sigma_floor_px:g} px; bad dots by ellipse fit and area)")
+                out.append(
+                    f"outliers: none (rule: residual beyond {rej.rule.k:g} sigma in x or y, sigma floored "
+                    f"at {rej.rule.sigma_floor_px:g} px; bad dots by ellipse fit and area)"
+                )
         for w in self.coverage.warnings:
             out.append(f"coverage: {w}")
         if not self.coverage.warnings:
-            out.append(f"coverage: every ninth of the image holds observations ({100 * self.coverage.covered_share:.0f}"
-                       f"% of the map's cells)")
+            out.append(
+                f"coverage: every ninth of the image holds observations ({100 * self.coverage.covered_share:.0f}"
+                f"% of the map's cells)"
+            )
         if self.crossval is not None and self.crossval.status == "ok":
             out += self.crossval.lines()
         return out
@@ -148,18 +177,27 @@ class Assessment:
         return list(self.result.view_names or [])
 
     def to_dict(self) -> dict[str, Any]:
-        return {"verdict": self.verdict(),
-                "uncertainty": None if self.uncertainty is None else self.uncertainty.to_dict(),
-                "coverage": self.coverage.to_dict(),
-                "outliers": None if self.result.outliers is None else self.result.outliers.to_dict(),
-                "cross_validation": None if self.crossval is None else self.crossval.to_dict(),
-                "lens_fit": None if self.lens_fit is None else self.lens_fit.to_dict(),
-                "timings_s": dict(self.timings)}
+        return {
+            "verdict": self.verdict(),
+            "uncertainty": None if self.uncertainty is None else self.uncertainty.to_dict(),
+            "coverage": self.coverage.to_dict(),
+            "outliers": None if self.result.outliers is None else self.result.outliers.to_dict(),
+            "cross_validation": None if self.crossval is None else self.crossval.to_dict(),
+            "lens_fit": None if self.lens_fit is None else self.lens_fit.to_dict(),
+            "timings_s": dict(self.timings),
+        }
 
 
-def assess(cal: Any, board: Any, options: CalibrationOptions = CalibrationOptions(), *,
-           distance: float | None = None, cross_validate: bool = False, split: str = "alternate", seed: int = 0
-           ) -> Assessment:
+def assess(
+    cal: Any,
+    board: Any,
+    options: CalibrationOptions = CalibrationOptions(),
+    *,
+    distance: float | None = None,
+    cross_validate: bool = False,
+    split: str = "alternate",
+    seed: int = 0,
+) -> Assessment:
     """Assess ``cal`` (see the module).
 
     Parameters
@@ -186,5 +224,6 @@ def assess(cal: Any, board: Any, options: CalibrationOptions = CalibrationOption
     if cross_validate:
         cv = cross_validate_detections(cal, board, options, split=split, seed=seed, distance=distance)
     t2 = time.perf_counter()
-    return Assessment(cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1},
-                      model_fit(res))
+    return Assessment(
+        cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1}, model_fit(res)
+    )

@@ -13,6 +13,7 @@
 
 All projection and unprojection goes through :mod:`circcal.model` (pixel centres at integer coordinates).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -38,9 +39,9 @@ __all__ = [
 ]
 
 
-
-def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
-               std_b: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
+def param_diff(
+    a: Camera, b: Camera, std_a: dict[str, float] | None = None, std_b: dict[str, float] | None = None
+) -> dict[str, dict[str, float]]:
     """Per-parameter difference ``b - a``.
 
     Returns ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for every parameter of the two cameras' lens
@@ -61,8 +62,13 @@ def param_diff(a: Camera, b: Camera, std_a: dict[str, float] | None = None,
                 given = True
         sigma = float(np.sqrt(s2)) if given and s2 > 0 else float("nan")
         d = float(vb[n] - va[n])
-        out[n] = {"a": float(va[n]), "b": float(vb[n]), "diff": d, "sigma": sigma,
-                  "diff_sigmas": d / sigma if np.isfinite(sigma) else float("nan")}
+        out[n] = {
+            "a": float(va[n]),
+            "b": float(vb[n]),
+            "diff": d,
+            "sigma": sigma,
+            "diff_sigmas": d / sigma if np.isfinite(sigma) else float("nan"),
+        }
     return out
 
 
@@ -83,8 +89,15 @@ def pixel_grid(camera: Camera, gridn_width: int = GRID_WIDTH, gridn_height: int 
     return np.stack([u.ravel(), v.ravel()], axis=-1)
 
 
-def projection_diff(a: Camera, b: Camera, *, gridn_width: int = GRID_WIDTH, distance: float | None = None,
-                    fit: bool = False, margin_px: float = 0.0) -> dict[str, Any]:
+def projection_diff(
+    a: Camera,
+    b: Camera,
+    *,
+    gridn_width: int = GRID_WIDTH,
+    distance: float | None = None,
+    fit: bool = False,
+    margin_px: float = 0.0,
+) -> dict[str, Any]:
     """Pixel difference between two models over the imager of ``a``.
 
     A grid of pixels of ``a`` (``gridn_width`` across, corners included, ``margin_px`` in from the border) is
@@ -120,7 +133,7 @@ def projection_diff(a: Camera, b: Camera, *, gridn_width: int = GRID_WIDTH, dist
     valid = np.isfinite(d)
     dv = d[valid]
     return {
-        "rms_px": float(np.sqrt(np.mean(dv ** 2))) if dv.size else float("nan"),
+        "rms_px": float(np.sqrt(np.mean(dv**2))) if dv.size else float("nan"),
         "max_px": float(np.max(dv)) if dv.size else float("nan"),
         "median_px": float(np.median(dv)) if dv.size else float("nan"),
         "n": int(valid.sum()),
@@ -132,8 +145,9 @@ def projection_diff(a: Camera, b: Camera, *, gridn_width: int = GRID_WIDTH, dist
     }
 
 
-def match_grid_order(detected: np.ndarray, reference: np.ndarray, board: Board, *,
-                     mirror: bool = False) -> tuple[np.ndarray, str, float]:
+def match_grid_order(
+    detected: np.ndarray, reference: np.ndarray, board: Board, *, mirror: bool = False
+) -> tuple[np.ndarray, str, float]:
     """Re-order a detected grid to the order of ``reference`` (e.g. true centre projections).
 
     ``detected``, ``reference``: (N, 2) px for ``board``'s N points (NaN rows are left out of the distance). Tries
@@ -145,8 +159,10 @@ def match_grid_order(detected: np.ndarray, reference: np.ndarray, board: Board, 
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 2)
     n = board.n_points
     if len(det) != n or len(ref) != n:
-        raise ValueError(f"expected {n} points for a {board.rows}x{board.cols} grid, got {len(det)} detected and "
-                         f"{len(ref)} reference")
+        raise ValueError(
+            f"expected {n} points for a {board.rows}x{board.cols} grid, got {len(det)} detected and "
+            f"{len(ref)} reference"
+        )
     best = None
     for sym in board.symmetries(reflections=mirror):
         cand = det[sym.perm]
@@ -158,8 +174,9 @@ def match_grid_order(detected: np.ndarray, reference: np.ndarray, board: Board, 
     return best
 
 
-def match_views(detected: Sequence[np.ndarray], reference: Sequence[np.ndarray | None], board: Board
-                ) -> tuple[list[np.ndarray], list[str]]:
+def match_views(
+    detected: Sequence[np.ndarray], reference: Sequence[np.ndarray | None], board: Board
+) -> tuple[list[np.ndarray], list[str]]:
     """Each detected view in the point order of ``reference`` (:func:`match_grid_order` per view, rotations only).
 
     ``detected``, ``reference``: per view (N, 2) px of ``board``; ``reference`` entries may hold NaN for points its
@@ -185,8 +202,9 @@ def match_views(detected: Sequence[np.ndarray], reference: Sequence[np.ndarray |
     return out, labels
 
 
-def centre_errors(detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, board: Board | None = None,
-                  mirror: bool = False) -> dict[str, Any]:
+def centre_errors(
+    detected: Sequence[np.ndarray], truth: Sequence[np.ndarray], *, board: Board | None = None, mirror: bool = False
+) -> dict[str, Any]:
     """Detected centres against true centre projections.
 
     ``detected``, ``truth``: per view (N_v, 2) px, same order unless ``board`` is given, in which case each

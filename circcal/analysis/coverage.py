@@ -6,6 +6,7 @@ a region holding fewer than :data:`MIN_POINTS_PER_REGION` observed points gets a
 is not measured but extrapolated from elsewhere (distortion grows fastest toward the corners, where it is least often
 observed). Pixels follow OpenCV's convention (integer coordinates are pixel centres).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -21,8 +22,11 @@ CELLS_ACROSS = 16
 #: board corner there already pins the distortion down locally.
 MIN_POINTS_PER_REGION = 1
 #: The nine regions, row by row from the top.
-REGIONS = (("top-left corner", "top edge", "top-right corner"), ("left edge", "centre", "right edge"),
-           ("bottom-left corner", "bottom edge", "bottom-right corner"))
+REGIONS = (
+    ("top-left corner", "top edge", "top-right corner"),
+    ("left edge", "centre", "right edge"),
+    ("bottom-left corner", "bottom edge", "bottom-right corner"),
+)
 
 
 @dataclass
@@ -40,17 +44,25 @@ class Coverage:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"cells_across": int(self.counts.shape[1]), "counts": self.counts.tolist(),
-                "region_counts": dict(self.region_counts), "empty_regions": self.empty,
-                "covered_share": self.covered_share, "warnings": list(self.warnings),
-                "rule": f"each ninth of the image (thirds each way) needs at least {MIN_POINTS_PER_REGION} observed "
-                        f"point(s); elsewhere the lens model is extrapolated"}
+        return {
+            "cells_across": int(self.counts.shape[1]),
+            "counts": self.counts.tolist(),
+            "region_counts": dict(self.region_counts),
+            "empty_regions": self.empty,
+            "covered_share": self.covered_share,
+            "warnings": list(self.warnings),
+            "rule": f"each ninth of the image (thirds each way) needs at least {MIN_POINTS_PER_REGION} observed "
+            f"point(s); elsewhere the lens model is extrapolated",
+        }
 
 
 def coverage(image_points: Sequence[np.ndarray], width: int, height: int) -> Coverage:
     """The coverage of observations ``image_points`` (per view (N_v, 2) px) over a ``width`` x ``height`` image."""
-    pts = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points]) \
-        if len(image_points) else np.zeros((0, 2))
+    pts = (
+        np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points])
+        if len(image_points)
+        else np.zeros((0, 2))
+    )
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     nx = CELLS_ACROSS
     ny = max(1, int(round(nx * height / width)))
@@ -70,7 +82,10 @@ def coverage(image_points: Sequence[np.ndarray], width: int, height: int) -> Cov
                 x0, x1 = c * width / 3 - 0.5, (c + 1) * width / 3 - 0.5
                 y0, y1 = r * height / 3 - 0.5, (r + 1) * height / 3 - 0.5
                 empty.append({"region": name, "x_px": [x0, x1], "y_px": [y0, y1]})
-                what = "distortion there is extrapolated" if name != "centre" else \
-                    "the principal point region is extrapolated"
+                what = (
+                    "distortion there is extrapolated"
+                    if name != "centre"
+                    else "the principal point region is extrapolated"
+                )
                 warnings.append(f"nothing in the {name} (x {x0:.0f}..{x1:.0f} px, y {y0:.0f}..{y1:.0f} px): {what}")
     return Coverage(width, height, counts, region_counts, empty, float(np.mean(counts > 0)), warnings)

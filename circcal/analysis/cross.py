@@ -20,6 +20,7 @@ final observations from its camera (no re-correction of the centres: their chang
 Errors name their convention (``rms_per_coord_px`` mrcal's, per coordinate). At least :data:`MIN_VIEWS` views are
 needed (3 per half, the solver's minimum); with fewer the cross-validation says why and the calibration stands.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -33,8 +34,18 @@ from circcal.errors import InputError
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
 from circcal.solver import CalibrationOptions, calibrate, leave_one_out
 
-__all__ = ["CrossValidation", "ViewCheck", "split_views", "cross_validate", "cross_validate_observations",
-           "cross_validate_detections", "MIN_VIEWS", "HELDOUT_RATIO", "INFLUENCE_SIGMAS", "SPLITS"]
+__all__ = [
+    "CrossValidation",
+    "ViewCheck",
+    "split_views",
+    "cross_validate",
+    "cross_validate_observations",
+    "cross_validate_detections",
+    "MIN_VIEWS",
+    "HELDOUT_RATIO",
+    "INFLUENCE_SIGMAS",
+    "SPLITS",
+]
 
 #: Two halves of at least the solver's minimum of views each.
 MIN_VIEWS = 2 * SOLVER_MIN_VIEWS
@@ -56,7 +67,7 @@ def split_views(n: int, how: str = "alternate", seed: int = 0) -> tuple[list[int
         return list(range(0, n, 2)), list(range(1, n, 2))
     if how == "random":
         perm = np.random.default_rng(seed).permutation(n)
-        return sorted(int(i) for i in perm[: (n + 1) // 2]), sorted(int(i) for i in perm[(n + 1) // 2:])
+        return sorted(int(i) for i in perm[: (n + 1) // 2]), sorted(int(i) for i in perm[(n + 1) // 2 :])
     raise InputError(f"unknown split {how!r}; expected one of {', '.join(SPLITS)}")
 
 
@@ -110,22 +121,32 @@ class CrossValidation:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "message": self.message, "split": self.split, "seed": self.seed,
-                "halves": [list(h) for h in self.halves], "verdict": self.verdict, "distance_mm": self.distance_mm,
-                "diff": None if self.diff is None else self.diff.summary(),
-                "half_models": [{"camera": m.camera.to_dict(), "errors": dict(m.errors)} for m in self.models],
-                "views": [v.to_dict() for v in self.views]}
+        return {
+            "status": self.status,
+            "message": self.message,
+            "split": self.split,
+            "seed": self.seed,
+            "halves": [list(h) for h in self.halves],
+            "verdict": self.verdict,
+            "distance_mm": self.distance_mm,
+            "diff": None if self.diff is None else self.diff.summary(),
+            "half_models": [{"camera": m.camera.to_dict(), "errors": dict(m.errors)} for m in self.models],
+            "views": [v.to_dict() for v in self.views],
+        }
 
 
 def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
     share = 100.0 * d.share_within
-    base = (f"the halves differ by {d.rms_px:.3g} px RMS (p95 {d.p95_px:.3g}, max {d.max_px:.3g}, centre "
-            f"{d.centre_px:.3g} px), within {CONSISTENT_RATIO:g}x their combined uncertainty over {share:.1f}% of the "
-            f"image")
+    base = (
+        f"the halves differ by {d.rms_px:.3g} px RMS (p95 {d.p95_px:.3g}, max {d.max_px:.3g}, centre "
+        f"{d.centre_px:.3g} px), within {CONSISTENT_RATIO:g}x their combined uncertainty over {share:.1f}% of the "
+        f"image"
+    )
     flagged = [v.name for v in views if v.flagged]
     if d.consistent and not flagged:
-        return "consistent", (f"consistent: {base} (>= {100 * CONSISTENT_SHARE:g}% needed), and every view agrees "
-                              f"with the rest")
+        return "consistent", (
+            f"consistent: {base} (>= {100 * CONSISTENT_SHARE:g}% needed), and every view agrees with the rest"
+        )
     parts = []
     if not d.consistent:
         where = ", ".join(f"{r} ({100 * s:.0f}%)" for r, s in d.where[:4]) or "spread over the image"
@@ -134,8 +155,10 @@ def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
         parts.append(f"{base}")
     if flagged:
         parts.append(f"{len(flagged)} view(s) disagree with the rest ({', '.join(flagged)})")
-    return "model-or-data-problem", ("a model or data problem: " + "; ".join(parts) + ". Likely: a lens model too "
-                                     "simple for the lens, biased centres, or a board unlike the one given")
+    return "model-or-data-problem", (
+        "a model or data problem: " + "; ".join(parts) + ". Likely: a lens model too "
+        "simple for the lens, biased centres, or a board unlike the one given"
+    )
 
 
 def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions) -> list[ViewCheck]:
@@ -155,7 +178,7 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions)
     rows = leave_one_out(len(obj), fit, held_out)
     rms = np.array([r.get("rms_per_coord_px", np.nan) for r in rows], dtype=np.float64)
     med = float(np.nanmedian(rms)) if np.isfinite(rms).any() else float("nan")
-    names_p = full.camera.model.param_names           # the lens model's parameters (fx, fy, cx, cy, dist...)
+    names_p = full.camera.model.param_names  # the lens model's parameters (fx, fy, cx, cy, dist...)
     std = np.array([full.std[n] for n in names_p])
     out = []
     for k, r in enumerate(rows):
@@ -170,18 +193,29 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions)
         if "failed" in r:
             why.append(f"the other views give no model or it no pose ({r['failed']})")
         if np.isfinite(ratio) and ratio > HELDOUT_RATIO:
-            why.append(f"predicted by the others' model to {rms[k]:.3g} px RMS per coordinate, {ratio:.1f}x the "
-                       f"views' median {med:.3g} px")
+            why.append(
+                f"predicted by the others' model to {rms[k]:.3g} px RMS per coordinate, {ratio:.1f}x the "
+                f"views' median {med:.3g} px"
+            )
         if np.isfinite(shift) and shift > INFLUENCE_SIGMAS:
-            why.append(f"leaving it out moves {which} by {shift:.1f} sigma: it holds information no other view has "
-                       f"(e.g. the only observations in part of the image), or it is wrong")
+            why.append(
+                f"leaving it out moves {which} by {shift:.1f} sigma: it holds information no other view has "
+                f"(e.g. the only observations in part of the image), or it is wrong"
+            )
         out.append(ViewCheck(k, names[k], float(rms[k]), float(ratio), shift, which, bool(why), "; ".join(why)))
     return out
 
 
-def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], options: CalibrationOptions, *,
-                   names: Sequence[str] | None = None, split: str = "alternate", seed: int = 0,
-                   distance: float | None = None) -> CrossValidation:
+def cross_validate(
+    full: Any,
+    fit_half: Callable[[list[int]], Any],
+    options: CalibrationOptions,
+    *,
+    names: Sequence[str] | None = None,
+    split: str = "alternate",
+    seed: int = 0,
+    distance: float | None = None,
+) -> CrossValidation:
     """Cross-validate the calibration ``full`` (see the module).
 
     Parameters
@@ -207,10 +241,15 @@ def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], options: Cal
     n = len(full.rvecs)
     names = list(names) if names is not None else [f"view {i}" for i in range(n)]
     if n < MIN_VIEWS:
-        return CrossValidation("too-few-views", f"not done: {n} views; two independent halves need at least "
-                               f"{MIN_VIEWS} ({SOLVER_MIN_VIEWS} each, the least a calibration takes). The "
-                               f"calibration above stands; take more views to check it", split, seed,
-                               distance_mm=distance)
+        return CrossValidation(
+            "too-few-views",
+            f"not done: {n} views; two independent halves need at least "
+            f"{MIN_VIEWS} ({SOLVER_MIN_VIEWS} each, the least a calibration takes). The "
+            f"calibration above stands; take more views to check it",
+            split,
+            seed,
+            distance_mm=distance,
+        )
     from circcal.solver.uncertainty import result_projection_stdev
 
     halves = split_views(n, split, seed)
@@ -219,24 +258,49 @@ def cross_validate(full: Any, fit_half: Callable[[list[int]], Any], options: Cal
         try:
             models.append(fit_half(h))
         except InputError as exc:
-            return CrossValidation("failed", f"not done: the half {[names[i] for i in h]} gives no model "
-                                   f"({exc})", split, seed, halves, distance_mm=distance)
+            return CrossValidation(
+                "failed",
+                f"not done: the half {[names[i] for i in h]} gives no model ({exc})",
+                split,
+                seed,
+                halves,
+                distance_mm=distance,
+            )
     a, b = models
     if a.covariance is None or b.covariance is None:
-        return CrossValidation("failed", "not done: a half's information matrix is singular (no uncertainty)",
-                               split, seed, halves, models, distance_mm=distance)
-    d = model_diff(a.camera, b.camera, distance=distance,
-                   uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
-                   uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance))
+        return CrossValidation(
+            "failed",
+            "not done: a half's information matrix is singular (no uncertainty)",
+            split,
+            seed,
+            halves,
+            models,
+            distance_mm=distance,
+        )
+    d = model_diff(
+        a.camera,
+        b.camera,
+        distance=distance,
+        uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
+        uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance),
+    )
     views = _leave_one_out(full, names, options.replace(outlier_rule=None))
     verdict, message = _verdict(d, views)
     return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance)
 
 
-def cross_validate_observations(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                                image_size: tuple[int, int], options: CalibrationOptions = CalibrationOptions(), *,
-                                full: Any = None, names: Sequence[str] | None = None, split: str = "alternate",
-                                seed: int = 0, distance: float | None = None) -> tuple[Any, CrossValidation]:
+def cross_validate_observations(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    options: CalibrationOptions = CalibrationOptions(),
+    *,
+    full: Any = None,
+    names: Sequence[str] | None = None,
+    split: str = "alternate",
+    seed: int = 0,
+    distance: float | None = None,
+) -> tuple[Any, CrossValidation]:
     """Calibrate fixed observations (per view (N_v, 3) mm, (N_v, 2) px) with ``options``
     (:func:`circcal.solver.calibrate`) and cross-validate (``full``: that calibration, if already made; the other
     parameters as :func:`cross_validate`'s). Returns ``(full, CrossValidation)``; with outlier rejection the halves
@@ -250,13 +314,26 @@ def cross_validate_observations(object_points: Sequence[np.ndarray], image_point
     def fit_half(h: list[int]):
         return calibrate([obj[i] for i in h], [img[i] for i in h], image_size, options)
 
-    return full, cross_validate(full, fit_half, options, names=[(names[i] if names else f"view {i}") for i in kept],
-                                split=split, seed=seed, distance=distance)
+    return full, cross_validate(
+        full,
+        fit_half,
+        options,
+        names=[(names[i] if names else f"view {i}") for i in kept],
+        split=split,
+        seed=seed,
+        distance=distance,
+    )
 
 
-def cross_validate_detections(cal: Any, board: Any, options: CalibrationOptions = CalibrationOptions(), *,
-                              split: str = "alternate", seed: int = 0, distance: float | None = None
-                              ) -> CrossValidation:
+def cross_validate_detections(
+    cal: Any,
+    board: Any,
+    options: CalibrationOptions = CalibrationOptions(),
+    *,
+    split: str = "alternate",
+    seed: int = 0,
+    distance: float | None = None,
+) -> CrossValidation:
     """Cross-validate an :class:`circcal.pipeline.ImagesCalibration` made with ``options``: each half through the
     whole loop (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct, recalibrate) from its views'
     detections, with the same ``options`` (the other parameters as :func:`cross_validate`'s)."""

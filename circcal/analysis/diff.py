@@ -9,6 +9,7 @@ Over the whole image (the default) the fit is :func:`circcal.analysis.compare.pr
 fits over the grid pixels within that radius of the image centre and measures everywhere. Differences are the 2-D
 distance per grid pixel (px); pixels follow OpenCV's convention; distances are mm along each ray.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -29,8 +30,11 @@ CONSISTENT_RATIO = 2.0
 #: differences within ~2x of the summed uncertainties).
 CONSISTENT_SHARE = 0.95
 #: The image is named in thirds each way for "where": corners, edges, centre.
-_THIRDS = (("top-left corner", "top edge", "top-right corner"), ("left edge", "centre", "right edge"),
-           ("bottom-left corner", "bottom edge", "bottom-right corner"))
+_THIRDS = (
+    ("top-left corner", "top edge", "top-right corner"),
+    ("left edge", "centre", "right edge"),
+    ("bottom-left corner", "bottom edge", "bottom-right corner"),
+)
 
 
 def region_names(uv: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -71,8 +75,20 @@ class ModelDiff:
 
     def summary(self) -> dict:
         """The numbers, JSON-ready (maps left out)."""
-        out = {k: getattr(self, k) for k in ("centre_px", "rms_px", "p95_px", "max_px", "focus_radius_px",
-                                             "distance_mm", "n_invalid", "share_within", "consistent")}
+        out = {
+            k: getattr(self, k)
+            for k in (
+                "centre_px",
+                "rms_px",
+                "p95_px",
+                "max_px",
+                "focus_radius_px",
+                "distance_mm",
+                "n_invalid",
+                "share_within",
+                "consistent",
+            )
+        }
         out["where"] = [{"region": r, "share_exceeding": s} for r, s in self.where]
         out["implied_rotation_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(self.R) - 1) / 2, -1, 1))))
         if self.ratio is not None:
@@ -88,18 +104,26 @@ def _points(uv: np.ndarray, cam: Camera, distance: float | None) -> np.ndarray:
     return r if distance is None else r * float(distance)
 
 
-def model_diff(a: Camera, b: Camera, *, distance: float | None = None, focus_radius_px: float | None = None,
-               gridn_width: int = GRID_WIDTH,
-               uncertainty_a: Callable[[np.ndarray], np.ndarray] | None = None,
-               uncertainty_b: Callable[[np.ndarray], np.ndarray] | None = None) -> ModelDiff:
+def model_diff(
+    a: Camera,
+    b: Camera,
+    *,
+    distance: float | None = None,
+    focus_radius_px: float | None = None,
+    gridn_width: int = GRID_WIDTH,
+    uncertainty_a: Callable[[np.ndarray], np.ndarray] | None = None,
+    uncertainty_b: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> ModelDiff:
     """The projection difference of ``b`` against ``a`` (see the module). ``distance``: mm along each ray (None:
     infinity); ``focus_radius_px``: fit the implied transformation over the grid pixels within this radius of the
     image centre (None: the whole image; 0: no fit); ``uncertainty_a``/``_b``: functions pixels (N, 2) -> projection
     standard deviation (N,) px of each model at ``distance`` (e.g. :func:`circcal.solver.uncertainty
     .result_projection_stdev`). Raises :class:`~circcal.errors.InputError` for models of different image sizes."""
     if (a.width, a.height) != (b.width, b.height):
-        raise InputError(f"the models have different image sizes ({a.width}x{a.height} and {b.width}x{b.height}): "
-                         f"a projection difference compares one imager")
+        raise InputError(
+            f"the models have different image sizes ({a.width}x{a.height} and {b.width}x{b.height}): "
+            f"a projection difference compares one imager"
+        )
     if distance is not None and not (np.isfinite(distance) and distance > 0):
         raise InputError(f"distance must be a positive number of mm, got {distance!r}")
     uv = pixel_grid(a, gridn_width)
@@ -116,22 +140,34 @@ def model_diff(a: Camera, b: Camera, *, distance: float | None = None, focus_rad
         if focus_radius_px > 0:
             centre = np.array([(a.width - 1) / 2, (a.height - 1) / 2])
             Pb = _points(uv, b, distance)
-            focus = (np.linalg.norm(uv - centre, axis=1) <= focus_radius_px) & np.all(np.isfinite(Pa), axis=1) \
+            focus = (
+                (np.linalg.norm(uv - centre, axis=1) <= focus_radius_px)
+                & np.all(np.isfinite(Pa), axis=1)
                 & np.all(np.isfinite(Pb), axis=1)
+            )
             if focus.sum() < 3:
-                raise InputError(f"the focus radius {focus_radius_px:g} px holds {int(focus.sum())} grid pixels; "
-                                 f"the fit needs 3")
+                raise InputError(
+                    f"the focus radius {focus_radius_px:g} px holds {int(focus.sum())} grid pixels; the fit needs 3"
+                )
             R, t = fit_rotation(Pa[focus], Pb[focus], translation=distance is not None)
         diff = np.linalg.norm(project_camera(Pa @ R.T + t, b) - uv, axis=1)
     centre_uv = np.array([[(a.width - 1) / 2, (a.height - 1) / 2]])
     centre = float(np.linalg.norm(project_camera(_points(centre_uv, a, distance) @ R.T + t, b) - centre_uv))
     ok = np.isfinite(diff)
     dv = diff[ok]
-    out = ModelDiff(uv=uv.reshape(ny, nx, 2), diff=diff.reshape(ny, nx), centre_px=centre,
-                    rms_px=float(np.sqrt(np.mean(dv ** 2))) if dv.size else float("nan"),
-                    p95_px=float(np.percentile(dv, 95)) if dv.size else float("nan"),
-                    max_px=float(np.max(dv)) if dv.size else float("nan"), R=R, t=t,
-                    focus_radius_px=focus_radius_px, distance_mm=distance, n_invalid=int((~ok).sum()))
+    out = ModelDiff(
+        uv=uv.reshape(ny, nx, 2),
+        diff=diff.reshape(ny, nx),
+        centre_px=centre,
+        rms_px=float(np.sqrt(np.mean(dv**2))) if dv.size else float("nan"),
+        p95_px=float(np.percentile(dv, 95)) if dv.size else float("nan"),
+        max_px=float(np.max(dv)) if dv.size else float("nan"),
+        R=R,
+        t=t,
+        focus_radius_px=focus_radius_px,
+        distance_mm=distance,
+        n_invalid=int((~ok).sum()),
+    )
     if uncertainty_a is not None and uncertainty_b is not None:
         sa = np.asarray(uncertainty_a(uv), dtype=np.float64)
         sb = np.asarray(uncertainty_b(uv), dtype=np.float64)

@@ -9,6 +9,7 @@ uncertainty where the file carries what it takes:
   (:func:`circcal.formats.cameramodel_export.mrcal_uncertainty`), when mrcal is installed;
 * anything else: no uncertainty (``LoadedModel.uncertainty`` is None, ``note`` says why).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -29,6 +30,7 @@ __all__ = ["LoadedModel", "load_model", "resolve_document", "RESOLVE_TOL_PX"]
 #: The re-solve from a model.json's observations must reproduce its camera to this (px, projection difference over
 #: the image): the file's numbers are the optimum's to ~1e-9 relative.
 RESOLVE_TOL_PX = 1e-6
+
 
 @dataclass
 class LoadedModel:
@@ -53,10 +55,12 @@ def resolve_document(camera: Camera, document: dict):
     if views is None:
         return None
     try:  # the file's holds by name (any the lens model has), refused like any option when it has not
-        options = CalibrationOptions(lens=camera.lens, fixed=tuple(views["fixed"]),
-                                     refine_board=bool(views["refined_board"]))
-        res = calibrate(views["object_points"], views["image_points"], (camera.width, camera.height), options,
-                        initial=camera)
+        options = CalibrationOptions(
+            lens=camera.lens, fixed=tuple(views["fixed"]), refine_board=bool(views["refined_board"])
+        )
+        res = calibrate(
+            views["object_points"], views["image_points"], (camera.width, camera.height), options, initial=camera
+        )
     except InputError:
         return None
     if projection_diff(camera, res.camera)["max_px"] > RESOLVE_TOL_PX or res.covariance is None:
@@ -76,8 +80,12 @@ def load_model(path: str | Path) -> LoadedModel:
     if document is not None:
         res = resolve_document(camera, document)
         if res is not None:
-            return LoadedModel(p, camera, lambda uv, d: result_projection_stdev(res, uv, distance=d),
-                               f"circcal's, from the {len(res.rvecs)} views' observations in the file")
+            return LoadedModel(
+                p,
+                camera,
+                lambda uv, d: result_projection_stdev(res, uv, distance=d),
+                f"circcal's, from the {len(res.rvecs)} views' observations in the file",
+            )
         return LoadedModel(p, camera, None, "the model.json holds no observations of its views")
     text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     if cameramodel_has_optimization_inputs(text):
@@ -96,9 +104,12 @@ def load_model(path: str | Path) -> LoadedModel:
             try:
                 return mrcal_uncertainty(text, uv, distance=d, python=py)
             except ExportError as exc:  # mrcal refused the file's optimisation inputs (checked only in outline)
-                raise ModelFileError(f"camera file {p} (mrcal): mrcal cannot compute the projection uncertainty "
-                                     f"from its optimization_inputs: {' '.join(str(exc).split())[-300:]}") from None
+                raise ModelFileError(
+                    f"camera file {p} (mrcal): mrcal cannot compute the projection uncertainty "
+                    f"from its optimization_inputs: {' '.join(str(exc).split())[-300:]}"
+                ) from None
 
-        return LoadedModel(p, camera, uncertainty,
-                           f"mrcal {info.get('version', '')}'s, from the file's optimisation inputs")
+        return LoadedModel(
+            p, camera, uncertainty, f"mrcal {info.get('version', '')}'s, from the file's optimisation inputs"
+        )
     return LoadedModel(p, camera, None, "the file holds no optimisation inputs or observations")

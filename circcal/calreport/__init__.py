@@ -4,6 +4,7 @@ self-contained folder with ``index.html`` and ``index.md`` (the same content; fi
 the cross-validation verdict and the worst projection uncertainty. See :func:`circcal.calreport.document.write_report`.
 
 Separate from :mod:`circcal.report` (the published comparison report of the rendered fixtures and references)."""
+
 from circcal.calreport.document import write_report
 
 __all__ = ["write_report"]

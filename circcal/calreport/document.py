@@ -13,6 +13,7 @@ through each format's escaping: HTML by Jinja2's autoescape, Markdown by :func:`
 Errors name their convention (``rms_per_point_px`` OpenCV's RMS, ``rms_per_coord_px`` mrcal's, ``mean_2d_px`` the
 paper's); uncertainties are 1-sigma, worst direction, px.
 """
+
 from __future__ import annotations
 
 import html
@@ -40,9 +41,13 @@ TEMPLATES = {"index.html": "calibration.html.j2", "index.md": "calibration.md.j2
 def _environment():
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("circcal.calreport", "templates"),
-                             autoescape=jinja2.select_autoescape(enabled_extensions=("html.j2",)),
-                             trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("circcal.calreport", "templates"),
+        autoescape=jinja2.select_autoescape(enabled_extensions=("html.j2",)),
+        trim_blocks=True,
+        lstrip_blocks=True,
+        undefined=jinja2.StrictUndefined,
+    )
     env.filters.update(fmt=_fmt, esc=html.escape, md_name=md_name, md_text=md_text)
     return env
 
@@ -92,7 +97,7 @@ def _overlay(path: str, detection: Any, dest: Path) -> str | None:
         if img is None:
             return "the image cannot be read or decoded"
         vis = draw_detection(img, detection)
-    except (ImageError, OSError) as exc:   # what a file can cause; anything else is a bug
+    except (ImageError, OSError) as exc:  # what a file can cause; anything else is a bug
         return display_name(str(exc))
     if vis.shape[1] > OVERLAY_WIDTH_PX:
         s = OVERLAY_WIDTH_PX / vis.shape[1]
@@ -123,8 +128,10 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     allpts = np.concatenate(pts) if pts else np.zeros((0, 2))
     rej = res.outliers
     kept = rej.kept_views if rej is not None else list(range(len(names)))
-    rejected_xy = [np.array([r.image_px for r in rej.points_of(v)]).reshape(-1, 2) if rej is not None
-                   else np.zeros((0, 2)) for v in kept]
+    rejected_xy = [
+        np.array([r.image_px for r in rej.points_of(v)]).reshape(-1, 2) if rej is not None else np.zeros((0, 2))
+        for v in kept
+    ]
     n_rej = [len(x) for x in rejected_xy]
     cv = assessment.crossval
     heldout = None
@@ -144,36 +151,65 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     params = []
     for n, v in zip(names_p, cam.intrinsics):
         held = n in res.fixed or (n == "fx" and "aspect_ratio" in res.fixed)
-        params.append({"name": n, "value": f"{v:.6f}" if abs(v) >= 1 else f"{v:.6g}",
-                       "std": "held" if n in res.fixed else _fmt(res.std[n], 3),
-                       "note": "= aspect x fy" if (n == "fx" and "aspect_ratio" in res.fixed) else
-                       ("held" if held else "")})
+        params.append(
+            {
+                "name": n,
+                "value": f"{v:.6f}" if abs(v) >= 1 else f"{v:.6g}",
+                "std": "held" if n in res.fixed else _fmt(res.std[n], 3),
+                "note": "= aspect x fy" if (n == "fx" and "aspect_ratio" in res.fixed) else ("held" if held else ""),
+            }
+        )
     views = []
     for i, (n, e) in enumerate(zip(names, res.per_view_errors)):
-        row = {"name": n, "n_points": e["n_points"], "rms_per_coord_px": _fmt(e["rms_per_coord_px"]),
-               "rms_per_point_px": _fmt(e["rms_per_point_px"]), "max_2d_px": _fmt(e["max_2d_px"]),
-               "rejected": n_rej[i], "heldout": "-", "shift": "-", "flag": ""}
+        row = {
+            "name": n,
+            "n_points": e["n_points"],
+            "rms_per_coord_px": _fmt(e["rms_per_coord_px"]),
+            "rms_per_point_px": _fmt(e["rms_per_point_px"]),
+            "max_2d_px": _fmt(e["max_2d_px"]),
+            "rejected": n_rej[i],
+            "heldout": "-",
+            "shift": "-",
+            "flag": "",
+        }
         if heldout is not None:
             vc = cv.views[i]
-            row.update(heldout=_fmt(vc.heldout_rms_per_coord_px), shift=f"{vc.shift_sigmas:.2f} ({vc.shift_param})",
-                       flag=display_name(vc.why))
+            row.update(
+                heldout=_fmt(vc.heldout_rms_per_coord_px),
+                shift=f"{vc.shift_sigmas:.2f} ({vc.shift_param})",
+                flag=display_name(vc.why),
+            )
         views.append(row)
     outliers = []
     if rej is not None:
         gnames = [display_name(n) for n in assessment.cal_view_names()]
         for r in rej.items:
-            outliers.append({"view": gnames[r.view] if r.view < len(gnames) else f"view {r.view}",
-                             "point": "whole view" if r.point is None else str(r.point),
-                             "where": "-" if r.image_px is None else f"({r.image_px[0]:.1f}, {r.image_px[1]:.1f})",
-                             "residual": "-" if r.residual_px is None else (
-                                 f"{float(r.residual_px):.3g} RMS" if np.ndim(r.residual_px) == 0 else
-                                 f"({r.residual_px[0]:+.3g}, {r.residual_px[1]:+.3g})"),
-                             "reason": r.reason.value, "detail": display_name(r.detail)})
+            outliers.append(
+                {
+                    "view": gnames[r.view] if r.view < len(gnames) else f"view {r.view}",
+                    "point": "whole view" if r.point is None else str(r.point),
+                    "where": "-" if r.image_px is None else f"({r.image_px[0]:.1f}, {r.image_px[1]:.1f})",
+                    "residual": "-"
+                    if r.residual_px is None
+                    else (
+                        f"{float(r.residual_px):.3g} RMS"
+                        if np.ndim(r.residual_px) == 0
+                        else f"({r.residual_px[0]:+.3g}, {r.residual_px[1]:+.3g})"
+                    ),
+                    "reason": r.reason.value,
+                    "detail": display_name(r.detail),
+                }
+            )
     failed = []
     index = {p: i for i, p in enumerate(cal.paths)}
     for k, r in enumerate(cal.failed):
-        entry = {"path": display_name(Path(r.path).name), "code": getattr(r.code, "value", str(r.code)),
-                 "reason": display_name(r.reason), "overlay": None, "no_overlay": None}
+        entry = {
+            "path": display_name(Path(r.path).name),
+            "code": getattr(r.code, "value", str(r.code)),
+            "reason": display_name(r.reason),
+            "overlay": None,
+            "no_overlay": None,
+        }
         i = index.get(r.path)
         d = cal.detections[i] if i is not None else None
         if d is not None and Path(r.path).is_file():
@@ -185,14 +221,25 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     e = res.errors
     cvd = None
     if cv is not None:
-        cvd = {"status": cv.status, "message": display_name(cv.message), "split": cv.split, "verdict": cv.verdict,
-               "halves": [[names[i] for i in hh] for hh in cv.halves] if cv.status == "ok" else [],
-               "flagged": [{"name": display_name(v.name), "why": display_name(v.why)} for v in cv.flagged_views]}
+        cvd = {
+            "status": cv.status,
+            "message": display_name(cv.message),
+            "split": cv.split,
+            "verdict": cv.verdict,
+            "halves": [[names[i] for i in hh] for hh in cv.halves] if cv.status == "ok" else [],
+            "flagged": [{"name": display_name(v.name), "why": display_name(v.why)} for v in cv.flagged_views],
+        }
         if cv.status == "ok":
             s = cv.diff.summary()
-            cvd.update(rms=_fmt(s["rms_px"]), p95=_fmt(s["p95_px"]), max=_fmt(s["max_px"]),
-                       centre=_fmt(s["centre_px"]), share=f"{100 * s['share_within']:.1f}",
-                       ratio_median=_fmt(s.get("ratio_median")), where=cv.diff.where)
+            cvd.update(
+                rms=_fmt(s["rms_px"]),
+                p95=_fmt(s["p95_px"]),
+                max=_fmt(s["max_px"]),
+                centre=_fmt(s["centre_px"]),
+                share=f"{100 * s['share_within']:.1f}",
+                ratio_median=_fmt(s.get("ratio_median")),
+                where=cv.diff.where,
+            )
     u = assessment.uncertainty
     board = assessment.board
     return {
@@ -200,16 +247,30 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         "generated": time.strftime("%Y-%m-%d %H:%M:%S"),
         "verdict": [display_name(line) for line in assessment.verdict()],
         "camera": {"width": w, "height": h},
-        "board": {"rows": board.rows, "cols": board.cols, "pitch_mm": board.pitch_mm, "layout": board.layout,
-                  "diameter_mm": board.diameter_mm},
+        "board": {
+            "rows": board.rows,
+            "cols": board.cols,
+            "pitch_mm": board.pitch_mm,
+            "layout": board.layout,
+            "diameter_mm": board.diameter_mm,
+        },
         "errors": {k: _fmt(e[k]) for k in ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_2d_px")},
-        "n_points": e["n_points"], "sigma_px": _fmt(res.sigma_px), "fixed": list(res.fixed),
+        "n_points": e["n_points"],
+        "sigma_px": _fmt(res.sigma_px),
+        "fixed": list(res.fixed),
         "refined_board": res.board_points is not None,
-        "params": params, "views": views, "outliers": outliers,
-        "outlier_rule": None if rej is None else {"k": rej.rule.k, "floor": rej.rule.sigma_floor_px,
-                                                  "rounds": rej.rounds},
-        "coverage": assessment.coverage, "uncertainty": u, "crossval": cvd, "failed": failed,
-        "n_images": len(cal.paths), "figures": figs,
+        "params": params,
+        "views": views,
+        "outliers": outliers,
+        "outlier_rule": None
+        if rej is None
+        else {"k": rej.rule.k, "floor": rej.rule.sigma_floor_px, "rounds": rej.rounds},
+        "coverage": assessment.coverage,
+        "uncertainty": u,
+        "crossval": cvd,
+        "failed": failed,
+        "n_images": len(cal.paths),
+        "figures": figs,
         "timings": {k: f"{v:.2f}" for k, v in assessment.timings.items()},
     }
 
@@ -262,12 +323,15 @@ def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
     if not folder.is_dir():
         raise ValueError(f"write_report: {display_name(folder)} is not an existing folder")
     if any(folder.iterdir()):
-        raise ValueError(f"write_report: {display_name(folder)} is not empty (the report goes into an empty "
-                         f"staging folder)")
+        raise ValueError(
+            f"write_report: {display_name(folder)} is not empty (the report goes into an empty staging folder)"
+        )
     env = _environment()
     ctx = report_context(assessment, folder)
-    doc = {"assessment": _report_json(jsonable(assessment.to_dict()), names=True),
-           "model": _report_json(jsonable(assessment.cal.to_model_json(assessment.board)), names=False)}
+    doc = {
+        "assessment": _report_json(jsonable(assessment.to_dict()), names=True),
+        "model": _report_json(jsonable(assessment.cal.to_model_json(assessment.board)), names=False),
+    }
     for out, name in TEMPLATES.items():
         (folder / out).write_text(env.get_template(name).render(**ctx), encoding="utf-8")
     (folder / "report.json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")

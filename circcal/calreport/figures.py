@@ -12,6 +12,7 @@ Names (image files) are drawn as plain text: :func:`name_label` makes them print
 characters escaped) and short, and they are drawn with :data:`PLAIN_TEXT` (no mathtext: ``price$0_$x.png`` would be
 parsed as math and fail; no TeX, whatever the user's matplotlibrc says).
 """
+
 from __future__ import annotations
 
 import io
@@ -27,8 +28,21 @@ import numpy as np
 from circcal import atomic
 from circcal.pathnames import display_name
 
-__all__ = ["STYLE", "PLAIN_TEXT", "NAME_CHARS", "name_label", "save_png", "fig_diff", "fig_uncertainty", "fig_coverage", "fig_view_bars", "fig_residual_vectors",
-           "fig_histogram", "fig_correlation", "fig_crossval"]
+__all__ = [
+    "STYLE",
+    "PLAIN_TEXT",
+    "NAME_CHARS",
+    "name_label",
+    "save_png",
+    "fig_diff",
+    "fig_uncertainty",
+    "fig_coverage",
+    "fig_view_bars",
+    "fig_residual_vectors",
+    "fig_histogram",
+    "fig_correlation",
+    "fig_crossval",
+]
 
 #: rcParams every figure is drawn under.
 STYLE = {"figure.dpi": 100, "savefig.dpi": 110, "font.size": 9, "axes.titlesize": 10, "svg.hashsalt": "circcal"}
@@ -54,7 +68,7 @@ def name_label(name: str, limit: int = NAME_CHARS) -> str:
     if len(s) <= limit:
         return s
     head = (limit - 1) // 2
-    return s[:head] + "\u2026" + s[len(s) - (limit - 1 - head):]
+    return s[:head] + "\u2026" + s[len(s) - (limit - 1 - head) :]
 
 
 def _figure(width_in: float, height_in: float) -> Any:
@@ -100,10 +114,10 @@ def _extent(uv: np.ndarray) -> list[float]:
     return [x[0] - dx / 2, x[-1] + dx / 2, y[-1] + dy / 2, y[0] - dy / 2]
 
 
-def _heat(ax: Any, uv: np.ndarray, values: np.ndarray, vmax: float, label: str, fig: Any,
-          contours: Sequence[float] = ()) -> None:
-    im = ax.imshow(values, extent=_extent(uv), origin="upper", cmap=CMAP, vmin=0.0, vmax=vmax,
-                   interpolation="nearest")
+def _heat(
+    ax: Any, uv: np.ndarray, values: np.ndarray, vmax: float, label: str, fig: Any, contours: Sequence[float] = ()
+) -> None:
+    im = ax.imshow(values, extent=_extent(uv), origin="upper", cmap=CMAP, vmin=0.0, vmax=vmax, interpolation="nearest")
     if contours:
         levels = [c for c in contours if 0 < c < np.nanmax(values)]
         if levels:
@@ -117,14 +131,17 @@ def fig_uncertainty(unc: Any, width: int, height: int, points: np.ndarray | None
     fig = _figure(6.4, 6.4 * height / width + 0.6)
     ax = fig.add_subplot()
     vmax = float(np.nanmax(unc.stdev)) or 1.0
-    _heat(ax, unc.uv, unc.stdev, vmax, "1-sigma uncertainty, worst direction (px)", fig,
-          contours=_nice_levels(vmax))
+    _heat(ax, unc.uv, unc.stdev, vmax, "1-sigma uncertainty, worst direction (px)", fig, contours=_nice_levels(vmax))
     if points is not None and len(points):
         ax.plot(points[:, 0], points[:, 1], ".", ms=1.5, color="white", alpha=0.5)
     _image_axes(ax, width, height)
     at = "at infinity" if unc.distance_mm is None else f"at {unc.distance_mm:g} mm"
-    _title(ax, f"Projection uncertainty {at}: worst {unc.worst_px:.3g} px, centre {unc.centre_px:.3g} px "
-               f"(noise {unc.sigma_px:.3g} px per coordinate; dots: observed points)", 5.2)
+    _title(
+        ax,
+        f"Projection uncertainty {at}: worst {unc.worst_px:.3g} px, centre {unc.centre_px:.3g} px "
+        f"(noise {unc.sigma_px:.3g} px per coordinate; dots: observed points)",
+        5.2,
+    )
     return fig
 
 
@@ -147,8 +164,9 @@ def fig_coverage(cov: Any, points: np.ndarray) -> Any:
     w, h = cov.width, cov.height
     fig = _figure(6.4, 6.4 * h / w + 0.6)
     ax = fig.add_subplot()
-    im = ax.imshow(cov.counts, extent=[-0.5, w - 0.5, h - 0.5, -0.5], origin="upper", cmap="Blues",
-                   interpolation="nearest", vmin=0)
+    im = ax.imshow(
+        cov.counts, extent=[-0.5, w - 0.5, h - 0.5, -0.5], origin="upper", cmap="Blues", interpolation="nearest", vmin=0
+    )
     fig.colorbar(im, ax=ax, label="observed points per cell", shrink=0.8)
     if len(points):
         ax.plot(points[:, 0], points[:, 1], ".", ms=1.5, color="black")
@@ -160,14 +178,22 @@ def fig_coverage(cov: Any, points: np.ndarray) -> Any:
         ax.axhline(k * h / 3 - 0.5, color="0.6", lw=0.6, ls=":")
     _image_axes(ax, w, h)
     n_empty = len(cov.empty)
-    _title(ax, f"Coverage: {100 * cov.covered_share:.0f}% of the cells observed; "
-               + (f"{n_empty} ninth(s) of the image without observations (hatched red)" if n_empty else
-                  "every ninth of the image observed (dotted: the ninths)"), 5.2)
+    _title(
+        ax,
+        f"Coverage: {100 * cov.covered_share:.0f}% of the cells observed; "
+        + (
+            f"{n_empty} ninth(s) of the image without observations (hatched red)"
+            if n_empty
+            else "every ninth of the image observed (dotted: the ninths)"
+        ),
+        5.2,
+    )
     return fig
 
 
-def fig_view_bars(names: Sequence[str], rms: Sequence[float], heldout: Sequence[float] | None,
-                  n_rejected: Sequence[int]) -> Any:
+def fig_view_bars(
+    names: Sequence[str], rms: Sequence[float], heldout: Sequence[float] | None, n_rejected: Sequence[int]
+) -> Any:
     """Per-view RMS residual per coordinate (and, with cross-validation, each view's held-out prediction error)."""
     n = len(names)
     fig = _figure(max(6.4, 0.45 * n + 2), 3.4)
@@ -179,8 +205,15 @@ def fig_view_bars(names: Sequence[str], rms: Sequence[float], heldout: Sequence[
         ax.bar(x + wbar / 2, heldout, wbar, label="held out (predicted by the other views)", color="tab:orange")
     for i, k in enumerate(n_rejected):
         if k:
-            ax.annotate(f"{k} out", (x[i], 0), xytext=(0, -24), textcoords="offset points", ha="center",
-                        fontsize=7, color="tab:red")
+            ax.annotate(
+                f"{k} out",
+                (x[i], 0),
+                xytext=(0, -24),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+                color="tab:red",
+            )
     ax.set_xticks(x, [name_label(n) for n in names], rotation=45, ha="right", fontsize=7, **PLAIN_TEXT)
     ax.set_ylabel("RMS per coordinate (px)")
     ax.set_title("Residuals per view (RMS per coordinate, mrcal's convention)")
@@ -188,8 +221,14 @@ def fig_view_bars(names: Sequence[str], rms: Sequence[float], heldout: Sequence[
     return fig
 
 
-def fig_residual_vectors(names: Sequence[str], points: Sequence[np.ndarray], residuals: Sequence[np.ndarray],
-                         rejected: Sequence[np.ndarray], width: int, height: int) -> Any:
+def fig_residual_vectors(
+    names: Sequence[str],
+    points: Sequence[np.ndarray],
+    residuals: Sequence[np.ndarray],
+    rejected: Sequence[np.ndarray],
+    width: int,
+    height: int,
+) -> Any:
     """One panel per view: each point's residual (observed - projected) as an arrow, one arrow scale for every panel
     (key arrow in the first), rejected points as red crosses."""
     n = len(names)
@@ -199,14 +238,23 @@ def fig_residual_vectors(names: Sequence[str], points: Sequence[np.ndarray], res
     fig = _figure(pw * cols + 0.4, pw * height / width * rows + 0.9)
     axes = fig.subplots(rows, cols, squeeze=False)
     big = max([float(np.max(np.linalg.norm(r, axis=1))) for r in residuals if len(r)] + [1e-12])
-    scale = big / (ARROW_SHARE * width)           # px of residual per px of arrow
+    scale = big / (ARROW_SHARE * width)  # px of residual per px of arrow
     for k, ax in enumerate(axes.ravel()):
         if k >= n:
             ax.set_axis_off()
             continue
         p, r = np.asarray(points[k]), np.asarray(residuals[k])
-        ax.quiver(p[:, 0], p[:, 1], r[:, 0], -r[:, 1], angles="xy", scale_units="xy", scale=scale, width=0.004,
-                  color="tab:blue")
+        ax.quiver(
+            p[:, 0],
+            p[:, 1],
+            r[:, 0],
+            -r[:, 1],
+            angles="xy",
+            scale_units="xy",
+            scale=scale,
+            width=0.004,
+            color="tab:blue",
+        )
         if len(rejected[k]):
             q = np.asarray(rejected[k])
             ax.plot(q[:, 0], q[:, 1], "x", color="tab:red", ms=5)
@@ -219,11 +267,15 @@ def fig_residual_vectors(names: Sequence[str], points: Sequence[np.ndarray], res
         if k == 0:
             first = ax.collections[0]
     key = float(f"{big:.1g}")
-    fig.suptitle(f"Residual vectors over each image (one arrow scale for all panels; largest {big:.3g} px; red x: "
-                 f"left out as outliers)", fontsize=9)
+    fig.suptitle(
+        f"Residual vectors over each image (one arrow scale for all panels; largest {big:.3g} px; red x: "
+        f"left out as outliers)",
+        fontsize=9,
+    )
     fig.supxlabel(f"key: the arrow on the right is {key:g} px of residual", fontsize=8)
-    axes.ravel()[0].quiverkey(first, 0.78, 0.012, key, f"{key:g} px", labelpos="E", coordinates="figure",
-                              fontproperties={"size": 8})
+    axes.ravel()[0].quiverkey(
+        first, 0.78, 0.012, key, f"{key:g} px", labelpos="E", coordinates="figure", fontproperties={"size": 8}
+    )
     return fig
 
 
@@ -236,8 +288,12 @@ def fig_histogram(residuals: np.ndarray, sigma: float) -> Any:
     bins = np.linspace(-lim, lim, 61)
     ax.hist(r, bins=bins, density=True, color="tab:blue", alpha=0.7, label=f"residuals ({r.size} coordinates)")
     x = np.linspace(-lim, lim, 400)
-    ax.plot(x, np.exp(-0.5 * (x / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi)), color="tab:red",
-            label=f"expected: Gaussian, sigma {sigma:.3g} px")
+    ax.plot(
+        x,
+        np.exp(-0.5 * (x / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi)),
+        color="tab:red",
+        label=f"expected: Gaussian, sigma {sigma:.3g} px",
+    )
     ax.set_xlabel("residual coordinate, observed - projected (px)")
     ax.set_ylabel("density (1/px)")
     ax.set_title("Residual distribution against the noise model")
@@ -256,8 +312,9 @@ def fig_correlation(corr: np.ndarray, names: Sequence[str]) -> Any:
         for j in range(len(names)):
             v = corr[i][j]
             if v is not None and np.isfinite(v):
-                ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6,
-                        color="white" if abs(v) > 0.6 else "black")
+                ax.text(
+                    j, i, f"{v:.2f}", ha="center", va="center", fontsize=6, color="white" if abs(v) > 0.6 else "black"
+                )
     fig.colorbar(im, ax=ax, label="correlation", shrink=0.9)
     ax.set_title("Parameter correlations")
     return fig
@@ -288,15 +345,20 @@ def fig_diff(d: Any, width: int, height: int, title: str) -> Any:
         _title(axes[2], f"Ratio: within 2x over {100 * d.share_within:.1f}% of the image (white: 2x)", 3.2)
         _image_axes(axes[2], width, height)
     at = "at infinity" if d.distance_mm is None else f"at {d.distance_mm:g} mm"
-    fit = "fitted over the whole image" if d.focus_radius_px is None else (
-        "not fitted" if d.focus_radius_px == 0 else f"fitted within {d.focus_radius_px:g} px of the centre")
-    fig.suptitle("\n".join(textwrap.wrap(f"{title} ({at}; implied transformation {fit})",
-                                          int(11 * pw * panels))), fontsize=10)
+    fit = (
+        "fitted over the whole image"
+        if d.focus_radius_px is None
+        else ("not fitted" if d.focus_radius_px == 0 else f"fitted within {d.focus_radius_px:g} px of the centre")
+    )
+    fig.suptitle(
+        "\n".join(textwrap.wrap(f"{title} ({at}; implied transformation {fit})", int(11 * pw * panels))), fontsize=10
+    )
     return fig
 
 
 def fig_crossval(cv: Any, width: int, height: int) -> Any:
     """The cross-validation's difference map between the two halves (:func:`fig_diff`)."""
     a, b = cv.halves
-    return fig_diff(cv.diff, width, height, f"Cross-validation: half B ({len(b)} views) against half A ({len(a)} "
-                                            f"views)")
+    return fig_diff(
+        cv.diff, width, height, f"Cross-validation: half B ({len(b)} views) against half A ({len(a)} views)"
+    )

@@ -1,5 +1,6 @@
 """Argument types shared by the ``circcal`` subcommands (argparse ``type=`` callables: a bad value exits 2 with the
 usage line and the reason)."""
+
 from __future__ import annotations
 
 import argparse
@@ -92,7 +93,7 @@ def board_from_args(grid: tuple[int, int], pitch_mm: float, diameter_mm: float |
 
     layout = "asymmetric" if asymmetric else "symmetric"
     if diameter_mm is None:
-        diameter_mm = 0.5 * pitch_mm * (2 ** 0.5 if asymmetric else 1.0)
+        diameter_mm = 0.5 * pitch_mm * (2**0.5 if asymmetric else 1.0)
     return Board(grid[0], grid[1], pitch_mm, diameter_mm, layout)
 
 
@@ -108,9 +109,12 @@ LENS_CHOICES: dict[str, str] = {
 
 def add_lens_argument(p: argparse.ArgumentParser) -> None:
     """``--lens``: the lens model a command fits (default opencv5)."""
-    p.add_argument("--lens", choices=tuple(LENS_CHOICES), default="opencv5",
-                   help="lens model: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
-                   + " (default opencv5)")
+    p.add_argument(
+        "--lens",
+        choices=tuple(LENS_CHOICES),
+        default="opencv5",
+        help="lens model: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items()) + " (default opencv5)",
+    )
 
 
 #: The ``--fix-*`` flags of ``circcal calibrate``: flag -> help (what each holds:
@@ -155,10 +159,15 @@ def calibration_options(args: argparse.Namespace):
     no_rejection = getattr(args, "no_outlier_rejection", True)
     k = getattr(args, "outlier_k", None)
     if no_rejection and k is not None:
-        raise InputError("--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
-                         "off: give one of them")
+        raise InputError(
+            "--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
+            "off: give one of them"
+        )
     flags = {f[2:].replace("-", "_"): bool(getattr(args, f[2:].replace("-", "_"), False)) for f in FIX_FLAGS}
-    return CalibrationOptions.from_flags(**flags, spell=lambda name: "--" + name.replace("_", "-"),
-                                         lens=getattr(args, "lens", None) or "opencv5",
-                                         refine_board=bool(getattr(args, "refine_board", False)),
-                                         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K))
+    return CalibrationOptions.from_flags(
+        **flags,
+        spell=lambda name: "--" + name.replace("_", "-"),
+        lens=getattr(args, "lens", None) or "opencv5",
+        refine_board=bool(getattr(args, "refine_board", False)),
+        outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K),
+    )

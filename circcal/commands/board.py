@@ -10,6 +10,7 @@ points (OpenCV's order, markers larger), on a white board of the board's margin;
 
 Also here: the marker options every command shares (:func:`add_marker_arguments`, :func:`board_with_markers`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,8 +22,13 @@ from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, pa
 __all__ = ["PAPERS", "add_marker_arguments", "add_parser", "board_with_markers", "draw_board", "parse_paper", "run"]
 
 MM_PER_INCH = 25.4
-PAPERS: dict[str, tuple[float, float]] = {"a4": (210.0, 297.0), "a3": (297.0, 420.0), "a2": (420.0, 594.0),
-                                          "letter": (215.9, 279.4), "tabloid": (279.4, 431.8)}
+PAPERS: dict[str, tuple[float, float]] = {
+    "a4": (210.0, 297.0),
+    "a3": (297.0, 420.0),
+    "a2": (420.0, 594.0),
+    "letter": (215.9, 279.4),
+    "tabloid": (279.4, 431.8),
+}
 """Paper sizes (width, height) mm, portrait; a board wider than tall is laid out on the page turned."""
 LINE_MM = 3.2
 """Line spacing of the margin text (mm); the band under the board holds the text and the scale bar."""
@@ -41,12 +47,20 @@ TEXT_PT = 7.0
 
 def add_marker_arguments(p: argparse.ArgumentParser) -> None:
     """``--markers`` and ``--marker-diameter`` (the same for ``board``, ``detect`` and ``calibrate``)."""
-    p.add_argument("--markers", choices=("none", "origin", "pattern"), default="none",
-                   help="marker dots on the board: origin = ROS-Industrial's modified circle grid (one dot of twice "
-                        "the diameter at the bottom-left), pattern = circcal's (about one dot in four 1.5x larger, "
-                        "every 4x4 window unique: partial views are labelled); default none")
-    p.add_argument("--marker-diameter", type=parse_length_mm, default=None,
-                   help="marker dot diameter (default: 2x the dots' for origin, 1.5x for pattern)")
+    p.add_argument(
+        "--markers",
+        choices=("none", "origin", "pattern"),
+        default="none",
+        help="marker dots on the board: origin = ROS-Industrial's modified circle grid (one dot of twice "
+        "the diameter at the bottom-left), pattern = circcal's (about one dot in four 1.5x larger, "
+        "every 4x4 window unique: partial views are labelled); default none",
+    )
+    p.add_argument(
+        "--marker-diameter",
+        type=parse_length_mm,
+        default=None,
+        help="marker dot diameter (default: 2x the dots' for origin, 1.5x for pattern)",
+    )
 
 
 def board_with_markers(args: argparse.Namespace, board):
@@ -69,8 +83,9 @@ def parse_paper(text: str) -> tuple[float, float]:
         return PAPERS[t]
     m = re.fullmatch(r"([0-9]*\.?[0-9]+)\s*x\s*([0-9]*\.?[0-9]+)\s*(mm|cm|m|in|)", t)
     if not m:
-        raise argparse.ArgumentTypeError(f"paper must be one of {', '.join(PAPERS)} or WxH with a unit (e.g. "
-                                         f"300x200mm), got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"paper must be one of {', '.join(PAPERS)} or WxH with a unit (e.g. 300x200mm), got {text!r}"
+        )
     unit = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": MM_PER_INCH, "": 1.0}[m.group(3)]
     w, h = float(m.group(1)) * unit, float(m.group(2)) * unit
     if w <= 0 or h <= 0:
@@ -79,18 +94,34 @@ def parse_paper(text: str) -> tuple[float, float]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("board", help="write a circle-grid board true to scale for printing (SVG or PDF)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "board",
+        help="write a circle-grid board true to scale for printing (SVG or PDF)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
-    p.add_argument("--pitch", type=parse_length_mm, required=True,
-                   help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)")
+    p.add_argument(
+        "--pitch",
+        type=parse_length_mm,
+        required=True,
+        help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)",
+    )
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
-    p.add_argument("--margin", type=parse_length_mm, default=None,
-                   help="white border around the outermost dots (default: one pitch)")
-    p.add_argument("--paper", type=parse_paper, default=PAPERS["a4"],
-                   help=f"paper: {', '.join(PAPERS)} or WxH with a unit (default a4)")
+    p.add_argument(
+        "--margin",
+        type=parse_length_mm,
+        default=None,
+        help="white border around the outermost dots (default: one pitch)",
+    )
+    p.add_argument(
+        "--paper",
+        type=parse_paper,
+        default=PAPERS["a4"],
+        help=f"paper: {', '.join(PAPERS)} or WxH with a unit (default a4)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output file, .svg or .pdf")
     p.set_defaults(func=run)
 
@@ -105,8 +136,9 @@ def _wrapped(board, style: str, width_mm: float) -> list[str]:
     return out
 
 
-def _layout(board, paper: tuple[float, float], style: str
-            ) -> tuple[tuple[float, float], tuple[float, float], list[str]]:
+def _layout(
+    board, paper: tuple[float, float], style: str
+) -> tuple[tuple[float, float], tuple[float, float], list[str]]:
     """((page width, height) mm, board origin (x, y) mm on the page, the text lines) with the board and the text
     band centred; the page is turned when only that orientation fits. Raises :class:`~circcal.errors.InputError`
     when the board does not fit."""
@@ -121,22 +153,30 @@ def _layout(board, paper: tuple[float, float], style: str
             ox = 0.5 * (page[0] - bw) - x0
             oy = 0.5 * (page[1] - bh - band) - y0
             return page, (ox, oy), lines
-    raise InputError(f"a {board.rows}x{board.cols} board of {bw:.0f} x {bh:.0f} mm (with its margin, and the "
-                     f"geometry under it) does not fit on a {paper[0]:.0f} x {paper[1]:.0f} mm page: use a larger "
-                     f"--paper or a smaller --pitch")
+    raise InputError(
+        f"a {board.rows}x{board.cols} board of {bw:.0f} x {bh:.0f} mm (with its margin, and the "
+        f"geometry under it) does not fit on a {paper[0]:.0f} x {paper[1]:.0f} mm page: use a larger "
+        f"--paper or a smaller --pitch"
+    )
 
 
 def geometry_text(board, style: str) -> list[str]:
     """The lines printed under the board: what ``circcal calibrate`` needs to know, and how to print it."""
     grid = f"{board.rows}x{board.cols}"
-    flags = f"--grid {grid} --pitch {board.pitch_mm:g}mm --diameter {board.diameter_mm:g}mm" + \
-        (" --asymmetric" if board.layout == "asymmetric" else "") + \
-        (f" --markers {style} --marker-diameter {board.marker_diameter_mm:g}mm" if board.has_markers else "")
-    lines = [f"circcal circle grid {grid} ({board.layout}): {board.rows} rows of {board.cols} dots, pitch "
-             f"{board.pitch_mm:g} mm, dot diameter {board.diameter_mm:g} mm, margin {board.margin:g} mm"]
+    flags = (
+        f"--grid {grid} --pitch {board.pitch_mm:g}mm --diameter {board.diameter_mm:g}mm"
+        + (" --asymmetric" if board.layout == "asymmetric" else "")
+        + (f" --markers {style} --marker-diameter {board.marker_diameter_mm:g}mm" if board.has_markers else "")
+    )
+    lines = [
+        f"circcal circle grid {grid} ({board.layout}): {board.rows} rows of {board.cols} dots, pitch "
+        f"{board.pitch_mm:g} mm, dot diameter {board.diameter_mm:g} mm, margin {board.margin:g} mm"
+    ]
     if board.has_markers:
-        lines.append(f"markers ({style}, {board.marker_diameter_mm:g} mm dots) at points "
-                     f"{', '.join(str(i) for i in board.markers)} (OpenCV order: row by row from the top-left)")
+        lines.append(
+            f"markers ({style}, {board.marker_diameter_mm:g} mm dots) at points "
+            f"{', '.join(str(i) for i in board.markers)} (OpenCV order: row by row from the top-left)"
+        )
     lines.append(f"circcal calibrate IMAGES {flags}")
     lines.append("Print at 100 % (actual size, no 'fit to page'), then measure the scale bar; glue the sheet flat.")
     return lines
@@ -157,11 +197,10 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
     fig = Figure(figsize=(pw / MM_PER_INCH, ph / MM_PER_INCH))
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
     ax.set_xlim(0.0, pw)
-    ax.set_ylim(ph, 0.0)                                   # y down, as the board frame
+    ax.set_ylim(ph, 0.0)  # y down, as the board frame
     ax.set_axis_off()
     x0, y0, x1, y1 = board.extent_mm()
-    ax.add_patch(Rectangle((ox + x0, oy + y0), x1 - x0, y1 - y0, facecolor="white", edgecolor="0.85",
-                           linewidth=0.2))
+    ax.add_patch(Rectangle((ox + x0, oy + y0), x1 - x0, y1 - y0, facecolor="white", edgecolor="0.85", linewidth=0.2))
     for (x, y, _), r in zip(board.object_points(), board.radii_mm()):
         ax.add_patch(Circle((ox + x, oy + y), r, facecolor="black", edgecolor="none", linewidth=0))
     tx, ty = PAGE_MARGIN_MM, oy + y1 + 4.0
@@ -175,7 +214,7 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
     ax.text(tx + bar + 2.0, by + 0.5, f"{bar:g} mm", fontsize=TEXT_PT, va="center", ha="left")
     meta = {"Date": None} if fmt == "svg" else {"CreationDate": None}
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format=fmt, metadata=meta)          # no bbox_inches: the page is the figure, 1 unit = 1 mm
+    fig.savefig(path, format=fmt, metadata=meta)  # no bbox_inches: the page is the figure, 1 unit = 1 mm
     return path
 
 

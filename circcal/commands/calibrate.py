@@ -1,4 +1,5 @@
 """``circcal calibrate IMAGES... --grid RxC --pitch 10mm --out model.json``: detect, calibrate, re-correct, report."""
+
 from __future__ import annotations
 
 import argparse
@@ -23,45 +24,80 @@ from circcal.pathnames import display_name
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "calibrate", help="calibrate a camera from images of a circle grid",
+        "calibrate",
+        help="calibrate a camera from images of a circle grid",
         description="Detect the circle grid in every image, calibrate (Zhang + Levenberg-Marquardt over fx, fy, cx, "
-                    "cy, the lens model's distortion coefficients (--lens; default k1, k2, p1, p2, k3) and all "
-                    "poses), re-correct every centre under the current model and recalibrate until the centres "
-                    "settle. Writes model.json (or, by extension, OpenCV .yaml, "
-                    "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).")
+        "cy, the lens model's distortion coefficients (--lens; default k1, k2, p1, p2, k3) and all "
+        "poses), re-correct every centre under the current model and recalibrate until the centres "
+        "settle. Writes model.json (or, by extension, OpenCV .yaml, "
+        "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).",
+    )
     p.add_argument("images", nargs="+", type=Path, help="image files")
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
-    p.add_argument("--pitch", type=parse_length_mm, required=True,
-                   help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)")
+    p.add_argument(
+        "--pitch",
+        type=parse_length_mm,
+        required=True,
+        help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)",
+    )
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
     add_lens_argument(p)
     add_fix_arguments(p)
-    p.add_argument("--refine-board", action="store_true",
-                   help="also estimate the 3-D position of every board point (a printed board that is not flat or "
-                        "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json")
+    p.add_argument(
+        "--refine-board",
+        action="store_true",
+        help="also estimate the 3-D position of every board point (a printed board that is not flat or "
+        "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json",
+    )
     p.add_argument("--out", type=Path, default=Path("model.json"), help="output model file (default model.json)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--jobs", type=positive_int, default=None,
-                   help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
+    p.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=None,
+        help="images detected at once (default: one per CPU, at most 8; results do not depend on it)",
+    )
     g = p.add_argument_group("is it right? (outliers, uncertainty, cross-validation, report)")
-    g.add_argument("--no-outlier-rejection", action="store_true",
-                   help="fit every detected centre (default: leave out the detector's bad dots and every point "
-                        "whose residual exceeds --outlier-k sigma, re-solving until stable; each one is listed)")
-    g.add_argument("--outlier-k", type=positive_float, default=None,
-                   help="outlier threshold in standard deviations (default 5, mrcal's)")
-    g.add_argument("--cross-validate", action="store_true",
-                   help="also calibrate two disjoint halves of the views and weigh their difference against their "
-                        "combined uncertainty, and predict every view from the others (needs 6 views)")
-    g.add_argument("--split", choices=("alternate", "random"), default="alternate",
-                   help="how --cross-validate halves the views (default: alternate; random: seeded by --seed)")
+    g.add_argument(
+        "--no-outlier-rejection",
+        action="store_true",
+        help="fit every detected centre (default: leave out the detector's bad dots and every point "
+        "whose residual exceeds --outlier-k sigma, re-solving until stable; each one is listed)",
+    )
+    g.add_argument(
+        "--outlier-k",
+        type=positive_float,
+        default=None,
+        help="outlier threshold in standard deviations (default 5, mrcal's)",
+    )
+    g.add_argument(
+        "--cross-validate",
+        action="store_true",
+        help="also calibrate two disjoint halves of the views and weigh their difference against their "
+        "combined uncertainty, and predict every view from the others (needs 6 views)",
+    )
+    g.add_argument(
+        "--split",
+        choices=("alternate", "random"),
+        default="alternate",
+        help="how --cross-validate halves the views (default: alternate; random: seeded by --seed)",
+    )
     g.add_argument("--seed", type=nonnegative_int, default=0, help="seed of --split random (default 0)")
-    g.add_argument("--distance", type=positive_float, default=None,
-                   help="distance (mm) along each pixel's ray at which uncertainty and cross-validation are "
-                        "evaluated (default: infinity, as mrcal)")
-    g.add_argument("--report", type=Path, default=None,
-                   help="write a self-contained HTML + Markdown report of this calibration into this folder")
+    g.add_argument(
+        "--distance",
+        type=positive_float,
+        default=None,
+        help="distance (mm) along each pixel's ray at which uncertainty and cross-validation are "
+        "evaluated (default: infinity, as mrcal)",
+    )
+    g.add_argument(
+        "--report",
+        type=Path,
+        default=None,
+        help="write a self-contained HTML + Markdown report of this calibration into this folder",
+    )
     p.set_defaults(func=run)
 
 
@@ -72,10 +108,12 @@ def format_summary(cal, *, worst: int = 3) -> str:
     res = getattr(cal, "result", cal)
     lines = []
     vals = res.camera.intrinsics
-    lines.append(f"camera {res.camera.width}x{res.camera.height} ({res.camera.model.description}), "
-                 f"{len(res.rvecs)} views, "
-                 f"{res.errors['n_points']} points, {res.n_iterations} iterations"
-                 f"{'' if res.converged else ' (NOT converged)'}")
+    lines.append(
+        f"camera {res.camera.width}x{res.camera.height} ({res.camera.model.description}), "
+        f"{len(res.rvecs)} views, "
+        f"{res.errors['n_points']} points, {res.n_iterations} iterations"
+        f"{'' if res.converged else ' (NOT converged)'}"
+    )
     lines.append(f"  {'parameter':>9}  {'value':>14}  {'+- 1 sigma':>12}")
     for name, v in zip(res.camera.model.param_names, vals):
         s = res.std[name]
@@ -84,28 +122,41 @@ def format_summary(cal, *, worst: int = 3) -> str:
             note = "  (= aspect * fy)"
         lines.append(f"  {name:>9}  {v:14.6f}  {s:12.6f}{note}")
     e = res.errors
-    lines.append(f"reprojection error: RMS per point (OpenCV) {e['rms_per_point_px']:.4f} px, RMS per coordinate "
-                 f"(mrcal) {e['rms_per_coord_px']:.4f} px, mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px, "
-                 f"max {e['max_2d_px']:.4f} px; noise estimate sigma {res.sigma_px:.4f} px")
+    lines.append(
+        f"reprojection error: RMS per point (OpenCV) {e['rms_per_point_px']:.4f} px, RMS per coordinate "
+        f"(mrcal) {e['rms_per_coord_px']:.4f} px, mean 2-D (paper eq. 22) {e['mean_2d_px']:.4f} px, "
+        f"max {e['max_2d_px']:.4f} px; noise estimate sigma {res.sigma_px:.4f} px"
+    )
     order = sorted(range(len(res.per_view_errors)), key=lambda i: -res.per_view_errors[i]["rms_per_point_px"])
-    names = [display_name(n) for n in res.view_names] if res.view_names else \
-        [f"view {i}" for i in range(len(res.per_view_errors))]
+    names = (
+        [display_name(n) for n in res.view_names]
+        if res.view_names
+        else [f"view {i}" for i in range(len(res.per_view_errors))]
+    )
     lines.append("worst views (RMS per point):")
     for i in order[:worst]:
         pv = res.per_view_errors[i]
-        lines.append(f"  {names[i]}: {pv['rms_per_point_px']:.4f} px (max {pv['max_2d_px']:.4f} px, "
-                     f"{pv['n_points']} points)")
+        lines.append(
+            f"  {names[i]}: {pv['rms_per_point_px']:.4f} px (max {pv['max_2d_px']:.4f} px, {pv['n_points']} points)"
+        )
     if res.board_points is not None:
         d = res.board_points - res.board_nominal
         sigma = np.median(res.board_std[res.board_std > 0])
-        lines.append(f"board shape (refined, gauge points {list(res.board_gauge)} held): largest deviation from the "
-                     f"nominal board x {np.max(np.abs(d[:, 0])):.3f}, y {np.max(np.abs(d[:, 1])):.3f}, "
-                     f"z {np.max(np.abs(d[:, 2])):.3f} mm (typical 1-sigma {sigma:.3f} mm)")
+        lines.append(
+            f"board shape (refined, gauge points {list(res.board_gauge)} held): largest deviation from the "
+            f"nominal board x {np.max(np.abs(d[:, 0])):.3f}, y {np.max(np.abs(d[:, 1])):.3f}, "
+            f"z {np.max(np.abs(d[:, 2])):.3f} mm (typical 1-sigma {sigma:.3f} mm)"
+        )
     rounds = getattr(cal, "rounds", None)
     if rounds:
-        lines.append("re-correction rounds: " + ", ".join(
-            f"{r['round']}: RMS/pt {r['rms_per_point_px']:.4f} px"
-            + ("" if r["round"] == 0 else f", centres moved <= {r['max_centre_shift_px']:.2g} px") for r in rounds))
+        lines.append(
+            "re-correction rounds: "
+            + ", ".join(
+                f"{r['round']}: RMS/pt {r['rms_per_point_px']:.4f} px"
+                + ("" if r["round"] == 0 else f", centres moved <= {r['max_centre_shift_px']:.2g} px")
+                for r in rounds
+            )
+        )
     lines += _detection_lines(cal)
     failed = getattr(cal, "failed", None)
     if failed:
@@ -123,13 +174,16 @@ def _detection_lines(cal) -> list[str]:
     lines = []
     partial = [(display_name(Path(paths[i]).name), int(dets[i].seen.sum())) for i in used if not dets[i].complete]
     if partial:
-        lines.append(f"{len(partial)} partial view(s) used (board points seen): "
-                     + ", ".join(f"{n}: {k}" for n, k in partial))
+        lines.append(
+            f"{len(partial)} partial view(s) used (board points seen): " + ", ".join(f"{n}: {k}" for n, k in partial)
+        )
     dropped = [(display_name(Path(paths[i]).name), dets[i].n_dropped) for i in used if dets[i].dropped]
     if dropped:
-        lines.append(f"dots left out by the detector as bad (cut by the image border or an occluder, a shadow's "
-                     f"edge): {sum(k for _, k in dropped)} in {len(dropped)} view(s): "
-                     + ", ".join(f"{n}: {k}" for n, k in dropped))
+        lines.append(
+            f"dots left out by the detector as bad (cut by the image border or an occluder, a shadow's "
+            f"edge): {sum(k for _, k in dropped)} in {len(dropped)} view(s): "
+            + ", ".join(f"{n}: {k}" for n, k in dropped)
+        )
     for i, d in enumerate(dets):
         for note in getattr(d, "notes", None) or []:
             lines.append(f"  {display_name(Path(paths[i]).name)}: {note}")
@@ -153,16 +207,25 @@ def run(args: argparse.Namespace) -> int:
         if fmt == "mrcal" and options.lens == "fisheye":
             from circcal.formats.mrcal import MRCAL_UNSUPPORTED
 
-            raise InputError(f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
-                             f"COLMAP cameras.txt or ROS camera_info instead")
+            raise InputError(
+                f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
+                f"COLMAP cameras.txt or ROS camera_info instead"
+            )
         try:
             cal = calibrate_images(args.images, board, options, progress=not args.no_progress, jobs=args.jobs)
         except CalibrationError as exc:
             print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
             return 1
         print(format_summary(cal))
-        assessment = assess(cal, board, options, distance=args.distance, cross_validate=args.cross_validate,
-                            split=args.split, seed=args.seed)
+        assessment = assess(
+            cal,
+            board,
+            options,
+            distance=args.distance,
+            cross_validate=args.cross_validate,
+            split=args.split,
+            seed=args.seed,
+        )
         print("\n".join(assessment.lines()))
         model = cal.to_model_json(board)
         if fmt == "mrcal":
@@ -171,8 +234,12 @@ def run(args: argparse.Namespace) -> int:
 
             text, info = cameramodel_text(cal.result.camera, result_views(cal.result))
             atomic.write_text(model_path, text)
-            how = ("with mrcal's optimisation inputs: mrcal-show-projection-uncertainty and mrcal-show-residuals "
-                   "work on it" if info["optimization_inputs"] else f"without optimisation inputs: {info['why']}")
+            how = (
+                "with mrcal's optimisation inputs: mrcal-show-projection-uncertainty and mrcal-show-residuals "
+                "work on it"
+                if info["optimization_inputs"]
+                else f"without optimisation inputs: {info['why']}"
+            )
         else:
             write_camera(model_path, cal.result.camera, fmt, document=model)
             how = ""

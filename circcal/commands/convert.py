@@ -1,4 +1,5 @@
 """``circcal convert IN OUT``: convert a camera model between circcal, OpenCV, mrcal, COLMAP and ROS files."""
+
 from __future__ import annotations
 
 import argparse
@@ -9,17 +10,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from circcal.formats import FORMATS
 
     p = sub.add_parser(
-        "convert", help="convert a camera model file to another format",
+        "convert",
+        help="convert a camera model file to another format",
         description="Convert a camera model. Formats by extension (and, for input, content): .json (circcal "
-                    "model.json / truth.json), .yaml/.yml/.xml (OpenCV FileStorage; ROS camera_info when the name "
-                    "contains 'camera_info'), .cameramodel (mrcal), .txt (COLMAP cameras.txt; cx, cy shift by "
-                    "+0.5 px into COLMAP's pixel convention).")
+        "model.json / truth.json), .yaml/.yml/.xml (OpenCV FileStorage; ROS camera_info when the name "
+        "contains 'camera_info'), .cameramodel (mrcal), .txt (COLMAP cameras.txt; cx, cy shift by "
+        "+0.5 px into COLMAP's pixel convention).",
+    )
     p.add_argument("input", type=Path, help="camera file to read")
     p.add_argument("output", type=Path, help="camera file to write")
     p.add_argument("--from", dest="from_fmt", choices=FORMATS, help="input format (default: detected)")
     p.add_argument("--to", dest="to_fmt", choices=FORMATS, help="output format (default: from the extension)")
-    p.add_argument("--colmap-model", default="auto", choices=("auto", "OPENCV", "FULL_OPENCV"),
-                   help="COLMAP camera model (auto: OPENCV when k3 = 0, else FULL_OPENCV)")
+    p.add_argument(
+        "--colmap-model",
+        default="auto",
+        choices=("auto", "OPENCV", "FULL_OPENCV"),
+        help="COLMAP camera model (auto: OPENCV when k3 = 0, else FULL_OPENCV)",
+    )
     p.set_defaults(func=run)
 
 
@@ -33,8 +40,10 @@ def run(args: argparse.Namespace) -> int:
         camera, document = read_model(args.input, args.from_fmt)
         fmt, note = _write(staged, camera, document, to_fmt, args.colmap_model)
         outputs.commit()
-    print(f"{args.input} -> {args.output} ({fmt}{note}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
-          f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}")
+    print(
+        f"{args.input} -> {args.output} ({fmt}{note}): {camera.width}x{camera.height} fx={camera.fx:.6g} "
+        f"fy={camera.fy:.6g} cx={camera.cx:.6g} cy={camera.cy:.6g} dist={[round(float(v), 8) for v in camera.dist]}"
+    )
     return 0
 
 
@@ -49,9 +58,13 @@ def _write(path, camera, document, to_fmt: str, colmap_model: str) -> tuple[str,
 
         text, info = cameramodel_text(camera, document_views(document))
         atomic.write_text(path, text)
-        note = " with mrcal's optimisation inputs" if info["optimization_inputs"] else \
-            f" without optimisation inputs ({info['why']})"
+        note = (
+            " with mrcal's optimisation inputs"
+            if info["optimization_inputs"]
+            else f" without optimisation inputs ({info['why']})"
+        )
         return "mrcal", note
     # json -> json keeps the whole model.json (std, errors, poses); its camera block is the checked camera's
-    return write_camera(path, camera, to_fmt, document=document if to_fmt == "json" else None,
-                        colmap_model=colmap_model), note
+    return write_camera(
+        path, camera, to_fmt, document=document if to_fmt == "json" else None, colmap_model=colmap_model
+    ), note

@@ -4,6 +4,7 @@ Renders the default scenario (cached), prints what it holds and how large the ce
 detector would carry, then runs ``circcal validate`` on it against every available reference (calibration against
 ground truth and against each reference on identical observations).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -12,8 +13,9 @@ import numpy as np
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="render the default fixtures and run the main job on them",
-                       description=__doc__.split("\n\n")[0])
+    p = sub.add_parser(
+        "demo", help="render the default fixtures and run the main job on them", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--scenario", default=None, help="scenario (default: the built-in default, `paper`)")
     p.set_defaults(func=run)
 
@@ -28,10 +30,11 @@ def summarize(name: str) -> None:
     sc = get_scenario(name)
     cam, board = sc.camera, sc.board
     print(f"scenario {sc.name} v{sc.version}: {sc.description}")
-    print(f"  camera {cam.width}x{cam.height}  fx={cam.fx:.1f} fy={cam.fy:.1f} cx={cam.cx:.1f} cy={cam.cy:.1f}  "
-          f"dist(k1,k2,p1,p2,k3)={np.array2string(cam.dist, precision=4)}")
-    print(f"  board {board.rows}x{board.cols} {board.layout}, pitch {board.pitch_mm} mm, "
-          f"dots {board.diameter_mm} mm")
+    print(
+        f"  camera {cam.width}x{cam.height}  fx={cam.fx:.1f} fy={cam.fy:.1f} cx={cam.cx:.1f} cy={cam.cy:.1f}  "
+        f"dist(k1,k2,p1,p2,k3)={np.array2string(cam.dist, precision=4)}"
+    )
+    print(f"  board {board.rows}x{board.cols} {board.layout}, pitch {board.pitch_mm} mm, dots {board.diameter_mm} mm")
     for variant in sc.variants:
         d = fixture_dir(sc.name, variant, progress=True)
         truth = load_truth(d)
@@ -47,10 +50,14 @@ def summarize(name: str) -> None:
         sizes.append(np.linalg.norm(np.diff(project(rim, v.rvec, v.tvec, cam), axis=0)))
         bias.append(np.linalg.norm(area_centroids(cam, board, v.rvec, v.tvec, n=4000) - v.centres, axis=1))
     b = np.concatenate(bias)
-    print(f"  tilts {min(tilts):.0f}-{max(tilts):.0f} deg to the optical axis; dots {min(sizes):.0f}-"
-          f"{max(sizes):.0f} px across")
-    print(f"  bias of a perfect blob centroid (exact area centroid vs true centre projection): "
-          f"RMS {np.sqrt(np.mean(b ** 2)):.4f} px, max {b.max():.4f} px  <- what circcal removes")
+    print(
+        f"  tilts {min(tilts):.0f}-{max(tilts):.0f} deg to the optical axis; dots {min(sizes):.0f}-"
+        f"{max(sizes):.0f} px across"
+    )
+    print(
+        f"  bias of a perfect blob centroid (exact area centroid vs true centre projection): "
+        f"RMS {np.sqrt(np.mean(b**2)):.4f} px, max {b.max():.4f} px  <- what circcal removes"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,6 +9,7 @@ are kept in ``NAME.partial-K.json`` beside it (``"complete": false``; images sti
 camera in any format circcal reads (model.json, OpenCV YAML, mrcal, COLMAP, ROS) for the distortion-aware centre
 correction. A failed image never stops the others and always says why.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,23 +26,41 @@ SAVE_EVERY_S = 2.0
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("detect", help="find circle grids and write unbiased centre projections as JSON",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = subparsers.add_parser(
+        "detect",
+        help="find circle grids and write unbiased centre projections as JSON",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("images", nargs="+", type=Path, help="image files")
     p.add_argument("--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points")
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
-    p.add_argument("--pitch", type=parse_length_mm, default=10.0,
-                   help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)")
+    p.add_argument(
+        "--pitch", type=parse_length_mm, default=10.0, help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)"
+    )
     p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
     add_marker_arguments(p)
-    p.add_argument("--model", type=Path, default=None,
-                   help="camera model (any format circcal reads) for the distortion-aware centre correction")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="camera model (any format circcal reads) for the distortion-aware centre correction",
+    )
     p.add_argument("--json", required=True, type=Path, dest="json_out", help="output JSON file")
     p.add_argument("--overlay", type=Path, default=None, help="folder for PNG overlays to check by eye")
-    p.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
-                   help="no progress bar (--no-progress, as the other commands spell it)")
-    p.add_argument("--jobs", type=positive_int, default=None,
-                   help="images detected at once (default: one per CPU, at most 8; results do not depend on it)")
+    p.add_argument(
+        "--quiet",
+        "--no-progress",
+        dest="quiet",
+        action="store_true",
+        help="no progress bar (--no-progress, as the other commands spell it)",
+    )
+    p.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=None,
+        help="images detected at once (default: one per CPU, at most 8; results do not depend on it)",
+    )
     p.set_defaults(func=run)
 
 
@@ -51,11 +70,17 @@ def _entry(path: Path, d) -> dict:
     what else the image shows (``notes``)."""
     from circcal.pathnames import path_to_json
 
-    return {"image": path_to_json(path), "found": bool(d.found), "centers": d.centres.tolist() if d.found else None,
-            "reason": d.reason, "reason_code": None if d.code is None else d.code.value,
-            "complete": bool(d.complete) if d.found else None,
-            "points_seen": int(d.seen.sum()) if d.found else 0,
-            "dots_dropped": {str(k): r for k, r in d.dropped.items()}, "notes": list(d.notes)}
+    return {
+        "image": path_to_json(path),
+        "found": bool(d.found),
+        "centers": d.centres.tolist() if d.found else None,
+        "reason": d.reason,
+        "reason_code": None if d.code is None else d.code.value,
+        "complete": bool(d.complete) if d.found else None,
+        "points_seen": int(d.seen.sum()) if d.found else 0,
+        "dots_dropped": {str(k): r for k, r in d.dropped.items()},
+        "notes": list(d.notes),
+    }
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
         last_save = [time.monotonic()]
 
         def save(complete: bool) -> None:
-            doc = {"board": board.to_dict(), "complete": complete,
-                   "images": [entries[i] for i in sorted(entries)]}
+            doc = {"board": board.to_dict(), "complete": complete, "images": [entries[i] for i in sorted(entries)]}
             atomic.write_text(json_path, dumps(doc, indent=1) + "\n")
             last_save[0] = time.monotonic()
 
@@ -97,14 +121,18 @@ def run(args: argparse.Namespace) -> int:
                 save(complete=False)
 
         try:
-            dets = detect_files(list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs,
-                                on_result=on_result)
+            dets = detect_files(
+                list(args.images), board, camera, progress=not args.quiet, jobs=args.jobs, on_result=on_result
+            )
         except BaseException:
             if entries:  # keep what is done, beside the earlier output, which stays as it was
                 save(complete=False)
                 kept = outputs.keep_partial(json_path)
-                print(f"circcal detect: {len(entries)} of {len(args.images)} images done; kept in "
-                      f"{display_name(kept)} ({display_name(args.json_out)} left as it was)", file=sys.stderr)
+                print(
+                    f"circcal detect: {len(entries)} of {len(args.images)} images done; kept in "
+                    f"{display_name(kept)} ({display_name(args.json_out)} left as it was)",
+                    file=sys.stderr,
+                )
             raise
         save(complete=True)
         outputs.commit()
@@ -115,9 +143,11 @@ def run(args: argparse.Namespace) -> int:
         if not d.found:
             print(f"  {name}: {d.reason}")
         elif not d.complete or d.dropped:
-            print(f"  {name}: {int(d.seen.sum())} of {board.n_points} points"
-                  + ("" if d.complete else " (partial view)")
-                  + (f", {d.n_dropped} dot(s) left out as bad" if d.dropped else ""))
+            print(
+                f"  {name}: {int(d.seen.sum())} of {board.n_points} points"
+                + ("" if d.complete else " (partial view)")
+                + (f", {d.n_dropped} dot(s) left out as bad" if d.dropped else "")
+            )
         for note in d.notes:
             print(f"  {name}: {note}")
     return 0 if n == len(dets) else 1

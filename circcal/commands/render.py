@@ -1,4 +1,5 @@
 """``circcal render SCENARIO --out DIR``: write a scenario's images and truth.json."""
+
 from __future__ import annotations
 
 import argparse
@@ -9,12 +10,18 @@ from circcal.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("render", help="render a fixture scenario (images + truth.json)",
-                       description="Render a named fixture scenario: images and truth.json with the exact camera, "
-                                   "poses and centre projections. `--list` shows the catalogue.")
+    p = sub.add_parser(
+        "render",
+        help="render a fixture scenario (images + truth.json)",
+        description="Render a named fixture scenario: images and truth.json with the exact camera, "
+        "poses and centre projections. `--list` shows the catalogue.",
+    )
     p.add_argument("scenario", nargs="?", help="scenario name (see --list)")
-    p.add_argument("--variant", action="append",
-                   help="variant to render (repeatable; default: all variants, each in OUT/<variant>/)")
+    p.add_argument(
+        "--variant",
+        action="append",
+        help="variant to render (repeatable; default: all variants, each in OUT/<variant>/)",
+    )
     p.add_argument("--out", type=Path, help="output folder")
     p.add_argument("--list", action="store_true", help="list scenarios and their variants")
     p.set_defaults(func=run)
@@ -25,8 +32,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.list or not args.scenario:
         for s in SCENARIOS.values():
-            print(f"{s.name:20s} v{s.version}  {s.camera.width}x{s.camera.height} fx={s.camera.fx:g}  "
-                  f"{s.board.rows}x{s.board.cols} {s.board.layout}, {s.n_views} views")
+            print(
+                f"{s.name:20s} v{s.version}  {s.camera.width}x{s.camera.height} fx={s.camera.fx:g}  "
+                f"{s.board.rows}x{s.board.cols} {s.board.layout}, {s.n_views} views"
+            )
             print(f"{'':22s}variants: {', '.join(s.variants)}")
             print(f"{'':22s}{s.description}")
         return 0 if args.list else 2

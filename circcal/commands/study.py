@@ -1,5 +1,6 @@
 """``circcal study SPEC --out DIR``: a Monte-Carlo study or conformance matrix on Dask (an embedded cluster, or any
 cluster given its scheduler); resumable, one Parquet row per run, summary tables and figures in DIR."""
+
 from __future__ import annotations
 
 import argparse
@@ -13,21 +14,34 @@ from circcal.errors import EXIT_FAILED, EXIT_OK
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "study", help="run a study (scenarios x variants x seeds x calibrators x lens models) on Dask",
+        "study",
+        help="run a study (scenarios x variants x seeds x calibrators x lens models) on Dask",
         description="Run every missing run of a study spec (YAML, see circcal.study.spec) and write one Parquet row "
-                    "per run under OUT/rows, then OUT/summary.md, summary.json and figures. Runs already stored are "
-                    "skipped, so an interrupted study finishes by running the same command again. Exit status 1 "
-                    "when some tasks failed (their runs are missing: rerun), 2 on bad input.")
+        "per run under OUT/rows, then OUT/summary.md, summary.json and figures. Runs already stored are "
+        "skipped, so an interrupted study finishes by running the same command again. Exit status 1 "
+        "when some tasks failed (their runs are missing: rerun), 2 on bad input.",
+    )
     p.add_argument("spec", type=Path, help="study spec, e.g. studies/paper-2000.yaml")
     p.add_argument("--out", type=Path, required=True, help="results folder (created; reused to resume)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="a running Dask scheduler, e.g. tcp://host:8786 (default: an embedded LocalCluster)")
-    p.add_argument("--workers", type=positive_int,
-                   help="embedded: worker processes (default one per core, one thread each); with --scheduler: "
-                        "workers to wait for before starting")
-    p.add_argument("--flush-rows", type=positive_int, default=None, metavar="N",
-                   help="rows per Parquet part written as runs finish (default 500, or every 10 s); a killed client "
-                        "loses only rows not yet written, and a rerun computes them again")
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a running Dask scheduler, e.g. tcp://host:8786 (default: an embedded LocalCluster)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        help="embedded: worker processes (default one per core, one thread each); with --scheduler: "
+        "workers to wait for before starting",
+    )
+    p.add_argument(
+        "--flush-rows",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="rows per Parquet part written as runs finish (default 500, or every 10 s); a killed client "
+        "loses only rows not yet written, and a rerun computes them again",
+    )
     p.add_argument("--summary-only", action="store_true", help="write the summary of the rows stored, run nothing")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -45,12 +59,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"summary: {write_summary(args.out)}")
         return EXIT_OK
     print(f"study {spec.name}: {spec.n_runs} runs in {len(spec.cells)} cells -> {args.out}")
-    res = run_study(spec, args.out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
-                    **({} if args.flush_rows is None else {"flush_rows": args.flush_rows}))
+    res = run_study(
+        spec,
+        args.out,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        progress=not args.no_progress,
+        **({} if args.flush_rows is None else {"flush_rows": args.flush_rows}),
+    )
     if res.n_done_before < res.n_runs:
         rate = res.n_computed / res.wall_s if res.wall_s > 0 else float("nan")
-        print(f"computed {res.n_computed} runs in {res.wall_s:.1f} s on {res.workers} workers ({rate:.3g} runs/s; "
-              f"cluster start {res.startup_s:.1f} s); {res.n_done_before} were done before")
+        print(
+            f"computed {res.n_computed} runs in {res.wall_s:.1f} s on {res.workers} workers ({rate:.3g} runs/s; "
+            f"cluster start {res.startup_s:.1f} s); {res.n_done_before} were done before"
+        )
     else:
         print(f"nothing to run: all {res.n_runs} runs were done before")
     for line in res.errors:
@@ -77,6 +99,8 @@ def _check_study_folder(folder: Path) -> None:
             raise InputError(f"--out {folder}: not a folder")
         entries = os.listdir(folder)
         if entries and "study.yaml" not in entries:
-            raise InputError(f"--out {folder}: it holds files of no circcal study ({', '.join(sorted(entries)[:3])}"
-                             f"{', ...' if len(entries) > 3 else ''}); give a new or empty folder")
+            raise InputError(
+                f"--out {folder}: it holds files of no circcal study ({', '.join(sorted(entries)[:3])}"
+                f"{', ...' if len(entries) > 3 else ''}); give a new or empty folder"
+            )
     check_writable_place(folder / "study.yaml", "--out")

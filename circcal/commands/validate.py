@@ -1,5 +1,6 @@
 """``circcal validate``: circcal against the reference calibrators and ground truth; exits 1 when a check fails or
 nothing was checked, so users can gate their own CI on it."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,11 +21,13 @@ from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "validate", help="cross-validate circcal against mrcal, opencv, kornia, pycolmap and ground truth",
+        "validate",
+        help="cross-validate circcal against mrcal, opencv, kornia, pycolmap and ground truth",
         description="Calibrate with circcal and with reference calibrators on the same images, compare every result "
-                    "with circcal and, for rendered fixtures, with the true camera. With no arguments: the `paper` "
-                    "scenario against every reference. Exit status 1 when a check fails or nothing was checked, 2 on "
-                    "bad input.")
+        "with circcal and, for rendered fixtures, with the true camera. With no arguments: the `paper` "
+        "scenario against every reference. Exit status 1 when a check fails or nothing was checked, 2 on "
+        "bad input.",
+    )
     p.add_argument("scenario", nargs="?", help="fixture scenario (default: paper); see `circcal render --list`")
     p.add_argument("--variant", help="scenario variant (default: its first)")
     p.add_argument("--fixtures", type=Path, help="a rendered fixture folder (with truth.json)")
@@ -33,27 +36,62 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pitch", type=parse_length_mm, help="grid pitch, e.g. 10mm, with --images")
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid, with --images")
-    p.add_argument("--against", action="append", default=None,
-                   help="reference(s): mrcal, opencv, kornia, pycolmap, a plug-in name, or all (repeatable or "
-                        "comma-separated; default all)")
-    p.add_argument("--mode", choices=("fair", "default", "both"), default="both",
-                   help="fair = same estimator as OpenCV; default = what the reference's users get (default: both)")
-    p.add_argument("--observations", choices=("circcal", "own"), default="circcal",
-                   help="circcal = every reference fits circcal's centres; own = each reference's own detector")
+    p.add_argument(
+        "--against",
+        action="append",
+        default=None,
+        help="reference(s): mrcal, opencv, kornia, pycolmap, a plug-in name, or all (repeatable or "
+        "comma-separated; default all)",
+    )
+    p.add_argument(
+        "--mode",
+        choices=("fair", "default", "both"),
+        default="both",
+        help="fair = same estimator as OpenCV; default = what the reference's users get (default: both)",
+    )
+    p.add_argument(
+        "--observations",
+        choices=("circcal", "own"),
+        default="circcal",
+        help="circcal = every reference fits circcal's centres; own = each reference's own detector",
+    )
     p.add_argument("--fix-k3", action="store_true", help="hold k3 at 0 in every calibrator that can")
-    p.add_argument("--lens", choices=tuple(LENS_CHOICES), default=None,
-                   help="lens model every calibrator fits: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
-                   + " (default: the fixture's true camera's, else opencv5); a reference without it is reported "
-                     "unsupported with the reason")
-    p.add_argument("--solver-tol", type=positive_float, default=SOLVER_PX, help="max px projection difference to "
-                   f"circcal on identical observations (default {SOLVER_PX:g}; mrcal: {SOLVER_MRCAL_PX:g})")
-    p.add_argument("--truth-sigmas", type=positive_float, default=TRUTH_SIGMAS, help="max |error| of circcal's fx, "
-                   f"fy, cx, cy vs the true camera, in its stated sigmas (default {TRUTH_SIGMAS:g})")
-    p.add_argument("--truth-tol", type=positive_float, default=None, help="also bound circcal's RMS projection "
-                   "difference to the true camera (rotation fitted), px (default: not gated)")
-    p.add_argument("--allow-missing", action="store_true",
-                   help="a reference that is not installed is listed as skipped instead of failing the run "
-                        "(`make setup` installs every built-in one)")
+    p.add_argument(
+        "--lens",
+        choices=tuple(LENS_CHOICES),
+        default=None,
+        help="lens model every calibrator fits: "
+        + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
+        + " (default: the fixture's true camera's, else opencv5); a reference without it is reported "
+        "unsupported with the reason",
+    )
+    p.add_argument(
+        "--solver-tol",
+        type=positive_float,
+        default=SOLVER_PX,
+        help="max px projection difference to "
+        f"circcal on identical observations (default {SOLVER_PX:g}; mrcal: {SOLVER_MRCAL_PX:g})",
+    )
+    p.add_argument(
+        "--truth-sigmas",
+        type=positive_float,
+        default=TRUTH_SIGMAS,
+        help="max |error| of circcal's fx, "
+        f"fy, cx, cy vs the true camera, in its stated sigmas (default {TRUTH_SIGMAS:g})",
+    )
+    p.add_argument(
+        "--truth-tol",
+        type=positive_float,
+        default=None,
+        help="also bound circcal's RMS projection "
+        "difference to the true camera (rotation fitted), px (default: not gated)",
+    )
+    p.add_argument(
+        "--allow-missing",
+        action="store_true",
+        help="a reference that is not installed is listed as skipped instead of failing the run "
+        "(`make setup` installs every built-in one)",
+    )
     p.add_argument("--report", type=Path, help="write validation.json and validation.md into this folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -65,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
     from circcal.validators.validate import format_table, write_report
 
     options = calibration_options(args)  # --lens, --fix-k3 (its lens replaced by the truth's when --lens is not given)
-    with Outputs(inputs=[*(args.images or []), *([args.fixtures] if args.fixtures else [])]) as outputs:  # the report folder checked before the work
+    with Outputs(
+        inputs=[*(args.images or []), *([args.fixtures] if args.fixtures else [])]
+    ) as outputs:  # the report folder checked before the work
         report = None if not args.report else outputs.folder(args.report, "--report", kind="validation")
         against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
         truth_cam = None
@@ -105,7 +145,16 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, options, paths, board, truth_cam, against, source):
     from circcal.validators.validate import Bounds, run_validation
 
-    return run_validation(paths, board, options, truth=truth_cam, against=against, mode=args.mode,
-                          observations=args.observations, progress=not args.no_progress,
-                          bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas, truth=args.truth_tol),
-                          source=source, allow_missing=args.allow_missing)
+    return run_validation(
+        paths,
+        board,
+        options,
+        truth=truth_cam,
+        against=against,
+        mode=args.mode,
+        observations=args.observations,
+        progress=not args.no_progress,
+        bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas, truth=args.truth_tol),
+        source=source,
+        allow_missing=args.allow_missing,
+    )

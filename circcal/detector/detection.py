@@ -1,5 +1,6 @@
 """What the detector says about one image: :class:`Detection`, and the machine-readable :class:`Reason` an image
 was not used (beside the human text; nothing parses the text)."""
+
 from __future__ import annotations
 
 import enum
@@ -98,8 +99,9 @@ class Detection:
 
     def __post_init__(self) -> None:
         if self.found == (self.code is not None):
-            raise ValueError(f"a detection has a reason code exactly when it was not found (found={self.found}, "
-                             f"code={self.code})")
+            raise ValueError(
+                f"a detection has a reason code exactly when it was not found (found={self.found}, code={self.code})"
+            )
 
 
 class Rejection(NamedTuple):

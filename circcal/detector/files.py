@@ -1,6 +1,7 @@
 """Detection on image files (:func:`detect_files`: in threads, in the order given), with the per-image error rule:
 what an image file can legitimately cause becomes ``found=False`` with its :class:`~circcal.detector.Reason`;
 anything else is a bug and propagates with its traceback."""
+
 from __future__ import annotations
 
 import os
@@ -21,9 +22,14 @@ MAX_DEFAULT_JOBS = 8
 """Images detected at once by default: one per CPU, at most this many (the default ``--jobs`` documents)."""
 
 
-def detect_files(paths: list[Path], board: Board, camera: Camera | None = None, progress: bool = True,
-                 jobs: int | None = None, on_result: Callable[[int, Detection], None] | None = None
-                 ) -> list[Detection]:
+def detect_files(
+    paths: list[Path],
+    board: Board,
+    camera: Camera | None = None,
+    progress: bool = True,
+    jobs: int | None = None,
+    on_result: Callable[[int, Detection], None] | None = None,
+) -> list[Detection]:
     """:func:`~circcal.detector.find.detect` on each image file, in the order given. A missing, unreadable or
     corrupt file, an image the detector cannot take, or one of another size than ``camera``'s, gives
     ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is caught. Shows a tqdm progress
@@ -91,7 +97,7 @@ def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
         said_ = f": {'; '.join(said[:3])}" if said else ""
         return Detection(False, None, f"unreadable file (not an image, or corrupt{said_})", Reason.UNREADABLE)
     d = _detect_image(img, board, camera)
-    if said:   # decoded, but the decoder found the file damaged: say so with the result
+    if said:  # decoded, but the decoder found the file damaged: say so with the result
         d.notes = [*d.notes, "the file is damaged (the decoder said: " + "; ".join(said[:3]) + ")"]
     return d
 
@@ -100,7 +106,7 @@ def _not_a_file(path: Path) -> str:
     """Why ``path``, which is no regular file, cannot be read, in words."""
     try:
         os.stat(path)
-    except OSError as exc:   # missing, a link to nothing, a loop of links, a folder on the way that is a file
+    except OSError as exc:  # missing, a link to nothing, a loop of links, a folder on the way that is a file
         if path.is_symlink():
             return f"file not found: a symbolic link that leads nowhere ({exc.strerror or exc})"
         return "file not found" + ("" if isinstance(exc, FileNotFoundError) else f" ({exc.strerror or exc})")

@@ -25,6 +25,7 @@ iterating its distortion estimate needs; ~1 ms per view).
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres); centres in OpenCV's object-point order.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -66,8 +67,13 @@ def _check_camera(camera: Camera | None, width: int, height: int) -> None:
         raise ImageError(why)
 
 
-def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
-           time_budget_s: float | None = DEFAULT_TIME_BUDGET_S) -> Detection:
+def detect(
+    image: np.ndarray,
+    board: Board,
+    camera: Camera | None = None,
+    *,
+    time_budget_s: float | None = DEFAULT_TIME_BUDGET_S,
+) -> Detection:
     """Find ``board``'s circle grid in ``image`` and return the images of the circle centres.
 
     ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots
@@ -89,16 +95,28 @@ def detect(image: np.ndarray, board: Board, camera: Camera | None = None, *,
     try:
         return _detect(gray, board, camera, deadline)
     except BudgetExceeded:
-        return Detection(False, None, f"not found: time budget exceeded ({deadline.budget_s:g} s; the image has "
-                                      f"dense dot-like texture?)", Reason.TIME_BUDGET, image_size=(W, H))
+        return Detection(
+            False,
+            None,
+            f"not found: time budget exceeded ({deadline.budget_s:g} s; the image has dense dot-like texture?)",
+            Reason.TIME_BUDGET,
+            image_size=(W, H),
+        )
 
 
 BRIGHT_DOTS_NOTE = "bright dots on a dark board: found on the inverted image"
 """The note of a detection made on the inverted image (:func:`_not_found`)."""
 
 
-def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, camera: Camera | None,
-               deadline: Deadline, inverted: bool) -> Detection:
+def _not_found(
+    board: Board,
+    rec: Recognition,
+    best: int,
+    gray: np.ndarray,
+    camera: Camera | None,
+    deadline: Deadline,
+    inverted: bool,
+) -> Detection:
     """The Detection of an image without the board (dark dots on a bright board): the recognition's reason; where
     the inverted image shows the board's lattice (bright dots on a dark board), the detection on the inverted image
     when it is found there (noted: :data:`BRIGHT_DOTS_NOTE`), else the reason with what the inverted image gave.
@@ -112,8 +130,9 @@ def _not_found(board: Board, rec: Recognition, best: int, gray: np.ndarray, came
             msg += f": {rec.message}"
     else:
         code = rec.code or Reason.GRID_NOT_RECOGNISED
-        msg = f"{grid} not found: {rec.message}" if rec.message else f"{grid} not recognised among {best} " \
-                                                                      f"candidate dots"
+        msg = (
+            f"{grid} not found: {rec.message}" if rec.message else f"{grid} not recognised among {best} candidate dots"
+        )
         if code == Reason.GRID_NOT_RECOGNISED and "candidate dots" not in msg:
             msg += f" ({best} candidate dots)"
     if not inverted and code in (Reason.TOO_FEW_CANDIDATES, Reason.GRID_NOT_RECOGNISED):
@@ -140,8 +159,9 @@ def _shows_board(gray: np.ndarray, board: Board, deadline: Deadline) -> bool:
     return rec.order is not None
 
 
-def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline, *,
-            inverted: bool = False) -> Detection:
+def _detect(
+    gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline, *, inverted: bool = False
+) -> Detection:
     H, W = gray.shape
     rec, cands, seg_name, best = segment_and_recognise(gray, board, deadline)
     if rec.order is None:
@@ -151,62 +171,107 @@ def _detect(gray: np.ndarray, board: Board, camera: Camera | None, deadline: Dea
     absent = np.zeros(0, np.int64)
     if not rec.complete and not board.has_markers:
         lab = np.nonzero(seen)[0]
-        absent = absent_dots(board, lab, np.array([cands[rec.order[k]].centre for k in lab]),
-                             np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1])
-                                       for k in lab]), gray)
+        absent = absent_dots(
+            board,
+            lab,
+            np.array([cands[rec.order[k]].centre for k in lab]),
+            np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1]) for k in lab]),
+            gray,
+        )
         if len(absent) > ABSENT_MAX_SHARE * len(lab):
-            return Detection(False, None, f"grid {board.rows}x{board.cols} not recognised: a lattice of "
-                                          f"{int(seen.sum())} dots fits part of the board, but {len(absent)} of the "
-                                          "board's other dots would lie on bare board inside the image (a dot "
-                                          "lattice of another layout?)", Reason.GRID_NOT_RECOGNISED,
-                             image_size=(W, H), notes=list(rec.notes))
-    dropped = {int(k): "not seen: the image is as white as the bare board where it lies (glare, or no dot?)"
-               for k in absent}
+            return Detection(
+                False,
+                None,
+                f"grid {board.rows}x{board.cols} not recognised: a lattice of "
+                f"{int(seen.sum())} dots fits part of the board, but {len(absent)} of the "
+                "board's other dots would lie on bare board inside the image (a dot "
+                "lattice of another layout?)",
+                Reason.GRID_NOT_RECOGNISED,
+                image_size=(W, H),
+                notes=list(rec.notes),
+            )
+    dropped = {
+        int(k): "not seen: the image is as white as the bare board where it lies (glare, or no dot?)" for k in absent
+    }
     dropped.update({int(k): "cut by the image border" for k in np.nonzero(seen & rec.cut)[0]})
     todo = np.nonzero(seen & ~rec.cut)[0]
-    Q0 = conic_from_params_batch(np.array([cands[rec.order[k]].centre for k in todo]),
-                                 np.array([cands[rec.order[k]].axes for k in todo]),
-                                 np.array([cands[rec.order[k]].angle for k in todo]))
+    Q0 = conic_from_params_batch(
+        np.array([cands[rec.order[k]].centre for k in todo]),
+        np.array([cands[rec.order[k]].axes for k in todo]),
+        np.array([cands[rec.order[k]].angle for k in todo]),
+    )
     pts, mask, conics_d, errors = fit_dots(SmoothedImage(gray, EDGE_SIGMA), Q0)
     deadline.check()
-    params = conic_params_batch(conics_d)    # (row by row: the same values as of any subset of the rows)
+    params = conic_params_batch(conics_d)  # (row by row: the same values as of any subset of the rows)
     dropped.update(bad_dots(board, todo, pts, mask, conics_d, errors, (W, H), gray, params=params))
     keep = np.array([int(k) not in dropped for k in todo], bool)
     used = todo[keep]
     cand_xy = np.array([c.centre for c in cands])
     need = min(N, MIN_PARTIAL_POINTS)
     if len(used) < need:
-        return Detection(False, None, f"grid {board.rows}x{board.cols} recognised, but only {len(used)} of its "
-                                      f"{int(seen.sum())} dots in view are measurable ({need} needed; "
-                                      f"{len(dropped)} left out: " + _why(dropped) + ")"
-                                      + _view_wide(dropped, int(seen.sum())),
-                         Reason.TOO_FEW_POINTS, image_size=(W, H), candidates=cand_xy, dropped=dropped,
-                         notes=list(rec.notes))
+        return Detection(
+            False,
+            None,
+            f"grid {board.rows}x{board.cols} recognised, but only {len(used)} of its "
+            f"{int(seen.sum())} dots in view are measurable ({need} needed; "
+            f"{len(dropped)} left out: " + _why(dropped) + ")" + _view_wide(dropped, int(seen.sum())),
+            Reason.TOO_FEW_POINTS,
+            image_size=(W, H),
+            candidates=cand_xy,
+            dropped=dropped,
+            notes=list(rec.notes),
+        )
     kept = tuple(p[keep] for p in params)
     ell_c = kept[0]
-    try:                                          # one fit serves the lattice check and the centre correction
+    try:  # one fit serves the lattice check and the centre correction
         H0 = fit_homography(board.object_points()[used, :2], ell_c)
     except ValueError:
         H0 = None
     why = check_grid(board, used, ell_c, conics_d[keep], params=kept, H=H0)
     if why is not None:
-        return Detection(False, None, f"grid {board.rows}x{board.cols} not trusted: {why}", Reason.IRREGULAR_GRID,
-                         image_size=(W, H), candidates=cand_xy, dropped=dropped, notes=list(rec.notes))
-    flat = pts[keep][mask[keep]]                  # the kept dots' points, dot after dot (one boolean index, not K)
+        return Detection(
+            False,
+            None,
+            f"grid {board.rows}x{board.cols} not trusted: {why}",
+            Reason.IRREGULAR_GRID,
+            image_size=(W, H),
+            candidates=cand_xy,
+            dropped=dropped,
+            notes=list(rec.notes),
+        )
+    flat = pts[keep][mask[keep]]  # the kept dots' points, dot after dot (one boolean index, not K)
     ends = np.cumsum(mask[keep].sum(axis=1)).tolist()
-    edge_points = [np.zeros((0, 2))] * N          # (the empty entries share one (0, 2) array)
+    edge_points = [np.zeros((0, 2))] * N  # (the empty entries share one (0, 2) array)
     for i, a, b in zip(used.tolist(), [0] + ends[:-1], ends):
         edge_points[i] = flat[a:b]
     try:
         centres, conics, Hb = _correct(edge_points, board, camera, conics_d[keep], used, H0=H0)
     except ValueError as exc:
-        return Detection(False, None, f"centre correction failed: {exc}", Reason.CENTRE_CORRECTION_FAILED,
-                         edge_points=edge_points, image_size=(W, H))
+        return Detection(
+            False,
+            None,
+            f"centre correction failed: {exc}",
+            Reason.CENTRE_CORRECTION_FAILED,
+            edge_points=edge_points,
+            image_size=(W, H),
+        )
     ellipse_centres = np.full((N, 2), np.nan)
     ellipse_centres[used] = ell_c
-    return Detection(True, centres, None, edge_points=edge_points, conics=conics, ellipse_centres=ellipse_centres,
-                     homography=Hb, candidates=cand_xy, image_size=(W, H), segmentation=seg_name,
-                     complete=rec.complete, dropped=dict(sorted(dropped.items())), notes=list(rec.notes))
+    return Detection(
+        True,
+        centres,
+        None,
+        edge_points=edge_points,
+        conics=conics,
+        ellipse_centres=ellipse_centres,
+        homography=Hb,
+        candidates=cand_xy,
+        image_size=(W, H),
+        segmentation=seg_name,
+        complete=rec.complete,
+        dropped=dict(sorted(dropped.items())),
+        notes=list(rec.notes),
+    )
 
 
 def _reason_counts(dropped: dict[int, str]) -> dict[str, int]:
@@ -231,12 +296,17 @@ board other than the one described), not an occluder's."""
 
 def _view_wide(dropped: dict[int, str], in_view: int) -> str:
     """The hint of :data:`VIEW_WIDE_SHARE` for a view whose ``in_view`` dots lost ``dropped``, or ""."""
-    counts = {r: n for r, n in _reason_counts(dropped).items()
-              if r != "cut by the image border" and not r.startswith("not seen")}
+    counts = {
+        r: n
+        for r, n in _reason_counts(dropped).items()
+        if r != "cut by the image border" and not r.startswith("not seen")
+    }
     if not counts or max(counts.values()) < VIEW_WIDE_SHARE * in_view:
         return ""
-    return ("; nearly every dot alike: something over the whole view (motion blur, defocus, a board other than the "
-            "one described?) rather than occluders")
+    return (
+        "; nearly every dot alike: something over the whole view (motion blur, defocus, a board other than the "
+        "one described?) rather than occluders"
+    )
 
 
 def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.ndarray:
@@ -255,9 +325,16 @@ def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.n
     return _correct(detection.edge_points, board, camera, None, used, drop_uninvertible=True)[0]
 
 
-def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
-             conics: np.ndarray | None, used: np.ndarray, *, drop_uninvertible: bool = False,
-             H0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _correct(
+    edge_points: list[np.ndarray],
+    board: Board,
+    camera: Camera | None,
+    conics: np.ndarray | None,
+    used: np.ndarray,
+    *,
+    drop_uninvertible: bool = False,
+    H0: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centres (N, 2) in the observed image (NaN for points not in ``used``), conics (N, 3, 3) in the undistorted
     image (NaN likewise), H board -> undistorted image, from the ``edge_points`` (N lists of (M_k, 2) px, board
     order, observed image) of the board points ``used`` (K,). ``conics``: (K, 3, 3) the ellipses already fitted
@@ -279,8 +356,8 @@ def _correct(edge_points: list[np.ndarray], board: Board, camera: Camera | None,
         P = np.zeros((len(sub), width, 2))
         M = np.zeros((len(sub), width), bool)
         for i, p in enumerate(sub):
-            P[i, :len(p)] = p
-            M[i, :len(p)] = True
+            P[i, : len(p)] = p
+            M[i, : len(p)] = True
         if fisheye:
             c, H = correct_centres_on_rays(P, M, obj, camera)
             centres = np.full((N, 2), np.nan)

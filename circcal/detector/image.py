@@ -4,6 +4,7 @@ work on.
 
 Arrays are (H, W) grey or (H, W, 3|4) BGR(A), of dtype uint8, uint16 or float (OpenCV's layout).
 """
+
 from __future__ import annotations
 
 import io
@@ -21,9 +22,19 @@ import numpy as np
 from circcal.detector.kernels.jit import njit
 from circcal.errors import ImageError, InputError
 
-__all__ = ["MAX_IMAGE_PIXELS", "MAX_IMAGE_PIXELS_ENV", "ImageTooLargeError", "as_gray", "decode_image",
-           "histogram_u8", "max_image_pixels", "normalise_u8", "read_image", "read_image_messages",
-           "stretch_percentiles"]
+__all__ = [
+    "MAX_IMAGE_PIXELS",
+    "MAX_IMAGE_PIXELS_ENV",
+    "ImageTooLargeError",
+    "as_gray",
+    "decode_image",
+    "histogram_u8",
+    "max_image_pixels",
+    "normalise_u8",
+    "read_image",
+    "read_image_messages",
+    "stretch_percentiles",
+]
 
 MIN_IMAGE_SIDE = 8
 """Images with a side shorter than this (px) are refused: no dot with a measurable boundary fits."""
@@ -39,7 +50,7 @@ FLOAT_SUBSAMPLE_STEP = 4
 """Float images larger than :data:`FLOAT_SUBSAMPLE_ABOVE` pixels take their stretch percentiles from every 4th pixel
 in each direction (1/16 of the pixels; percentiles of a smooth histogram barely move)."""
 FLOAT_SUBSAMPLE_ABOVE = 400_000
-MAX_IMAGE_PIXELS = 2 ** 28
+MAX_IMAGE_PIXELS = 2**28
 """Image files whose header claims more pixels than this (268 MP) are refused before decoding
 (:class:`ImageTooLargeError`), unless :data:`MAX_IMAGE_PIXELS_ENV` says otherwise. A 74-byte PNG can claim 10^10
 pixels: the decoder would allocate them (or OpenCV refuses them with an exception of its own, beyond its 2^30).
@@ -51,9 +62,11 @@ MAX_IMAGE_PIXELS_ENV = "CIRCCAL_MAX_IMAGE_PIXELS"
 ``500000000`` or ``5e8``); read at each image, so it can be changed while the process runs."""
 
 
-DECODER_NOISE = re.compile(r"^(libpng (warning|error)|Corrupt JPEG data|Premature end of JPEG|Invalid SOS|"
-                           r"\[ ?(WARN|ERROR) ?:.*(grfmt_|imgcodecs|loadsave|imdecode)|Warning: unknown JFIF|"
-                           r"libtiff|TIFFRead)")
+DECODER_NOISE = re.compile(
+    r"^(libpng (warning|error)|Corrupt JPEG data|Premature end of JPEG|Invalid SOS|"
+    r"\[ ?(WARN|ERROR) ?:.*(grfmt_|imgcodecs|loadsave|imdecode)|Warning: unknown JFIF|"
+    r"libtiff|TIFFRead)"
+)
 """Lines the image decoders (libpng, libjpeg, libtiff, OpenCV's codec layer: its warnings and errors, with the
 ``>`` lines that continue them) print on stderr about a corrupt or odd file: caught while decoding and handed to the
 caller (a detection's reason or notes), never left on the console. Anything else written to stderr meanwhile is
@@ -98,16 +111,22 @@ def max_image_pixels() -> int:
     except ValueError:
         value = 0
     if not (np.isfinite(value) and value >= 1 and value == int(value)):
-        raise InputError(f"environment variable {MAX_IMAGE_PIXELS_ENV}={raw!r}: expected a positive whole number "
-                         f"of pixels (the default is {MAX_IMAGE_PIXELS})")
+        raise InputError(
+            f"environment variable {MAX_IMAGE_PIXELS_ENV}={raw!r}: expected a positive whole number "
+            f"of pixels (the default is {MAX_IMAGE_PIXELS})"
+        )
     return int(value)
 
 
 def _too_large(claimed: str, pixels: int | None, limit: int) -> ImageTooLargeError:
     """The error for an image whose header claims ``claimed`` (words), ``pixels`` in all, beyond ``limit``."""
-    return ImageTooLargeError(f"image too large: {claimed}, more than the limit of {limit} pixels ({_mp(limit)}; not "
-                              f"decoded: to take it, set the environment variable {MAX_IMAGE_PIXELS_ENV} to a larger "
-                              "number of pixels)", pixels, limit)
+    return ImageTooLargeError(
+        f"image too large: {claimed}, more than the limit of {limit} pixels ({_mp(limit)}; not "
+        f"decoded: to take it, set the environment variable {MAX_IMAGE_PIXELS_ENV} to a larger "
+        "number of pixels)",
+        pixels,
+        limit,
+    )
 
 
 def _mp(pixels: int) -> str:
@@ -130,14 +149,14 @@ def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:
     the decoder, or the reading of the file, decides)."""
     try:
         from PIL import Image  # (imported here: start-up does not pay for it)
-    except ImportError:         # Pillow comes with matplotlib; without it the decoder decides
+    except ImportError:  # Pillow comes with matplotlib; without it the decoder decides
         return None
     with _HEADER_LOCK, warnings.catch_warnings():
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         try:
             with Image.open(source) as im:
                 w, h = (int(v) for v in im.size)
-        except Image.DecompressionBombError as exc:   # beyond twice Pillow's own limit: the count is in its words
+        except Image.DecompressionBombError as exc:  # beyond twice Pillow's own limit: the count is in its words
             m = re.search(r"\((\d+) pixels\)", str(exc))
             n = int(m.group(1)) if m else None
             return None if n is None else (n, f"its header claims {n} pixels ({_mp(n)})")
@@ -185,11 +204,15 @@ def _decode_within(data: np.ndarray, limit: int) -> tuple[np.ndarray | None, lis
     img, noise = _decode(data)
     if isinstance(img, cv2.error):
         said = _opencv_message(str(img))
-        if "CV_IO_MAX_IMAGE" in said:    # OpenCV's own size limits (a header Pillow cannot read, or a larger limit)
-            raise ImageTooLargeError(f"image too large for OpenCV's decoder: the size in its header fails its check "
-                                     f"({said}; OpenCV's limits are set by the environment variables "
-                                     "OPENCV_IO_MAX_IMAGE_PIXELS, OPENCV_IO_MAX_IMAGE_WIDTH and "
-                                     "OPENCV_IO_MAX_IMAGE_HEIGHT)", None, limit)
+        if "CV_IO_MAX_IMAGE" in said:  # OpenCV's own size limits (a header Pillow cannot read, or a larger limit)
+            raise ImageTooLargeError(
+                f"image too large for OpenCV's decoder: the size in its header fails its check "
+                f"({said}; OpenCV's limits are set by the environment variables "
+                "OPENCV_IO_MAX_IMAGE_PIXELS, OPENCV_IO_MAX_IMAGE_WIDTH and "
+                "OPENCV_IO_MAX_IMAGE_HEIGHT)",
+                None,
+                limit,
+            )
         img, noise = None, [*noise, said]
     if img is not None and img.shape[0] * img.shape[1] > limit:
         n = img.shape[0] * img.shape[1]
@@ -203,7 +226,7 @@ def _decode(data: np.ndarray) -> tuple[np.ndarray | cv2.error | None, list[str]]
     with _DECODE_LOCK:
         try:
             sys.stderr.flush()
-        except (AttributeError, ValueError, OSError):   # no usable sys.stderr (closed, replaced): decode plainly
+        except (AttributeError, ValueError, OSError):  # no usable sys.stderr (closed, replaced): decode plainly
             return _imdecode(data), []
         with tempfile.TemporaryFile() as buf:
             saved = os.dup(2)
@@ -219,7 +242,7 @@ def _decode(data: np.ndarray) -> tuple[np.ndarray | cv2.error | None, list[str]]
     other: list[str] = []
     last_noise = False
     for ln in (ln.strip() for ln in text.splitlines() if ln.strip()):
-        if ln.startswith(">") and last_noise:    # the lines of a multi-line OpenCV error go with it
+        if ln.startswith(">") and last_noise:  # the lines of a multi-line OpenCV error go with it
             noise[-1] = f"{noise[-1]} {ln.lstrip('>').strip()}"
         elif DECODER_NOISE.search(ln):
             noise.append(_opencv_message(ln))
@@ -248,7 +271,7 @@ def read_image_messages(path: Path) -> tuple[np.ndarray | None, list[str]]:
     if not path.is_file():
         return None, []
     limit = max_image_pixels()
-    _check_header(path, limit)       # from the file: one that claims too much is refused before it is read whole
+    _check_header(path, limit)  # from the file: one that claims too much is refused before it is read whole
     data = np.fromfile(str(path), dtype=np.uint8)
     if data.size == 0:
         return None, []
@@ -350,14 +373,14 @@ def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX, hist: np.nd
         sub = gray[::step, ::step] if gray.size > FLOAT_SUBSAMPLE_ABOVE else gray
         q = stretch_percentiles(sub.size, tail_px * sub.size / gray.size)
         lo, hi = np.percentile(sub.astype(np.float64), q)
-    if hi <= lo:   # a flat image: any positive range (everything maps to 0)
+    if hi <= lo:  # a flat image: any positive range (everything maps to 0)
         hi = lo + 1e-9
     scale = 255.0 / (hi - lo)
     if gray.dtype in (np.uint8, np.uint16):
         lut = np.clip((np.arange(np.iinfo(gray.dtype).max + 1, dtype=np.float64) - lo) * scale, 0, 255)
         lut = lut.astype(np.uint8)
         if hist is not None:
-            hist += np.bincount(lut[:len(counts)], weights=counts, minlength=256).astype(np.int64)
+            hist += np.bincount(lut[: len(counts)], weights=counts, minlength=256).astype(np.int64)
         return cv2.LUT(gray, lut) if gray.dtype == np.uint8 else lut[gray]
     out = np.clip((gray.astype(np.float64) - lo) * scale, 0, 255).astype(np.uint8)
     if hist is not None:
@@ -383,8 +406,16 @@ def _histogram_kernel(values, out):
     part = np.zeros((8, 256), np.int32)
     count_into(values, part)
     for v in range(256):
-        out[v] += np.int64(part[0, v]) + part[1, v] + part[2, v] + part[3, v] + part[4, v] + part[5, v] \
-            + part[6, v] + part[7, v]
+        out[v] += (
+            np.int64(part[0, v])
+            + part[1, v]
+            + part[2, v]
+            + part[3, v]
+            + part[4, v]
+            + part[5, v]
+            + part[6, v]
+            + part[7, v]
+        )
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -415,6 +446,6 @@ def _histogram_percentiles(counts: np.ndarray, q: tuple[float, ...]) -> np.ndarr
     n = int(cum[-1])
     h = (n - 1) * np.asarray(q, np.float64) / 100.0
     k = np.floor(h).astype(np.int64)
-    lo = np.searchsorted(cum, k, side="right")                          # the k-th smallest value (0-based)
+    lo = np.searchsorted(cum, k, side="right")  # the k-th smallest value (0-based)
     hi = np.searchsorted(cum, np.minimum(k + 1, n - 1), side="right")
     return lo + (h - k) * (hi - lo)

@@ -6,6 +6,7 @@ partial view with NaN for the points not seen, dots left out, values far outside
 be and skipped where not: drawing never fails on a detection. :func:`overlay_file` draws the overlay of an image
 file, or says ``None`` when the file gives no image.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -55,8 +56,9 @@ class _Canvas:
 
     def marker(self, p: np.ndarray, colour: tuple[int, int, int], kind: int, size: float) -> None:
         if self.ok(p):
-            cv2.drawMarker(self.vis, (int(round(p[0])), int(round(p[1]))), colour, kind,
-                           max(1, int(size * self.scale)), 1)
+            cv2.drawMarker(
+                self.vis, (int(round(p[0])), int(round(p[1]))), colour, kind, max(1, int(size * self.scale)), 1
+            )
 
     def dot(self, p: np.ndarray, colour: tuple[int, int, int]) -> None:
         if self.ok(p):
@@ -72,18 +74,36 @@ class _Canvas:
             return
         try:
             c, (a, b), ang = conic_params(fit_ellipse_direct(pts))
-        except (ValueError, np.linalg.LinAlgError):   # no ellipse through these points
+        except (ValueError, np.linalg.LinAlgError):  # no ellipse through these points
             return
         size = max(self.vis.shape[:2])
         if not (self.ok(np.asarray(c)) and np.isfinite([a, b, ang]).all() and 0 <= a < size and 0 <= b < size):
             return
-        cv2.ellipse(self.vis, _pt(c), (int(round(a * _S)), int(round(b * _S))), float(np.degrees(ang)), 0, 360,
-                    colour, 1, cv2.LINE_AA, _SHIFT)
+        cv2.ellipse(
+            self.vis,
+            _pt(c),
+            (int(round(a * _S)), int(round(b * _S))),
+            float(np.degrees(ang)),
+            0,
+            360,
+            colour,
+            1,
+            cv2.LINE_AA,
+            _SHIFT,
+        )
 
     def text(self, s: str, p: np.ndarray, colour: tuple[int, int, int], size: float) -> None:
         if self.ok(p):
-            cv2.putText(self.vis, s.encode("ascii", "replace").decode(), (int(round(p[0])), int(round(p[1]))),
-                        cv2.FONT_HERSHEY_SIMPLEX, size * self.scale, colour, 1, cv2.LINE_AA)
+            cv2.putText(
+                self.vis,
+                s.encode("ascii", "replace").decode(),
+                (int(round(p[0])), int(round(p[1]))),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                size * self.scale,
+                colour,
+                1,
+                cv2.LINE_AA,
+            )
 
 
 def _pt(p: np.ndarray) -> tuple[int, int]:

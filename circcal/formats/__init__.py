@@ -27,6 +27,7 @@ refused by name); the foreign formats (OpenCV, ROS, mrcal, COLMAP) carry extra f
 Writing is atomic (a temporary file in the same folder, then a rename), so a failed write leaves an earlier file
 as it was.
 """
+
 from __future__ import annotations
 
 import re
@@ -44,13 +45,30 @@ from circcal.jsonio import dumps, parse_json, read_text
 from circcal.model import Camera
 
 __all__ = [
-    "FORMATS", "detect_format", "read_camera", "read_model", "write_camera", "model_json", "camera_from_json",
-    "MODEL_FORMAT", "MODEL_VERSION", "MODEL_SECTIONS", "COLMAP_PIXEL_OFFSET", "opencv_yaml_text",
-    "camera_from_opencv_yaml", "camera_from_K_dist", "camera_to_cameramodel", "camera_from_cameramodel",
-    "camera_to_colmap", "camera_from_colmap", "camera_to_ros_yaml", "camera_from_ros_yaml",
+    "FORMATS",
+    "detect_format",
+    "read_camera",
+    "read_model",
+    "write_camera",
+    "model_json",
+    "camera_from_json",
+    "MODEL_FORMAT",
+    "MODEL_VERSION",
+    "MODEL_SECTIONS",
+    "COLMAP_PIXEL_OFFSET",
+    "opencv_yaml_text",
+    "camera_from_opencv_yaml",
+    "camera_from_K_dist",
+    "camera_to_cameramodel",
+    "camera_from_cameramodel",
+    "camera_to_colmap",
+    "camera_from_colmap",
+    "camera_to_ros_yaml",
+    "camera_from_ros_yaml",
 ]
 
 FORMATS: tuple[str, ...] = ("json", "opencv", "mrcal", "colmap", "ros")
+
 
 def detect_format(path: str | Path, text: str | None = None) -> str:
     """Format of a camera file from its name and (when ``text`` is given) its content. Returns one of
@@ -72,8 +90,9 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
             return "opencv"
         if re.search(r"^\s*(distortion_model|camera_matrix|K)\s*:", text, re.M):
             return "ros"
-        if re.search(r"^\s*\d+\s+(OPENCV|FULL_OPENCV|OPENCV_FISHEYE|PINHOLE|SIMPLE_PINHOLE|SIMPLE_RADIAL|RADIAL)\s",
-                     text, re.M):
+        if re.search(
+            r"^\s*\d+\s+(OPENCV|FULL_OPENCV|OPENCV_FISHEYE|PINHOLE|SIMPLE_PINHOLE|SIMPLE_RADIAL|RADIAL)\s", text, re.M
+        ):
             return "colmap"
     if ext == ".json":
         return "json"
@@ -85,9 +104,11 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
         return "opencv"
     if ext in (".yaml", ".yml"):
         return "ros" if ("camera_info" in name or "ros" in re.split(r"[._\-]", name)) else "opencv"
-    raise InputError(f"cannot tell the camera format of {p.name!r}: use .json (circcal), .yaml/.yml/.xml (OpenCV; "
-                     f"ROS camera_info when the name holds 'camera_info'), .cameramodel (mrcal) or .txt (COLMAP "
-                     f"cameras.txt), or name the format ({', '.join(FORMATS)})")
+    raise InputError(
+        f"cannot tell the camera format of {p.name!r}: use .json (circcal), .yaml/.yml/.xml (OpenCV; "
+        f"ROS camera_info when the name holds 'camera_info'), .cameramodel (mrcal) or .txt (COLMAP "
+        f"cameras.txt), or name the format ({', '.join(FORMATS)})"
+    )
 
 
 def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict | None]:
@@ -107,8 +128,12 @@ def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict |
         if fmt == "json":
             data = parse_json(text, **JSON_LIMITS)
             return check_camera(camera_from_json(data)), data
-        readers = {"opencv": camera_from_opencv_yaml, "mrcal": camera_from_cameramodel,
-                   "colmap": camera_from_colmap, "ros": camera_from_ros_yaml}
+        readers = {
+            "opencv": camera_from_opencv_yaml,
+            "mrcal": camera_from_cameramodel,
+            "colmap": camera_from_colmap,
+            "ros": camera_from_ros_yaml,
+        }
         if fmt not in readers:
             raise InputError(f"unknown camera format {fmt!r}; expected one of {', '.join(FORMATS)}")
         return check_camera(readers[fmt](text)), None
@@ -121,8 +146,15 @@ def read_camera(path: str | Path, fmt: str | None = None) -> Camera:
     return read_model(path, fmt)[0]
 
 
-def write_camera(path: str | Path, camera: Camera, fmt: str | None = None, *, document: dict | None = None,
-                 colmap_model: str = "auto", name: str = "camera") -> str:
+def write_camera(
+    path: str | Path,
+    camera: Camera,
+    fmt: str | None = None,
+    *,
+    document: dict | None = None,
+    colmap_model: str = "auto",
+    name: str = "camera",
+) -> str:
     """Write ``camera`` to ``path`` in ``fmt`` (default: from the file name), atomically. For ``json``,
     ``document`` (a :func:`~circcal.formats.modeljson.model_json` document, e.g. from
     :meth:`circcal.pipeline.ImagesCalibration.to_model_json`) is written when given, its camera block replaced by

@@ -2,6 +2,7 @@
 k4 k5 k6: OpenCV's rational vector) and ``OPENCV_FISHEYE`` (fx fy cx cy k1 k2 k3 k4: cv2.fisheye's). COLMAP has no
 thin-prism model (a ``thin-prism`` camera is refused with that reason). COLMAP puts the top-left pixel's centre at
 (0.5, 0.5), OpenCV at (0, 0): ``cx_colmap = cx + 0.5`` at this file boundary and nowhere else."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,8 +15,15 @@ __all__ = ["COLMAP_PIXEL_OFFSET", "COLMAP_MODELS", "camera_to_colmap", "camera_f
 
 COLMAP_PIXEL_OFFSET = 0.5  # COLMAP pixel-centre convention minus OpenCV's
 #: The COLMAP models this module reads, with their parameter counts.
-COLMAP_MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12,
-                 "OPENCV_FISHEYE": 8}
+COLMAP_MODELS = {
+    "SIMPLE_PINHOLE": 3,
+    "PINHOLE": 4,
+    "SIMPLE_RADIAL": 4,
+    "RADIAL": 5,
+    "OPENCV": 8,
+    "FULL_OPENCV": 12,
+    "OPENCV_FISHEYE": 8,
+}
 
 
 def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) -> str:
@@ -26,11 +34,16 @@ def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) ->
     model = model.upper()
     lens = camera.lens
     if lens == "thin-prism":
-        raise InputError("COLMAP has no thin-prism model (its OpenCV models are OPENCV, FULL_OPENCV and "
-                         "OPENCV_FISHEYE): write another format, or calibrate with --lens rational")
+        raise InputError(
+            "COLMAP has no thin-prism model (its OpenCV models are OPENCV, FULL_OPENCV and "
+            "OPENCV_FISHEYE): write another format, or calibrate with --lens rational"
+        )
     if model == "AUTO":
-        model = {"fisheye": "OPENCV_FISHEYE", "rational": "FULL_OPENCV",
-                 "opencv5": "OPENCV" if camera.dist[-1] == 0.0 else "FULL_OPENCV"}[lens]
+        model = {
+            "fisheye": "OPENCV_FISHEYE",
+            "rational": "FULL_OPENCV",
+            "opencv5": "OPENCV" if camera.dist[-1] == 0.0 else "FULL_OPENCV",
+        }[lens]
     d = [float(v) for v in camera.dist]
     if lens == "fisheye":
         if model != "OPENCV_FISHEYE":
@@ -38,20 +51,26 @@ def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) ->
         extra = d
     elif model == "OPENCV":
         if any(d[4:]):
-            raise InputError(f"COLMAP's OPENCV model has no k3..k6, and this camera has k3.. = {d[4:]}: write "
-                             f"FULL_OPENCV instead (or calibrate with k3 fixed at 0)")
+            raise InputError(
+                f"COLMAP's OPENCV model has no k3..k6, and this camera has k3.. = {d[4:]}: write "
+                f"FULL_OPENCV instead (or calibrate with k3 fixed at 0)"
+            )
         extra = d[:4]
     elif model == "FULL_OPENCV":
         extra = (d + [0.0, 0.0, 0.0])[:8]
     else:
-        raise InputError(f"unsupported COLMAP model {model!r} for a {lens} camera; expected OPENCV, FULL_OPENCV or "
-                         f"OPENCV_FISHEYE")
+        raise InputError(
+            f"unsupported COLMAP model {model!r} for a {lens} camera; expected OPENCV, FULL_OPENCV or OPENCV_FISHEYE"
+        )
     params = [camera.fx, camera.fy, camera.cx + COLMAP_PIXEL_OFFSET, camera.cy + COLMAP_PIXEL_OFFSET] + extra
-    return ("# Camera list with one line of data per camera:\n"
-            "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-            "# Number of cameras: 1\n"
-            f"{camera_id} {model} {int(camera.width)} {int(camera.height)} "
-            + " ".join(repr(float(v)) for v in params) + "\n")
+    return (
+        "# Camera list with one line of data per camera:\n"
+        "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+        "# Number of cameras: 1\n"
+        f"{camera_id} {model} {int(camera.width)} {int(camera.height)} "
+        + " ".join(repr(float(v)) for v in params)
+        + "\n"
+    )
 
 
 def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
@@ -62,8 +81,9 @@ def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
     if camera_id is not None:
         lines = [ln for ln in lines if ln[0] == str(camera_id)]
     if not lines:
-        raise ModelFileError("no camera line in cameras.txt" + (f" with id {camera_id}" if camera_id is not None
-                                                                else ""))
+        raise ModelFileError(
+            "no camera line in cameras.txt" + (f" with id {camera_id}" if camera_id is not None else "")
+        )
     if len(lines[0]) < 4:
         raise ModelFileError(f"a camera line needs CAMERA_ID MODEL WIDTH HEIGHT PARAMS..., got {' '.join(lines[0])!r}")
     cid, model, w, h, *vals = lines[0]
@@ -71,12 +91,14 @@ def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
         q = [float(v) for v in vals]
         w, h = float(w), float(h)
     except ValueError:
-        raise ModelFileError(f"COLMAP camera {cid}: the size and parameters must be numbers, got "
-                             f"{' '.join(lines[0][2:])!r}") from None
+        raise ModelFileError(
+            f"COLMAP camera {cid}: the size and parameters must be numbers, got {' '.join(lines[0][2:])!r}"
+        ) from None
     need = COLMAP_MODELS
     if model not in need:
-        raise ModelFileError(f"COLMAP camera {cid}: model {model} has no exact circcal equivalent; supported: "
-                             f"{', '.join(need)}")
+        raise ModelFileError(
+            f"COLMAP camera {cid}: model {model} has no exact circcal equivalent; supported: {', '.join(need)}"
+        )
     if len(q) != need[model]:
         raise ModelFileError(f"COLMAP camera {cid}: {model} needs {need[model]} parameters, got {len(q)}")
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
@@ -88,5 +110,6 @@ def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
         fx, fy, cx, cy = q[:4]
         dist = np.asarray(q[4:])
     K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET], [0.0, fy, cy - COLMAP_PIXEL_OFFSET], [0.0, 0.0, 1.0]])
-    return camera_from_K_dist(w, h, K, dist, f"COLMAP camera {cid} ({model})",
-                              lens="fisheye" if model == "OPENCV_FISHEYE" else None)
+    return camera_from_K_dist(
+        w, h, K, dist, f"COLMAP camera {cid} ({model})", lens="fisheye" if model == "OPENCV_FISHEYE" else None
+    )

@@ -5,6 +5,7 @@ damaged or hostile file, refused with a :class:`~circcal.errors.ModelFileError` 
 cost memory or time, or reach the camera as a value that projects to nonsense. Each bound is generous: every real
 camera lies orders of magnitude inside it.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,10 +18,27 @@ import numpy as np
 from circcal.errors import ModelFileError
 from circcal.jsonio import depth_over
 
-__all__ = ["MAX_MODEL_FILE_BYTES", "MAX_NESTING_DEPTH", "MAX_INTEGER_DIGITS", "MAX_IMAGE_SIDE", "MIN_FOCAL_PX",
-           "MAX_FOCAL_PX", "MAX_PRINCIPAL_POINT_FACTOR", "MAX_DIST_COEFF", "K_ROW3_RTOL", "show", "integer",
-           "number", "number_list", "matrix", "check_K", "check_camera",
-           "load_yaml", "check_nesting", "JSON_LIMITS"]
+__all__ = [
+    "MAX_MODEL_FILE_BYTES",
+    "MAX_NESTING_DEPTH",
+    "MAX_INTEGER_DIGITS",
+    "MAX_IMAGE_SIDE",
+    "MIN_FOCAL_PX",
+    "MAX_FOCAL_PX",
+    "MAX_PRINCIPAL_POINT_FACTOR",
+    "MAX_DIST_COEFF",
+    "K_ROW3_RTOL",
+    "show",
+    "integer",
+    "number",
+    "number_list",
+    "matrix",
+    "check_K",
+    "check_camera",
+    "load_yaml",
+    "check_nesting",
+    "JSON_LIMITS",
+]
 
 #: Bytes a model file may hold: a model.json with every view's observations of a 100-view calibration is a few MiB,
 #: and parsing costs ~10x the text in memory (a 1 GB model.json took 7.6 GB).
@@ -45,8 +63,11 @@ MAX_DIST_COEFF = 1e4
 K_ROW3_RTOL = 1e-9
 
 #: :func:`circcal.jsonio.parse_json`'s keywords for a camera file.
-JSON_LIMITS: dict[str, Any] = {"max_depth": MAX_NESTING_DEPTH, "max_int_digits": MAX_INTEGER_DIGITS,
-                               "unique_keys": True}
+JSON_LIMITS: dict[str, Any] = {
+    "max_depth": MAX_NESTING_DEPTH,
+    "max_int_digits": MAX_INTEGER_DIGITS,
+    "unique_keys": True,
+}
 
 _SHOW_CHARS = 60
 #: YAML block indicators nested on one line ("- - - - 1"): each opens a level
@@ -59,7 +80,7 @@ def show(v: Any) -> str:
     if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 200:
         return f"an integer of ~{int(v.bit_length() * 0.30103)} digits"
     r = repr(v)
-    return r if len(r) <= _SHOW_CHARS else f"{r[:_SHOW_CHARS - 5]}...{r[-2:]} ({len(r)} characters)"
+    return r if len(r) <= _SHOW_CHARS else f"{r[: _SHOW_CHARS - 5]}...{r[-2:]} ({len(r)} characters)"
 
 
 def _is_real(v: Any) -> bool:
@@ -179,8 +200,10 @@ def _bounded_loader() -> Any:
         def compose_node(self, parent: Any, index: Any) -> Any:
             event = self.peek_event()
             if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None) is not None:
-                raise ModelFileError(f"a YAML anchor or alias {at(event)}: camera files need none, and they are "
-                                     f"refused (nested aliases expand without bound)")
+                raise ModelFileError(
+                    f"a YAML anchor or alias {at(event)}: camera files need none, and they are "
+                    f"refused (nested aliases expand without bound)"
+                )
             self._depth += 1
             try:
                 if self._depth > MAX_NESTING_DEPTH:
@@ -220,15 +243,18 @@ def check_nesting(text: str) -> None:
     m = _MARKUP_DECLARATION.search(text)
     if m:
         line = text.count("\n", 0, m.start()) + 1
-        raise ModelFileError(f"an XML <!{m.group(1).upper()} declaration at line {line}: document types and entities "
-                             f"are refused (camera files need none)")
+        raise ModelFileError(
+            f"an XML <!{m.group(1).upper()} declaration at line {line}: document types and entities "
+            f"are refused (camera files need none)"
+        )
     line = depth_over(text, MAX_NESTING_DEPTH)
     if line is not None:
         raise ModelFileError(f"nested deeper than {MAX_NESTING_DEPTH} levels (at line {line})")
     m = _COMPACT_NESTING.search(text)
     if m:
-        raise ModelFileError(f"nested deeper than {MAX_NESTING_DEPTH} levels (at line "
-                             f"{text.count(chr(10), 0, m.start()) + 1})")
+        raise ModelFileError(
+            f"nested deeper than {MAX_NESTING_DEPTH} levels (at line {text.count(chr(10), 0, m.start()) + 1})"
+        )
     if "<" in text:
         b = np.frombuffer(text.encode(), dtype=np.uint8)
         lt, nxt = b[:-1] == ord("<"), b[1:]

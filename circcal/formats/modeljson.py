@@ -15,6 +15,7 @@ Errors keys name their convention (``rms_per_point_px`` = OpenCV's RMS, ``rms_pe
 Reading (:func:`camera_from_json`) is strict, as this is circcal's own format: a field its writers never write is
 refused by name (a foreign format's extras, by contrast, are ignored by that format's reader).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -23,15 +24,36 @@ from circcal.errors import ModelFileError
 from circcal.formats.limits import integer, number, number_list, show
 from circcal.model import DEFAULT_LENS, LENS_MODELS, Camera
 
-__all__ = ["MODEL_FORMAT", "MODEL_VERSION", "MODEL_SECTIONS", "TRUTH_SECTIONS", "CAMERA_FIELDS", "FIXED_NAMES",
-           "model_json", "camera_from_json"]
+__all__ = [
+    "MODEL_FORMAT",
+    "MODEL_VERSION",
+    "MODEL_SECTIONS",
+    "TRUTH_SECTIONS",
+    "CAMERA_FIELDS",
+    "FIXED_NAMES",
+    "model_json",
+    "camera_from_json",
+]
 
 MODEL_FORMAT = "circcal-model"
 MODEL_VERSION = 1
 #: The sections a model.json may hold beside the camera block, in the order they are written.
-MODEL_SECTIONS: tuple[str, ...] = ("std", "fixed", "parameter_order", "correlation", "errors", "sigma_px",
-                                   "n_params", "n_iterations", "converged", "views", "board_refinement", "board",
-                                   "failed_images", "recorrection_rounds")
+MODEL_SECTIONS: tuple[str, ...] = (
+    "std",
+    "fixed",
+    "parameter_order",
+    "correlation",
+    "errors",
+    "sigma_px",
+    "n_params",
+    "n_iterations",
+    "converged",
+    "views",
+    "board_refinement",
+    "board",
+    "failed_images",
+    "recorrection_rounds",
+)
 
 
 def model_json(camera: Camera, **sections: Any) -> dict[str, Any]:
@@ -40,8 +62,12 @@ def model_json(camera: Camera, **sections: Any) -> dict[str, Any]:
     unknown = set(sections) - set(MODEL_SECTIONS)
     if unknown:
         raise TypeError(f"model.json has no section(s) {sorted(unknown)}; known: {', '.join(MODEL_SECTIONS)}")
-    return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "camera": camera.to_dict(),
-            **{k: sections[k] for k in MODEL_SECTIONS if k in sections}}
+    return {
+        "format": MODEL_FORMAT,
+        "version": MODEL_VERSION,
+        "camera": camera.to_dict(),
+        **{k: sections[k] for k in MODEL_SECTIONS if k in sections},
+    }
 
 
 #: truth.json's sections beside model.json's (read_model reads a fixture's truth.json too).
@@ -61,8 +87,9 @@ def camera_from_json(data: Any) -> Camera:
     ``version`` above :data:`MODEL_VERSION`, a ``fixed`` that is not a list of parameter names, ``views`` that are
     not a list of objects."""
     if not isinstance(data, dict):
-        raise ModelFileError(f"expected a JSON object with a 'camera' block (or a bare camera block), got "
-                             f"{type(data).__name__}")
+        raise ModelFileError(
+            f"expected a JSON object with a 'camera' block (or a bare camera block), got {type(data).__name__}"
+        )
     known = ("format", "version", "camera", *MODEL_SECTIONS, *TRUTH_SECTIONS)
     if "camera" in data:
         _check_sections(data, known)
@@ -75,8 +102,9 @@ def camera_from_json(data: Any) -> Camera:
         raise ModelFileError(f"the {where} must be a JSON object, got {show(block)}")
     unknown = [k for k in block if k not in CAMERA_FIELDS]
     if unknown:
-        raise ModelFileError(f"{where}: unknown field {show(unknown[0])} (a camera block holds "
-                             f"{', '.join(CAMERA_FIELDS)})")
+        raise ModelFileError(
+            f"{where}: unknown field {show(unknown[0])} (a camera block holds {', '.join(CAMERA_FIELDS)})"
+        )
     missing = [k for k in CAMERA_FIELDS[:7] if k not in block]
     if missing:
         raise ModelFileError(f"{where} lacks {', '.join(missing)}")
@@ -100,17 +128,21 @@ def _check_sections(doc: dict, known: tuple[str, ...]) -> None:
     """The document-level checks of :func:`camera_from_json`."""
     unknown = [k for k in doc if k not in known]
     if unknown:
-        raise ModelFileError(f"unknown top-level field {show(unknown[0])} (a model.json holds format, version, camera "
-                             f"and {', '.join(MODEL_SECTIONS)})")
+        raise ModelFileError(
+            f"unknown top-level field {show(unknown[0])} (a model.json holds format, version, camera "
+            f"and {', '.join(MODEL_SECTIONS)})"
+        )
     if "format" in doc and doc["format"] != MODEL_FORMAT:
         raise ModelFileError(f"format must be {MODEL_FORMAT!r}, got {show(doc['format'])}")
     if "version" in doc:
         integer(doc["version"], "version", 1, MODEL_VERSION)
     fixed = doc.get("fixed")
-    if fixed is not None and (not isinstance(fixed, list) or not all(isinstance(n, str) and n in FIXED_NAMES
-                                                                      for n in fixed)):
-        raise ModelFileError(f"fixed must be a list of parameter names ({', '.join(sorted(FIXED_NAMES))}), got "
-                             f"{show(fixed)}")
+    if fixed is not None and (
+        not isinstance(fixed, list) or not all(isinstance(n, str) and n in FIXED_NAMES for n in fixed)
+    ):
+        raise ModelFileError(
+            f"fixed must be a list of parameter names ({', '.join(sorted(FIXED_NAMES))}), got {show(fixed)}"
+        )
     views = doc.get("views")
     if views is not None and (not isinstance(views, list) or not all(isinstance(v, dict) for v in views)):
         raise ModelFileError(f"views must be a list of objects, got {show(views)}")

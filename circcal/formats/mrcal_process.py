@@ -14,6 +14,7 @@ Lens models (:data:`LENSMODELS`): ``LENSMODEL_OPENCV5`` / ``OPENCV8`` / ``OPENCV
 mrcal's board model is a full W x H lattice per image (points (j s, i s, 0), row-major): :func:`board_lattice` maps
 each view's board points onto the lattice they span (missing points get weight -1 in mrcal's observations).
 """
+
 from __future__ import annotations
 
 import json
@@ -27,8 +28,18 @@ import numpy as np
 
 from circcal.formats.mrcal import MRCAL_LENSMODELS
 
-__all__ = ["WORKER", "ENV_VAR", "DEFAULT_PYTHON", "NOT_FOUND_MESSAGE", "LENSMODELS", "UNSUPPORTED_LENSES",
-           "UnsupportedLayout", "mrcal_python", "run_worker", "board_lattice"]
+__all__ = [
+    "WORKER",
+    "ENV_VAR",
+    "DEFAULT_PYTHON",
+    "NOT_FOUND_MESSAGE",
+    "LENSMODELS",
+    "UNSUPPORTED_LENSES",
+    "UnsupportedLayout",
+    "mrcal_python",
+    "run_worker",
+    "board_lattice",
+]
 
 #: circcal lens -> mrcal lens model (the same parameters in the same order: OpenCV's); the table the file writer
 #: uses (:data:`circcal.formats.mrcal.MRCAL_LENSMODELS`).
@@ -37,8 +48,9 @@ LENSMODELS: dict[str, str] = MRCAL_LENSMODELS
 #: (:mod:`circcal.validators.mrcal`) and the export's refusal (:mod:`circcal.formats.cameramodel_export`).
 UNSUPPORTED_LENSES: dict[str, str] = {
     "fisheye": "mrcal has no equidistant (Kannala-Brandt) fisheye model: mrcal 2.2's supported_lensmodels() are "
-               "PINHOLE, STEREOGRAPHIC, LONLAT, LATLON, OPENCV4/5/8/12, CAHVOR, CAHVORE and "
-               "SPLINED_STEREOGRAPHIC, none of them cv2.fisheye's theta polynomial"}
+    "PINHOLE, STEREOGRAPHIC, LONLAT, LATLON, OPENCV4/5/8/12, CAHVOR, CAHVORE and "
+    "SPLINED_STEREOGRAPHIC, none of them cv2.fisheye's theta polynomial"
+}
 
 #: The worker script, run by its file path under mrcal's interpreter.
 WORKER = Path(__file__).with_name("mrcal_worker.py")
@@ -46,8 +58,10 @@ WORKER = Path(__file__).with_name("mrcal_worker.py")
 ENV_VAR = "CIRCCAL_MRCAL_PYTHON"
 #: The interpreter tried when :data:`ENV_VAR` is not set (Debian's python3-mrcal).
 DEFAULT_PYTHON = "/usr/bin/python3"
-NOT_FOUND_MESSAGE = ("mrcal not found: as root run `apt-get install -y mrcal python3-mrcal`, or set "
-                     "CIRCCAL_MRCAL_PYTHON to a Python that can import mrcal")
+NOT_FOUND_MESSAGE = (
+    "mrcal not found: as root run `apt-get install -y mrcal python3-mrcal`, or set "
+    "CIRCCAL_MRCAL_PYTHON to a Python that can import mrcal"
+)
 
 
 @lru_cache(maxsize=8)
@@ -114,15 +128,17 @@ def run_worker(python: str, request: dict[str, Any], timeout_s: float) -> dict[s
         With the worker's (mrcal's) words when it times out, crashes or fails.
     """
     try:
-        proc = subprocess.run([python, str(WORKER)], input=json.dumps(request), capture_output=True, text=True,
-                              timeout=timeout_s)
+        proc = subprocess.run(
+            [python, str(WORKER)], input=json.dumps(request), capture_output=True, text=True, timeout=timeout_s
+        )
     except subprocess.TimeoutExpired:
         raise RuntimeError(f"mrcal worker ran past {timeout_s:g} s") from None
     try:
         reply = json.loads(proc.stdout)
     except json.JSONDecodeError:
-        raise RuntimeError(f"mrcal worker crashed (exit {proc.returncode}): "
-                           f"{(proc.stderr or proc.stdout).strip()[-500:]}") from None
+        raise RuntimeError(
+            f"mrcal worker crashed (exit {proc.returncode}): {(proc.stderr or proc.stdout).strip()[-500:]}"
+        ) from None
     if proc.returncode != 0 or "error" in reply:
         raise RuntimeError(f"mrcal failed: {reply.get('error', proc.returncode)}")
     return reply
@@ -133,8 +149,7 @@ class UnsupportedLayout(NotImplementedError):
     allowed)."""
 
 
-def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False
-                  ) -> dict[str, Any]:
+def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False) -> dict[str, Any]:
     """Map per-view board points onto mrcal's rectangular lattice.
 
     Parameters
@@ -178,7 +193,8 @@ def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, sta
         if np.max(np.abs(j - ji)) * s > rel_tol * scale or np.max(np.abs(i - ii)) * s > rel_tol * scale:
             raise UnsupportedLayout(
                 f"view {v}: board points are not on a square lattice of pitch {s:g} (mrcal's board model is a "
-                "rectangular grid of equally spaced points)")
+                "rectangular grid of equally spaced points)"
+            )
         a = np.stack([ii, ji], -1).astype(int)
         if len(np.unique(a, axis=0)) != len(a):
             raise ValueError(f"view {v}: duplicated board points")
@@ -187,6 +203,12 @@ def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, sta
     if not staggered and len(np.unique(cat, axis=0)) > 4 and np.all((cat.sum(axis=1) % 2) == 0):
         raise UnsupportedLayout(
             "asymmetric (staggered) circle grid: mrcal's board model needs a full rectangular W x H lattice; "
-            "only symmetric grids are supported by the mrcal reference")
-    return {"spacing": s, "origin": origin, "width_n": int(cat[:, 1].max()) + 1,
-            "height_n": int(cat[:, 0].max()) + 1, "ij": ij}
+            "only symmetric grids are supported by the mrcal reference"
+        )
+    return {
+        "spacing": s,
+        "origin": origin,
+        "width_n": int(cat[:, 1].max()) + 1,
+        "height_n": int(cat[:, 0].max()) + 1,
+        "ij": ij,
+    }

@@ -43,6 +43,7 @@ Modes
 * ``default``: what mrcal users get: board warp solved, regularisation on, outlier rejection on, from mrcal's own
   seed (as ``mrcal-calibrate-cameras``).
 """
+
 from __future__ import annotations
 
 import json
@@ -67,8 +68,7 @@ def _version(mrcal) -> tuple[str, str]:
         pass
     for pkg in ("python3-mrcal", "mrcal"):
         try:
-            out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", pkg], capture_output=True, text=True,
-                                 timeout=20)
+            out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", pkg], capture_output=True, text=True, timeout=20)
             if out.returncode == 0 and out.stdout.strip():
                 return out.stdout.strip(), f"dpkg-query {pkg}"
         except Exception:  # noqa: BLE001
@@ -100,9 +100,16 @@ def solve(req: dict) -> dict:
     indices_frame_camera = np.array([[i, 0] for i in range(nf)], dtype=np.int32)
     indices_fce = np.array([[i, 0, -1] for i in range(nf)], dtype=np.int32)
 
-    common = dict(points=None, observations_board=obs0.copy(), indices_frame_camintrinsics_camextrinsics=indices_fce,
-                  observations_point=None, indices_point_camintrinsics_camextrinsics=None,
-                  imagersizes=imagersizes, calibration_object_spacing=spacing, verbose=False)
+    common = dict(
+        points=None,
+        observations_board=obs0.copy(),
+        indices_frame_camintrinsics_camextrinsics=indices_fce,
+        observations_point=None,
+        indices_point_camintrinsics_camextrinsics=None,
+        imagersizes=imagersizes,
+        calibration_object_spacing=spacing,
+        verbose=False,
+    )
     lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
     n_intr = int(mrcal.lensmodel_num_params(lensmodel))
 
@@ -110,17 +117,29 @@ def solve(req: dict) -> dict:
         """(intrinsics (1, n_intr), frames (Nframes, 6)): stereographic, geometry only, then + core (as
         mrcal-calibrate-cameras does), from mrcal's own pose seed or ``frames_given``."""
         obs = obs0.copy()
-        seeded = mrcal.seed_stereographic(imagersizes=imagersizes, focal_estimate=float(req["focal_estimate"]),
-                                          indices_frame_camera=indices_frame_camera, observations=obs,
-                                          object_spacing=spacing)
+        seeded = mrcal.seed_stereographic(
+            imagersizes=imagersizes,
+            focal_estimate=float(req["focal_estimate"]),
+            indices_frame_camera=indices_frame_camera,
+            observations=obs,
+            object_spacing=spacing,
+        )
         intrinsics, extrinsics, frames = [np.ascontiguousarray(a, dtype=np.float64) for a in seeded]
         if frames_given is not None:
             frames = np.ascontiguousarray(np.asarray(frames_given, dtype=np.float64).reshape(nf, 6))
         for core in (False, True):
-            inputs = dict(common, observations_board=obs, intrinsics=intrinsics, lensmodel="LENSMODEL_STEREOGRAPHIC",
-                          do_optimize_intrinsics_core=core, do_optimize_intrinsics_distortions=False,
-                          do_optimize_calobject_warp=False, calobject_warp=None,
-                          do_apply_outlier_rejection=False, do_apply_regularization=False)
+            inputs = dict(
+                common,
+                observations_board=obs,
+                intrinsics=intrinsics,
+                lensmodel="LENSMODEL_STEREOGRAPHIC",
+                do_optimize_intrinsics_core=core,
+                do_optimize_intrinsics_distortions=False,
+                do_optimize_calobject_warp=False,
+                calobject_warp=None,
+                do_apply_outlier_rejection=False,
+                do_apply_regularization=False,
+            )
             inputs[k_ext] = extrinsics
             inputs[k_frames] = frames
             mrcal.optimize(**inputs)
@@ -143,40 +162,64 @@ def solve(req: dict) -> dict:
         intr = seed_intr.copy()
         fr = seed_frames.copy()
         ext = np.zeros((0, 6))
-        base = dict(common, observations_board=obs, intrinsics=intr, lensmodel=lensmodel,
-                    do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
-                    do_optimize_extrinsics=True, do_optimize_frames=True)
+        base = dict(
+            common,
+            observations_board=obs,
+            intrinsics=intr,
+            lensmodel=lensmodel,
+            do_optimize_intrinsics_core=True,
+            do_optimize_intrinsics_distortions=True,
+            do_optimize_extrinsics=True,
+            do_optimize_frames=True,
+        )
         base[k_ext] = ext
         base[k_frames] = fr
         # main solve from the seed (the CLI's solve_initial): regularised, no warp
-        first = dict(base, calobject_warp=None, do_optimize_calobject_warp=False, do_apply_regularization=True,
-                     do_apply_outlier_rejection=(mode == "default"))
+        first = dict(
+            base,
+            calobject_warp=None,
+            do_optimize_calobject_warp=False,
+            do_apply_regularization=True,
+            do_apply_outlier_rejection=(mode == "default"),
+        )
         mrcal.optimize(**first)
         warp = None
         if mode == "fair":
-            final = dict(base, calobject_warp=None, do_optimize_calobject_warp=False, do_apply_regularization=False,
-                         do_apply_outlier_rejection=False)
+            final = dict(
+                base,
+                calobject_warp=None,
+                do_optimize_calobject_warp=False,
+                do_apply_regularization=False,
+                do_apply_outlier_rejection=False,
+            )
         elif mode == "default":
             warp = np.zeros(2, dtype=np.float64)
-            final = dict(base, calobject_warp=warp, do_optimize_calobject_warp=True, do_apply_regularization=True,
-                         do_apply_outlier_rejection=True)
+            final = dict(
+                base,
+                calobject_warp=warp,
+                do_optimize_calobject_warp=True,
+                do_apply_regularization=True,
+                do_apply_outlier_rejection=True,
+            )
         else:
             raise ValueError(f"unknown mode {mode!r}")
         stats = mrcal.optimize(**final)
         x = np.asarray(stats["x"], dtype=np.float64)[: nf * H * W * 2].reshape(nf, H, W, 2)
         n_out = stats.get("Noutliers_board", stats.get("Noutliers", 0))
-        results.append({
-            "mode": mode,
-            "lensmodel": lensmodel,
-            "intrinsics": intr.reshape(-1).tolist(),
-            "frames_rt_toref": fr.tolist(),
-            "rms_per_coord_px": float(stats["rms_reproj_error__pixels"]),
-            "x_board": x.tolist(),
-            "weights": obs[..., 2].tolist(),
-            "n_outliers": int(n_out),
-            "calobject_warp": None if warp is None else warp.tolist(),
-            "stats_keys": sorted(str(k) for k in stats.keys()),
-        })
+        results.append(
+            {
+                "mode": mode,
+                "lensmodel": lensmodel,
+                "intrinsics": intr.reshape(-1).tolist(),
+                "frames_rt_toref": fr.tolist(),
+                "rms_per_coord_px": float(stats["rms_reproj_error__pixels"]),
+                "x_board": x.tolist(),
+                "weights": obs[..., 2].tolist(),
+                "n_outliers": int(n_out),
+                "calobject_warp": None if warp is None else warp.tolist(),
+                "stats_keys": sorted(str(k) for k in stats.keys()),
+            }
+        )
     return {"version": version, "version_source": vsrc, "api": api, "results": results}
 
 
@@ -194,15 +237,26 @@ def _export_inputs(req: dict, api: str) -> dict:
     lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
     if req.get("opencv4"):
         lensmodel, intr = "LENSMODEL_OPENCV4", intr[:, :8]
-    inputs = dict(intrinsics=np.ascontiguousarray(intr), lensmodel=lensmodel, points=None, observations_board=obs,
-                  indices_frame_camintrinsics_camextrinsics=np.array([[i, 0, -1] for i in range(nf)],
-                                                                      dtype=np.int32),
-                  observations_point=None, indices_point_camintrinsics_camextrinsics=None,
-                  imagersizes=np.array([req["imagersize"]], dtype=np.int32),
-                  calibration_object_spacing=float(req["spacing"]), calobject_warp=None,
-                  do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
-                  do_optimize_extrinsics=True, do_optimize_frames=True, do_optimize_calobject_warp=False,
-                  do_apply_outlier_rejection=False, do_apply_regularization=False, verbose=False)
+    inputs = dict(
+        intrinsics=np.ascontiguousarray(intr),
+        lensmodel=lensmodel,
+        points=None,
+        observations_board=obs,
+        indices_frame_camintrinsics_camextrinsics=np.array([[i, 0, -1] for i in range(nf)], dtype=np.int32),
+        observations_point=None,
+        indices_point_camintrinsics_camextrinsics=None,
+        imagersizes=np.array([req["imagersize"]], dtype=np.int32),
+        calibration_object_spacing=float(req["spacing"]),
+        calobject_warp=None,
+        do_optimize_intrinsics_core=True,
+        do_optimize_intrinsics_distortions=True,
+        do_optimize_extrinsics=True,
+        do_optimize_frames=True,
+        do_optimize_calobject_warp=False,
+        do_apply_outlier_rejection=False,
+        do_apply_regularization=False,
+        verbose=False,
+    )
     inputs[k_ext] = np.zeros((0, 6))
     inputs[k_frames] = np.ascontiguousarray(np.asarray(req["frames_rt_toref"], dtype=np.float64).reshape(nf, 6))
     return inputs
@@ -216,8 +270,9 @@ def _uncertainty_at(mrcal, model, uv, distance, sigma):
     q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     v = mrcal.unproject(q, *model.intrinsics(), normalize=True)
     p = v if distance is None else v * float(distance)
-    s = mrcal.projection_uncertainty(p, model=model, atinfinity=distance is None, what="worstdirection-stdev",
-                                     observed_pixel_uncertainty=sigma)
+    s = mrcal.projection_uncertainty(
+        p, model=model, atinfinity=distance is None, what="worstdirection-stdev", observed_pixel_uncertainty=sigma
+    )
     return np.asarray(s, dtype=np.float64).reshape(-1).tolist()
 
 
@@ -245,13 +300,19 @@ def export(req: dict) -> dict:
     model = mrcal.cameramodel(optimization_inputs=inputs, icam_intrinsics=0)
     f = io.StringIO()
     model.write(f, note=req.get("note"))
-    out = {"version": version, "version_source": vsrc, "api": api, "cameramodel": f.getvalue(),
-           "rms_per_coord_px": float(np.sqrt(np.sum(x * x) / (2 * nobs))),
-           "max_abs_gradient": float(np.max(np.abs(J.T @ x)))}
+    out = {
+        "version": version,
+        "version_source": vsrc,
+        "api": api,
+        "cameramodel": f.getvalue(),
+        "rms_per_coord_px": float(np.sqrt(np.sum(x * x) / (2 * nobs))),
+        "max_abs_gradient": float(np.max(np.abs(J.T @ x))),
+    }
     if req.get("uncertainty"):
         u = req["uncertainty"]
-        out["uncertainty_stdev"] = _uncertainty_at(mrcal, model, u["uv"], u.get("distance"),
-                                                   u.get("observed_pixel_uncertainty"))
+        out["uncertainty_stdev"] = _uncertainty_at(
+            mrcal, model, u["uv"], u.get("distance"), u.get("observed_pixel_uncertainty")
+        )
     return out
 
 
@@ -268,10 +329,13 @@ def uncertainty(req: dict) -> dict:
     model = mrcal.cameramodel(io.StringIO(req["cameramodel"]))
     if model.optimization_inputs() is None:
         raise ValueError("the model has no optimization_inputs: mrcal cannot compute its uncertainty")
-    return {"version": version, "api": _api(mrcal), "lensmodel": model.intrinsics()[0],
-            "imagersize": [int(v) for v in model.imagersize()],
-            "stdev": _uncertainty_at(mrcal, model, req["uv"], req.get("distance"),
-                                     req.get("observed_pixel_uncertainty"))}
+    return {
+        "version": version,
+        "api": _api(mrcal),
+        "lensmodel": model.intrinsics()[0],
+        "imagersize": [int(v) for v in model.imagersize()],
+        "stdev": _uncertainty_at(mrcal, model, req["uv"], req.get("distance"), req.get("observed_pixel_uncertainty")),
+    }
 
 
 COMMANDS = {"export": export, "uncertainty": uncertainty}

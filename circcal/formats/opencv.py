@@ -7,6 +7,7 @@ COLMAP) reads through.
 
 Nodes beyond these (OpenCV's calibration sample writes its settings, per-view extrinsics, errors, ...) are a foreign
 format's extras: ignored."""
+
 from __future__ import annotations
 
 import re
@@ -17,8 +18,7 @@ from circcal.errors import ModelFileError
 from circcal.formats.limits import check_K, check_nesting, integer, number, show
 from circcal.model import Camera
 
-__all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES",
-           "pinhole_lens_of"]
+__all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES", "pinhole_lens_of"]
 
 #: Lengths of OpenCV's distortion vector: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (+ k4 k5 k6), 12 (+ s1..s4), 14 (+ tau x, y).
 OPENCV_DIST_SIZES = (0, 4, 5, 8, 12, 14)
@@ -71,11 +71,13 @@ def camera_from_opencv_yaml(text: str) -> Camera:
         K = _fs_matrix(fs.getNode("camera_matrix"), "camera_matrix", max_size=9)
         if K.shape != (3, 3):
             raise ModelFileError(f"camera_matrix must be 3x3, got {K.shape[0]}x{K.shape[1]}")
-        d = _fs_matrix(fs.getNode("distortion_coefficients"), "distortion_coefficients",
-                       max_size=max(OPENCV_DIST_SIZES))
+        d = _fs_matrix(
+            fs.getNode("distortion_coefficients"), "distortion_coefficients", max_size=max(OPENCV_DIST_SIZES)
+        )
         if min(d.shape) > 1:
-            raise ModelFileError(f"distortion_coefficients must be one row or one column, got "
-                                 f"{d.shape[0]}x{d.shape[1]}")
+            raise ModelFileError(
+                f"distortion_coefficients must be one row or one column, got {d.shape[0]}x{d.shape[1]}"
+            )
         w_node, h_node = fs.getNode("image_width"), fs.getNode("image_height")
         if not w_node.empty() and not h_node.empty():
             w, h = _fs_scalar(w_node), _fs_scalar(h_node)
@@ -126,8 +128,9 @@ def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
     if node.empty():
         raise ModelFileError(f"no {field} node")
     if not node.isMap():
-        raise ModelFileError(f"{field} must be an opencv-matrix (a mapping of rows, cols, dt and data), got "
-                             f"{show(_fs_scalar(node))}")
+        raise ModelFileError(
+            f"{field} must be an opencv-matrix (a mapping of rows, cols, dt and data), got {show(_fs_scalar(node))}"
+        )
     _fs_unique_keys(node, field)
     rows = integer(_fs_scalar(node.getNode("rows")), f"{field} rows", 0, max_size)
     cols = integer(_fs_scalar(node.getNode("cols")), f"{field} cols", 0, max_size)
@@ -138,8 +141,9 @@ def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
     if not data.isSeq():
         raise ModelFileError(f"{field} data must be a sequence of numbers, got {show(_fs_scalar(data))}")
     if data.size() != rows * cols:
-        raise ModelFileError(f"{field}: rows x cols = {rows} x {cols} = {rows * cols}, but its data holds "
-                             f"{data.size()} numbers")
+        raise ModelFileError(
+            f"{field}: rows x cols = {rows} x {cols} = {rows * cols}, but its data holds {data.size()} numbers"
+        )
     if rows * cols > max_size:
         raise ModelFileError(f"{field} holds {rows * cols} numbers, at most {max_size}")
     vals = [number(_fs_scalar(data.at(i)), f"{field} data[{i}]") for i in range(rows * cols)]
@@ -161,8 +165,9 @@ def pinhole_lens_of(d: np.ndarray) -> str:
     raise ModelFileError(f"{d.size} distortion coefficients: more than the thin-prism model's 12 are nonzero")
 
 
-def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: str = "",
-                       lens: str | None = None) -> Camera:
+def camera_from_K_dist(
+    w: float, h: float, K: np.ndarray, d: np.ndarray, what: str = "", lens: str | None = None
+) -> Camera:
     """A :class:`~circcal.model.Camera` from OpenCV's 3x3 camera matrix ``K`` and distortion vector ``d`` for a
     ``w`` x ``h`` image. ``lens`` None: a pinhole model, ``d`` any of :data:`OPENCV_DIST_SIZES` (the tilted
     model's tau of 14 must be zero) and the model :func:`pinhole_lens_of` ``d``; ``lens="fisheye"``: cv2.fisheye's
@@ -184,16 +189,19 @@ def camera_from_K_dist(w: float, h: float, K: np.ndarray, d: np.ndarray, what: s
         raise ModelFileError(f"{where}skew {K[0, 1]} is not supported (circcal's model has zero skew)")
     if lens == "fisheye":
         if d.size != 4:
-            raise ModelFileError(f"{where}a fisheye camera has 4 distortion coefficients (k1, k2, k3, k4), got "
-                                 f"{d.size}")
+            raise ModelFileError(
+                f"{where}a fisheye camera has 4 distortion coefficients (k1, k2, k3, k4), got {d.size}"
+            )
         return Camera(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2], d, "fisheye")
     if lens is not None:
         raise ValueError(f"lens must be None (from the coefficients) or 'fisheye', got {lens!r}")
     if d.size not in OPENCV_DIST_SIZES:
         raise ModelFileError(f"{where}{d.size} distortion coefficients; expected 4, 5, 8, 12 or 14")
     if d.size == 14 and np.any(d[12:]):
-        raise ModelFileError(f"{where}the tilted-sensor coefficients tau_x, tau_y = {d[12:].tolist()} are nonzero; "
-                             f"circcal's models hold at most OpenCV's 12 (thin prism)")
+        raise ModelFileError(
+            f"{where}the tilted-sensor coefficients tau_x, tau_y = {d[12:].tolist()} are nonzero; "
+            f"circcal's models hold at most OpenCV's 12 (thin prism)"
+        )
     lens = pinhole_lens_of(d)
     n = dict(_PINHOLE_LENSES)[lens]
     dist = np.zeros(n)

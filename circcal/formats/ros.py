@@ -6,6 +6,7 @@ Distortion models (sensor_msgs/distortion_models.h; image_geometry projects them
 [k1, k2, p1, p2, k3] (``opencv5``), ``rational_polynomial`` D = [k1, k2, p1, p2, k3, k4, k5, k6] (``rational``),
 ``equidistant`` D = [k1, k2, k3, k4] (cv2.fisheye: ``fisheye``). ROS has no thin-prism model: such a camera is
 refused with that reason."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,11 @@ from circcal.model import Camera
 __all__ = ["ROS_DISTORTION_MODELS", "camera_to_ros_yaml", "camera_from_ros_yaml"]
 
 #: circcal's lens model -> ROS's distortion_model.
-ROS_DISTORTION_MODELS: dict[str, str] = {"opencv5": "plumb_bob", "rational": "rational_polynomial",
-                                         "fisheye": "equidistant"}
+ROS_DISTORTION_MODELS: dict[str, str] = {
+    "opencv5": "plumb_bob",
+    "rational": "rational_polynomial",
+    "fisheye": "equidistant",
+}
 
 
 def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
@@ -29,17 +33,25 @@ def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
     import yaml
 
     if camera.lens not in ROS_DISTORTION_MODELS:
-        raise InputError("ROS camera_info has no thin-prism distortion model (plumb_bob, rational_polynomial and "
-                         "equidistant only): write another format, or calibrate with --lens rational")
+        raise InputError(
+            "ROS camera_info has no thin-prism distortion model (plumb_bob, rational_polynomial and "
+            "equidistant only): write another format, or calibrate with --lens rational"
+        )
 
     def matrix(a: np.ndarray) -> dict:
         a = np.atleast_2d(a)
         return {"rows": int(a.shape[0]), "cols": int(a.shape[1]), "data": [float(v) for v in a.ravel()]}
 
-    doc = {"image_width": int(camera.width), "image_height": int(camera.height), "camera_name": str(name),
-           "camera_matrix": matrix(camera.K), "distortion_model": ROS_DISTORTION_MODELS[camera.lens],
-           "distortion_coefficients": matrix(camera.dist[None]), "rectification_matrix": matrix(np.eye(3)),
-           "projection_matrix": matrix(np.hstack([camera.K, np.zeros((3, 1))]))}
+    doc = {
+        "image_width": int(camera.width),
+        "image_height": int(camera.height),
+        "camera_name": str(name),
+        "camera_matrix": matrix(camera.K),
+        "distortion_model": ROS_DISTORTION_MODELS[camera.lens],
+        "distortion_coefficients": matrix(camera.dist[None]),
+        "rectification_matrix": matrix(np.eye(3)),
+        "projection_matrix": matrix(np.hstack([camera.K, np.zeros((3, 1))])),
+    }
     return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
 
 
@@ -85,8 +97,10 @@ def camera_from_ros_yaml(text: str) -> Camera:
         D = None if dv is None else number_list(dv, dfield)
     model = d.get("distortion_model", "plumb_bob")
     if model not in ROS_DISTORTION_MODELS.values():
-        raise ModelFileError(f"ROS camera_info: distortion_model {show(model)} is none of circcal's: "
-                             f"{', '.join(ROS_DISTORTION_MODELS.values())}")
+        raise ModelFileError(
+            f"ROS camera_info: distortion_model {show(model)} is none of circcal's: "
+            f"{', '.join(ROS_DISTORTION_MODELS.values())}"
+        )
     wfield, w = entry("image_width", "width")
     hfield, h = entry("image_height", "height")
     if w is None or h is None:

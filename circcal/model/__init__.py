@@ -21,6 +21,7 @@ Conventions
 
   Each equals its OpenCV projection to 1e-9 px (tests/test_model.py).
 """
+
 from __future__ import annotations
 
 import numbers
@@ -85,16 +86,35 @@ class LensModel:
 
 DEFAULT_LENS = "opencv5"
 #: The lens models by name (see the module docstring for the formulas).
-LENS_MODELS: dict[str, LensModel] = {m.name: m for m in (
-    LensModel("opencv5", ("k1", "k2", "p1", "p2", "k3"), True,
-              "OpenCV pinhole + 5 distortion coefficients [k1, k2, p1, p2, k3]"),
-    LensModel("rational", ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), True,
-              "OpenCV rational model (CALIB_RATIONAL_MODEL) [k1, k2, p1, p2, k3, k4, k5, k6]"),
-    LensModel("thin-prism", ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"), True,
-              "OpenCV rational + thin prism (CALIB_THIN_PRISM_MODEL) [k1, ..., k6, s1, s2, s3, s4]"),
-    LensModel("fisheye", ("k1", "k2", "k3", "k4"), False,
-              "cv2.fisheye equidistant Kannala-Brandt theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)"),
-)}
+LENS_MODELS: dict[str, LensModel] = {
+    m.name: m
+    for m in (
+        LensModel(
+            "opencv5",
+            ("k1", "k2", "p1", "p2", "k3"),
+            True,
+            "OpenCV pinhole + 5 distortion coefficients [k1, k2, p1, p2, k3]",
+        ),
+        LensModel(
+            "rational",
+            ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+            True,
+            "OpenCV rational model (CALIB_RATIONAL_MODEL) [k1, k2, p1, p2, k3, k4, k5, k6]",
+        ),
+        LensModel(
+            "thin-prism",
+            ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
+            True,
+            "OpenCV rational + thin prism (CALIB_THIN_PRISM_MODEL) [k1, ..., k6, s1, s2, s3, s4]",
+        ),
+        LensModel(
+            "fisheye",
+            ("k1", "k2", "k3", "k4"),
+            False,
+            "cv2.fisheye equidistant Kannala-Brandt theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)",
+        ),
+    )
+}
 
 DIST_NAMES: tuple[str, ...] = LENS_MODELS[DEFAULT_LENS].dist_names
 #: The calibrated parameters of the default ``opencv5`` model in OpenCV's order (kept for callers that know only
@@ -152,12 +172,14 @@ class Camera:
         names = model.dist_names
         raw = np.zeros(len(names)) if self.dist is None else self.dist
         if isinstance(raw, (str, bytes, dict)) or np.ndim(raw) == 0:
-            raise InputError(f"camera dist must be a list of {len(names)} numbers {list(names)} ({model.name}), "
-                             f"got {raw!r}")
+            raise InputError(
+                f"camera dist must be a list of {len(names)} numbers {list(names)} ({model.name}), got {raw!r}"
+            )
         items = list(np.ravel(np.asarray(raw, dtype=object)))
         if len(items) != len(names):
-            raise InputError(f"camera dist must hold {len(names)} coefficients {list(names)} (lens {model.name}), "
-                             f"got {len(items)}")
+            raise InputError(
+                f"camera dist must hold {len(names)} coefficients {list(names)} (lens {model.name}), got {len(items)}"
+            )
         for name, v in zip(names, items):
             if not _is_number(v) or not _finite(v):
                 raise InputError(f"camera distortion {name} must be a finite number, got {v!r}")
@@ -183,8 +205,9 @@ class Camera:
         """Inverse of :attr:`intrinsics`: ``params`` = (4 + n_dist,) fx, fy, cx, cy, then ``lens``'s coefficients."""
         p = np.asarray(params, dtype=np.float64)
         n = lens_model(lens).n_dist
-        return cls(int(width), int(height), float(p[0]), float(p[1]), float(p[2]), float(p[3]),
-                   p[4:4 + n].copy(), lens)
+        return cls(
+            int(width), int(height), float(p[0]), float(p[1]), float(p[2]), float(p[3]), p[4 : 4 + n].copy(), lens
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The ``camera`` block of truth.json / model.json. ``lens`` is written for every model but the default
@@ -214,8 +237,7 @@ class Camera:
             raise InputError(f"camera block lacks {', '.join(missing)}")
         if d["dist"] is None:
             raise InputError("camera dist must be a list of numbers, got None")
-        return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], d["dist"],
-                   d.get("lens", DEFAULT_LENS))
+        return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"], d["dist"], d.get("lens", DEFAULT_LENS))
 
 
 def _is_number(v: Any) -> bool:
@@ -241,8 +263,9 @@ def _is_pinhole(lens: str) -> bool:
     return lens_model(lens).pinhole
 
 
-def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFAULT_LENS
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def project_camera_jacobian(
+    Xc: np.ndarray, params: np.ndarray, lens: str = DEFAULT_LENS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) -> pixels, with derivatives: the projection of :func:`project` after the pose.
 
     ``params``: (4 + n_dist,) intrinsics in :func:`param_names` order (:attr:`Camera.intrinsics`) of ``lens``.
@@ -253,7 +276,7 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
     n = len(Xc)
     fx, fy, cx, cy = (float(v) for v in params[:4])
     Ji = np.empty((n, 2, len(params)))
-    Ji[:, :, :4] = _D_UV_D_K                         # d uv / d (fx, fy, cx, cy), xd and yd filled in below
+    Ji[:, :, :4] = _D_UV_D_K  # d uv / d (fx, fy, cx, cy), xd and yd filled in below
     if not _is_pinhole(lens):
         JP = np.empty((n, 2, 3))
         xdn = _fisheye(Xc, check_fisheye(params[4:]), JP, Ji[:, :, 4:], (fx, fy))
@@ -287,8 +310,9 @@ def project_camera_jacobian(Xc: np.ndarray, params: np.ndarray, lens: str = DEFA
 _D_UV_D_K = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
-def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def project_jacobian(
+    points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: Camera
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`project` with derivatives, for one view.
 
     ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 4 + n_dist) with
@@ -296,8 +320,9 @@ def project_jacobian(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, cam
     """
     r = np.asarray(rvec, dtype=np.float64).reshape(3)
     Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
-    uv, Ji, J_X = project_camera_jacobian(Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics,
-                                          camera.lens)
+    uv, Ji, J_X = project_camera_jacobian(
+        Y + np.asarray(tvec, dtype=np.float64).reshape(3), camera.intrinsics, camera.lens
+    )
     return uv, Ji, np.concatenate([rotated_jacobian(J_X, Y) @ left_jacobian(r), J_X], axis=2)
 
 

@@ -16,6 +16,7 @@ On undistorted normalised coordinates ``x = X/Z, y = Y/Z`` (coefficients absent 
 
 (OpenCV's calib3d documentation, "Detailed description"; tested against ``cv2.projectPoints`` to 1e-9 px).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -84,9 +85,19 @@ def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
     return xd, yd, radial, den, a, b, e, c, r2, xy2, tx, ty
 
 
-def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.ndarray, tx: np.ndarray,
-                          ty: np.ndarray, radial, den, n: int, out: np.ndarray,
-                          scale: tuple[float, float] | None = None) -> None:
+def _coefficient_jacobian(
+    x: np.ndarray,
+    y: np.ndarray,
+    r2: np.ndarray,
+    xy2: np.ndarray,
+    tx: np.ndarray,
+    ty: np.ndarray,
+    radial,
+    den,
+    n: int,
+    out: np.ndarray,
+    scale: tuple[float, float] | None = None,
+) -> None:
     """Fill ``out`` (..., 2, n) with d (xd, yd) / d dist (columns in ``dist``'s order) at normalised ``(x, y)``, from
     :func:`_brown`'s ``r2``, ``xy2``, ``tx``, ``ty``, ``radial`` and ``den``; with ``scale = (sx, sy)`` row 0 times
     sx and row 1 times sy (the focal lengths: d uv / d dist). Every column is one contiguous product written into its
@@ -104,7 +115,7 @@ def _coefficient_jacobian(x: np.ndarray, y: np.ndarray, r2: np.ndarray, xy2: np.
     mul(yo, r2, out=out[..., 1, 0])
     mul(yo, r4, out=out[..., 1, 1])
     mul(yo, r6, out=out[..., 1, 4])
-    if scale is None:                                # p1, p2: [[2xy, r2 + 2x^2], [r2 + 2y^2, 2xy]]
+    if scale is None:  # p1, p2: [[2xy, r2 + 2x^2], [r2 + 2y^2, 2xy]]
         out[..., 0, 2] = xy2
         out[..., 1, 3] = xy2
         out[..., 0, 3] = tx
@@ -144,8 +155,9 @@ def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=-1)
 
 
-def _distort_jacobian_into(x: np.ndarray, y: np.ndarray, d: np.ndarray, J_d: np.ndarray,
-                           scale: tuple[float, float] | None = None):
+def _distort_jacobian_into(
+    x: np.ndarray, y: np.ndarray, d: np.ndarray, J_d: np.ndarray, scale: tuple[float, float] | None = None
+):
     """:func:`distort_jacobian` on the coordinate arrays ``x``, ``y`` with ``J_d`` written into ``J_d`` (..., 2, n)
     (a view of a caller's array; rows times ``scale``, see :func:`_coefficient_jacobian`). Returns ``(xd, yd, a, b,
     e, c)``: the distorted coordinates and ``d xd / d xn = [[a, b], [e, c]]``."""
@@ -196,8 +208,8 @@ def undistort(
         return xd.copy()
     shape = xd.shape
     t = xd.reshape(-1, 2)
-    out = (t.copy() if x0 is None else np.asarray(x0, dtype=np.float64).reshape(-1, 2).copy())
-    idx = np.arange(t.shape[0])                     # points still iterating
+    out = t.copy() if x0 is None else np.asarray(x0, dtype=np.float64).reshape(-1, 2).copy()
+    idx = np.arange(t.shape[0])  # points still iterating
     tx, ty = t[:, 0].copy(), t[:, 1].copy()
     x, y = out[:, 0].copy(), out[:, 1].copy()
     thr = tol * np.maximum(1.0, np.maximum(np.abs(tx), np.abs(ty)))
@@ -211,7 +223,8 @@ def undistort(
             out[idx[done], 1] = y[done]
             keep = ~done
             idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err))
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err)
+            )
         if idx.size == 0:
             break
         det = a * c - b * e
@@ -233,7 +246,8 @@ def undistort(
             out[idx[worse]] = np.nan
             keep = ~worse
             idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err))
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err)
+            )
     if idx.size:
         out[idx] = np.nan
     # A root on the far side of the fold (radial factor <= 0, or the map locally orientation-reversing) is no

@@ -14,12 +14,12 @@ axis::
 90 deg, where a 180-deg-plus lens still images points. The model is valid (one-to-one) for ``theta`` up to
 :func:`theta_max`, where ``theta_d`` stops increasing, or pi.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["N_COEFFS", "theta_distort", "theta_max", "fisheye_distort", "fisheye_distort_jacobian",
-           "fisheye_rays"]
+__all__ = ["N_COEFFS", "theta_distort", "theta_max", "fisheye_distort", "fisheye_distort_jacobian", "fisheye_rays"]
 
 N_COEFFS = 4
 #: |(X, Y)| below this fraction of |P| counts as on the optical axis (the first-order model is then exact to
@@ -51,9 +51,9 @@ def theta_max(dist: np.ndarray) -> float:
     k1, k2, k3, k4 = _check(dist)
     coeffs = np.array([9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0])  # in u = theta^2, highest power first
     nz = np.flatnonzero(coeffs)
-    roots = np.roots(coeffs[nz[0]:]) if nz[0] < 4 else np.zeros(0)
+    roots = np.roots(coeffs[nz[0] :]) if nz[0] < 4 else np.zeros(0)
     u = roots.real[(np.abs(roots.imag) <= 1e-12 * np.maximum(1.0, np.abs(roots.real))) & (roots.real > 0)]
-    t = np.sqrt(u[u <= np.pi ** 2])
+    t = np.sqrt(u[u <= np.pi**2])
     return float(t.min()) if t.size else float(np.pi)
 
 
@@ -74,8 +74,13 @@ def fisheye_distort_jacobian(P: np.ndarray, dist: np.ndarray, jacobian: bool = T
     return _fisheye(P, _check(dist), J_P, J_d), J_P, J_d
 
 
-def _fisheye(P: np.ndarray, d: np.ndarray, J_P: np.ndarray | None = None, J_d: np.ndarray | None = None,
-             scale: tuple[float, float] | None = None) -> np.ndarray:
+def _fisheye(
+    P: np.ndarray,
+    d: np.ndarray,
+    J_P: np.ndarray | None = None,
+    J_d: np.ndarray | None = None,
+    scale: tuple[float, float] | None = None,
+) -> np.ndarray:
     """The model, written once: ``xd`` (N, 2) of camera-frame ``P`` (N, 3); with ``J_P`` (N, 2, 3) and ``J_d``
     (N, 2, 4) given (views of a caller's arrays) also d xd / d P and d xd / d dist written into them, their row 0
     times ``scale[0]`` and row 1 times ``scale[1]`` when ``scale`` is given (the focal lengths: d uv). Every entry
@@ -89,7 +94,7 @@ def _fisheye(P: np.ndarray, d: np.ndarray, J_P: np.ndarray | None = None, J_d: n
     td, dtd = theta_distort(theta, d, True)
     rs = np.where(axis, 1.0, rho)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(axis, np.where(Z > 0, 1.0 / Z, np.nan), td / rs)   # xd = s X, yd = s Y
+        s = np.where(axis, np.where(Z > 0, 1.0 / Z, np.nan), td / rs)  # xd = s X, yd = s Y
     xd = np.stack([s * X, s * Y], axis=-1)
     if J_P is None:
         return xd
@@ -102,8 +107,8 @@ def _fisheye(P: np.ndarray, d: np.ndarray, J_P: np.ndarray | None = None, J_d: n
             np.multiply(v, f, out=out)
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        g = dtd * Z / (rho2 * n2)            # d theta / d (X, Y) = Z (X, Y) / (rho n2); times dtd and / rho
-        h = td / (rs * rho2)                 # theta_d / rho^3
+        g = dtd * Z / (rho2 * n2)  # d theta / d (X, Y) = Z (X, Y) / (rho n2); times dtd and / rho
+        h = td / (rs * rho2)  # theta_d / rho^3
         put(J_P[:, 0, 0], g * X * X + h * Y * Y, sx)
         gh = (g - h) * X * Y
         put(J_P[:, 0, 1], gh, sx)
@@ -123,7 +128,7 @@ def _fisheye(P: np.ndarray, d: np.ndarray, J_P: np.ndarray | None = None, J_d: n
     if scale is not None:
         ux, uy = ux * sx, uy * sy
     t2 = theta * theta
-    tp = theta * t2                          # theta^3, ^5, ^7, ^9: d theta_d / d k_j along (X, Y) / rho
+    tp = theta * t2  # theta^3, ^5, ^7, ^9: d theta_d / d k_j along (X, Y) / rho
     for j in range(4):
         np.multiply(tp, ux, out=J_d[:, 0, j])
         np.multiply(tp, uy, out=J_d[:, 1, j])

@@ -1,5 +1,6 @@
 """Plane homographies onto rays: the perspective geometry of a planar board seen by any central camera (a fisheye
 beyond 90 deg included), written once for the solver's fisheye start and the detector's centre correction."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,8 +15,9 @@ def ray_homography(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray | None:
     ``d x H a = 0`` with the board points Hartley-normalised and the rays made unit (null vector of the normal
     matrix). None when the points are
     collinear or coincident (no homography is determined). :func:`ray_homographies` does many views at once."""
-    H = ray_homographies(np.asarray(board_xy, dtype=np.float64).reshape(1, -1, 2),
-                         np.asarray(rays, dtype=np.float64).reshape(1, -1, 3))[0]
+    H = ray_homographies(
+        np.asarray(board_xy, dtype=np.float64).reshape(1, -1, 2), np.asarray(rays, dtype=np.float64).reshape(1, -1, 3)
+    )[0]
     return None if np.isnan(H[0, 0]) else H
 
 
@@ -48,10 +50,11 @@ def ray_homographies(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray:
     # normalised, so squaring the condition number costs ~1e-10 relative in H)
     Ak = A[ok].reshape(-1, 2 * N, 9)
     ev, U = np.linalg.eigh(Ak.transpose(0, 2, 1) @ Ak)
-    sv = np.sqrt(np.maximum(ev[:, ::-1], 0.0))                      # singular values, largest first
+    sv = np.sqrt(np.maximum(ev[:, ::-1], 0.0))  # singular values, largest first
     H = U[:, :, 0].reshape(-1, 3, 3) @ T[ok]
-    along = np.sum((np.concatenate([a[ok], np.ones((len(H), N, 1))], axis=2) @ H.transpose(0, 2, 1)) * d[ok],
-                   axis=(1, 2))
+    along = np.sum(
+        (np.concatenate([a[ok], np.ones((len(H), N, 1))], axis=2) @ H.transpose(0, 2, 1)) * d[ok], axis=(1, 2)
+    )
     H[along < 0] *= -1.0
     H *= (2.0 / (np.linalg.norm(H[:, :, 0], axis=1) + np.linalg.norm(H[:, :, 1], axis=1)))[:, None, None]
     H[sv[:, -2] <= 1e-12 * sv[:, 0]] = np.nan

@@ -15,6 +15,7 @@ the projection difference between the true camera and the calibrated one, the im
 (:func:`circcal.analysis.compare.projection_diff`); "centre error" = detected centres against the exact
 projections of the true centres (:func:`circcal.analysis.compare.centre_errors`).
 """
+
 from circcal.report.config import FULL, QUICK, ReportConfig
 from circcal.report.publish import compute, generate, write_report
 

@@ -7,6 +7,7 @@ diameter (mm) is set so that a dot at the board centre spans ``d`` px at tilt 0.
 blurred by :data:`BIAS_BLUR_SIGMA_PX`, quantised to :data:`BIAS_BITS` bits, without noise. Errors (px) are against
 the exact projections of the true circle centres.
 """
+
 from __future__ import annotations
 
 import time
@@ -18,9 +19,23 @@ from circcal.board import Board
 from circcal.model import Camera, project
 from circcal.report.config import ReportConfig
 
-__all__ = ["BIAS_BITS", "BIAS_BLUR", "BIAS_BLUR_SIGMA_PX", "BIAS_CAMERA", "BIAS_CENTROID_SAMPLES", "BIAS_DETECTORS",
-           "BIAS_GRID", "BIAS_PITCH_MM", "BIAS_SPAN_PX", "BIAS_SUPERSAMPLE", "BIAS_TILT_AXIS_DEG", "BLOB_AREA_WINDOW",
-           "BLOB_MIN_INERTIA", "bias_geometry", "bias_study"]
+__all__ = [
+    "BIAS_BITS",
+    "BIAS_BLUR",
+    "BIAS_BLUR_SIGMA_PX",
+    "BIAS_CAMERA",
+    "BIAS_CENTROID_SAMPLES",
+    "BIAS_DETECTORS",
+    "BIAS_GRID",
+    "BIAS_PITCH_MM",
+    "BIAS_SPAN_PX",
+    "BIAS_SUPERSAMPLE",
+    "BIAS_TILT_AXIS_DEG",
+    "BLOB_AREA_WINDOW",
+    "BLOB_MIN_INERTIA",
+    "bias_geometry",
+    "bias_study",
+]
 
 #: Camera of the bias study: 1280x960, f 1500 px, mild barrel distortion.
 BIAS_CAMERA = Camera(1280, 960, 1500.0, 1500.0, 639.5, 479.5, np.array([-0.1, 0.05, 0.0, 0.0, 0.0]))
@@ -78,15 +93,16 @@ def _blob_detector(d_px: float) -> Any:
     """OpenCV's SimpleBlobDetector with its area window fitted to dots ``d_px`` across."""
     import cv2
 
-    area = np.pi / 4.0 * d_px ** 2
+    area = np.pi / 4.0 * d_px**2
     p = cv2.SimpleBlobDetector_Params()
     p.minArea, p.maxArea = float(BLOB_AREA_WINDOW[0] * area), float(BLOB_AREA_WINDOW[1] * area)
     p.minInertiaRatio = BLOB_MIN_INERTIA
     return cv2.SimpleBlobDetector_create(p)
 
 
-def _centres(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: np.ndarray, d_px: float
-             ) -> tuple[dict[str, np.ndarray], list[str]]:
+def _centres(
+    image: np.ndarray, board: Board, rvec: np.ndarray, tvec: np.ndarray, d_px: float
+) -> tuple[dict[str, np.ndarray], list[str]]:
     """Every detector's centres (N, 2) px on one render (a detector that finds no grid is left out) and why any
     failed."""
     from circcal.detector import detect, recorrect
@@ -128,8 +144,9 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, A
     for i, j in tqdm(cells, desc="report: bias renders", unit="render", disable=not progress):
         tilt, d_px = tilts[i], diams[j]
         board = _board(d_px, px_per_mm)
-        rvec, tvec = pose_looking_at(BIAS_CAMERA, board, distance_mm=distance, tilt_deg=tilt,
-                                     tilt_axis_deg=BIAS_TILT_AXIS_DEG)
+        rvec, tvec = pose_looking_at(
+            BIAS_CAMERA, board, distance_mm=distance, tilt_deg=tilt, tilt_axis_deg=BIAS_TILT_AXIS_DEG
+        )
         true_c = project(board.object_points(), rvec, tvec, BIAS_CAMERA)
         found, why = _centres(_render(board, rvec, tvec), board, rvec, tvec, d_px)
         notes += [f"tilt {tilt:g} deg, {d_px:g} px: {w}" for w in why]
@@ -138,10 +155,23 @@ def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, A
             e = np.hypot(*(c - true_c).T)
             mean[k][i, j] = float(np.mean(e))
             top[k][i, j] = float(np.max(e))
-    out = {"camera": BIAS_CAMERA, "board": {"rows": BIAS_GRID, "cols": BIAS_GRID, "pitch_mm": BIAS_PITCH_MM,
-                                            "n_points": _board(diams[0], px_per_mm).n_points,
-                                            "diameters_mm": [d / px_per_mm for d in diams]},
-           "distance_mm": distance, "tilt_axis_deg": BIAS_TILT_AXIS_DEG, "perturbations": BIAS_BLUR,
-           "bits": BIAS_BITS, "tilts_deg": tilts, "diameters_px": diams, "mean_2d_px": mean, "max_2d_px": top,
-           "notes": notes}
+    out = {
+        "camera": BIAS_CAMERA,
+        "board": {
+            "rows": BIAS_GRID,
+            "cols": BIAS_GRID,
+            "pitch_mm": BIAS_PITCH_MM,
+            "n_points": _board(diams[0], px_per_mm).n_points,
+            "diameters_mm": [d / px_per_mm for d in diams],
+        },
+        "distance_mm": distance,
+        "tilt_axis_deg": BIAS_TILT_AXIS_DEG,
+        "perturbations": BIAS_BLUR,
+        "bits": BIAS_BITS,
+        "tilts_deg": tilts,
+        "diameters_px": diams,
+        "mean_2d_px": mean,
+        "max_2d_px": top,
+        "notes": notes,
+    }
     return out, time.perf_counter() - t0

@@ -1,5 +1,6 @@
 """The report as a list of blocks, one type per kind of content; the templates (:mod:`circcal.report.render`) turn
 them into Markdown and HTML. Text may mark code with backticks; everything else is plain text (HTML escapes it)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -8,6 +8,7 @@ first imported, so recording them would make the results depend on what ran befo
 process's own warning filters after the block instead, neither recorded nor silenced. Nothing is filtered for the
 process: the previous filters are restored when the block ends.
 """
+
 from __future__ import annotations
 
 import warnings

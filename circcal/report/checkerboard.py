@@ -1,5 +1,6 @@
 """The paper's comparison target: the rendered ``paper-checkerboard`` fixture through OpenCV's chessboard detector
 and calibrateCamera, one illumination condition at a time."""
+
 from __future__ import annotations
 
 import time
@@ -13,8 +14,14 @@ from circcal.observations import MIN_VIEWS
 from circcal.report.config import ReportConfig
 from circcal.report.rendered import calibrator_row, load_fixture
 
-__all__ = ["SUBPIX_EPS_PX", "SUBPIX_ITERATIONS", "SUBPIX_WINDOW", "checkerboard_condition", "checkerboard_label",
-           "find_chessboard"]
+__all__ = [
+    "SUBPIX_EPS_PX",
+    "SUBPIX_ITERATIONS",
+    "SUBPIX_WINDOW",
+    "checkerboard_condition",
+    "checkerboard_label",
+    "find_chessboard",
+]
 
 #: cornerSubPix search window (px, full width): OpenCV's tutorial value, which the paper's era used.
 SUBPIX_WINDOW = (11, 11)
@@ -29,11 +36,17 @@ def find_chessboard(gray: np.ndarray, board: Board) -> tuple[np.ndarray | None, 
     (accuracy flag) if that fails. Returns ((N, 2) px or None, how they were found or why not)."""
     import cv2
 
-    ok, c = cv2.findChessboardCorners(gray, board.pattern_size,
-                                      flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    ok, c = cv2.findChessboardCorners(
+        gray, board.pattern_size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
     if ok:
-        c = cv2.cornerSubPix(gray, c, SUBPIX_WINDOW, (-1, -1),
-                             (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, SUBPIX_ITERATIONS, SUBPIX_EPS_PX))
+        c = cv2.cornerSubPix(
+            gray,
+            c,
+            SUBPIX_WINDOW,
+            (-1, -1),
+            (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, SUBPIX_ITERATIONS, SUBPIX_EPS_PX),
+        )
         return c.reshape(-1, 2).astype(np.float64), "findChessboardCorners+cornerSubPix"
     ok, c = cv2.findChessboardCornersSB(gray, board.pattern_size, flags=cv2.CALIB_CB_ACCURACY)
     if ok:
@@ -45,8 +58,10 @@ def checkerboard_label(board: Board) -> str:
     """The row label: OpenCV's version and the board as inner corners (columns x rows) and squares."""
     import cv2
 
-    return (f"OpenCV {cv2.__version__} checkerboard {board.cols}x{board.rows} corners "
-            f"({board.cols + 1}x{board.rows + 1} squares)")
+    return (
+        f"OpenCV {cv2.__version__} checkerboard {board.cols}x{board.rows} corners "
+        f"({board.cols + 1}x{board.rows + 1} squares)"
+    )
 
 
 def _corners(views: list[Any], board: Board) -> tuple[list[np.ndarray], list[int], dict[str, str], set[str]]:
@@ -74,18 +89,38 @@ def _checkerboard_row(views: list[Any], truth: Any) -> dict[str, Any]:
     img, used, missed, hows = _corners(views, board)
     label = checkerboard_label(board)
     if len(used) < MIN_VIEWS:
-        return calibrator_row(label, "failed", f"board found in {len(used)} of {len(views)} images: {missed}", None,
-                              None, None, cam_t, detector="findChessboardCorners")
-    res = OpenCVCalibrator().calibrate_observations([board.object_points()] * len(img), img,
-                                                    (cam_t.width, cam_t.height))
+        return calibrator_row(
+            label,
+            "failed",
+            f"board found in {len(used)} of {len(views)} images: {missed}",
+            None,
+            None,
+            None,
+            cam_t,
+            detector="findChessboardCorners",
+        )
+    res = OpenCVCalibrator().calibrate_observations(
+        [board.object_points()] * len(img), img, (cam_t.width, cam_t.height)
+    )
     if not res.ok:
         return calibrator_row(label, res.status, res.message, None, None, None, cam_t)
     centre = centre_errors(img, [views[i].centres for i in used], board=board)
     msg = f"missed {len(missed)} of {len(views)} views: {missed}" if missed else ""
-    return calibrator_row(label, "ok", msg, res.camera, res.std, res.errors, cam_t, centre=centre["overall"],
-                          per_view=[error_stats(r)["mean_2d_px"] for r in res.residuals], views=used,
-                          detector=" / ".join(sorted(hows)), observations="own",
-                          centre_note="corner error vs true corners")
+    return calibrator_row(
+        label,
+        "ok",
+        msg,
+        res.camera,
+        res.std,
+        res.errors,
+        cam_t,
+        centre=centre["overall"],
+        per_view=[error_stats(r)["mean_2d_px"] for r in res.residuals],
+        views=used,
+        detector=" / ".join(sorted(hows)),
+        observations="own",
+        centre_note="corner error vs true corners",
+    )
 
 
 def checkerboard_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, Any], float]:

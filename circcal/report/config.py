@@ -1,13 +1,24 @@
 """What a report run covers (:class:`ReportConfig`, :data:`FULL`, :data:`QUICK`), the paper's published numbers,
 where the real photographs live, and the pixel grid every projection difference is measured on."""
+
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["CONDITIONS", "FULL", "PAPER_PUBLISHED", "PROJECTION_GRID_WIDTH", "QUICK", "REALDATA_ENV", "ReportConfig",
-           "STUDIES_ENV", "realdata_root", "studies_root"]
+__all__ = [
+    "CONDITIONS",
+    "FULL",
+    "PAPER_PUBLISHED",
+    "PROJECTION_GRID_WIDTH",
+    "QUICK",
+    "REALDATA_ENV",
+    "ReportConfig",
+    "STUDIES_ENV",
+    "realdata_root",
+    "studies_root",
+]
 
 #: The paper's four illumination conditions, in the order its tables use (the ``paper`` scenario's variants).
 CONDITIONS = ("normal", "uneven", "strong", "weak")
@@ -49,9 +60,15 @@ class ReportConfig:
 
 
 FULL = ReportConfig()
-QUICK = ReportConfig(name="quick", conditions=("normal",), checkerboard_conditions=("normal",), n_views=8,
-                     bias_tilts_deg=(0.0, 30.0, 60.0), bias_diameters_px=(20.0, 45.0),
-                     realdata=("boofcv_sony_hx5v_circle_asym_4x5",))
+QUICK = ReportConfig(
+    name="quick",
+    conditions=("normal",),
+    checkerboard_conditions=("normal",),
+    n_views=8,
+    bias_tilts_deg=(0.0, 30.0, 60.0),
+    bias_diameters_px=(20.0, 45.0),
+    realdata=("boofcv_sony_hx5v_circle_asym_4x5",),
+)
 
 
 def realdata_root() -> Path:

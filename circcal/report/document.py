@@ -1,5 +1,6 @@
 """The report as blocks (:mod:`circcal.report.blocks`), built from the results alone: the JSON tree report.json
 holds, plus the run times. The same blocks become index.md and index.html (:mod:`circcal.report.render`)."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -28,9 +29,11 @@ def _paper_section(results: dict[str, Any], caption: dict[str, str]) -> list[Blo
         Heading(2, "1. The paper's Table 7 on rendered fixtures"),
         Heading(3, "Mean reprojection error, mean 2-D (the paper's convention), px"),
         condition_table(results, lambda r: dig(r, "errors", "mean_2d_px"), published=True),
-        Paragraph("The paper's own numbers come from real photographs of its boards, ours from renders of the same "
-                  "geometry: compare orders of magnitude and rankings, not digits. Our renders carry little noise, "
-                  "so the residual mostly shows the detector's bias that the model could not absorb."),
+        Paragraph(
+            "The paper's own numbers come from real photographs of its boards, ours from renders of the same "
+            "geometry: compare orders of magnitude and rankings, not digits. Our renders carry little noise, "
+            "so the residual mostly shows the detector's bias that the model could not absorb."
+        ),
         Heading(3, "OpenCV's RMS per point, px"),
         condition_table(results, lambda r: dig(r, "errors", "rms_per_point_px")),
         Heading(3, "Against ground truth: RMS projection difference to the true camera, px (rotation fitted)"),
@@ -43,22 +46,35 @@ def _paper_section(results: dict[str, Any], caption: dict[str, str]) -> list[Blo
     ]
     notes = paper_notes(results)
     if notes:
-        out += [Paragraph("Notes (failures, notes from the references, left-out views, agreement checks of "
-                          "`circcal validate` that did not pass, warnings raised):"), Bullets(tuple(notes))]
+        out += [
+            Paragraph(
+                "Notes (failures, notes from the references, left-out views, agreement checks of "
+                "`circcal validate` that did not pass, warnings raised):"
+            ),
+            Bullets(tuple(notes)),
+        ]
     return out
 
 
 def _bias_section(results: dict[str, Any], caption: dict[str, str]) -> list[Block]:
-    out: list[Block] = [Heading(2, "3. Centre bias against tilt and dot size"), Paragraph(prose.bias_setup(results)),
-                        Image("bias.png", caption["bias.png"]), Paragraph(prose.bias_table_intro(results)),
-                        bias_table(results), Image("bias_grid.png", caption["bias_grid.png"])]
+    out: list[Block] = [
+        Heading(2, "3. Centre bias against tilt and dot size"),
+        Paragraph(prose.bias_setup(results)),
+        Image("bias.png", caption["bias.png"]),
+        Paragraph(prose.bias_table_intro(results)),
+        bias_table(results),
+        Image("bias_grid.png", caption["bias_grid.png"]),
+    ]
     notes = bias_notes(results)
     return out + ([Bullets(tuple(notes))] if notes else [])
 
 
 def _realdata_section(results: dict[str, Any], caption: dict[str, str]) -> list[Block]:
-    out: list[Block] = [Heading(2, "6. Real photographs"), Paragraph(prose.realdata_method(results)),
-                        realdata_table(results)]
+    out: list[Block] = [
+        Heading(2, "6. Real photographs"),
+        Paragraph(prose.realdata_method(results)),
+        realdata_table(results),
+    ]
     notes = realdata_notes(results)
     if notes:
         out.append(Bullets(tuple(notes)))
@@ -79,10 +95,15 @@ def _studies_section(results: dict[str, Any], caption: dict[str, str]) -> list[B
             out.append(Paragraph(f"Not included: {entry.get('message', entry.get('status'))}."))
             continue
         ratio, bias, passes = study_tables(entry)
-        out += [Paragraph(prose.study_summary(entry)),
-                Paragraph("Sigma honesty: empirical spread / mean stated sigma (1 = honest; [95 % interval])."),
-                ratio, Paragraph("Bias: mean error in stated sigmas (0 = unbiased; [95 % interval])."), bias,
-                Paragraph("Truth check (fx, fy, cx, cy within the stated sigmas of the truth) per cell:"), passes]
+        out += [
+            Paragraph(prose.study_summary(entry)),
+            Paragraph("Sigma honesty: empirical spread / mean stated sigma (1 = honest; [95 % interval])."),
+            ratio,
+            Paragraph("Bias: mean error in stated sigmas (0 = unbiased; [95 % interval])."),
+            bias,
+            Paragraph("Truth check (fx, fy, cx, cy within the stated sigmas of the truth) per cell:"),
+            passes,
+        ]
         out += [Image(f, caption[f]) for f in caption if f.startswith(f"study_{name}_")]
     return out
 
@@ -96,17 +117,25 @@ def document(results: dict[str, Any], header: str) -> list[Block]:
     if prose.reduced_run(results):
         out.append(Paragraph(prose.reduced_run(results)))
     out += _paper_section(results, caption)
-    out += [Heading(2, "2. Per-view errors (the paper's Tables 2, 4, 6)"),
-            Image("per_view_errors.png", caption["per_view_errors.png"])]
+    out += [
+        Heading(2, "2. Per-view errors (the paper's Tables 2, 4, 6)"),
+        Image("per_view_errors.png", caption["per_view_errors.png"]),
+    ]
     out += _bias_section(results, caption)
-    out += [Heading(2, "4. Where each model is wrong: projection difference to the truth"),
-            Paragraph(prose.fair_references(results))]
+    out += [
+        Heading(2, "4. Where each model is wrong: projection difference to the truth"),
+        Paragraph(prose.fair_references(results)),
+    ]
     out += [Image(f"heatmap_{c}.png", caption[f"heatmap_{c}.png"]) for c in conds]
     out.append(Heading(2, "5. Parameters (+- one stated standard deviation)"))
     for c in conds:
         out += [Heading(3, f"{c} illumination"), parameter_table(results, c)]
     out += _realdata_section(results, caption)
-    out += [Heading(2, "7. Run times and environment"), Paragraph(prose.machine(results)),
-            Paragraph(prose.run_times_intro(results)), timings_table(results)]
+    out += [
+        Heading(2, "7. Run times and environment"),
+        Paragraph(prose.machine(results)),
+        Paragraph(prose.run_times_intro(results)),
+        timings_table(results),
+    ]
     out += _studies_section(results, caption)
     return out

@@ -1,4 +1,5 @@
 """The environment a report ran in: library versions and the machine (no clock: run times are kept apart)."""
+
 from __future__ import annotations
 
 import importlib
@@ -10,8 +11,15 @@ __all__ = ["LIBRARIES", "VERSION_ORDER", "environment"]
 
 #: (import name, the name the report prints), in the order the report lists them after Python; mrcal and circcal
 #: follow.
-LIBRARIES = (("numpy", "numpy"), ("scipy", "scipy"), ("cv2", "opencv"), ("torch", "torch"), ("kornia", "kornia"),
-             ("pycolmap", "pycolmap"), ("matplotlib", "matplotlib"))
+LIBRARIES = (
+    ("numpy", "numpy"),
+    ("scipy", "scipy"),
+    ("cv2", "opencv"),
+    ("torch", "torch"),
+    ("kornia", "kornia"),
+    ("pycolmap", "pycolmap"),
+    ("matplotlib", "matplotlib"),
+)
 #: The order in which the report lists the versions (report.json stores them sorted by name).
 VERSION_ORDER = ("python", *(name for _, name in LIBRARIES), "mrcal", "circcal")
 
@@ -51,5 +59,9 @@ def environment() -> dict[str, Any]:
     versions.update({name: _version(module) for module, name in LIBRARIES})
     versions["mrcal"] = _mrcal_version()
     versions["circcal"] = _circcal_version()
-    return {"versions": versions, "platform": platform.platform(), "machine": platform.machine(),
-            "cpu_count": os.cpu_count()}
+    return {
+        "versions": versions,
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "cpu_count": os.cpu_count(),
+    }

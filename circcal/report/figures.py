@@ -5,6 +5,7 @@ chosen for the process; ``Figure.savefig`` renders with the Agg canvas), drawn u
 ``matplotlib.rc_context``, so the process's rcParams are left as they were. PNG metadata carries no software
 version, so a figure's bytes change only when its content does.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -17,8 +18,20 @@ from circcal.model import Camera
 from circcal.report.config import PROJECTION_GRID_WIDTH
 from circcal.report.results import dig, paper_conditions, realdata_sets
 
-__all__ = ["BIAS_GRID_FLOOR_PX", "BIAS_PLOT_FLOOR_PX", "FIGURES", "STYLE", "fig_bias", "fig_bias_grid", "fig_heatmaps",
-           "fig_per_view", "fig_realdata_board", "fig_truth_bars", "figure_files", "make_figures"]
+__all__ = [
+    "BIAS_GRID_FLOOR_PX",
+    "BIAS_PLOT_FLOOR_PX",
+    "FIGURES",
+    "STYLE",
+    "fig_bias",
+    "fig_bias_grid",
+    "fig_heatmaps",
+    "fig_per_view",
+    "fig_realdata_board",
+    "fig_truth_bars",
+    "figure_files",
+    "make_figures",
+]
 
 #: rcParams every figure is drawn under (``svg.hashsalt`` keeps SVG ids stable should a figure be saved as SVG).
 STYLE = {"figure.dpi": 100, "savefig.dpi": 110, "font.size": 9, "svg.hashsalt": "circcal"}
@@ -84,10 +97,12 @@ def fig_bias(results: dict, path: Path) -> None:
     """Centre error against tilt (largest dot size) and against dot size (largest tilt)."""
     b = results["bias"]
     tilts, diams = np.array(b["tilts_deg"]), np.array(b["diameters_px"])
-    series = (("perfect_centroid", "perfect blob centroid (area centroid)", "k", "--", None),
-              ("opencv", "OpenCV findCirclesGrid (SimpleBlobDetector, sized)", "tab:orange", "-", "s"),
-              ("circcal_nomodel", "circcal detector, no model (perspective only)", "tab:green", ":", "^"),
-              ("circcal", "circcal detector, with the lens model", "tab:blue", "-", "o"))
+    series = (
+        ("perfect_centroid", "perfect blob centroid (area centroid)", "k", "--", None),
+        ("opencv", "OpenCV findCirclesGrid (SimpleBlobDetector, sized)", "tab:orange", "-", "s"),
+        ("circcal_nomodel", "circcal detector, no model (perspective only)", "tab:green", ":", "^"),
+        ("circcal", "circcal detector, with the lens model", "tab:blue", "-", "o"),
+    )
     fig = _figure(11, 4.2)
     axes = fig.subplots(1, 2)
     for key, lab, col, ls, mk in series:
@@ -105,9 +120,11 @@ def fig_bias(results: dict, path: Path) -> None:
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, fontsize=8, loc="lower center", ncol=2, bbox_to_anchor=(0.5, -0.13))
     blur = ", ".join(f"blur {p['sigma_px']:g} px" for p in b["perturbations"] if p.get("kind") == "gaussian_blur")
-    fig.suptitle(f"Centre bias on clean renders ({b['board']['rows']}x{b['board']['cols']} dots, "
-                 f"f {b['camera']['fx']:g} px, k1 {b['camera']['dist'][0]:g}; {blur}, {b['bits']}-bit; values "
-                 f"below {BIAS_PLOT_FLOOR_PX:g} px drawn at {BIAS_PLOT_FLOOR_PX:g})")
+    fig.suptitle(
+        f"Centre bias on clean renders ({b['board']['rows']}x{b['board']['cols']} dots, "
+        f"f {b['camera']['fx']:g} px, k1 {b['camera']['dist'][0]:g}; {blur}, {b['bits']}-bit; values "
+        f"below {BIAS_PLOT_FLOOR_PX:g} px drawn at {BIAS_PLOT_FLOOR_PX:g})"
+    )
     fig.tight_layout()
     _save(fig, path)
 
@@ -118,8 +135,11 @@ def fig_bias_grid(results: dict, path: Path) -> None:
 
     b = results["bias"]
     tilts, diams = b["tilts_deg"], b["diameters_px"]
-    keys = (("circcal", "circcal (with model)"), ("opencv", "OpenCV findCirclesGrid"),
-            ("perfect_centroid", "perfect blob centroid"))
+    keys = (
+        ("circcal", "circcal (with model)"),
+        ("opencv", "OpenCV findCirclesGrid"),
+        ("perfect_centroid", "perfect blob centroid"),
+    )
     fig = _figure(12, 3.6)
     axes = fig.subplots(1, 3)
     vals = [_grid(b, k) for k, _ in keys]
@@ -130,8 +150,15 @@ def fig_bias_grid(results: dict, path: Path) -> None:
         im = ax.imshow(np.maximum(v, BIAS_GRID_FLOOR_PX), origin="lower", aspect="auto", norm=norm, cmap="viridis")
         for i in range(v.shape[0]):
             for j in range(v.shape[1]):
-                ax.text(j, i, "n/a" if not np.isfinite(v[i, j]) else f"{v[i, j]:.3f}", ha="center", va="center",
-                        fontsize=6, color="w")
+                ax.text(
+                    j,
+                    i,
+                    "n/a" if not np.isfinite(v[i, j]) else f"{v[i, j]:.3f}",
+                    ha="center",
+                    va="center",
+                    fontsize=6,
+                    color="w",
+                )
         ax.set_xticks(range(len(diams)))
         ax.set_xticklabels([f"{d:g}" for d in diams])
         ax.set_yticks(range(len(tilts)))
@@ -147,9 +174,12 @@ def heatmap_panels(results: dict, condition: str) -> list[tuple[dict, str]]:
     """(row, title) of every calibrator drawn in a condition's heatmap: circcal, the OpenCV circle pipeline, mrcal's
     default mode and the checkerboard, where each has a model."""
     rows = results["paper"][condition]["rows"]
-    panels = [(rows.get("circcal"), "circcal"), (rows.get("opencv-pipeline"), "OpenCV circle pipeline"),
-              (rows.get("mrcal-default"), "mrcal [default] on circcal's centres"),
-              (results["checkerboard"].get(condition), "OpenCV checkerboard")]
+    panels = [
+        (rows.get("circcal"), "circcal"),
+        (rows.get("opencv-pipeline"), "OpenCV circle pipeline"),
+        (rows.get("mrcal-default"), "mrcal [default] on circcal's centres"),
+        (results["checkerboard"].get(condition), "OpenCV checkerboard"),
+    ]
     return [(r, t) for r, t in panels if r is not None and r.get("camera")]
 
 
@@ -182,8 +212,12 @@ def fig_heatmaps(results: dict, path: Path, condition: str) -> None:
 def fig_truth_bars(results: dict, path: Path) -> None:
     """Residual (what calibrators report) beside error against truth (what matters), per condition."""
     conds = paper_conditions(results)
-    keys = [("circcal", "circcal", "tab:blue"), ("opencv-pipeline", "OpenCV circles", "tab:orange"),
-            ("mrcal-default", "mrcal [default]", "tab:purple"), ("checkerboard", "OpenCV checkerboard", "tab:gray")]
+    keys = [
+        ("circcal", "circcal", "tab:blue"),
+        ("opencv-pipeline", "OpenCV circles", "tab:orange"),
+        ("mrcal-default", "mrcal [default]", "tab:purple"),
+        ("checkerboard", "OpenCV checkerboard", "tab:gray"),
+    ]
     fig = _figure(11, 3.6)
     axes = fig.subplots(1, 2)
     x = np.arange(len(conds))
@@ -191,14 +225,19 @@ def fig_truth_bars(results: dict, path: Path) -> None:
     for k, (key, lab, col) in enumerate(keys):
         res, tru = [], []
         for c in conds:
-            r = (results["checkerboard"].get(c, {}) if key == "checkerboard"
-                 else results["paper"][c]["rows"].get(key, {}))
+            r = (
+                results["checkerboard"].get(c, {})
+                if key == "checkerboard"
+                else results["paper"][c]["rows"].get(key, {})
+            )
             res.append(_value(dig(r, "errors", "mean_2d_px")))
             tru.append(_value(dig(r, "vs_truth", "rms_px")))
         axes[0].bar(x + (k - 1.5) * w, res, w, color=col, label=lab)
         axes[1].bar(x + (k - 1.5) * w, tru, w, color=col, label=lab)
-    for ax, t, yl in ((axes[0], "what the calibrator reports: mean 2-D residual", "mean 2-D residual [px]"),
-                      (axes[1], "what matters: projection error vs the true camera", "RMS projection difference [px]")):
+    for ax, t, yl in (
+        (axes[0], "what the calibrator reports: mean 2-D residual", "mean 2-D residual [px]"),
+        (axes[1], "what matters: projection error vs the true camera", "RMS projection difference [px]"),
+    ):
         ax.set_xticks(x)
         ax.set_xticklabels(conds)
         ax.set_xlabel("illumination condition")
@@ -232,35 +271,81 @@ def _board_panel(ax: Any, fig: Any, name: str, s: dict) -> None:
     bd = s["circcal_refined"]["board"]
     nom, dev, std = (np.array(bd[k], dtype=np.float64) for k in ("nominal_mm", "deviation_mm", "std_mm"))
     zmax = max(float(np.max(np.abs(dev[:, 2]))), 1e-6)
-    sc = ax.scatter(nom[:, 0], nom[:, 1], c=dev[:, 2], s=110, cmap="RdBu_r", edgecolors="0.3", linewidths=0.4,
-                    norm=Normalize(-zmax, zmax), zorder=2)
+    sc = ax.scatter(
+        nom[:, 0],
+        nom[:, 1],
+        c=dev[:, 2],
+        s=110,
+        cmap="RdBu_r",
+        edgecolors="0.3",
+        linewidths=0.4,
+        norm=Normalize(-zmax, zmax),
+        zorder=2,
+    )
     pitch = float(s["board"]["pitch_mm"])
     dxy = float(np.max(np.linalg.norm(dev[:, :2], axis=1)))
     # arrows: the largest in-plane deviation drawn 0.8 pitch long; the key shows a round length at that scale
     gain = 0.8 * pitch / max(dxy, 1e-9)
     key = float(f"{dxy:.1g}")
-    q = ax.quiver(nom[:, 0], nom[:, 1], dev[:, 0], dev[:, 1], angles="xy", scale_units="xy", scale=1.0 / gain,
-                  width=0.005, color="k", zorder=3)
-    ax.quiverkey(q, 0.62, -0.21, key, f"{key:g} mm in plane", labelpos="E", coordinates="axes",
-                 fontproperties={"size": 7})
+    q = ax.quiver(
+        nom[:, 0],
+        nom[:, 1],
+        dev[:, 0],
+        dev[:, 1],
+        angles="xy",
+        scale_units="xy",
+        scale=1.0 / gain,
+        width=0.005,
+        color="k",
+        zorder=3,
+    )
+    ax.quiverkey(
+        q, 0.62, -0.21, key, f"{key:g} mm in plane", labelpos="E", coordinates="axes", fontproperties={"size": 7}
+    )
     full = np.all(std == 0, axis=1)
     zonly = (std[:, 2] == 0) & ~full
     for held, marker in ((full, "s"), (zonly, "D")):
-        ax.scatter(nom[held, 0], nom[held, 1], s=260, marker=marker, facecolors="none", edgecolors="k",
-                   linewidths=1.2, zorder=4)
+        ax.scatter(
+            nom[held, 0],
+            nom[held, 1],
+            s=260,
+            marker=marker,
+            facecolors="none",
+            edgecolors="k",
+            linewidths=1.2,
+            zorder=4,
+        )
     ax.set_aspect("equal")
     ax.invert_yaxis()
     ax.margins(0.08)
     ax.set_xlabel("board x [mm]")
     ax.set_ylabel("board y [mm]")
-    ax.set_title(f"{name}\nlargest deviation {bd['max_abs_dev_mm']:.2f} mm (one coordinate),\n"
-                 f"{bd['max_dev_over_median_std']:.0f}x the median sigma of {bd['median_std_mm']:.3f} mm", fontsize=8)
+    ax.set_title(
+        f"{name}\nlargest deviation {bd['max_abs_dev_mm']:.2f} mm (one coordinate),\n"
+        f"{bd['max_dev_over_median_std']:.0f}x the median sigma of {bd['median_std_mm']:.3f} mm",
+        fontsize=8,
+    )
     fig.colorbar(sc, ax=ax, label="dz, out of the board plane [mm]", shrink=0.85)
-    ax.legend(handles=[Line2D([], [], marker="s", ls="", mfc="none", mec="k", label="held in x, y, z (gauge)"),
-                       Line2D([], [], marker="D", ls="", mfc="none", mec="k", label="held in z (gauge)"),
-                       Line2D([], [], marker=r"$\rightarrow$", ls="", color="k", markersize=10,
-                              label=f"in-plane deviation, drawn x{gain:.0f}")],
-              fontsize=7, loc="upper left", bbox_to_anchor=(-0.02, -0.15), ncol=1, frameon=False)
+    ax.legend(
+        handles=[
+            Line2D([], [], marker="s", ls="", mfc="none", mec="k", label="held in x, y, z (gauge)"),
+            Line2D([], [], marker="D", ls="", mfc="none", mec="k", label="held in z (gauge)"),
+            Line2D(
+                [],
+                [],
+                marker=r"$\rightarrow$",
+                ls="",
+                color="k",
+                markersize=10,
+                label=f"in-plane deviation, drawn x{gain:.0f}",
+            ),
+        ],
+        fontsize=7,
+        loc="upper left",
+        bbox_to_anchor=(-0.02, -0.15),
+        ncol=1,
+        frameon=False,
+    )
 
 
 def fig_realdata_board(results: dict, path: Path) -> None:
@@ -270,8 +355,10 @@ def fig_realdata_board(results: dict, path: Path) -> None:
     axes = fig.subplots(1, len(sets), squeeze=False)
     for ax, (name, s) in zip(axes[0], sets):
         _board_panel(ax, fig, name, s)
-    fig.suptitle("Real photographs: the printed board as circcal estimates it (refine_board), against the nominal "
-                 "board", fontsize=9)
+    fig.suptitle(
+        "Real photographs: the printed board as circcal estimates it (refine_board), against the nominal board",
+        fontsize=9,
+    )
     fig.tight_layout()
     _save(fig, path)
 

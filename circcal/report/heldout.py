@@ -5,6 +5,7 @@ through :func:`circcal.pipeline.holdout_detections` (its calibrate / re-correct 
 centres re-corrected under that model), OpenCV's solver on the baseline's fixed centres, and circcal's solver with
 the board refined on fixed centres through :func:`circcal.solver.holdout_errors`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,8 +30,10 @@ _MEANS = ("mean_2d_px", "rms_per_point_px", "rms_per_coord_px")
 def mean_of_views(per: list[dict[str, Any]]) -> dict[str, Any]:
     """The per-view entries and, over the views that did not fail, the mean of each convention (px)."""
     good = [p for p in per if "failed" not in p]
-    return {"per_view": per,
-            "mean_of_views": {m: (float(np.mean([p[m] for p in good])) if good else float("nan")) for m in _MEANS}}
+    return {
+        "per_view": per,
+        "mean_of_views": {m: (float(np.mean([p[m] for p in good])) if good else float("nan")) for m in _MEANS},
+    }
 
 
 def _named(per: list[dict[str, Any]], names: list[str]) -> list[dict[str, Any]]:
@@ -59,9 +62,16 @@ def _opencv_heldout(views: list[tuple[str, np.ndarray]], board: Board, size: tup
     return leave_one_out(len(views), fit, lambda k, camera: (pts, views[k][1], camera))
 
 
-def heldout_block(cal: Any, board: Board, size: tuple[int, int], *, refined: bool,
-                  opencv_views: list[tuple[str, np.ndarray]], opencv_ok: bool,
-                  opencv_ordered: list[np.ndarray] | None) -> dict[str, Any]:
+def heldout_block(
+    cal: Any,
+    board: Board,
+    size: tuple[int, int],
+    *,
+    refined: bool,
+    opencv_views: list[tuple[str, np.ndarray]],
+    opencv_ok: bool,
+    opencv_ordered: list[np.ndarray] | None,
+) -> dict[str, Any]:
     """The held-out entries of one set (:func:`mean_of_views` each): ``circcal`` and, with ``refined``,
     ``circcal_refined`` from ``cal`` (a :class:`~circcal.pipeline.ImagesCalibration` or None); ``opencv`` from the
     baseline's views when OpenCV's solver fitted them (``opencv_ok``); ``opencv_refined`` from those views in
@@ -76,12 +86,15 @@ def heldout_block(cal: Any, board: Board, size: tuple[int, int], *, refined: boo
         names = [Path(cal.paths[i]).name for i in cal.used]
         per["circcal"] = _named(holdout_detections(detections, board, size), names)
         if refined:
-            per["circcal_refined"] = _named(holdout_detections(detections, board, size,
-                                                                            CalibrationOptions(refine_board=True)), names)
+            per["circcal_refined"] = _named(
+                holdout_detections(detections, board, size, CalibrationOptions(refine_board=True)), names
+            )
     names = [n for n, _ in opencv_views]
     if opencv_ok and len(opencv_views) >= MIN_HELDOUT_VIEWS:
         per["opencv"] = _named(_opencv_heldout(opencv_views, board, size), names)
     if opencv_ordered is not None and len(opencv_ordered) >= MIN_HELDOUT_VIEWS:
         pts = [board.object_points()] * len(opencv_ordered)
-        per["opencv_refined"] = _named(holdout_errors(pts, opencv_ordered, size, CalibrationOptions(refine_board=True)), names)
+        per["opencv_refined"] = _named(
+            holdout_errors(pts, opencv_ordered, size, CalibrationOptions(refine_board=True)), names
+        )
     return {k: mean_of_views(v) for k, v in per.items()}

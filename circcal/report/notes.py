@@ -1,5 +1,6 @@
 """The report's notes: everything that did not go as planned, listed where it happened (failed or noted calibrators,
 images left out, checks that did not pass, warnings a study raised); nothing is dropped silently."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -17,8 +18,10 @@ def warning_notes(results: dict[str, Any], prefix: str) -> list[str]:
     out = []
     for study, entries in (results.get("warnings") or {}).items():
         if study == prefix or study.startswith(prefix + "/"):
-            out += [f"{study}: {w['category']}: {w['message']}" + (f" ({w['count']} times)" if w["count"] > 1 else "")
-                    for w in entries]
+            out += [
+                f"{study}: {w['category']}: {w['message']}" + (f" ({w['count']} times)" if w["count"] > 1 else "")
+                for w in entries
+            ]
     return out
 
 
@@ -31,8 +34,10 @@ def _paper_condition_notes(c: str, pc: dict[str, Any]) -> list[str]:
     out += [f"{c}: circcal left out {name}: {why}" for name, why in pc.get("failed_images") or []]
     for ch in pc["checks"]:
         if not ch["passed"]:
-            out.append(f"{c}: check failed: {ch['name']}: {fmt_number(ch.get('value'), '.3g')} "
-                       f"(bound {fmt_number(ch['bound'], 'g')}){' - ' + ch['note'] if ch.get('note') else ''}")
+            out.append(
+                f"{c}: check failed: {ch['name']}: {fmt_number(ch.get('value'), '.3g')} "
+                f"(bound {fmt_number(ch['bound'], 'g')}){' - ' + ch['note'] if ch.get('note') else ''}"
+            )
     return out
 
 
@@ -55,8 +60,12 @@ def _model_difference(name: str, what: str, diff: dict[str, Any] | None) -> list
     """The projection difference (px, rotation fitted) between two models of one set, if measured."""
     if not diff:
         return []
-    return [(f"{name}: {what}, projection difference (rotation fitted): RMS {fmt_number(diff['rms_px'])} px, max "
-             f"{fmt_number(diff['max_px'])} px")]
+    return [
+        (
+            f"{name}: {what}, projection difference (rotation fitted): RMS {fmt_number(diff['rms_px'])} px, max "
+            f"{fmt_number(diff['max_px'])} px"
+        )
+    ]
 
 
 def _set_notes(name: str, s: dict[str, Any]) -> list[str]:
@@ -66,14 +75,20 @@ def _set_notes(name: str, s: dict[str, Any]) -> list[str]:
         if r.get("status") not in (None, "ok"):
             out.append(f"{name}: {label} {r.get('status')}: {r.get('message')}")
     out += _model_difference(name, "circcal's model vs OpenCV's", dig(s, "circcal", "vs_opencv"))
-    out += _model_difference(name, "board refined, circcal's model vs the one from OpenCV's centres",
-                             dig(s, "opencv_refined", "vs_circcal"))
+    out += _model_difference(
+        name, "board refined, circcal's model vs the one from OpenCV's centres", dig(s, "opencv_refined", "vs_circcal")
+    )
     for who, label in REALDATA_ROWS:
-        out += [f"{name}: held-out {label} {p['view']}: {p['failed']}"
-                for p in dig(s, "heldout", who, "per_view") or [] if "failed" in p]
+        out += [
+            f"{name}: held-out {label} {p['view']}: {p['failed']}"
+            for p in dig(s, "heldout", who, "per_view") or []
+            if "failed" in p
+        ]
     out += [f"{name}: circcal left out {n}: {why}" for n, why in dig(s, "circcal", "failed") or []]
-    out += [f"{name}: OpenCV's view {n} has no circcal view to take the point order from; kept as detected"
-            for n in dig(s, "opencv_refined", "unmatched") or []]
+    out += [
+        f"{name}: OpenCV's view {n} has no circcal view to take the point order from; kept as detected"
+        for n in dig(s, "opencv_refined", "unmatched") or []
+    ]
     return out
 
 

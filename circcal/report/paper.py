@@ -1,6 +1,7 @@
 """The paper's Table 7 on rendered fixtures: one illumination condition of the ``paper`` scenario, circcal and every
 reference calibrator on circcal's centres (:func:`circcal.validators.validate.run_validation`), and the OpenCV circle
 pipeline (findCirclesGrid with its own blob detector, then calibrateCamera) on the same images."""
+
 from __future__ import annotations
 
 import time
@@ -21,15 +22,36 @@ def _circcal_row(run: Any, views: list[Any], paths: list[str]) -> dict[str, Any]
 
     cc, truth = run.circcal, run.truth
     if cc["status"] != "ok" or run.shared is None:
-        return calibrator_row("circcal", cc["status"], cc.get("message") or "no shared observations", None, None,
-                              None, truth, detector="circcal", observations="own")
+        return calibrator_row(
+            "circcal",
+            cc["status"],
+            cc.get("message") or "no shared observations",
+            None,
+            None,
+            None,
+            truth,
+            detector="circcal",
+            observations="own",
+        )
     failed = {r.path for r in cc.get("failed") or []}
     used = [i for i, p in enumerate(paths) if p not in failed]
     shared = run.shared
     centre = centre_errors(shared.image_points, [views[i].centres for i in used], board=run.board)
-    return calibrator_row("circcal", "ok", "", cc["camera"], cc["std"], cc["errors"], truth, centre=centre["overall"],
-                          per_view=[e["mean_2d_px"] for e in shared.result.per_view_errors], views=used,
-                          detector="circcal", observations="own", centre_note="circcal's final centres")
+    return calibrator_row(
+        "circcal",
+        "ok",
+        "",
+        cc["camera"],
+        cc["std"],
+        cc["errors"],
+        truth,
+        centre=centre["overall"],
+        per_view=[e["mean_2d_px"] for e in shared.result.per_view_errors],
+        views=used,
+        detector="circcal",
+        observations="own",
+        centre_note="circcal's final centres",
+    )
 
 
 def _opencv_pipeline_row(paths: list[str], views: list[Any], run: Any) -> tuple[dict[str, Any], float]:
@@ -42,13 +64,25 @@ def _opencv_pipeline_row(paths: list[str], views: list[Any], run: Any) -> tuple[
     seconds = time.perf_counter() - t0
     label = f"OpenCV {ocv.version} circle pipeline"
     if not ocv.ok:
-        return calibrator_row(label, ocv.status, ocv.message, None, None, None, run.truth, detector="findCirclesGrid",
-                              observations="own"), seconds
+        return calibrator_row(
+            label, ocv.status, ocv.message, None, None, None, run.truth, detector="findCirclesGrid", observations="own"
+        ), seconds
     centre = centre_errors(ocv.image_points, [views[i].centres for i in ocv.views], board=run.board)
-    return calibrator_row(label, "ok", ocv.message, ocv.camera, ocv.std, ocv.errors, run.truth,
-                          centre=centre["overall"], per_view=[error_stats(r)["mean_2d_px"] for r in ocv.residuals],
-                          views=list(ocv.views), detector="findCirclesGrid (SimpleBlobDetector)", observations="own",
-                          centre_note="blob centroids"), seconds
+    return calibrator_row(
+        label,
+        "ok",
+        ocv.message,
+        ocv.camera,
+        ocv.std,
+        ocv.errors,
+        run.truth,
+        centre=centre["overall"],
+        per_view=[error_stats(r)["mean_2d_px"] for r in ocv.residuals],
+        views=list(ocv.views),
+        detector="findCirclesGrid (SimpleBlobDetector)",
+        observations="own",
+        centre_note="blob centroids",
+    ), seconds
 
 
 def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, Any], dict]:
@@ -57,20 +91,42 @@ def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -
 
     truth, views = load_fixture("paper", variant, cfg.n_views, progress)
     paths = [str(v.image) for v in views]
-    run = run_validation(paths, truth.board, truth=truth.camera, against=cfg.references, mode="both",
-                         progress=progress, source={"scenario": "paper", "variant": variant})
+    run = run_validation(
+        paths,
+        truth.board,
+        truth=truth.camera,
+        against=cfg.references,
+        mode="both",
+        progress=progress,
+        source={"scenario": "paper", "variant": variant},
+    )
     timings: dict[str, float] = {"circcal": run.circcal["time_s"]}
     rows: dict[str, dict] = {"circcal": _circcal_row(run, views, paths)}
     rows["opencv-pipeline"], timings["opencv-pipeline"] = _opencv_pipeline_row(paths, views, run)
     for r in run.references:
         key = f"{r.name}-{r.mode}"
         timings[key] = r.time_s
-        rows[key] = calibrator_row(f"{r.name} {r.version} [{r.mode}]", r.status, r.message, r.camera, r.std,
-                                   r.errors, truth.camera, detector="circcal", observations="circcal's centres",
-                                   centre=rows["circcal"]["centre_error"] if r.ok else None,
-                                   centre_note="circcal's centres (same observations)")
-    checks = [{"name": c.name, "value": c.value, "bound": c.bound, "passed": c.passed, "note": c.note}
-              for c in run.checks]
+        rows[key] = calibrator_row(
+            f"{r.name} {r.version} [{r.mode}]",
+            r.status,
+            r.message,
+            r.camera,
+            r.std,
+            r.errors,
+            truth.camera,
+            detector="circcal",
+            observations="circcal's centres",
+            centre=rows["circcal"]["centre_error"] if r.ok else None,
+            centre_note="circcal's centres (same observations)",
+        )
+    checks = [
+        {"name": c.name, "value": c.value, "bound": c.bound, "passed": c.passed, "note": c.note} for c in run.checks
+    ]
     failed = [[Path(r.path).name, r.reason] for r in run.circcal.get("failed") or []]
-    return {"n_views": len(paths), "rows": rows, "checks": checks, "validation_passed": run.passed,
-            "failed_images": failed}, timings
+    return {
+        "n_views": len(paths),
+        "rows": rows,
+        "checks": checks,
+        "validation_passed": run.passed,
+        "failed_images": failed,
+    }, timings

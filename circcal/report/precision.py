@@ -1,6 +1,7 @@
 """How many digits report.json keeps, and why: every number is rounded to :data:`SIG_DIGITS` significant digits and
 the agreement checks' values to :data:`CHECK_QUANTUM` px, so that run-to-run jitter of the reference calibrators
 does not change the published numbers."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -38,5 +39,7 @@ def round_sig(tree: Any, sig: int = SIG_DIGITS) -> Any:
 
 def precision_note() -> str:
     """The sentence report.json carries about its own precision."""
-    return (f"floats rounded to {SIG_DIGITS} significant digits; agreement-check values to {CHECK_QUANTUM:g} px and "
-            f"kept only for failed checks (they move between runs at that level)")
+    return (
+        f"floats rounded to {SIG_DIGITS} significant digits; agreement-check values to {CHECK_QUANTUM:g} px and "
+        f"kept only for failed checks (they move between runs at that level)"
+    )

@@ -3,6 +3,7 @@ or from the constant that produced it; the thresholds the wording depends on are
 
 Conventions: errors in px (the key or the sentence names the convention), lengths in mm, angles in degrees.
 """
+
 from __future__ import annotations
 
 import math
@@ -19,10 +20,27 @@ from circcal.report.results import calibrator_keys, dig, paper_conditions, reald
 from circcal.validators import checks
 from circcal.validators.checks import solver_bound
 
-__all__ = ["MEAN_2D_PER_SIGMA", "REALDATA_PROVENANCE", "RMS_POINT_PER_SIGMA", "SHAPE_RMS_DROP", "SHAPE_SIGNIFICANCE",
-           "TIE_REL", "apart", "bias_setup", "bias_table_intro", "captions", "conventions", "fair_references",
-           "header_line", "headline", "machine", "realdata_method", "realdata_summary", "reduced_run",
-           "run_times_intro"]
+__all__ = [
+    "MEAN_2D_PER_SIGMA",
+    "REALDATA_PROVENANCE",
+    "RMS_POINT_PER_SIGMA",
+    "SHAPE_RMS_DROP",
+    "SHAPE_SIGNIFICANCE",
+    "TIE_REL",
+    "apart",
+    "bias_setup",
+    "bias_table_intro",
+    "captions",
+    "conventions",
+    "fair_references",
+    "header_line",
+    "headline",
+    "machine",
+    "realdata_method",
+    "realdata_summary",
+    "reduced_run",
+    "run_times_intro",
+]
 
 #: Two RMS values closer than this (relative) are called a tie: about the relative standard error of an RMS over the
 #: few hundred residual coordinates of a real set (1/sqrt(2n): 3.7% for n = 360, 2.3% for n = 960).
@@ -59,8 +77,10 @@ def _views(results: dict[str, Any]) -> str:
     counts = paper | cb
     if len(counts) == 1:
         return f"{counts.pop()} views each"
-    return (f"{'/'.join(str(n) for n in sorted(paper))} views of `paper`, "
-            f"{'/'.join(str(n) for n in sorted(cb))} of `paper-checkerboard`")
+    return (
+        f"{'/'.join(str(n) for n in sorted(paper))} views of `paper`, "
+        f"{'/'.join(str(n) for n in sorted(cb))} of `paper-checkerboard`"
+    )
 
 
 def conventions(results: dict[str, Any]) -> str:
@@ -68,19 +88,21 @@ def conventions(results: dict[str, Any]) -> str:
     fx = results["fixtures"]
     dots, cam = Board.from_dict(fx["paper"]["board"]), fx["paper"]["camera"]
     cb = Board.from_dict(fx["paper-checkerboard"]["board"])
-    return ("Every reprojection error names its convention: mean 2-D = mean of |residual| (the paper's eq. 22, used "
-            f"in its tables, ~{MEAN_2D_PER_SIGMA:.3f} sigma for per-axis noise sigma); RMS per point = OpenCV's "
-            f"calibrateCamera RMS (~{RMS_POINT_PER_SIGMA:.3f} sigma); RMS per coordinate = mrcal's (~sigma). "
-            f"'vs truth' = RMS over a {config.PROJECTION_GRID_WIDTH}-wide pixel grid of the projection difference "
-            "between the calibrated and the true camera (implied rotation fitted, as mrcal.projection_diff); "
-            "'centre error' = detected centres (corners for the checkerboard) against the exact projections of the "
-            "true ones. "
-            "Rendered fixtures: the `paper` scenario (Chen et al. 2023's setup: "
-            f"{dots.rows}x{dots.cols} dots of {dots.diameter_mm:g} mm at {dots.pitch_mm:g} mm pitch, "
-            f"{cam['width']}x{cam['height']}, fx {cam['fx']:g} px) and `paper-checkerboard` "
-            f"({cb.cols + 1}x{cb.rows + 1} squares of {cb.pitch_mm:g} mm); {_views(results)}. "
-            "References marked 'circcal's centres' fit exactly circcal's final centres (rounded to float32, OpenCV's "
-            "input type), so their residuals and their error against truth measure the solver, not the detector.")
+    return (
+        "Every reprojection error names its convention: mean 2-D = mean of |residual| (the paper's eq. 22, used "
+        f"in its tables, ~{MEAN_2D_PER_SIGMA:.3f} sigma for per-axis noise sigma); RMS per point = OpenCV's "
+        f"calibrateCamera RMS (~{RMS_POINT_PER_SIGMA:.3f} sigma); RMS per coordinate = mrcal's (~sigma). "
+        f"'vs truth' = RMS over a {config.PROJECTION_GRID_WIDTH}-wide pixel grid of the projection difference "
+        "between the calibrated and the true camera (implied rotation fitted, as mrcal.projection_diff); "
+        "'centre error' = detected centres (corners for the checkerboard) against the exact projections of the "
+        "true ones. "
+        "Rendered fixtures: the `paper` scenario (Chen et al. 2023's setup: "
+        f"{dots.rows}x{dots.cols} dots of {dots.diameter_mm:g} mm at {dots.pitch_mm:g} mm pitch, "
+        f"{cam['width']}x{cam['height']}, fx {cam['fx']:g} px) and `paper-checkerboard` "
+        f"({cb.cols + 1}x{cb.rows + 1} squares of {cb.pitch_mm:g} mm); {_views(results)}. "
+        "References marked 'circcal's centres' fit exactly circcal's final centres (rounded to float32, OpenCV's "
+        "input type), so their residuals and their error against truth measure the solver, not the detector."
+    )
 
 
 def reduced_run(results: dict[str, Any]) -> str:
@@ -88,9 +110,11 @@ def reduced_run(results: dict[str, Any]) -> str:
     cfg = results["config"]
     if cfg["name"] == "full":
         return ""
-    return (f"This is a reduced ({cfg['name']}) run: conditions {', '.join(cfg['conditions'])}, {cfg['n_views']} "
-            f"views, a {len(cfg['bias_tilts_deg'])}x{len(cfg['bias_diameters_px'])} bias grid. Not the published "
-            "numbers.")
+    return (
+        f"This is a reduced ({cfg['name']}) run: conditions {', '.join(cfg['conditions'])}, {cfg['n_views']} "
+        f"views, a {len(cfg['bias_tilts_deg'])}x{len(cfg['bias_diameters_px'])} bias grid. Not the published "
+        "numbers."
+    )
 
 
 def _camera(cam: dict[str, Any]) -> str:
@@ -104,8 +128,10 @@ def _camera(cam: dict[str, Any]) -> str:
 def _render_terms(b: dict[str, Any]) -> str:
     """The bias renders' perturbations, e.g. "blur 0.7 px, 8-bit, no noise"."""
     kinds = [p.get("kind", "") for p in b["perturbations"]]
-    terms = [f"blur {p['sigma_px']:g} px" if p.get("kind") == "gaussian_blur" else p.get("kind", "?")
-             for p in b["perturbations"]]
+    terms = [
+        f"blur {p['sigma_px']:g} px" if p.get("kind") == "gaussian_blur" else p.get("kind", "?")
+        for p in b["perturbations"]
+    ]
     terms.append(f"{b['bits']}-bit")
     if not any("noise" in k for k in kinds):
         terms.append("no noise")
@@ -115,12 +141,14 @@ def _render_terms(b: dict[str, Any]) -> str:
 def bias_setup(results: dict[str, Any]) -> str:
     """The bias study's setup paragraph."""
     b = results["bias"]
-    return (f"Clean renders ({_render_terms(b)}) of a {b['board']['rows']}x{b['board']['cols']} grid of dots at "
-            f"{b['board']['pitch_mm']:g} mm pitch, centred on the principal point {b['distance_mm']:.0f} mm away, "
-            f"tilted about an axis {b['tilt_axis_deg']:g} deg from the image x axis; camera {_camera(b['camera'])}. "
-            "circcal's detector is shown given the true lens model (what calibrate_images converges to, as it "
-            "re-corrects every centre under its current estimate) and without one; OpenCV's findCirclesGrid uses a "
-            "SimpleBlobDetector whose area window is fitted to the dot size.")
+    return (
+        f"Clean renders ({_render_terms(b)}) of a {b['board']['rows']}x{b['board']['cols']} grid of dots at "
+        f"{b['board']['pitch_mm']:g} mm pitch, centred on the principal point {b['distance_mm']:.0f} mm away, "
+        f"tilted about an axis {b['tilt_axis_deg']:g} deg from the image x axis; camera {_camera(b['camera'])}. "
+        "circcal's detector is shown given the true lens model (what calibrate_images converges to, as it "
+        "re-corrects every centre under its current estimate) and without one; OpenCV's findCirclesGrid uses a "
+        "SimpleBlobDetector whose area window is fitted to the dot size."
+    )
 
 
 def bias_table_intro(results: dict[str, Any]) -> str:
@@ -144,11 +172,16 @@ def fair_references(results: dict[str, Any]) -> str:
     names = [k.removesuffix("-fair") for k in calibrator_keys(results) if k.endswith("-fair")]
     within = _bounds(names)
     passed = all(results["paper"][c]["validation_passed"] for c in paper_conditions(results))
-    verdict = ("every check of `circcal validate` passed in every condition" if passed else
-               "the checks that did not pass are listed in the notes of section 1")
-    return (f"References in 'fair' mode on circcal's centres ({', '.join(names) or 'none ran'}) must reproduce "
-            f"circcal's solver on the same points to within {within}, the largest projection difference over the "
-            f"image ({verdict}); they are not drawn separately.")
+    verdict = (
+        "every check of `circcal validate` passed in every condition"
+        if passed
+        else "the checks that did not pass are listed in the notes of section 1"
+    )
+    return (
+        f"References in 'fair' mode on circcal's centres ({', '.join(names) or 'none ran'}) must reproduce "
+        f"circcal's solver on the same points to within {within}, the largest projection difference over the "
+        f"image ({verdict}); they are not drawn separately."
+    )
 
 
 def _image_sizes(sets: list[tuple[str, dict]]) -> str:
@@ -164,23 +197,29 @@ def realdata_method(results: dict[str, Any]) -> str:
     flags = " and ".join(dict.fromkeys(str(dig(s, "baseline", "flags")) for _, s in found)) or "as stated"
     gauges = {len(dig(s, "circcal_refined", "board", "gauge") or []) for _, s in found}
     held = f"{gauges.pop()} points" if len(gauges) == 1 else "the gauge points"
-    source = (f"{len(sets)} public set{'s' if len(sets) != 1 else ''} ({REALDATA_PROVENANCE}, "
-              f"{_image_sizes(found)} JPEG): no ground truth, so the comparison is with OpenCV's baseline "
-              f"(findCirclesGrid with the flags each baseline states, {flags}, then calibrateCamera; its centres are "
-              "re-fitted here with the same OpenCV solver, which reproduces its stated RMS).")
-    method = ("Held-out prediction: for each view, calibrate on all the others (circcal: its full calibrate / "
-              "re-correct loop on the remaining views), then take the held-out view's centres (circcal: re-corrected "
-              "under the model that never saw that view), fit only its 6-DoF pose with solvePnP (IPPE, then "
-              "Levenberg-Marquardt) holding the intrinsics, and measure the residual of the projected board points. "
-              "Each detector is scored on its own centres, so a shared bias is not caught by this test either; it "
-              "does measure how well the intrinsics predict a view they were not fitted to.")
-    refined = ("Rows marked 'board refined' also estimate the 3-D position of every board point (the "
-               "object-releasing method of Strobl & Hirzinger 2011, the same minimum as cv2.calibrateCameraRO; "
-               f"`calibrate_images(refine_board=True)`), {held} held to fix the board's frame and scale: circcal on "
-               "its own centres, and the same solver on the baseline's findCirclesGrid centres, each view put into "
-               "circcal's point order (reversed where that matches circcal's centres better: a symmetric grid's "
-               "180-degree ambiguity). Their held-out views are predicted with the refined board points of the model "
-               "that never saw them.")
+    source = (
+        f"{len(sets)} public set{'s' if len(sets) != 1 else ''} ({REALDATA_PROVENANCE}, "
+        f"{_image_sizes(found)} JPEG): no ground truth, so the comparison is with OpenCV's baseline "
+        f"(findCirclesGrid with the flags each baseline states, {flags}, then calibrateCamera; its centres are "
+        "re-fitted here with the same OpenCV solver, which reproduces its stated RMS)."
+    )
+    method = (
+        "Held-out prediction: for each view, calibrate on all the others (circcal: its full calibrate / "
+        "re-correct loop on the remaining views), then take the held-out view's centres (circcal: re-corrected "
+        "under the model that never saw that view), fit only its 6-DoF pose with solvePnP (IPPE, then "
+        "Levenberg-Marquardt) holding the intrinsics, and measure the residual of the projected board points. "
+        "Each detector is scored on its own centres, so a shared bias is not caught by this test either; it "
+        "does measure how well the intrinsics predict a view they were not fitted to."
+    )
+    refined = (
+        "Rows marked 'board refined' also estimate the 3-D position of every board point (the "
+        "object-releasing method of Strobl & Hirzinger 2011, the same minimum as cv2.calibrateCameraRO; "
+        f"`calibrate_images(refine_board=True)`), {held} held to fix the board's frame and scale: circcal on "
+        "its own centres, and the same solver on the baseline's findCirclesGrid centres, each view put into "
+        "circcal's point order (reversed where that matches circcal's centres better: a symmetric grid's "
+        "180-degree ambiguity). Their held-out views are predicted with the refined board points of the model "
+        "that never saw them."
+    )
     return f"{source} {method} {refined}"
 
 
@@ -194,37 +233,54 @@ def _rigid(s: dict, name: str) -> str:
     rc, ro = dig(s, "circcal", "errors", "rms_per_point_px"), dig(s, "opencv", "errors", "rms_per_point_px")
     rb = dig(s, "baseline", "rms_per_point_px")
     gap = 100 * apart(rc, ro)
-    return (f"{name}: with a rigid board circcal's RMS per point is {rc:.4f} px and OpenCV's solver on the "
-            f"baseline's centres gives {ro:.4f} px (stated: {rb:.4f} px): "
-            + (f"the two detectors tie ({gap:.1f}% apart)." if _tie(rc, ro) else
-               f"circcal is {gap:.1f}% {'lower' if rc < ro else 'higher'}."))
+    return (
+        f"{name}: with a rigid board circcal's RMS per point is {rc:.4f} px and OpenCV's solver on the "
+        f"baseline's centres gives {ro:.4f} px (stated: {rb:.4f} px): "
+        + (
+            f"the two detectors tie ({gap:.1f}% apart)."
+            if _tie(rc, ro)
+            else f"circcal is {gap:.1f}% {'lower' if rc < ro else 'higher'}."
+        )
+    )
 
 
 def _refined(s: dict, held: dict[str, Any]) -> str:
     """The board-refined sentence: circcal's RMS and its held-out RMS (``held``: per key, held-out RMS per point)."""
     fc, rb = dig(s, "circcal_refined", "errors", "rms_per_point_px"), dig(s, "baseline", "rms_per_point_px")
-    text = (f"With every board point's position estimated, circcal's RMS drops to {fc:.4f} px, "
-            f"{rb / fc:.1f}x below the stated baseline")
+    text = (
+        f"With every board point's position estimated, circcal's RMS drops to {fc:.4f} px, "
+        f"{rb / fc:.1f}x below the stated baseline"
+    )
     if held["circcal"] and held["circcal_refined"]:
         better = held["circcal"] / held["circcal_refined"]
-        text += (f", and held-out views are predicted {better:.1f}x {'better' if better > 1 else 'worse'} than with "
-                 f"the rigid board ({held['circcal_refined']:.4f} vs {held['circcal']:.4f} px RMS per point)"
-                 + ("; a shape fitted to noise would predict them worse, not better" if better > 1 else ""))
+        text += (
+            f", and held-out views are predicted {better:.1f}x {'better' if better > 1 else 'worse'} than with "
+            f"the rigid board ({held['circcal_refined']:.4f} vs {held['circcal']:.4f} px RMS per point)"
+            + ("; a shape fitted to noise would predict them worse, not better" if better > 1 else "")
+        )
     return text + "."
 
 
 def _same_model(s: dict, held: dict[str, Any]) -> str:
     """OpenCV's centres through the same board-refined solver, against circcal's."""
-    fc, fo = (dig(s, "circcal_refined", "errors", "rms_per_point_px"),
-              dig(s, "opencv_refined", "errors", "rms_per_point_px"))
+    fc, fo = (
+        dig(s, "circcal_refined", "errors", "rms_per_point_px"),
+        dig(s, "opencv_refined", "errors", "rms_per_point_px"),
+    )
     gap = 100 * apart(fc, fo)
-    text = (f"The same solver on OpenCV's centres, in circcal's point order, gives {fo:.4f} px"
-            + (f" (held-out {held['opencv_refined']:.4f} px)" if held["opencv_refined"] else "")
-            + (f": with the same model the two detectors tie again ({gap:.1f}% apart" if _tie(fc, fo) else
-               f": {gap:.1f}% {'below' if fo < fc else 'above'} circcal's (the same model, different centres"))
+    text = (
+        f"The same solver on OpenCV's centres, in circcal's point order, gives {fo:.4f} px"
+        + (f" (held-out {held['opencv_refined']:.4f} px)" if held["opencv_refined"] else "")
+        + (
+            f": with the same model the two detectors tie again ({gap:.1f}% apart"
+            if _tie(fc, fo)
+            else f": {gap:.1f}% {'below' if fo < fc else 'above'} circcal's (the same model, different centres"
+        )
+    )
     bvc = dig(s, "opencv_refined", "board_vs_circcal_max_mm")
-    return text + (f"; the two estimated boards agree to within {bvc:.3f} mm per coordinate)." if bvc is not None
-                   else ").")
+    return text + (
+        f"; the two estimated boards agree to within {bvc:.3f} mm per coordinate)." if bvc is not None else ")."
+    )
 
 
 def _sheet(s: dict) -> list[str]:
@@ -234,15 +290,23 @@ def _sheet(s: dict) -> list[str]:
     if not bd:
         return []
     ratio = bd["max_dev_over_median_std"]
-    out = [(f"The estimated sheet departs from the nominal board by up to {bd['max_abs_dev_mm']:.2f} mm in one "
+    out = [
+        (
+            f"The estimated sheet departs from the nominal board by up to {bd['max_abs_dev_mm']:.2f} mm in one "
             f"coordinate, {ratio:.0f}x the median standard deviation of a coordinate ({bd['median_std_mm']:.3f} mm): "
-            f"up to {bd['max_abs_dz_mm']:.2f} mm out of plane and {bd['max_abs_dxy_mm']:.2f} mm in plane.")]
+            f"up to {bd['max_abs_dz_mm']:.2f} mm out of plane and {bd['max_abs_dxy_mm']:.2f} mm in plane."
+        )
+    ]
     rc, ro = dig(s, "circcal", "errors", "rms_per_point_px"), dig(s, "opencv", "errors", "rms_per_point_px")
-    fc, fo = (dig(s, "circcal_refined", "errors", "rms_per_point_px"),
-              dig(s, "opencv_refined", "errors", "rms_per_point_px"))
+    fc, fo = (
+        dig(s, "circcal_refined", "errors", "rms_per_point_px"),
+        dig(s, "opencv_refined", "errors", "rms_per_point_px"),
+    )
     if _tie(rc, ro) and _tie(fc, fo) and fc < SHAPE_RMS_DROP * rc and ratio > SHAPE_SIGNIFICANCE:
-        out.append("So the residual of a rigid calibration on this set is the printed sheet's shape, not centre "
-                   "detection: modelled, it leaves both detectors with the same, much smaller residual.")
+        out.append(
+            "So the residual of a rigid calibration on this set is the printed sheet's shape, not centre "
+            "detection: modelled, it leaves both detectors with the same, much smaller residual."
+        )
     return out
 
 
@@ -253,15 +317,19 @@ def _baseline_order(s: dict) -> str:
     flags = dig(s, "baseline", "flags") or "its flags"
     own = dig(s, "opencv_refined", "own_order", "errors", "rms_per_point_px")
     if not rev:
-        return ("The baseline's centres come in circcal's point order in every view"
-                + (" (an asymmetric grid has no 180-degree ambiguity)." if dig(s, "board", "layout") == "asymmetric"
-                   else "."))
+        return "The baseline's centres come in circcal's point order in every view" + (
+            " (an asymmetric grid has no 180-degree ambiguity)." if dig(s, "board", "layout") == "asymmetric" else "."
+        )
     if len(rev) == n:
-        return (f"The baseline's findCirclesGrid centres ({flags}) come in the reverse of circcal's point order in "
-                f"all {n} views: a consistent relabelling of the board"
-                + (f", harmless (refined in their own order: {own:.4f} px)." if own is not None else "."))
-    return (f"The baseline's findCirclesGrid centres ({flags}) are reversed against circcal's point order in "
-            f"{len(rev)} of {n} views" + (f"; refined in that order: {own:.4f} px." if own is not None else "."))
+        return (
+            f"The baseline's findCirclesGrid centres ({flags}) come in the reverse of circcal's point order in "
+            f"all {n} views: a consistent relabelling of the board"
+            + (f", harmless (refined in their own order: {own:.4f} px)." if own is not None else ".")
+        )
+    return (
+        f"The baseline's findCirclesGrid centres ({flags}) are reversed against circcal's point order in "
+        f"{len(rev)} of {n} views" + (f"; refined in that order: {own:.4f} px." if own is not None else ".")
+    )
 
 
 def _adapter_order(s: dict) -> list[str]:
@@ -273,13 +341,20 @@ def _adapter_order(s: dict) -> list[str]:
     ncl = sum("clustering" in h for h in fg["how"])
     o1 = dig(fg, "refined_own_order", "errors", "rms_per_point_px")
     o2 = dig(fg, "refined_circcal_order", "errors", "rms_per_point_px")
-    text = (f"findCirclesGrid as circcal's OpenCV adapter runs it (plain, CALIB_CB_CLUSTERING only where that fails: "
-            f"{ncl} of {m} views) ")
+    text = (
+        f"findCirclesGrid as circcal's OpenCV adapter runs it (plain, CALIB_CB_CLUSTERING only where that fails: "
+        f"{ncl} of {m} views) "
+    )
     if 0 < k < m:
-        text += (f"reverses {k} of {m} views against circcal's order: the 180-degree ambiguity resolved differently "
-                 "per image. A rigid board hides that (each pose absorbs it); a refined board does not")
-        text += (f": {o1:.4f} px in findCirclesGrid's order against {o2:.4f} px in circcal's."
-                 if None not in (o1, o2) else ".")
+        text += (
+            f"reverses {k} of {m} views against circcal's order: the 180-degree ambiguity resolved differently "
+            "per image. A rigid board hides that (each pose absorbs it); a refined board does not"
+        )
+        text += (
+            f": {o1:.4f} px in findCirclesGrid's order against {o2:.4f} px in circcal's."
+            if None not in (o1, o2)
+            else "."
+        )
     else:
         text += "orders all views consistently" + (" (all reversed against circcal's order)." if k else ".")
     return [text]
@@ -288,15 +363,27 @@ def _adapter_order(s: dict) -> list[str]:
 def realdata_summary(name: str, s: dict) -> str:
     """What the numbers of one real-data set (an entry of ``results["realdata"]``) show, in words. Empty when a
     rigid or board-refined row is missing."""
-    needed = (dig(s, "circcal", "errors", "rms_per_point_px"), dig(s, "opencv", "errors", "rms_per_point_px"),
-              dig(s, "circcal_refined", "errors", "rms_per_point_px"),
-              dig(s, "opencv_refined", "errors", "rms_per_point_px"), dig(s, "baseline", "rms_per_point_px"))
+    needed = (
+        dig(s, "circcal", "errors", "rms_per_point_px"),
+        dig(s, "opencv", "errors", "rms_per_point_px"),
+        dig(s, "circcal_refined", "errors", "rms_per_point_px"),
+        dig(s, "opencv_refined", "errors", "rms_per_point_px"),
+        dig(s, "baseline", "rms_per_point_px"),
+    )
     if None in needed:
         return ""
-    held = {k: dig(s, "heldout", k, "mean_of_views", "rms_per_point_px")
-            for k in ("circcal", "opencv", "circcal_refined", "opencv_refined")}
-    parts = [_rigid(s, name), _refined(s, held), _same_model(s, held), *_sheet(s), _baseline_order(s),
-             *_adapter_order(s)]
+    held = {
+        k: dig(s, "heldout", k, "mean_of_views", "rms_per_point_px")
+        for k in ("circcal", "opencv", "circcal_refined", "opencv_refined")
+    }
+    parts = [
+        _rigid(s, name),
+        _refined(s, held),
+        _same_model(s, held),
+        *_sheet(s),
+        _baseline_order(s),
+        *_adapter_order(s),
+    ]
     return " ".join(parts)
 
 
@@ -305,18 +392,23 @@ def machine(results: dict[str, Any]) -> str:
     env = results["environment"]
     vers = env["versions"]
     order = [k for k in VERSION_ORDER if k in vers] + sorted(k for k in vers if k not in VERSION_ORDER)
-    return (f"Machine: {env['platform']} ({env['machine']}), {env['cpu_count']} CPUs. Versions: "
-            + ", ".join(f"{k} {vers[k]}" for k in order) + ".")
+    return (
+        f"Machine: {env['platform']} ({env['machine']}), {env['cpu_count']} CPUs. Versions: "
+        + ", ".join(f"{k} {vers[k]}" for k in order)
+        + "."
+    )
 
 
 def run_times_intro(results: dict[str, Any]) -> str:
     """What the run-time table's rows cover."""
-    return ("Run times (wall clock, this run; they vary between runs and are not part of report.json). 'circcal' is "
-            "the whole `circcal calibrate` (detection, calibration, re-correction rounds) with its default of "
-            "detecting images in parallel threads (one per CPU, as `circcal.detector.detect_files` chooses; "
-            f"{results['environment']['cpu_count']} CPUs here); 'opencv-pipeline' is findCirclesGrid + "
-            "calibrateCamera one image at a time; the 'fair' rows are solves on circcal's centres. `make bench` "
-            "compares the detectors one thread each:")
+    return (
+        "Run times (wall clock, this run; they vary between runs and are not part of report.json). 'circcal' is "
+        "the whole `circcal calibrate` (detection, calibration, re-correction rounds) with its default of "
+        "detecting images in parallel threads (one per CPU, as `circcal.detector.detect_files` chooses; "
+        f"{results['environment']['cpu_count']} CPUs here); 'opencv-pipeline' is findCirclesGrid + "
+        "calibrateCamera one image at a time; the 'fair' rows are solves on circcal's centres. `make bench` "
+        "compares the detectors one thread each:"
+    )
 
 
 def _board_caption(results: dict[str, Any]) -> str:
@@ -324,43 +416,45 @@ def _board_caption(results: dict[str, Any]) -> str:
     counts = {gauge_counts(s["circcal_refined"]["board"]) for _, s in refined_boards(results)}
     if len(counts) == 1:
         ((full, z_only),) = counts
-        held = (f"the {full + z_only} gauge points (held at their nominal positions: {full} in x, y, z, {z_only} "
-                "in z")
+        held = f"the {full + z_only} gauge points (held at their nominal positions: {full} in x, y, z, {z_only} in z"
     else:
         held = "the gauge points (held at their nominal positions, some in x, y, z, some in z only"
-    return ("The board points as circcal estimates them on each real set (board refined), against the nominal board: "
-            "colour = out-of-plane deviation dz, arrows = in-plane deviation (dx, dy), exaggerated by the factor in "
-            f"the legend. Deviations are in the frame fixed by {held}; the default choice, the first point, the one "
-            "farthest from it and the one farthest from their line): another choice of gauge changes the picture by "
-            "a rigid motion and scale, not the shape. The median sigma is over the estimated coordinates.")
+    return (
+        "The board points as circcal estimates them on each real set (board refined), against the nominal board: "
+        "colour = out-of-plane deviation dz, arrows = in-plane deviation (dx, dy), exaggerated by the factor in "
+        f"the legend. Deviations are in the frame fixed by {held}; the default choice, the first point, the one "
+        "farthest from it and the one farthest from their line): another choice of gauge changes the picture by "
+        "a rigid motion and scale, not the shape. The median sigma is over the estimated coordinates."
+    )
 
 
 def captions(results: dict[str, Any], files: list[str]) -> dict[str, str]:
     """The caption of each figure file drawn for this run."""
     out = {
         "truth_vs_residual.png": "A low residual does not prove the bias is gone: left, the residual each calibrator "
-                                 "reports; right, its error against the true camera on the same images.",
+        "reports; right, its error against the true camera on the same images.",
         "per_view_errors.png": "Per-view mean 2-D reprojection error of circcal and the OpenCV circle pipeline "
-                               "(findCirclesGrid + calibrateCamera), one panel per illumination condition.",
+        "(findCirclesGrid + calibrateCamera), one panel per illumination condition.",
         "bias.png": "Centre error of each detector against the exact projection of the true circle centre on clean "
-                    "renders. The dashed line is what a perfect blob detector reports (the exact area centroid of "
-                    "the projected, distorted dot): the bias that no amount of image quality removes from "
-                    "centroid-based detectors.",
+        "renders. The dashed line is what a perfect blob detector reports (the exact area centroid of "
+        "the projected, distorted dot): the bias that no amount of image quality removes from "
+        "centroid-based detectors.",
         "bias_grid.png": "Mean centre error over the whole tilt x dot-size grid (numbers in px).",
     }
     for c in paper_conditions(results):
         out[f"heatmap_{c}.png"] = (
             f"Where each model is wrong ({c}): the 2-D difference between projecting through the calibrated and the "
             f"true camera, over a {config.PROJECTION_GRID_WIDTH}-wide grid of the image, with the implied rotation "
-            "fitted (mrcal's projection_diff idea). Each panel has its own colour scale.")
+            "fitted (mrcal's projection_diff idea). Each panel has its own colour scale."
+        )
     if "realdata_board.png" in files:
         out["realdata_board.png"] = _board_caption(results)
-    study_captions = {"ratio": "empirical spread / mean stated sigma per cell and parameter with its 95 % interval "
-                               "(1 = honest)",
-                      "bias": "mean error / mean stated sigma per cell and parameter with its 95 % interval "
-                              "(0 = unbiased)",
-                      "pass_rate": f"share of runs whose fx, fy, cx, cy all lie within {checks.TRUTH_SIGMAS:g} stated "
-                                   "sigmas of the truth, with Wilson's 95 % interval, beside an honest estimator's"}
+    study_captions = {
+        "ratio": "empirical spread / mean stated sigma per cell and parameter with its 95 % interval (1 = honest)",
+        "bias": "mean error / mean stated sigma per cell and parameter with its 95 % interval (0 = unbiased)",
+        "pass_rate": f"share of runs whose fx, fy, cx, cy all lie within {checks.TRUTH_SIGMAS:g} stated "
+        "sigmas of the truth, with Wilson's 95 % interval, beside an honest estimator's",
+    }
     for f in files:
         for name in results.get("studies") or {}:
             for kind, text in study_captions.items():
@@ -371,13 +465,15 @@ def captions(results: dict[str, Any], files: list[str]) -> dict[str, str]:
 
 def studies_intro(results: dict[str, Any]) -> str:
     """What the studies section shows, and where its numbers come from."""
-    return ("Monte-Carlo studies run by `circcal study` (scenarios x variants x seeds x calibrators on a Dask "
-            "cluster; one Parquet row per run, resumable) and summarised per cell (one scenario, variant, "
-            "calibrator and lens model over its seeds): whether the stated standard deviations are honest (the "
-            "empirical spread of the estimates over their mean stated sigma), whether the estimates are biased "
-            f"(mean error in stated sigmas), and how often the truth check (fx, fy, cx, cy within "
-            f"{checks.TRUTH_SIGMAS:g} stated sigmas) passes. Each study's rows and its own summary are in "
-            "`reports/studies/<name>/`; the numbers below are its summary.json as the study wrote it.")
+    return (
+        "Monte-Carlo studies run by `circcal study` (scenarios x variants x seeds x calibrators on a Dask "
+        "cluster; one Parquet row per run, resumable) and summarised per cell (one scenario, variant, "
+        "calibrator and lens model over its seeds): whether the stated standard deviations are honest (the "
+        "empirical spread of the estimates over their mean stated sigma), whether the estimates are biased "
+        f"(mean error in stated sigmas), and how often the truth check (fx, fy, cx, cy within "
+        f"{checks.TRUTH_SIGMAS:g} stated sigmas) passes. Each study's rows and its own summary are in "
+        "`reports/studies/<name>/`; the numbers below are its summary.json as the study wrote it."
+    )
 
 
 def study_summary(entry: dict[str, Any]) -> str:
@@ -386,21 +482,26 @@ def study_summary(entry: dict[str, Any]) -> str:
     n_runs = sum(c.get("n_runs", 0) for c in cells)
     n_ok = sum(c.get("n_ok", 0) for c in cells)
     text = entry.get("description") or ""
-    return (f"{text.rstrip('.')}. " if text else "") + (f"{n_runs} runs in {len(cells)} cells, {n_ok} calibrated "
-                                                         f"(status ok).")
+    return (f"{text.rstrip('.')}. " if text else "") + (
+        f"{n_runs} runs in {len(cells)} cells, {n_ok} calibrated (status ok)."
+    )
 
 
 def _headline_condition(results: dict[str, Any], c: str) -> str:
     """One condition's headline: circcal's residual and error vs truth beside OpenCV's and the checkerboard's."""
     rows = results["paper"][c]["rows"]
     cc, oc = rows.get("circcal", {}), rows.get("opencv-pipeline", {})
-    text = (f"{c}: circcal mean 2-D residual {fmt_number(dig(cc, 'errors', 'mean_2d_px'))} px, error vs truth "
-            f"{fmt_number(dig(cc, 'vs_truth', 'rms_px'))} px (OpenCV circles "
-            f"{fmt_number(dig(oc, 'errors', 'mean_2d_px'))} / {fmt_number(dig(oc, 'vs_truth', 'rms_px'))} px")
+    text = (
+        f"{c}: circcal mean 2-D residual {fmt_number(dig(cc, 'errors', 'mean_2d_px'))} px, error vs truth "
+        f"{fmt_number(dig(cc, 'vs_truth', 'rms_px'))} px (OpenCV circles "
+        f"{fmt_number(dig(oc, 'errors', 'mean_2d_px'))} / {fmt_number(dig(oc, 'vs_truth', 'rms_px'))} px"
+    )
     cb = results["checkerboard"].get(c)
     if cb:
-        text += (f", checkerboard {fmt_number(dig(cb, 'errors', 'mean_2d_px'))} / "
-                 f"{fmt_number(dig(cb, 'vs_truth', 'rms_px'))} px")
+        text += (
+            f", checkerboard {fmt_number(dig(cb, 'errors', 'mean_2d_px'))} / "
+            f"{fmt_number(dig(cb, 'vs_truth', 'rms_px'))} px"
+        )
     return text + ")"
 
 
@@ -409,9 +510,13 @@ def _headline_bias(b: dict[str, Any]) -> list[str]:
     try:
         i, j = len(b["tilts_deg"]) - 1, len(b["diameters_px"]) - 1
         m = b["mean_2d_px"]
-        return [(f"bias at {b['tilts_deg'][i]:g} deg tilt, {b['diameters_px'][j]:g} px dots: circcal "
-                 f"{fmt_number(m['circcal'][i][j])} px vs OpenCV {fmt_number(m['opencv'][i][j])} px "
-                 f"(perfect centroid {fmt_number(m['perfect_centroid'][i][j])} px)")]
+        return [
+            (
+                f"bias at {b['tilts_deg'][i]:g} deg tilt, {b['diameters_px'][j]:g} px dots: circcal "
+                f"{fmt_number(m['circcal'][i][j])} px vs OpenCV {fmt_number(m['opencv'][i][j])} px "
+                f"(perfect centroid {fmt_number(m['perfect_centroid'][i][j])} px)"
+            )
+        ]
     except (IndexError, KeyError, TypeError):
         return []
 
@@ -421,13 +526,19 @@ def _headline_set(name: str, s: dict[str, Any]) -> str:
     cc = s.get("circcal") or {}
     if cc.get("status") != "ok":
         return f"{name}: circcal {cc.get('status')}: {cc.get('message')}"
-    text = (f"{name}: circcal RMS {fmt_number(dig(cc, 'errors', 'rms_per_point_px'))} px vs OpenCV baseline "
-            f"{fmt_number(dig(s, 'baseline', 'rms_per_point_px'))} px")
+    text = (
+        f"{name}: circcal RMS {fmt_number(dig(cc, 'errors', 'rms_per_point_px'))} px vs OpenCV baseline "
+        f"{fmt_number(dig(s, 'baseline', 'rms_per_point_px'))} px"
+    )
     if dig(s, "circcal_refined", "status") == "ok":
-        text += (f", board refined {fmt_number(dig(s, 'circcal_refined', 'errors', 'rms_per_point_px'))} px "
-                 f"(OpenCV's centres refined {fmt_number(dig(s, 'opencv_refined', 'errors', 'rms_per_point_px'))} px)")
-    text += (f"; held-out mean 2-D {fmt_number(dig(s, 'heldout', 'circcal', 'mean_of_views', 'mean_2d_px'))} vs "
-             f"{fmt_number(dig(s, 'heldout', 'opencv', 'mean_of_views', 'mean_2d_px'))} px")
+        text += (
+            f", board refined {fmt_number(dig(s, 'circcal_refined', 'errors', 'rms_per_point_px'))} px "
+            f"(OpenCV's centres refined {fmt_number(dig(s, 'opencv_refined', 'errors', 'rms_per_point_px'))} px)"
+        )
+    text += (
+        f"; held-out mean 2-D {fmt_number(dig(s, 'heldout', 'circcal', 'mean_of_views', 'mean_2d_px'))} vs "
+        f"{fmt_number(dig(s, 'heldout', 'opencv', 'mean_of_views', 'mean_2d_px'))} px"
+    )
     if dig(s, "heldout", "circcal_refined"):
         text += f", board refined {fmt_number(dig(s, 'heldout', 'circcal_refined', 'mean_of_views', 'mean_2d_px'))} px"
     return text

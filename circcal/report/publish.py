@@ -7,6 +7,7 @@ does both and updates the index ``README.md`` of the reports folder.
 The document and the figures are drawn from report.json's tree as written (read back), plus the run times, so the
 published text holds nothing report.json and timings.json do not.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,9 @@ from circcal.report.studies import study_results
 __all__ = ["compute", "generate", "published_results", "write_report"]
 
 
-def _each(names: tuple[str, ...], study: Callable[[str], tuple[Any, Any]], prefix: str, log: dict, desc: str,
-          progress: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+def _each(
+    names: tuple[str, ...], study: Callable[[str], tuple[Any, Any]], prefix: str, log: dict, desc: str, progress: bool
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """``study(name)`` -> (numbers, run times) for every name, each under its own warning capture
     (``log["<prefix>/<name>"]``)."""
     from tqdm import tqdm
@@ -69,21 +71,41 @@ def compute(cfg: ReportConfig = FULL, *, progress: bool = True) -> dict[str, Any
     log: dict[str, list] = {}
     timings: dict[str, Any] = {}
     t0 = time.perf_counter()
-    paper, timings["paper"] = _each(cfg.conditions, lambda v: paper_condition(v, cfg, progress=False), "paper", log,
-                                    "paper conditions", progress)
-    cb, timings["checkerboard"] = _each(cfg.checkerboard_conditions,
-                                        lambda v: checkerboard_condition(v, cfg, progress=False), "checkerboard",
-                                        log, "checkerboard conditions", progress)
+    paper, timings["paper"] = _each(
+        cfg.conditions, lambda v: paper_condition(v, cfg, progress=False), "paper", log, "paper conditions", progress
+    )
+    cb, timings["checkerboard"] = _each(
+        cfg.checkerboard_conditions,
+        lambda v: checkerboard_condition(v, cfg, progress=False),
+        "checkerboard",
+        log,
+        "checkerboard conditions",
+        progress,
+    )
     with study_warnings(log, "bias"):
         bias, timings["bias"] = bias_study(cfg, progress=progress)
-    real, timings["realdata"] = _each(cfg.realdata, lambda n: realdata_entry(n, cfg), "realdata", log,
-                                      "real sets", progress)
+    real, timings["realdata"] = _each(
+        cfg.realdata, lambda n: realdata_entry(n, cfg), "realdata", log, "real sets", progress
+    )
     timings["total_compute_s"] = time.perf_counter() - t0
     _trim_checks(paper)
     fixtures = {s: fixture_summary(s) for s in ("paper", "paper-checkerboard")}
-    numbers = round_sig(jsonable({"config": asdict(cfg), "fixtures": fixtures, "paper": paper, "checkerboard": cb,
-                                  "paper_published": PAPER_PUBLISHED, "bias": bias, "realdata": real,
-                                  "studies": study_results(cfg), "warnings": log, "environment": environment()}))
+    numbers = round_sig(
+        jsonable(
+            {
+                "config": asdict(cfg),
+                "fixtures": fixtures,
+                "paper": paper,
+                "checkerboard": cb,
+                "paper_published": PAPER_PUBLISHED,
+                "bias": bias,
+                "realdata": real,
+                "studies": study_results(cfg),
+                "warnings": log,
+                "environment": environment(),
+            }
+        )
+    )
     numbers["precision"] = precision_note()
     numbers["timings"] = jsonable(timings)
     return numbers
@@ -100,8 +122,14 @@ def published_results(report_json: str, timings: dict[str, Any]) -> dict[str, An
     return {**json.loads(report_json), "timings": timings.get("timings")}
 
 
-def write_report(results: dict[str, Any], out_dir: str | Path, *, name: str = "latest",
-                 header: str | None = None, date: str | None = None) -> Path:
+def write_report(
+    results: dict[str, Any],
+    out_dir: str | Path,
+    *,
+    name: str = "latest",
+    header: str | None = None,
+    date: str | None = None,
+) -> Path:
     """Write ``out_dir/name/`` (index.md, index.html, *.png, report.json, timings.json) atomically, then update
     ``out_dir/README.md``. ``header``: the line under the title (default: when and by which command); ``date``: when
     the numbers were computed (default: now; give timings.json's to re-render a report with the current code)."""
@@ -128,7 +156,8 @@ def write_report(results: dict[str, Any], out_dir: str | Path, *, name: str = "l
     return out_dir / name
 
 
-def generate(out: str | Path = "reports", *, quick: bool = False, progress: bool = True,
-             config: ReportConfig | None = None) -> Path:
+def generate(
+    out: str | Path = "reports", *, quick: bool = False, progress: bool = True, config: ReportConfig | None = None
+) -> Path:
     """Compute and write the report into ``out/latest``; returns that folder."""
     return write_report(compute(config or (QUICK if quick else FULL), progress=progress), out)

@@ -6,6 +6,7 @@ point order with :func:`circcal.analysis.compare.match_views`).
 
 Lengths in mm, errors in px; views are named by their image file.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,13 @@ def realdata_board(folder: Path) -> tuple[Board, dict[str, Any]]:
         raise ValueError(f"{folder / 'SOURCE.txt'} states no dot diameter ('diameter <x> cm')")
     cols, rows = base["pattern_size_cols_rows"]
     unit = _UNIT_MM[base.get("spacing_units", "metres")]
-    board = Board(int(rows), int(cols), float(base["spacing_s"]) * unit, float(m.group(1)) * 10.0,
-                  "asymmetric" if base["grid"].startswith("asym") else "symmetric")
+    board = Board(
+        int(rows),
+        int(cols),
+        float(base["spacing_s"]) * unit,
+        float(m.group(1)) * 10.0,
+        "asymmetric" if base["grid"].startswith("asym") else "symmetric",
+    )
     return board, base
 
 
@@ -52,18 +58,31 @@ def board_block(res: Any) -> dict[str, Any]:
     med = float(np.median(std[std > 0]))
     top = float(np.max(np.abs(dev)))
     # deviations, not positions: report.json keeps 6 significant digits, 1e-3 mm on a 200 mm coordinate
-    return {"nominal_mm": res.board_nominal, "deviation_mm": dev, "std_mm": std,
-            "gauge": [int(i) for i in res.board_gauge], "max_abs_dev_mm": top,
-            "max_abs_dz_mm": float(np.max(np.abs(dev[:, 2]))),
-            "max_abs_dxy_mm": float(np.max(np.linalg.norm(dev[:, :2], axis=1))),
-            "median_std_mm": med, "max_dev_over_median_std": top / med}
+    return {
+        "nominal_mm": res.board_nominal,
+        "deviation_mm": dev,
+        "std_mm": std,
+        "gauge": [int(i) for i in res.board_gauge],
+        "max_abs_dev_mm": top,
+        "max_abs_dz_mm": float(np.max(np.abs(dev[:, 2]))),
+        "max_abs_dxy_mm": float(np.max(np.linalg.norm(dev[:, :2], axis=1))),
+        "median_std_mm": med,
+        "max_dev_over_median_std": top / med,
+    }
 
 
 def refined_entry(res: Any, views: list[str]) -> dict[str, Any]:
     """A board-refined calibration as an entry: model, errors, per-view mean 2-D error and :func:`board_block`."""
-    return {"status": "ok", "message": "", "camera": res.camera, "std": res.std, "errors": error_summary(res.errors),
-            "views": views, "per_view_mean_2d_px": [e["mean_2d_px"] for e in res.per_view_errors],
-            "board": board_block(res)}
+    return {
+        "status": "ok",
+        "message": "",
+        "camera": res.camera,
+        "std": res.std,
+        "errors": error_summary(res.errors),
+        "views": views,
+        "per_view_mean_2d_px": [e["mean_2d_px"] for e in res.per_view_errors],
+        "board": board_block(res),
+    }
 
 
 def _refined_errors(views: list[np.ndarray], board: Board, size: tuple[int, int]) -> dict[str, Any]:
@@ -80,9 +99,14 @@ def _refined_errors(views: list[np.ndarray], board: Board, size: tuple[int, int]
 
 def _baseline_entry(base: dict[str, Any]) -> dict[str, Any]:
     """What the baseline file states: its RMS per point (px), OpenCV version, flags, views used and model."""
-    return {"rms_per_point_px": base["rms_px"], "opencv_version": base["opencv_version"],
-            "flags": base.get("findCirclesGrid_flags"), "used": base.get("used_for_calibration"),
-            "camera_matrix": base["camera_matrix"], "dist": base["dist_k1k2p1p2k3"]}
+    return {
+        "rms_per_point_px": base["rms_px"],
+        "opencv_version": base["opencv_version"],
+        "flags": base.get("findCirclesGrid_flags"),
+        "used": base.get("used_for_calibration"),
+        "camera_matrix": base["camera_matrix"],
+        "dist": base["dist_k1k2p1p2k3"],
+    }
 
 
 def _opencv_rigid(base: dict[str, Any], board: Board, size: tuple[int, int]) -> tuple[list, Any, dict[str, Any]]:
@@ -90,12 +114,24 @@ def _opencv_rigid(base: dict[str, Any], board: Board, size: tuple[int, int]) -> 
     :class:`~circcal.validators.base.ReferenceResult`, its entry)."""
     from circcal.validators.opencv import OpenCVCalibrator
 
-    views = [(pi["image"], np.asarray(pi["centers"], dtype=np.float64).reshape(-1, 2)) for pi in base["per_image"]
-             if pi.get("found")]
-    ocv = OpenCVCalibrator().calibrate_observations([board.object_points()] * len(views), [c for _, c in views],
-                                                    size)
-    return views, ocv, {"status": ocv.status, "message": ocv.message, "camera": ocv.camera, "std": ocv.std,
-                        "errors": error_summary(ocv.errors), "views": [n for n, _ in views]}
+    views = [
+        (pi["image"], np.asarray(pi["centers"], dtype=np.float64).reshape(-1, 2))
+        for pi in base["per_image"]
+        if pi.get("found")
+    ]
+    ocv = OpenCVCalibrator().calibrate_observations([board.object_points()] * len(views), [c for _, c in views], size)
+    return (
+        views,
+        ocv,
+        {
+            "status": ocv.status,
+            "message": ocv.message,
+            "camera": ocv.camera,
+            "std": ocv.std,
+            "errors": error_summary(ocv.errors),
+            "views": [n for n, _ in views],
+        },
+    )
 
 
 def _circcal_rigid(paths: list[str], board: Board, size: tuple[int, int], ocv: Any) -> tuple[Any, dict[str, Any]]:
@@ -110,10 +146,17 @@ def _circcal_rigid(paths: list[str], board: Board, size: tuple[int, int], ocv: A
     except InputError as exc:
         return None, failure(exc)
     res = cal.result
-    entry = {"status": "ok", "message": "", "camera": res.camera, "std": res.std, "errors": error_summary(res.errors),
-             "views": [Path(paths[i]).name for i in cal.used],
-             "failed": [[Path(r.path).name, r.reason] for r in cal.failed],
-             "per_view_mean_2d_px": [e["mean_2d_px"] for e in res.per_view_errors], "rounds": len(cal.rounds)}
+    entry = {
+        "status": "ok",
+        "message": "",
+        "camera": res.camera,
+        "std": res.std,
+        "errors": error_summary(res.errors),
+        "views": [Path(paths[i]).name for i in cal.used],
+        "failed": [[Path(r.path).name, r.reason] for r in cal.failed],
+        "per_view_mean_2d_px": [e["mean_2d_px"] for e in res.per_view_errors],
+        "rounds": len(cal.rounds),
+    }
     if ocv.ok:
         d = projection_diff(ocv.camera, res.camera, fit=True)
         entry["vs_opencv"] = {k: d[k] for k in ("rms_px", "max_px")}
@@ -129,15 +172,17 @@ def _circcal_refined(cal: Any, board: Board, size: tuple[int, int]) -> tuple[Any
     if cal is None:
         return None, {"status": "failed", "message": "circcal found no calibration to refine"}
     try:
-        res = calibrate_detections([cal.detections[i] for i in cal.used], board, size,
-                                   CalibrationOptions(refine_board=True))[0]
+        res = calibrate_detections(
+            [cal.detections[i] for i in cal.used], board, size, CalibrationOptions(refine_board=True)
+        )[0]
     except InputError as exc:
         return None, failure(exc)
     return res, refined_entry(res, [Path(cal.paths[i]).name for i in cal.used])
 
 
-def _opencv_refined(ocv_views: list, ours: dict[str, np.ndarray], board: Board, size: tuple[int, int],
-                    cal_r: Any) -> tuple[Any, list[np.ndarray], dict[str, Any]]:
+def _opencv_refined(
+    ocv_views: list, ours: dict[str, np.ndarray], board: Board, size: tuple[int, int], cal_r: Any
+) -> tuple[Any, list[np.ndarray], dict[str, Any]]:
     """The same solver, board refined, on the baseline's centres put into circcal's point order: (the result or
     None, the re-ordered views, the entry: which views were reversed, which had no circcal view to take the order
     from, and how the estimated board and model compare with circcal's)."""
@@ -165,8 +210,9 @@ def _opencv_refined(ocv_views: list, ours: dict[str, np.ndarray], board: Board, 
     return res, ordered, entry
 
 
-def _findcirclesgrid_order(paths: list[str], board: Board, ours: dict[str, np.ndarray], size: tuple[int, int]
-                           ) -> dict[str, Any]:
+def _findcirclesgrid_order(
+    paths: list[str], board: Board, ours: dict[str, np.ndarray], size: tuple[int, int]
+) -> dict[str, Any]:
     """findCirclesGrid as the OpenCV adapter runs it (plain first, CALIB_CB_CLUSTERING only where that fails): the
     two modes may order a symmetric grid differently, so its views can disagree among themselves. Refining the
     board in that order mixes up points; in circcal's order it does not."""
@@ -177,8 +223,11 @@ def _findcirclesgrid_order(paths: list[str], board: Board, ours: dict[str, np.nd
     det = OpenCVCalibrator().detect(paths, board)
     names = [Path(paths[i]).name for i in det["views"]]
     ordered, labels = match_views(det["image_points"], [ours.get(n) for n in names], board)
-    out: dict[str, Any] = {"views": names, "how": [det["how"][i] for i in det["views"]],
-                           "reversed": [n for n, lab in zip(names, labels) if lab != "rot0"]}
+    out: dict[str, Any] = {
+        "views": names,
+        "how": [det["how"][i] for i in det["views"]],
+        "reversed": [n for n, lab in zip(names, labels) if lab != "rot0"],
+    }
     if len(names) >= MIN_VIEWS:
         out["refined_own_order"] = _refined_errors(det["image_points"], board, size)
         out["refined_circcal_order"] = _refined_errors(ordered, board, size)
@@ -190,8 +239,13 @@ def realdata_set(folder: Path, *, heldout: bool = True) -> tuple[dict[str, Any],
     board, base = realdata_board(folder)
     size = tuple(int(v) for v in base["image_size_wh"])
     paths = sorted(str(p) for p in folder.glob("*.jpg"))
-    out: dict[str, Any] = {"folder": folder.name, "board": board.to_dict(), "image_size": list(size),
-                           "n_images": len(paths), "baseline": _baseline_entry(base)}
+    out: dict[str, Any] = {
+        "folder": folder.name,
+        "board": board.to_dict(),
+        "image_size": list(size),
+        "n_images": len(paths),
+        "baseline": _baseline_entry(base),
+    }
     times: dict[str, float] = {}
     t0 = time.perf_counter()
     ocv_views, ocv, out["opencv"] = _opencv_rigid(base, board, size)
@@ -209,8 +263,15 @@ def realdata_set(folder: Path, *, heldout: bool = True) -> tuple[dict[str, Any],
 
     if heldout:
         t0 = time.perf_counter()
-        out["heldout"] = heldout_block(cal, board, size, refined=cal_r is not None, opencv_views=ocv_views,
-                                       opencv_ok=ocv.ok, opencv_ordered=ocv_ordered if ocv_r is not None else None)
+        out["heldout"] = heldout_block(
+            cal,
+            board,
+            size,
+            refined=cal_r is not None,
+            opencv_views=ocv_views,
+            opencv_ok=ocv.ok,
+            opencv_ordered=ocv_ordered if ocv_r is not None else None,
+        )
         times["heldout"] = time.perf_counter() - t0
     return out, times
 

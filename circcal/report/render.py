@@ -2,6 +2,7 @@
 :mod:`importlib.resources`, so an installed wheel renders like a checkout): Markdown (``report.md.j2``), one
 self-contained HTML page (``report.html.j2``, autoescaped, figures embedded as base64 PNG) and the index of the
 reports folder (``readme.md.j2``)."""
+
 from __future__ import annotations
 
 import base64
@@ -42,9 +43,14 @@ def _inline(text: object) -> object:
 def _environment(autoescape: bool):
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.FunctionLoader(template_source), autoescape=autoescape,
-                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
-                             undefined=jinja2.StrictUndefined)
+    env = jinja2.Environment(
+        loader=jinja2.FunctionLoader(template_source),
+        autoescape=autoescape,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+        undefined=jinja2.StrictUndefined,
+    )
     env.filters["md_cell"] = _md_cell
     env.filters["inline"] = _inline
     return env
@@ -63,5 +69,4 @@ def to_html(blocks: Sequence[Block], images: Mapping[str, bytes], *, title: str)
 
 def readme(*, name: str, date: str, kind: str, headline: str) -> str:
     """The reports folder's index (README.md): one row for the run folder ``name``."""
-    return _environment(False).get_template("readme.md.j2").render(name=name, date=date, kind=kind,
-                                                                   headline=headline)
+    return _environment(False).get_template("readme.md.j2").render(name=name, date=date, kind=kind, headline=headline)

@@ -5,6 +5,7 @@ one, and one calibrator's row of a condition table.
 :data:`~circcal.report.config.PROJECTION_GRID_WIDTH`-wide pixel grid of the image: ``rms_px`` / ``max_px`` with
 the implied rotation fitted (:func:`circcal.analysis.compare.projection_diff`), ``nofit_*`` without.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -35,22 +36,48 @@ def vs_truth(truth: Camera, camera: Camera | None) -> dict[str, float] | None:
         return None
     fit = projection_diff(truth, camera, gridn_width=PROJECTION_GRID_WIDTH, fit=True)
     raw = projection_diff(truth, camera, gridn_width=PROJECTION_GRID_WIDTH, fit=False)
-    return {"rms_px": fit["rms_px"], "max_px": fit["max_px"], "nofit_rms_px": raw["rms_px"],
-            "nofit_max_px": raw["max_px"]}
+    return {
+        "rms_px": fit["rms_px"],
+        "max_px": fit["max_px"],
+        "nofit_rms_px": raw["rms_px"],
+        "nofit_max_px": raw["max_px"],
+    }
 
 
-def calibrator_row(label: str, status: str, message: str, camera: Camera | None, std: dict | None,
-                   errors: dict | None, truth: Camera, *, centre: dict | None = None, centre_note: str = "",
-                   per_view: list | None = None, views: list | None = None, detector: str = "",
-                   observations: str = "") -> dict[str, Any]:
+def calibrator_row(
+    label: str,
+    status: str,
+    message: str,
+    camera: Camera | None,
+    std: dict | None,
+    errors: dict | None,
+    truth: Camera,
+    *,
+    centre: dict | None = None,
+    centre_note: str = "",
+    per_view: list | None = None,
+    views: list | None = None,
+    detector: str = "",
+    observations: str = "",
+) -> dict[str, Any]:
     """One calibrator on one condition: its model and stated sigmas, reprojection errors (three conventions),
     error vs truth, detector centre error against the true projections, per-view mean 2-D error (px) with the
     indices of the views used."""
-    return {"label": label, "status": status, "message": message, "detector": detector,
-            "observations": observations, "camera": camera, "std": std, "errors": error_summary(errors),
-            "vs_truth": vs_truth(truth, camera) if status == "ok" else None,
-            "centre_error": error_summary(centre), "centre_note": centre_note,
-            "per_view_mean_2d_px": per_view, "views": views}
+    return {
+        "label": label,
+        "status": status,
+        "message": message,
+        "detector": detector,
+        "observations": observations,
+        "camera": camera,
+        "std": std,
+        "errors": error_summary(errors),
+        "vs_truth": vs_truth(truth, camera) if status == "ok" else None,
+        "centre_error": error_summary(centre),
+        "centre_note": centre_note,
+        "per_view_mean_2d_px": per_view,
+        "views": views,
+    }
 
 
 def fixture_summary(scenario: str) -> dict[str, Any]:

@@ -1,17 +1,34 @@
 """The results tree's entries, built and read in one way: the error statistics an entry keeps, a failure as an
 entry, a lookup through nested entries that tolerates missing levels, and the run's order of conditions and sets
 (report.json stores its keys sorted, so order comes from the run's config, never from a dict)."""
+
 from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["ERROR_KEYS", "ROW_ORDER", "all_conditions", "calibrator_keys", "dig", "error_summary", "failure",
-           "paper_conditions", "realdata_sets"]
+__all__ = [
+    "ERROR_KEYS",
+    "ROW_ORDER",
+    "all_conditions",
+    "calibrator_keys",
+    "dig",
+    "error_summary",
+    "failure",
+    "paper_conditions",
+    "realdata_sets",
+]
 
 #: The calibrator rows of the paper study, in the order the report lists them, with whose centres each fits ("own":
 #: its own detector); plug-in references follow by name.
-ROW_ORDER = (("circcal", "own"), ("opencv-pipeline", "own"), ("opencv-fair", "circcal"), ("mrcal-fair", "circcal"),
-             ("mrcal-default", "circcal"), ("kornia-fair", "circcal"), ("pycolmap-fair", "circcal"))
+ROW_ORDER = (
+    ("circcal", "own"),
+    ("opencv-pipeline", "own"),
+    ("opencv-fair", "circcal"),
+    ("mrcal-fair", "circcal"),
+    ("mrcal-default", "circcal"),
+    ("kornia-fair", "circcal"),
+    ("pycolmap-fair", "circcal"),
+)
 #: The statistics of :func:`circcal.metrics.error_stats` an entry keeps (px; the key names the convention).
 ERROR_KEYS = ("n_points", "mean_2d_px", "rms_per_point_px", "rms_per_coord_px", "max_2d_px")
 

@@ -1,6 +1,7 @@
 """Studies at scale in the published report: the summaries of finished ``circcal study`` runs (the sigma honesty
 and bias of each calibrator per scenario cell with 95 % intervals, the truth-check pass rates), read from each
 study's ``summary.json`` (:func:`circcal.study.summary.write_summary`) so the report never reruns a study."""
+
 from __future__ import annotations
 
 from typing import Any

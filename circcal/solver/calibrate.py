@@ -17,6 +17,7 @@ the solvers (:mod:`circcal.solver.lm`), Zhang's closed form (:mod:`circcal.solve
 the solve (:mod:`circcal.solver.outliers`), the result (:mod:`circcal.solver.result`); this module ties them together
 with the covariance. The images pipeline (detect -> calibrate -> re-correct) is :mod:`circcal.pipeline`.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -151,13 +152,24 @@ def calibrate(
         options = CalibrationOptions(lens=initial.lens if initial is not None else DEFAULT_LENS)
     if options.outlier_rule is not None:
         plain = options.replace(outlier_rule=None)
-        return reject_outliers(lambda o, i, start: calibrate(o, i, image_size, plain, initial=start),
-                               object_points, image_points, image_size, options.outlier_rule, initial)
+        return reject_outliers(
+            lambda o, i, start: calibrate(o, i, image_size, plain, initial=start),
+            object_points,
+            image_points,
+            image_size,
+            options.outlier_rule,
+            initial,
+        )
     return _calibrate(object_points, image_points, image_size, options, initial)
 
 
-def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], image_size: tuple[int, int],
-               options: CalibrationOptions, initial: Camera | None) -> CalibrationResult:
+def _calibrate(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    options: CalibrationOptions,
+    initial: Camera | None,
+) -> CalibrationResult:
     """One plain solve (:func:`calibrate` without outlier rejection)."""
     lens = options.lens
     model = lens_model(lens)
@@ -180,8 +192,14 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
         c = None
         if model.pinhole:
             try:
-                z = zhang(obj, img, (w, h), principal_point=centre if fix_principal_point else None,
-                          aspect_ratio=aspect, distortion_rounds=distortion_rounds)
+                z = zhang(
+                    obj,
+                    img,
+                    (w, h),
+                    principal_point=centre if fix_principal_point else None,
+                    aspect_ratio=aspect,
+                    distortion_rounds=distortion_rounds,
+                )
             except DegenerateViewsError as e:
                 # a wide lens (rational, thin prism) can defeat the distortion-free closed form where no view is
                 # flat: start from the equidistant lens instead, its radial profile atan(r) / r in the rational
@@ -192,12 +210,14 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
                 c, rvecs, tvecs = z.camera, z.rvecs, z.tvecs
                 start[4:6] = c.dist[0], c.dist[1]
             if c is None:
-                c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
-                                                else None, aspect_ratio=aspect)
+                c, rvecs, tvecs = fisheye_start(
+                    obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect
+                )
                 start[names.index("k1")], start[names.index("k4")] = 4.0 / 15.0, 3.0 / 5.0
         else:
-            c, rvecs, tvecs = fisheye_start(obj, img, (w, h), principal_point=centre if fix_principal_point
-                                            else None, aspect_ratio=aspect)
+            c, rvecs, tvecs = fisheye_start(
+                obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect
+            )
         start[:4] = c.fx, c.fy, c.cx, c.cy
         start[held_dist] = 0.0  # held coefficients stay at 0 (the rational fallback's k1, k4 included)
         for k, name in ((2, "cx"), (3, "cy")):
@@ -220,8 +240,12 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
     free = [k for k, name in enumerate(names) if name not in fixed and not (aspect is not None and k == 0)]
     board = board_model(obj, options.board_gauge) if options.refine_board else None
     if board is not None and board.held_unseen:
-        warnings.warn(f"board refinement: {len(board.held_unseen)} point(s) seen in fewer than 3 views are held at "
-                      f"their nominal positions (indices {board.held_unseen[:10]})", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"board refinement: {len(board.held_unseen)} point(s) seen in fewer than 3 views are held at "
+            f"their nominal positions (indices {board.held_unseen[:10]})",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     prob = Problem(obj, img, intr, free, aspect, board, lens)
     x0 = prob.pack(intr, rvecs, tvecs)
 
@@ -236,11 +260,15 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
     f, Xc = prob.residuals(x)
     p = prob.intrinsics(x)
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
-        raise CalibrationError("the solver diverged (non-finite parameters or residuals); check the point "
-                               "correspondences (board order, image_size) and the views")
+        raise CalibrationError(
+            "the solver diverged (non-finite parameters or residuals); check the point "
+            "correspondences (board order, image_size) and the views"
+        )
     if p[0] <= 0 or p[1] <= 0:
-        raise CalibrationError(f"the solver diverged to a non-positive focal length (fx={p[0]:.4g}, fy={p[1]:.4g}); "
-                               f"check the point correspondences and the views")
+        raise CalibrationError(
+            f"the solver diverged to a non-positive focal length (fx={p[0]:.4g}, fy={p[1]:.4g}); "
+            f"check the point correspondences and the views"
+        )
     if model.pinhole:
         outside = Xc[:, 2] <= 0
         where = "behind the camera"
@@ -251,8 +279,9 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
         bad = sorted(set(prob.view[outside].tolist()))
         raise CalibrationError(f"the solver diverged: board points {where} in view(s) {bad}")
     if not converged:
-        warnings.warn(f"calibration did not converge ({message}); the model may be inaccurate", RuntimeWarning,
-                      stacklevel=3)
+        warnings.warn(
+            f"calibration did not converge ({message}); the model may be inaccurate", RuntimeWarning, stacklevel=3
+        )
 
     camera = Camera.from_intrinsics(w, h, p, lens)
     rv, tv = prob.poses(x)
@@ -276,7 +305,7 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
     cov_free_unit = cov_global_unit[: prob.nf, : prob.nf]
     cov9_unit = prob.T @ cov_free_unit @ prob.T.T if np.all(np.isfinite(cov_free_unit)) else None
     f_idx = 1 if aspect is not None else 0
-    unit_rel = (float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf"))
+    unit_rel = float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf")
     if not np.isfinite(unit_rel) or unit_rel > MAX_UNIT_REL_STD_F:
         tilts = view_tilts_deg(rv)
         flat = [int(i) for i in np.flatnonzero(tilts < FLAT_VIEW_TILT_DEG)]
@@ -285,7 +314,10 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
             f"focal length is not observable from these {len(obj)} views: std(f) would be {100 * unit_rel:.3g}% of f "
             f"per 1 px of noise (limit {100 * MAX_UNIT_REL_STD_F:g}%); condition number of the intrinsic "
             f"information matrix {cond:.3g}. Views nearly parallel to the image plane: {listing}. Add views with "
-            f"the board tilted 20-50 deg about different axes.", flat, cond)
+            f"the board tilted 20-50 deg about different axes.",
+            flat,
+            cond,
+        )
     cov9 = sigma2 * cov9_unit
     std_arr = np.sqrt(np.maximum(np.diag(cov9), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -298,21 +330,37 @@ def _calibrate(object_points: Sequence[np.ndarray], image_points: Sequence[np.nd
     if board is not None:
         board_points = prob.board_points(x)
         board_std = np.zeros(board.nominal.size)
-        board_std[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf:], 0.0))
+        board_std[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf :], 0.0))
         board_std = board_std.reshape(-1, 3)
 
     residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
     errors, per_view_errors = error_stats_per_view(residuals)  # once per solve, every view in one pass
     if errors["rms_per_coord_px"] > LARGE_RESIDUAL_PX:
-        warnings.warn(f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
-                      f"coordinate): outliers, wrong board geometry or a lens the {lens} model cannot fit",
-                      RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"large reprojection error after calibration ({errors['rms_per_coord_px']:.3g} px RMS per "
+            f"coordinate): outliers, wrong board geometry or a lens the {lens} model cannot fit",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return CalibrationResult(
-        camera=camera, std=std, correlation=corr, rvecs=rv, tvecs=tv, residuals=residuals, errors=errors,
-        per_view_errors=per_view_errors, sigma_px=float(np.sqrt(sigma2)),
-        n_iterations=int(n_iter), converged=bool(converged),
-        fixed=tuple(fixed), n_params=int(prob.n),
-        board_nominal=None if board is None else board.nominal, board_points=board_points, board_std=board_std,
+        camera=camera,
+        std=std,
+        correlation=corr,
+        rvecs=rv,
+        tvecs=tv,
+        residuals=residuals,
+        errors=errors,
+        per_view_errors=per_view_errors,
+        sigma_px=float(np.sqrt(sigma2)),
+        n_iterations=int(n_iter),
+        converged=bool(converged),
+        fixed=tuple(fixed),
+        n_params=int(prob.n),
+        board_nominal=None if board is None else board.nominal,
+        board_points=board_points,
+        board_std=board_std,
         board_gauge=None if board is None else board.gauge,
         covariance=state_covariance(prob, x, cov_global_unit, float(np.sqrt(sigma2))),
-        object_points=obj, image_points=img)
+        object_points=obj,
+        image_points=img,
+    )

@@ -15,6 +15,7 @@ so that for any linear function ``G = [G_g, G_p]`` of the state (:meth:`StateCov
 
     G C G^T = (G_g - sum_v G_pv M_v) S^-1 (G_g - sum_v G_pv M_v)^T + sum_v G_pv D_v^-1 G_pv^T
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -64,8 +65,9 @@ class StateCovariance:
         """``G C_unit G^T`` (N, k, k) for N linear functions of the state with derivatives ``G_global`` (N, k, ng)
         and ``G_pose`` (N, k, V, 6) (see the module); cost O(N k V ng), no dense state matrix."""
         H = G_global - np.einsum("nkvj,vjg->nkg", G_pose, self.M)
-        return (np.einsum("nag,gh,nbh->nab", H, self.S_inv, H)
-                + np.einsum("navi,vij,nbvj->nab", G_pose, self.D_inv, G_pose))
+        return np.einsum("nag,gh,nbh->nab", H, self.S_inv, H) + np.einsum(
+            "navi,vij,nbvj->nab", G_pose, self.D_inv, G_pose
+        )
 
     @property
     def unit(self) -> np.ndarray:
@@ -78,18 +80,25 @@ class StateCovariance:
         C[ng:, :ng] = C[:ng, ng:].T
         C_pp = Mf @ self.S_inv @ Mf.T
         for v in range(V):
-            C_pp[6 * v: 6 * v + 6, 6 * v: 6 * v + 6] += self.D_inv[v]
+            C_pp[6 * v : 6 * v + 6, 6 * v : 6 * v + 6] += self.D_inv[v]
         C[ng:, ng:] = C_pp
         return 0.5 * (C + C.T)
 
 
-def state_covariance(prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, sigma_px: float
-                     ) -> StateCovariance | None:
+def state_covariance(
+    prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, sigma_px: float
+) -> StateCovariance | None:
     """The :class:`StateCovariance` of ``prob`` at its solution ``x``, from ``cov_global_unit`` = S^-1 (ng, ng)
     the solver already inverted (None when it is not finite: the information matrix was singular)."""
     if not np.all(np.isfinite(cov_global_unit)):
         return None
     _, _, B, D, _ = prob.normal_equations(x)[1]
-    D_inv = np.linalg.inv(D)                                                    # (V, 6, 6)
-    return StateCovariance(S_inv=cov_global_unit, M=D_inv @ np.transpose(B, (0, 2, 1)), D_inv=D_inv,
-                           intrinsics_map=prob.T.copy(), n_board=int(prob.nb), sigma_px=float(sigma_px))
+    D_inv = np.linalg.inv(D)  # (V, 6, 6)
+    return StateCovariance(
+        S_inv=cov_global_unit,
+        M=D_inv @ np.transpose(B, (0, 2, 1)),
+        D_inv=D_inv,
+        intrinsics_map=prob.T.copy(),
+        n_board=int(prob.nb),
+        sigma_px=float(sigma_px),
+    )

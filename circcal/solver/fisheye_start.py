@@ -12,6 +12,7 @@ reproject the observations best is kept (a log-spaced scan, then a bounded 1-D m
 candidate). With the right ``f`` the equidistant lens is within a few percent of any real fisheye's
 ``theta_d(theta)``, and the joint refinement converges from there.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -44,8 +45,10 @@ def ray_homographies(object_xy: Sequence[np.ndarray], rays: Sequence[np.ndarray]
     CalibrationError for fewer than 4 points or collinear ones."""
     H = np.empty((len(object_xy), 3, 3))
     for idx in _by_count([len(o) for o in object_xy]):
-        H[idx] = model_rays.ray_homographies(np.stack([np.asarray(object_xy[i], float)[:, :2] for i in idx]),
-                                             np.stack([np.asarray(rays[i], float) for i in idx]))
+        H[idx] = model_rays.ray_homographies(
+            np.stack([np.asarray(object_xy[i], float)[:, :2] for i in idx]),
+            np.stack([np.asarray(rays[i], float) for i in idx]),
+        )
     if not np.all(np.isfinite(H)):
         raise CalibrationError("could not fit a plane homography: fewer than 4 points, or collinear ones")
     return H
@@ -95,9 +98,14 @@ def _fit(groups, f: float, aspect: float, centre) -> tuple[float, np.ndarray | N
     return (float(rms), rv, tv) if np.isfinite(rms) else (float("inf"), None, None)
 
 
-def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                  image_size: tuple[int, int], *, principal_point: tuple[float, float] | None = None,
-                  aspect_ratio: float | None = None) -> tuple[Camera, np.ndarray, np.ndarray]:
+def fisheye_start(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    *,
+    principal_point: tuple[float, float] | None = None,
+    aspect_ratio: float | None = None,
+) -> tuple[Camera, np.ndarray, np.ndarray]:
     """The equidistant starting camera (``lens="fisheye"``, k = 0) and poses (see the module).
 
     ``object_points``: per view (N_v, 3) mm, z = 0; ``image_points``: per view (N_v, 2) px; ``image_size``:
@@ -111,8 +119,10 @@ def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np
     aspect = 1.0 if aspect_ratio is None else float(aspect_ratio)
     obj = [np.asarray(o, dtype=np.float64) for o in object_points]
     img = [np.asarray(p, dtype=np.float64) for p in image_points]
-    groups = [(idx, np.stack([obj[i] for i in idx]), np.stack([img[i] for i in idx]))
-              for idx in _by_count([len(o) for o in obj])]
+    groups = [
+        (idx, np.stack([obj[i] for i in idx]), np.stack([img[i] for i in idx]))
+        for idx in _by_count([len(o) for o in obj])
+    ]
     allp = np.concatenate(img) - np.asarray(centre)
     r_max = float(np.max(np.hypot(allp[:, 0] / aspect, allp[:, 1])))
     f_lo = max(r_max / np.pi, 1e-3) * (1.0 + 1e-6)
@@ -124,8 +134,10 @@ def fisheye_start(object_points: Sequence[np.ndarray], image_points: Sequence[np
 
     scan = np.array([cost(np.log(f)) for f in grid])
     if not np.any(np.isfinite(scan)):
-        raise CalibrationError("no equidistant fisheye start reprojects these views: check the point "
-                               "correspondences (board order, image_size) and the object points")
+        raise CalibrationError(
+            "no equidistant fisheye start reprojects these views: check the point "
+            "correspondences (board order, image_size) and the object points"
+        )
     i = int(np.nanargmin(np.where(np.isfinite(scan), scan, np.nan)))
     lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
     best = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})

@@ -6,6 +6,7 @@ with re-correction, and any reference calibrator's).
 A model that only fits its own views well (over-fitted distortion, a bias absorbed into the intrinsics) predicts
 held-out views worse; the residual of a held-out view has 2N - 6 degrees of freedom (its pose is fitted).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -39,8 +40,9 @@ def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera
     ok, rvec, tvec = cv2.solvePnP(flat, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
-    rvec, tvec = cv2.solvePnPRefineLM(o, p, camera.K, camera.dist, rvec, tvec,
-                                      (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15))
+    rvec, tvec = cv2.solvePnPRefineLM(
+        o, p, camera.K, camera.dist, rvec, tvec, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+    )
     return rvec.reshape(3), tvec.reshape(3)
 
 
@@ -52,8 +54,9 @@ def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera
     return error_stats(img - project(np.asarray(object_points, dtype=np.float64), rvec, tvec, camera))
 
 
-def leave_one_out(n_views: int, fit: Callable[[list[int]], Any],
-                  held_out: Callable[[int, Any], tuple[np.ndarray, np.ndarray, Camera]]) -> list[dict[str, Any]]:
+def leave_one_out(
+    n_views: int, fit: Callable[[list[int]], Any], held_out: Callable[[int, Any], tuple[np.ndarray, np.ndarray, Camera]]
+) -> list[dict[str, Any]]:
     """For each view k of ``n_views``: ``model = fit(every other view's index)``, then ``(object_points,
     image_points, camera) = held_out(k, model)`` (the held-out view's points as that model sees them, e.g. its
     centres re-corrected under it and its refined board points) and their :func:`prediction_error`.
@@ -72,12 +75,17 @@ def leave_one_out(n_views: int, fit: Callable[[list[int]], Any],
     return out
 
 
-def holdout_errors(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                   image_size: tuple[int, int], options: CalibrationOptions | None = None) -> list[dict[str, Any]]:
+def holdout_errors(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    options: CalibrationOptions | None = None,
+) -> list[dict[str, Any]]:
     """Leave-one-view-out check of :func:`~circcal.solver.calibrate` on fixed observations: each view predicted by
     the model calibrated on all the others with ``options`` (:class:`~circcal.solver.options.CalibrationOptions`;
     None: the defaults; with ``refine_board`` the view's board points are that model's refined ones). See
     :func:`leave_one_out` for what comes back."""
+
     def fit(rest: list[int]):
         return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, options)
 

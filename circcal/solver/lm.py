@@ -6,6 +6,7 @@ The normal equations ``J^T J`` split into the global block A (intrinsics and boa
 coupling B_v and the pose blocks D_v; ``S = A - sum B_v D_v^-1 B_v^T`` is also the information on the global
 parameters with the poses marginalised (the covariance uses it).
 """
+
 from __future__ import annotations
 
 import warnings
@@ -16,8 +17,16 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["schur_complement", "global_information", "schur_step", "quadratic_form", "levenberg_marquardt",
-           "geometric_extension", "solve", "is_sane"]
+__all__ = [
+    "schur_complement",
+    "global_information",
+    "schur_step",
+    "quadratic_form",
+    "levenberg_marquardt",
+    "geometric_extension",
+    "solve",
+    "is_sane",
+]
 
 #: Marquardt damping ``lambda`` (times diag(J^T J)) at the start; measured best here: the closed-form start is near
 #: the minimum, so the first steps are nearly Gauss-Newton's (22 -> 11-13 evaluations on 14 views).
@@ -77,7 +86,7 @@ def schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
         A = A + lam * np.diag(np.diag(A))
         D = D + lam * np.diagonal(D, axis1=1, axis2=2)[:, :, None] * np.eye(6)
     S, D_inv, Dinv_Bt, Bf = schur_complement(A, B, D)
-    Dinv_g = (D_inv @ gp[:, :, None])[:, :, 0]     # (V, 6)
+    Dinv_g = (D_inv @ gp[:, :, None])[:, :, 0]  # (V, 6)
     r = gi - Bf @ Dinv_g.ravel()
     try:
         di = -np.linalg.solve(S, r)
@@ -150,8 +159,11 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
             x_new = x + (extension if trusted else 1.0) * step
             # the cost only (a rejected trial costs no Jacobian), but after ACCEPTED_RUN steps taken in a row the
             # next is likely taken too: its Jacobian pass gives the same residuals and is not repeated
-            f_new = (prob.normal_equations(x_new) if run >= ACCEPTED_RUN and (trusted or extension == 1.0)
-                     else prob.residuals(x_new))[0]
+            f_new = (
+                prob.normal_equations(x_new)
+                if run >= ACCEPTED_RUN and (trusted or extension == 1.0)
+                else prob.residuals(x_new)
+            )[0]
             cost_new = _cost(f_new)
             if extension > 1.0 and not trusted:
                 x_ext = x + extension * step
@@ -206,9 +218,19 @@ def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tu
 
     with warnings.catch_warnings():  # LSMR's own tolerance notices at 1e-15; the result is judged by its status
         warnings.simplefilter("ignore", RuntimeWarning)
-        sol = least_squares(prob.fun, x0, jac=prob.jac, method="trf", x_scale="jac", ftol=1e-15, xtol=1e-15,
-                            gtol=1e-15, max_nfev=max_iterations, tr_solver="lsmr",
-                            tr_options={"atol": 1e-15, "btol": 1e-15, "maxiter": 10 * prob.n})
+        sol = least_squares(
+            prob.fun,
+            x0,
+            jac=prob.jac,
+            method="trf",
+            x_scale="jac",
+            ftol=1e-15,
+            xtol=1e-15,
+            gtol=1e-15,
+            max_nfev=max_iterations,
+            tr_solver="lsmr",
+            tr_options={"atol": 1e-15, "btol": 1e-15, "maxiter": 10 * prob.n},
+        )
     return sol.x, int(sol.njev if sol.njev is not None else sol.nfev), bool(sol.status > 0), str(sol.message)
 
 

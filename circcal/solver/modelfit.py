@@ -19,6 +19,7 @@ The rule reads residuals only, so it serves any lens model and any data (renders
 tell apart: a radial pattern from biased centres that grows with the radius (e.g. centroids of strongly tilted
 dots); the message says so. Residuals are observed - projected (px, OpenCV's pixel-centre convention).
 """
+
 from __future__ import annotations
 
 import math
@@ -28,8 +29,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ModelFit", "model_fit", "neighbour_noise", "RADIAL_BINS", "P_VALUE", "MIN_EFFECT_PX",
-           "MIN_EFFECT_NOISE"]
+__all__ = ["ModelFit", "model_fit", "neighbour_noise", "RADIAL_BINS", "P_VALUE", "MIN_EFFECT_PX", "MIN_EFFECT_NOISE"]
 
 #: rings of equal point count over the radius from the principal point
 RADIAL_BINS = 8
@@ -66,25 +66,40 @@ class ModelFit:
 
     def message(self) -> str:
         k = self.worst
-        profile = (f"mean radial residual up to {self.radial_px[k]:+.3f} px at {self.radius_px[k]:.0f} px from the "
-                   f"principal point, {abs(self.radial_px[k]) / self.noise_px:.1f}x the noise of {self.noise_px:.3f} "
-                   f"px per coordinate (chi2 {self.chi2:.0f} over {len(self.z)} rings, p {self.p_value:.1g})")
+        profile = (
+            f"mean radial residual up to {self.radial_px[k]:+.3f} px at {self.radius_px[k]:.0f} px from the "
+            f"principal point, {abs(self.radial_px[k]) / self.noise_px:.1f}x the noise of {self.noise_px:.3f} "
+            f"px per coordinate (chi2 {self.chi2:.0f} over {len(self.z)} rings, p {self.p_value:.1g})"
+        )
         if self.fits:
             return f"lens model {self.lens}: fits (no radial pattern in the residuals: {profile})"
-        wider = {"opencv5": "--lens rational (a wide lens) or --lens fisheye (beyond ~120 deg)",
-                 "rational": "--lens thin-prism or --lens fisheye", "thin-prism": "--lens fisheye",
-                 "fisheye": "--lens rational"}.get(self.lens, "another --lens")
-        return (f"lens model {self.lens} does NOT fit: the residuals follow the radius ({profile}); the model cannot "
-                f"follow this lens's distortion: try {wider}. (Biased centres that grow toward the edge would look "
-                f"alike.)")
+        wider = {
+            "opencv5": "--lens rational (a wide lens) or --lens fisheye (beyond ~120 deg)",
+            "rational": "--lens thin-prism or --lens fisheye",
+            "thin-prism": "--lens fisheye",
+            "fisheye": "--lens rational",
+        }.get(self.lens, "another --lens")
+        return (
+            f"lens model {self.lens} does NOT fit: the residuals follow the radius ({profile}); the model cannot "
+            f"follow this lens's distortion: try {wider}. (Biased centres that grow toward the edge would look "
+            f"alike.)"
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"fits": self.fits, "lens": self.lens, "noise_px_per_coord": self.noise_px,
-                "radius_px": self.radius_px.tolist(), "radial_residual_px": self.radial_px.tolist(),
-                "z": self.z.tolist(), "chi2": self.chi2, "p_value": self.p_value, "n_points": self.n_points,
-                "rule": f"not fitting when chi2 of {RADIAL_BINS} ring means has p < {P_VALUE:g} and a ring's mean "
-                        f"radial residual exceeds {MIN_EFFECT_PX:g} px and {MIN_EFFECT_NOISE:g}x the noise "
-                        f"(noise from neighbouring points' residual differences)"}
+        return {
+            "fits": self.fits,
+            "lens": self.lens,
+            "noise_px_per_coord": self.noise_px,
+            "radius_px": self.radius_px.tolist(),
+            "radial_residual_px": self.radial_px.tolist(),
+            "z": self.z.tolist(),
+            "chi2": self.chi2,
+            "p_value": self.p_value,
+            "n_points": self.n_points,
+            "rule": f"not fitting when chi2 of {RADIAL_BINS} ring means has p < {P_VALUE:g} and a ring's mean "
+            f"radial residual exceeds {MIN_EFFECT_PX:g} px and {MIN_EFFECT_NOISE:g}x the noise "
+            f"(noise from neighbouring points' residual differences)",
+        }
 
 
 def _neighbour_pairs(xy: np.ndarray, chunk: int = 256) -> np.ndarray:
@@ -93,7 +108,7 @@ def _neighbour_pairs(xy: np.ndarray, chunk: int = 256) -> np.ndarray:
     n = len(xy)
     if n < 2:
         return np.empty((0, 2), np.int64)
-    d = [np.linalg.norm(xy[i:i + chunk, None, :] - xy[None, :, :], axis=2) for i in range(0, n, chunk)]
+    d = [np.linalg.norm(xy[i : i + chunk, None, :] - xy[None, :, :], axis=2) for i in range(0, n, chunk)]
     d = np.concatenate(d)
     d[np.tril_indices(n)] = np.inf
     i, j = np.nonzero(d <= 1.01 * d.min())
@@ -150,7 +165,7 @@ def model_fit(result: Any) -> ModelFit | None:
     radius = np.array([r[k].mean() for k in rings])
     mean = np.array([radial[k].mean() for k in rings])
     z = mean / (noise / np.sqrt([len(k) for k in rings]))
-    chi2 = float(np.sum(z ** 2))
+    chi2 = float(np.sum(z**2))
     p = chi2_survival_even(RADIAL_BINS, chi2)
     big = np.abs(mean) > max(MIN_EFFECT_PX, MIN_EFFECT_NOISE * noise)
     return ModelFit(not (p < P_VALUE and bool(big.any())), cam.lens, noise, radius, mean, z, chi2, p, n)

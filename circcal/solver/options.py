@@ -14,6 +14,7 @@ coefficient, the image centre ((w-1)/2, (h-1)/2) for cx and cy, 1 for the aspect
 and are held only with an initial camera. With a held aspect ratio, neither fx nor fy can be held as well. The command line's flags map onto holds through :data:`FLAG_HOLDS`
 (:meth:`CalibrationOptions.from_flags`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -102,8 +103,12 @@ class CalibrationOptions:
             raise InputError(f"refine_board must be True or False, got {self.refine_board!r}")
         if self.board_gauge is not None:
             g = self.board_gauge
-            if isinstance(g, (str, bytes)) or not hasattr(g, "__len__") or len(g) != 3 \
-                    or not all(_is_int(i) and i >= 0 for i in g):
+            if (
+                isinstance(g, (str, bytes))
+                or not hasattr(g, "__len__")
+                or len(g) != 3
+                or not all(_is_int(i) and i >= 0 for i in g)
+            ):
                 raise InputError(f"board_gauge must be three board point indices (non-negative integers), got {g!r}")
             object.__setattr__(self, "board_gauge", tuple(int(i) for i in g))
         if self.solver not in SOLVERS:
@@ -114,9 +119,17 @@ class CalibrationOptions:
             raise InputError(f"outlier_rule must be an OutlierRule or None, got {type(self.outlier_rule).__name__}")
 
     @classmethod
-    def from_flags(cls, *, fix_k2: bool = False, fix_k3: bool = False, fix_tangential: bool = False,
-                   fix_aspect_ratio: bool = False, fix_principal_point: bool = False,
-                   spell: Callable[[str], str] = str, **options: Any) -> CalibrationOptions:
+    def from_flags(
+        cls,
+        *,
+        fix_k2: bool = False,
+        fix_k3: bool = False,
+        fix_tangential: bool = False,
+        fix_aspect_ratio: bool = False,
+        fix_principal_point: bool = False,
+        spell: Callable[[str], str] = str,
+        **options: Any,
+    ) -> CalibrationOptions:
         """The options of the command line's flags: each ``fix_*`` that is true holds what :data:`FLAG_HOLDS`
         says; ``options`` are the other fields (``lens``, ``refine_board``, ...); ``spell``: how an error names a
         flag (e.g. ``fix_k3`` -> ``--fix-k3``).
@@ -131,8 +144,13 @@ class CalibrationOptions:
             A flag that holds what the lens model does not have (``fix_tangential`` with the fisheye), named by the
             flag; or any field's error (see the class).
         """
-        flags = dict(fix_k2=fix_k2, fix_k3=fix_k3, fix_tangential=fix_tangential, fix_aspect_ratio=fix_aspect_ratio,
-                     fix_principal_point=fix_principal_point)
+        flags = dict(
+            fix_k2=fix_k2,
+            fix_k3=fix_k3,
+            fix_tangential=fix_tangential,
+            fix_aspect_ratio=fix_aspect_ratio,
+            fix_principal_point=fix_principal_point,
+        )
         lens = options.get("lens", DEFAULT_LENS)
         names = lens_model(lens).param_names
         fixed: list[str] = []
@@ -156,10 +174,15 @@ class CalibrationOptions:
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready summary (the outlier rule's numbers, or None)."""
         r = self.outlier_rule
-        return {"lens": self.lens, "fixed": list(self.fixed), "refine_board": self.refine_board,
-                "board_gauge": None if self.board_gauge is None else list(self.board_gauge), "solver": self.solver,
-                "max_iterations": self.max_iterations,
-                "outlier_rule": None if r is None else dataclasses.asdict(r)}
+        return {
+            "lens": self.lens,
+            "fixed": list(self.fixed),
+            "refine_board": self.refine_board,
+            "board_gauge": None if self.board_gauge is None else list(self.board_gauge),
+            "solver": self.solver,
+            "max_iterations": self.max_iterations,
+            "outlier_rule": None if r is None else dataclasses.asdict(r),
+        }
 
 
 def _holds(fixed: Iterable[str] | str, lens: str, names: tuple[str, ...]) -> tuple[str, ...]:
@@ -177,13 +200,17 @@ def _holds(fixed: Iterable[str] | str, lens: str, names: tuple[str, ...]) -> tup
     expanded = [n for name in given for n in GROUPS.get(name, (name,))]
     unknown = [n for n in dict.fromkeys(expanded) if n != ASPECT_RATIO and n not in names]
     if unknown:
-        raise InputError(f"fixed: the {lens} lens model has no {', '.join(n if n.isidentifier() else repr(n) for n in unknown)} to hold "
-                         f"fixed; it has "
-                         f"{', '.join(names)}, {', '.join(_named_groups(names))}")
+        raise InputError(
+            f"fixed: the {lens} lens model has no {', '.join(n if n.isidentifier() else repr(n) for n in unknown)} to hold "
+            f"fixed; it has "
+            f"{', '.join(names)}, {', '.join(_named_groups(names))}"
+        )
     wanted = set(expanded)
     if ASPECT_RATIO in wanted and wanted & {"fx", "fy"}:
-        raise InputError(f"fixed: {ASPECT_RATIO} ties fx to fy (fx = aspect * fy) and cannot be held together with "
-                         f"{' or '.join(sorted(wanted & {'fx', 'fy'}))}")
+        raise InputError(
+            f"fixed: {ASPECT_RATIO} ties fx to fy (fx = aspect * fy) and cannot be held together with "
+            f"{' or '.join(sorted(wanted & {'fx', 'fy'}))}"
+        )
     return tuple(n for n in (ASPECT_RATIO, *names) if n in wanted)
 
 

@@ -21,6 +21,7 @@ photographs (print, JPEG, lens), so a residual under 5 x 0.05 = 0.25 px is never
 others are. On every rendered fixture and both real sets in ../shared/data/realdata the rule rejects nothing
 (tested), so their results are unchanged.
 """
+
 from __future__ import annotations
 
 import enum
@@ -34,8 +35,18 @@ import numpy as np
 from circcal.errors import CalibrationError, InputError
 from circcal.observations import MIN_POINTS_PER_VIEW, check_observations
 
-__all__ = ["OutlierReason", "OutlierRule", "Rejected", "Rejections", "reject_outliers", "DEFAULT_K",
-           "SIGMA_FLOOR_PX", "MAX_VIEW_LOSS", "MAX_ROUNDS", "MAD_TO_SIGMA"]
+__all__ = [
+    "OutlierReason",
+    "OutlierRule",
+    "Rejected",
+    "Rejections",
+    "reject_outliers",
+    "DEFAULT_K",
+    "SIGMA_FLOOR_PX",
+    "MAX_VIEW_LOSS",
+    "MAX_ROUNDS",
+    "MAD_TO_SIGMA",
+]
 
 #: Threshold in standard deviations: mrcal's (mrcal.c markOutliers, k1 = 5).
 DEFAULT_K = 5.0
@@ -106,12 +117,20 @@ class Rejected:
     detail: str
 
     def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"view": self.view, "reason": self.reason.value, "detail": self.detail,
-                             "round": self.round, "sigma_px": self.sigma_px}
+        d: dict[str, Any] = {
+            "view": self.view,
+            "reason": self.reason.value,
+            "detail": self.detail,
+            "round": self.round,
+            "sigma_px": self.sigma_px,
+        }
         if self.point is not None:
-            d.update(point=self.point, object_mm=np.asarray(self.object_mm).tolist(),
-                     image_px=np.asarray(self.image_px).tolist())
-        d["residual_px"] = (np.asarray(self.residual_px).tolist() if self.residual_px is not None else None)
+            d.update(
+                point=self.point,
+                object_mm=np.asarray(self.object_mm).tolist(),
+                image_px=np.asarray(self.image_px).tolist(),
+            )
+        d["residual_px"] = np.asarray(self.residual_px).tolist() if self.residual_px is not None else None
         return d
 
 
@@ -156,10 +175,18 @@ class Rejections:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rule": {"k": self.rule.k, "sigma_floor_px": self.rule.sigma_floor_px,
-                         "max_view_loss": self.rule.max_view_loss},
-                "rounds": self.rounds, "n_views": self.n_views, "n_points": self.n_points,
-                "kept_views": list(self.kept_views), "rejected": [r.to_dict() for r in self.items]}
+        return {
+            "rule": {
+                "k": self.rule.k,
+                "sigma_floor_px": self.rule.sigma_floor_px,
+                "max_view_loss": self.rule.max_view_loss,
+            },
+            "rounds": self.rounds,
+            "n_views": self.n_views,
+            "n_points": self.n_points,
+            "kept_views": list(self.kept_views),
+            "rejected": [r.to_dict() for r in self.items],
+        }
 
 
 def _view_scale(r: np.ndarray) -> float:
@@ -172,8 +199,14 @@ def _view_scale(r: np.ndarray) -> float:
 Solve = Callable[[list[np.ndarray], list[np.ndarray], Any], Any]
 
 
-def reject_outliers(solve: Solve, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                    image_size: tuple[int, int], rule: OutlierRule, initial: Any = None):
+def reject_outliers(
+    solve: Solve,
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    rule: OutlierRule,
+    initial: Any = None,
+):
     """Outlier rejection by ``rule`` around a solver (see the module): solve, leave out what the rule rejects,
     re-solve from the current camera, until nothing more is rejected.
 
@@ -221,25 +254,36 @@ def reject_outliers(solve: Solve, object_points: Sequence[np.ndarray], image_poi
     res = solve_kept(initial)
     for rnd in range(1, rule.max_rounds + 1):
         out.rounds = rnd
-        resid = res.residuals                                          # per kept view (n_active, 2), observed - proj
-        view_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in resid])
+        resid = res.residuals  # per kept view (n_active, 2), observed - proj
+        view_rms = np.array([np.sqrt(np.mean(r**2)) for r in resid])
         sigma_views = max(float(np.median(view_rms)), rule.sigma_floor_px)
         scales = np.array([_view_scale(r) for r in resid])
         bad_views = np.flatnonzero(scales > rule.k * sigma_views)
         if bad_views.size and len(kept) > 1:
             i = int(bad_views[np.argmax(scales[bad_views])])
             v = kept[i]
-            out.items.append(Rejected(v, None, None, None, float(view_rms[i]), sigma_views, rnd, OutlierReason.VIEW,
-                                      f"typical residual {scales[i]:.3g} px per coordinate (robust) is more than "
-                                      f"{rule.k:g} x the views' noise level {sigma_views:.3g} px: a mislabelled or "
-                                      f"foreign view"))
+            out.items.append(
+                Rejected(
+                    v,
+                    None,
+                    None,
+                    None,
+                    float(view_rms[i]),
+                    sigma_views,
+                    rnd,
+                    OutlierReason.VIEW,
+                    f"typical residual {scales[i]:.3g} px per coordinate (robust) is more than "
+                    f"{rule.k:g} x the views' noise level {sigma_views:.3g} px: a mislabelled or "
+                    f"foreign view",
+                )
+            )
             kept.remove(v)
             res = solve_kept(res.camera)
             continue
         sigma = max(float(res.sigma_px), rule.sigma_floor_px)
         changed = False
         for i, v in enumerate(list(kept)):
-            idx = np.flatnonzero(active[v])                            # given indices of this view's active points
+            idx = np.flatnonzero(active[v])  # given indices of this view's active points
             r = resid[i]
             hit = np.flatnonzero(np.max(np.abs(r), axis=1) > rule.k * sigma)
             if not hit.size:
@@ -247,14 +291,35 @@ def reject_outliers(solve: Solve, object_points: Sequence[np.ndarray], image_poi
             changed = True
             for j in hit:
                 p = int(idx[j])
-                out.items.append(Rejected(v, p, obj[v][p], img[v][p], r[j].copy(), sigma, rnd, OutlierReason.POINT,
-                                          f"residual ({r[j, 0]:+.3g}, {r[j, 1]:+.3g}) px exceeds {rule.k:g} x "
-                                          f"sigma {sigma:.3g} px"))
+                out.items.append(
+                    Rejected(
+                        v,
+                        p,
+                        obj[v][p],
+                        img[v][p],
+                        r[j].copy(),
+                        sigma,
+                        rnd,
+                        OutlierReason.POINT,
+                        f"residual ({r[j, 0]:+.3g}, {r[j, 1]:+.3g}) px exceeds {rule.k:g} x sigma {sigma:.3g} px",
+                    )
+                )
                 active[v][p] = False
             left = int(active[v].sum())
             if left < (1.0 - rule.max_view_loss) * len(obj[v]) or left < MIN_POINTS_PER_VIEW:
-                out.items.append(Rejected(v, None, None, None, float(view_rms[i]), sigma, rnd, OutlierReason.VIEW,
-                                          f"lost {len(obj[v]) - left} of its {len(obj[v])} points as outliers"))
+                out.items.append(
+                    Rejected(
+                        v,
+                        None,
+                        None,
+                        None,
+                        float(view_rms[i]),
+                        sigma,
+                        rnd,
+                        OutlierReason.VIEW,
+                        f"lost {len(obj[v]) - left} of its {len(obj[v])} points as outliers",
+                    )
+                )
                 kept.remove(v)
         if not changed:
             break
@@ -262,8 +327,10 @@ def reject_outliers(solve: Solve, object_points: Sequence[np.ndarray], image_poi
             raise CalibrationError("outlier rejection left no view")
         res = solve_kept(res.camera)
     else:
-        raise CalibrationError(f"outlier rejection did not settle in {rule.max_rounds} rounds: the model cannot "
-                               f"explain these observations (wrong board geometry or lens model?)")
+        raise CalibrationError(
+            f"outlier rejection did not settle in {rule.max_rounds} rounds: the model cannot "
+            f"explain these observations (wrong board geometry or lens model?)"
+        )
     out.kept_views = list(kept)
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)

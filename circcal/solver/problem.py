@@ -9,6 +9,7 @@ residuals depend only on them and its own pose (the sparsity :mod:`circcal.solve
 whole views (:data:`EVALUATE_CHUNK` points): the solver's normal equations are summed chunk by chunk, so the
 (2N, ng + 6) Jacobian never exists (only :meth:`Problem.evaluate`, for the scipy cross-check, assembles it).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -21,8 +22,16 @@ from circcal.model import distort, fisheye_distort, lens_model, project_camera_j
 from circcal.observations import BOARD_KEY_DECIMALS, distinct_points
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
 
-__all__ = ["BoardModel", "board_model", "Chunk", "chunks", "Problem", "project_pixels", "MIN_VIEWS_PER_BOARD_POINT",
-           "BOARD_KEY_DECIMALS"]
+__all__ = [
+    "BoardModel",
+    "board_model",
+    "Chunk",
+    "chunks",
+    "Problem",
+    "project_pixels",
+    "MIN_VIEWS_PER_BOARD_POINT",
+    "BOARD_KEY_DECIMALS",
+]
 
 #: Points projected at a time (whole views, at least one): the residuals' and the Jacobian's temporaries stay a few
 #: MB whatever N (measured as fast as one pass over 49,000 points), and the whole Jacobian never exists.
@@ -58,9 +67,10 @@ def chunks(counts: np.ndarray, size: int) -> list[Chunk]:
             groups = ((np.arange(v0, v1), None),)
         else:
             starts = ends[v0:v1] - counts[v0:v1] - a
-            groups = tuple((v0 + np.flatnonzero(counts[v0:v1] == n),
-                            (starts[counts[v0:v1] == n][:, None] + np.arange(n)).ravel())
-                           for n in np.unique(counts[v0:v1]))
+            groups = tuple(
+                (v0 + np.flatnonzero(counts[v0:v1] == n), (starts[counts[v0:v1] == n][:, None] + np.arange(n)).ravel())
+                for n in np.unique(counts[v0:v1])
+            )
         out.append(Chunk(a, int(ends[v1 - 1]), v0, v1, groups))
         v0 = v1
     return out
@@ -132,8 +142,16 @@ class Problem:
     refinement), then 6 pose parameters per view; ``ng = nf + nb`` "global" parameters are shared by all views.
     """
 
-    def __init__(self, obj, img, base: np.ndarray, free: list[int], aspect: float | None,
-                 board: BoardModel | None = None, lens: str = "opencv5"):
+    def __init__(
+        self,
+        obj,
+        img,
+        base: np.ndarray,
+        free: list[int],
+        aspect: float | None,
+        board: BoardModel | None = None,
+        lens: str = "opencv5",
+    ):
         self.counts = np.array([len(o) for o in obj])
         #: every view holds the same number of points: per-view products are one batched product (no gathers)
         self.uniform = bool(np.all(self.counts == self.counts[0]))
@@ -163,7 +181,7 @@ class Problem:
             # column (within the global block) of each observation's x, y, z; -1 where held
             slot = np.full(board.nominal.size, -1)
             slot[board.free] = self.nf + np.arange(self.nb)
-            self.board_cols = slot.reshape(-1, 3)[board.point_index]          # (N, 3)
+            self.board_cols = slot.reshape(-1, 3)[board.point_index]  # (N, 3)
         self.ng = self.nf + self.nb
         self.n = self.ng + 6 * self.n_views
         self.pinhole = lens_model(lens).pinhole
@@ -180,7 +198,7 @@ class Problem:
         if self.board is None:
             return None
         pts = self.board.nominal.copy().ravel()
-        pts[self.board.free] = x[self.nf: self.ng]
+        pts[self.board.free] = x[self.nf : self.ng]
         return pts.reshape(-1, 3)
 
     def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
@@ -189,7 +207,7 @@ class Problem:
         return np.concatenate([xi, xb, np.column_stack([rvecs, tvecs]).ravel()])
 
     def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        P = x[self.ng:].reshape(-1, 6)
+        P = x[self.ng :].reshape(-1, 6)
         return P[:, :3].copy(), P[:, 3:].copy()
 
     def _times_view_matrix(self, A: np.ndarray, M: np.ndarray, chunk: Chunk) -> np.ndarray:
@@ -198,8 +216,8 @@ class Problem:
         gather), else through the (n, 3, m) gathered matrices."""
         if self.uniform:
             k = chunk.v1 - chunk.v0
-            return (A.reshape(k, -1, 3) @ M[chunk.v0: chunk.v1]).reshape(*A.shape[:-1], M.shape[-1])
-        return np.einsum("n...j,njk->n...k", A, M[self.view[chunk.a: chunk.b]])
+            return (A.reshape(k, -1, 3) @ M[chunk.v0 : chunk.v1]).reshape(*A.shape[:-1], M.shape[-1])
+        return np.einsum("n...j,njk->n...k", A, M[self.view[chunk.a : chunk.b]])
 
     def _frame(self, x: np.ndarray, key: bytes):
         """What every pass needs at ``x`` (``key``: its bytes): intrinsics (4 + n_dist,), rvecs (V, 3), R (V, 3, 3),
@@ -211,12 +229,12 @@ class Problem:
             self._frame_x, self._frame_kept = key, (self.intrinsics(x), rv, rodrigues(rv), tv, X)
         return self._frame_kept
 
-    def _camera_points(self, X: np.ndarray, R: np.ndarray, tv: np.ndarray, chunk: Chunk
-                       ) -> tuple[np.ndarray, np.ndarray]:
+    def _camera_points(
+        self, X: np.ndarray, R: np.ndarray, tv: np.ndarray, chunk: Chunk
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The chunk's board points in its views' camera frames: ``(Y = R_v X, Xc = Y + t_v)``, both (n, 3) mm."""
-        Y = self._times_view_matrix(X[chunk.a: chunk.b], np.transpose(R, (0, 2, 1)), chunk)
-        t = (tv[chunk.v0: chunk.v1].repeat(self.counts[0], axis=0) if self.uniform
-             else tv[self.view[chunk.a: chunk.b]])
+        Y = self._times_view_matrix(X[chunk.a : chunk.b], np.transpose(R, (0, 2, 1)), chunk)
+        t = tv[chunk.v0 : chunk.v1].repeat(self.counts[0], axis=0) if self.uniform else tv[self.view[chunk.a : chunk.b]]
         return Y, Y + t
 
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -230,13 +248,14 @@ class Problem:
         f = np.empty(2 * len(X))
         Xc = np.empty((len(X), 3))
         for c in self.chunks:
-            Xc[c.a: c.b] = self._camera_points(X, R, tv, c)[1]
-            f[2 * c.a: 2 * c.b] = (project_pixels(Xc[c.a: c.b], p, self.pinhole) - self.uv[c.a: c.b]).ravel()
+            Xc[c.a : c.b] = self._camera_points(X, R, tv, c)[1]
+            f[2 * c.a : 2 * c.b] = (project_pixels(Xc[c.a : c.b], p, self.pinhole) - self.uv[c.a : c.b]).ravel()
         self._residuals_x, self._residuals = key, (f, Xc)
         return f, Xc
 
-    def _jacobian_chunks(self, x: np.ndarray, f: np.ndarray, Xc: np.ndarray
-                         ) -> Iterator[tuple[Chunk, np.ndarray, np.ndarray]]:
+    def _jacobian_chunks(
+        self, x: np.ndarray, f: np.ndarray, Xc: np.ndarray
+    ) -> Iterator[tuple[Chunk, np.ndarray, np.ndarray]]:
         """Per chunk ``(chunk, J_global (n, 2, ng), J_pose (n, 2, 6))``: the Jacobian rows of its n observations, the
         global columns and their own view's 6 pose columns (rvec, tvec); fills the residuals ``f`` (2N,) and camera
         points ``Xc`` (N, 3) as it goes. Only one chunk's Jacobian exists at a time."""
@@ -244,18 +263,18 @@ class Problem:
         Jl = left_jacobian(rv)
         ng, nf = self.ng, self.nf
         for c in self.chunks:
-            Y, Xc[c.a: c.b] = self._camera_points(X, R, tv, c)
-            uv, Ji, dP = project_camera_jacobian(Xc[c.a: c.b], p, self.lens)
-            f[2 * c.a: 2 * c.b] = (uv - self.uv[c.a: c.b]).ravel()
+            Y, Xc[c.a : c.b] = self._camera_points(X, R, tv, c)
+            uv, Ji, dP = project_camera_jacobian(Xc[c.a : c.b], p, self.lens)
+            f[2 * c.a : 2 * c.b] = (uv - self.uv[c.a : c.b]).ravel()
             if self.board is None:
                 Jg = Ji if self.T_is_identity else Ji @ self.T
             else:
                 Jg = np.empty((len(uv), 2, ng))
                 Jg[:, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
                 # d uv / d X_board = (d uv / d Xc) R
-                Jb = self._times_view_matrix(dP, R, c)                              # (n, 2, 3)
+                Jb = self._times_view_matrix(dP, R, c)  # (n, 2, 3)
                 Jg[:, :, nf:] = 0.0
-                cols = self.board_cols[c.a: c.b]
+                cols = self.board_cols[c.a : c.b]
                 rows, coords = np.nonzero(cols >= 0)
                 Jg[rows, :, cols[rows, coords]] = Jb[rows, :, coords]
             Jp = np.empty((len(uv), 2, 6))
@@ -286,13 +305,14 @@ class Problem:
         A, gi = np.zeros((ng, ng)), np.zeros(ng)
         B, D, gp = np.empty((V, ng, 6)), np.empty((V, 6, 6)), np.empty((V, 6))
         for c, Jg, Jp in self._jacobian_chunks(x, f, Xc):
-            fc = f[2 * c.a: 2 * c.b]
+            fc = f[2 * c.a : 2 * c.b]
             Jg2 = Jg.reshape(-1, ng)
             A += Jg2.T @ Jg2
             gi += Jg2.T @ fc
             for views, rows in c.groups:
-                Gv, Pv, Fv = ((Jg, Jp, fc.reshape(-1, 2)) if rows is None
-                              else (Jg[rows], Jp[rows], fc.reshape(-1, 2)[rows]))
+                Gv, Pv, Fv = (
+                    (Jg, Jp, fc.reshape(-1, 2)) if rows is None else (Jg[rows], Jp[rows], fc.reshape(-1, 2)[rows])
+                )
                 k = len(views)
                 Gv, Pv = Gv.reshape(k, -1, ng), Pv.reshape(k, -1, 6)
                 Pt = np.transpose(Pv, (0, 2, 1))
@@ -311,7 +331,7 @@ class Problem:
         f, Xc = np.empty(2 * N), np.empty((N, 3))
         Jg, Jp = np.empty((N, 2, self.ng)), np.empty((N, 2, 6))
         for c, Jgc, Jpc in self._jacobian_chunks(x, f, Xc):
-            Jg[c.a: c.b], Jp[c.a: c.b] = Jgc, Jpc
+            Jg[c.a : c.b], Jp[c.a : c.b] = Jgc, Jpc
         return f, Xc, Jg, Jp
 
     def fun(self, x: np.ndarray) -> np.ndarray:

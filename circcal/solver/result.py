@@ -1,5 +1,6 @@
 """What a calibration returns: :class:`CalibrationResult`, the camera with its uncertainty, poses, residuals and
 fit statistics, and its sections of model.json."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -106,11 +107,18 @@ class CalibrationResult:
             "n_iterations": int(self.n_iterations),
             "converged": bool(self.converged),
             "views": views,
-            **({} if self.board_points is None else {"board_refinement": {
-                "gauge": [int(i) for i in self.board_gauge],
-                "nominal_mm": np.round(self.board_nominal, 9).tolist(),
-                "points_mm": self.board_points.tolist(),
-                "std_mm": self.board_std.tolist()}}),
+            **(
+                {}
+                if self.board_points is None
+                else {
+                    "board_refinement": {
+                        "gauge": [int(i) for i in self.board_gauge],
+                        "nominal_mm": np.round(self.board_nominal, 9).tolist(),
+                        "points_mm": self.board_points.tolist(),
+                        "std_mm": self.board_std.tolist(),
+                    }
+                }
+            ),
         }
 
     def to_model_json(self) -> dict[str, Any]:

@@ -17,6 +17,7 @@ infinity only the rotations enter (mrcal's rotation-only path). Poses follow :mo
 The standard deviation reported is mrcal's default, the worst direction: the square root of the larger eigenvalue of
 the 2x2 covariance (:func:`worst_direction_stdev`).
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -31,25 +32,38 @@ from circcal.solver.covariance import StateCovariance
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.result import CalibrationResult
 
-__all__ = ["projection_state_jacobian", "projection_covariance", "worst_direction_stdev", "projection_stdev",
-           "result_projection_stdev", "mean_frames_reprojection"]
+__all__ = [
+    "projection_state_jacobian",
+    "projection_covariance",
+    "worst_direction_stdev",
+    "projection_stdev",
+    "result_projection_stdev",
+    "mean_frames_reprojection",
+]
 
 
-def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, cov: StateCovariance,
-                              uv: np.ndarray, *, distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def projection_state_jacobian(
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+    cov: StateCovariance,
+    uv: np.ndarray,
+    *,
+    distance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """``G = d q^+ / d b`` of the mean-frames reprojection of pixels ``uv`` (N, 2) px, split as the state is:
     ``(G_global (N, 2, ng), G_pose (N, 2, V, 6))``, with respect to the free intrinsics (board coordinates do not
     enter: zero columns) and every pose (rvec rad, tvec mm). ``distance``: mm along each pixel's ray (None: at
     infinity, rotations only). Pixels whose ray cannot be unprojected (beyond the lens's fold) give NaN rows."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    rays = unproject(uv, camera)                                  # (N, 3), z = 1 (fisheye: unit rays)
+    rays = unproject(uv, camera)  # (N, 3), z = 1 (fisheye: unit rays)
     if distance is None:
-        p = rays                                                                    # a direction
+        p = rays  # a direction
     else:
         if not (np.isfinite(distance) and distance > 0):
             raise InputError(f"distance must be a positive number of mm (or None: infinity), got {distance!r}")
         p = rays / np.linalg.norm(rays, axis=1, keepdims=True) * float(distance)
-    _, J_intr, J_p = project_camera_jacobian(p, camera.intrinsics, camera.lens)     # (N,2,4+nd), (N,2,3)
+    _, J_intr, J_p = project_camera_jacobian(p, camera.intrinsics, camera.lens)  # (N,2,4+nd), (N,2,3)
     rv = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
     tv = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
     V = len(rv)
@@ -59,7 +73,7 @@ def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarr
     G_global = np.zeros((len(uv), 2, cov.n_global))
     G_global[:, :, :nf] = J_intr @ cov.intrinsics_map
     G_pose = np.zeros((len(uv), 2, V, 6))
-    Jl = left_jacobian(rv)                                                           # (V, 3, 3)
+    Jl = left_jacobian(rv)  # (V, 3, 3)
     for v in range(V):
         # p_ref_v = R_v p_frame_v + t_v with p_frame_v fixed: d/d rvec = -[R_v p_frame_v]x J_l, d/d t = I; the
         # rotated point R_v p_frame_v is p - t_v (a direction at infinity: p itself)
@@ -70,9 +84,16 @@ def projection_state_jacobian(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarr
     return G_global, G_pose
 
 
-def projection_covariance(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, cov: StateCovariance,
-                          uv: np.ndarray, *, distance: float | None = None, sigma_px: float | None = None
-                          ) -> np.ndarray:
+def projection_covariance(
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+    cov: StateCovariance,
+    uv: np.ndarray,
+    *,
+    distance: float | None = None,
+    sigma_px: float | None = None,
+) -> np.ndarray:
     """First-order covariance (N, 2, 2) px^2 of the projection of pixels ``uv`` (N, 2) (see the module):
     ``sigma^2 G C G^T`` with ``C`` the unit covariance of the whole state (:meth:`StateCovariance.quadratic`).
     ``sigma_px``: the per-coordinate observation noise (default: the solve's estimate ``cov.sigma_px``)."""
@@ -88,31 +109,50 @@ def worst_direction_stdev(cov2: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum((a + c) / 2 + np.sqrt((a - c) ** 2 / 4 + b * b), 0.0))
 
 
-def projection_stdev(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, cov: StateCovariance, uv: np.ndarray,
-                     *, distance: float | None = None, sigma_px: float | None = None) -> np.ndarray:
+def projection_stdev(
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+    cov: StateCovariance,
+    uv: np.ndarray,
+    *,
+    distance: float | None = None,
+    sigma_px: float | None = None,
+) -> np.ndarray:
     """Worst-direction standard deviation (N,) px of the projection of ``uv`` (N, 2) px (:func:`projection_covariance`
     then :func:`worst_direction_stdev`); NaN where a ray cannot be unprojected."""
-    return worst_direction_stdev(projection_covariance(camera, rvecs, tvecs, cov, uv, distance=distance,
-                                                       sigma_px=sigma_px))
+    return worst_direction_stdev(
+        projection_covariance(camera, rvecs, tvecs, cov, uv, distance=distance, sigma_px=sigma_px)
+    )
 
 
-def result_projection_stdev(result: CalibrationResult, uv: np.ndarray, *, distance: float | None = None,
-                            sigma_px: float | None = None) -> np.ndarray:
+def result_projection_stdev(
+    result: CalibrationResult, uv: np.ndarray, *, distance: float | None = None, sigma_px: float | None = None
+) -> np.ndarray:
     """:func:`projection_stdev` of a :class:`~circcal.solver.CalibrationResult` (its camera, poses and state
     covariance). Raises :class:`~circcal.errors.CalibrationError` when the solve has no finite covariance."""
     from circcal.errors import CalibrationError
 
     if result.covariance is None:
-        raise CalibrationError("this calibration has no finite covariance (its information matrix was singular): "
-                               "no projection uncertainty")
-    return projection_stdev(result.camera, result.rvecs, result.tvecs, result.covariance, uv, distance=distance,
-                            sigma_px=sigma_px)
+        raise CalibrationError(
+            "this calibration has no finite covariance (its information matrix was singular): no projection uncertainty"
+        )
+    return projection_stdev(
+        result.camera, result.rvecs, result.tvecs, result.covariance, uv, distance=distance, sigma_px=sigma_px
+    )
 
 
-
-def mean_frames_reprojection(camera0: Camera, rvecs0: np.ndarray, tvecs0: np.ndarray, camera1: Camera,
-                             rvecs1: np.ndarray, tvecs1: np.ndarray, uv: np.ndarray, *,
-                             distance: float | None = None) -> np.ndarray:
+def mean_frames_reprojection(
+    camera0: Camera,
+    rvecs0: np.ndarray,
+    tvecs0: np.ndarray,
+    camera1: Camera,
+    rvecs1: np.ndarray,
+    tvecs1: np.ndarray,
+    uv: np.ndarray,
+    *,
+    distance: float | None = None,
+) -> np.ndarray:
     """The quantity whose spread :func:`projection_covariance` predicts, exactly (not linearised): pixels ``uv``
     (N, 2) unprojected with solve 0 (``camera0``, poses ``rvecs0``/``tvecs0`` (V, 3)) to ``distance`` mm (None: a
     direction), carried into each view's board frame with solve 0's pose, back out with solve 1's pose, averaged
@@ -128,7 +168,7 @@ def mean_frames_reprojection(camera0: Camera, rvecs0: np.ndarray, tvecs0: np.nda
     acc = np.zeros_like(p)
     for v in range(len(R0)):
         if distance is None:
-            acc += (p @ R0[v]) @ R1[v].T                       # R1 R0^T p: directions ignore translation
+            acc += (p @ R0[v]) @ R1[v].T  # R1 R0^T p: directions ignore translation
         else:
             acc += ((p - t0[v]) @ R0[v]) @ R1[v].T + t1[v]
     return project_camera(acc / len(R0), camera1)

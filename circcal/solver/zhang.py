@@ -18,6 +18,7 @@ board ``H`` has no perspective part and the constraints say nothing about ``f``.
 :class:`DegenerateViewsError` (naming the near-fronto-parallel views) when no positive-definite conic fits; a conic
 that fits but is poorly determined is caught after the refinement, from its covariance.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -116,7 +117,7 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
     for n in np.unique(counts):
         same = np.flatnonzero(counts == n)
         step = max(1, HOMOGRAPHY_CHUNK // int(n))
-        for idx in (same[i: i + step] for i in range(0, len(same), step)):
+        for idx in (same[i : i + step] for i in range(0, len(same), step)):
             H[idx] = _homographies_same_size(np.stack([src[i] for i in idx]), np.stack([dst[i] for i in idx]))
     if not np.all(np.isfinite(H)):
         raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
@@ -211,8 +212,7 @@ def intrinsics_from_homographies(
     return K / K[2, 2], condition
 
 
-def poses_from_homographies(Hs: np.ndarray, K: np.ndarray, *, signed: bool = False
-                            ) -> tuple[np.ndarray, np.ndarray]:
+def poses_from_homographies(Hs: np.ndarray, K: np.ndarray, *, signed: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Board poses from homographies ``Hs`` (V, 3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
 
     ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in
@@ -266,8 +266,9 @@ def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.
 
 def _rms(object_points, image_points, camera, rvecs, tvecs) -> float:
     """RMS reprojection error per coordinate (px); inf when a point does not project."""
-    r = np.concatenate([project(o, rv, tv, camera) - p for o, p, rv, tv in
-                        zip(object_points, image_points, rvecs, tvecs)])
+    r = np.concatenate(
+        [project(o, rv, tv, camera) - p for o, p, rv, tv in zip(object_points, image_points, rvecs, tvecs)]
+    )
     return error_stats(r)["rms_per_coord_px"] if np.all(np.isfinite(r)) else float("inf")
 
 
@@ -321,8 +322,15 @@ def zhang(
             if best is None:
                 raise
             break
-        cam = Camera(int(w), int(h), res.camera.fx, res.camera.fy, res.camera.cx, res.camera.cy,
-                     np.array([k[0], k[1], 0.0, 0.0, 0.0]))
+        cam = Camera(
+            int(w),
+            int(h),
+            res.camera.fx,
+            res.camera.fy,
+            res.camera.cx,
+            res.camera.cy,
+            np.array([k[0], k[1], 0.0, 0.0, 0.0]),
+        )
         res = ZhangResult(cam, res.rvecs, res.tvecs, res.homographies, res.condition, res.principal_point_fixed)
         if distortion_rounds == 0:
             return res
@@ -347,8 +355,12 @@ def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_d
     condition = float("inf")
     if not pp_fixed and len(Hs) >= 2:
         K, condition = intrinsics_from_homographies(Hs, image_size, aspect_ratio=aspect_ratio)
-        ok = (np.all(np.isfinite(K)) and -0.5 <= K[0, 2] <= w - 0.5 and -0.5 <= K[1, 2] <= h - 0.5
-              and 0.2 < K[0, 0] / K[1, 1] < 5.0)
+        ok = (
+            np.all(np.isfinite(K))
+            and -0.5 <= K[0, 2] <= w - 0.5
+            and -0.5 <= K[1, 2] <= h - 0.5
+            and 0.2 < K[0, 0] / K[1, 1] < 5.0
+        )
         if not ok:
             K = None
     if K is None:
@@ -362,15 +374,22 @@ def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_d
         flat = [int(i) for i in np.flatnonzero(tilts < min_tilt_deg)]
         if flat:
             listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat)
-            hint = (f"Views nearly fronto-parallel (tilt < {min_tilt_deg:g} deg, measured with a nominal "
-                    f"f = {f_guess:.0f} px): {listing}. Add views with the board tilted 20-50 deg about different "
-                    f"axes.")
+            hint = (
+                f"Views nearly fronto-parallel (tilt < {min_tilt_deg:g} deg, measured with a nominal "
+                f"f = {f_guess:.0f} px): {listing}. Add views with the board tilted 20-50 deg about different "
+                f"axes."
+            )
         else:
-            hint = ("No view is nearly fronto-parallel, so the homographies are inconsistent with any pinhole "
-                    "camera: check the point correspondences (board order, rows/cols) and the object points.")
+            hint = (
+                "No view is nearly fronto-parallel, so the homographies are inconsistent with any pinhole "
+                "camera: check the point correspondences (board order, rows/cols) and the object points."
+            )
         raise DegenerateViewsError(
             f"focal length is not observable from these {len(Hs)} views: the image of the absolute conic is not "
-            f"positive definite (condition number {condition:.3g}). {hint}", flat, condition)
+            f"positive definite (condition number {condition:.3g}). {hint}",
+            flat,
+            condition,
+        )
     rvecs, tvecs = poses_from_homographies(Hs, K)
     camera = Camera(int(w), int(h), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), np.zeros(5))
     return ZhangResult(camera, rvecs, tvecs, Hs, condition, pp_fixed)

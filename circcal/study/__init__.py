@@ -9,6 +9,7 @@ what a worker computes (:mod:`~circcal.study.execute`, :mod:`~circcal.study.batc
 (:mod:`~circcal.study.stats`), the summary (:mod:`~circcal.study.summary`), its cells (:mod:`~circcal.study.cells`)
 and its figures (:mod:`~circcal.study.figures`).
 """
+
 from circcal.study.engine import StudyRun, run_study
 from circcal.study.spec import StudySpec, load_spec, parse_spec
 from circcal.study.store import RowStore

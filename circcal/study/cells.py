@@ -5,6 +5,7 @@ the other back.
 A *cell* is (kind, scenario, variant, calibrator, lens model): the rows that differ only by seed; what its numbers
 mean: :mod:`circcal.study.summary`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -59,6 +60,7 @@ class CellSummary:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CellSummary:
         """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists)."""
+
         def params(v: dict[str, Any]) -> ParamSummary:
             return ParamSummary(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})
 
@@ -69,4 +71,5 @@ class CellSummary:
     def label(self) -> str:
         """The cell's name in tables and figures: scenario/variant/calibrator, and the lens model unless opencv5."""
         return f"{self.scenario}/{self.variant}/{self.calibrator}" + (
-            "" if self.lens_model == "opencv5" else f"/{self.lens_model}")
+            "" if self.lens_model == "opencv5" else f"/{self.lens_model}"
+        )

@@ -10,6 +10,7 @@ Embedded: ``LocalCluster(n_workers=N, threads_per_worker=1, processes=True)``, N
 Its workers start with one BLAS/OpenMP thread each (Dask's ``distributed.nanny.pre-spawn-environ``), as
 ``dask worker`` processes do on a cluster, so both give the same rows.
 """
+
 from __future__ import annotations
 
 import logging
@@ -89,8 +90,12 @@ def _client(scheduler: str | None, workers: int | None, client: Any = None) -> I
         return
     n = workers or os.cpu_count() or 1
     # dashboard_address ":0": its HTTP server (health, metrics) on a free port, so two studies on one machine coexist
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with (
+        LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.ERROR
+        ) as cluster,
+        Client(cluster) as client,
+    ):
         yield client
 
 
@@ -107,9 +112,17 @@ def _pending(spec: StudySpec, done: set[str]) -> list[Task]:
     return out
 
 
-def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              progress: bool = True, flush_rows: int = FLUSH_ROWS, flush_s: float = FLUSH_S,
-              client: Any = None) -> StudyRun:
+def run_study(
+    spec: StudySpec,
+    folder: str | Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    flush_rows: int = FLUSH_ROWS,
+    flush_s: float = FLUSH_S,
+    client: Any = None,
+) -> StudyRun:
     """Run every missing run of ``spec`` and store its row under ``folder`` (see the module docstring).
 
     ``scheduler``: a Dask scheduler address (``tcp://host:8786``); None starts an embedded cluster of ``workers``
@@ -151,8 +164,13 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
         t0 = time.perf_counter()
         futures = dask_client.map(execute, tasks, key=[t.key for t in tasks])
         by_key = {t.key: t for t in tasks}
-        bar = tqdm(total=sum(len(t.runs) for t in tasks), unit="run", desc=f"study {spec.name}",
-                   disable=not progress, smoothing=0.05)
+        bar = tqdm(
+            total=sum(len(t.runs) for t in tasks),
+            unit="run",
+            desc=f"study {spec.name}",
+            disable=not progress,
+            smoothing=0.05,
+        )
         try:
             for fut in as_completed(futures):
                 if fut.status == "finished":
@@ -165,8 +183,10 @@ def run_study(spec: StudySpec, folder: str | Path, *, scheduler: str | None = No
                     if fut.status == "error":
                         exc = fut.exception()
                         why = f"{type(exc).__name__}: {exc}"
-                    out.errors.append(f"task {fut.key} ({len(task.runs)} runs, cell {task.cell.index}, "
-                                      f"{task.cell.scenario} seed {task.runs[0].seed}): {why}")
+                    out.errors.append(
+                        f"task {fut.key} ({len(task.runs)} runs, cell {task.cell.index}, "
+                        f"{task.cell.scenario} seed {task.runs[0].seed}): {why}"
+                    )
                 fut.release()
                 if len(buffer) >= flush_rows or (buffer and time.perf_counter() - last_write >= flush_s):
                     flush()

@@ -11,6 +11,7 @@
 A calibrator failing on its input is a row (status "failed"/"unsupported" with the message); an exception no input
 should cause propagates (the task fails, Dask reports it, its runs stay missing and a rerun retries them).
 """
+
 from __future__ import annotations
 
 import json
@@ -61,16 +62,29 @@ def _reference_row(run: Run, study: str, res: Any, truth: Any, **kw: Any) -> dic
     ok = res.status == "ok"
     n_points = int(sum(len(p) for p in res.image_points)) if ok and res.image_points is not None else -1
     n_views = len(res.image_points) if ok and res.image_points is not None else -1
-    return make_row(run, study, status=res.status, message=res.message or "", truth=truth,
-                    camera=res.camera if ok else None, std=res.std if ok else None, errors=res.errors if ok else None,
-                    n_views=n_views, n_points=n_points, time_s=float(res.time_s),
-                    device=str(res.extra.get("device", "")), batch_size=int(res.extra.get("batch_size", 1)),
-                    calibrator_version=str(res.version), **kw)
+    return make_row(
+        run,
+        study,
+        status=res.status,
+        message=res.message or "",
+        truth=truth,
+        camera=res.camera if ok else None,
+        std=res.std if ok else None,
+        errors=res.errors if ok else None,
+        n_views=n_views,
+        n_points=n_points,
+        time_s=float(res.time_s),
+        device=str(res.extra.get("device", "")),
+        batch_size=int(res.extra.get("batch_size", 1)),
+        calibrator_version=str(res.version),
+        **kw,
+    )
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # images: the full pipeline on a seeded render
 # ----------------------------------------------------------------------------------------------------------------
+
 
 def _images(task: Task) -> list[dict[str, Any]]:
     import circcal
@@ -93,8 +107,9 @@ def _images(task: Task) -> list[dict[str, Any]]:
                 kw = {"images_total": len(own.paths), "fixture_s": fixture_s}
                 why = _unsupported_lens(run)
                 if why is not None:
-                    rows[run.key] = make_row(run, task.study, status="unsupported", message=why, truth=truth.camera,
-                                             **kw)
+                    rows[run.key] = make_row(
+                        run, task.study, status="unsupported", message=why, truth=truth.camera, **kw
+                    )
                 elif run.calibrator.name == CIRCCAL:
                     rows[run.key] = own.row(run, task.study, circcal.__version__, **kw)
                 elif run.calibrator.observations == "circcal":
@@ -136,21 +151,48 @@ class _CirccalImages:
     def row(self, run: Run, study: str, version: str, **kw: Any) -> dict[str, Any]:
         self._run()
         if self.cal is None:
-            return make_row(run, study, status="failed", message=self.error, truth=self.truth.camera,
-                            time_s=self.time_s, calibrator_version=version, **kw)
+            return make_row(
+                run,
+                study,
+                status="failed",
+                message=self.error,
+                truth=self.truth.camera,
+                time_s=self.time_s,
+                calibrator_version=version,
+                **kw,
+            )
         res = self.cal.result
         n_points = int(sum(int(np.all(np.isfinite(c), axis=1).sum()) for c in self.cal.centres))
-        return make_row(run, study, status="ok", truth=self.truth.camera, camera=res.camera, std=res.std,
-                        errors=res.errors, n_views=len(self.cal.used), n_points=n_points,
-                        images_used=len(self.cal.used), time_s=self.time_s, calibrator_version=version, **kw)
+        return make_row(
+            run,
+            study,
+            status="ok",
+            truth=self.truth.camera,
+            camera=res.camera,
+            std=res.std,
+            errors=res.errors,
+            n_views=len(self.cal.used),
+            n_points=n_points,
+            images_used=len(self.cal.used),
+            time_s=self.time_s,
+            calibrator_version=version,
+            **kw,
+        )
 
     def reference_on_centres(self, run: Run, study: str, ref: Any, **kw: Any) -> dict[str, Any]:
         from circcal.validators.shared import share
 
         self._run()
         if self.cal is None:
-            return make_row(run, study, status="failed", truth=self.truth.camera, calibrator_version=ref.version,
-                            message=f"no observations: circcal did not calibrate ({self.error})", **kw)
+            return make_row(
+                run,
+                study,
+                status="failed",
+                truth=self.truth.camera,
+                calibrator_version=ref.version,
+                message=f"no observations: circcal did not calibrate ({self.error})",
+                **kw,
+            )
         if self._shared is None:
             self._shared = share(self.cal, self.truth.board)
         s = self._shared
@@ -178,8 +220,7 @@ def _views(cell: CellSpec) -> tuple[Any, list[np.ndarray], list[np.ndarray]]:
     if cell.geometry is not None:
         g = cell.geometry
         cam, board = Camera.from_dict(g.camera), Board.from_dict(g.board)
-        poses = sample_poses(cam, board, g.views, g.pose_seed, max_tilt_deg=g.max_tilt_deg,
-                             min_tilt_deg=g.min_tilt_deg)
+        poses = sample_poses(cam, board, g.views, g.pose_seed, max_tilt_deg=g.max_tilt_deg, min_tilt_deg=g.min_tilt_deg)
     else:
         sc = get_scenario(cell.scenario)
         cam, board, poses = sc.camera, sc.board, sc.poses()
@@ -221,13 +262,32 @@ def _observations(task: Task) -> list[dict[str, Any]]:
             try:
                 res = calibrate(obj, img, size)
             except InputError as exc:
-                rows.append(make_row(run, task.study, status="failed", message=f"{type(exc).__name__}: {exc}",
-                                     time_s=time.perf_counter() - t0, calibrator_version=circcal.__version__,
-                                     truth=cam))
+                rows.append(
+                    make_row(
+                        run,
+                        task.study,
+                        status="failed",
+                        message=f"{type(exc).__name__}: {exc}",
+                        time_s=time.perf_counter() - t0,
+                        calibrator_version=circcal.__version__,
+                        truth=cam,
+                    )
+                )
                 continue
             dt = time.perf_counter() - t0
-            rows.append(make_row(run, task.study, status="ok", camera=res.camera, std=res.std, errors=res.errors,
-                                 time_s=dt, calibrator_version=circcal.__version__, **kw))
+            rows.append(
+                make_row(
+                    run,
+                    task.study,
+                    status="ok",
+                    camera=res.camera,
+                    std=res.std,
+                    errors=res.errors,
+                    time_s=dt,
+                    calibrator_version=circcal.__version__,
+                    **kw,
+                )
+            )
         return rows
     if cal.name == KORNIA and cal.plugin is None:
         results = solve_batch(obj, draws, size, device=cell.device, mode=cal.mode)

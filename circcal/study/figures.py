@@ -5,6 +5,7 @@ global state: safe in workers, threads and tests).
 * ``bias.png``: mean error / mean stated sigma per cell and parameter, with its interval (0 = unbiased);
 * ``pass_rate.png``: the truth-check pass rate per cell with Wilson's interval, beside what an honest estimator gets.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -31,8 +32,9 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def _per_param(cells: Sequence[CellSummary], value: str, interval: str, ref: float, xlabel: str, title: str,
-               path: Path) -> Path:
+def _per_param(
+    cells: Sequence[CellSummary], value: str, interval: str, ref: float, xlabel: str, title: str, path: Path
+) -> Path:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(WIDTH_IN, BASE_IN + ROW_IN * len(cells) * 1.2))
@@ -84,10 +86,22 @@ def draw_figures(cells: Sequence[CellSummary], folder: str | Path) -> dict[str, 
     folder.mkdir(parents=True, exist_ok=True)
     return {
         "Sigma honesty (empirical / stated, 95 % interval)": _per_param(
-            cells, "ratio", "ratio_ci", 1.0, "empirical spread / mean stated sigma",
-            "sigma honesty per cell (1 = honest)", folder / "ratio.png"),
+            cells,
+            "ratio",
+            "ratio_ci",
+            1.0,
+            "empirical spread / mean stated sigma",
+            "sigma honesty per cell (1 = honest)",
+            folder / "ratio.png",
+        ),
         "Bias in stated sigmas (95 % interval)": _per_param(
-            cells, "bias_sigmas", "bias_sigmas_ci", 0.0, "mean error / mean stated sigma",
-            "bias per cell (0 = unbiased)", folder / "bias.png"),
+            cells,
+            "bias_sigmas",
+            "bias_sigmas_ci",
+            0.0,
+            "mean error / mean stated sigma",
+            "bias per cell (0 = unbiased)",
+            folder / "bias.png",
+        ),
         "Truth-check pass rate (Wilson 95 % interval)": _pass_rate(cells, folder / "pass_rate.png"),
     }

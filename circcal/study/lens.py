@@ -5,6 +5,7 @@ Today one model exists, OpenCV's pinhole with 5 distortion coefficients ``[k1, k
 spec, its run keys and its rows already carry the model: when another model is added here, old rows keep their keys
 and a spec that names the new model gets rows of its own.
 """
+
 from __future__ import annotations
 
 from circcal.errors import InputError

@@ -10,6 +10,7 @@ and every calibrator runs on it); an observations cell gets tasks of ``batch`` s
 lens model) (a solve takes milliseconds: one run per task would be mostly scheduling; a kornia task is one batched
 solve).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -81,8 +82,13 @@ def geometry_identity(cell: CellSpec) -> dict[str, Any]:
 
 
 def _base(cell: CellSpec, cal: CalibratorSpec, lens: str) -> dict[str, Any]:
-    return {"row": ROW_VERSION, "circcal": circcal.__version__, "kind": cell.kind, "calibrator": cal.identity(),
-            "lens_model": lens}
+    return {
+        "row": ROW_VERSION,
+        "circcal": circcal.__version__,
+        "kind": cell.kind,
+        "calibrator": cal.identity(),
+        "lens_model": lens,
+    }
 
 
 def _image_tasks(study: StudySpec, cell: CellSpec) -> Iterable[Task]:
@@ -95,8 +101,9 @@ def _image_tasks(study: StudySpec, cell: CellSpec) -> Iterable[Task]:
             fixture = sc.key(variant)
             for cal in cell.calibrators:
                 for lens in cell.lens_models:
-                    key = _hash({**_base(cell, cal, lens), "fixture": fixture, "scenario": cell.scenario,
-                                 "variant": variant})
+                    key = _hash(
+                        {**_base(cell, cal, lens), "fixture": fixture, "scenario": cell.scenario, "variant": variant}
+                    )
                     runs.append(Run(key, cell.index, cell.kind, cell.scenario, variant, seed, cal, lens, cell.vary))
         yield Task(study.name, cell, tuple(runs), study.cache)
 
@@ -107,10 +114,22 @@ def _observation_tasks(study: StudySpec, cell: CellSpec) -> Iterable[Task]:
         for cal in cell.calibrators:
             for lens in cell.lens_models:
                 base = {**_base(cell, cal, lens), "geometry": geometry, "noise_px": sigma}
-                runs = [Run(_hash({**base, "seed": s}), cell.index, cell.kind, cell.scenario, variant, s, cal, lens,
-                            noise_px=sigma) for s in cell.seeds]
+                runs = [
+                    Run(
+                        _hash({**base, "seed": s}),
+                        cell.index,
+                        cell.kind,
+                        cell.scenario,
+                        variant,
+                        s,
+                        cal,
+                        lens,
+                        noise_px=sigma,
+                    )
+                    for s in cell.seeds
+                ]
                 for i in range(0, len(runs), cell.batch):
-                    yield Task(study.name, cell, tuple(runs[i:i + cell.batch]), study.cache)
+                    yield Task(study.name, cell, tuple(runs[i : i + cell.batch]), study.cache)
 
 
 def plan(study: StudySpec) -> list[Task]:

@@ -11,6 +11,7 @@ size); ``fixture_s``: the time to render the fixture the run used (shared by the
 ``vary: noise`` seed's render starts from the views' noise-free render kept by the worker,
 :func:`circcal.study.seeded.geometry`, so it is the noise and the files; 0 for observations runs). Missing numbers are NaN, missing counts -1, so every column keeps one type.
 """
+
 from __future__ import annotations
 
 import json
@@ -31,16 +32,42 @@ _NAN = float("nan")
 
 #: (name, type) of every column; types: "str", "int", "float".
 COLUMNS: tuple[tuple[str, str], ...] = (
-    ("key", "str"), ("study", "str"), ("cell", "int"), ("kind", "str"), ("scenario", "str"), ("variant", "str"),
-    ("vary", "str"), ("noise_px", "float"), ("seed", "int"), ("calibrator", "str"), ("calibrator_name", "str"),
-    ("mode", "str"), ("observations", "str"), ("lens_model", "str"), ("status", "str"), ("message", "str"),
-    ("n_views", "int"), ("n_points", "int"), ("images_total", "int"), ("images_used", "int"),
-    *((f"true_{p}", "float") for p in PARAM_NAMES), *((f"est_{p}", "float") for p in PARAM_NAMES),
-    *((f"err_{p}", "float") for p in PARAM_NAMES), *((f"std_{p}", "float") for p in PARAM_NAMES),
-    ("truth_rms_px", "float"), ("truth_max_px", "float"),
-    ("rms_per_point_px", "float"), ("rms_per_coord_px", "float"), ("mean_2d_px", "float"),
-    ("time_s", "float"), ("fixture_s", "float"), ("device", "str"), ("batch_size", "int"),
-    ("circcal_version", "str"), ("calibrator_version", "str"), ("versions", "str"),
+    ("key", "str"),
+    ("study", "str"),
+    ("cell", "int"),
+    ("kind", "str"),
+    ("scenario", "str"),
+    ("variant", "str"),
+    ("vary", "str"),
+    ("noise_px", "float"),
+    ("seed", "int"),
+    ("calibrator", "str"),
+    ("calibrator_name", "str"),
+    ("mode", "str"),
+    ("observations", "str"),
+    ("lens_model", "str"),
+    ("status", "str"),
+    ("message", "str"),
+    ("n_views", "int"),
+    ("n_points", "int"),
+    ("images_total", "int"),
+    ("images_used", "int"),
+    *((f"true_{p}", "float") for p in PARAM_NAMES),
+    *((f"est_{p}", "float") for p in PARAM_NAMES),
+    *((f"err_{p}", "float") for p in PARAM_NAMES),
+    *((f"std_{p}", "float") for p in PARAM_NAMES),
+    ("truth_rms_px", "float"),
+    ("truth_max_px", "float"),
+    ("rms_per_point_px", "float"),
+    ("rms_per_coord_px", "float"),
+    ("mean_2d_px", "float"),
+    ("time_s", "float"),
+    ("fixture_s", "float"),
+    ("device", "str"),
+    ("batch_size", "int"),
+    ("circcal_version", "str"),
+    ("calibrator_version", "str"),
+    ("versions", "str"),
 )
 #: Columns that measure time: they differ between two executions of the same run, every other column does not.
 TIME_COLUMNS = ("time_s", "fixture_s")
@@ -61,28 +88,69 @@ def versions() -> str:
 
     import circcal
 
-    return json.dumps({"circcal": circcal.__version__, "python": platform.python_version(),
-                       "numpy": np.__version__, "opencv": cv2.__version__}, sort_keys=True)
+    return json.dumps(
+        {
+            "circcal": circcal.__version__,
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "opencv": cv2.__version__,
+        },
+        sort_keys=True,
+    )
 
 
-def make_row(run: Any, study: str, *, status: str, message: str = "", truth: Camera, camera: Camera | None = None,
-             std: dict[str, float] | None = None, errors: dict[str, float] | None = None, n_views: int = -1,
-             n_points: int = -1, images_total: int = -1, images_used: int = -1, time_s: float = _NAN,
-             fixture_s: float = 0.0, device: str = "", batch_size: int = 1, calibrator_version: str = ""
-             ) -> dict[str, Any]:
+def make_row(
+    run: Any,
+    study: str,
+    *,
+    status: str,
+    message: str = "",
+    truth: Camera,
+    camera: Camera | None = None,
+    std: dict[str, float] | None = None,
+    errors: dict[str, float] | None = None,
+    n_views: int = -1,
+    n_points: int = -1,
+    images_total: int = -1,
+    images_used: int = -1,
+    time_s: float = _NAN,
+    fixture_s: float = 0.0,
+    device: str = "",
+    batch_size: int = 1,
+    calibrator_version: str = "",
+) -> dict[str, Any]:
     """The row of ``run`` (a :class:`circcal.study.plan.Run`): its axes, then what the calibration gave (NaN where
     it gave nothing: a failed or unsupported run keeps its status and message)."""
     import circcal
     from circcal.analysis.compare import projection_diff
 
     row: dict[str, Any] = {
-        "key": run.key, "study": study, "cell": run.cell, "kind": run.kind, "scenario": run.scenario,
-        "variant": run.variant, "vary": run.vary, "noise_px": run.noise_px, "seed": run.seed,
-        "calibrator": run.calibrator.label, "calibrator_name": run.calibrator.name, "mode": run.calibrator.mode,
-        "observations": run.calibrator.observations, "lens_model": run.lens_model, "status": status,
-        "message": message, "n_views": n_views, "n_points": n_points, "images_total": images_total,
-        "images_used": images_used, "time_s": float(time_s), "fixture_s": float(fixture_s), "device": device,
-        "batch_size": batch_size, "circcal_version": circcal.__version__, "calibrator_version": calibrator_version,
+        "key": run.key,
+        "study": study,
+        "cell": run.cell,
+        "kind": run.kind,
+        "scenario": run.scenario,
+        "variant": run.variant,
+        "vary": run.vary,
+        "noise_px": run.noise_px,
+        "seed": run.seed,
+        "calibrator": run.calibrator.label,
+        "calibrator_name": run.calibrator.name,
+        "mode": run.calibrator.mode,
+        "observations": run.calibrator.observations,
+        "lens_model": run.lens_model,
+        "status": status,
+        "message": message,
+        "n_views": n_views,
+        "n_points": n_points,
+        "images_total": images_total,
+        "images_used": images_used,
+        "time_s": float(time_s),
+        "fixture_s": float(fixture_s),
+        "device": device,
+        "batch_size": batch_size,
+        "circcal_version": circcal.__version__,
+        "calibrator_version": calibrator_version,
         "versions": versions(),
     }
     true_p = truth.intrinsics

@@ -18,6 +18,7 @@ images once (:func:`geometry`, an ``lru_cache`` of :data:`GEOMETRY_CACHE_SIZE` g
 as before, so the images are the same bit for bit (tests/test_study_geometry_cache.py); on ``paper`` this is ~80 % of
 a seed's render.
 """
+
 from __future__ import annotations
 
 import dataclasses

@@ -35,6 +35,7 @@ on a cluster: a file path must exist on every worker).
 
 Every problem in a spec is an :class:`~circcal.errors.InputError` naming the cell and the field.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -107,8 +108,14 @@ class Geometry:
     min_tilt_deg: float = 0.0
 
     def identity(self) -> dict[str, Any]:
-        return {"camera": self.camera, "board": self.board, "views": self.views, "pose_seed": self.pose_seed,
-                "max_tilt_deg": self.max_tilt_deg, "min_tilt_deg": self.min_tilt_deg}
+        return {
+            "camera": self.camera,
+            "board": self.board,
+            "views": self.views,
+            "pose_seed": self.pose_seed,
+            "max_tilt_deg": self.max_tilt_deg,
+            "min_tilt_deg": self.min_tilt_deg,
+        }
 
 
 @dataclass(frozen=True)
@@ -245,8 +252,10 @@ def _calibrator(v: Any, where: str, kind: str) -> CalibratorSpec:
         return CalibratorSpec(name, mode, obs, str(plugin))
     name = _require(v, "name", where)
     if name != CIRCCAL and name not in registry.names():
-        raise InputError(f"{where}: unknown calibrator {name!r}; known: {CIRCCAL}, {', '.join(registry.names())} "
-                         "(or {plugin: MODULE:ATTR} for your own)")
+        raise InputError(
+            f"{where}: unknown calibrator {name!r}; known: {CIRCCAL}, {', '.join(registry.names())} "
+            "(or {plugin: MODULE:ATTR} for your own)"
+        )
     if name == CIRCCAL and (mode != "fair" or obs != "own"):
         raise InputError(f"{where}: circcal has one mode (fair) and its own observations")
     if kind == "observations" and obs != "own":
@@ -270,14 +279,30 @@ def _geometry(v: Any, where: str) -> Geometry:
         raise InputError(f"{where}: {exc}") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{where}: {type(exc).__name__}: {exc}") from None
-    return Geometry(str(v.get("name", "geometry")), cam, board, _int(_require(v, "views", where), f"{where}.views",
-                                                                     minimum=3),
-                    _int(v.get("pose_seed", 0), f"{where}.pose_seed", minimum=0),
-                    float(v.get("max_tilt_deg", 50.0)), float(v.get("min_tilt_deg", 0.0)))
+    return Geometry(
+        str(v.get("name", "geometry")),
+        cam,
+        board,
+        _int(_require(v, "views", where), f"{where}.views", minimum=3),
+        _int(v.get("pose_seed", 0), f"{where}.pose_seed", minimum=0),
+        float(v.get("max_tilt_deg", 50.0)),
+        float(v.get("min_tilt_deg", 0.0)),
+    )
 
 
-_CELL_KEYS = {"kind", "scenario", "geometry", "variants", "vary", "seeds", "calibrators", "lens_models", "noise_px",
-              "batch", "device"}
+_CELL_KEYS = {
+    "kind",
+    "scenario",
+    "geometry",
+    "variants",
+    "vary",
+    "seeds",
+    "calibrators",
+    "lens_models",
+    "noise_px",
+    "batch",
+    "device",
+}
 
 
 def _cell(i: int, v: Any) -> CellSpec:
@@ -301,8 +326,9 @@ def _cell(i: int, v: Any) -> CellSpec:
     labels = [c.label for c in calibrators]
     if len(set(labels)) != len(labels):
         raise InputError(f"{where}.calibrators: a calibrator is listed twice ({', '.join(labels)})")
-    lens = tuple(check_lens_model(m) for m in _strings(v.get("lens_models", [DEFAULT_LENS_MODEL]),
-                                                       f"{where}.lens_models"))
+    lens = tuple(
+        check_lens_model(m) for m in _strings(v.get("lens_models", [DEFAULT_LENS_MODEL]), f"{where}.lens_models")
+    )
     if kind == "images":
         for k in ("geometry", "noise_px", "batch", "device"):
             if k in v:
@@ -311,8 +337,10 @@ def _cell(i: int, v: Any) -> CellSpec:
         variants = _strings(v.get("variants", list(sc.variants)), f"{where}.variants")
         for name in variants:
             if name not in sc.variants:
-                raise InputError(f"{where}.variants: scenario {sc.name!r} has no variant {name!r}; variants: "
-                                 f"{', '.join(sc.variants)}")
+                raise InputError(
+                    f"{where}.variants: scenario {sc.name!r} has no variant {name!r}; variants: "
+                    f"{', '.join(sc.variants)}"
+                )
         vary = v.get("vary", "noise")
         if vary not in VARY:
             raise InputError(f"{where}.vary: expected noise or scene, got {vary!r}")
@@ -338,8 +366,19 @@ def _cell(i: int, v: Any) -> CellSpec:
     if device not in DEVICES:
         raise InputError(f"{where}.device: expected auto, cpu or cuda, got {device!r}")
     batch = _int(v.get("batch", DEFAULT_BATCH), f"{where}.batch", minimum=1)
-    return CellSpec(i, kind, scenario, tuple(noise_variant(s) for s in sigmas), seeds, calibrators, lens,
-                    noise_px=sigmas, geometry=geometry, batch=batch, device=device)
+    return CellSpec(
+        i,
+        kind,
+        scenario,
+        tuple(noise_variant(s) for s in sigmas),
+        seeds,
+        calibrators,
+        lens,
+        noise_px=sigmas,
+        geometry=geometry,
+        batch=batch,
+        device=device,
+    )
 
 
 def parse_spec(data: Any, *, source: str = "", default_name: str = "study") -> StudySpec:
@@ -358,8 +397,9 @@ def parse_spec(data: Any, *, source: str = "", default_name: str = "study") -> S
     cache = data.get("cache", False)
     if not isinstance(cache, bool):
         raise InputError(f"cache: expected true or false, got {cache!r}")
-    spec = StudySpec(name, str(data.get("description", "")), tuple(_cell(i, c) for i, c in enumerate(cells)),
-                     cache, source)
+    spec = StudySpec(
+        name, str(data.get("description", "")), tuple(_cell(i, c) for i, c in enumerate(cells)), cache, source
+    )
     if spec.n_runs > MAX_RUNS:
         raise InputError(f"{spec.n_runs} runs: more than {MAX_RUNS} (check seeds)")
     return spec

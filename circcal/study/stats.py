@@ -5,6 +5,7 @@
   (spread of an estimator);
 * :func:`wilson_interval`: a proportion with Wilson's score interval (pass rates; sound at 0 % and 100 %).
 """
+
 from __future__ import annotations
 
 import math

@@ -6,6 +6,7 @@ only: every run in a part is finished and kept. A run is done when its key is in
 drops a key seen twice (the first copy wins), so compaction (:meth:`RowStore.compact`: write the merged part,
 then delete the old ones) is safe to interrupt.
 """
+
 from __future__ import annotations
 
 import os

@@ -13,6 +13,7 @@ independent. Intervals: :mod:`circcal.study.stats` (95 %).
 
 :func:`study_section` is what a published report includes (Markdown + figure files).
 """
+
 from __future__ import annotations
 
 import math
@@ -42,6 +43,7 @@ __all__ = [
     "write_summary",
 ]
 
+
 def _honest_pass_probability(sigmas: float, n_params: int) -> float:
     """P(|z| <= sigmas) ** n_params for standard normal z: the pass rate of an honest estimator."""
     return math.erf(sigmas / math.sqrt(2.0)) ** n_params
@@ -56,8 +58,18 @@ def _param(err: np.ndarray, std: np.ndarray) -> ParamSummary:
     def per(v: float) -> float:
         return v / stated if ok else float("nan")
 
-    return ParamSummary(int(np.isfinite(err).sum()), b, (blo, bhi), s, (slo, shi), stated, per(s), (per(slo),
-                        per(shi)), per(b), (per(blo), per(bhi)))
+    return ParamSummary(
+        int(np.isfinite(err).sum()),
+        b,
+        (blo, bhi),
+        s,
+        (slo, shi),
+        stated,
+        per(s),
+        (per(slo), per(shi)),
+        per(b),
+        (per(blo), per(bhi)),
+    )
 
 
 def summarise(table: Any) -> list[CellSummary]:
@@ -66,9 +78,10 @@ def summarise(table: Any) -> list[CellSummary]:
         return []
     ids = list(zip(*(table.column(c).to_pylist() for c in CELL_COLUMNS)))
     status = np.asarray(table.column("status").to_pylist())
-    col = {n: table.column(n).to_numpy(zero_copy_only=False).astype(np.float64)
-           for n in [f"err_{p}" for p in PARAM_NAMES] + [f"std_{p}" for p in PARAM_NAMES]
-           + ["truth_rms_px", "time_s"]}
+    col = {
+        n: table.column(n).to_numpy(zero_copy_only=False).astype(np.float64)
+        for n in [f"err_{p}" for p in PARAM_NAMES] + [f"std_{p}" for p in PARAM_NAMES] + ["truth_rms_px", "time_s"]
+    }
     order: dict[tuple, list[int]] = {}
     for i, k in enumerate(ids):
         order.setdefault(k, []).append(i)
@@ -106,8 +119,9 @@ def _ci(v: float, ci: tuple[float, float], fmt: str = ".3f") -> str:
     return f"{v:{fmt}} [{ci[0]:{fmt}}, {ci[1]:{fmt}}]"
 
 
-def summary_markdown(name: str, description: str, cells: list[CellSummary], *, figures: dict[str, str] | None = None,
-                     heading: str = "#") -> str:
+def summary_markdown(
+    name: str, description: str, cells: list[CellSummary], *, figures: dict[str, str] | None = None, heading: str = "#"
+) -> str:
     """The Markdown of a study summary; ``figures``: title -> relative path of each figure to show; ``heading``: the
     Markdown level of the title (``"##"`` to nest it in a report)."""
     sub = heading + "#"
@@ -116,39 +130,77 @@ def summary_markdown(name: str, description: str, cells: list[CellSummary], *, f
     lines = [f"{heading} Study `{name}`", ""]
     if description:
         lines += [description.strip(), ""]
-    lines += [(f"{n_runs} runs in {len(cells)} cells, {n_ok} calibrated (status ok). Intervals: {conf}. A cell is "
-              "one scenario, variant, calibrator and lens model over its seeds."), ""]
+    lines += [
+        (
+            f"{n_runs} runs in {len(cells)} cells, {n_ok} calibrated (status ok). Intervals: {conf}. A cell is "
+            "one scenario, variant, calibrator and lens model over its seeds."
+        ),
+        "",
+    ]
     head = "| cell | ok / runs | " + " | ".join(TABLE_PARAMS) + " |"
     rule = "|---|---|" + "---|" * len(TABLE_PARAMS)
-    lines += [f"{sub} Sigma honesty: empirical spread / mean stated sigma", "",
-              "1 = the stated standard deviations are honest; below 1 they are pessimistic, above 1 optimistic.", "",
-              head, rule]
+    lines += [
+        f"{sub} Sigma honesty: empirical spread / mean stated sigma",
+        "",
+        "1 = the stated standard deviations are honest; below 1 they are pessimistic, above 1 optimistic.",
+        "",
+        head,
+        rule,
+    ]
     for c in cells:
-        lines.append(f"| {c.label} | {c.n_ok} / {c.n_runs} | "
-                     + " | ".join(_ci(c.params[p].ratio, c.params[p].ratio_ci) for p in TABLE_PARAMS) + " |")
-    lines += ["", f"{sub} Bias: mean error / mean stated sigma", "",
-              "0 = unbiased. The interval is that of the mean error over the seeds, in stated sigmas.", "", head, rule]
+        lines.append(
+            f"| {c.label} | {c.n_ok} / {c.n_runs} | "
+            + " | ".join(_ci(c.params[p].ratio, c.params[p].ratio_ci) for p in TABLE_PARAMS)
+            + " |"
+        )
+    lines += [
+        "",
+        f"{sub} Bias: mean error / mean stated sigma",
+        "",
+        "0 = unbiased. The interval is that of the mean error over the seeds, in stated sigmas.",
+        "",
+        head,
+        rule,
+    ]
     for c in cells:
-        lines.append(f"| {c.label} | {c.n_ok} / {c.n_runs} | "
-                     + " | ".join(_ci(c.params[p].bias_sigmas, c.params[p].bias_sigmas_ci) for p in TABLE_PARAMS)
-                     + " |")
-    lines += ["", f"{sub} Parameters: bias and spread in their own units", "",
-              "| cell | parameter | bias | spread (std) | mean stated sigma |", "|---|---|---|---|---|"]
+        lines.append(
+            f"| {c.label} | {c.n_ok} / {c.n_runs} | "
+            + " | ".join(_ci(c.params[p].bias_sigmas, c.params[p].bias_sigmas_ci) for p in TABLE_PARAMS)
+            + " |"
+        )
+    lines += [
+        "",
+        f"{sub} Parameters: bias and spread in their own units",
+        "",
+        "| cell | parameter | bias | spread (std) | mean stated sigma |",
+        "|---|---|---|---|---|",
+    ]
     for c in cells:
         for p in TABLE_PARAMS:
             s = c.params[p]
-            lines.append(f"| {c.label} | {p} | {_ci(s.bias, s.bias_ci, '.4g')} | {_ci(s.spread, s.spread_ci, '.4g')}"
-                         f" | {s.stated:.4g} |")
-    lines += ["", f"{sub} Truth check and projection difference to the true camera", "",
-              (f"Pass: fx, fy, cx, cy all within {TRUTH_SIGMAS:g} stated sigmas of the truth (the conformance suite's "
-              "check); expected: an honest Gaussian estimator, the four taken as independent. Projection difference: "
-              "RMS over the imager, implied rotation fitted."), "",
-              "| cell | pass rate | expected | truth RMS median px | p95 px | median run time s | statuses |",
-              "|---|---|---|---|---|---|---|"]
+            lines.append(
+                f"| {c.label} | {p} | {_ci(s.bias, s.bias_ci, '.4g')} | {_ci(s.spread, s.spread_ci, '.4g')}"
+                f" | {s.stated:.4g} |"
+            )
+    lines += [
+        "",
+        f"{sub} Truth check and projection difference to the true camera",
+        "",
+        (
+            f"Pass: fx, fy, cx, cy all within {TRUTH_SIGMAS:g} stated sigmas of the truth (the conformance suite's "
+            "check); expected: an honest Gaussian estimator, the four taken as independent. Projection difference: "
+            "RMS over the imager, implied rotation fitted."
+        ),
+        "",
+        "| cell | pass rate | expected | truth RMS median px | p95 px | median run time s | statuses |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for c in cells:
         st = ", ".join(f"{k} {v}" for k, v in c.statuses.items())
-        lines.append(f"| {c.label} | {_ci(c.pass_rate, c.pass_ci)} | {c.pass_expected:.3f} | "
-                     f"{c.truth_rms_median_px:.4g} | {c.truth_rms_p95_px:.4g} | {c.time_median_s:.3g} | {st} |")
+        lines.append(
+            f"| {c.label} | {_ci(c.pass_rate, c.pass_ci)} | {c.pass_expected:.3f} | "
+            f"{c.truth_rms_median_px:.4g} | {c.truth_rms_p95_px:.4g} | {c.time_median_s:.3g} | {st} |"
+        )
     for title, path in (figures or {}).items():
         lines += ["", f"![{title}]({path})"]
     return "\n".join(lines) + "\n"
@@ -173,8 +225,9 @@ def study_section(folder: str | Path, figures_dir: str | Path | None = None, *, 
     figures_dir = Path(figures_dir) if figures_dir is not None else folder / "figures"
     figs = draw_figures(cells, figures_dir)
     rel = {t: f"{figures_dir.name}/{p.name}" for t, p in figs.items()}
-    md = summary_markdown(spec.name if spec else folder.name, spec.description if spec else "", cells, figures=rel,
-                          heading=heading)
+    md = summary_markdown(
+        spec.name if spec else folder.name, spec.description if spec else "", cells, figures=rel, heading=heading
+    )
     return StudySection(md, figs, cells)
 
 

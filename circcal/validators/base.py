@@ -8,6 +8,7 @@ stops the others.
 Conventions (those of :mod:`circcal.model`): pixel centres at integer coordinates, OpenCV point order, board points in
 mm with z = 0, poses map board to camera (``X_cam = R(rvec) X + tvec``). Residuals are ``observed - projected`` in px.
 """
+
 from __future__ import annotations
 
 import time
@@ -100,12 +101,15 @@ class ReferenceResult:
             return f"{head}: {self.message}"
         c = self.camera
         e = self.errors or {}
-        return (f"{head}: fx={c.fx:.4f} fy={c.fy:.4f} cx={c.cx:.4f} cy={c.cy:.4f} "
-                f"dist={np.array2string(c.dist, precision=5)} rms_per_point={e.get('rms_per_point_px', np.nan):.4f} px "
-                f"({self.time_s:.3f} s)")
+        return (
+            f"{head}: fx={c.fx:.4f} fy={c.fy:.4f} cx={c.cx:.4f} cy={c.cy:.4f} "
+            f"dist={np.array2string(c.dist, precision=5)} rms_per_point={e.get('rms_per_point_px', np.nan):.4f} px "
+            f"({self.time_s:.3f} s)"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (arrays as lists; residuals per view)."""
+
         def arr(a: Any) -> Any:
             return None if a is None else np.asarray(a, dtype=float).tolist()
 
@@ -149,12 +153,25 @@ class ReferenceCalibrator(Protocol):
 
     def available(self) -> tuple[bool, str]: ...
 
-    def calibrate_observations(self, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                               image_size: tuple[int, int], *, mode: Mode = "fair",
-                               initial: Camera | None = None) -> ReferenceResult: ...
+    def calibrate_observations(
+        self,
+        object_points: Sequence[np.ndarray],
+        image_points: Sequence[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: Mode = "fair",
+        initial: Camera | None = None,
+    ) -> ReferenceResult: ...
 
-    def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
-                         mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult: ...
+    def calibrate_images(
+        self,
+        paths: Sequence[Any],
+        board: Any,
+        image_size: tuple[int, int] | None = None,
+        *,
+        mode: Mode = "fair",
+        initial: Camera | None = None,
+    ) -> ReferenceResult: ...
 
 
 def lens_support(cal: Any, lens: str) -> tuple[bool, str]:
@@ -169,11 +186,18 @@ def lens_support(cal: Any, lens: str) -> tuple[bool, str]:
     return False, why or f"{name} fits the lens models {', '.join(lenses)} only, not {lens!r}"
 
 
-def residuals_of(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, object_points: Sequence[np.ndarray],
-                 image_points: Sequence[np.ndarray]) -> list[np.ndarray]:
+def residuals_of(
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+) -> list[np.ndarray]:
     """Per-view residuals ``observed - projected`` (N_v, 2) px, projected with :func:`circcal.model.project`."""
-    return [np.asarray(p, dtype=np.float64) - project(o, r, t, camera)
-            for o, p, r, t in zip(object_points, image_points, np.asarray(rvecs), np.asarray(tvecs))]
+    return [
+        np.asarray(p, dtype=np.float64) - project(o, r, t, camera)
+        for o, p, r, t in zip(object_points, image_points, np.asarray(rvecs), np.asarray(tvecs))
+    ]
 
 
 class BaseCalibrator:
@@ -196,14 +220,25 @@ class BaseCalibrator:
     def _available(self) -> tuple[bool, str]:
         return True, ""
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         raise NotImplementedError
 
-    def _calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *,
-                          mode: str, initial: Camera | None) -> ReferenceResult:
-        return self.result(mode, "unsupported", f"{self.name} has no circle-grid detector of its own; "
-                                                "use calibrate_observations with detected centres")
+    def _calibrate_images(
+        self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *, mode: str, initial: Camera | None
+    ) -> ReferenceResult:
+        return self.result(
+            mode,
+            "unsupported",
+            f"{self.name} has no circle-grid detector of its own; use calibrate_observations with detected centres",
+        )
 
     # -- public, never raising ------------------------------------------------------------------------------------
     @property
@@ -220,9 +255,15 @@ class BaseCalibrator:
         except Exception as exc:  # noqa: BLE001
             return False, f"{type(exc).__name__}: {exc}"
 
-    def calibrate_observations(self, object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                               image_size: tuple[int, int], *, mode: Mode = "fair",
-                               initial: Camera | None = None) -> ReferenceResult:
+    def calibrate_observations(
+        self,
+        object_points: Sequence[np.ndarray],
+        image_points: Sequence[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: Mode = "fair",
+        initial: Camera | None = None,
+    ) -> ReferenceResult:
         """Calibrate from given centres. ``object_points``: per view (N_v, 3) mm (z = 0); ``image_points``: per view
         (N_v, 2) px; ``image_size``: (width, height). ``mode``: "fair" (plain least squares, the estimator of
         cv2.calibrateCamera) or "default" (what the reference's users get out of the box)."""
@@ -234,15 +275,22 @@ class BaseCalibrator:
 
         return run_safely(go, name=self.name, version=lambda: self.version, mode=mode, available=self.available)
 
-    def calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None = None, *,
-                         mode: Mode = "fair", initial: Camera | None = None) -> ReferenceResult:
+    def calibrate_images(
+        self,
+        paths: Sequence[Any],
+        board: Any,
+        image_size: tuple[int, int] | None = None,
+        *,
+        mode: Mode = "fair",
+        initial: Camera | None = None,
+    ) -> ReferenceResult:
         """Detect with the reference's own detector, then calibrate. ``board``: :class:`circcal.board.Board`."""
+
         def go() -> ReferenceResult:
             self._check_lens()
             return self._calibrate_images(list(paths), board, image_size, mode=mode, initial=initial)
 
-        return run_safely(go,
-                          name=self.name, version=lambda: self.version, mode=mode, available=self.available)
+        return run_safely(go, name=self.name, version=lambda: self.version, mode=mode, available=self.available)
 
     # -- helpers for subclasses -----------------------------------------------------------------------------------
     def _check_lens(self) -> None:
@@ -255,21 +303,44 @@ class BaseCalibrator:
     def result(self, mode: str, status: str, message: str = "", **kw: Any) -> ReferenceResult:
         return ReferenceResult(name=self.name, version=self.version, mode=mode, status=status, message=message, **kw)
 
-    def finish(self, mode: str, camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray,
-               object_points: list[np.ndarray], image_points: list[np.ndarray], t0: float, *,
-               std: dict[str, float] | None = None, residuals: list[np.ndarray] | None = None,
-               views: list[int] | None = None, message: str = "", **extra: Any) -> ReferenceResult:
+    def finish(
+        self,
+        mode: str,
+        camera: Camera,
+        rvecs: np.ndarray,
+        tvecs: np.ndarray,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        t0: float,
+        *,
+        std: dict[str, float] | None = None,
+        residuals: list[np.ndarray] | None = None,
+        views: list[int] | None = None,
+        message: str = "",
+        **extra: Any,
+    ) -> ReferenceResult:
         """Assemble an "ok" result (residuals computed with circcal.model unless given) and check for divergence."""
         rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
         tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
         if residuals is None:
             residuals = residuals_of(camera, rvecs, tvecs, object_points, image_points)
         errors = error_stats(np.concatenate([r.reshape(-1, 2) for r in residuals]))
-        res = self.result(mode, "ok", message, camera=camera, std=std, rvecs=rvecs, tvecs=tvecs,
-                          residuals=residuals, errors=errors, time_s=time.perf_counter() - t0,
-                          object_points=object_points, image_points=image_points,
-                          views=list(range(len(object_points))) if views is None else list(views),
-                          extra=dict(extra))
+        res = self.result(
+            mode,
+            "ok",
+            message,
+            camera=camera,
+            std=std,
+            rvecs=rvecs,
+            tvecs=tvecs,
+            residuals=residuals,
+            errors=errors,
+            time_s=time.perf_counter() - t0,
+            object_points=object_points,
+            image_points=image_points,
+            views=list(range(len(object_points))) if views is None else list(views),
+            extra=dict(extra),
+        )
         return check_divergence(res)
 
 
@@ -296,8 +367,9 @@ def check_divergence(res: ReferenceResult, max_rms_px: float = DIVERGED_RMS_PX) 
     return res
 
 
-def rational_pole(camera: Camera, object_points: Sequence[np.ndarray] | None, rvecs: np.ndarray | None,
-                  tvecs: np.ndarray | None) -> str:
+def rational_pole(
+    camera: Camera, object_points: Sequence[np.ndarray] | None, rvecs: np.ndarray | None, tvecs: np.ndarray | None
+) -> str:
     """Why a rational or thin-prism solution is not a lens ("" when it is): its radial denominator
     1 + k4 r^2 + k5 r^4 + k6 r^6 reaches 0 between the axis and the farthest observed point (r: the undistorted
     normalised radius), a pole inside the field where OpenCV's model is undefined. Such a solution can fit the
@@ -307,21 +379,31 @@ def rational_pole(camera: Camera, object_points: Sequence[np.ndarray] | None, rv
         return ""
     d = dict(zip(camera.model.dist_names, np.asarray(camera.dist, dtype=np.float64)))
     k4, k5, k6 = d["k4"], d["k5"], d["k6"]
-    r2 = [np.sum((X[:, :2] / X[:, 2:3]) ** 2, axis=1) for X in
-          (transform(np.asarray(o, dtype=np.float64), r, t) for o, r, t in zip(object_points, rvecs, tvecs))]
+    r2 = [
+        np.sum((X[:, :2] / X[:, 2:3]) ** 2, axis=1)
+        for X in (transform(np.asarray(o, dtype=np.float64), r, t) for o, r, t in zip(object_points, rvecs, tvecs))
+    ]
     r2max = float(np.max(np.concatenate(r2))) if r2 else 0.0
     s = np.linspace(0.0, r2max, 2001)
-    den = 1.0 + k4 * s + k5 * s ** 2 + k6 * s ** 3
+    den = 1.0 + k4 * s + k5 * s**2 + k6 * s**3
     if np.all(den > 0):
         return ""
     at = float(np.sqrt(s[np.argmax(den <= 0)]))
-    return (f"not a lens: the rational denominator 1 + k4 r^2 + k5 r^4 + k6 r^6 reaches 0 at r = {at:.3g} inside "
-            f"the observed field (r up to {np.sqrt(r2max):.3g}; k4 {k4:.4g}, k5 {k5:.4g}, k6 {k6:.4g}): a pole "
-            "where OpenCV's model is undefined")
+    return (
+        f"not a lens: the rational denominator 1 + k4 r^2 + k5 r^4 + k6 r^6 reaches 0 at r = {at:.3g} inside "
+        f"the observed field (r up to {np.sqrt(r2max):.3g}; k4 {k4:.4g}, k5 {k5:.4g}, k6 {k6:.4g}): a pole "
+        "where OpenCV's model is undefined"
+    )
 
 
-def run_safely(fn: Callable[[], ReferenceResult], *, name: str, version: str | Callable[[], str] = "unknown",
-               mode: str = "fair", available: Callable[[], tuple[bool, str]] | None = None) -> ReferenceResult:
+def run_safely(
+    fn: Callable[[], ReferenceResult],
+    *,
+    name: str,
+    version: str | Callable[[], str] = "unknown",
+    mode: str = "fair",
+    available: Callable[[], tuple[bool, str]] | None = None,
+) -> ReferenceResult:
     """Run ``fn`` and always return a :class:`ReferenceResult`.
 
     ``available`` (optional) is checked first: a missing reference gives status "unavailable" with its reason.
@@ -337,8 +419,9 @@ def run_safely(fn: Callable[[], ReferenceResult], *, name: str, version: str | C
             return f"unknown ({exc})"
 
     if mode not in MODES:
-        return ReferenceResult(name, ver(), str(mode), "failed",
-                               f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+        return ReferenceResult(
+            name, ver(), str(mode), "failed", f"unknown mode {mode!r}; expected one of {', '.join(MODES)}"
+        )
     if available is not None:
         try:
             ok, why = available()
@@ -352,15 +435,27 @@ def run_safely(fn: Callable[[], ReferenceResult], *, name: str, version: str | C
             raise TypeError(f"adapter returned {type(res).__name__}, expected ReferenceResult")
         return check_divergence(res)
     except NotImplementedError as exc:
-        return ReferenceResult(name, ver(), mode, "unsupported", str(exc) or "not supported",
-                               time_s=time.perf_counter() - t0)
+        return ReferenceResult(
+            name, ver(), mode, "unsupported", str(exc) or "not supported", time_s=time.perf_counter() - t0
+        )
     except Exception as exc:  # noqa: BLE001
-        return ReferenceResult(name, ver(), mode, "failed", f"{type(exc).__name__}: {exc}",
-                               time_s=time.perf_counter() - t0, extra={"traceback": traceback.format_exc()})
+        return ReferenceResult(
+            name,
+            ver(),
+            mode,
+            "failed",
+            f"{type(exc).__name__}: {exc}",
+            time_s=time.perf_counter() - t0,
+            extra={"traceback": traceback.format_exc()},
+        )
 
 
-def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                image_size: tuple[int, int], lens: str = "opencv5") -> Camera:
+def seed_camera(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    lens: str = "opencv5",
+) -> Camera:
     """A rough pinhole seed (no distortion) from ``cv2.initCameraMatrix2D`` (Zhang with the principal point at the
     image centre), for references that need a starting focal length (mrcal's ``focal_estimate``, pycolmap's camera).
     Only a starting point: each reference then solves its own least-squares problem. ``lens``: the model of the
@@ -373,12 +468,13 @@ def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.n
 
         w, h = int(image_size[0]), int(image_size[1])
         f = fisheye_seed_focal(object_points, image_points, image_size)
-        return Camera(w, h, f, f, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(len(LENS_MODELS[lens].dist_names)),
-                      lens=lens)
+        return Camera(w, h, f, f, (w - 1) / 2.0, (h - 1) / 2.0, np.zeros(len(LENS_MODELS[lens].dist_names)), lens=lens)
 
-    K = cv2.initCameraMatrix2D([np.asarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points],
-                               [np.asarray(p, dtype=np.float32).reshape(-1, 1, 2) for p in image_points],
-                               (int(image_size[0]), int(image_size[1])))
+    K = cv2.initCameraMatrix2D(
+        [np.asarray(o, dtype=np.float32).reshape(-1, 1, 3) for o in object_points],
+        [np.asarray(p, dtype=np.float32).reshape(-1, 1, 2) for p in image_points],
+        (int(image_size[0]), int(image_size[1])),
+    )
     w, h = int(image_size[0]), int(image_size[1])
     fx, fy = float(K[0, 0]), float(K[1, 1])
     if not (np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0):
@@ -394,8 +490,9 @@ def seed_camera(object_points: Sequence[np.ndarray], image_points: Sequence[np.n
 FISHEYE_FOCAL_SWEEP: tuple[float, ...] = (0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6)
 
 
-def fisheye_seed_focal(object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray],
-                       image_size: tuple[int, int]) -> float:
+def fisheye_seed_focal(
+    object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], image_size: tuple[int, int]
+) -> float:
     """A starting equidistant focal length (px) for a fisheye calibration: of :data:`FISHEYE_FOCAL_SWEEP` x
     max(w, h) / pi, the one whose poses reproject the observations best, with the principal point at the image
     centre and k1-k4 = 0. Per candidate f the observations are lifted to the z = 1 plane (theta = r / f, clamped
@@ -415,8 +512,9 @@ def fisheye_seed_focal(object_points: Sequence[np.ndarray], image_points: Sequen
             r = np.linalg.norm(d, axis=1)
             theta = np.minimum(r / f, 0.49 * np.pi)
             lift = np.where(r > 0, np.tan(theta) / np.maximum(r, 1e-12), 1.0 / f)
-            ok, rv, tv = cv2.solvePnP(np.asarray(o, dtype=np.float64), d * lift[:, None], np.eye(3), None,
-                                      flags=cv2.SOLVEPNP_IPPE)
+            ok, rv, tv = cv2.solvePnP(
+                np.asarray(o, dtype=np.float64), d * lift[:, None], np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
+            )
             if not ok:
                 cost = np.inf
                 break

@@ -1,5 +1,6 @@
 """The agreement bounds ``circcal validate`` and the conformance suite check against, each with its reason (no
 imports: the command line shows them in its help without loading the validators)."""
+
 from __future__ import annotations
 
 __all__ = ["SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL"]

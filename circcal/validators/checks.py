@@ -4,6 +4,7 @@ circcal's solver on identical observations, and agreement with the true camera i
 A :class:`Check` holds a value, its bound and the verdict; the bounds' defaults, each with its reason, are
 :mod:`circcal.validators.bounds`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,8 +17,19 @@ from circcal.model import Camera
 from circcal.validators.bounds import COST_TIE_REL, SOLVER_LENSBOY_PX, SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 from circcal.validators.shared import ssr
 
-__all__ = ["Check", "SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "TRUTH_PARAMS",
-           "STOPS_SHORT", "solver_bound", "solver_agreement", "truth_checks"]
+__all__ = [
+    "Check",
+    "SOLVER_PX",
+    "SOLVER_MRCAL_PX",
+    "SOLVER_LENSBOY_PX",
+    "TRUTH_SIGMAS",
+    "COST_TIE_REL",
+    "TRUTH_PARAMS",
+    "STOPS_SHORT",
+    "solver_bound",
+    "solver_agreement",
+    "truth_checks",
+]
 
 #: The parameters the truth check holds to their stated sigmas (distortion terms are correlated with each other
 #: and with the focal length; their individual sigmas are not a useful bar).
@@ -66,21 +78,50 @@ def solver_agreement(label: str, ref: Any, max_px: float, circcal_ssr: float, bo
     ssr_ref = ssr(ref.residuals)
     rel = (ssr_ref - circcal_ssr) / circcal_ssr if circcal_ssr > 0 else float("nan")
     if abs(rel) <= COST_TIE_REL:
-        return Check(name, max_px, bound, True, f"costs equal to {abs(rel):.1g} relative: both at the minimum to "
-                                                f"double precision; the difference lies along a flat direction")
+        return Check(
+            name,
+            max_px,
+            bound,
+            True,
+            f"costs equal to {abs(rel):.1g} relative: both at the minimum to "
+            f"double precision; the difference lies along a flat direction",
+        )
     if rel < 0:
-        return Check(name, max_px, bound, False, f"{ref.name}'s cost is lower than circcal's by {-rel:.2g} "
-                                                 f"(relative): circcal missed the minimum")
+        return Check(
+            name,
+            max_px,
+            bound,
+            False,
+            f"{ref.name}'s cost is lower than circcal's by {-rel:.2g} (relative): circcal missed the minimum",
+        )
     if within and rel > 0:
-        return Check(name, max_px, bound, True, f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): "
-                                                f"{ref.name} stopped short of the minimum")
-    return Check(name, max_px, bound, False, f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): "
-                                             f"{ref.name} did not reach the minimum")
+        return Check(
+            name,
+            max_px,
+            bound,
+            True,
+            f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): "
+            f"{ref.name} stopped short of the minimum",
+        )
+    return Check(
+        name,
+        max_px,
+        bound,
+        False,
+        f"{ref.name}'s cost is higher than circcal's by {rel:.2g} (relative): {ref.name} did not reach the minimum",
+    )
 
 
-def truth_checks(who: str, camera: Camera, std: dict[str, float] | None, truth: Camera, *,
-                 sigmas: float = TRUTH_SIGMAS, rms_px: float | None = None, std_note: str = ""
-                 ) -> tuple[list[Check], dict[str, float]]:
+def truth_checks(
+    who: str,
+    camera: Camera,
+    std: dict[str, float] | None,
+    truth: Camera,
+    *,
+    sigmas: float = TRUTH_SIGMAS,
+    rms_px: float | None = None,
+    std_note: str = "",
+) -> tuple[list[Check], dict[str, float]]:
     """``camera`` against the true camera: each of :data:`TRUTH_PARAMS` within ``sigmas`` of its stated standard
     deviation (``std``; a missing or zero sigma fails), and, when ``rms_px`` is given, the RMS projection difference
     over the imager (implied rotation fitted, :func:`~circcal.analysis.compare.projection_diff`) within it.
@@ -90,15 +131,25 @@ def truth_checks(who: str, camera: Camera, std: dict[str, float] | None, truth: 
     pd = param_diff(truth, camera, None, std)
     for n in TRUTH_PARAMS:
         v = abs(pd[n]["diff_sigmas"])
-        note = (f"{n} {pd[n]['b']:.4f} vs true {pd[n]['a']:.4f} (diff {pd[n]['diff']:+.4f}, sigma "
-                f"{pd[n]['sigma']:.3g}{std_note})")
-        checks.append(Check(f"{who} {n} vs truth, in stated sigmas", v, sigmas, bool(np.isfinite(v) and v <= sigmas),
-                            note))
+        note = (
+            f"{n} {pd[n]['b']:.4f} vs true {pd[n]['a']:.4f} (diff {pd[n]['diff']:+.4f}, sigma "
+            f"{pd[n]['sigma']:.3g}{std_note})"
+        )
+        checks.append(
+            Check(f"{who} {n} vs truth, in stated sigmas", v, sigmas, bool(np.isfinite(v) and v <= sigmas), note)
+        )
         measured[f"{n}_sigmas"] = float(pd[n]["diff_sigmas"])
     fit = projection_diff(truth, camera, fit=True)
     measured["truth_rms_px"], measured["truth_max_px"] = fit["rms_px"], fit["max_px"]
     if rms_px is not None:
         v = fit["rms_px"]
-        checks.append(Check(f"{who} vs truth: RMS projection difference (rotation fitted), px", v, rms_px,
-                            bool(np.isfinite(v) and v <= rms_px), f"max {fit['max_px']:.4f} px"))
+        checks.append(
+            Check(
+                f"{who} vs truth: RMS projection difference (rotation fitted), px",
+                v,
+                rms_px,
+                bool(np.isfinite(v) and v <= rms_px),
+                f"max {fit['max_px']:.4f} px",
+            )
+        )
     return checks, measured

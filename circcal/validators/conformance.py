@@ -36,6 +36,7 @@ What a case asserts (bounds below, each with its reason):
 Reprojection errors name their convention (:mod:`circcal.metrics`); projection differences come from
 :func:`circcal.analysis.compare.projection_diff` (60-wide pixel grid, corners included).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
@@ -125,45 +126,62 @@ BOUNDS: dict[str, ScenarioBounds] = {
     # "p99" below: the 99th percentile of the RMS projection difference that circcal's own stated covariance
     # predicts (predicted_truth_rms, 200 draws); "measured": circcal's actual difference to the true camera.
     "paper": ScenarioBounds(
-        0.30, 0.05,
+        0.30,
+        0.05,
         "fx 4900 px: the focal length is weakly observable (std(fx) 0.24 px normal .. 1.5 px weak) and that alone "
         "moves the image edge; p99 0.08 (normal), 0.19 (uneven), 0.26 px (strong), measured 0.021-0.046 px; the "
         "weak variant (contrast 0.22) has p99 0.52 px, measured 0.21 px: its own bound 0.60 px. The primary "
         "check (parameters in stated sigmas) is the strict one here. mean_2d: circcal's own bar, 0.05 px, less "
         "than half the paper's 0.12 px",
-        {"weak": 0.60}),
+        {"weak": 0.60},
+    ),
     "paper-checkerboard": ScenarioBounds(
-        0.30, PAPER_MEAN_2D_PX, "circcal detects circle grids only: the case asserts a clear refusal"),
+        0.30, PAPER_MEAN_2D_PX, "circcal detects circle grids only: the case asserts a clear refusal"
+    ),
     "wide": ScenarioBounds(
-        0.10, PAPER_MEAN_2D_PX,
+        0.10,
+        PAPER_MEAN_2D_PX,
         "fx 1000 px, ~30 px dots: p99 0.007-0.071 px over ten variants, measured 0.001-0.043 px; the weak variant "
         "(contrast 0.2, noise 0.008) has p99 0.16 px, measured 0.051 px: its own bound 0.20 px",
-        {"weak": 0.20}),
+        {"weak": 0.20},
+    ),
     "tilted-large-dots": ScenarioBounds(
-        0.03, PAPER_MEAN_2D_PX,
+        0.03,
+        PAPER_MEAN_2D_PX,
         "45+ px dots at 40-55 deg, the perspective-bias stress test: p99 0.005 (clean) / 0.012 px (noise), "
-        "measured 0.001 / 0.006 px; a bias left in the centres shows here first, so 0.03 px, 2.5x the p99"),
+        "measured 0.001 / 0.006 px; a bias left in the centres shows here first, so 0.03 px, 2.5x the p99",
+    ),
     "asymmetric": ScenarioBounds(
-        0.06, PAPER_MEAN_2D_PX,
-        "fx 1200 px, OpenCV's 4x11 acircles: p99 0.010 (clean) / 0.043 px (noise), measured 0.001 / 0.009 px"),
+        0.06,
+        PAPER_MEAN_2D_PX,
+        "fx 1200 px, OpenCV's 4x11 acircles: p99 0.010 (clean) / 0.043 px (noise), measured 0.001 / 0.009 px",
+    ),
     "small-noisy": ScenarioBounds(
-        0.30, PAPER_MEAN_2D_PX,
+        0.30,
+        PAPER_MEAN_2D_PX,
         "640x480, ~11 px dots, noise 0.02-0.04: p99 0.14 (noisy) / 0.27 px (very-noisy), measured 0.098 / "
-        "0.059 px; the image corners lie beyond the board with k1 -0.22"),
+        "0.059 px; the image corners lie beyond the board with k1 -0.22",
+    ),
     "partial": ScenarioBounds(
-        0.10, PAPER_MEAN_2D_PX,
+        0.10,
+        PAPER_MEAN_2D_PX,
         "fx 1000 px as `wide`, every view partly out of frame or occluded, on the pattern-marker board (all of them "
-        "used: USES_PARTIAL_VIEWS): p99 0.004 (out-of-frame) / 0.006 px (occlusion), measured 0.0015 / 0.0025 px"),
+        "used: USES_PARTIAL_VIEWS): p99 0.004 (out-of-frame) / 0.006 px (occlusion), measured 0.0015 / 0.0025 px",
+    ),
     "fisheye": ScenarioBounds(
-        0.10, PAPER_MEAN_2D_PX,
+        0.10,
+        PAPER_MEAN_2D_PX,
         "~170 deg equidistant lens, f 420: p99 0.041 (clean) / 0.091 px (perturbed: blur, vignetting, noise), measured "
         "0.0067 / 0.048 px; the imager's corners lie beyond 100 deg, far outside the boards (82 deg at most), so k3, "
         "k4 extrapolate there; perturbed: its own bound 0.15 px, 1.6x its p99",
-        {"perturbed": 0.15}),
+        {"perturbed": 0.15},
+    ),
     "rational-wide": ScenarioBounds(
-        0.03, PAPER_MEAN_2D_PX,
+        0.03,
+        PAPER_MEAN_2D_PX,
         "128 deg rational lens, fx 660: rational p99 0.0049 (clean) / 0.0125 px (perturbed), measured 0.0017 / "
-        "0.0027 px; thin prism p99 0.0055 / 0.0145, measured 0.0018 / 0.0030 px; 0.03 px, 2x the largest p99"),
+        "0.0027 px; thin prism p99 0.0055 / 0.0145, measured 0.0018 / 0.0030 px; 0.03 px, 2x the largest p99",
+    ),
 }
 _DEFAULT_BOUNDS = ScenarioBounds(0.10, PAPER_MEAN_2D_PX, "no scenario-specific bound: the wide-angle default")
 
@@ -211,8 +229,11 @@ def observation_sets() -> int:
     observations, so its truth checks are not independent of circcal's)."""
     from circcal.fixtures.scenarios import SCENARIOS
 
-    return sum(len(sc.variants) * (1 + sum(m != sc.camera.lens for m in LENSES.get(name, ())))
-               for name, sc in SCENARIOS.items() if name not in CIRCCAL_UNSUPPORTED)
+    return sum(
+        len(sc.variants) * (1 + sum(m != sc.camera.lens for m in LENSES.get(name, ())))
+        for name, sc in SCENARIOS.items()
+        if name not in CIRCCAL_UNSUPPORTED
+    )
 
 
 def suite_truth_sigmas(alpha: float = SUITE_FAMILY_ALPHA) -> float:
@@ -246,6 +267,7 @@ def bounds_for(scenario: str) -> ScenarioBounds:
 # The matrix
 # --------------------------------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Case:
     """One conformance case. ``reference``: ``"circcal"``, a registry name or a user calibrator's label;
@@ -273,8 +295,11 @@ class Case:
     @property
     def id(self) -> str:
         own = not self.lens_model or self.lens_model == scenario_lens(self.scenario)
-        return f"{self.scenario}-{self.variant}-{self.label}" if own else \
-            f"{self.scenario}-{self.variant}-{self.lens_model}-{self.label}"
+        return (
+            f"{self.scenario}-{self.variant}-{self.label}"
+            if own
+            else f"{self.scenario}-{self.variant}-{self.lens_model}-{self.label}"
+        )
 
 
 def reference_modes(cal: Any) -> tuple[str, ...]:
@@ -283,10 +308,14 @@ def reference_modes(cal: Any) -> tuple[str, ...]:
     return modes or ("fair",)
 
 
-def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
-          user: Sequence[tuple[str, tuple[str, ...]]] = (), scenarios: Iterable[str] | None = None,
-          fast: dict[tuple[str, str], tuple[str, ...] | None] | None = None,
-          lenses: dict[str, tuple[str, ...]] | None = None) -> list[Case]:
+def cases(
+    references: Sequence[tuple[str, tuple[str, ...]]] | None = None,
+    *,
+    user: Sequence[tuple[str, tuple[str, ...]]] = (),
+    scenarios: Iterable[str] | None = None,
+    fast: dict[tuple[str, str], tuple[str, ...] | None] | None = None,
+    lenses: dict[str, tuple[str, ...]] | None = None,
+) -> list[Case]:
     """The case matrix, scenario-variant-lens major (circcal's case first, then each reference and mode).
 
     ``references``: (name, modes) of the built-in/plug-in references (default: every registered one, modes from
@@ -304,7 +333,7 @@ def cases(references: Sequence[tuple[str, tuple[str, ...]]] | None = None, *,
         references = registered_references()
     refs = list(user) if user else list(references or [])
     out: list[Case] = []
-    for name in (scenarios or SCENARIOS):
+    for name in scenarios or SCENARIOS:
         sc = SCENARIOS[name]
         models = ("",) + tuple(m for m in lenses.get(name, ()) if m != sc.camera.lens)
         for variant in sc.variants:
@@ -344,6 +373,7 @@ def registered_references() -> list[tuple[str, tuple[str, ...]]]:
 # Checks
 # --------------------------------------------------------------------------------------------------------------------
 
+
 @dataclass
 class Outcome:
     """What one case found. ``status``: "checked" (every check asserted), "unsupported" (an expected refusal,
@@ -378,12 +408,18 @@ def _accounting(obs: Observations) -> Check:
         note += f"; not accounted for: {', '.join(missing)}"
     if overlap:
         note += f"; both used and rejected: {', '.join(overlap)}"
-    return Check("every image accounted for (used, or rejected with a reason code): images unaccounted",
-                 float(len(missing) + len(overlap)), 0.0, not missing and not overlap, note)
+    return Check(
+        "every image accounted for (used, or rejected with a reason code): images unaccounted",
+        float(len(missing) + len(overlap)),
+        0.0,
+        not missing and not overlap,
+        note,
+    )
 
 
-def predicted_truth_rms(camera: Camera, std: dict[str, float], correlation: np.ndarray | None, *, n: int = 200,
-                        seed: int = 0) -> dict[str, float]:
+def predicted_truth_rms(
+    camera: Camera, std: dict[str, float], correlation: np.ndarray | None, *, n: int = 200, seed: int = 0
+) -> dict[str, float]:
     """What the stated covariance predicts for the RMS projection difference to the truth (rotation fitted, as in
     the truth check): ``n`` cameras drawn from N(camera, covariance) against ``camera``; returns
     ``{"p50", "p95", "p99"}`` px. Printed beside the measured value, not asserted."""
@@ -416,19 +452,31 @@ def run_circcal_case(case: Case, obs: Observations) -> Outcome:
         word = CIRCCAL_UNSUPPORTED[case.scenario]
         refused = (not obs.ok) and word in obs.message.lower()
         out.status = "unsupported"
-        out.checks.append(Check(f"circcal refuses a {word} with a reason naming it", float(refused), 1.0, refused,
-                                " / ".join(obs.message.splitlines()[:2]).strip() if obs.message
-                                else "circcal calibrated it"))
+        out.checks.append(
+            Check(
+                f"circcal refuses a {word} with a reason naming it",
+                float(refused),
+                1.0,
+                refused,
+                " / ".join(obs.message.splitlines()[:2]).strip() if obs.message else "circcal calibrated it",
+            )
+        )
         return out
     out.checks.append(_accounting(obs))
     out.measured["images_used"] = float(sum(1 for v in obs.accounted.values() if v == "used"))
     out.measured["images"] = float(len(obs.paths))
     if not obs.ok:
-        if case.scenario in MAY_REJECT_ALL and obs.accounted and all(
-                v != "used" for v in obs.accounted.values()) and len(obs.accounted) == len(obs.paths):
+        if (
+            case.scenario in MAY_REJECT_ALL
+            and obs.accounted
+            and all(v != "used" for v in obs.accounted.values())
+            and len(obs.accounted) == len(obs.paths)
+        ):
             out.status = "rejected"
-            out.notes.append(f"circcal rejected every view of {case.scenario}-{case.variant}, each with a reason "
-                             f"(allowed here); no calibration to check: {obs.message.splitlines()[0]}")
+            out.notes.append(
+                f"circcal rejected every view of {case.scenario}-{case.variant}, each with a reason "
+                f"(allowed here); no calibration to check: {obs.message.splitlines()[0]}"
+            )
             for r in obs.failed:
                 out.notes.append(f"  {Path(r.path).name}: {r.code.value}: {r.reason}")
             return out
@@ -437,39 +485,61 @@ def run_circcal_case(case: Case, obs: Observations) -> Outcome:
     if case.scenario in USES_PARTIAL_VIEWS:
         n_used = sum(1 for v in obs.accounted.values() if v == "used")
         sizes = sorted({len(p) for p in obs.image_points or []})
-        out.checks.append(Check("circcal uses every partial view: views left out", float(len(obs.paths) - n_used),
-                                0.0, n_used == len(obs.paths),
-                                f"{n_used} of {len(obs.paths)} used, {sizes[0] if sizes else 0}-"
-                                f"{sizes[-1] if sizes else 0} of {obs.board.n_points} points per view"))
+        out.checks.append(
+            Check(
+                "circcal uses every partial view: views left out",
+                float(len(obs.paths) - n_used),
+                0.0,
+                n_used == len(obs.paths),
+                f"{n_used} of {len(obs.paths)} used, {sizes[0] if sizes else 0}-"
+                f"{sizes[-1] if sizes else 0} of {obs.board.n_points} points per view",
+            )
+        )
     bound = b.truth_px_for(case.variant)
-    checks, measured = truth_checks("circcal", obs.camera, obs.std, obs.truth, sigmas=suite_truth_sigmas(),
-                                    rms_px=bound)
+    checks, measured = truth_checks(
+        "circcal", obs.camera, obs.std, obs.truth, sigmas=suite_truth_sigmas(), rms_px=bound
+    )
     pred = predicted_truth_rms(obs.camera, obs.std, obs.correlation)
-    checks[-1].note += (f"; the stated covariance predicts p50 {pred['p50']:.4f}, p99 {pred['p99']:.4f} px "
-                        f"(bound {bound:g}: {b.reason})")
+    checks[-1].note += (
+        f"; the stated covariance predicts p50 {pred['p50']:.4f}, p99 {pred['p99']:.4f} px "
+        f"(bound {bound:g}: {b.reason})"
+    )
     out.checks += checks
     out.measured.update(measured)
     out.measured["truth_rms_pred_p99_px"] = pred["p99"]
     m2 = obs.errors["mean_2d_px"]
-    out.checks.append(Check("circcal mean 2-D reprojection error (the paper's convention), px", m2, b.mean_2d_px,
-                            bool(m2 <= b.mean_2d_px),
-                            f"rms per point {obs.errors['rms_per_point_px']:.4f} px (OpenCV's), per coordinate "
-                            f"{obs.errors['rms_per_coord_px']:.4f} px (mrcal's)"))
+    out.checks.append(
+        Check(
+            "circcal mean 2-D reprojection error (the paper's convention), px",
+            m2,
+            b.mean_2d_px,
+            bool(m2 <= b.mean_2d_px),
+            f"rms per point {obs.errors['rms_per_point_px']:.4f} px (OpenCV's), per coordinate "
+            f"{obs.errors['rms_per_coord_px']:.4f} px (mrcal's)",
+        )
+    )
     ce = obs.centre_errors if obs.centre_errors is not None else np.zeros(0)
     if ce.size:
         cmax = float(np.max(ce))
-        out.checks.append(Check("circcal final centres vs true projections: max, px", cmax, CENTRE_MAX_PX,
-                                cmax <= CENTRE_MAX_PX,
-                                f"RMS {float(np.sqrt(np.mean(ce ** 2))):.4f} px over {ce.size} points"))
-        out.measured["centre_rms_px"] = float(np.sqrt(np.mean(ce ** 2)))
+        out.checks.append(
+            Check(
+                "circcal final centres vs true projections: max, px",
+                cmax,
+                CENTRE_MAX_PX,
+                cmax <= CENTRE_MAX_PX,
+                f"RMS {float(np.sqrt(np.mean(ce**2))):.4f} px over {ce.size} points",
+            )
+        )
+        out.measured["centre_rms_px"] = float(np.sqrt(np.mean(ce**2)))
     out.measured["mean_2d_px"] = m2
     for r in obs.failed:
         out.notes.append(f"image rejected: {Path(r.path).name}: {r.code.value}: {r.reason}")
     return out
 
 
-def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalibrator, *,
-                       solver_px: float | None = None) -> Outcome:
+def run_reference_case(
+    case: Case, obs: Observations, calibrator: ReferenceCalibrator, *, solver_px: float | None = None
+) -> Outcome:
     """A reference (or user) calibrator on circcal's observations of ``case``'s scenario-variant.
 
     ``solver_px``: the agreement bound with circcal's solver (default :func:`~circcal.validators.checks.solver_bound`:
@@ -483,8 +553,10 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
         expect = UNSUPPORTED_LAYOUTS[case.reference].get(obs.board.layout)
     if not obs.ok:
         out.status = "skip"
-        out.skip_reason = (f"no observations: circcal did not calibrate {case.scenario}-{case.variant} "
-                           f"({obs.message.splitlines()[0] if obs.message else 'failed'})")
+        out.skip_reason = (
+            f"no observations: circcal did not calibrate {case.scenario}-{case.variant} "
+            f"({obs.message.splitlines()[0] if obs.message else 'failed'})"
+        )
         return out
     supported, why = lens_support(calibrator, case.lens)
     if not supported:
@@ -496,8 +568,15 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
     if expect is not None:
         ok = res.status == "unsupported" and expect in (res.message or "").lower()
         out.status = "unsupported"
-        out.checks.append(Check(f"{label} reports {case.scenario} unsupported, naming '{expect}'", float(ok), 1.0,
-                                ok, f"status {res.status}: {res.message}"))
+        out.checks.append(
+            Check(
+                f"{label} reports {case.scenario} unsupported, naming '{expect}'",
+                float(ok),
+                1.0,
+                ok,
+                f"status {res.status}: {res.message}",
+            )
+        )
         return out
     if res.status == "unavailable":
         out.status, out.skip_reason = "skip", f"{label} unavailable: {res.message}"
@@ -510,11 +589,13 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
         return out
     circcal_camera, circcal_ssr, res_fitted = obs.solver_camera, obs.solver_ssr, res
     left_out = res.extra.get("left_out") or {}
-    if left_out:   # the reference fitted a subset of the observations: circcal's solve on that same subset
+    if left_out:  # the reference fitted a subset of the observations: circcal's solve on that same subset
         circcal_camera, circcal_ssr, res_fitted = solve_subset(obs, res, left_out)
         n_left = sum(map(len, left_out.values()))
-        out.notes.append(f"{label} left out {n_left} observations ({res.extra.get('note', '')}); compared with "
-                         "circcal's solve on the same subset")
+        out.notes.append(
+            f"{label} left out {n_left} observations ({res.extra.get('note', '')}); compared with "
+            "circcal's solve on the same subset"
+        )
     vs_circcal = projection_diff(circcal_camera, res_fitted.camera, fit=False)
     out.measured["vs_circcal_max_px"] = vs_circcal["max_px"]
     errors = res.errors or {}
@@ -524,13 +605,19 @@ def run_reference_case(case: Case, obs: Observations, calibrator: ReferenceCalib
     std, std_note = res.std, ""
     if not std or not all(np.isfinite(std.get(n, np.nan)) and std.get(n, 0) > 0 for n in ("fx", "fy", "cx", "cy")):
         std, std_note = obs.solver_std, "; circcal's on the same observations"
-    found_checks, measured = truth_checks(res.name, res.camera, std, obs.truth, sigmas=suite_truth_sigmas(),
-                                          rms_px=b.truth_px_for(case.variant), std_note=std_note)
+    found_checks, measured = truth_checks(
+        res.name,
+        res.camera,
+        std,
+        obs.truth,
+        sigmas=suite_truth_sigmas(),
+        rms_px=b.truth_px_for(case.variant),
+        std_note=std_note,
+    )
     out.measured.update(measured)
     if case.mode == "default":
         out.status = "measured"
-        out.notes.append(f"{label} is a different estimator: its differences are measured and printed, "
-                         f"not asserted")
+        out.notes.append(f"{label} is a different estimator: its differences are measured and printed, not asserted")
         for c in found_checks:
             out.notes.append(f"  measured: {c.name}: {c.value:.4g} ({c.note})")
         return out
@@ -559,14 +646,22 @@ def _lens_unsupported(case: Case, obs: Observations, calibrator: ReferenceCalibr
     res = calibrator.calibrate_observations(obs.object_points, obs.image_points, obs.image_size, mode=case.mode)
     out.result = res
     ok = res.status == "unsupported" and bool((res.message or "").strip())
-    out.checks.append(Check(f"{res.name} [{res.mode}] reports lens {case.lens} unsupported with a reason", float(ok),
-                            1.0, ok, f"status {res.status}: {res.message}"))
+    out.checks.append(
+        Check(
+            f"{res.name} [{res.mode}] reports lens {case.lens} unsupported with a reason",
+            float(ok),
+            1.0,
+            ok,
+            f"status {res.status}: {res.message}",
+        )
+    )
     return out
 
 
 # --------------------------------------------------------------------------------------------------------------------
 # Reporting
 # --------------------------------------------------------------------------------------------------------------------
+
 
 def format_outcome(outcome: Outcome) -> str:
     """Multi-line text of a case: every check with value and bound, measured numbers, notes."""
@@ -575,8 +670,10 @@ def format_outcome(outcome: Outcome) -> str:
         lines.append(f"  {outcome.result.summary()}")
     for c in outcome.checks:
         bound = "" if not np.isfinite(c.bound) else f" (bound {c.bound:g})"
-        lines.append(f"  {'PASS' if c.passed else 'FAIL'} {c.name}: {fmt_number(c.value, '.4g')}{bound}"
-                     f"{(' - ' + c.note) if c.note else ''}")
+        lines.append(
+            f"  {'PASS' if c.passed else 'FAIL'} {c.name}: {fmt_number(c.value, '.4g')}{bound}"
+            f"{(' - ' + c.note) if c.note else ''}"
+        )
     if outcome.measured:
         lines.append("  measured: " + ", ".join(f"{k}={fmt_number(v, '.4g')}" for k, v in outcome.measured.items()))
     lines += [f"  {n}" for n in outcome.notes]
@@ -588,11 +685,16 @@ def format_outcome(outcome: Outcome) -> str:
 def summary_line(outcome: Outcome) -> str:
     """One line for the end-of-run table: the case, its status and its key numbers."""
     m = outcome.measured
-    keys = [("images_used", "images used"), ("truth_rms_px", "vs truth rms px"),
-            ("truth_rms_pred_p99_px", "(p99 predicted px"), ("vs_circcal_max_px", "vs circcal max px"),
-            ("mean_2d_px", "mean2d px"), ("fx_sigmas", "fx/sigma"), ("cx_sigmas", "cx/sigma")]
-    parts = [f"{name} {fmt_number(m[k], '.4g')}" + (")" if name.startswith("(") else "")
-             for k, name in keys if k in m]
+    keys = [
+        ("images_used", "images used"),
+        ("truth_rms_px", "vs truth rms px"),
+        ("truth_rms_pred_p99_px", "(p99 predicted px"),
+        ("vs_circcal_max_px", "vs circcal max px"),
+        ("mean_2d_px", "mean2d px"),
+        ("fx_sigmas", "fx/sigma"),
+        ("cx_sigmas", "cx/sigma"),
+    ]
+    parts = [f"{name} {fmt_number(m[k], '.4g')}" + (")" if name.startswith("(") else "") for k, name in keys if k in m]
     if "images_used" in m:
         parts[0] += f"/{m.get('images', 0):.0f}"
     bad = failed_checks(outcome)

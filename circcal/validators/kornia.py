@@ -27,6 +27,7 @@ pieces (float64 throughout):
 It deliberately does not import circcal's solver: it is the reference's own path. "fair" and "default" are the same
 estimator (plain least squares).
 """
+
 from __future__ import annotations
 
 import time
@@ -88,8 +89,9 @@ def _view_residual(intr, pose, obj, img, w, lens: str = "opencv5"):
         q = distort_points_kannala_brandt(xn, intr)
         return torch.where(w[:, None] > 0, (q - img) * w[:, None], torch.zeros_like(q)).reshape(-1)
     zero, one = torch.zeros_like(intr[0]), torch.ones_like(intr[0])
-    K = torch.stack([torch.stack([intr[0], zero, intr[2]]), torch.stack([zero, intr[1], intr[3]]),
-                     torch.stack([zero, zero, one])])
+    K = torch.stack(
+        [torch.stack([intr[0], zero, intr[2]]), torch.stack([zero, intr[1], intr[3]]), torch.stack([zero, zero, one])]
+    )
     eye = torch.eye(3, dtype=intr.dtype, device=intr.device)
     q = distort_points(xn, K, intr[4:], new_K=eye)
     # where, not a product: a padded point must give 0 even if its projection is not finite
@@ -220,9 +222,16 @@ def _zhang_init(obj, img, w, vmask, sizes, ndist: int = 5):
 
     def vrow(h, i, j):  # Zhang's v_ij without the skew column: (B11, B22, B13, B23, B33)
         hi, hj = h[..., :, i], h[..., :, j]
-        return torch.stack([hi[..., 0] * hj[..., 0], hi[..., 1] * hj[..., 1],
-                            hi[..., 2] * hj[..., 0] + hi[..., 0] * hj[..., 2],
-                            hi[..., 2] * hj[..., 1] + hi[..., 1] * hj[..., 2], hi[..., 2] * hj[..., 2]], -1)
+        return torch.stack(
+            [
+                hi[..., 0] * hj[..., 0],
+                hi[..., 1] * hj[..., 1],
+                hi[..., 2] * hj[..., 0] + hi[..., 0] * hj[..., 2],
+                hi[..., 2] * hj[..., 1] + hi[..., 1] * hj[..., 2],
+                hi[..., 2] * hj[..., 2],
+            ],
+            -1,
+        )
 
     A = torch.cat([vrow(H, 0, 1), vrow(H, 0, 0) - vrow(H, 1, 1)], dim=1)  # (B, 2V, 5)
     m = torch.cat([vmask, vmask], dim=1).to(dt)
@@ -232,10 +241,10 @@ def _zhang_init(obj, img, w, vmask, sizes, ndist: int = 5):
     b = b * torch.sign(b[:, 0:1])
     B11, B22, B13, B23, B33 = b.unbind(-1)
     v0 = -B23 / B22
-    lam = B33 - (B13 ** 2 - v0 * B11 * B23) / B11
+    lam = B33 - (B13**2 - v0 * B11 * B23) / B11
     fxn = torch.sqrt(lam / B11)
     fyn = torch.sqrt(lam / B22)
-    u0 = -B13 * fxn ** 2 / lam
+    u0 = -B13 * fxn**2 / lam
     # fallback: principal point at the centre (0 in normalised pixels), solve 1/fx^2, 1/fy^2 by least squares
     h = H
     a1 = torch.stack([h[..., 0, 0] * h[..., 0, 1], h[..., 1, 0] * h[..., 1, 1]], -1)
@@ -247,8 +256,15 @@ def _zhang_init(obj, img, w, vmask, sizes, ndist: int = 5):
     ab = torch.linalg.lstsq(AA, cc[..., None]).solution[..., 0]
     fx_c = 1.0 / torch.sqrt(torch.clamp(ab[:, 0], min=1e-12))
     fy_c = 1.0 / torch.sqrt(torch.clamp(ab[:, 1], min=1e-12))
-    ok = (torch.isfinite(fxn) & torch.isfinite(fyn) & (fxn > 0) & (fyn > 0) & (u0.abs() < 0.5) & (v0.abs() < 0.5)
-          & ((fxn / fyn - 1).abs() < 0.5))
+    ok = (
+        torch.isfinite(fxn)
+        & torch.isfinite(fyn)
+        & (fxn > 0)
+        & (fyn > 0)
+        & (u0.abs() < 0.5)
+        & (v0.abs() < 0.5)
+        & ((fxn / fyn - 1).abs() < 0.5)
+    )
     fxn = torch.where(ok, fxn, fx_c)
     fyn = torch.where(ok, fyn, fy_c)
     u0 = torch.where(ok, u0, torch.zeros_like(u0))
@@ -338,8 +354,9 @@ class KorniaCalibrator(BaseCalibrator):
     modes = ("fair",)
     lenses = tuple(KORNIA_LENSES)
 
-    def __init__(self, *, lens: str = "opencv5", fix_k3: bool = False, device: str | None = None,
-                 max_iter: int = 200) -> None:
+    def __init__(
+        self, *, lens: str = "opencv5", fix_k3: bool = False, device: str | None = None, max_iter: int = 200
+    ) -> None:
         if lens not in LENS_MODELS:
             raise ValueError(f"unknown lens model {lens!r}; expected one of {', '.join(LENS_MODELS)}")
         self.lens = lens
@@ -361,10 +378,21 @@ class KorniaCalibrator(BaseCalibrator):
             return False, f"kornia/torch not importable ({exc}); pip install torch==2.13.0 kornia (CPU wheel)"
         return True, ""
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
-        problem = {"object_points": object_points, "image_points": image_points, "image_size": image_size,
-                   "initial": initial}
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
+        problem = {
+            "object_points": object_points,
+            "image_points": image_points,
+            "image_size": image_size,
+            "initial": initial,
+        }
         out = self._solve([problem], mode=mode, device="cpu" if self.device is None else self.device)[0]
         if isinstance(out, Exception):
             raise out
@@ -385,8 +413,9 @@ class KorniaCalibrator(BaseCalibrator):
         for p in problems:
             try:
                 obj, img, size = check_observations(p["object_points"], p["image_points"], p["image_size"])
-                checked.append({"object_points": obj, "image_points": img, "image_size": size,
-                                "initial": p.get("initial")})
+                checked.append(
+                    {"object_points": obj, "image_points": img, "image_size": size, "initial": p.get("initial")}
+                )
             except Exception as exc:  # noqa: BLE001
                 checked.append(exc)
         good = [c for c in checked if not isinstance(c, Exception)]
@@ -397,8 +426,10 @@ class KorniaCalibrator(BaseCalibrator):
             solved = iter(self._solve(good, mode=mode, device=device)) if good else iter(())
         except Exception as exc:  # noqa: BLE001  (the batch solve itself broke: every problem failed with it)
             msg = f"{type(exc).__name__}: {exc}"
-            return [self.result(mode, "failed", msg if not isinstance(c, Exception) else f"{type(c).__name__}: {c}")
-                    for c in checked]
+            return [
+                self.result(mode, "failed", msg if not isinstance(c, Exception) else f"{type(c).__name__}: {c}")
+                for c in checked
+            ]
         out = []
         for c in checked:
             if isinstance(c, Exception):
@@ -488,11 +519,24 @@ class KorniaCalibrator(BaseCalibrator):
                 sd = np.zeros(len(fr))
                 sd[fr] = sd_free
                 std = {n: float(sd[i]) for i, n in enumerate(names)}
-                res = self.finish(mode, cam, poses[:, :3], poses[:, 3:], p["object_points"], p["image_points"], t0,
-                                  std=std, fixed=["k3"] if self.fix_k3 else [], iterations=int(iters),
-                                  lens=lens, kornia_model=KORNIA_LENSES[lens],
-                                  converged=bool(conv[b]), zhang_closed_form=bool(zhang_ok[b]),
-                                  device=str(device), batch_size=B)
+                res = self.finish(
+                    mode,
+                    cam,
+                    poses[:, :3],
+                    poses[:, 3:],
+                    p["object_points"],
+                    p["image_points"],
+                    t0,
+                    std=std,
+                    fixed=["k3"] if self.fix_k3 else [],
+                    iterations=int(iters),
+                    lens=lens,
+                    kornia_model=KORNIA_LENSES[lens],
+                    converged=bool(conv[b]),
+                    zhang_closed_form=bool(zhang_ok[b]),
+                    device=str(device),
+                    batch_size=B,
+                )
                 res.time_s = elapsed / B
                 if not bool(conv[b]):
                     res.message = f"LM stopped after {iters} iterations without meeting its tolerance"
@@ -514,4 +558,5 @@ def _check_in_front(poses: np.ndarray, object_points: list[np.ndarray]) -> None:
         if np.any(z <= 0):
             raise NotImplementedError(
                 f"view {v}: {int(np.sum(z <= 0))} board point(s) at or beyond 90 deg off axis; kornia's "
-                "distort_points_kannala_brandt takes points on the z = 1 plane and cannot represent them")
+                "distort_points_kannala_brandt takes points on the z = 1 plane and cannot represent them"
+            )

@@ -33,6 +33,7 @@ runs on that cv2 (5.0) as it is, except one path: a frame whose first PnP fails 
 ``cv2.undistortPointsIter``, which OpenCV 5 removed (that run is reported failed, with this reason).
 lensboy states no parameter standard deviations: ``std`` is None.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -58,8 +59,10 @@ COEFFICIENTS: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6",
 #: the solve, without taking the step, when the step would lower the cost by at most this fraction of the cost
 #: (what lensboy 4.0.3 is measured to do: tests/test_lens_references.py).
 CERES_FUNCTION_TOLERANCE = 1e-6
-INSTALL_HINT = ("pip install --no-deps lensboy (its declared opencv-contrib-python would replace the "
-                "opencv-contrib-python-headless that provides cv2)")
+INSTALL_HINT = (
+    "pip install --no-deps lensboy (its declared opencv-contrib-python would replace the "
+    "opencv-contrib-python-headless that provides cv2)"
+)
 
 
 def to_lensboy(camera: Camera) -> lensboy.OpenCV:
@@ -68,8 +71,15 @@ def to_lensboy(camera: Camera) -> lensboy.OpenCV:
     import lensboy as lb
 
     d = dict(zip(param_names(camera.lens)[4:], camera.dist))
-    return lb.OpenCV(image_width=camera.width, image_height=camera.height, fx=camera.fx, fy=camera.fy,
-                     cx=camera.cx, cy=camera.cy, distortion_coeffs=np.array([d.get(c, 0.0) for c in COEFFICIENTS]))
+    return lb.OpenCV(
+        image_width=camera.width,
+        image_height=camera.height,
+        fx=camera.fx,
+        fy=camera.fy,
+        cx=camera.cx,
+        cy=camera.cy,
+        distortion_coeffs=np.array([d.get(c, 0.0) for c in COEFFICIENTS]),
+    )
 
 
 def _coefficient_mask(lens: str) -> np.ndarray:
@@ -87,7 +97,8 @@ class LensboyCalibrator(BaseCalibrator):
     lenses = ("opencv5", "rational", "thin-prism")
     unsupported_lenses = {
         "fisheye": "lensboy has no fisheye (equidistant Kannala-Brandt) model: its models are OpenCV's pinhole model "
-                   "(up to 14 coefficients) and splined pinhole models"}
+        "(up to 14 coefficients) and splined pinhole models"
+    }
 
     def __init__(self, *, lens: str = "opencv5") -> None:
         self.lens = lens
@@ -104,17 +115,27 @@ class LensboyCalibrator(BaseCalibrator):
             return False, f"lensboy not importable ({exc}); {INSTALL_HINT}"
         return True, ""
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         import lensboy as lb
 
         t0 = time.perf_counter()
         w, h = int(image_size[0]), int(image_size[1])
         target, idx = distinct_points(object_points)
-        frames = [lb.Frame(target_point_indices=i, detected_points_in_image=np.asarray(q, dtype=np.float64))
-                  for i, q in zip(idx, image_points)]
-        config = lb.OpenCVConfig(image_height=h, image_width=w,
-                                 included_distortion_coefficients=_coefficient_mask(self.lens))
+        frames = [
+            lb.Frame(target_point_indices=i, detected_points_in_image=np.asarray(q, dtype=np.float64))
+            for i, q in zip(idx, image_points)
+        ]
+        config = lb.OpenCVConfig(
+            image_height=h, image_width=w, included_distortion_coefficients=_coefficient_mask(self.lens)
+        )
         init = None
         if initial is not None:
             if initial.lens != self.lens:
@@ -124,18 +145,33 @@ class LensboyCalibrator(BaseCalibrator):
         log = io.StringIO()
         try:
             with contextlib.redirect_stdout(log):  # lensboy prints its progress
-                res = lb.calibrate_camera(target, frames, config, initial_camera_model=init,
-                                          estimate_target_warp=not fair,
-                                          outlier_threshold_stddevs=None if fair else 5.0)
+                res = lb.calibrate_camera(
+                    target,
+                    frames,
+                    config,
+                    initial_camera_model=init,
+                    estimate_target_warp=not fair,
+                    outlier_threshold_stddevs=None if fair else 5.0,
+                )
         except AttributeError as exc:
             if "undistortPointsIter" not in str(exc):
                 raise
-            raise RuntimeError("lensboy re-posed a frame through cv2.undistortPointsIter, which OpenCV 5 removed "
-                               f"(lensboy wants opencv-contrib-python; cv2 here is {_cv2_version()})") from exc
+            raise RuntimeError(
+                "lensboy re-posed a frame through cv2.undistortPointsIter, which OpenCV 5 removed "
+                f"(lensboy wants opencv-contrib-python; cv2 here is {_cv2_version()})"
+            ) from exc
         m = res.camera_model
         coeffs = dict(zip(COEFFICIENTS, np.asarray(m.distortion_coeffs, dtype=np.float64)))
-        camera = Camera(w, h, float(m.fx), float(m.fy), float(m.cx), float(m.cy),
-                        np.array([coeffs[n] for n in param_names(self.lens)[4:]]), lens=self.lens)
+        camera = Camera(
+            w,
+            h,
+            float(m.fx),
+            float(m.fy),
+            float(m.cx),
+            float(m.cy),
+            np.array([coeffs[n] for n in param_names(self.lens)[4:]]),
+            lens=self.lens,
+        )
         views = [v for v, p in enumerate(res.cameras_from_target) if p is not None]
         M = [np.asarray(res.cameras_from_target[v].matrix, dtype=np.float64) for v in views]
         import cv2
@@ -144,10 +180,13 @@ class LensboyCalibrator(BaseCalibrator):
         tvecs = np.array([T[:3, 3] for T in M])
         obj = [object_points[v] for v in views]
         img = [image_points[v] for v in views]
-        extra: dict[str, Any] = dict(lens=self.lens, fixed=[c for c in COEFFICIENTS if c not in param_names(self.lens)],
-                                     n_outliers=int(res.num_outliers()), log=log.getvalue()[-2000:],
-                                     target_warp=None if res.target_warp is None
-                                     else [float(c) for c in res.target_warp.object_warp])
+        extra: dict[str, Any] = dict(
+            lens=self.lens,
+            fixed=[c for c in COEFFICIENTS if c not in param_names(self.lens)],
+            n_outliers=int(res.num_outliers()),
+            log=log.getvalue()[-2000:],
+            target_warp=None if res.target_warp is None else [float(c) for c in res.target_warp.object_warp],
+        )
         if fair:
             return self.finish(mode, camera, rvecs, tvecs, obj, img, t0, views=views, **extra)
         residuals = []
@@ -157,9 +196,20 @@ class LensboyCalibrator(BaseCalibrator):
             r[~np.asarray(diag.inlier_mask, dtype=bool)] = np.nan
             residuals.append(r)
         dropped = len(object_points) - len(views)
-        return self.finish(mode, camera, rvecs, tvecs, obj, img, t0, views=views, residuals=residuals,
-                           message=f"lensboy default: board warp {np.round(extra['target_warp'] or [], 6).tolist()}, "
-                                   f"{extra['n_outliers']} outliers filtered, {dropped} views dropped", **extra)
+        return self.finish(
+            mode,
+            camera,
+            rvecs,
+            tvecs,
+            obj,
+            img,
+            t0,
+            views=views,
+            residuals=residuals,
+            message=f"lensboy default: board warp {np.round(extra['target_warp'] or [], 6).tolist()}, "
+            f"{extra['n_outliers']} outliers filtered, {dropped} views dropped",
+            **extra,
+        )
 
 
 def _cv2_version() -> str:

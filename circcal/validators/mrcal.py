@@ -23,6 +23,7 @@ map onto it and is reported "unsupported". mrcal reports RMS per coordinate; ``e
 :func:`circcal.metrics.error_stats` (all three conventions). mrcal offers projection uncertainty rather than
 parameter standard deviations: ``std`` is None.
 """
+
 from __future__ import annotations
 
 import time
@@ -47,8 +48,9 @@ from circcal.validators.base import BaseCalibrator, ReferenceResult, check_diver
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE", "LENSMODELS"]
 
 
-def _seed_frames(object_points: list[np.ndarray], image_points: list[np.ndarray], seed: Camera,
-                 origin: np.ndarray) -> list[list[float]] | None:
+def _seed_frames(
+    object_points: list[np.ndarray], image_points: list[np.ndarray], seed: Camera, origin: np.ndarray
+) -> list[list[float]] | None:
     """The fair mode's starting board poses (Nframes, 6) ``rvec, tvec`` (mrcal's lattice frame, whose origin is
     ``origin`` (3,) mm of ours, -> camera): each view's PnP with the ``seed`` camera (the generic seed, or the
     caller's initial camera; nothing of circcal's solve), in place of mrcal 2.2's own pose seeding, which on partial
@@ -96,13 +98,26 @@ class MrcalCalibrator(BaseCalibrator):
         py, why, _ = self._interp()
         return (py is not None), why
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         return self._run(object_points, image_points, image_size, [mode], initial)[0]
 
-    def calibrate_modes(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                        image_size: tuple[int, int], *, modes: tuple[str, ...] = ("fair", "default"),
-                        initial: Camera | None = None) -> list[ReferenceResult]:
+    def calibrate_modes(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        modes: tuple[str, ...] = ("fair", "default"),
+        initial: Camera | None = None,
+    ) -> list[ReferenceResult]:
         """Several modes from one worker run (same seed). Never raises; one result per mode."""
         holder: dict[str, list[ReferenceResult]] = {}
 
@@ -117,12 +132,27 @@ class MrcalCalibrator(BaseCalibrator):
             return [check_divergence(r) for r in holder["r"]]
         out = []
         for m in modes:  # same failure for every mode
-            out.append(ReferenceResult(first.name, first.version, m, first.status, first.message,
-                                       time_s=first.time_s, extra=dict(first.extra)))
+            out.append(
+                ReferenceResult(
+                    first.name,
+                    first.version,
+                    m,
+                    first.status,
+                    first.message,
+                    time_s=first.time_s,
+                    extra=dict(first.extra),
+                )
+            )
         return out
 
-    def _run(self, object_points: list[np.ndarray], image_points: list[np.ndarray], image_size: tuple[int, int],
-             modes: list[str], initial: Camera | None) -> list[ReferenceResult]:
+    def _run(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        modes: list[str],
+        initial: Camera | None,
+    ) -> list[ReferenceResult]:
         t0 = time.perf_counter()
         py, why, info = self._interp()
         if py is None:
@@ -139,11 +169,18 @@ class MrcalCalibrator(BaseCalibrator):
             raise ValueError(f"initial camera has lens {initial.lens!r}, this reference fits {self.lens!r}")
         seed = initial if initial is not None else seed_camera(object_points, image_points, image_size)
         lensmodel = LENSMODELS[self.lens]
-        req = {"modes": modes, "width_n": W, "height_n": H, "spacing": s, "observations": obs.tolist(),
-               "imagersize": [int(image_size[0]), int(image_size[1])],
-               "focal_estimate": float(0.5 * (seed.fx + seed.fy)), "lensmodel": lensmodel,
-               "seed_intrinsics": None if initial is None else initial.intrinsics.tolist(),
-               "seed_frames_fair": _seed_frames(object_points, image_points, seed, origin)}
+        req = {
+            "modes": modes,
+            "width_n": W,
+            "height_n": H,
+            "spacing": s,
+            "observations": obs.tolist(),
+            "imagersize": [int(image_size[0]), int(image_size[1])],
+            "focal_estimate": float(0.5 * (seed.fx + seed.fy)),
+            "lensmodel": lensmodel,
+            "seed_intrinsics": None if initial is None else initial.intrinsics.tolist(),
+            "seed_frames_fair": _seed_frames(object_points, image_points, seed, origin),
+        }
         reply = run_worker(py, req, self.timeout_s)
         wall = time.perf_counter() - t0
         out = []
@@ -161,13 +198,22 @@ class MrcalCalibrator(BaseCalibrator):
                 rv = -x[v, ij[:, 0], ij[:, 1]]  # ours: observed - projected
                 rv[wts[v, ij[:, 0], ij[:, 1]] <= 0] = np.nan
                 mrcal_res.append(rv)
-            extra = dict(api=reply["api"], version_source=reply.get("version_source"), interpreter=py,
-                         lattice={"width_n": W, "height_n": H, "spacing_mm": s, "origin_mm": origin.tolist()},
-                         rms_per_coord_px_mrcal=r["rms_per_coord_px"], n_outliers=r["n_outliers"],
-                         calobject_warp=r["calobject_warp"], seed_focal_px=req["focal_estimate"],
-                         seed_from="cv2.initCameraMatrix2D focal (mrcal needs a focal estimate)"
-                         if initial is None else "initial camera", worker_wall_s=wall,
-                         lensmodel=lensmodel, lens=self.lens)
+            extra = dict(
+                api=reply["api"],
+                version_source=reply.get("version_source"),
+                interpreter=py,
+                lattice={"width_n": W, "height_n": H, "spacing_mm": s, "origin_mm": origin.tolist()},
+                rms_per_coord_px_mrcal=r["rms_per_coord_px"],
+                n_outliers=r["n_outliers"],
+                calobject_warp=r["calobject_warp"],
+                seed_focal_px=req["focal_estimate"],
+                seed_from="cv2.initCameraMatrix2D focal (mrcal needs a focal estimate)"
+                if initial is None
+                else "initial camera",
+                worker_wall_s=wall,
+                lensmodel=lensmodel,
+                lens=self.lens,
+            )
             if r["mode"] == "fair":
                 res = self.finish(r["mode"], cam, rvecs, tvecs, object_points, image_points, t0, **extra)
                 # mrcal's own residuals agree with ours (flat board, same model): record the check
@@ -175,19 +221,32 @@ class MrcalCalibrator(BaseCalibrator):
                 extra_check = float(np.nanmax(np.abs(ours - np.concatenate(mrcal_res))))
                 res.extra["max_abs_residual_diff_vs_mrcal_px"] = extra_check
             else:
-                res = self.finish(r["mode"], cam, rvecs, tvecs, object_points, image_points, t0,
-                                  residuals=mrcal_res,
-                                  message=f"mrcal default: board warp {np.round(r['calobject_warp'], 6).tolist()}, "
-                                          f"regularisation, {r['n_outliers']} outliers rejected", **extra)
+                res = self.finish(
+                    r["mode"],
+                    cam,
+                    rvecs,
+                    tvecs,
+                    object_points,
+                    image_points,
+                    t0,
+                    residuals=mrcal_res,
+                    message=f"mrcal default: board warp {np.round(r['calobject_warp'], 6).tolist()}, "
+                    f"regularisation, {r['n_outliers']} outliers rejected",
+                    **extra,
+                )
                 res.extra["errors_flat_board_no_outlier_rejection"] = error_stats(
-                    np.concatenate([p - project(o, rv, tv, cam) for o, p, rv, tv in
-                                    zip(object_points, image_points, rvecs, tvecs)]))
+                    np.concatenate(
+                        [p - project(o, rv, tv, cam) for o, p, rv, tv in zip(object_points, image_points, rvecs, tvecs)]
+                    )
+                )
             res.time_s = wall / len(reply["results"])
             out.append(res)
         return out
 
     def _calibrate_images(self, paths, board, image_size, *, mode, initial) -> ReferenceResult:
-        return self.result(mode, "unsupported",
-                           "mrcal has no circle-grid detector (its finder, mrgingham, finds chessboards): "
-                           "use calibrate_observations with detected centres")
-
+        return self.result(
+            mode,
+            "unsupported",
+            "mrcal has no circle-grid detector (its finder, mrgingham, finds chessboards): "
+            "use calibrate_observations with detected centres",
+        )

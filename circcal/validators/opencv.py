@@ -23,6 +23,7 @@
   Symmetric square grids may come back rotated by 90 degrees between views: see
   :func:`circcal.analysis.compare.match_grid_order` before comparing centres one by one.
 """
+
 from __future__ import annotations
 
 import time
@@ -50,9 +51,17 @@ def _tight_criteria():
     return (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16)
 
 
-def make_blob_detector(board: Any, image_size: tuple[int, int], *, min_fill: float = 0.08, max_fill: float = 1.2,
-                       min_area: float | None = None, max_area: float | None = None,
-                       threshold_step: float = 10.0, permissive: bool = False):
+def make_blob_detector(
+    board: Any,
+    image_size: tuple[int, int],
+    *,
+    min_fill: float = 0.08,
+    max_fill: float = 1.2,
+    min_area: float | None = None,
+    max_area: float | None = None,
+    threshold_step: float = 10.0,
+    permissive: bool = False,
+):
     """A ``cv2.SimpleBlobDetector`` whose area window fits the dots of ``board`` in an image of ``image_size``.
 
     Otherwise OpenCV's defaults (or, with ``permissive``, wider thresholds and looser shape filters).
@@ -71,21 +80,23 @@ def make_blob_detector(board: Any, image_size: tuple[int, int], *, min_fill: flo
     # OpenCV's defaults (thresholds 50..220, inertia >= 0.1, convexity >= 0.95) with the area window fitted to the
     # dots; ``permissive`` widens thresholds and shape filters for low-contrast or strongly tilted dots.
     p = cv2.SimpleBlobDetector_Params()
-    p.minArea = float(min_area if min_area is not None else min(25.0, max(4.0, 0.25 * np.pi / 4.0 * d_min ** 2)))
-    p.maxArea = float(max_area if max_area is not None else max(5000.0, np.pi / 4.0 * d_max ** 2))
+    p.minArea = float(min_area if min_area is not None else min(25.0, max(4.0, 0.25 * np.pi / 4.0 * d_min**2)))
+    p.maxArea = float(max_area if max_area is not None else max(5000.0, np.pi / 4.0 * d_max**2))
     if permissive:
         p.minThreshold = 10.0
         p.maxThreshold = 240.0
         p.thresholdStep = float(threshold_step)
         p.minInertiaRatio = 0.05
         p.minConvexity = 0.85
-        p.minDistBetweenBlobs = float(max(2.0, min(10.0, 0.5 * min_fill * long_side
-                                                   * (spacing_mm - board.diameter_mm) / extent)))
+        p.minDistBetweenBlobs = float(
+            max(2.0, min(10.0, 0.5 * min_fill * long_side * (spacing_mm - board.diameter_mm) / extent))
+        )
     return cv2.SimpleBlobDetector_create(p)
 
 
-def find_circles_grid(image: np.ndarray, board: Any, *, detector: Any = None,
-                      clustering_fallback: bool = True) -> tuple[np.ndarray | None, str]:
+def find_circles_grid(
+    image: np.ndarray, board: Any, *, detector: Any = None, clustering_fallback: bool = True
+) -> tuple[np.ndarray | None, str]:
     """Detect ``board``'s grid in a grey ``image`` (H, W) uint8. Returns ((rows*cols, 2) float64 px in OpenCV's order
     or None, how it was found: "plain" | "clustering" | reason it failed)."""
     cv2 = _cv2()
@@ -96,9 +107,15 @@ def find_circles_grid(image: np.ndarray, board: Any, *, detector: Any = None,
     h, w = image.shape[:2]
     # OpenCV's default detector first (its baseline), then the area window fitted to the dot size (large dots exceed
     # the default maxArea of 5000 px^2), then the permissive variant.
-    detectors = [("", detector)] if detector is not None else [
-        ("default-detector ", cv2.SimpleBlobDetector_create()), ("sized-detector ", make_blob_detector(board, (w, h))),
-        ("permissive-detector ", make_blob_detector(board, (w, h), permissive=True))]
+    detectors = (
+        [("", detector)]
+        if detector is not None
+        else [
+            ("default-detector ", cv2.SimpleBlobDetector_create()),
+            ("sized-detector ", make_blob_detector(board, (w, h))),
+            ("permissive-detector ", make_blob_detector(board, (w, h), permissive=True)),
+        ]
+    )
     base = cv2.CALIB_CB_SYMMETRIC_GRID if board.layout == "symmetric" else cv2.CALIB_CB_ASYMMETRIC_GRID
     attempts = [("plain", base)]
     if clustering_fallback:
@@ -117,15 +134,18 @@ LENS_FLAGS: dict[str, str] = {
     "rational": "CALIB_RATIONAL_MODEL",
     "thin-prism": "CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL",
     "fisheye": "cv2.fisheye.calibrate with CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW, CALIB_USE_INTRINSIC_GUESS "
-               "from the equidistant seed (base.seed_camera)",
+    "from the equidistant seed (base.seed_camera)",
 }
 
 
 def _lens_flags(lens: str) -> int:
     cv2 = _cv2()
-    return {"opencv5": 0, "rational": cv2.CALIB_RATIONAL_MODEL,
-            "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
-            "fisheye": cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW}[lens]
+    return {
+        "opencv5": 0,
+        "rational": cv2.CALIB_RATIONAL_MODEL,
+        "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+        "fisheye": cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW,
+    }[lens]
 
 
 #: cv2.fisheye works on the z = 1 plane (theta = atan(r)): it cannot take a point at or beyond this angle (deg).
@@ -141,8 +161,11 @@ def _fisheye_limit(object_points, image_points, size: tuple[int, int], exc: Exce
     from circcal.solver.fisheye_start import fisheye_start
 
     try:
-        seed = fisheye_start([np.asarray(o, dtype=np.float64) for o in object_points],
-                             [np.asarray(p, dtype=np.float64) for p in image_points], size)[0]
+        seed = fisheye_start(
+            [np.asarray(o, dtype=np.float64) for o in object_points],
+            [np.asarray(p, dtype=np.float64) for p in image_points],
+            size,
+        )[0]
     except CalibrationError:
         return
     uv = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points])
@@ -152,7 +175,8 @@ def _fisheye_limit(object_points, image_points, size: tuple[int, int], exc: Exce
         raise NotImplementedError(
             f"cv2.fisheye projects only points in front of the camera (theta = atan(|xy| / z) < 90 deg) and these "
             f"views reach about {theta:.0f} deg off axis (equidistant seed f = {seed.fy:.4g} px); its calibrate "
-            f"fails ({str(exc).strip().splitlines()[-1]})") from None
+            f"fails ({str(exc).strip().splitlines()[-1]})"
+        ) from None
 
 
 class OpenCVCalibrator(BaseCalibrator):
@@ -184,8 +208,15 @@ class OpenCVCalibrator(BaseCalibrator):
             return False, f"OpenCV not importable ({exc}); pip install opencv-contrib-python-headless"
         return True, ""
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         cv2 = _cv2()
         t0 = time.perf_counter()
         lens = self.lens
@@ -217,15 +248,21 @@ class OpenCVCalibrator(BaseCalibrator):
                 try:
                     rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
                         [o.reshape(1, -1, 3).astype(np.float64) for o in obj32],
-                        [p.reshape(1, -1, 2).astype(np.float64) for p in img32], size, K0, d0.reshape(4, 1),
-                        flags=flags, criteria=criteria)
+                        [p.reshape(1, -1, 2).astype(np.float64) for p in img32],
+                        size,
+                        K0,
+                        d0.reshape(4, 1),
+                        flags=flags,
+                        criteria=criteria,
+                    )
                 except cv2.error as exc:
                     _fisheye_limit(object_points, image_points, size, exc)
                     raise
                 std_in = per_view = None
             else:
                 rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
-                    obj32, img32, size, K0, d0, flags=flags, criteria=criteria)
+                    obj32, img32, size, K0, d0, flags=flags, criteria=criteria
+                )
         finally:
             cv2.setNumThreads(n_threads)
         dist = np.asarray(dist, dtype=np.float64).reshape(-1)[:n_dist]
@@ -238,13 +275,25 @@ class OpenCVCalibrator(BaseCalibrator):
         used_img = [p.reshape(-1, 2).astype(np.float64) for p in img32]
         rv = np.array([np.asarray(r, dtype=np.float64).reshape(3) for r in rvecs])
         tv = np.array([np.asarray(t, dtype=np.float64).reshape(3) for t in tvecs])
-        extra = {} if per_view is None else {
-            "per_view_rms_px": np.asarray(per_view, dtype=float).reshape(-1).tolist()}
-        return self.finish(mode, cam, rv, tv, used_obj, used_img, t0, std=std, fixed=fixed, flags=int(flags),
-                           lens_flags=LENS_FLAGS[lens], rms_opencv_per_point_px=float(rms), **extra,
-                           criteria=list(criteria),
-                           note="OpenCV has no regularisation/warp/outlier rejection: fair == default"
-                           + ("; cv2.fisheye.calibrate gives no standard deviations" if std is None else ""))
+        extra = {} if per_view is None else {"per_view_rms_px": np.asarray(per_view, dtype=float).reshape(-1).tolist()}
+        return self.finish(
+            mode,
+            cam,
+            rv,
+            tv,
+            used_obj,
+            used_img,
+            t0,
+            std=std,
+            fixed=fixed,
+            flags=int(flags),
+            lens_flags=LENS_FLAGS[lens],
+            rms_opencv_per_point_px=float(rms),
+            **extra,
+            criteria=list(criteria),
+            note="OpenCV has no regularisation/warp/outlier rejection: fair == default"
+            + ("; cv2.fisheye.calibrate gives no standard deviations" if std is None else ""),
+        )
 
     def detect(self, paths: Sequence[Any], board: Any, *, detector: Any = None) -> dict[str, Any]:
         """Run findCirclesGrid on every image. Returns ``{"image_points": [...], "views": [indices found],
@@ -272,8 +321,9 @@ class OpenCVCalibrator(BaseCalibrator):
             how[i] = h
         return {"image_points": image_points, "views": views, "how": how, "missed": missed, "image_size": size}
 
-    def _calibrate_images(self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *,
-                          mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate_images(
+        self, paths: Sequence[Any], board: Any, image_size: tuple[int, int] | None, *, mode: str, initial: Camera | None
+    ) -> ReferenceResult:
         t0 = time.perf_counter()
         paths = [Path(p) for p in paths]
         det = self.detect(paths, board)
@@ -281,16 +331,22 @@ class OpenCVCalibrator(BaseCalibrator):
         if size is None:
             raise ValueError("no image could be read: " + "; ".join(f"{k}: {v}" for k, v in det["missed"].items()))
         if len(det["views"]) < 3:
-            return self.result(mode, "failed", f"findCirclesGrid found the grid in {len(det['views'])} of "
-                                               f"{len(paths)} images (need 3); missed: {det['missed']}",
-                               extra={"missed": det["missed"]})
+            return self.result(
+                mode,
+                "failed",
+                f"findCirclesGrid found the grid in {len(det['views'])} of "
+                f"{len(paths)} images (need 3); missed: {det['missed']}",
+                extra={"missed": det["missed"]},
+            )
         obj = [board.object_points() for _ in det["views"]]
         res = self.calibrate_observations(obj, det["image_points"], size, mode=mode, initial=initial)
         res.views = det["views"]
         res.time_s = time.perf_counter() - t0
-        res.extra.update(detection_how={str(paths[k]): v for k, v in det["how"].items()}, missed=det["missed"],
-                         n_images=len(paths))
+        res.extra.update(
+            detection_how={str(paths[k]): v for k, v in det["how"].items()}, missed=det["missed"], n_images=len(paths)
+        )
         if det["missed"]:
-            res.message = (res.message + "; " if res.message else "") + \
-                f"grid not found in {len(det['missed'])} of {len(paths)} images"
+            res.message = (
+                res.message + "; " if res.message else ""
+            ) + f"grid not found in {len(det['missed'])} of {len(paths)} images"
         return res

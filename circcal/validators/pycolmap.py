@@ -23,6 +23,7 @@ COLMAP puts the top-left pixel centre at (0.5, 0.5) (OpenCV: (0, 0)); observatio
 in and cx, cy by -0.5 on the way out. Standard deviations: ``pycolmap.estimate_ba_covariance`` (unit-noise
 covariance of the intrinsics block) times sigma^2 = SSR / (2N - n_free_params), the formula OpenCV uses.
 """
+
 from __future__ import annotations
 
 import time
@@ -39,8 +40,11 @@ __all__ = ["PycolmapCalibrator", "MODELS"]
 MODELS = ("FULL_OPENCV", "OPENCV", "OPENCV_FISHEYE")
 #: circcal lens -> the COLMAP model fitting it, and the COLMAP models a lens may be given
 LENS_TO_MODEL: dict[str, str] = {"opencv5": "FULL_OPENCV", "rational": "FULL_OPENCV", "fisheye": "OPENCV_FISHEYE"}
-_LENS_MODELS: dict[str, tuple[str, ...]] = {"opencv5": ("FULL_OPENCV", "OPENCV"), "rational": ("FULL_OPENCV",),
-                                           "fisheye": ("OPENCV_FISHEYE",)}
+_LENS_MODELS: dict[str, tuple[str, ...]] = {
+    "opencv5": ("FULL_OPENCV", "OPENCV"),
+    "rational": ("FULL_OPENCV",),
+    "fisheye": ("OPENCV_FISHEYE",),
+}
 #: COLMAP's parameter names per model (``pycolmap.Camera.params_info``)
 MODEL_PARAMS: dict[str, tuple[str, ...]] = {
     "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
@@ -48,7 +52,6 @@ MODEL_PARAMS: dict[str, tuple[str, ...]] = {
     "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
 }
 COLMAP_OFFSET = 0.5  # COLMAP pixel = OpenCV pixel + 0.5
-
 
 
 def _import(name: str):
@@ -67,6 +70,7 @@ def _import(name: str):
     finally:
         if before is not None:
             signal.signal(signal.SIGTERM, before)
+
 
 def to_colmap_params(camera: Camera, model: str) -> np.ndarray:
     """COLMAP parameters (its order, :data:`MODEL_PARAMS`) of ``camera`` for ``model``: circcal's names map one to
@@ -106,14 +110,16 @@ class PycolmapCalibrator(BaseCalibrator):
     lenses = tuple(LENS_TO_MODEL)
     unsupported_lenses = {
         "thin-prism": "COLMAP has no pinhole model with OpenCV's thin-prism terms s1-s4 (its THIN_PRISM_FISHEYE and "
-                      "RAD_TAN_THIN_PRISM_FISHEYE are equidistant fisheye models)"}
+        "RAD_TAN_THIN_PRISM_FISHEYE are equidistant fisheye models)"
+    }
 
     def __init__(self, *, lens: str = "opencv5", model: str | None = None, max_iterations: int = 500) -> None:
         if model is not None and model not in MODELS:
             raise ValueError(f"unknown pycolmap model {model!r}; expected one of {', '.join(MODELS)}")
         if lens in _LENS_MODELS and model is not None and model not in _LENS_MODELS[lens]:
-            raise ValueError(f"COLMAP model {model} does not fit lens {lens!r}; it needs "
-                             f"{' or '.join(_LENS_MODELS[lens])}")
+            raise ValueError(
+                f"COLMAP model {model} does not fit lens {lens!r}; it needs {' or '.join(_LENS_MODELS[lens])}"
+            )
         self.lens = lens
         self.model = model if model is not None else LENS_TO_MODEL.get(lens, "FULL_OPENCV")
         self.max_iterations = int(max_iterations)
@@ -132,12 +138,21 @@ class PycolmapCalibrator(BaseCalibrator):
             try:
                 pyceres = _import("pyceres")  # noqa: F841
             except ImportError as exc:
-                return False, (f"pyceres not importable ({exc}): needed to hold k4-k6 fixed in FULL_OPENCV; "
-                               "pip install pyceres, or use model='OPENCV'")
+                return False, (
+                    f"pyceres not importable ({exc}): needed to hold k4-k6 fixed in FULL_OPENCV; "
+                    "pip install pyceres, or use model='OPENCV'"
+                )
         return True, ""
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         pycolmap = _import("pycolmap")
 
         t0 = time.perf_counter()
@@ -227,8 +242,7 @@ class PycolmapCalibrator(BaseCalibrator):
             tvecs.append(M[:, 3])
         rvecs_a, tvecs_a = np.array(rvecs), np.array(tvecs)
         # sanity: our rotation convention equals COLMAP's
-        assert np.allclose(rodrigues(rvecs_a[0]), np.asarray(rec.images[1].cam_from_world().matrix())[:, :3],
-                           atol=1e-9)
+        assert np.allclose(rodrigues(rvecs_a[0]), np.asarray(rec.images[1].cam_from_world().matrix())[:, :3], atol=1e-9)
 
         # standard deviations
         std = None
@@ -246,7 +260,7 @@ class PycolmapCalibrator(BaseCalibrator):
                 ssr = 0.0
                 for v, (o, q, r, t) in enumerate(zip(object_points, image_points, rvecs_a, tvecs_a)):
                     use = np.ones(len(q), bool)
-                    use[left_out.get(v, [])] = False      # (the observations the adjustment fitted)
+                    use[left_out.get(v, [])] = False  # (the observations the adjustment fitted)
                     ssr += float(np.sum((project(o[use], r, t, camera) - q[use]) ** 2))
                 sigma2 = ssr / max(n_obs - n_free, 1)
                 sd = np.sqrt(np.clip(np.diag(C), 0, None) * sigma2)
@@ -261,11 +275,30 @@ class PycolmapCalibrator(BaseCalibrator):
             std_note = f"covariance failed: {type(exc).__name__}: {exc}"
         del manifold  # only now may the manifold go (the adjuster and covariance are done with it)
         term = str(getattr(summary, "termination_type", ""))
-        return self.finish(mode, camera, rvecs_a, tvecs_a, object_points, image_points, t0, std=std,
-                           fixed=fixed, model=self.model, lens=lens, ceres_termination=term,
-                           ceres_iterations=int(getattr(summary, "num_iterations", -1))
-                           if hasattr(summary, "num_iterations") else None,
-                           std_note=std_note, seed_fx=float(seed.fx), left_out=left_out,
-                           note="pixel convention converted from COLMAP's (0.5, 0.5) top-left centre"
-                           + (f"; {sum(map(len, left_out.values()))} observations of board points seen in one view "
-                              "only left out (COLMAP takes no single-view track)" if left_out else ""))
+        return self.finish(
+            mode,
+            camera,
+            rvecs_a,
+            tvecs_a,
+            object_points,
+            image_points,
+            t0,
+            std=std,
+            fixed=fixed,
+            model=self.model,
+            lens=lens,
+            ceres_termination=term,
+            ceres_iterations=int(getattr(summary, "num_iterations", -1))
+            if hasattr(summary, "num_iterations")
+            else None,
+            std_note=std_note,
+            seed_fx=float(seed.fx),
+            left_out=left_out,
+            note="pixel convention converted from COLMAP's (0.5, 0.5) top-left centre"
+            + (
+                f"; {sum(map(len, left_out.values()))} observations of board points seen in one view "
+                "only left out (COLMAP takes no single-view track)"
+                if left_out
+                else ""
+            ),
+        )

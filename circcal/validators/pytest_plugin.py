@@ -27,6 +27,7 @@ registered reference. Any test that takes the ``conformance_case`` argument is p
 under pytest-xdist, once per run across workers), ``conformance_calibrator`` (``get(case) -> ReferenceCalibrator``).
 A summary of every case (key numbers, including those measured and not asserted) is printed at the end.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -58,6 +59,7 @@ _PROPERTY = "circcal_conformance"
 # Loading a user's calibrator
 # --------------------------------------------------------------------------------------------------------------------
 
+
 class FunctionCalibrator(BaseCalibrator):
     """A plain function ``fn(object_points, image_points, image_size)`` as a
     :class:`~circcal.validators.base.ReferenceCalibrator` (see the module docstring for what ``fn`` may return)."""
@@ -72,22 +74,34 @@ class FunctionCalibrator(BaseCalibrator):
         mod = sys.modules.get(getattr(self.fn, "__module__", "") or "")
         return str(getattr(mod, "__version__", "unknown"))
 
-    def _calibrate(self, object_points: list[np.ndarray], image_points: list[np.ndarray],
-                   image_size: tuple[int, int], *, mode: str, initial: Camera | None) -> ReferenceResult:
+    def _calibrate(
+        self,
+        object_points: list[np.ndarray],
+        image_points: list[np.ndarray],
+        image_size: tuple[int, int],
+        *,
+        mode: str,
+        initial: Camera | None,
+    ) -> ReferenceResult:
         t0 = time.perf_counter()
         out = self.fn(object_points, image_points, image_size)
         if isinstance(out, ReferenceResult):
             return out
         if not isinstance(out, tuple) or len(out) not in (2, 4):
-            raise TypeError(f"{self.name} returned {type(out).__name__}; expected a ReferenceResult, "
-                            "(Camera, std | None) or (Camera, std | None, rvecs, tvecs)")
+            raise TypeError(
+                f"{self.name} returned {type(out).__name__}; expected a ReferenceResult, "
+                "(Camera, std | None) or (Camera, std | None, rvecs, tvecs)"
+            )
         camera, std = out[0], out[1]
         if not isinstance(camera, Camera):
-            raise TypeError(f"{self.name} returned {type(camera).__name__} as the camera; expected "
-                            "circcal.model.Camera")
+            raise TypeError(
+                f"{self.name} returned {type(camera).__name__} as the camera; expected circcal.model.Camera"
+            )
         if std is not None and not isinstance(std, dict):
-            raise TypeError(f"{self.name} returned std of type {type(std).__name__}; expected a dict keyed fx, fy, "
-                            "cx, cy, k1, k2, p1, p2, k3 or None")
+            raise TypeError(
+                f"{self.name} returned std of type {type(std).__name__}; expected a dict keyed fx, fy, "
+                "cx, cy, k1, k2, p1, p2, k3 or None"
+            )
         if len(out) == 4:
             rvecs, tvecs, poses = out[2], out[3], "returned"
         else:
@@ -96,8 +110,9 @@ class FunctionCalibrator(BaseCalibrator):
         return self.finish(mode, camera, rvecs, tvecs, object_points, image_points, t0, std=std, poses=poses)
 
 
-def _solve_poses(camera: Camera, object_points: list[np.ndarray], image_points: list[np.ndarray]
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def _solve_poses(
+    camera: Camera, object_points: list[np.ndarray], image_points: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-view board poses for given intrinsics (:func:`circcal.solver.fit_pose`): (V, 3) rvecs, (V, 3) tvecs."""
     from circcal.solver import fit_pose
 
@@ -110,8 +125,10 @@ def parse_spec(spec: str) -> tuple[str | None, str, str]:
     label, _, target = spec.rpartition("=") if "=" in spec.split(":", 1)[0] else (None, "", spec)
     where, sep, attr = target.rpartition(":")
     if not sep or not where or not attr:
-        raise ValueError(f"--calibrator {spec!r}: expected [LABEL=]package.module:function (or a class), or "
-                         "[LABEL=]path/to/file.py:function")
+        raise ValueError(
+            f"--calibrator {spec!r}: expected [LABEL=]package.module:function (or a class), or "
+            "[LABEL=]path/to/file.py:function"
+        )
     return (label or None), where, attr
 
 
@@ -149,17 +166,22 @@ def load_calibrator(spec: str) -> Any:
         except Exception as exc:  # noqa: BLE001
             raise ValueError(f"--calibrator {spec!r}: constructing {attr} failed: {type(exc).__name__}: {exc}") from exc
         if not hasattr(obj, "calibrate_observations"):
-            raise ValueError(f"--calibrator {spec!r}: {attr}() returned {type(obj).__name__}, which lacks "
-                             "calibrate_observations (see circcal.validators.base.ReferenceCalibrator)")
+            raise ValueError(
+                f"--calibrator {spec!r}: {attr}() returned {type(obj).__name__}, which lacks "
+                "calibrate_observations (see circcal.validators.base.ReferenceCalibrator)"
+            )
     elif not hasattr(obj, "calibrate_observations"):
         if not callable(obj):
-            raise ValueError(f"--calibrator {spec!r}: {attr} is a {type(obj).__name__}, not a function or a "
-                             "ReferenceCalibrator")
+            raise ValueError(
+                f"--calibrator {spec!r}: {attr} is a {type(obj).__name__}, not a function or a ReferenceCalibrator"
+            )
         obj = FunctionCalibrator(obj, label or attr)
     missing = missing_members(obj)
     if missing:
-        raise ValueError(f"--calibrator {spec!r}: the calibrator lacks {missing[0]!r} (see "
-                         "circcal.validators.base.ReferenceCalibrator)")
+        raise ValueError(
+            f"--calibrator {spec!r}: the calibrator lacks {missing[0]!r} (see "
+            "circcal.validators.base.ReferenceCalibrator)"
+        )
     if label:
         obj.label = label
     return obj
@@ -185,16 +207,27 @@ def calibrator_label(cal: Any) -> str:
 # Hooks
 # --------------------------------------------------------------------------------------------------------------------
 
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("circcal", "circcal conformance suite")
-    group.addoption("--calibrator", action="append", default=[], metavar="[LABEL=]MODULE:ATTR",
-                    help="calibrator under test (repeatable): a function fn(object_points, image_points, image_size) "
-                         "-> ReferenceResult or (Camera, std|None), or a ReferenceCalibrator class/factory; "
-                         "MODULE may be a path to a .py file. Replaces circcal and the built-in references in the "
-                         "conformance cases.")
-    group.addoption("--calibrator-tol", type=float, default=None, metavar="PX",
-                    help="max projection difference of --calibrator to circcal's solver on identical observations "
-                         "(default 1e-6 px; 'inf' = measure only)")
+    group.addoption(
+        "--calibrator",
+        action="append",
+        default=[],
+        metavar="[LABEL=]MODULE:ATTR",
+        help="calibrator under test (repeatable): a function fn(object_points, image_points, image_size) "
+        "-> ReferenceResult or (Camera, std|None), or a ReferenceCalibrator class/factory; "
+        "MODULE may be a path to a .py file. Replaces circcal and the built-in references in the "
+        "conformance cases.",
+    )
+    group.addoption(
+        "--calibrator-tol",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="max projection difference of --calibrator to circcal's solver on identical observations "
+        "(default 1e-6 px; 'inf' = measure only)",
+    )
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -208,8 +241,9 @@ def pytest_configure(config: pytest.Config) -> None:
     labels = [calibrator_label(c) for c in cals]
     dup = {x for x in labels if labels.count(x) > 1}
     if dup:
-        raise pytest.UsageError(f"--calibrator: labels must be unique, got {', '.join(sorted(dup))} twice; name "
-                                "them with LABEL=module:attr")
+        raise pytest.UsageError(
+            f"--calibrator: labels must be unique, got {', '.join(sorted(dup))} twice; name them with LABEL=module:attr"
+        )
     config.stash[_USER_KEY] = cals
     if not config.pluginmanager.has_plugin("circcal-conformance-summary"):
         config.pluginmanager.register(_Summary(), "circcal-conformance-summary")
@@ -225,8 +259,10 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
     cals = config.stash.get(_USER_KEY, [])
     if not cals:
         return []
-    return ["circcal conformance: calibrator(s) under test: "
-            + ", ".join(f"{calibrator_label(c)} ({type(c).__name__})" for c in cals)]
+    return [
+        "circcal conformance: calibrator(s) under test: "
+        + ", ".join(f"{calibrator_label(c)} ({type(c).__name__})" for c in cals)
+    ]
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
@@ -270,6 +306,7 @@ class _Summary:
 # Fixtures
 # --------------------------------------------------------------------------------------------------------------------
 
+
 class ObservationCache:
     """circcal's observations per (scenario, variant, lens model), computed once. Under pytest-xdist the workers share a folder
     in the run's base temp directory (unique per run) and a file lock, so each scenario-variant is calibrated once
@@ -302,8 +339,9 @@ class ObservationCache:
 
 
 @pytest.fixture(scope="session")
-def conformance_observations(request: pytest.FixtureRequest,
-                             tmp_path_factory: pytest.TempPathFactory) -> ObservationCache:
+def conformance_observations(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> ObservationCache:
     """``get(scenario, variant, lens=None) -> circcal.validators.conformance.Observations`` (circcal's calibration
     with that lens model, default the scenario's own, computed once)."""
     shared = None

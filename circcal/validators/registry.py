@@ -9,6 +9,7 @@ The target is a class (or any callable) returning an object that follows
 :class:`circcal.validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A
 built-in name wins over a plug-in of the same name (the clash is reported by :func:`problems`).
 """
+
 from __future__ import annotations
 
 import importlib
@@ -75,8 +76,9 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
     obj = factory(**kwargs)
     missing = missing_members(obj)
     if missing:
-        raise TypeError(f"reference calibrator {name!r} lacks {missing[0]!r}; see "
-                        "circcal.validators.base.ReferenceCalibrator")
+        raise TypeError(
+            f"reference calibrator {name!r} lacks {missing[0]!r}; see circcal.validators.base.ReferenceCalibrator"
+        )
     return obj
 
 

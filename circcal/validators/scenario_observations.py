@@ -1,6 +1,7 @@
 """circcal's observations of one scenario-variant, the expensive part of the conformance suite (once per
 scenario-variant, :func:`observe`), which every reference case of it then fits (:mod:`circcal.validators.conformance`),
 and circcal's solve on a subset of them (:func:`solve_subset`: for a reference that leaves observations out)."""
+
 from __future__ import annotations
 
 import time
@@ -18,7 +19,6 @@ from circcal.validators.base import ReferenceResult
 from circcal.validators.shared import share, ssr
 
 __all__ = ["Observations", "observe", "solve_subset"]
-
 
 
 @dataclass
@@ -94,8 +94,9 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
     obs = Observations(scenario, variant, str(folder), truth.camera, truth.board, paths, lens)
     t0 = time.perf_counter()
     try:
-        cal = calibrate_images(paths, truth.board, CalibrationOptions(lens=lens), progress=progress,
-                               image_size=obs.image_size)
+        cal = calibrate_images(
+            paths, truth.board, CalibrationOptions(lens=lens), progress=progress, image_size=obs.image_size
+        )
     except InputError as exc:
         obs.status, obs.message = "failed", f"{type(exc).__name__}: {exc}"
         if isinstance(exc, TooFewImagesError):
@@ -111,8 +112,7 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
         obs.accounted[paths[i]] = "used"
     for r in obs.failed:
         obs.accounted.setdefault(r.path, r.code.value)
-    obs.centre_errors = _matched_centre_errors(cal.centres, [truth.views[i].centres for i in cal.used],
-                                               truth.board)
+    obs.centre_errors = _matched_centre_errors(cal.centres, [truth.views[i].centres for i in cal.used], truth.board)
     shared = share(cal, truth.board)
     obs.object_points, obs.image_points = shared.object_points, shared.image_points
     obs.solver_camera, obs.solver_std, obs.solver_ssr = shared.result.camera, dict(shared.result.std), shared.ssr
@@ -120,8 +120,9 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
     return obs
 
 
-def solve_subset(obs: Observations, res: ReferenceResult, left_out: dict[int, list[int]]
-                  ) -> tuple[Camera, float, ReferenceResult]:
+def solve_subset(
+    obs: Observations, res: ReferenceResult, left_out: dict[int, list[int]]
+) -> tuple[Camera, float, ReferenceResult]:
     """circcal's solver on the shared observations less ``left_out`` (view -> indices of the points a reference left
     out), started from circcal's solve on all of them; returns ``(camera, SSR px^2, res with only the fitted
     points' residuals)``, so that the agreement check compares the two solves of one problem."""
@@ -132,7 +133,11 @@ def solve_subset(obs: Observations, res: ReferenceResult, left_out: dict[int, li
         m = np.ones(len(o), bool)
         m[list(left_out.get(v, left_out.get(str(v), [])))] = False
         keep.append(m)
-    sub = calibrate([o[m] for o, m in zip(obs.object_points, keep)], [q[m] for q, m in zip(obs.image_points, keep)],
-                    obs.image_size, initial=obs.solver_camera)
+    sub = calibrate(
+        [o[m] for o, m in zip(obs.object_points, keep)],
+        [q[m] for q, m in zip(obs.image_points, keep)],
+        obs.image_size,
+        initial=obs.solver_camera,
+    )
     fitted = replace(res, residuals=None if res.residuals is None else [r[m] for r, m in zip(res.residuals, keep)])
     return sub.camera, ssr(sub.residuals), fitted

@@ -6,6 +6,7 @@ that rounding alone moves the answer by ~5e-3 px at the image corners. So every 
 and the identical-observations agreement (1e-6 px) is measured against circcal's solver on those, not against the
 model circcal fitted to its float64 centres.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -6,6 +6,7 @@ Reprojection errors are reported in all three conventions (keys name them: ``rms
 pixel grid of the first model, with the implied rotation fitted (as ``mrcal.projection_diff``) unless a key says
 ``nofit``.
 """
+
 from __future__ import annotations
 
 import json
@@ -64,8 +65,10 @@ class Bounds:
             if v is None and name == "truth":
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise InputError(f"the {name} bound must be a finite positive number, got {v!r} (a bound of NaN, "
-                                 f"inf, 0 or less would make its check pass or fail regardless of the result)")
+                raise InputError(
+                    f"the {name} bound must be a finite positive number, got {v!r} (a bound of NaN, "
+                    f"inf, 0 or less would make its check pass or fail regardless of the result)"
+                )
 
 
 @dataclass
@@ -74,9 +77,9 @@ class ValidationRun:
     board: Board
     image_size: tuple[int, int]
     truth: Camera | None
-    circcal: dict[str, Any]                 # status, message, camera, std, errors, time_s, failed, rounds
+    circcal: dict[str, Any]  # status, message, camera, std, errors, time_s, failed, rounds
     references: list[ReferenceResult]
-    comparisons: list[dict[str, Any]]       # one per calibrator row (circcal first)
+    comparisons: list[dict[str, Any]]  # one per calibrator row (circcal first)
     checks: list[Check] = field(default_factory=list)
     observations: str = "circcal"
     #: what every reference fitted (circcal's centres rounded to float32) and circcal's solver on exactly those
@@ -92,22 +95,31 @@ class ValidationRun:
         return bool(self.checks) and all(c.passed for c in self.checks)
 
 
-def _compare(name: str, camera: Camera | None, std: dict | None, truth: Camera | None,
-             circcal_cam: Camera | None) -> dict[str, Any]:
+def _compare(
+    name: str, camera: Camera | None, std: dict | None, truth: Camera | None, circcal_cam: Camera | None
+) -> dict[str, Any]:
     row: dict[str, Any] = {"name": name}
     if camera is None:
         return row
     if truth is not None:
         fit = projection_diff(truth, camera, fit=True)
         raw = projection_diff(truth, camera, fit=False)
-        row["vs_truth"] = {"rms_px": fit["rms_px"], "max_px": fit["max_px"], "nofit_rms_px": raw["rms_px"],
-                           "nofit_max_px": raw["max_px"],
-                           "params": param_diff(truth, camera, None, std)}
+        row["vs_truth"] = {
+            "rms_px": fit["rms_px"],
+            "max_px": fit["max_px"],
+            "nofit_rms_px": raw["rms_px"],
+            "nofit_max_px": raw["max_px"],
+            "params": param_diff(truth, camera, None, std),
+        }
     if circcal_cam is not None:
         raw = projection_diff(circcal_cam, camera, fit=False)
         fit = projection_diff(circcal_cam, camera, fit=True)
-        row["vs_circcal"] = {"max_px": raw["max_px"], "rms_px": raw["rms_px"], "fit_max_px": fit["max_px"],
-                             "fit_rms_px": fit["rms_px"]}
+        row["vs_circcal"] = {
+            "max_px": raw["max_px"],
+            "rms_px": raw["rms_px"],
+            "fit_max_px": fit["max_px"],
+            "fit_rms_px": fit["rms_px"],
+        }
     return row
 
 
@@ -178,9 +190,17 @@ def run_validation(
         res = cal.result
         shared = share(cal, board, options)
         image_size = shared.image_size
-        cc.update(camera=res.camera, std=res.std, errors=res.errors, failed=cal.failed, rounds=cal.rounds,
-                  n_views=len(cal.used), converged=res.converged, solver_camera=shared.result.camera,
-                  solver_ssr=shared.ssr)
+        cc.update(
+            camera=res.camera,
+            std=res.std,
+            errors=res.errors,
+            failed=cal.failed,
+            rounds=cal.rounds,
+            n_views=len(cal.used),
+            converged=res.converged,
+            solver_camera=shared.result.camera,
+            solver_ssr=shared.ssr,
+        )
     cc["time_s"] = time.perf_counter() - t0
     if image_size is None:
         import cv2
@@ -192,8 +212,9 @@ def run_validation(
     refs: list[ReferenceResult] = []
     for n in names:
         try:
-            cal_ref = registry.get_for_lens(n, lens, **({"fix_k3": True} if fix_k3 and n in ("opencv", "kornia")
-                                                        else {}))
+            cal_ref = registry.get_for_lens(
+                n, lens, **({"fix_k3": True} if fix_k3 and n in ("opencv", "kornia") else {})
+            )
         except Exception as exc:  # a plug-in that cannot load is a row, not a crash
             refs.append(ReferenceResult(n, "?", modes[0], "failed", f"{type(exc).__name__}: {exc}"))
             continue
@@ -207,8 +228,15 @@ def run_validation(
                 refs.append(cal_ref.calibrate_images(paths, board, image_size, mode=m))
             continue
         if shared is None:
-            refs.append(ReferenceResult(n, cal_ref.version if cal_ref.available()[0] else "?", supported[0],
-                                        "failed", "no observations: circcal could not calibrate these images"))
+            refs.append(
+                ReferenceResult(
+                    n,
+                    cal_ref.version if cal_ref.available()[0] else "?",
+                    supported[0],
+                    "failed",
+                    "no observations: circcal could not calibrate these images",
+                )
+            )
             continue
         obj, img = shared.object_points, shared.image_points
         if hasattr(cal_ref, "calibrate_modes") and len(supported) > 1:
@@ -231,8 +259,9 @@ def run_validation(
     if cc["status"] != "ok":
         checks.append(Check("circcal calibrates", float("nan"), float("nan"), False, cc["message"]))
     elif truth is not None:
-        checks += truth_checks("circcal", circ_cam, cc["std"], truth, sigmas=bounds.truth_sigmas,
-                               rms_px=bounds.truth)[0]
+        checks += truth_checks("circcal", circ_cam, cc["std"], truth, sigmas=bounds.truth_sigmas, rms_px=bounds.truth)[
+            0
+        ]
     for r, row in zip(refs, comparisons[1:]):
         label = f"{r.name} [{r.mode}]"
         if r.status == "failed":
@@ -246,28 +275,67 @@ def run_validation(
             b = {"mrcal": bounds.solver_mrcal, "lensboy": bounds.solver_lensboy}.get(r.name, bounds.solver)
             checks.append(solver_agreement(label, r, row["vs_circcal"]["max_px"], cc["solver_ssr"], b))
     if not checks:
-        checks.append(Check("something was checked", 0.0, 1.0, False,
-                            "nothing was checked: no ground truth and no reference result to compare (give a fixture "
-                            "with truth.json, or --against a reference in fair mode on circcal's observations)"))
-    return ValidationRun(source or {"images": paths}, board, image_size, truth, cc, refs, comparisons, checks,
-                         observations, shared, skipped, lens)
+        checks.append(
+            Check(
+                "something was checked",
+                0.0,
+                1.0,
+                False,
+                "nothing was checked: no ground truth and no reference result to compare (give a fixture "
+                "with truth.json, or --against a reference in fair mode on circcal's observations)",
+            )
+        )
+    return ValidationRun(
+        source or {"images": paths},
+        board,
+        image_size,
+        truth,
+        cc,
+        refs,
+        comparisons,
+        checks,
+        observations,
+        shared,
+        skipped,
+        lens,
+    )
 
 
 def format_table(run: ValidationRun) -> str:
     """The side-by-side table ``circcal validate`` prints (markdown-compatible)."""
     lines = []
     src = ", ".join(f"{k}={v}" for k, v in run.source.items() if k != "images") or f"{len(run.source['images'])} images"
-    lines.append(f"validation: {src}; board {run.board.rows}x{run.board.cols} {run.board.layout}; "
-                 f"observations: {run.observations}; lens model: {run.lens}")
-    lines.append("errors: rms/pt = OpenCV's RMS (2-D per point), rms/coord = mrcal's (per coordinate), mean2d = "
-                 f"the paper's mean error; projection differences over a {GRID_WIDTH}-wide pixel grid of the whole "
-                 "image (vs truth: implied rotation fitted; vs circcal: none)")
+    lines.append(
+        f"validation: {src}; board {run.board.rows}x{run.board.cols} {run.board.layout}; "
+        f"observations: {run.observations}; lens model: {run.lens}"
+    )
+    lines.append(
+        "errors: rms/pt = OpenCV's RMS (2-D per point), rms/coord = mrcal's (per coordinate), mean2d = "
+        f"the paper's mean error; projection differences over a {GRID_WIDTH}-wide pixel grid of the whole "
+        "image (vs truth: implied rotation fitted; vs circcal: none)"
+    )
     if run.observations == "circcal":
-        lines.append("references fit circcal's final centres rounded to float32 (OpenCV's input type); 'vs circcal' "
-                     "compares with circcal's solver on exactly those points")
+        lines.append(
+            "references fit circcal's final centres rounded to float32 (OpenCV's input type); 'vs circcal' "
+            "compares with circcal's solver on exactly those points"
+        )
     lines.append("")
-    head = ["calibrator", "status", "fx", "fy", "cx", "cy", "k1", "k2", "rms/pt", "rms/coord", "mean2d",
-            "vs circcal max px", "vs truth rms px", "time s"]
+    head = [
+        "calibrator",
+        "status",
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "k1",
+        "k2",
+        "rms/pt",
+        "rms/coord",
+        "mean2d",
+        "vs circcal max px",
+        "vs truth rms px",
+        "time s",
+    ]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     rows: list[tuple[str, str, Camera | None, dict | None, float]] = []
@@ -282,8 +350,17 @@ def format_table(run: ValidationRun) -> str:
         err = err or {}
         vals = [label, status]
         if cam is not None:
-            vals += [fmt_number(v, spec) for v, spec in ((cam.fx, ".3f"), (cam.fy, ".3f"), (cam.cx, ".3f"),
-                                                         (cam.cy, ".3f"), (cam.dist[0], ".5f"), (cam.dist[1], ".4f"))]
+            vals += [
+                fmt_number(v, spec)
+                for v, spec in (
+                    (cam.fx, ".3f"),
+                    (cam.fy, ".3f"),
+                    (cam.cx, ".3f"),
+                    (cam.cy, ".3f"),
+                    (cam.dist[0], ".5f"),
+                    (cam.dist[1], ".4f"),
+                )
+            ]
         else:
             vals += ["-"] * 6
         vals += [fmt_number(err.get(k)) for k in ("rms_per_point_px", "rms_per_coord_px", "mean_2d_px")]
@@ -301,12 +378,21 @@ def format_table(run: ValidationRun) -> str:
     if notes:
         lines += ["", *notes]
     if cc.get("std") and run.truth is not None and cc.get("camera") is not None:
-        lines += ["", "circcal parameters vs truth:", "", "| param | truth | circcal | +- sigma | error / sigma |",
-                  "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "circcal parameters vs truth:",
+            "",
+            "| param | truth | circcal | +- sigma | error / sigma |",
+            "|---|---|---|---|---|",
+        ]
         pd = run.comparisons[0]["vs_truth"]["params"]
         for n in param_names(run.truth.lens):
-            cells = (fmt_number(pd[n]["a"], ".6g"), fmt_number(pd[n]["b"], ".6g"), fmt_number(cc["std"][n], ".3g"),
-                     fmt_number(pd[n]["diff_sigmas"], "+.2f"))
+            cells = (
+                fmt_number(pd[n]["a"], ".6g"),
+                fmt_number(pd[n]["b"], ".6g"),
+                fmt_number(cc["std"][n], ".3g"),
+                fmt_number(pd[n]["diff_sigmas"], "+.2f"),
+            )
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "checks:"]
     for c in run.checks:
@@ -318,13 +404,21 @@ def format_table(run: ValidationRun) -> str:
 
 def to_dict(run: ValidationRun) -> dict[str, Any]:
     cc = {k: v for k, v in run.circcal.items()}
-    return jsonable({
-        "source": run.source, "board": run.board.to_dict(), "image_size": list(run.image_size),
-        "truth": run.truth, "observations": run.observations, "lens": run.lens, "circcal": cc,
-        "references": [r.to_dict() for r in run.references],
-        "comparisons": [{k: v for k, v in c.items()} for c in run.comparisons],
-        "checks": [vars(c) for c in run.checks], "passed": run.passed,
-    })
+    return jsonable(
+        {
+            "source": run.source,
+            "board": run.board.to_dict(),
+            "image_size": list(run.image_size),
+            "truth": run.truth,
+            "observations": run.observations,
+            "lens": run.lens,
+            "circcal": cc,
+            "references": [r.to_dict() for r in run.references],
+            "comparisons": [{k: v for k, v in c.items()} for c in run.comparisons],
+            "checks": [vars(c) for c in run.checks],
+            "passed": run.passed,
+        }
+    )
 
 
 def write_report(run: ValidationRun, out: str | Path) -> Path:

@@ -3,6 +3,7 @@
 
     python -m pytest tests/conformance --calibrator tests/conformance/example_calibrator.py:opencv_calibrate
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,11 @@ def opencv_calibrate(object_points, image_points, image_size):
         _, K, d, _, _, std, _, _ = cv2.calibrateCameraExtended(
             [np.asarray(o, np.float32).reshape(-1, 1, 3) for o in object_points],
             [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in image_points],
-            (int(image_size[0]), int(image_size[1])), None, None,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16))
+            (int(image_size[0]), int(image_size[1])),
+            None,
+            None,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-16),
+        )
     finally:
         cv2.setNumThreads(n)
     cam = Camera(int(image_size[0]), int(image_size[1]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], np.ravel(d)[:5])

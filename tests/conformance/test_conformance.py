@@ -6,6 +6,7 @@ with circcal, OpenCV, pycolmap and mrcal); `make conformance` runs the whole mat
 every reference case. With ``--calibrator MODULE:FN`` (the ``circcal`` pytest plug-in) the same cases test that
 calibrator instead; the plug-in itself is tested at the end of this file.
 """
+
 from __future__ import annotations
 
 import os
@@ -32,8 +33,7 @@ REPO = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 
 
-def test_conformance(conformance_case, conformance_observations, conformance_calibrator, conformance_record,
-                     request):
+def test_conformance(conformance_case, conformance_observations, conformance_calibrator, conformance_record, request):
     case = conformance_case
     obs = conformance_observations(case.scenario, case.variant, case.lens)
     if case.reference == conformance.CIRCCAL:
@@ -53,6 +53,7 @@ def test_conformance(conformance_case, conformance_observations, conformance_cal
 # The matrix itself
 # --------------------------------------------------------------------------------------------------------------------
 
+
 def test_matrix_covers_every_scenario_variant_with_readable_ids():
     from circcal.fixtures.scenarios import SCENARIOS
 
@@ -69,10 +70,18 @@ def test_matrix_covers_every_scenario_variant_with_readable_ids():
                 for i in ("opencv", "mrcal_fair", "mrcal_default", "kornia"):
                     assert f"{name}-{v}-{i}" in ids
     fast = sorted(c.id for c in cs if not c.slow)
-    assert fast == sorted([f"{s}-{v}-{r}" for s, v in (("paper", "normal"), ("wide", "clean"))
-                           for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default", "kornia")]
-                          + [f"{s}-clean-{r}" for s in ("fisheye", "rational-wide")
-                             for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default")])
+    assert fast == sorted(
+        [
+            f"{s}-{v}-{r}"
+            for s, v in (("paper", "normal"), ("wide", "clean"))
+            for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default", "kornia")
+        ]
+        + [
+            f"{s}-clean-{r}"
+            for s in ("fisheye", "rational-wide")
+            for r in ("circcal", "opencv", "mrcal_fair", "mrcal_default")
+        ]
+    )
     # scenario-variant major, circcal first: the expensive calibration is reused by the cases right after it
     assert ids.index("paper-uneven-circcal") < ids.index("paper-uneven-opencv") < ids.index("paper-strong-circcal")
 
@@ -95,13 +104,24 @@ def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
     from circcal.validators.registry import get_for_lens
 
     obj, img, size, cam = _problem(n_views=4)
-    obs = conformance.Observations("wide", "clean", "", cam, Board(7, 7, 15.0, 7.0), [], "thin-prism",
-                                   object_points=obj, image_points=img, solver_camera=cam)
+    obs = conformance.Observations(
+        "wide",
+        "clean",
+        "",
+        cam,
+        Board(7, 7, 15.0, 7.0),
+        [],
+        "thin-prism",
+        object_points=obj,
+        image_points=img,
+        solver_camera=cam,
+    )
     # a built-in is set up for the lens and answers for itself, with its reason
     cal = get_for_lens("pycolmap", "thin-prism")
     skip_unless_available(cal)
-    out = conformance.run_reference_case(conformance.Case("wide", "clean", "pycolmap", lens_model="thin-prism"),
-                                         obs, cal)
+    out = conformance.run_reference_case(
+        conformance.Case("wide", "clean", "pycolmap", lens_model="thin-prism"), obs, cal
+    )
     assert out.status == "unsupported" and out.result.status == "unsupported" and "s1-s4" in out.result.message
     assert out.checks and not conformance.failed_checks(out)
 
@@ -115,8 +135,9 @@ def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
         def calibrate_observations(self, *args, **kwargs):
             raise AssertionError("called for a lens it does not declare")
 
-    out = conformance.run_reference_case(conformance.Case("wide", "clean", "plain", lens_model="thin-prism"), obs,
-                                         Plain())
+    out = conformance.run_reference_case(
+        conformance.Case("wide", "clean", "plain", lens_model="thin-prism"), obs, Plain()
+    )
     assert out.status == "unsupported" and out.result is None and "opencv5" in out.checks[0].note
     assert not conformance.failed_checks(out)
 
@@ -140,13 +161,18 @@ def test_observations_are_computed_once_across_workers(tmp_path, monkeypatch):
     assert b("wide", "jpeg")["variant"] == "jpeg"
     assert b("rational-wide", "clean")["lens"] == "rational"  # the scenario's own lens by default
     assert a("rational-wide", "clean", "thin-prism")["lens"] == "thin-prism"
-    assert calls == [("wide", "clean", "opencv5"), ("wide", "jpeg", "opencv5"), ("rational-wide", "clean", "rational"),
-                     ("rational-wide", "clean", "thin-prism")]
+    assert calls == [
+        ("wide", "clean", "opencv5"),
+        ("wide", "jpeg", "opencv5"),
+        ("rational-wide", "clean", "rational"),
+        ("rational-wide", "clean", "thin-prism"),
+    ]
 
 
 # --------------------------------------------------------------------------------------------------------------------
 # The plug-in: loading a user's calibrator
 # --------------------------------------------------------------------------------------------------------------------
+
 
 def _problem(n_views: int = 8, seed: int = 0) -> tuple[list, list, tuple[int, int], Camera]:
     cam = Camera(1280, 960, 1000.0, 1001.0, 641.0, 479.0, [-0.2, 0.05, 0.0, 0.0, 0.0])
@@ -156,7 +182,10 @@ def _problem(n_views: int = 8, seed: int = 0) -> tuple[list, list, tuple[int, in
     obj, img = [], []
     for _ in range(n_views):
         r = np.array([*np.deg2rad(rng.uniform(-35, 35, 2)), rng.uniform(-0.3, 0.3)])
-        t = np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(250, 350)]) - rodrigues(r) @ board.centre_mm()
+        t = (
+            np.array([rng.uniform(-40, 40), rng.uniform(-30, 30), rng.uniform(250, 350)])
+            - rodrigues(r) @ board.centre_mm()
+        )
         obj.append(P.astype(np.float32).astype(np.float64))
         img.append((project(P, r, t, cam) + rng.normal(0, 0.02, (len(P), 2))).astype(np.float32).astype(np.float64))
     return obj, img, (cam.width, cam.height), cam
@@ -179,23 +208,29 @@ def test_load_calibrator_accepts_a_function_a_file_and_a_class():
     assert biased.ok and biased.camera.fx == pytest.approx(res.camera.fx * 1.0001, rel=1e-9)
 
 
-@pytest.mark.parametrize("spec, words", [
-    ("no_colon_here", "expected [LABEL=]package.module:function"),
-    ("circcal.validators.no_such_module:fn", "cannot import 'circcal.validators.no_such_module'"),
-    ("circcal.validators.base:no_such_attr", "has no attribute 'no_such_attr'"),
-    ("circcal.validators.base:MODES", "not a function or a ReferenceCalibrator"),
-    ("missing/file.py:fn", "no such file"),
-])
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("no_colon_here", "expected [LABEL=]package.module:function"),
+        ("circcal.validators.no_such_module:fn", "cannot import 'circcal.validators.no_such_module'"),
+        ("circcal.validators.base:no_such_attr", "has no attribute 'no_such_attr'"),
+        ("circcal.validators.base:MODES", "not a function or a ReferenceCalibrator"),
+        ("missing/file.py:fn", "no such file"),
+    ],
+)
 def test_load_calibrator_says_what_is_wrong(spec, words):
     with pytest.raises(ValueError, match=re.escape(words)):
         load_calibrator(spec)
 
 
-@pytest.mark.parametrize("returned, words", [
-    ("text", "returned str; expected a ReferenceResult"),
-    (("not a camera", None), "returned str as the camera"),
-    ("raise", "ZeroDivisionError"),
-])
+@pytest.mark.parametrize(
+    "returned, words",
+    [
+        ("text", "returned str; expected a ReferenceResult"),
+        (("not a camera", None), "returned str as the camera"),
+        ("raise", "ZeroDivisionError"),
+    ],
+)
 def test_a_bad_user_function_becomes_a_failed_result(returned, words):
     def fn(obj, img, size):
         if returned == "raise":
@@ -222,10 +257,22 @@ def test_option_selects_the_calibrator_under_test():
     """A pytest run with --calibrator tests exactly the given calibrators: the honest OpenCV wrapper passes, the one
     biased by 1e-4 in focal length fails the agreement check, and neither circcal nor a built-in reference runs."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST") and k != "PYTEST_ADDOPTS"}
-    cmd = [sys.executable, "-m", "pytest", "tests/conformance/test_conformance.py::test_conformance", "-v", "-rA",
-           "-p", "no:cacheprovider", "-k", "wide-clean",
-           "--calibrator", "tests/conformance/example_calibrator.py:opencv_calibrate",
-           "--calibrator", "biased=tests.conformance.example_calibrator:opencv_biased"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "tests/conformance/test_conformance.py::test_conformance",
+        "-v",
+        "-rA",
+        "-p",
+        "no:cacheprovider",
+        "-k",
+        "wide-clean",
+        "--calibrator",
+        "tests/conformance/example_calibrator.py:opencv_calibrate",
+        "--calibrator",
+        "biased=tests.conformance.example_calibrator:opencv_biased",
+    ]
     out = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     text = out.stdout + out.stderr
     assert out.returncode == 1, text[-3000:]
@@ -233,16 +280,35 @@ def test_option_selects_the_calibrator_under_test():
     assert re.search(r"test_conformance\[wide-clean-biased\] FAILED", text), text[-3000:]
     assert "1 failed, 1 passed" in text, text[-3000:]
     assert "circcal conformance: calibrator(s) under test: opencv_calibrate (FunctionCalibrator), biased" in text
-    assert re.search(r"FAIL biased unknown \[fair\] vs circcal on identical observations: max projection "
-                     r"difference, px: 0\.0\d+ \(bound 1e-06\)", text), text[-3000:]
+    assert re.search(
+        r"FAIL biased unknown \[fair\] vs circcal on identical observations: max projection "
+        r"difference, px: 0\.0\d+ \(bound 1e-06\)",
+        text,
+    ), text[-3000:]
     assert "-circcal" not in text.split("short test summary info")[-1]
 
 
 def test_bad_calibrator_option_is_a_usage_error():
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST") and k != "PYTEST_ADDOPTS"}
-    out = subprocess.run([sys.executable, "-m", "pytest", "tests/conformance", "--collect-only", "-q",
-                          "-p", "no:cacheprovider", "--calibrator", "circcal.validators.base:nothing"],
-                         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "tests/conformance",
+            "--collect-only",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--calibrator",
+            "circcal.validators.base:nothing",
+        ],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 4 and "has no attribute 'nothing'" in out.stdout + out.stderr
 
 

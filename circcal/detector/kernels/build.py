@@ -2,6 +2,7 @@
 every kernel module compiled with ``numba.pycc`` into ``circcal/detector/_aot/`` for the argument types detection
 gives it (see :mod:`circcal.detector.kernels.jit`). A tool, not a runtime module: nothing the detector runs imports it.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,9 @@ def synthetic_board() -> tuple[np.ndarray, Board]:
     board = Board(5, 6, 10.0, 5.0)
     obj = board.object_points()[:, :2]
     w, h = obj.max(axis=0) + 10.0
-    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]),
-                                    np.float32([[180, 120], [470, 140], [450, 380], [170, 360]]))
+    H = cv2.getPerspectiveTransform(
+        np.float32([[0, 0], [w, 0], [w, h], [0, h]]), np.float32([[180, 120], [470, 140], [450, 380], [170, 360]])
+    )
     big = np.full((480 * 8, 640 * 8), 230, np.uint8)
     for x, y in obj:
         px, py = cv2.perspectiveTransform(np.float64([[[x + 5.0, y + 5.0]]]), H)[0, 0]
@@ -54,14 +56,13 @@ def _exercise() -> None:
 
     NeighbourGrid(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2))).query(np.zeros((3, 2)), k=2)
     linked_clusters(np.random.default_rng(0).uniform(0.0, 100.0, (20, 2)), 2.5)
-    for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0,
-               img.astype(np.float64) / 255.0):
+    for im in (img, noisy, img.astype(np.uint16) * 257, img.astype(np.float32) / 255.0, img.astype(np.float64) / 255.0):
         d = detect(im, board, time_budget_s=None)  # numba compiles inside this call: no budget for that
         if not d.found:
             raise RuntimeError(f"kernel build: the synthetic board was not found ({d.reason})")
     # a calibration re-corrects the centres under each new distortion estimate (the ellipses refitted in Python)
     recorrect(d, board, Camera(640, 480, 600.0, 600.0, 319.5, 239.5, np.array([-0.1, 0.01, 0.0, 0.0, 0.0])))
-    shrink(np.repeat(np.repeat(img, 3, axis=0), 3, axis=1), 3)   # frames of 720 px and more are segmented shrunk
+    shrink(np.repeat(np.repeat(img, 3, axis=0), 3, axis=1), 3)  # frames of 720 px and more are segmented shrunk
 
 
 def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
@@ -88,8 +89,9 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
     # a kernel's own compile options that change its code (numba's njit takes them per function; pycc compiles all
     # exports of a module with one set of flags): ``error_model="numpy"`` (a float division without Python's zero
     # check, which keeps a loop from vectorising) is applied to that kernel's exports alone
-    models = {k.py_func: k.options["error_model"] for ks in _registry.values() for k in ks
-              if "error_model" in k.options}
+    models = {
+        k.py_func: k.options["error_model"] for ks in _registry.values() for k in ks if "error_model" in k.options
+    }
     compile_extra = pycc_compiler.compile_extra
 
     def _compile_extra(typingctx, targetctx, func, args, return_type, flags, locals, **kw):
@@ -113,7 +115,7 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
             continue
         cc = CC(name)
         cc.verbose = False
-        if "flags=" in _host_cpu() or "Features=" in _host_cpu():   # the CPU is known to the build's name
+        if "flags=" in _host_cpu() or "Features=" in _host_cpu():  # the CPU is known to the build's name
             cc.target_cpu = TARGET_CPU
         manifest: dict[str, list] = {}
         for k in kernels:

@@ -27,6 +27,7 @@ quickselect and per-profile early exits).
 ``numba.pycc`` is pending deprecation in numba 0.68 (its replacement is not released yet); when it goes, the build
 fails loudly and the detector runs under numba's JIT as before: slower to start, the same results.
 """
+
 from __future__ import annotations
 
 import functools
@@ -60,8 +61,12 @@ _HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 #: True when the kernels run compiled (ahead of time or by numba); False: plain Python (~50x slower).
 COMPILED = _HAVE_NUMBA or (os.environ.get(AOT_ENV) != "0" and AOT_DIR.is_dir() and any(AOT_DIR.glob("*.json")))
 if not COMPILED:  # pragma: no cover - exercised by tests/test_detect.py in a subprocess
-    warnings.warn("numba is not installed: circcal's detector runs its per-pixel loops in plain Python (same "
-                  "results, ~50x slower); `pip install numba` restores the speed", RuntimeWarning, stacklevel=2)
+    warnings.warn(
+        "numba is not installed: circcal's detector runs its per-pixel loops in plain Python (same "
+        "results, ~50x slower); `pip install numba` restores the speed",
+        RuntimeWarning,
+        stacklevel=2,
+    )
 
 _lock = threading.RLock()
 #: seconds spent in calls that made numba compile (a type the ahead-of-time build lacks, or no build): the time
@@ -138,8 +143,7 @@ def _load_aot(module: str) -> dict[str, list[tuple[list, Callable]]]:
                 mod = importlib.util.module_from_spec(spec)
                 spec.loader.exec_module(mod)
                 for kernel, entries in exports.items():
-                    table[kernel] = [([_loaded_spec(a) for a in e["args"]], getattr(mod, e["symbol"]))
-                                     for e in entries]
+                    table[kernel] = [([_loaded_spec(a) for a in e["args"]], getattr(mod, e["symbol"])) for e in entries]
         _aot_cache[module] = table
         return table
 
@@ -159,7 +163,7 @@ def _matches(specs: list, args: tuple) -> bool:
         if kind == "array":
             if not (isinstance(a, np.ndarray) and a.dtype == s[1] and a.ndim == s[2]):
                 return False
-            flags = a.flags                          # (a new flags object per access: read once)
+            flags = a.flags  # (a new flags object per access: read once)
             if not flags.aligned or flags.writeable != s[4] or (s[3] == "C" and not flags.c_contiguous):
                 return False
         elif kind == "int":
@@ -278,8 +282,9 @@ def aot_status() -> dict[str, bool]:
     """Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable (modules whose
     kernels are all inlined into other modules' kernels, ``inline="always"``, have nothing of their own to build and
     are not listed)."""
-    return {m: bool(_load_aot(m)) for m, ks in _registry.items()
-            if any(k.options.get("inline") != "always" for k in ks)}
+    return {
+        m: bool(_load_aot(m)) for m, ks in _registry.items() if any(k.options.get("inline") != "always" for k in ks)
+    }
 
 
 def _spec_of(t) -> list | None:
@@ -294,8 +299,13 @@ def _spec_of(t) -> list | None:
     if isinstance(t, types.Array):
         if t.layout not in ("C", "A"):
             return None
-        return ["array", np.dtype(str(t.dtype) if str(t.dtype) != "bool" else np.bool_).str, t.ndim, t.layout,
-                bool(t.mutable)]
+        return [
+            "array",
+            np.dtype(str(t.dtype) if str(t.dtype) != "bool" else np.bool_).str,
+            t.ndim,
+            t.layout,
+            bool(t.mutable),
+        ]
     if isinstance(t, types.Boolean):
         return ["bool"]
     if isinstance(t, types.Integer) and t.bitwidth == 64 and t.signed:

@@ -10,6 +10,7 @@ missing ahead-of-time build) compiled the levels kernels in every process: ~8 s 
 
 Imported only where numba runs (it imports numba).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -70,7 +71,7 @@ def enable(dispatcher, dependency_files: Sequence[str | Path]) -> bool:
     cache_class = type("Cache", (caching.FunctionCache,), {"_impl_class": impl})
     try:
         cache = cache_class(dispatcher.py_func)
-    except RuntimeError:          # numba: "cannot cache function ...: no locator available"
+    except RuntimeError:  # numba: "cannot cache function ...: no locator available"
         return False
-    dispatcher._cache = cache     # what numba's Dispatcher.enable_caching sets, with its own FunctionCache
+    dispatcher._cache = cache  # what numba's Dispatcher.enable_caching sets, with its own FunctionCache
     return True

@@ -19,6 +19,7 @@ tests/test_budget.py). Nothing in the search holds memory quadratic in the candi
 :mod:`circcal.detector.locate.neighbours` answers every distance query): a 12 MP hostile image peaks below 0.5 GB of
 resident memory in all, the interpreter and its libraries included (reports/fuzz.md).
 """
+
 from __future__ import annotations
 
 import time

@@ -3,6 +3,7 @@ them to the image and the board.
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres).
 """
+
 from __future__ import annotations
 
 import math
@@ -60,9 +61,9 @@ def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
     :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image (times the markers' area ratio on a
     marker board), at least :data:`MIN_AREA_PX2` (the smallest measurable dot, whatever the image size); the window
     spans at least :data:`MIN_AREA_RANGE`."""
-    cell = board.pitch_mm ** 2 * (2.0 if board.layout == "asymmetric" else 1.0)
-    dot_frac = np.pi * board.radius_mm ** 2 / cell
-    max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points * board.marker_scale ** 2
+    cell = board.pitch_mm**2 * (2.0 if board.layout == "asymmetric" else 1.0)
+    dot_frac = np.pi * board.radius_mm**2 / cell
+    max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points * board.marker_scale**2
     min_area = MIN_AREA_PX2
     return min_area, max(max_area, MIN_AREA_RANGE * min_area)
 
@@ -106,9 +107,18 @@ def find_candidates(
     meas = np.empty((len(todo), 12))
     _contour_measures(pts, starts, counts, float(min_area), float(max_area), meas)
     geo = np.empty((len(todo), 7))
-    _blob_tests(meas, float(min_area), float(max_area), float(min_circularity), float(min_inertia),
-                float(min_convexity), W, H, geo)
-    for cx, cy, a, b, ang, S, cut in geo[geo[:, 0] == geo[:, 0]].tolist():   # (the kept blobs: no NaN)
+    _blob_tests(
+        meas,
+        float(min_area),
+        float(max_area),
+        float(min_circularity),
+        float(min_inertia),
+        float(min_convexity),
+        W,
+        H,
+        geo,
+    )
+    for cx, cy, a, b, ang, S, cut in geo[geo[:, 0] == geo[:, 0]].tolist():  # (the kept blobs: no NaN)
         c, axes, area = _upscale(np.array([cx, cy]), (a, b), S, scale)
         out.append(Candidate(c, axes, ang, area, cut != 0.0))
     return out
@@ -125,14 +135,22 @@ def _blob_tests(meas, min_area, max_area, min_circularity, min_inertia, min_conv
     centres by < 1e-13 px on 2 of 617 views)."""
     for i in range(len(meas)):
         out[i, :] = np.nan
-        S, m10, m01, m20, m11, m02, P, hull = meas[i, 0], meas[i, 1], meas[i, 2], meas[i, 3], meas[i, 4], \
-            meas[i, 5], meas[i, 6], meas[i, 7]
+        S, m10, m01, m20, m11, m02, P, hull = (
+            meas[i, 0],
+            meas[i, 1],
+            meas[i, 2],
+            meas[i, 3],
+            meas[i, 4],
+            meas[i, 5],
+            meas[i, 6],
+            meas[i, 7],
+        )
         if not (min_area <= S <= max_area):
             continue
         mu20, mu02, mu11 = m20 / S, m02 / S, m11 / S
         tr = mu20 + mu02
-        disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11 ** 2))
-        l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)   # principal second moments; a = 2 sqrt(l1) for an ellipse
+        disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11**2))
+        l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)  # principal second moments; a = 2 sqrt(l1) for an ellipse
         if l1 <= 0 or l2 / l1 < min_inertia:
             continue
         if 4.0 * math.pi * S / (P * P) < min_circularity:
@@ -147,8 +165,9 @@ def _blob_tests(meas, min_area, max_area, min_circularity, min_inertia, min_conv
         out[i, 6] = 1.0 if (x0 <= 0 or y0 <= 0 or x1 + 1 >= W or y1 + 1 >= H) else 0.0
 
 
-def _upscale(centre: np.ndarray, axes: tuple[float, float], area: float, scale: int
-             ) -> tuple[np.ndarray, tuple[float, float], float]:
+def _upscale(
+    centre: np.ndarray, axes: tuple[float, float], area: float, scale: int
+) -> tuple[np.ndarray, tuple[float, float], float]:
     """The centre (2,), semi-axes and area of a candidate found on an image shrunk ``scale`` x (pixel-area
     averaging) in full-image pixels (the same objects for ``scale`` 1). The contour runs through the centres of the
     blob's boundary pixels, ~half a pixel inside its edge at either scale: the axes get the difference back, so the
@@ -156,7 +175,7 @@ def _upscale(centre: np.ndarray, axes: tuple[float, float], area: float, scale: 
     if scale == 1:
         return centre, axes, area
     off = 0.5 * (scale - 1)
-    return centre * scale + off, (axes[0] * scale + off, axes[1] * scale + off), area * scale ** 2
+    return centre * scale + off, (axes[0] * scale + off, axes[1] * scale + off), area * scale**2
 
 
 @njit(cache=True, nogil=True)
@@ -191,7 +210,7 @@ def _contour_measures(pts, starts, counts, min_area, max_area, out):
             xi_1 = xi
             yi_1 = yi
         m00 = m10 = m01 = m20 = m11 = m02 = 0.0
-        if abs(a00) > 1.1920928955078125e-07:     # FLT_EPSILON, as OpenCV
+        if abs(a00) > 1.1920928955078125e-07:  # FLT_EPSILON, as OpenCV
             sg = 1.0 if a00 > 0 else -1.0
             m00 = a00 * (sg * 0.5)
             m10 = a10 * (sg * 0.16666666666666666)
@@ -200,7 +219,7 @@ def _contour_measures(pts, starts, counts, min_area, max_area, out):
             m11 = a11 * (sg * 0.041666666666666667)
             m02 = a02 * (sg * 0.083333333333333333)
         cx = cy = 0.0
-        if abs(m00) > 2.220446049250313e-16:      # DBL_EPSILON
+        if abs(m00) > 2.220446049250313e-16:  # DBL_EPSILON
             inv = 1.0 / m00
             cx = m10 * inv
             cy = m01 * inv
@@ -222,7 +241,7 @@ def _contour_measures(pts, starts, counts, min_area, max_area, out):
             px, py = x, y
             xmin, ymin, xmax, ymax = min(xmin, x), min(ymin, y), max(xmax, x), max(ymax, y)
         out[i, 6] = per
-        out[i, 7] = _hull_area(pts[s0:s0 + n])
+        out[i, 7] = _hull_area(pts[s0 : s0 + n])
         out[i, 8], out[i, 9], out[i, 10], out[i, 11] = xmin, ymin, xmax, ymax
 
 
@@ -234,17 +253,23 @@ def _hull_area(p):
     order = np.argsort(p[:, 0] * (1 << 32) + p[:, 1])
     hull = np.empty((2 * n + 1, 2), np.int64)
     h = 0
-    for rep in range(2):          # lower chain left to right, then upper chain right to left
+    for rep in range(2):  # lower chain left to right, then upper chain right to left
         start = h
         for t in range(n):
             j = order[t] if rep == 0 else order[n - 1 - t]
             x, y = p[j, 0], p[j, 1]
-            while h - start >= 2 and ((hull[h - 1, 0] - hull[h - 2, 0]) * (y - hull[h - 2, 1])
-                                      - (hull[h - 1, 1] - hull[h - 2, 1]) * (x - hull[h - 2, 0])) <= 0:
+            while (
+                h - start >= 2
+                and (
+                    (hull[h - 1, 0] - hull[h - 2, 0]) * (y - hull[h - 2, 1])
+                    - (hull[h - 1, 1] - hull[h - 2, 1]) * (x - hull[h - 2, 0])
+                )
+                <= 0
+            ):
                 h -= 1
             hull[h, 0], hull[h, 1] = x, y
             h += 1
-        h -= 1                    # the chain's last point starts the next one
+        h -= 1  # the chain's last point starts the next one
     area2 = 0
     for k in range(h):
         q = (k + 1) % h

@@ -17,6 +17,7 @@ in the image as in the board), and among those picks the one whose first point (
 image's top-left corner (pixel (0, 0)). So a fronto-parallel, unrolled symmetric board is numbered row by row from
 the top-left, like OpenCV's object points; asymmetric grids are at most 2-fold ambiguous and the same rule decides.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -121,7 +122,7 @@ def order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERAN
     a = P - np.roll(P, 1, axis=0)
     b = np.roll(P, -1, axis=0) - P
     turn = np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.sum(a * b, axis=1)))
-    corners = P[np.sort(np.argsort(turn)[-4:])].astype(np.float32)          # (4, 2) in hull order
+    corners = P[np.sort(np.argsort(turn)[-4:])].astype(np.float32)  # (4, 2) in hull order
     cols, rows = board.cols, board.rows
     grid = np.array([[0, 0], [cols - 1, 0], [cols - 1, rows - 1], [0, rows - 1]], np.float32)
     for shift in (0, 1):
@@ -130,10 +131,15 @@ def order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERAN
         if not np.all(np.isfinite(q)):
             continue
         r = np.round(q)
-        if np.max(np.abs(q - r)) >= tol or r[:, 0].min() < 0 or r[:, 1].min() < 0 or r[:, 0].max() > cols - 1\
-                or r[:, 1].max() > rows - 1:
+        if (
+            np.max(np.abs(q - r)) >= tol
+            or r[:, 0].min() < 0
+            or r[:, 1].min() < 0
+            or r[:, 0].max() > cols - 1
+            or r[:, 1].max() > rows - 1
+        ):
             continue
-        k = (r[:, 1] * cols + r[:, 0]).astype(int)                          # board index of each candidate
+        k = (r[:, 1] * cols + r[:, 0]).astype(int)  # board index of each candidate
         idx = np.full(N, -1)
         idx[k] = np.arange(N)
         if np.all(idx >= 0):

@@ -19,6 +19,7 @@ and shift that lays the patch on board points; :func:`label_patch` decides:
 The orientation rule of :mod:`circcal.detector.locate.grid` picks among placements related by a board symmetry (an
 unmarked board seen whole); with markers there is one placement and every point keeps its ID across views.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,8 +28,7 @@ import numpy as np
 
 from circcal.board import Board, Placement, placements
 
-__all__ = ["Labelling", "ASYMMETRIC_FROM_PATCH", "board_frame", "label_patch", "seed_score_needed",
-           "patch_grid_text"]
+__all__ = ["Labelling", "ASYMMETRIC_FROM_PATCH", "board_frame", "label_patch", "seed_score_needed", "patch_grid_text"]
 
 ASYMMETRIC_FROM_PATCH = np.array([[1, 1], [-1, 1]], np.int64)
 """Patch coordinates -> board lattice coordinates of an asymmetric grid: ``u`` (the patch's first step, a
@@ -97,8 +97,7 @@ def _classes(board: Board, fits: list[Placement]) -> list[list[Placement]]:
     return groups
 
 
-def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *, closed: bool = False
-                ) -> Labelling:
+def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *, closed: bool = False) -> Labelling:
     """Label a patch with coordinates ``ab`` (K, 2) on ``board`` (module docstring). ``flags`` (K,) int: 1 a dot
     seen as a marker, 0 a plain dot, -1 unknown; ``None`` = all unknown (a board without markers ignores them).
     ``closed``: every lattice position around the patch lies in the image and holds no dot (so a complete patch
@@ -112,31 +111,52 @@ def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *
     geometric = placements(board, xy)
     if not geometric:
         if _fits(board, xy, transposed=True):
-            return Labelling("transposed", f"--grid {grid} does not match the dots, but {board.cols}x{board.rows} "
-                                           f"does: the board is {board.cols}x{board.rows}?", size=(rows, cols))
+            return Labelling(
+                "transposed",
+                f"--grid {grid} does not match the dots, but {board.cols}x{board.rows} "
+                f"does: the board is {board.cols}x{board.rows}?",
+                size=(rows, cols),
+            )
         bigger = rows >= board.rows and cols >= board.cols or rows >= board.cols and cols >= board.rows
         if bigger or rows * cols > board.n_points or K > board.n_points:
             return Labelling("larger", f"the board has more dots than {grid}: {rows}x{cols}?", size=(rows, cols))
-        return Labelling("larger", f"the dots form a {rows}x{cols} lattice that does not fit a {grid} grid",
-                         size=(rows, cols))
+        return Labelling(
+            "larger", f"the dots form a {rows}x{cols} lattice that does not fit a {grid} grid", size=(rows, cols)
+        )
     if not board.has_markers:
         flags = None
     fits = placements(board, xy, flags) if flags is not None else geometric
     if not fits:
         n_mk = int(np.sum(np.asarray(flags) == 1))
-        return Labelling("markers", f"the {n_mk} marker dots seen match no part of the board's marker layout "
-                                    f"(another marker layout, or a marker misread)", size=(rows, cols))
+        return Labelling(
+            "markers",
+            f"the {n_mk} marker dots seen match no part of the board's marker layout "
+            f"(another marker layout, or a marker misread)",
+            size=(rows, cols),
+        )
     classes = _classes(board, fits)
     complete = K == board.n_points
     if len(classes) > 1:
         if closed and K == _nodes_in_box(board, xy):
-            return Labelling("smaller", f"the dots form a complete {rows}x{cols} grid with none around it: the board "
-                                        f"is {rows}x{cols}, not {grid}?", size=(rows, cols), placements=len(classes))
-        why = ("a board without markers: a marker board (circcal board --markers pattern) labels partial views"
-               if not board.has_markers else "its markers in view do not tell which part of the board this is")
-        return Labelling("ambiguous", f"{K} of {board.n_points} dots seen ({rows}x{cols}): {len(classes)} "
-                                      f"parts of the board fit them ({why}); view rejected rather than guessed",
-                         size=(rows, cols), placements=len(classes))
+            return Labelling(
+                "smaller",
+                f"the dots form a complete {rows}x{cols} grid with none around it: the board "
+                f"is {rows}x{cols}, not {grid}?",
+                size=(rows, cols),
+                placements=len(classes),
+            )
+        why = (
+            "a board without markers: a marker board (circcal board --markers pattern) labels partial views"
+            if not board.has_markers
+            else "its markers in view do not tell which part of the board this is"
+        )
+        return Labelling(
+            "ambiguous",
+            f"{K} of {board.n_points} dots seen ({rows}x{cols}): {len(classes)} "
+            f"parts of the board fit them ({why}); view rejected rather than guessed",
+            size=(rows, cols),
+            placements=len(classes),
+        )
     p = classes[0][0]
     return Labelling("labelled", "", p.points.copy(), complete, (rows, cols), 1)
 
@@ -157,4 +177,3 @@ def _fits(board: Board, xy: np.ndarray, *, transposed: bool) -> bool:
         return False
     t = Board(board.cols, board.rows, board.pitch_mm, board.diameter_mm, board.layout, board.margin_mm)
     return bool(placements(t, xy))
-

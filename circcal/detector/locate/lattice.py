@@ -28,6 +28,7 @@ circle back to a circle, so it takes the local lattice back to a square one (up 
 Lattice coordinates ``(a, b)`` are integers along ``u`` and ``v``; ``(u, v)`` is right-handed in the image (x right,
 y down, ``u_x v_y - u_y v_x > 0``), the handedness of a board seen from its front. Pixels: OpenCV's convention.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -127,7 +128,7 @@ def _batch_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     if np.any(ok):
         _, _, vt = np.linalg.svd(A[ok])
         Hn = vt[:, -1].reshape(-1, 3, 3)
-        T = np.zeros((int(ok.sum()), 3, 3))                         # undo the normalisation of dst
+        T = np.zeros((int(ok.sum()), 3, 3))  # undo the normalisation of dst
         T[:, 0, 0] = T[:, 1, 1] = 1.0 / sc[ok]
         T[:, :2, 2] = mu[ok, 0]
         T[:, 2, 2] = 1.0
@@ -135,8 +136,9 @@ def _batch_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return H
 
 
-def find_seeds(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np.ndarray, tree: NeighbourGrid
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def find_seeds(
+    points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np.ndarray, tree: NeighbourGrid
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every candidate's local lattice (vectorised; see the module docstring).
 
     ``points`` (M, 2) px, ``axes`` (M, 2) semi-axes px, ``angle`` (M,) rad, ``area`` (M,) px^2. Returns
@@ -152,24 +154,23 @@ def find_seeds(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np
     if M < 3:
         return score, u, v, nbr8
     _, nn = tree.query(points, k=k)
-    nn = nn[:, 1:]                                                   # (M, k-1), self excluded
-    d = points[nn] - points[:, None]                                # (M, k-1, 2) image steps
-    e = np.einsum("mij,mkj->mki", _deskew(axes, angle), d)          # de-skewed
+    nn = nn[:, 1:]  # (M, k-1), self excluded
+    d = points[nn] - points[:, None]  # (M, k-1, 2) image steps
+    e = np.einsum("mij,mkj->mki", _deskew(axes, angle), d)  # de-skewed
     n = np.linalg.norm(e, axis=-1)
     iu = np.argmin(n, axis=1)
     eu = e[np.arange(M), iu]
     nu = n[np.arange(M), iu]
     cosang = np.einsum("mkj,mj->mk", e, eu) / np.maximum(n * nu[:, None], 1e-12)
     lo, hi = np.cos(np.deg2rad(SEED_ANGLE_DEG[1])), np.cos(np.deg2rad(SEED_ANGLE_DEG[0]))
-    ok_v = (cosang > lo) & (cosang < hi) & (n < SEED_LENGTH_RATIO * nu[:, None]) \
-        & (n > nu[:, None] / SEED_LENGTH_RATIO)
+    ok_v = (cosang > lo) & (cosang < hi) & (n < SEED_LENGTH_RATIO * nu[:, None]) & (n > nu[:, None] / SEED_LENGTH_RATIO)
     nv = np.where(ok_v, n, np.inf)
     iv = np.argmin(nv, axis=1)
     has_v = np.isfinite(nv[np.arange(M), iv])
     u = d[np.arange(M), iu]
     v = d[np.arange(M), iv]
     cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-    swap = cross < 0                                                 # right-handed: swap the two steps
+    swap = cross < 0  # right-handed: swap the two steps
     u, v = np.where(swap[:, None], v, u), np.where(swap[:, None], u, v)
     # the 4 axis neighbours: the nearest candidates to +-u, +-v (under perspective -u is not exactly minus u)
     rows = np.arange(M)
@@ -200,8 +201,13 @@ def find_seeds(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np
     dist, j = dist.reshape(M, 4), j.reshape(M, 4)
     step = np.minimum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
     ratio = area[j] / np.maximum(area[:, None], 1e-12)
-    hit = (dist < SEED_TOLERANCE * step[:, None]) & (ratio < MAX_AREA_RATIO) & (ratio > 1.0 / MAX_AREA_RATIO) \
-        & (j != rows[:, None]) & has_v[:, None]
+    hit = (
+        (dist < SEED_TOLERANCE * step[:, None])
+        & (ratio < MAX_AREA_RATIO)
+        & (ratio > 1.0 / MAX_AREA_RATIO)
+        & (j != rows[:, None])
+        & has_v[:, None]
+    )
     nbr8 = np.concatenate([axis, np.where(hit, j, -1)], axis=1)
     score = np.sum(nbr8 >= 0, axis=1)
     return score, u, v, nbr8
@@ -211,8 +217,7 @@ _DIRS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 _CORNERS = (((1, 0), (0, 1)), ((1, 0), (0, -1)), ((-1, 0), (0, 1)), ((-1, 0), (0, -1)))
 
 
-def _predict(lab: dict[tuple[int, int], tuple[float, float]], a: int, b: int
-             ) -> tuple[float, float, float] | None:
+def _predict(lab: dict[tuple[int, int], tuple[float, float]], a: int, b: int) -> tuple[float, float, float] | None:
     """Predicted image position (x, y) px of lattice position ``(a, b)`` from the labelled positions ``lab``
     (position -> image point) behind it, and the local step length (px); ``None`` when no rule applies. Plain
     floats: this runs once per lattice position tried."""
@@ -235,7 +240,7 @@ def _predict(lab: dict[tuple[int, int], tuple[float, float]], a: int, b: int
             ex, ey = p2[0] - p3[0], p2[1] - p3[1]
             s2 = (ex * ex + ey * ey) ** 0.5
             den = 3.0 * s2 - s1
-            if den > 0.2 * s2:          # projective (cross-ratio) extrapolation: exact under perspective
+            if den > 0.2 * s2:  # projective (cross-ratio) extrapolation: exact under perspective
                 f = s1 * (s1 + s2) / den / s1
                 sx += p1[0] + dx * f
                 sy += p1[1] + dy * f
@@ -257,15 +262,28 @@ def _predict(lab: dict[tuple[int, int], tuple[float, float]], a: int, b: int
         sx += p1[0] + p2[0] - p3[0]
         sy += p1[1] + p2[1] - p3[1]
         n += 1
-        step = min(step, ((p1[0] - p3[0]) ** 2 + (p1[1] - p3[1]) ** 2) ** 0.5,
-                   ((p2[0] - p3[0]) ** 2 + (p2[1] - p3[1]) ** 2) ** 0.5)
+        step = min(
+            step,
+            ((p1[0] - p3[0]) ** 2 + (p1[1] - p3[1]) ** 2) ** 0.5,
+            ((p2[0] - p3[0]) ** 2 + (p2[1] - p3[1]) ** 2) ** 0.5,
+        )
     if n == 0:
         return None
     return sx / n, sy / n, step
 
 
-def grow(seed: int, u: np.ndarray, v: np.ndarray, nbr8: np.ndarray, points: np.ndarray, area: np.ndarray,
-         tree: NeighbourGrid, taken: np.ndarray, image_size: tuple[int, int], deadline: Deadline | None = None) -> Lattice:
+def grow(
+    seed: int,
+    u: np.ndarray,
+    v: np.ndarray,
+    nbr8: np.ndarray,
+    points: np.ndarray,
+    area: np.ndarray,
+    tree: NeighbourGrid,
+    taken: np.ndarray,
+    image_size: tuple[int, int],
+    deadline: Deadline | None = None,
+) -> Lattice:
     """The patch grown from candidate ``seed`` with steps ``u``, ``v`` (2,) px and its 8 neighbours ``nbr8`` (8,)
     (:func:`find_seeds`); ``taken`` (M,) bool marks candidates of other patches (not used; this patch's are marked
     on return). ``image_size`` (W, H): predictions outside the image are not misses. Grows in waves (every
@@ -315,8 +333,11 @@ def grow(seed: int, u: np.ndarray, v: np.ndarray, nbr8: np.ndarray, points: np.n
                     break
                 if taken[j] or j in owner:
                     continue
-                ref = [area[cand[n]] for n in ((q[0] + 1, q[1]), (q[0] - 1, q[1]), (q[0], q[1] + 1),
-                                               (q[0], q[1] - 1)) if n in cand]
+                ref = [
+                    area[cand[n]]
+                    for n in ((q[0] + 1, q[1]), (q[0] - 1, q[1]), (q[0], q[1] + 1), (q[0], q[1] - 1))
+                    if n in cand
+                ]
                 r = area[j] / max(float(np.median(ref)), 1e-12)
                 if 1.0 / MAX_AREA_RATIO < r < MAX_AREA_RATIO:
                     hit = (dd, j)
@@ -324,7 +345,7 @@ def grow(seed: int, u: np.ndarray, v: np.ndarray, nbr8: np.ndarray, points: np.n
             if hit is None:
                 misses[q] = (float(pred[k, 0]), float(pred[k, 1]))
             elif hit[1] not in claims or hit[0] < claims[hit[1]][0]:
-                if hit[1] in claims:                  # two positions want one dot: the nearer wins
+                if hit[1] in claims:  # two positions want one dot: the nearer wins
                     misses[claims[hit[1]][1]] = tuple(pred[qs.index(claims[hit[1]][1])])
                 claims[hit[1]] = (hit[0], q)
             else:
@@ -391,7 +412,7 @@ def _join(big: Lattice, small: Lattice, points: np.ndarray) -> Lattice | None:
     near = np.argsort(np.linalg.norm(bp - sp.mean(axis=0), axis=1))[:MERGE_NEAREST]
     if len(np.unique(big.ab[near, 0])) < 2 or len(np.unique(big.ab[near, 1])) < 2:
         return None
-    H = _homography(bp[near], big.ab[near].astype(np.float64))      # image -> lattice of `big`
+    H = _homography(bp[near], big.ab[near].astype(np.float64))  # image -> lattice of `big`
     if H is None:
         return None
     q = cv2.perspectiveTransform(sp.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
@@ -410,18 +431,29 @@ def _join(big: Lattice, small: Lattice, points: np.ndarray) -> Lattice | None:
     for R in LATTICE_ROTATIONS:
         t = r - small.ab @ R.T
         if np.all(t == t[0]):
-            misses = {**big.misses, **{tuple((np.array(k) @ R.T + t[0]).tolist()): p
-                                       for k, p in small.misses.items()}}
+            misses = {**big.misses, **{tuple((np.array(k) @ R.T + t[0]).tolist()): p for k, p in small.misses.items()}}
             ab = np.concatenate([big.ab, r])
             occ = {tuple(x) for x in ab.tolist()}
-            return Lattice(np.concatenate([big.index, small.index]), ab,
-                           {k: p for k, p in misses.items() if k not in occ}, big.seed_score)
+            return Lattice(
+                np.concatenate([big.index, small.index]),
+                ab,
+                {k: p for k, p in misses.items() if k not in occ},
+                big.seed_score,
+            )
     return None
 
 
-def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area: np.ndarray,
-                  image_size: tuple[int, int], *, min_seed_score: int = 8, deadline: Deadline | None = None,
-                  max_patches: int | None = None) -> list[Lattice]:
+def find_lattices(
+    points: np.ndarray,
+    axes: np.ndarray,
+    angle: np.ndarray,
+    area: np.ndarray,
+    image_size: tuple[int, int],
+    *,
+    min_seed_score: int = 8,
+    deadline: Deadline | None = None,
+    max_patches: int | None = None,
+) -> list[Lattice]:
     """Every lattice patch among the candidates (module docstring), largest first, patches of one board joined.
 
     ``points`` (M, 2) px, ``axes`` (M, 2), ``angle`` (M,), ``area`` (M,) of the candidates; ``image_size`` (W, H);
@@ -433,8 +465,13 @@ def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area:
     if M < MIN_PATCH:
         return []
     tree = NeighbourGrid(points)
-    score, u, v, nbr8 = find_seeds(points, np.asarray(axes, np.float64).reshape(-1, 2),
-                                   np.asarray(angle, np.float64).reshape(-1), np.asarray(area, np.float64), tree)
+    score, u, v, nbr8 = find_seeds(
+        points,
+        np.asarray(axes, np.float64).reshape(-1, 2),
+        np.asarray(angle, np.float64).reshape(-1),
+        np.asarray(area, np.float64),
+        tree,
+    )
     if deadline is not None:
         deadline.check()
     lowest = min(min_seed_score, SEED_MIN_NEIGHBOURS)
@@ -447,7 +484,7 @@ def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area:
         if taken[s]:
             continue
         if first and score[s] < min_seed_score:
-            break                                    # no well-formed seed: no board
+            break  # no well-formed seed: no board
         first = False
         lat = grow(int(s), u[s], v[s], nbr8[s], points, area, tree, taken, image_size, deadline)
         lat.seed_score = int(score[s])
@@ -456,5 +493,5 @@ def find_lattices(points: np.ndarray, axes: np.ndarray, angle: np.ndarray, area:
             if max_patches is not None and len(patches) >= max_patches:
                 break
         else:
-            taken[lat.index] = True                 # a few dots that form no patch are no seeds either
+            taken[lat.index] = True  # a few dots that form no patch are no seeds either
     return merge_patches(patches, points, deadline) if len(patches) > 1 else patches

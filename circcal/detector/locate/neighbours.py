@@ -7,6 +7,7 @@ scipy's ``cKDTree`` (and ``scipy.sparse.csgraph`` for the clusters) answered the
 detection of an image, and every image of an asymmetric board needed it. Pixel convention: OpenCV's; points are
 ``(x, y)``.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,10 +35,10 @@ class NeighbourGrid:
         hi = self.points.max(axis=0) if M else np.zeros(2)
         span = np.maximum(hi - lo, 1e-9)
         h = math.sqrt(float(span[0] * span[1]) * POINTS_PER_CELL / max(M, 1))
-        h = max(h, float(max(span)) / max(M, 1), 1e-9)          # (points on a line: cells along it)
+        h = max(h, float(max(span)) / max(M, 1), 1e-9)  # (points on a line: cells along it)
         self.origin = lo
         self.cell = h
-        self.shape = (int(span[0] // h) + 1, int(span[1] // h) + 1)   # (nx, ny)
+        self.shape = (int(span[0] // h) + 1, int(span[1] // h) + 1)  # (nx, ny)
         self.start = np.zeros(self.shape[0] * self.shape[1] + 1, np.int64)
         self.items = np.empty(M, np.int64)
         _build(self.points, float(lo[0]), float(lo[1]), h, self.shape[0], self.shape[1], self.start, self.items)
@@ -47,8 +48,20 @@ class NeighbourGrid:
         q = np.ascontiguousarray(x, np.float64).reshape(-1, 2)
         dist = np.empty((len(q), k))
         idx = np.empty((len(q), k), np.int64)
-        _query(self.points, float(self.origin[0]), float(self.origin[1]), self.cell, self.shape[0], self.shape[1],
-               self.start, self.items, q, int(k), dist, idx)
+        _query(
+            self.points,
+            float(self.origin[0]),
+            float(self.origin[1]),
+            self.cell,
+            self.shape[0],
+            self.shape[1],
+            self.start,
+            self.items,
+            q,
+            int(k),
+            dist,
+            idx,
+        )
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
 
 
@@ -172,17 +185,17 @@ def _query(points, x0, y0, h, nx, ny, start, items, q, k, dist, idx):
             r = 0
             while True:
                 for gy in range(max(cy - r, 0), min(cy + r, ny - 1) + 1):
-                    if gy == cy - r or gy == cy + r:           # the ring's top and bottom rows: all their cells
+                    if gy == cy - r or gy == cy + r:  # the ring's top and bottom rows: all their cells
                         for gx in range(max(cx - r, 0), min(cx + r, nx - 1) + 1):
                             _visit(points, start, items, gx + nx * gy, qx, qy, best_d, best_i)
-                    else:                                      # the rows between: the ring's two end cells
+                    else:  # the rows between: the ring's two end cells
                         if cx - r >= 0:
                             _visit(points, start, items, cx - r + nx * gy, qx, qy, best_d, best_i)
                         if r > 0 and cx + r <= nx - 1:
                             _visit(points, start, items, cx + r + nx * gy, qx, qy, best_d, best_i)
                 left, right, low, high = cx - r > 0, cx + r < nx - 1, cy - r > 0, cy + r < ny - 1
                 if not (left or right or low or high):
-                    break                                      # every cell searched
+                    break  # every cell searched
                 reach = np.inf
                 if left:
                     reach = min(reach, qx - (x0 + (cx - r) * h))

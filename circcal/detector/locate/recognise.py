@@ -15,6 +15,7 @@ board), in words.
 
 Pixels: OpenCV's convention.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -102,12 +103,11 @@ def cell_areas(board: Board, lat: Lattice, points: np.ndarray) -> np.ndarray:
         if len(steps) == 2:
             out[k] = abs(steps[0][0] * steps[1][1] - steps[0][1] * steps[1][0])
     if board.layout == "asymmetric":
-        out /= 2.0      # the patch's steps are the diagonals: a patch cell is two board cells
+        out /= 2.0  # the patch's steps are the diagonals: a patch cell is two board cells
     return out
 
 
-def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.ndarray, cut: np.ndarray
-                 ) -> np.ndarray:
+def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
     """(K,) int flags of the patch's dots: 1 marker, 0 plain, -1 unknown (:data:`MARKER_SPLIT`; cut dots and dots
     without a local cell are unknown). ``dot_areas`` (M,) px^2 of all candidates, ``cut`` (M,) bool."""
     cell = cell_areas(board, lat, points)
@@ -116,7 +116,7 @@ def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.n
     flags = np.full(len(q), -1, np.int64)
     if not np.any(ok) or not board.has_markers:
         return flags
-    x = np.log(q / np.median(q[ok])) / np.log(board.marker_scale ** 2)
+    x = np.log(q / np.median(q[ok])) / np.log(board.marker_scale**2)
     flags[ok & (x < MARKER_SPLIT[0])] = 0
     flags[ok & (x > MARKER_SPLIT[1])] = 1
     return flags
@@ -131,7 +131,7 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
     ab = lat.ab.astype(np.float64)
     P = points[lat.index]
     if len(P) < 5:
-        return True                       # 4 dots fix a homography exactly: nothing to test
+        return True  # 4 dots fix a homography exactly: nothing to test
     H, _ = cv2.findHomography(ab, P, 0)
     if H is None or not np.all(np.isfinite(H)):
         return False
@@ -146,10 +146,10 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
     if not np.any(ok):
         return False
     step = float(np.sqrt(np.median(cell[ok])))
-    if float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) > PATCH_RESIDUAL * step:
+    if float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) > PATCH_RESIDUAL * step:
         return False
     fill = area[lat.index][ok] / cell[ok]
-    if board.has_markers:            # markers apart: the dots nearer the smaller mode
+    if board.has_markers:  # markers apart: the dots nearer the smaller mode
         fill = fill[fill < np.median(fill) * board.marker_scale]
     med = float(np.median(fill))
     return bool(np.median(np.abs(fill - med)) <= PATCH_FILL_SPREAD * med)
@@ -168,12 +168,14 @@ def _closed(lat: Lattice) -> bool:
 def _spans(board: Board, points: np.ndarray) -> bool:
     """The labelled board points span :data:`MIN_PARTIAL_LINES` rows and columns (or all of a smaller board's)."""
     i, j = np.divmod(points, board.cols)
-    return (len(np.unique(i)) >= min(MIN_PARTIAL_LINES, board.rows)
-            and len(np.unique(j)) >= min(MIN_PARTIAL_LINES, board.cols))
+    return len(np.unique(i)) >= min(MIN_PARTIAL_LINES, board.rows) and len(np.unique(j)) >= min(
+        MIN_PARTIAL_LINES, board.cols
+    )
 
 
-def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
-              deadline: Deadline | None = None) -> Recognition:
+def recognise(
+    board: Board, cands: list[Candidate], image_size: tuple[int, int], deadline: Deadline | None = None
+) -> Recognition:
     """The board among the candidates ``cands`` (module docstring); ``image_size`` (W, H)."""
     M = len(cands)
     N = board.n_points
@@ -190,15 +192,22 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
             o = orient(board, pts[idx], idx)
             if o is not None:
                 return Recognition(o, True, cut=np.zeros(N, bool))
-    patches = find_lattices(pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board),
-                            deadline=deadline)
+    patches = find_lattices(
+        pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board), deadline=deadline
+    )
     if not patches:
-        return Recognition(None, code=Reason.GRID_NOT_RECOGNISED,
-                           message=f"not recognised among {M} candidate dots (no lattice of dots)")
+        return Recognition(
+            None,
+            code=Reason.GRID_NOT_RECOGNISED,
+            message=f"not recognised among {M} candidate dots (no lattice of dots)",
+        )
     patches = [p for p in patches if _regular(board, p, pts, area)]
     if not patches:
-        return Recognition(None, code=Reason.GRID_NOT_RECOGNISED,
-                           message=f"not recognised among {M} candidate dots (no regular lattice of dots)")
+        return Recognition(
+            None,
+            code=Reason.GRID_NOT_RECOGNISED,
+            message=f"not recognised among {M} candidate dots (no regular lattice of dots)",
+        )
     labelled: list[tuple[Lattice, Labelling]] = []
     for lat in patches[:MAX_LABELLED]:
         if deadline is not None:
@@ -206,24 +215,47 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
         flags = marker_flags(board, lat, pts, area, cut) if board.has_markers else None
         labelled.append((lat, label_patch(board, lat.ab, flags, closed=_closed(lat))))
     whole = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and lab.complete]
-    part = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and not lab.complete
-            and _spans(board, lab.points) and int(np.sum(~cut[lat.index])) >= MIN_PARTIAL_POINTS]
+    part = [
+        (lat, lab)
+        for lat, lab in labelled
+        if lab.status == "labelled"
+        and not lab.complete
+        and _spans(board, lab.points)
+        and int(np.sum(~cut[lat.index])) >= MIN_PARTIAL_POINTS
+    ]
     chosen = whole[0] if whole else (part[0] if part else None)
     notes = _notes(board, labelled, chosen, pts, bool(whole))
     if chosen is None:
         lat, lab = labelled[0]
         if lab.status != "labelled" and (len(lat) < CLAIM_MIN_DOTS or lat.seed_score < 8):
-            return Recognition(None, code=Reason.GRID_NOT_RECOGNISED, notes=notes, patches=len(patches),
-                               message=f"not recognised among {M} candidate dots (the only lattice, of "
-                                       f"{len(lat)} dots, is too small to say more)")
-        code = {"larger": Reason.GRID_MISMATCH, "transposed": Reason.GRID_MISMATCH, "smaller": Reason.GRID_MISMATCH,
-                "markers": Reason.MARKERS_INCONSISTENT, "ambiguous": Reason.AMBIGUOUS_VIEW}.get(
-                    lab.status, Reason.TOO_FEW_POINTS)
-        msg = lab.message or (f"only {int(np.sum(~cut[lat.index]))} dots of the board seen "
-                              f"(a partial view needs {MIN_PARTIAL_POINTS}, over {MIN_PARTIAL_LINES} rows and "
-                              "columns)")
-        return Recognition(None, code=code, message=msg, notes=notes, patches=len(patches),
-                           decisive=lab.status in ("larger", "transposed"))
+            return Recognition(
+                None,
+                code=Reason.GRID_NOT_RECOGNISED,
+                notes=notes,
+                patches=len(patches),
+                message=f"not recognised among {M} candidate dots (the only lattice, of "
+                f"{len(lat)} dots, is too small to say more)",
+            )
+        code = {
+            "larger": Reason.GRID_MISMATCH,
+            "transposed": Reason.GRID_MISMATCH,
+            "smaller": Reason.GRID_MISMATCH,
+            "markers": Reason.MARKERS_INCONSISTENT,
+            "ambiguous": Reason.AMBIGUOUS_VIEW,
+        }.get(lab.status, Reason.TOO_FEW_POINTS)
+        msg = lab.message or (
+            f"only {int(np.sum(~cut[lat.index]))} dots of the board seen "
+            f"(a partial view needs {MIN_PARTIAL_POINTS}, over {MIN_PARTIAL_LINES} rows and "
+            "columns)"
+        )
+        return Recognition(
+            None,
+            code=code,
+            message=msg,
+            notes=notes,
+            patches=len(patches),
+            decisive=lab.status in ("larger", "transposed"),
+        )
     lat, lab = chosen
     order = np.full(N, -1, np.int64)
     order[lab.points] = lat.index
@@ -232,14 +264,18 @@ def recognise(board: Board, cands: list[Candidate], image_size: tuple[int, int],
     if not board.has_markers:
         order = orient(board, np.where((order >= 0)[:, None], pts[np.maximum(order, 0)], np.nan), order)
         if order is None:
-            return Recognition(None, code=Reason.GRID_NOT_RECOGNISED, message="no labelling of the grid is seen "
-                               "from the board's front (a mirrored image?)", notes=notes, patches=len(patches))
+            return Recognition(
+                None,
+                code=Reason.GRID_NOT_RECOGNISED,
+                message="no labelling of the grid is seen from the board's front (a mirrored image?)",
+                notes=notes,
+                patches=len(patches),
+            )
         cut_pts = np.where(order >= 0, cut[np.maximum(order, 0)], False)
     return Recognition(order, lab.complete, cut=cut_pts, notes=notes, patches=len(patches))
 
 
-def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts: np.ndarray, whole: bool
-           ) -> list[str]:
+def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts: np.ndarray, whole: bool) -> list[str]:
     """Other lattices in view, in words (module docstring)."""
     notes = []
     least = max(NOTE_MIN_DOTS, int(np.ceil(NOTE_MIN_SHARE * board.n_points)))
@@ -248,23 +284,29 @@ def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts:
         if len(lat) < least:
             continue
         c = pts[lat.index].mean(axis=0)
-        what = {"labelled": "another board like this one" if lab.complete else "another part of a board",
-                "larger": "a larger dot grid", "transposed": "a dot grid of the transposed size",
-                "smaller": "a smaller dot grid", "ambiguous": "a dot grid that could be part of the board",
-                "markers": "a dot grid with other markers"}.get(lab.status, "a dot grid")
+        what = {
+            "labelled": "another board like this one" if lab.complete else "another part of a board",
+            "larger": "a larger dot grid",
+            "transposed": "a dot grid of the transposed size",
+            "smaller": "a smaller dot grid",
+            "ambiguous": "a dot grid that could be part of the board",
+            "markers": "a dot grid with other markers",
+        }.get(lab.status, "a dot grid")
         rows, cols = lab.size
         notes.append(f"{what} ({len(lat)} dots, {rows}x{cols}) in view around ({c[0]:.0f}, {c[1]:.0f}) px: not used")
     if chosen is not None and notes:
         c = pts[chosen[0].index].mean(axis=0)
         two = any(lab.status == "labelled" and lab.complete and len(lat) >= least for lat, lab in others)
-        notes.insert(0, f"{'two boards' if two else 'more than one dot grid'} in view: used the "
-                        f"{len(chosen[0])} dots around ({c[0]:.0f}, {c[1]:.0f}) px"
-                        f"{' (the larger board)' if two else ''}")
+        notes.insert(
+            0,
+            f"{'two boards' if two else 'more than one dot grid'} in view: used the "
+            f"{len(chosen[0])} dots around ({c[0]:.0f}, {c[1]:.0f}) px"
+            f"{' (the larger board)' if two else ''}",
+        )
     return notes
 
 
-def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]
-               ) -> np.ndarray | None:
+def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray | None:
     """Recognise the whole board among candidate dots and order it (:func:`circcal.detector.locate.recognise.recognise`
     on round candidates).
 

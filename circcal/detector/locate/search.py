@@ -7,6 +7,7 @@ Only the starting ellipses come from here (the candidates' contours); the edges 
 :func:`~circcal.detector.measure.dots.fit_dots`. Candidates are in full-image pixels, OpenCV's convention (integer
 coordinates are pixel centres), whatever the scale or window they were found at.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,9 +34,15 @@ from circcal.detector.locate.segment import (
 __all__ = ["segment_and_recognise"]
 
 
-def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *, first_only: bool = False,
-                           scales: list[int] | None = None, box: tuple[int, int, int, int] | None = None
-                           ) -> tuple[Recognition, list[Candidate], str | None, int]:
+def segment_and_recognise(
+    gray: np.ndarray,
+    board: Board,
+    deadline: Deadline,
+    *,
+    first_only: bool = False,
+    scales: list[int] | None = None,
+    box: tuple[int, int, int, int] | None = None,
+) -> tuple[Recognition, list[Candidate], str | None, int]:
     """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
     :func:`~circcal.detector.locate.segment.segmentation_scales` in turn (candidates in full-image pixels).
 
@@ -59,19 +66,19 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
     scales = list(segmentation_scales(*win.shape) if scales is None else scales)
     coarsest = max(scales, default=1)
     partial: tuple[Recognition, list[Candidate], str] | None = None
-    quietest = math.inf                    # the least noise of the scales left unsegmented for noise (grey levels)
+    quietest = math.inf  # the least noise of the scales left unsegmented for noise (grey levels)
     segmented = False
     refusal: tuple[Recognition, list[Candidate], str] | None = None
-    unrecognised: list[Candidate] = []     # candidates of scale 2 in no recognised grid (dots too small there?)
-    searched: set[tuple[int, int, int, int]] = set()   # the windows searched again at full resolution
+    unrecognised: list[Candidate] = []  # candidates of scale 2 in no recognised grid (dots too small there?)
+    searched: set[tuple[int, int, int, int]] = set()  # the windows searched again at full resolution
     while scales:
-        deadline.check()                   # (each scale's shrink, stretch and masks cost O(pixels))
+        deadline.check()  # (each scale's shrink, stretch and masks cost O(pixels))
         scale = scales.pop(0)
         # shrunk (pixel-area averaging) before the contrast stretch: the stretch then touches s^2 fewer pixels
         counts = np.zeros(256, np.int64)
-        img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale ** 2, counts)
+        img = normalise_u8(win if scale == 1 else shrink(win, scale), STRETCH_TAIL_PX / scale**2, counts)
         noise = noise_sigma_u8(img)
-        if noise > MAX_STRETCHED_NOISE:     # nothing but noise at this scale: the block means of a coarser one
+        if noise > MAX_STRETCHED_NOISE:  # nothing but noise at this scale: the block means of a coarser one
             quietest = min(quietest, noise)
             if box is None and scale == coarsest and min(win.shape) // (2 * scale) >= NOISY_MIN_SIDE:
                 coarsest = 2 * scale
@@ -82,8 +89,8 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
             deadline.check()
             if speckled(mask):
                 continue
-            cs = find_candidates(mask, min_area=min_area / scale ** 2, max_area=max_area / scale ** 2, scale=scale)
-            deadline.check()               # (the contours of a textured mask: O(pixels + candidates))
+            cs = find_candidates(mask, min_area=min_area / scale**2, max_area=max_area / scale**2, scale=scale)
+            deadline.check()  # (the contours of a textured mask: O(pixels + candidates))
             n_whole = sum(not c.cut for c in cs)
             best = max(best, n_whole)
             if n_whole < need:
@@ -101,8 +108,9 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
                     got = _search_clusters(gray, board, deadline, cs, need, searched)
                     if got is not None and got[0].complete:
                         return got[0], got[1], got[2], max(best, got[3])
-                    if got is not None and (partial is None
-                                            or np.sum(got[0].order >= 0) > np.sum(partial[0].order >= 0)):
+                    if got is not None and (
+                        partial is None or np.sum(got[0].order >= 0) > np.sum(partial[0].order >= 0)
+                    ):
                         partial = (got[0], got[1], got[2])
                         best = max(best, got[3])
             label = name if scale == 1 else f"{name}@1/{scale}"
@@ -119,7 +127,7 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
                     finer_scales = [finer, 1] if finer != 1 else [1]
                     window = _board_window(cs, rec, (W, H), (x0, y0, x1, y1))
                     if window is None and box is None and (x1 - x0) * (y1 - y0) <= WHOLE_FRAME_MAX_PX:
-                        window = (x0, y0, x1, y1)        # a board filling much of a small frame: all of it
+                        window = (x0, y0, x1, y1)  # a board filling much of a small frame: all of it
                     if window is not None:
                         got = segment_and_recognise(gray, board, deadline, scales=list(finer_scales), box=window)
                         if got[0].order is not None:
@@ -133,12 +141,12 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
             else:
                 if refusal is None or _telling(rec) > _telling(refusal[0]):
                     refusal = (rec, cs, label)
-                if rec.decisive:           # the dots continue beyond the board: no threshold changes that
+                if rec.decisive:  # the dots continue beyond the board: no threshold changes that
                     return rec, cs, None, best
             if first_only:
                 return rec, cs, label, best
         else:
-            if partial is not None:        # a part of the board at this scale: the other scales see no more of it
+            if partial is not None:  # a part of the board at this scale: the other scales see no more of it
                 break
     if partial is None and box is None and not first_only and unrecognised:
         got = _search_clusters(gray, board, deadline, unrecognised, need, searched)
@@ -149,16 +157,29 @@ def segment_and_recognise(gray: np.ndarray, board: Board, deadline: Deadline, *,
     if refusal is not None:
         return refusal[0], refusal[1], None, best
     if not segmented and math.isfinite(quietest):
-        return Recognition(None, code=Reason.TOO_FEW_CANDIDATES,
-                           message=f"the image shows only noise at every scale tried (after the contrast stretch its "
-                                   f"noise is at least {quietest:.0f} grey levels of 255; at most "
-                                   f"{MAX_STRETCHED_NOISE:.0f} is thresholded)"), [], None, best
+        return (
+            Recognition(
+                None,
+                code=Reason.TOO_FEW_CANDIDATES,
+                message=f"the image shows only noise at every scale tried (after the contrast stretch its "
+                f"noise is at least {quietest:.0f} grey levels of 255; at most "
+                f"{MAX_STRETCHED_NOISE:.0f} is thresholded)",
+            ),
+            [],
+            None,
+            best,
+        )
     return Recognition(None, code=Reason.TOO_FEW_CANDIDATES), [], None, best
 
 
-def _search_clusters(gray: np.ndarray, board: Board, deadline: Deadline, cands: list[Candidate], need: int,
-                     searched: set[tuple[int, int, int, int]]
-                     ) -> tuple[Recognition, list[Candidate], str | None, int] | None:
+def _search_clusters(
+    gray: np.ndarray,
+    board: Board,
+    deadline: Deadline,
+    cands: list[Candidate],
+    need: int,
+    searched: set[tuple[int, int, int, int]],
+) -> tuple[Recognition, list[Candidate], str | None, int] | None:
     """The board in a window around one of the clusters of ``cands`` (:func:`_cluster_windows`), segmented again at
     full resolution: dots ~3 px across at scale 2 are candidates but too rough for the lattice search. Each window is
     searched once (``searched``: the windows searched so far, updated), never the whole frame. Returns what
@@ -199,7 +220,7 @@ def _cluster_windows(cands: list[Candidate], need: int, size: tuple[int, int]) -
         return []
     lab = linked_clusters(P, CLUSTER_LINK)
     n = int(lab.max()) + 1
-    if n == len(P):                                   # no point linked to another
+    if n == len(P):  # no point linked to another
         return []
     counts = np.bincount(lab, minlength=n)
     out = []
@@ -225,8 +246,9 @@ WHOLE_FRAME_MAX_PX = 4_000_000
 frame only up to this many pixels (a 4 MP frame takes ~0.1 s at full resolution; a 48 MP one seconds)."""
 
 
-def _board_window(cands: list[Candidate], rec: Recognition, size: tuple[int, int],
-                  within: tuple[int, int, int, int]) -> tuple[int, int, int, int] | None:
+def _board_window(
+    cands: list[Candidate], rec: Recognition, size: tuple[int, int], within: tuple[int, int, int, int]
+) -> tuple[int, int, int, int] | None:
     """``(x0, y0, x1, y1)`` px: the bounding box of the recognised dots of ``rec`` (candidates ``cands``, full-image
     pixels) grown by :data:`WINDOW_MARGIN_STEPS` lattice steps (the median nearest-neighbour distance of those
     dots), clipped to the image ``size`` (W, H); ``None`` when it is not much smaller than the window ``within``
@@ -255,13 +277,21 @@ def _shifted(c: Candidate, x0: int, y0: int, W: int, H: int) -> Candidate:
     """Candidate ``c`` of a window at ``(x0, y0)`` in full-image pixels; cut only where it touches the image's own
     border (its contour touching the window's edge inside the image is clutter reaching in, not a dot cut off)."""
     centre = c.centre + [x0, y0]
-    cut = c.cut and bool(centre[0] - c.axes[0] <= 1.0 or centre[1] - c.axes[0] <= 1.0
-                         or centre[0] + c.axes[0] >= W - 2.0 or centre[1] + c.axes[0] >= H - 2.0)
+    cut = c.cut and bool(
+        centre[0] - c.axes[0] <= 1.0
+        or centre[1] - c.axes[0] <= 1.0
+        or centre[0] + c.axes[0] >= W - 2.0
+        or centre[1] + c.axes[0] >= H - 2.0
+    )
     return Candidate(centre, c.axes, c.angle, c.area, cut)
 
 
 def _telling(rec: Recognition) -> int:
     """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
     markers, then an ambiguous view, then too few points, then not recognised."""
-    return {Reason.GRID_MISMATCH: 4, Reason.MARKERS_INCONSISTENT: 3, Reason.AMBIGUOUS_VIEW: 2,
-            Reason.TOO_FEW_POINTS: 1}.get(rec.code, 0)
+    return {
+        Reason.GRID_MISMATCH: 4,
+        Reason.MARKERS_INCONSISTENT: 3,
+        Reason.AMBIGUOUS_VIEW: 2,
+        Reason.TOO_FEW_POINTS: 1,
+    }.get(rec.code, 0)

@@ -4,6 +4,7 @@ scales they are made at (a shrunk copy first; the edges are always measured at f
 Masks are (H, W) uint8, 255 where the image is dark. Pixel convention: OpenCV's (integer coordinates are pixel
 centres).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -17,15 +18,24 @@ from circcal.detector.kernels.jit import njit
 KERNEL_IMPORTS = ("circcal.detector.image",)
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
-__all__ = ["SHRINK_MIN_SIDE", "SHRUNK_MIN_RADIUS", "guided_filter", "otsu_threshold", "segmentation_scales",
-           "segmentations", "shrink", "noise_sigma_u8", "speckled"]
+__all__ = [
+    "SHRINK_MIN_SIDE",
+    "SHRUNK_MIN_RADIUS",
+    "guided_filter",
+    "otsu_threshold",
+    "segmentation_scales",
+    "segmentations",
+    "shrink",
+    "noise_sigma_u8",
+    "speckled",
+]
 
 GUIDED_RADIUS_DIVISOR = 400
 """Guided-filter radius = the shorter image side / this (px): ~1 px of smoothing per 400 px, a fraction of the smallest
 dots a sensor of that size resolves, so their edges stay."""
 GUIDED_MIN_RADIUS = 2
 """... and at least this (px): below it the filter does not denoise."""
-GUIDED_EPS = 0.02 ** 2
+GUIDED_EPS = 0.02**2
 """Guided-filter regularisation, in units of the [0, 1] intensity range squared: variations below ~2 % of the
 range (noise) are smoothed, the dot-to-board contrast (tens of %) is kept as an edge."""
 ADAPTIVE_WINDOW_DIVISORS = (8.0, 3.0, 16.0)
@@ -48,8 +58,9 @@ full range, a dense texture), not dots: a board of dots 6 px across at a pitch o
 (850,000 contours in a 12 MP mask: 40 s), so it is skipped (:func:`speckled`)."""
 
 
-def segmentations(gray_u8: np.ndarray, noise_sigma: float | None = None, hist: np.ndarray | None = None
-                  ) -> Iterator[tuple[str, np.ndarray]]:
+def segmentations(
+    gray_u8: np.ndarray, noise_sigma: float | None = None, hist: np.ndarray | None = None
+) -> Iterator[tuple[str, np.ndarray]]:
     """Yield ``(name, mask)`` for ``gray_u8`` (H, W) uint8 (contrast-stretched): masks, 255 where the image is dark
     (dot candidates), in the order worth trying.
 
@@ -84,8 +95,12 @@ def segmentations(gray_u8: np.ndarray, noise_sigma: float | None = None, hist: n
         yield "guided-otsu", otsu
     for divisor in ADAPTIVE_WINDOW_DIVISORS:
         block = _odd_window(min(H, W) / divisor)
-        yield f"adaptive{block}", cv2.adaptiveThreshold(f8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
-                                                        block, 255 * ADAPTIVE_OFFSET)
+        yield (
+            f"adaptive{block}",
+            cv2.adaptiveThreshold(
+                f8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 255 * ADAPTIVE_OFFSET
+            ),
+        )
 
 
 GUIDED_MIN_NOISE = 255 * ADAPTIVE_OFFSET / 5.0
@@ -187,34 +202,34 @@ def _guided_kernel(src, r, eps64, out, hist):
     one = np.float32(1.0)
     inv255 = np.float32(1.0 / 255.0)
     k255 = np.float32(255.0)
-    s31 = np.float32(2.0 ** 31)
-    s39 = np.float32(2.0 ** 39)
-    u31 = 2.0 ** -31
-    u39 = 2.0 ** -39
-    s40 = 2.0 ** 40
-    u40 = 2.0 ** -40
-    magic = np.float32(8388608.0)      # 2^23: (v + 2^23) - 2^23 rounds 0 <= v < 2^23 half to even
+    s31 = np.float32(2.0**31)
+    s39 = np.float32(2.0**39)
+    u31 = 2.0**-31
+    u39 = 2.0**-39
+    s40 = 2.0**40
+    u40 = 2.0**-40
+    magic = np.float32(8388608.0)  # 2^23: (v + 2^23) - 2^23 rounds 0 <= v < 2^23 half to even
     n = 2 * r + 1
     scale = 1.0 / (n * n)
     K = 2 * r + 2
-    ra = np.empty((K, W), np.float32)    # a, b of the last K rows (row y in slot y % K)
+    ra = np.empty((K, W), np.float32)  # a, b of the last K rows (row y in slot y % K)
     rb = np.empty((K, W), np.float32)
-    vg = np.zeros(W + 2 * r, np.int64)   # column sums over the window's rows, r reflected columns each side
+    vg = np.zeros(W + 2 * r, np.int64)  # column sums over the window's rows, r reflected columns each side
     vgg = np.zeros(W + 2 * r, np.int64)
     va = np.zeros(W + 2 * r, np.int64)
     vb = np.zeros(W + 2 * r, np.int64)
-    h1 = np.empty(W, np.int64)           # row sums of the column sums: the box sums of one row
+    h1 = np.empty(W, np.int64)  # row sums of the column sums: the box sums of one row
     h2 = np.empty(W, np.int64)
-    part = np.zeros((8, 256), np.int32)   # partial histograms (image.count_into)
-    orow = np.empty(W, np.uint8)         # an output row, copied out whole: stores into ``out`` among the loads of
+    part = np.zeros((8, 256), np.int32)  # partial histograms (image.count_into)
+    orow = np.empty(W, np.uint8)  # an output row, copied out whole: stores into ``out`` among the loads of
     # ``src`` slowed the pass by up to 1.5x where the two arrays lie some hundred bytes apart modulo 4 KiB
-    xr = np.empty(2 * r, np.int64)       # the columns the reflected margins repeat
+    xr = np.empty(2 * r, np.int64)  # the columns the reflected margins repeat
     for k in range(r):
         xr[k] = _reflect(k - r, W)
         xr[r + k] = _reflect(W + k, W)
-    cg, cgg, ca, cb = vg[r:r + W], vgg[r:r + W], va[r:r + W], vb[r:r + W]
+    cg, cgg, ca, cb = vg[r : r + W], vgg[r : r + W], va[r : r + W], vb[r : r + W]
     for y in range(H + r):
-        if y < H:                        # first pass, row y: a and b
+        if y < H:  # first pass, row y: a and b
             if y == 0:
                 for yy in range(-r, r + 1):
                     row = src[_reflect(yy, H)]
@@ -238,7 +253,7 @@ def _guided_kernel(src, r, eps64, out, hist):
                 a = cov * (one / (cov + eps))
                 ar[x] = a
                 br[x] = m - a * m
-        yo = y - r                       # second pass, row yo: its a, b rows up to yo + r are in the rings
+        yo = y - r  # second pass, row yo: its a, b rows up to yo + r are in the rings
         if yo < 0:
             continue
         if yo == 0:
@@ -280,7 +295,7 @@ def _slide(v1, v2, xr, r, h1, h2):
     for k in range(n - 1):
         s1 += v1[k]
         s2 += v2[k]
-    p1, p2, m1, m2 = v1[n - 1:n - 1 + W], v2[n - 1:n - 1 + W], v1[:W], v2[:W]
+    p1, p2, m1, m2 = v1[n - 1 : n - 1 + W], v2[n - 1 : n - 1 + W], v1[:W], v2[:W]
     for x in range(W):
         s1 += p1[x]
         s2 += p2[x]
@@ -311,7 +326,7 @@ def _otsu_kernel(hist):
     q1 = 0.0
     max_sigma = 0.0
     best = 0
-    eps = 1.1920928955078125e-07      # FLT_EPSILON
+    eps = 1.1920928955078125e-07  # FLT_EPSILON
     for i in range(256):
         p_i = hist[i] * scale
         mu1 *= q1
@@ -357,7 +372,7 @@ def shrink(gray: np.ndarray, scale: int) -> np.ndarray:
     ``cv2.resize(..., INTER_AREA)``'s values; for uint8 and ``s >= 3`` computed by :func:`_block_means_u8` (the same
     values, ~3x faster: OpenCV has a fast path for 2x only, its general area loop took ~1.5 ms of a 1080p frame)."""
     H, W = gray.shape
-    g = gray[:H // scale * scale, :W // scale * scale]
+    g = gray[: H // scale * scale, : W // scale * scale]
     if g.dtype == np.uint8 and scale >= 3 and W // scale and H // scale:
         return _block_means_u8(np.ascontiguousarray(g), int(scale), np.empty((H // scale, W // scale), np.uint8))
     if g.dtype not in (np.uint8, np.uint16, np.float32):

@@ -24,6 +24,7 @@ exact perspective image of a circle (an ellipse), the board's vanishing line is 
 normal ``n`` (from the homography of the board onto the centres' rays), and the pole gives the centre's ray, which
 the lens model takes back into the image. Exact for any central camera; used for the fisheye.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -32,8 +33,16 @@ from circcal.detector.measure.ellipse import FIT_ERRORS, conic_params, conic_par
 from circcal.model import Camera, project_camera, unproject
 from circcal.model.rays import plane_normal, ray_homography
 
-__all__ = ["vanishing_line", "pole_centre", "pole_centres", "tangent_chord_centre", "fit_homography",
-           "correct_centres", "rotations_to_axis", "correct_centres_on_rays"]
+__all__ = [
+    "vanishing_line",
+    "pole_centre",
+    "pole_centres",
+    "tangent_chord_centre",
+    "fit_homography",
+    "correct_centres",
+    "rotations_to_axis",
+    "correct_centres_on_rays",
+]
 
 
 def vanishing_line(H: np.ndarray) -> np.ndarray:
@@ -247,7 +256,7 @@ def correct_centres_on_rays(
         d = unproject(np.asarray(init, dtype=np.float64), camera)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     c = project_camera(d, camera)
-    f = float(camera.fx)                     # the virtual cameras' focal length: pixel-sized units
+    f = float(camera.fx)  # the virtual cameras' focal length: pixel-sized units
     H = None
     for _ in range(max_iter):
         H = ray_homography(board_xy, d)
@@ -261,7 +270,7 @@ def correct_centres_on_rays(
         conics, err = fit_ellipses_direct(x, M & (q[..., 2] > 0))
         if np.any(err):
             raise ValueError(FIT_ERRORS[int(err[np.argmax(err != 0)])])
-        ln = R @ n                                                     # the vanishing line, K_v^-T R_k n
+        ln = R @ n  # the vanishing line, K_v^-T R_k n
         ln[:, :2] /= f
         p = pole_centres(conics, ln)
         new_d = np.einsum("kji,kj->ki", R, np.column_stack([p / f, np.ones(len(p))]))

@@ -9,6 +9,7 @@ of it exists: ``make setup`` stores it beside the detector's compiled kernels (:
 :func:`circcal.detector.kernels.build.build`), named after a hash of this module's source, so an edited model is computed
 afresh until the next build.
 """
+
 from __future__ import annotations
 
 import functools
@@ -75,7 +76,7 @@ def store_table(directory: Path | None = None) -> Path:
             old.unlink()
     tmp = path.with_suffix(".tmp.npy")
     np.save(tmp, _computed_table())
-    tmp.replace(path)   # a reader never sees half a file
+    tmp.replace(path)  # a reader never sees half a file
     return path
 
 
@@ -89,7 +90,7 @@ def _shift_table() -> np.ndarray:
         stored = np.load(_stored_path(), allow_pickle=False)
         if stored.shape == U_TABLE.shape and stored.dtype == np.float64:
             table = stored
-    except (OSError, ValueError, EOFError):   # none stored (a wheel install), or not readable
+    except (OSError, ValueError, EOFError):  # none stored (a wheel install), or not readable
         pass
     if table is None:
         table = _computed_table()
@@ -120,7 +121,7 @@ def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
         s = table[n - 1]
     elif np.isnan(u):
         s = u
-    else:               # np.interp's slope and sum: u_table[j] <= u < u_table[j + 1]
+    else:  # np.interp's slope and sum: u_table[j] <= u < u_table[j + 1]
         lo, hi = 0, n - 1
         while hi - lo > 1:
             mid = (lo + hi) >> 1
@@ -131,6 +132,6 @@ def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
         slope = (table[lo + 1] - table[lo]) / (u_table[lo + 1] - u_table[lo])
         s = slope * (u - u_table[lo]) + table[lo]
     fade = min(max((u - MODEL_FROM_U) / (MODEL_FULL_U - MODEL_FROM_U), 0.0), 1.0)
-    if np.isnan(u):     # (min and max would not pass NaN on)
+    if np.isnan(u):  # (min and max would not pass NaN on)
         fade = u
     return sigma_t * s * fade, sigma_t * s * (1.0 - fade)

@@ -3,6 +3,7 @@
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,8 +56,9 @@ ends alike, so they do not move the centre, while dropping the points of one end
 views of ``asym-perspective``) are dropped, and the ellipse refitted once."""
 
 
-def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+def fit_dots(
+    gray: np.ndarray | SmoothedImage, conics0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
     """Sub-pixel edge points and ellipse of each dot, from rough ellipses ``conics0`` (D, 3, 3) (e.g. from the
     contours).
 
@@ -81,15 +83,19 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
         if not len(ai):
             break
         p_a, m_a, err_a, sl_a = subpixel_edge_points_batch(
-            src, Q[ai], with_slack=True, spacing_px=PROFILE_SPACING_PX if last else STEERING_SPACING_PX,
-            level_stride=1 if last else STEERING_LEVEL_STRIDE)
+            src,
+            Q[ai],
+            with_slack=True,
+            spacing_px=PROFILE_SPACING_PX if last else STEERING_SPACING_PX,
+            level_stride=1 if last else STEERING_LEVEL_STRIDE,
+        )
         cnt = m_a.sum(axis=1)
         for j in range(len(ai)):
             if err_a[j] is not None:
                 errors[ai[j]] = err_a[j]
             elif cnt[j] < MIN_EDGE_POINTS and last:
                 errors[ai[j]] = f"only {cnt[j]} sub-pixel edge points"
-        sel = np.array([err_a[j] is None and cnt[j] >= MIN_EDGE_POINTS for j in range(len(ai))], bool)   # (a
+        sel = np.array([err_a[j] is None and cnt[j] >= MIN_EDGE_POINTS for j in range(len(ai))], bool)  # (a
         # steering pass leaves a dot with too few points on its previous ellipse)
         if last:
             pts = np.zeros((D,) + p_a.shape[1:])
@@ -102,14 +108,23 @@ def fit_dots(gray: np.ndarray | SmoothedImage, conics0: np.ndarray
         P, M = p_a[sel], m_a[sel]
         Qa = np.empty((len(fi), 3, 3))
         ferr = np.zeros(len(fi), np.int64)
-        _fit_pass_kernel(P, M, np.ascontiguousarray(sl_a[sel]), OUTLIER_MIN_PX, OUTLIER_SIGMAS, MAD_TO_SIGMA,
-                         MIN_EDGE_POINTS, Qa, ferr)
+        _fit_pass_kernel(
+            P,
+            M,
+            np.ascontiguousarray(sl_a[sel]),
+            OUTLIER_MIN_PX,
+            OUTLIER_SIGMAS,
+            MAD_TO_SIGMA,
+            MIN_EDGE_POINTS,
+            Qa,
+            ferr,
+        )
         if last:
             mask[fi] = M
             for j in np.nonzero(ferr)[0]:
                 errors[fi[j]] = FIT_ERRORS[int(ferr[j])]
             Q[fi] = Qa
-        else:   # (a steering pass's failed fit leaves the dot on its previous ellipse)
+        else:  # (a steering pass's failed fit leaves the dot on its previous ellipse)
             Q[fi[ferr == 0]] = Qa[ferr == 0]
     return pts, mask, Q, errors
 

@@ -18,6 +18,7 @@ nearest crossing is the same as with the whole profile sampled), and the points 
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres). Arrays: ``(M, 2)`` points as ``(x, y)``.
 """
+
 from __future__ import annotations
 
 import functools
@@ -31,7 +32,11 @@ from circcal.detector.measure.levels import dot_levels_from_params
 from circcal.detector.measure.robust import _median_of
 from circcal.detector.measure.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.measure.robust", "circcal.detector.measure.curvature", "circcal.detector.measure.ellipse")
+KERNEL_IMPORTS = (
+    "circcal.detector.measure.robust",
+    "circcal.detector.measure.curvature",
+    "circcal.detector.measure.ellipse",
+)
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["PROFILE_SPACING_PX", "PROFILE_STEP_PX", "subpixel_edge_points_batch"]
@@ -59,9 +64,13 @@ PIXEL_BOX_VARIANCE = 1.0 / 12.0
 """Variance (px^2) of a pixel's unit box: the blur that area sampling adds to every edge, whatever the optics."""
 
 
-def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slack: bool = False,
-                               spacing_px: float = PROFILE_SPACING_PX, level_stride: int = 1
-                               ) -> tuple[np.ndarray, ...]:
+def subpixel_edge_points_batch(
+    src: SmoothedImage,
+    conics: np.ndarray,
+    with_slack: bool = False,
+    spacing_px: float = PROFILE_SPACING_PX,
+    level_stride: int = 1,
+) -> tuple[np.ndarray, ...]:
     """Sub-pixel boundary points of the dark dots near the ellipses ``conics`` (D, 3, 3) on ``src`` (the image and its
     smoothing scale ``sigma``).
 
@@ -95,8 +104,9 @@ def subpixel_edge_points_batch(src: SmoothedImage, conics: np.ndarray, with_slac
     a_, b_ = np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1])
     S, klen, rank = _offset_table(hw, PROFILE_STEP_PX)
     # base points and outward normals, profiles entirely inside the ROI, the extent of those to be sampled
-    base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(c, a_, b_, ang, conics, n, N, S[:, 0],
-                                                            S[np.arange(D), klen - 1], boxes)
+    base, nrm, cos_t, sin_t, inside, ext = _profiles_kernel(
+        c, a_, b_, ang, conics, n, N, S[:, 0], S[np.arange(D), klen - 1], boxes
+    )
     crop = src.crops_for(ext)
     dark, plane, okl = dot_levels_from_params(src.gray, c, ab, ang, okc, boxes, level_stride)
     bright_c = plane[:, 0] * c[:, 0] + plane[:, 1] * c[:, 1] + plane[:, 2]
@@ -140,8 +150,9 @@ def _edge_points_kernel(base, nrm, off, ok, a, b, cos_t, sin_t, sigma_t, u_table
             slack[d, j] = sl
 
 
-def _edge_blur(at: np.ndarray, rise: np.ndarray, plane: np.ndarray, ratio: np.ndarray, ok: np.ndarray,
-               sigma: float) -> np.ndarray:
+def _edge_blur(
+    at: np.ndarray, rise: np.ndarray, plane: np.ndarray, ratio: np.ndarray, ok: np.ndarray, sigma: float
+) -> np.ndarray:
     """(D,) blur scale sigma_t (px) of each dot's edge, from the slope of its profiles at their crossings.
 
     A Gaussian-blurred step of height A has slope A / (sqrt(2 pi) sigma_t) at its half level: per profile ``A`` is
@@ -150,9 +161,15 @@ def _edge_blur(at: np.ndarray, rise: np.ndarray, plane: np.ndarray, ratio: np.nd
     :data:`PROFILE_STEP_PX`; ``ok`` (D, N) the profiles with a crossing. Per dot the median, never below what the pixel
     box and the smoothing ``sigma`` alone give (and that where no profile gives a value)."""
     out = np.empty(len(plane))
-    _edge_blur_kernel(np.ascontiguousarray(at, np.float64), np.ascontiguousarray(rise, np.float64),
-                      np.ascontiguousarray(plane, np.float64), np.ascontiguousarray(ratio, np.float64),
-                      np.ascontiguousarray(ok, np.bool_), float(np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)), out)
+    _edge_blur_kernel(
+        np.ascontiguousarray(at, np.float64),
+        np.ascontiguousarray(rise, np.float64),
+        np.ascontiguousarray(plane, np.float64),
+        np.ascontiguousarray(ratio, np.float64),
+        np.ascontiguousarray(ok, np.bool_),
+        float(np.sqrt(sigma * sigma + PIXEL_BOX_VARIANCE)),
+        out,
+    )
     return out
 
 
@@ -171,7 +188,7 @@ def _edge_blur_kernel(at, rise, plane, ratio, ok, nominal, out):
             if not ok[d, i]:
                 continue
             den = root * (rise[d, i] / PROFILE_STEP_PX)
-            if den == 0.0:   # (numpy's division gives +-inf or NaN there: never a value)
+            if den == 0.0:  # (numpy's division gives +-inf or NaN there: never a value)
                 continue
             st = ((at[d, i, 0] * p0 + at[d, i, 1] * p1) + p2) * w / den
             if np.isfinite(st) and st > 0:
@@ -234,7 +251,7 @@ def _offset_table(hw: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, 
     svecs = [_profile_offsets(float(h), step) for h in half]
     table = np.full((len(svecs), max(len(v) for v in svecs)), np.nan)
     for i, v in enumerate(svecs):
-        table[i, :len(v)] = v
+        table[i, : len(v)] = v
     S = table[which.reshape(-1)]
     klen = np.array([len(v) for v in svecs])[which.reshape(-1)]
     return S, klen, _nearest_first(S)
@@ -310,7 +327,7 @@ def _profiles_kernel(c, a, b, ang, conics, n, N, s_first, s_last, boxes):
             nrm[d, j, 0], nrm[d, j, 1] = nx, ny
             ax, ay = bx + s_first[d] * nx, by + s_first[d] * ny
             zx, zy = bx + s_last[d] * nx, by + s_last[d] * ny
-            ins = (xlo <= ax <= xhi and ylo <= ay <= yhi and xlo <= zx <= xhi and ylo <= zy <= yhi)
+            ins = xlo <= ax <= xhi and ylo <= ay <= yhi and xlo <= zx <= xhi and ylo <= zy <= yhi
             inside[d, j] = ins
             if ins:
                 emin_x = min(emin_x, ax, zx)
@@ -326,8 +343,12 @@ def _profiles_kernel(c, a, b, ang, conics, n, N, s_first, s_last, boxes):
 def _bspline3_weights(t: float) -> tuple[float, float, float, float]:
     """Cubic B-spline weights of the 4 coefficients around a point at fraction ``t`` in [0, 1) past the second."""
     u = 1.0 - t
-    return (u * u * u / 6.0, (t * t * (t - 2.0) * 3.0 + 4.0) / 6.0, (u * u * (u - 2.0) * 3.0 + 4.0) / 6.0,
-            t * t * t / 6.0)
+    return (
+        u * u * u / 6.0,
+        (t * t * (t - 2.0) * 3.0 + 4.0) / 6.0,
+        (u * u * (u - 2.0) * 3.0 + 4.0) / 6.0,
+        t * t * t / 6.0,
+    )
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -354,8 +375,8 @@ def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
     wc = _bspline3_weights(c - fc)
     ir, ic = int(fr) - 1, int(fc) - 1
     out = 0.0
-    if ir >= 0 and ic >= 0 and ir + 3 < R and ic + 3 < C:   # no mirror reached (all samples in their crop's box):
-        for i in range(4):                                 # the same sums without the index reflections
+    if ir >= 0 and ic >= 0 and ir + 3 < R and ic + 3 < C:  # no mirror reached (all samples in their crop's box):
+        for i in range(4):  # the same sums without the index reflections
             acc = 0.0
             for j in range(4):
                 acc += wc[j] * atlas[ir + i, ic + j]
@@ -371,8 +392,9 @@ def _spline_at(atlas: np.ndarray, r: float, c: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _crossings_kernel(atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out, rise_out,
-                      found_out):
+def _crossings_kernel(
+    atlas, rows, org, base, nrm, S, n_iv, rank, todo, plane, halfk, off_out, at_out, rise_out, found_out
+):
     """Nearest up-crossing of the half level on each profile ``(d, j)`` where ``todo``.
 
     Profile samples at ``base[d, j] + S[d, k] nrm[d, j]`` (smoothed image from ``atlas`` rows ``rows[d]`` +, crop

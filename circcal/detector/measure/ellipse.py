@@ -9,6 +9,7 @@ the math exists once.
 The fit is Fitzgibbon's direct ellipse-specific least squares in the numerically stable form of Halir & Flusser
 (1998), on coordinates normalised to zero mean and unit RMS radius (Hartley-style) and mapped back exactly.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -119,18 +120,18 @@ def _direct_solves(S1, S2, S3, mean, s, err, Q):
     for d in range(len(err)):
         if err[d] != 0:
             continue
-        T = np.empty((3, 3))     # -S3^-1 S2^T, by Gaussian elimination with partial pivoting (as LAPACK's solve:
-        if not _solve3(S3[d], S2[d], T):   # the adjugate's inverse lost ~1e-7 of a thin ellipse's axes)
+        T = np.empty((3, 3))  # -S3^-1 S2^T, by Gaussian elimination with partial pivoting (as LAPACK's solve:
+        if not _solve3(S3[d], S2[d], T):  # the adjugate's inverse lost ~1e-7 of a thin ellipse's axes)
             err[d] = 3
             continue
-        R = np.empty((3, 3))     # S1 + S2 T
+        R = np.empty((3, 3))  # S1 + S2 T
         for i in range(3):
             for j in range(3):
                 acc = S1[d, i, j]
                 for k in range(3):
                     acc += S2[d, i, k] * T[k, j]
                 R[i, j] = acc
-        M = np.empty((3, 3))     # C1^-1 R
+        M = np.empty((3, 3))  # C1^-1 R
         for j in range(3):
             M[0, j], M[1, j], M[2, j] = R[2, j] / 2.0, -R[1, j], R[0, j] / 2.0
         if not np.all(np.isfinite(M)):
@@ -233,7 +234,7 @@ def _refined_eigenvector(M, lam, v0, v1, v2):
             B[i, 4] = r
         B[3, 0], B[3, 1], B[3, 2], B[3, 3], B[3, 4] = v[0], v[1], v[2], 0.0, 0.0
         if not _solve_augmented(B, x):
-            break                                # (not a simple eigenvalue: the vector so far stands)
+            break  # (not a simple eigenvalue: the vector so far stands)
         v[0] += x[0, 0]
         v[1] += x[1, 0]
         v[2] += x[2, 0]
@@ -248,10 +249,16 @@ def _largest_eigenvalue(M):
     """The largest real eigenvalue of the real (3, 3) matrix ``M``: the largest root of its characteristic cubic
     (trigonometric form when all three roots are real, Cardano's otherwise), polished by two Newton steps."""
     tr = M[0, 0] + M[1, 1] + M[2, 2]
-    c2 = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) + (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) \
+    c2 = (
+        (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0])
+        + (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0])
         + (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
-    dt = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
-          + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+    )
+    dt = (
+        M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+        - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+        + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
+    )
     # lam^3 - tr lam^2 + c2 lam - dt = 0; lam = t + tr / 3: t^3 + p t + q = 0
     sh = tr / 3.0
     p = c2 - tr * tr / 3.0
@@ -341,8 +348,11 @@ def _normalised_scatter(p: np.ndarray, use: np.ndarray):
 def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
     """Conic of the ellipse with ``centre`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
     ``a`` axis from the image x axis (towards +y). Returned scaled so that ``x^T Q x = -1`` at the centre."""
-    return conic_from_params_batch(np.asarray(centre, dtype=np.float64).reshape(1, 2),
-                                   np.asarray(axes, dtype=np.float64).reshape(1, 2), np.array([float(angle)]))[0]
+    return conic_from_params_batch(
+        np.asarray(centre, dtype=np.float64).reshape(1, 2),
+        np.asarray(axes, dtype=np.float64).reshape(1, 2),
+        np.array([float(angle)]),
+    )[0]
 
 
 def conic_from_params_batch(centres: np.ndarray, axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -352,8 +362,8 @@ def conic_from_params_batch(centres: np.ndarray, axes: np.ndarray, angles: np.nd
     ax = np.asarray(axes, dtype=np.float64).reshape(-1, 2)
     ang = np.asarray(angles, dtype=np.float64).reshape(-1)
     co, si = np.cos(ang), np.sin(ang)
-    R = np.stack([np.stack([co, -si], axis=1), np.stack([si, co], axis=1)], axis=1)     # (D, 2, 2)
-    M = (R / ax[:, None, :] ** 2) @ R.transpose(0, 2, 1)                                  # R diag(1/a^2, 1/b^2) R^T
+    R = np.stack([np.stack([co, -si], axis=1), np.stack([si, co], axis=1)], axis=1)  # (D, 2, 2)
+    M = (R / ax[:, None, :] ** 2) @ R.transpose(0, 2, 1)  # R diag(1/a^2, 1/b^2) R^T
     Mc = (M @ c[:, :, None])[:, :, 0]
     Q = np.empty((len(c), 3, 3))
     Q[:, :2, :2] = M
@@ -413,7 +423,7 @@ def _conic_params_kernel(Q, c, axes, ang, ok):
             u, v = -Q02, -Q12
             cx = (Q11 * u - Q01 * v) / det
             cy = (Q00 * v - Q01 * u) / det
-            f0 = ((Q00 * cx + 2.0 * Q01 * cy) * cx + Q11 * cy * cy + 2.0 * (Q02 * cx + Q12 * cy) + Q22)
+            f0 = (Q00 * cx + 2.0 * Q01 * cy) * cx + Q11 * cy * cy + 2.0 * (Q02 * cx + Q12 * cy) + Q22
             if f0 != 0.0:
                 p, q, r = Q00 / -f0, Q01 / -f0, Q11 / -f0
                 h = 0.5 * (p - r)

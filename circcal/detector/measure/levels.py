@@ -5,6 +5,7 @@ All dots at once, one compiled pass over each dot's pixels (:func:`_levels_kerne
 medians of uint8 images from histograms, others by quickselect: the same values as sorting). Pixel convention:
 OpenCV's (integer coordinates are pixel centres).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,8 +47,9 @@ use every pixel)."""
 _HIST_BINS_U8 = 256
 
 
-def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def dot_levels_batch(
+    gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dark level inside each dot and the bright level around it as a plane, for all dots at once.
 
     ``gray``: (H, W) image; ``conics``: (D, 3, 3) ellipses (px); ``boxes``: (D, 4) int ROIs ``x0, y0, x1, y1``
@@ -61,8 +63,15 @@ def dot_levels_batch(gray: np.ndarray, conics: np.ndarray, boxes: np.ndarray
     return dot_levels_from_params(gray, *conic_params_batch(np.asarray(conics, np.float64)), boxes)
 
 
-def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, ang: np.ndarray, okc: np.ndarray,
-                           boxes: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def dot_levels_from_params(
+    gray: np.ndarray,
+    c: np.ndarray,
+    axes: np.ndarray,
+    ang: np.ndarray,
+    okc: np.ndarray,
+    boxes: np.ndarray,
+    stride: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2) px, semi-axes (D, 2) px, angles (D,)
     rad, valid (D,) bool, as :func:`~circcal.detector.measure.ellipse.conic_params_batch` gives them). ``stride`` s > 1:
     the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2 px use only the pixels of every s-th row and
@@ -78,10 +87,21 @@ def dot_levels_from_params(gray: np.ndarray, c: np.ndarray, axes: np.ndarray, an
     if gray.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
         gray = gray.astype(np.float64)
     # (numpy's cos and sin, whose SIMD loops may round differently from the C library's the kernels call)
-    _levels_kernel(gray, np.ascontiguousarray(c, np.float64), np.ascontiguousarray(axes, np.float64),
-                   np.cos(ang), np.sin(ang), np.ascontiguousarray(boxes, np.int64).reshape(D, 4),
-                   int(stride), np.ascontiguousarray(okc, np.bool_), _HIST_BINS_U8 if gray.dtype == np.uint8 else 0,
-                   MAD_TO_SIGMA, dark, plane, ok)
+    _levels_kernel(
+        gray,
+        np.ascontiguousarray(c, np.float64),
+        np.ascontiguousarray(axes, np.float64),
+        np.cos(ang),
+        np.sin(ang),
+        np.ascontiguousarray(boxes, np.int64).reshape(D, 4),
+        int(stride),
+        np.ascontiguousarray(okc, np.bool_),
+        _HIST_BINS_U8 if gray.dtype == np.uint8 else 0,
+        MAD_TO_SIGMA,
+        dark,
+        plane,
+        ok,
+    )
     return dark, plane, ok
 
 
@@ -161,7 +181,7 @@ def _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near
         for x in range(xa, xb):
             dx = x - cx
             rho2 = (qb * dx) * dy + (qa * dx) * dx + (qc * dy) * dy
-            if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:   # kept sorted by rho^2
+            if n_near < DARK_MIN_PIXELS or rho2 < near_r[n_near - 1]:  # kept sorted by rho^2
                 i = min(n_near, DARK_MIN_PIXELS - 1)
                 while i > 0 and near_r[i - 1] > rho2:
                     near_r[i], near_v[i] = near_r[i - 1], near_v[i - 1]
@@ -200,7 +220,7 @@ def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_t
         t[d, 1] = (1.0 + EDGE_GAP_PX / b) ** 2
         t[d, 2] = (1.0 + (EDGE_GAP_PX + max(RING_MIN_WIDTH_PX, RING_WIDTH_PER_MINOR * b)) / b) ** 2
         st_[d] = stride if b >= STRIDE_MIN_MINOR_PX * 0.5 * stride else 1
-        for k, top in ((0, W), (1, H), (2, W), (3, H)):    # (the pass reads only inside the image)
+        for k, top in ((0, W), (1, H), (2, W), (3, H)):  # (the pass reads only inside the image)
             bx[d, k] = min(max(boxes[d, k], 0), top)
         cc[d, 0], cc[d, 1] = (c[d, 0], c[d, 1]) if okc[d] else (0.0, 0.0)
     npx = 1
@@ -213,7 +233,7 @@ def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_t
     keep = np.zeros(npx, np.bool_)
     okr = np.zeros(npx, np.bool_)
     res = np.empty(npx)
-    hist = np.zeros(nbins, np.int64)   # empty: values are not uint8, medians by selection
+    hist = np.zeros(nbins, np.int64)  # empty: values are not uint8, medians by selection
     hist_ring = np.zeros(nbins, np.int64)
     counted = nbins > 0
     near_r = np.empty(DARK_MIN_PIXELS)
@@ -252,8 +272,8 @@ def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_t
             while x < xb:
                 if x == ia:
                     m = len(range(ia, ib, st))
-                    if counted:   # (uint8: the values counted as they are met, the histogram gives the median)
-                        if st == 1:   # (the unit-step loop compiles tighter)
+                    if counted:  # (uint8: the values counted as they are met, the histogram gives the median)
+                        if st == 1:  # (the unit-step loop compiles tighter)
                             for xx in range(ia, ib):
                                 hist[int(gray[y, xx])] += 1
                         else:
@@ -284,14 +304,14 @@ def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_t
                     n_ring += 1
                 x += st
         if n_in >= DARK_MIN_PIXELS:
-            dk = _median_hist(hist, n_in) if counted else _median_of(inner, n_in)   # (inner: reordered)
+            dk = _median_hist(hist, n_in) if counted else _median_of(inner, n_in)  # (inner: reordered)
         else:
             dk = _nearest_median(gray, cx, cy, qa, qb, qc, t_hi, x0, y0, x1, y1, near_r, near_v)
         if n_ring < RING_MIN_PIXELS:
             continue
         if counted:
             ring_med = _median_hist(hist_ring, n_ring)
-        else:   # (rv stays in step with rx, ry: a copy is reordered)
+        else:  # (rv stays in step with rx, ry: a copy is reordered)
             res[:n_ring] = rv[:n_ring]
             ring_med = _median_of(res, n_ring)
         mid = 0.5 * (dk + ring_med)
@@ -306,9 +326,9 @@ def _levels_kernel(gray, c, axes, cos_a, sin_a, boxes, stride, okc, nbins, mad_t
         for i in range(n_ring):
             if keep[i]:
                 res[i] = abs(rv[i] - (p0 * rx[i] + p1 * ry[i] + p2))
-                inner[m] = res[i]   # (the inner values are used up: the buffer holds the kept residuals)
+                inner[m] = res[i]  # (the inner values are used up: the buffer holds the kept residuals)
                 m += 1
-        s = mad_to_sigma * _median_of(inner, m) + 1e-12   # (+ a tiny floor: an exact plane has no residuals)
+        s = mad_to_sigma * _median_of(inner, m) + 1e-12  # (+ a tiny floor: an exact plane has no residuals)
         n_ok = 0
         for i in range(n_ring):
             okr[i] = keep[i] and res[i] < PLANE_OUTLIER_SIGMAS * s

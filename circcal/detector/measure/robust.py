@@ -1,4 +1,5 @@
 """Robust statistics the detector shares: row medians of masked data and the MAD -> sigma factor."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -56,8 +57,14 @@ def mad_inliers(values: np.ndarray, mask: np.ndarray, floor: np.ndarray, sigmas:
     v = np.ascontiguousarray(values, np.float64)
     out = np.zeros(v.shape, bool)
     if v.size:
-        _mad_inliers_kernel(v, np.ascontiguousarray(mask, np.bool_), np.ascontiguousarray(
-            np.broadcast_to(floor, v.shape), np.float64), float(sigmas), MAD_TO_SIGMA, out)
+        _mad_inliers_kernel(
+            v,
+            np.ascontiguousarray(mask, np.bool_),
+            np.ascontiguousarray(np.broadcast_to(floor, v.shape), np.float64),
+            float(sigmas),
+            MAD_TO_SIGMA,
+            out,
+        )
     return out
 
 
@@ -82,7 +89,7 @@ def _select_inplace(a, n, k):
             y = z
         pivot = x if x > y else y
         s = lo
-        for i in range(lo, hi + 1):   # below the pivot to the front
+        for i in range(lo, hi + 1):  # below the pivot to the front
             v = a[i]
             a[i] = a[s]
             a[s] = v
@@ -91,7 +98,7 @@ def _select_inplace(a, n, k):
             hi = s - 1
             continue
         e = s
-        for i in range(s, hi + 1):    # then those equal to it
+        for i in range(s, hi + 1):  # then those equal to it
             v = a[i]
             a[i] = a[e]
             a[e] = v
@@ -137,7 +144,7 @@ def _band_median_of(a, n, k):
     levels' pass), otherwise among all values, as :func:`_median_of` does. The order statistics are unique, so the value does not
     depend on the band."""
     samp = np.empty(BAND_SAMPLE)
-    for j in range(BAND_SAMPLE):                     # insertion sort of the sample
+    for j in range(BAND_SAMPLE):  # insertion sort of the sample
         v = a[((2 * j + 1) * n) // (2 * BAND_SAMPLE)]
         i = j
         while i > 0 and samp[i - 1] > v:
@@ -156,7 +163,7 @@ def _band_median_of(a, n, k):
         a[s] = v
         s += (v >= lo) & (v <= hi)
     even = n % 2 == 0
-    if below <= k and k + even < below + s:       # the middle value(s) among the band a[:s]
+    if below <= k and k + even < below + s:  # the middle value(s) among the band a[:s]
         m = _select_inplace(a, s, k - below)
         return 0.5 * (m + _min_of(a, k - below + 1, s)) if even else m
     m = _select_inplace(a, n, k)

@@ -3,6 +3,7 @@ crop around each dot (:class:`SmoothedImage`), all crops filtered by one OpenCV 
 
 Pixel convention: OpenCV's (integer coordinates are pixel centres).
 """
+
 from __future__ import annotations
 
 import functools
@@ -60,12 +61,12 @@ class SmoothedImage:
     def __init__(self, gray: np.ndarray, sigma: float):
         self.gray = gray
         self.sigma = float(sigma)
-        self.crops = np.zeros((0, 4), np.int64)           # x0, y0, x1, y1 (exclusive) of each crop
-        self._sheets: list[np.ndarray] = []                # float32 coefficients of crops stacked top to bottom
-        self._place = np.zeros((0, 2), np.int64)           # (sheet, first row) of each crop
-        self._shared = np.zeros(0, bool)                   # whether each crop is a window shared by several boxes
-        self._atlas: np.ndarray | None = None              # all sheets stacked
-        self._rows = np.zeros(0, np.int64)                 # first atlas row of each crop
+        self.crops = np.zeros((0, 4), np.int64)  # x0, y0, x1, y1 (exclusive) of each crop
+        self._sheets: list[np.ndarray] = []  # float32 coefficients of crops stacked top to bottom
+        self._place = np.zeros((0, 2), np.int64)  # (sheet, first row) of each crop
+        self._shared = np.zeros(0, bool)  # whether each crop is a window shared by several boxes
+        self._atlas: np.ndarray | None = None  # all sheets stacked
+        self._rows = np.zeros(0, np.int64)  # first atlas row of each crop
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -100,13 +101,25 @@ class SmoothedImage:
             return out
         need = need[idx]
         sl = self.SLACK
-        new = np.column_stack([np.maximum(0, need[:, 0] - sl), np.maximum(0, need[:, 1] - sl),
-                               np.minimum(W, need[:, 2] + sl), np.minimum(H, need[:, 3] + sl)])
-        grow = self.border_margin - m   # crops that reach the border are filtered in two steps, reaching further
+        new = np.column_stack(
+            [
+                np.maximum(0, need[:, 0] - sl),
+                np.maximum(0, need[:, 1] - sl),
+                np.minimum(W, need[:, 2] + sl),
+                np.minimum(H, need[:, 3] + sl),
+            ]
+        )
+        grow = self.border_margin - m  # crops that reach the border are filtered in two steps, reaching further
         inner = (new[:, 0] > 0) & (new[:, 1] > 0) & (new[:, 2] < W) & (new[:, 3] < H)
         b = ~inner
-        new[b] = np.column_stack([np.maximum(0, new[b, 0] - grow), np.maximum(0, new[b, 1] - grow),
-                                  np.minimum(W, new[b, 2] + grow), np.minimum(H, new[b, 3] + grow)])
+        new[b] = np.column_stack(
+            [
+                np.maximum(0, new[b, 0] - grow),
+                np.maximum(0, new[b, 1] - grow),
+                np.minimum(W, new[b, 2] + grow),
+                np.minimum(H, new[b, 3] + grow),
+            ]
+        )
         # crops inside the image are filtered together, stacked in one array (the filters reach less than the margin,
         # so each crop's box only sees its own pixels; a pixel's arithmetic does not depend on where its crop sits);
         # crops at the image border each on their own, with the borders' reflections
@@ -119,7 +132,7 @@ class SmoothedImage:
             u0, v0 = box[:, :2].min(axis=0).tolist()
             u1, v1 = box[:, 2:].max(axis=0).tolist()
             stacked_px = int(np.sum(box[:, 3] - box[:, 1])) * int(np.max(box[:, 2] - box[:, 0]))
-            if len(ii) > 1 and (u1 - u0) * (v1 - v0) < stacked_px:   # one window holding them all
+            if len(ii) > 1 and (u1 - u0) * (v1 - v0) < stacked_px:  # one window holding them all
                 win = self.gray[v0:v1, u0:u1]
                 if win.dtype != np.uint8:
                     win = win.astype(np.float32)
@@ -128,13 +141,13 @@ class SmoothedImage:
                 place[ii] = (len(self._sheets) - 1, 0)
                 shared[ii] = True
             else:
-                stack = _stacked([self.gray[c[1]:c[3], c[0]:c[2]] for c in box.tolist()])
+                stack = _stacked([self.gray[c[1] : c[3], c[0] : c[2]] for c in box.tolist()])
                 self._sheets.append(cv2.sepFilter2D(stack, cv2.CV_32F, k1, k1, borderType=cv2.BORDER_REFLECT_101))
                 place[ii, 0] = len(self._sheets) - 1
                 place[ii, 1] = np.cumsum(box[:, 3] - box[:, 1]) - (box[:, 3] - box[:, 1])
         for k in np.nonzero(b)[0].tolist():
             c = new[k].tolist()
-            self._sheets.append(_spline_coefficients(self.gray[c[1]:c[3], c[0]:c[2]], self.sigma))
+            self._sheets.append(_spline_coefficients(self.gray[c[1] : c[3], c[0] : c[2]], self.sigma))
             place[k] = (len(self._sheets) - 1, 0)
         out[idx] = len(self.crops) + np.arange(len(new))
         self.crops = np.concatenate([self.crops, new])
@@ -148,7 +161,7 @@ class SmoothedImage:
         from :meth:`crops_for`; -1 gives zeros) their first atlas row (D,) int and origin (D, 2) float ``x0, y0``:
         the coefficient of image pixel (x, y) of crop k is ``atlas[rows[k] + y - y0, x - x0]``."""
         if self._atlas is None:
-            if not self._sheets:   # (no crop made: every box was empty)
+            if not self._sheets:  # (no crop made: every box was empty)
                 self._atlas = np.zeros((1, 1), np.float32)
             else:
                 self._atlas = self._sheets[0] if len(self._sheets) == 1 else _stacked(self._sheets)
@@ -177,8 +190,12 @@ def _match_crops(boxes, have, shared, margin, W, H, reuse, need, out):
     dot); -1 for a box with a NaN or infinite coordinate, :data:`_NEW` where no crop serves."""
     D = len(boxes)
     for d in range(D):
-        if not (np.isfinite(boxes[d, 0]) and np.isfinite(boxes[d, 1]) and np.isfinite(boxes[d, 2])
-                and np.isfinite(boxes[d, 3])):
+        if not (
+            np.isfinite(boxes[d, 0])
+            and np.isfinite(boxes[d, 1])
+            and np.isfinite(boxes[d, 2])
+            and np.isfinite(boxes[d, 3])
+        ):
             out[d] = -1
             continue
         n0 = max(0, np.int64(np.floor(boxes[d, 0])) - margin)
@@ -190,8 +207,10 @@ def _match_crops(boxes, have, shared, margin, W, H, reuse, need, out):
         for c in range(len(have)):
             if not (have[c, 0] <= n0 and have[c, 1] <= n1 and have[c, 2] >= n2 and have[c, 3] >= n3):
                 continue
-            if shared[c] or (abs(np.float64((have[c, 0] + have[c, 2]) - (n0 + n2))) <= reuse
-                             and abs(np.float64((have[c, 1] + have[c, 3]) - (n1 + n3))) <= reuse):
+            if shared[c] or (
+                abs(np.float64((have[c, 0] + have[c, 2]) - (n0 + n2))) <= reuse
+                and abs(np.float64((have[c, 1] + have[c, 3]) - (n1 + n3))) <= reuse
+            ):
                 out[d] = c
                 break
 
@@ -222,9 +241,9 @@ def _combined_kernel(sigma: float) -> np.ndarray:
     if r:
         k = np.convolve(k, cv2.getGaussianKernel(2 * r + 1, sigma, cv2.CV_64F)[:, 0])
     n = len(k) // 2
-    tail = np.cumsum(np.abs(k[::-1][:n]))[::-1] * 2.0 / np.abs(k).sum()   # tail[j]: weight beyond half length j
+    tail = np.cumsum(np.abs(k[::-1][:n]))[::-1] * 2.0 / np.abs(k).sum()  # tail[j]: weight beyond half length j
     h = next((j for j in range(1, n) if tail[j] <= COMBINED_TAIL), n)
-    k = k[n - h:n + h + 1]
+    k = k[n - h : n + h + 1]
     return (k / k.sum()).astype(np.float32)
 
 
@@ -235,7 +254,7 @@ def _stacked(rois: list[np.ndarray]) -> np.ndarray:
     out = np.zeros((sum(r.shape[0] for r in rois), max(r.shape[1] for r in rois)), dt)
     r0 = 0
     for r in rois:
-        out[r0:r0 + r.shape[0], :r.shape[1]] = r
+        out[r0 : r0 + r.shape[0], : r.shape[1]] = r
         r0 += r.shape[0]
     return out
 

@@ -20,6 +20,7 @@ as the board's printed dots do (:data:`DIAMETER_FACTOR`). Noise specks that happ
 
 Pixels: OpenCV's convention. Lattice steps: one pitch along the board's x and y (:meth:`Board.lattice_coords`).
 """
+
 from __future__ import annotations
 
 import functools
@@ -142,7 +143,7 @@ def _steps(board: Board) -> tuple[np.ndarray, np.ndarray]:
 @functools.lru_cache(maxsize=2)
 def _steps_of(asymmetric: bool) -> tuple[np.ndarray, np.ndarray]:
     if asymmetric:
-        M = np.array([[1, 1], [-1, 1]], np.float64)     # columns: the diagonal steps (1, -1) and (1, 1)
+        M = np.array([[1, 1], [-1, 1]], np.float64)  # columns: the diagonal steps (1, -1) and (1, 1)
     else:
         M = np.eye(2)
     Minv = np.linalg.inv(M)
@@ -161,8 +162,12 @@ def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.nda
         return np.full((0, 2, 2), np.nan)
     M, Minv = _steps(board)
     Jp = np.empty((K, 2, 2))
-    _step_differences(np.ascontiguousarray(board.lattice_coords()[points]),
-                      np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(M.T.astype(np.int64)), Jp)
+    _step_differences(
+        np.ascontiguousarray(board.lattice_coords()[points]),
+        np.ascontiguousarray(centres, np.float64),
+        np.ascontiguousarray(M.T.astype(np.int64)),
+        Jp,
+    )
     return Jp @ Minv
 
 
@@ -203,14 +208,22 @@ _COS = np.cos(np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False))
 _SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False))
 
 
-def _rings(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray, radii: np.ndarray
-           ) -> np.ndarray:
+def _rings(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """(D, R, CLEARANCE_ANGLES) grey values on the ellipses grown by ``radii`` (D, R) px (bilinear, one remap)."""
     D, R = radii.shape
     x = np.empty((D, R * len(_COS)), np.float32)
     y = np.empty((D, R * len(_COS)), np.float32)
-    _ring_points(np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(axes, np.float64),
-                 np.cos(angle), np.sin(angle), np.ascontiguousarray(radii, np.float64), _COS, _SIN, x, y)
+    _ring_points(
+        np.ascontiguousarray(centres, np.float64),
+        np.ascontiguousarray(axes, np.float64),
+        np.cos(angle),
+        np.sin(angle),
+        np.ascontiguousarray(radii, np.float64),
+        _COS,
+        _SIN,
+        x,
+        y,
+    )
     v = cv2.remap(g, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return v.reshape(D, R, -1).astype(np.float64)
 
@@ -233,8 +246,9 @@ def _ring_points(c, axes, cs, sn, radii, cos_a, sin_a, x, y):
                 y[d, r * A + i] = np.float32((c[d, 1] + ac * sn[d]) + bs * cs[d])
 
 
-def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def dark_neighbourhood(
+    gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per dot (D,), the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`; each
     ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`),
     the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white level is
@@ -251,11 +265,16 @@ def dark_neighbourhood(gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, 
     if D > 1:
         dx = centres[:, None, 0] - centres[None, :, 0]
         dy = centres[:, None, 1] - centres[None, :, 1]
-        d = np.sqrt(dx * dx + dy * dy) - axes[:, None, 0] - axes[None, :, 0]   # (np.linalg.norm's values)
+        d = np.sqrt(dx * dx + dy * dy) - axes[:, None, 0] - axes[None, :, 0]  # (np.linalg.norm's values)
         np.fill_diagonal(d, np.inf)
         gap = d.min(axis=1)
-    inner = cv2.remap(g, centres[:, 0:1].astype(np.float32), centres[:, 1:2].astype(np.float32),
-                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)[:, 0]
+    inner = cv2.remap(
+        g,
+        centres[:, 0:1].astype(np.float32),
+        centres[:, 1:2].astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    ).astype(np.float64)[:, 0]
     near = np.minimum(CLEARANCE_PX, 0.5 * gap)
     far = np.minimum(LEVEL_RING_PX[0] + np.maximum(LEVEL_RING_PX[1], LEVEL_RING_PX[2] * axes[:, 1]), 0.5 * gap)
     start = np.minimum(LEVEL_RING_PX[0], far)
@@ -275,11 +294,11 @@ def _uneven_inside(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: 
     changes ~0.1 as much); light added on top, a specular reflection, changes it as much as the white."""
     b = axes[:, 1]
     rings = _rings(g, centres, axes, angle, np.stack([-INSIDE_RING_SHARE * b, np.full(len(b), EDGE_RING_PX)], 1))
-    v = rings[:, 0]                                                                  # (D, A)
+    v = rings[:, 0]  # (D, A)
     contrast = row_medians(np.ascontiguousarray(rings[:, 1])) - row_medians(np.ascontiguousarray(v))
     A = v.shape[1]
-    c1 = (2.0 / A) * (v @ _COS)                  # the first harmonic: a' (gx cos + gy sin) along the major axis
-    s1 = (2.0 / A) * (v @ _SIN)                  # ... and b' (-gx sin + gy cos) along the minor one
+    c1 = (2.0 / A) * (v @ _COS)  # the first harmonic: a' (gx cos + gy sin) along the major axis
+    s1 = (2.0 / A) * (v @ _SIN)  # ... and b' (-gx sin + gy cos) along the minor one
     ga = c1 / np.maximum(axes[:, 0] - INSIDE_RING_SHARE * b, 1e-9)
     gb = s1 / np.maximum((1.0 - INSIDE_RING_SHARE) * b, 1e-9)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -335,9 +354,17 @@ def _nan_max(a, b):
     return a if a > b else b
 
 
-def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.ndarray, conics: np.ndarray,
-             errors: list[str | None], image_size: tuple[int, int], gray: np.ndarray | None = None,
-             params: tuple[np.ndarray, ...] | None = None) -> dict[int, str]:
+def bad_dots(
+    board: Board,
+    points: np.ndarray,
+    edge_pts: np.ndarray,
+    mask: np.ndarray,
+    conics: np.ndarray,
+    errors: list[str | None],
+    image_size: tuple[int, int],
+    gray: np.ndarray | None = None,
+    params: tuple[np.ndarray, ...] | None = None,
+) -> dict[int, str]:
     """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
     of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
     :func:`~circcal.detector.measure.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
@@ -352,8 +379,9 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     ok = np.array([e is None for e in errors], bool)
     if not np.any(ok):
         return out
-    c, axes, ang, okc = params if params is not None else conic_params_batch(np.where(ok[:, None, None], conics,
-                                                                                      np.eye(3)))
+    c, axes, ang, okc = (
+        params if params is not None else conic_params_batch(np.where(ok[:, None, None], conics, np.eye(3)))
+    )
     ok &= okc
     for k in np.nonzero(~okc & np.array([e is None for e in errors]))[0]:
         out[int(points[k])] = "unmeasurable: no real ellipse"
@@ -361,13 +389,27 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
     J = np.full((D, 2, 2), np.nan)
     J[ok] = local_steps(board, points[ok], c[ok])
     near, coverage, rms, round_, fill = (np.empty(D, bool), np.empty(D), np.empty(D), np.empty(D), np.empty(D))
-    _dot_measures(np.ascontiguousarray(edge_pts, np.float64), np.ascontiguousarray(mask, np.bool_),
-                  np.ascontiguousarray(conics, np.float64), ok, np.ascontiguousarray(axes, np.float64),
-                  np.ascontiguousarray(ang, np.float64), J, float(W), float(H), BORDER_PX, near, coverage, rms,
-                  round_, fill)
+    _dot_measures(
+        np.ascontiguousarray(edge_pts, np.float64),
+        np.ascontiguousarray(mask, np.bool_),
+        np.ascontiguousarray(conics, np.float64),
+        ok,
+        np.ascontiguousarray(axes, np.float64),
+        np.ascontiguousarray(ang, np.float64),
+        J,
+        float(W),
+        float(H),
+        BORDER_PX,
+        near,
+        coverage,
+        rms,
+        round_,
+        fill,
+    )
     med_rms = median(rms[ok & np.isfinite(rms)]) if np.any(ok & np.isfinite(rms)) else 0.0
-    res_limit = np.maximum.reduce([np.full(D, RESIDUAL_FLOOR_PX), RESIDUAL_SHARE * b,
-                                   np.full(D, RESIDUAL_FACTOR * med_rms)])
+    res_limit = np.maximum.reduce(
+        [np.full(D, RESIDUAL_FLOOR_PX), RESIDUAL_SHARE * b, np.full(D, RESIDUAL_FACTOR * med_rms)]
+    )
     round_limit = MAX_ROUNDNESS + ROUNDNESS_PX / np.maximum(b, 1e-9)
     size_lo = SIZE_LIMITS[0] - SIZE_PX / np.maximum(b, 1e-9)
     size_hi = SIZE_LIMITS[1] + SIZE_PX / np.maximum(b, 1e-9)
@@ -384,10 +426,18 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
         if np.any(sel):
             rel[sel] = fill[sel] / median(fill[sel])
     with np.errstate(invalid="ignore"):
-        suspect = ok & (near | (coverage < MIN_COVERAGE) | (rms > res_limit) | (shade > CLEARANCE_SHARE)
-                        | (grey > GREY_SHARE) | (uneven > uneven_limit) | (round_ > round_limit) | (rel < size_lo)
-                        | ((rel > size_hi) & board.has_markers))
-    for k in np.nonzero(suspect)[0]:              # the words, for the few dots left out
+        suspect = ok & (
+            near
+            | (coverage < MIN_COVERAGE)
+            | (rms > res_limit)
+            | (shade > CLEARANCE_SHARE)
+            | (grey > GREY_SHARE)
+            | (uneven > uneven_limit)
+            | (round_ > round_limit)
+            | (rel < size_lo)
+            | ((rel > size_hi) & board.has_markers)
+        )
+    for k in np.nonzero(suspect)[0]:  # the words, for the few dots left out
         p = int(points[k])
         if near[k]:
             out[p] = "cut by the image border"
@@ -400,8 +450,10 @@ def bad_dots(board: Board, points: np.ndarray, edge_pts: np.ndarray, mask: np.nd
         elif grey[k] > GREY_SHARE:
             out[p] = f"something grey lies around it ({grey[k]:.0%} of the ring its white level comes from)"
         elif uneven[k] > uneven_limit:
-            out[p] = (f"the light is uneven inside it ({uneven[k]:.0%} of its contrast across it: a reflection or a "
-                      "shadow's edge?)")
+            out[p] = (
+                f"the light is uneven inside it ({uneven[k]:.0%} of its contrast across it: a reflection or a "
+                "shadow's edge?)"
+            )
         elif np.isfinite(round_[k]) and round_[k] > round_limit[k]:
             out[p] = f"not round on the board (axis ratio {round_[k]:.2f}: cut or occluded?)"
         elif np.isfinite(rel[k]) and rel[k] < size_lo[k]:
@@ -447,11 +499,11 @@ def _dot_measures(pts, mask, conics, ok, axes, ang, J, W, H, border_px, near, co
             continue
         cs, sn = np.cos(ang[d]), np.sin(ang[d])
         a2, b2 = a * a, b * b
-        e00 = cs * cs * a2 + sn * sn * b2               # E = R diag(a^2, b^2) R^T
+        e00 = cs * cs * a2 + sn * sn * b2  # E = R diag(a^2, b^2) R^T
         e01 = cs * sn * (a2 - b2)
         e11 = sn * sn * a2 + cs * cs * b2
         i00, i01, i10, i11 = j11 / det, -j01 / det, -j10 / det, j00 / det
-        t00, t01 = i00 * e00 + i01 * e01, i00 * e01 + i01 * e11   # C = J^-1 E J^-T, symmetric
+        t00, t01 = i00 * e00 + i01 * e01, i00 * e01 + i01 * e11  # C = J^-1 E J^-T, symmetric
         t10, t11 = i10 * e00 + i11 * e01, i10 * e01 + i11 * e11
         c00 = t00 * i00 + t01 * i01
         c01 = t00 * i10 + t01 * i11
@@ -463,8 +515,14 @@ def _dot_measures(pts, mask, conics, ok, axes, ang, J, W, H, border_px, near, co
         fill[d] = np.pi * a * b / abs(det)
 
 
-def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np.ndarray,
-               params: tuple[np.ndarray, ...] | None = None, H: np.ndarray | None = None) -> str | None:
+def check_grid(
+    board: Board,
+    points: np.ndarray,
+    centres: np.ndarray,
+    conics: np.ndarray,
+    params: tuple[np.ndarray, ...] | None = None,
+    H: np.ndarray | None = None,
+) -> str | None:
     """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
     (K, 3, 3); ``params``: ``conic_params_batch(conics)`` where the caller has it) are not trusted to be the board,
     or ``None`` (module docstring). ``H``: (3, 3) the least-squares homography board mm -> ``centres`` where the
@@ -480,7 +538,7 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
         return "no homography from the board explains the dots"
     q = cv2.perspectiveTransform(obj_mm.reshape(-1, 1, 2), H).reshape(-1, 2)
     res = centres - q
-    if K >= QUADRATIC_FROM:                       # lens distortion: a quadratic term in board coordinates
+    if K >= QUADRATIC_FROM:  # lens distortion: a quadratic term in board coordinates
         x, y = (obj - obj.mean(axis=0)).T / max(float(np.ptp(obj)), 1.0)
         A = np.column_stack([np.ones(K), x, y, x * x, x * y, y * y])
         coef, *_ = np.linalg.lstsq(A, res, rcond=None)
@@ -493,24 +551,29 @@ def check_grid(board: Board, points: np.ndarray, centres: np.ndarray, conics: np
     step = median(np.sqrt(np.abs(det[finite]))) if np.any(finite) else np.nan
     if not np.isfinite(step) or step <= 0:
         return "the dots have no lattice neighbours"
-    rel = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))) / step
+    rel = float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) / step
     if rel > MAX_LATTICE_RESIDUAL:
-        return (f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
-                f"{MAX_LATTICE_RESIDUAL:g})")
+        return (
+            f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
+            f"{MAX_LATTICE_RESIDUAL:g})"
+        )
     _, axes, _, ok = params if params is not None else conic_params_batch(conics)
     plain = ok & ~board.is_marker()[points] & finite
     if np.any(plain):
         fill = np.pi * axes[plain, 0] * axes[plain, 1] / np.abs(det[plain])
-        d_rel = float(np.sqrt(median(fill) / np.pi)) * 2.0      # measured diameter / pitch
+        d_rel = float(np.sqrt(median(fill) / np.pi)) * 2.0  # measured diameter / pitch
         stated = board.diameter_mm / board.pitch_mm
         if not stated / DIAMETER_FACTOR <= d_rel <= stated * DIAMETER_FACTOR:
-            return (f"the dots measure {d_rel:.2f} pitches across, the board's are {stated:.2f} (--diameter, "
-                    f"--pitch): not this board")
+            return (
+                f"the dots measure {d_rel:.2f} pitches across, the board's are {stated:.2f} (--diameter, "
+                f"--pitch): not this board"
+            )
     return None
 
 
-def absent_dots(board: Board, points: np.ndarray, centres: np.ndarray, radii: np.ndarray, gray: np.ndarray
-                ) -> np.ndarray:
+def absent_dots(
+    board: Board, points: np.ndarray, centres: np.ndarray, radii: np.ndarray, gray: np.ndarray
+) -> np.ndarray:
     """Board points of an unmarked board's partial labelling that the image shows as bare board: where the board
     has a dot, inside the image, the image is as bright as the board's white (a lattice of another layout labelled
     as part of the board, e.g. a staggered 5x5 grid whose diagonals make a square lattice spanning 7x7: a dot
