@@ -1,3 +1,72 @@
-"""circcal: circle-grid camera calibration with unbiased circle-centre projections."""
+"""circcal: circle-grid camera calibration with unbiased circle-centre projections.
+
+The public API: the same functions the ``circcal`` command line calls, imported on first use (``import circcal``
+itself loads nothing heavy).
+
+========================  =================================================================================
+name                      what it is
+========================  =================================================================================
+:class:`Board`            a circle-grid board (rows, cols, pitch and dot diameter in mm, layout, markers)
+:class:`Camera`           a camera model (fx, fy, cx, cy in px; a lens model's distortion)
+:class:`CalibrationOptions`  how a calibration is made (lens model, held parameters, outlier rule, ...)
+:func:`detect`            one image (an array) -> a :class:`~circcal.detector.Detection`
+:func:`detect_files`      image files -> one Detection each (a bad file is a rejection with its reason)
+:func:`recorrect`         a detection's centres corrected again under a camera model
+:func:`calibrate`         image files -> :class:`~circcal.pipeline.ImagesCalibration` (model, sigmas, residuals,
+                          detections; detect, calibrate, re-correct until the centres settle)
+:func:`calibrate_points`  object and image points -> a :class:`~circcal.solver.CalibrationResult`
+:func:`assess`            the verdict on a calibration: outliers, uncertainty, model fit, cross-validation
+:func:`load_model`        a camera from any file circcal reads (model.json, OpenCV, mrcal, COLMAP, ROS)
+:func:`save_model`        a camera to any of those formats (by extension), atomically
+:func:`validate`          calibrate images with circcal and the reference calibrators and compare
+:func:`diff`              the projection difference between two cameras (implied rotation fitted)
+========================  =================================================================================
+
+Example
+-------
+>>> import circcal                                                   # doctest: +SKIP
+>>> board = circcal.Board(7, 9, pitch_mm=10.0, diameter_mm=4.0)
+>>> run = circcal.calibrate(sorted(Path("photos").glob("*.png")), board, progress=False)
+>>> print(run.result.camera, run.result.errors["rms_per_point_px"])
+>>> circcal.save_model("model.json", run.result.camera)
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
+
+#: public name -> (module, attribute): what ``circcal.NAME`` is
+_API: dict[str, tuple[str, str]] = {
+    "Board": ("circcal.board", "Board"),
+    "Camera": ("circcal.model", "Camera"),
+    "CalibrationOptions": ("circcal.solver.options", "CalibrationOptions"),
+    "detect": ("circcal.detector.find", "detect"),
+    "detect_files": ("circcal.detector.files", "detect_files"),
+    "recorrect": ("circcal.detector.find", "recorrect"),
+    "calibrate": ("circcal.pipeline", "calibrate_images"),
+    "calibrate_points": ("circcal.solver.calibrate", "calibrate"),
+    "assess": ("circcal.analysis.assess", "assess"),
+    "load_model": ("circcal.formats", "read_camera"),
+    "save_model": ("circcal.formats", "write_camera"),
+    "validate": ("circcal.validators.validate", "run_validation"),
+    "diff": ("circcal.analysis.diff", "model_diff"),
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> Any:
+    """``circcal.NAME`` for the names of :data:`_API`, imported on first use."""
+    if name not in _API:
+        raise AttributeError(f"module 'circcal' has no attribute {name!r}")
+    module, attribute = _API[name]
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

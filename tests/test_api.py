@@ -1,0 +1,56 @@
+"""The public API (``circcal.NAME``): every name is the function the command line calls, imported on first use, and a
+calibration through it gives the camera of the truth."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import circcal
+
+
+@pytest.mark.parametrize("name", sorted(circcal._API))
+def test_every_public_name_is_the_clis_own_function(name):
+    import importlib
+
+    module, attribute = circcal._API[name]
+    assert getattr(circcal, name) is getattr(importlib.import_module(module), attribute)
+    assert name in circcal.__all__ and name in dir(circcal)
+    assert getattr(circcal, name).__doc__, f"circcal.{name} has no docstring"
+
+
+def test_an_unknown_name_is_an_attribute_error():
+    with pytest.raises(AttributeError, match="no attribute 'calibrat'"):
+        circcal.calibrat  # noqa: B018
+
+
+def test_import_circcal_loads_nothing_heavy():
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys, circcal; print(sorted(m for m in ('numpy', 'cv2') if m in sys.modules))"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    assert out == "[]"
+
+
+def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
+    from circcal.fixtures.scenarios import fixture_dir, load_truth
+
+    truth = load_truth(fixture_dir("small-noisy"))
+    paths = [v.image for v in truth.views]
+    run = circcal.calibrate(paths, truth.board, circcal.CalibrationOptions(), progress=False, jobs=1)
+    cam = run.result.camera
+    for name in ("fx", "fy", "cx", "cy"):  # within 4 stated sigmas of the truth
+        assert abs(getattr(cam, name) - getattr(truth.camera, name)) < 4 * run.result.std[name], name
+    import cv2
+
+    d = circcal.detect(cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED), truth.board)
+    assert d.found and np.nanmax(np.abs(d.centres - truth.views[0].centres)) < 0.1
+    circcal.save_model(tmp_path / "cam.yaml", cam)
+    back = circcal.load_model(tmp_path / "cam.yaml")
+    assert np.allclose(back.intrinsics, cam.intrinsics, rtol=1e-12, atol=1e-9)
+    assert circcal.diff(cam, back).rms_px < 1e-6
