@@ -43,6 +43,7 @@ import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from circcal.errors import InputError
 from circcal.pathnames import display_name
@@ -146,7 +147,7 @@ def write_manifest(folder: Path, kind: str, commit_id: str = "") -> None:
     (folder / MARKER).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
 
 
-def _read_marker(folder: Path) -> dict | None:
+def _read_marker(folder: Path) -> dict[str, Any] | None:
     try:
         doc = json.loads((folder / MARKER).read_text())
     except (OSError, ValueError):
@@ -215,7 +216,7 @@ class Outputs:
         The command's input files (images, models): no output may be one, and no folder output may hold one.
     """
 
-    def __init__(self, inputs: Iterable[str | os.PathLike] = ()) -> None:
+    def __init__(self, inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
         self._inputs = [Path(p) for p in inputs]
         self._resolved_inputs = {Path(os.path.realpath(p)) for p in self._inputs}
         self._outputs: list[_Output] = []
@@ -294,13 +295,13 @@ class Outputs:
             ) from None
         return out
 
-    def file(self, path: str | os.PathLike, option: str) -> Path:
+    def file(self, path: str | os.PathLike[str], option: str) -> Path:
         """Plan the file output ``path`` (named ``option`` in messages, e.g. ``"--out"``) and return its staging
         path, to write in full before :meth:`commit`. Raises :class:`~circcal.errors.InputError` (see the module
         docstring)."""
         return self._plan(Path(path), option, None).staging
 
-    def folder(self, path: str | os.PathLike, option: str, *, kind: str) -> Path:
+    def folder(self, path: str | os.PathLike[str], option: str, *, kind: str) -> Path:
         """Plan the folder output ``path`` of ``kind`` (``"report"``, ``"overlays"``, ...) and return its staging
         folder (empty), to fill before :meth:`commit`. Raises :class:`~circcal.errors.InputError`."""
         return self._plan(Path(path), option, kind).staging

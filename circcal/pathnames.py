@@ -48,7 +48,7 @@ _UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200e\u200f\u2028\u2029\u202a-\u
 _NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 
 
-def _escape_char(m: re.Match) -> str:
+def _escape_char(m: re.Match[str]) -> str:
     ch = m.group()
     o = ord(ch)
     if ch in _NAMED:
@@ -60,7 +60,7 @@ def _escape_char(m: re.Match) -> str:
     return f"\\u{o:04x}"
 
 
-def display_name(path: str | bytes | os.PathLike) -> str:
+def display_name(path: str | bytes | os.PathLike[str] | os.PathLike[bytes]) -> str:
     """A file name (or any one-line text) as one printable line for a message or a report.
 
     Parameters
@@ -79,7 +79,7 @@ def display_name(path: str | bytes | os.PathLike) -> str:
     return _UNSAFE.sub(_escape_char, os.fsdecode(path))
 
 
-def path_to_json(path: str | bytes | os.PathLike) -> str:
+def path_to_json(path: str | bytes | os.PathLike[str] | os.PathLike[bytes]) -> str:
     """A file name as lossless JSON text (the rule in the module docstring); :func:`path_from_json` inverts it.
 
     Parameters
@@ -144,20 +144,20 @@ def path_from_json(value: Any, what: str = "file name") -> Path:
         raise InputError(f"{what}: an empty string is not a file name")
     try:
         if value.startswith(BYTES_PREFIX):
-            raw = bytearray()
+            buf = bytearray()
             rest = value[len(BYTES_PREFIX) :]
             pos = 0
             for m in _PERCENT.finditer(rest):
-                raw += rest[pos : m.start()].encode("utf-8")
+                buf += rest[pos : m.start()].encode("utf-8")
                 if not _HEX2.fullmatch(m.group(1)):
                     raise InputError(
                         f"{what}: {display_name(value)}: '%' must be followed by two hex digits "
                         f"(the byte), at character {len(BYTES_PREFIX) + m.start() + 1}"
                     )
-                raw.append(int(m.group(1), 16))
+                buf.append(int(m.group(1), 16))
                 pos = m.end()
-            raw += rest[pos:].encode("utf-8")
-            raw = bytes(raw)
+            buf += rest[pos:].encode("utf-8")
+            raw = bytes(buf)
         else:
             raw = value.encode("utf-8", "surrogateescape")
     except UnicodeEncodeError:

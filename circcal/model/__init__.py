@@ -152,7 +152,8 @@ class Camera:
     fy: float
     cx: float
     cy: float
-    dist: np.ndarray = field(default=None)  # type: ignore[assignment]
+    # None stands for "all zeros" (their number depends on ``lens``); __post_init__ replaces it with an array
+    dist: np.ndarray = field(default=None)  # type: ignore[arg-type]
     lens: str = DEFAULT_LENS
 
     def __post_init__(self) -> None:
@@ -256,7 +257,8 @@ def _finite(v: Any) -> bool:
 def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     """Board points (N, 3) into the camera frame: ``R(rvec) @ X + tvec``. Returns (N, 3)."""
     R = rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))
-    return np.asarray(points, dtype=np.float64) @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
+    Xc: np.ndarray = np.asarray(points, dtype=np.float64) @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
+    return Xc
 
 
 def _is_pinhole(lens: str) -> bool:

@@ -19,6 +19,8 @@ On undistorted normalised coordinates ``x = X/Z, y = Y/Z`` (coefficients absent 
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 __all__ = ["N_COEFFS", "check_dist", "distort", "distort_jacobian", "undistort"]
@@ -39,7 +41,13 @@ def check_dist(dist: np.ndarray) -> np.ndarray:
     return d
 
 
-def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool):
+@overload
+def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: Literal[False]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: Literal[True]) -> tuple[np.ndarray, ...]: ...
+
+
+def _brown(x: np.ndarray, y: np.ndarray, d: np.ndarray, jacobian: bool) -> tuple[np.ndarray, ...]:
     """The distortion polynomial: ``(xd, yd)`` of normalised ``(x, y)`` (same-shape arrays); with ``jacobian`` also
     ``radial``, the denominator ``den`` (1.0 for 5 coefficients), the 2x2 Jacobian ``d(xd, yd)/d(x, y)`` as
     ``(a, b, e, c)`` = ``[[a, b], [e, c]]`` (symmetric, b = e, without thin prism), and the shared terms ``r2``,
@@ -92,8 +100,8 @@ def _coefficient_jacobian(
     xy2: np.ndarray,
     tx: np.ndarray,
     ty: np.ndarray,
-    radial,
-    den,
+    radial: np.ndarray,
+    den: np.ndarray | float,
     n: int,
     out: np.ndarray,
     scale: tuple[float, float] | None = None,
@@ -157,7 +165,7 @@ def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
 
 def _distort_jacobian_into(
     x: np.ndarray, y: np.ndarray, d: np.ndarray, J_d: np.ndarray, scale: tuple[float, float] | None = None
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`distort_jacobian` on the coordinate arrays ``x``, ``y`` with ``J_d`` written into ``J_d`` (..., 2, n)
     (a view of a caller's array; rows times ``scale``, see :func:`_coefficient_jacobian`). Returns ``(xd, yd, a, b,
     e, c)``: the distorted coordinates and ``d xd / d xn = [[a, b], [e, c]]``."""

@@ -17,6 +17,8 @@ axis::
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 __all__ = ["N_COEFFS", "theta_distort", "theta_max", "fisheye_distort", "fisheye_distort_jacobian", "fisheye_rays"]
@@ -34,12 +36,20 @@ def _check(dist: np.ndarray) -> np.ndarray:
     return d
 
 
-def theta_distort(theta: np.ndarray, dist: np.ndarray, derivative: bool = False):
+@overload
+def theta_distort(theta: np.ndarray, dist: np.ndarray, derivative: Literal[False] = False) -> np.ndarray: ...
+@overload
+def theta_distort(theta: np.ndarray, dist: np.ndarray, derivative: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def theta_distort(
+    theta: np.ndarray, dist: np.ndarray, derivative: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """``theta_d`` (same shape as ``theta``, radians) of angles ``theta`` (radians); with ``derivative`` also
     ``d theta_d / d theta``."""
     k1, k2, k3, k4 = _check(dist)
     t2 = theta * theta
-    td = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    td: np.ndarray = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
     if not derivative:
         return td
     return td, 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
@@ -60,10 +70,13 @@ def theta_max(dist: np.ndarray) -> float:
 def fisheye_distort(P: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Camera-frame points or rays (N, 3) -> (N, 2) distorted normalised coordinates ``(xd, yd)`` (pixels are
     ``fx xd + cx``, ``fy yd + cy``). A point on the optical axis behind the camera (theta = pi) has no image: NaN."""
-    return fisheye_distort_jacobian(P, dist, jacobian=False)[0]
+    xd: np.ndarray = fisheye_distort_jacobian(P, dist, jacobian=False)[0]
+    return xd
 
 
-def fisheye_distort_jacobian(P: np.ndarray, dist: np.ndarray, jacobian: bool = True):
+def fisheye_distort_jacobian(
+    P: np.ndarray, dist: np.ndarray, jacobian: bool = True
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`fisheye_distort` with derivatives: ``(xd (N, 2), J_P (N, 2, 3) = d xd / d P, J_d (N, 2, 4) =
     d xd / d [k1, k2, k3, k4])`` (the Jacobians None without ``jacobian``)."""
     P = np.asarray(P, dtype=np.float64)
@@ -98,6 +111,8 @@ def _fisheye(
     xd = np.stack([s * X, s * Y], axis=-1)
     if J_P is None:
         return xd
+    if J_d is None:
+        raise ValueError("_fisheye: J_P and J_d are given together")
     sx, sy = (None, None) if scale is None else scale
 
     def put(out: np.ndarray, v: np.ndarray, f: float | None) -> None:

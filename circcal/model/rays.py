@@ -66,4 +66,5 @@ def plane_normal(H: np.ndarray) -> np.ndarray:
     """(3,) unit normal of the board plane in the camera frame, ``h1 x h2`` of a homography ``H`` (3, 3) board ->
     rays (its sign: the board's +z)."""
     n = np.cross(H[:, 0], H[:, 1])
-    return n / np.linalg.norm(n)
+    unit: np.ndarray = n / np.linalg.norm(n)
+    return unit
