@@ -18,6 +18,7 @@ import sys
 import threading
 import traceback
 import warnings
+from typing import NoReturn
 
 from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
 
@@ -25,10 +26,18 @@ from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED
 COMMANDS = ("demo", "render", "board", "detect", "calibrate", "convert", "diff", "validate", "report", "study")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line naming the option, with where the help is (the usage only
+    with ``-h``): ten lines of usage before the one line that matters hid it."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see: {self.prog} -h)\n")
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The parser of every subcommand, or of ``only`` that one (what ``main`` builds when the command line names a
     subcommand: the other command modules, and what they import, are not loaded; ~40 ms of start-up)."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="circcal",
         description="Circle-grid camera calibration with unbiased centres, and cross-validation against "
         "reference calibrators. Reprojection errors name their convention: per point (2-D, "

@@ -402,3 +402,46 @@ def test_a_dropped_dot_is_named_without_a_position(realdata, tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert "image00005.jpg: point 34: bad-dot: detector:" in out and "(nan" not in out
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["calibrate", "x.png", "--grid", "7x7", "--pitch", "25"], ["--pitch", "25 what?", "25mm"]),
+        (["calibrate", "x.png", "--grid", "8by10", "--pitch", "25mm"], ["--grid", "8by10"]),
+        (["calibrate", "x.png", "--grid", "7x7", "--pitch", "25px"], ["--pitch", "25px"]),
+        (["calibrate", "--grid", "7x7", "--pitch", "25mm"], ["images"]),
+    ],
+)
+def test_a_bad_option_is_one_line_without_the_usage(capsys, argv, words):
+    """Issue 36: `--pitch 25` without a unit was read as mm; every argument error printed ten lines of usage before
+    the one line that says what is wrong."""
+    from circcal.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and "usage:" not in err
+    assert all(w in err for w in words), err
+
+
+def test_a_folder_stands_for_its_images_sorted(tmp_path, capsys):
+    import cv2
+    import numpy as np
+
+    from circcal.cli import main
+
+    for name in ("b.png", "a.PNG", "notes.txt"):
+        (tmp_path / "photos").mkdir(exist_ok=True)
+        if name.endswith("txt"):
+            (tmp_path / "photos" / name).write_text("x")
+        else:
+            cv2.imwrite(str(tmp_path / "photos" / name), np.full((40, 40), 200, np.uint8))
+    out = tmp_path / "d.json"
+    main(["detect", str(tmp_path / "photos"), "--grid", "7x7", "--json", str(out), "--quiet"])
+    import json
+
+    assert [Path(e["image"]).name for e in json.loads(out.read_text())["images"]] == ["a.PNG", "b.png"]
+    assert "photos: 2 images" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert main(["detect", str(tmp_path / "empty"), "--grid", "7x7", "--json", str(out), "--quiet"]) == 2

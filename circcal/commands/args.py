@@ -1,25 +1,46 @@
-"""Argument types shared by the ``circcal`` subcommands (argparse ``type=`` callables: a bad value exits 2 with the
-usage line and the reason)."""
+"""Argument types shared by the ``circcal`` subcommands (argparse ``type=`` callables: a bad value exits 2 with one
+line naming the option and the reason)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 import re
+import sys
+from pathlib import Path
 
 from circcal.errors import InputError
 
-_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "": 1.0}
+_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 
 
 def parse_length_mm(text: str) -> float:
-    """'10mm', '1cm', '0.01m', '0.5in' or a bare number (mm) -> mm."""
+    """A length with its unit -> mm.
+
+    Parameters
+    ----------
+    text : str
+        A number and a unit: ``10mm``, ``1.5cm``, ``0.01m``, ``0.5in``. A bare number is refused: a board printed in
+        inches read as millimetres would scale every pose and the board's shape by 25.4.
+
+    Returns
+    -------
+    float
+        The length in mm (> 0, finite).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        No unit, not a number, not positive.
+    """
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in|)\s*", str(text))
     if not m:
         raise argparse.ArgumentTypeError(f"not a length: {text!r} (expected e.g. 10mm, 1.5cm, 0.01m)")
+    if not m.group(2):
+        raise argparse.ArgumentTypeError(f"{m.group(1)} what? give the unit, e.g. {m.group(1)}mm (mm, cm, m or in)")
     value = float(m.group(1)) * _UNITS_MM[m.group(2)]
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"length must be positive, got {text!r}")
+    if not (0 < value < float("inf")):
+        raise argparse.ArgumentTypeError(f"length must be a finite number above 0, got {text!r}")
     return value
 
 
@@ -171,3 +192,40 @@ def calibration_options(args: argparse.Namespace):
         refine_board=bool(getattr(args, "refine_board", False)),
         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K),
     )
+
+
+#: Image files a folder given as an input expands to (by extension, case-insensitive).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm", ".webp", ".jp2", ".exr")
+
+
+def expand_images(paths: list[Path], option: str = "images") -> list[Path]:
+    """Image paths with every folder among them replaced by its image files, sorted by name.
+
+    Parameters
+    ----------
+    paths : list of Path
+        Files and folders as given on the command line.
+    option : str
+        How messages name the argument.
+
+    Returns
+    -------
+    list of Path
+        The files given, in order, each folder's images (:data:`IMAGE_SUFFIXES`, not recursive) in its place.
+
+    Raises
+    ------
+    InputError
+        A folder that holds no image file.
+    """
+    out: list[Path] = []
+    for p in paths:
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise InputError(f"{option}: folder {p} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)")
+            print(f"{p}: {len(found)} images", file=sys.stderr)
+            out += found
+        else:
+            out.append(p)
+    return out

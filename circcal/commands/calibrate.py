@@ -12,6 +12,7 @@ from circcal.commands.args import (
     add_lens_argument,
     board_from_args,
     calibration_options,
+    expand_images,
     nonnegative_int,
     parse_grid,
     parse_length_mm,
@@ -32,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "settle. Writes model.json (or, by extension, OpenCV .yaml, "
         "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).",
     )
-    p.add_argument("images", nargs="+", type=Path, help="image files")
+    p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
     p.add_argument(
         "--pitch",
@@ -198,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.pipeline import calibrate_images
     from circcal.solver import CalibrationError
 
+    args.images = expand_images(args.images)  # a folder stands for its images, sorted
     options = calibration_options(args)  # the one options object: its errors come before any work
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     with Outputs(inputs=args.images) as outputs:  # every output checked before the work, committed together

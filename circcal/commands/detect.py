@@ -18,7 +18,14 @@ import sys
 import time
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, positive_int
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    board_from_args,
+    expand_images,
+    parse_grid,
+    parse_length_mm,
+    positive_int,
+)
 from circcal.commands.board import add_marker_arguments, board_with_markers
 
 #: The staged detections.json is rewritten at most this often (s): what an interruption keeps as partial results.
@@ -32,7 +39,7 @@ def add_parser(subparsers) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("images", nargs="+", type=Path, help="image files")
+    p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
     p.add_argument("--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points")
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
     p.add_argument(
@@ -92,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.outputs import Outputs
     from circcal.pathnames import display_name
 
+    args.images = expand_images(args.images)  # a folder stands for its images, sorted
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     inputs = list(args.images) + ([args.model] if args.model is not None else [])
     with Outputs(inputs=inputs) as outputs:  # checked before the work, committed together at the end

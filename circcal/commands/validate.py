@@ -11,6 +11,7 @@ from circcal.commands.args import (
     LENS_CHOICES,
     board_from_args,
     calibration_options,
+    expand_images,
     parse_grid,
     parse_length_mm,
     positive_float,
@@ -110,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         against = [a.strip() for spec in (args.against or ["all"]) for a in spec.split(",") if a.strip()]
         truth_cam = None
         if args.images:
+            args.images = expand_images(args.images, "--images")
             if args.scenario or args.fixtures:
                 raise InputError("give a scenario, --fixtures or --images, not several")
             if args.grid is None or args.pitch is None:
