@@ -62,7 +62,9 @@ LARGE_RESIDUAL_PX = 2.0
 RESTART_DISTORTION_ROUNDS = 10
 
 
-def initial_poses(obj, img, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def initial_poses(
+    obj: Sequence[np.ndarray], img: Sequence[np.ndarray], camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
     """Poses from homographies of the undistorted, normalised observations under ``camera`` (fisheye: of their
     rays, :func:`circcal.solver.fisheye_start.poses_from_rays`)."""
     if not camera.model.pinhole:
@@ -306,7 +308,7 @@ def _calibrate(
     cov9_unit = prob.T @ cov_free_unit @ prob.T.T if np.all(np.isfinite(cov_free_unit)) else None
     f_idx = 1 if aspect is not None else 0
     unit_rel = float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf")
-    if not np.isfinite(unit_rel) or unit_rel > MAX_UNIT_REL_STD_F:
+    if cov9_unit is None or not np.isfinite(unit_rel) or unit_rel > MAX_UNIT_REL_STD_F:
         tilts = view_tilts_deg(rv)
         flat = [int(i) for i in np.flatnonzero(tilts < FLAT_VIEW_TILT_DEG)]
         listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat) or f"none below {FLAT_VIEW_TILT_DEG:g} deg"
@@ -326,12 +328,13 @@ def _calibrate(
     corr[:, std_arr == 0] = np.nan
     std = {name: float(s) for name, s in zip(names, std_arr)}
 
-    board_points = board_std = None
+    board_points: np.ndarray | None = None
+    board_std: np.ndarray | None = None
     if board is not None:
         board_points = prob.board_points(x)
-        board_std = np.zeros(board.nominal.size)
-        board_std[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf :], 0.0))
-        board_std = board_std.reshape(-1, 3)
+        std_flat = np.zeros(board.nominal.size)
+        std_flat[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf :], 0.0))
+        board_std = std_flat.reshape(-1, 3)
 
     residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
     errors, per_view_errors = error_stats_per_view(residuals)  # once per solve, every view in one pass

@@ -65,9 +65,10 @@ class StateCovariance:
         """``G C_unit G^T`` (N, k, k) for N linear functions of the state with derivatives ``G_global`` (N, k, ng)
         and ``G_pose`` (N, k, V, 6) (see the module); cost O(N k V ng), no dense state matrix."""
         H = G_global - np.einsum("nkvj,vjg->nkg", G_pose, self.M)
-        return np.einsum("nag,gh,nbh->nab", H, self.S_inv, H) + np.einsum(
+        out: np.ndarray = np.einsum("nag,gh,nbh->nab", H, self.S_inv, H) + np.einsum(
             "navi,vij,nbvj->nab", G_pose, self.D_inv, G_pose
         )
+        return out
 
     @property
     def unit(self) -> np.ndarray:

@@ -61,7 +61,7 @@ def poses_from_rays(object_points: Sequence[np.ndarray], rays: Sequence[np.ndarr
     return poses_from_homographies(Hs, np.eye(3), signed=True)
 
 
-def _equidistant_rays(uv: np.ndarray, f: float, aspect: float, centre) -> np.ndarray:
+def _equidistant_rays(uv: np.ndarray, f: float, aspect: float, centre: tuple[float, float]) -> np.ndarray:
     """Pixels (..., 2) -> unit rays (..., 3) of the equidistant lens (k = 0, ``theta = r``: closed form)."""
     x = (uv[..., 0] - centre[0]) / (aspect * f)
     y = (uv[..., 1] - centre[1]) / f
@@ -70,7 +70,7 @@ def _equidistant_rays(uv: np.ndarray, f: float, aspect: float, centre) -> np.nda
     return np.stack([x * s, y * s, np.cos(th)], axis=-1)
 
 
-def _equidistant_pixels(Xc: np.ndarray, f: float, aspect: float, centre) -> np.ndarray:
+def _equidistant_pixels(Xc: np.ndarray, f: float, aspect: float, centre: tuple[float, float]) -> np.ndarray:
     """Camera-frame points (..., 3) -> pixels (..., 2) of the equidistant lens (k = 0)."""
     rho = np.hypot(Xc[..., 0], Xc[..., 1])
     th = np.arctan2(rho, Xc[..., 2])
@@ -78,7 +78,9 @@ def _equidistant_pixels(Xc: np.ndarray, f: float, aspect: float, centre) -> np.n
     return np.stack([aspect * f * s * Xc[..., 0] + centre[0], f * s * Xc[..., 1] + centre[1]], axis=-1)
 
 
-def _fit(groups, f: float, aspect: float, centre) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+def _fit(
+    groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float, aspect: float, centre: tuple[float, float]
+) -> tuple[float, np.ndarray | None, np.ndarray | None]:
     """RMS per coordinate (px) of the plane poses that best fit the equidistant rays of focal length ``f``, with
     those poses (rvecs, tvecs per view); inf (and None) where a homography is not determined."""
     V = sum(len(idx) for idx, _, _ in groups)
@@ -143,4 +145,6 @@ def fisheye_start(
     best = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
     f = float(np.exp(best.x)) if best.fun <= scan[i] else float(grid[i])
     _, rv, tv = _fit(groups, f, aspect, centre)
+    if rv is None or tv is None:  # the chosen f reprojects (its cost is finite): not reached
+        raise CalibrationError("the equidistant fisheye start found no poses at its own focal length")
     return Camera(w, h, aspect * f, f, centre[0], centre[1], np.zeros(4), "fisheye"), rv, tv

@@ -19,6 +19,7 @@ from circcal.metrics import error_stats
 from circcal.model import Camera, project
 from circcal.solver.calibrate import calibrate
 from circcal.solver.options import CalibrationOptions
+from circcal.solver.result import CalibrationResult
 
 __all__ = ["fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
 
@@ -86,10 +87,10 @@ def holdout_errors(
     None: the defaults; with ``refine_board`` the view's board points are that model's refined ones). See
     :func:`leave_one_out` for what comes back."""
 
-    def fit(rest: list[int]):
+    def fit(rest: list[int]) -> CalibrationResult:
         return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, options)
 
-    def held_out(k: int, res) -> tuple[np.ndarray, np.ndarray, Camera]:
+    def held_out(k: int, res: CalibrationResult) -> tuple[np.ndarray, np.ndarray, Camera]:
         return res.board_lookup(np.asarray(object_points[k], dtype=np.float64)), image_points[k], res.camera
 
     return leave_one_out(len(object_points), fit, held_out)

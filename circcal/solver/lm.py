@@ -60,7 +60,9 @@ GRADIENT_TOL = 1e-6
 GRADIENT_FLOOR = 1e-12
 
 
-def schur_complement(A, B, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def schur_complement(
+    A: np.ndarray, B: np.ndarray, D: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :meth:`Problem.normal_equations`; also returns
     ``D_v^-1`` (V, 6, 6), ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution. The
     6x6 blocks are inverted, as OpenCV's solver does (one batched inverse and product: half the time of a batched
@@ -77,10 +79,11 @@ def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
     board coordinates) with the poses marginalised."""
     A, _, B, D, _ = prob.normal_equations(x)[1]
     S = schur_complement(A, B, D)[0]
-    return 0.5 * (S + S.T)
+    sym: np.ndarray = 0.5 * (S + S.T)
+    return sym
 
 
-def schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
+def schur_step(A: np.ndarray, gi: np.ndarray, B: np.ndarray, D: np.ndarray, gp: np.ndarray, lam: float) -> np.ndarray:
     """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks. Returns (ng + 6V,)."""
     if lam:
         A = A + lam * np.diag(np.diag(A))
@@ -96,7 +99,7 @@ def schur_step(A, gi, B, D, gp, lam: float) -> np.ndarray:
     return np.concatenate([di, dp.ravel()])
 
 
-def quadratic_form(A, B, D, di: np.ndarray, dp: np.ndarray) -> float:
+def quadratic_form(A: np.ndarray, B: np.ndarray, D: np.ndarray, di: np.ndarray, dp: np.ndarray) -> float:
     """``s^T (J^T J) s`` for a step split into its global part ``di`` (ng,) and pose part ``dp`` (V, 6)."""
     return float(di @ A @ di + 2.0 * np.einsum("a,vab,vb->", di, B, dp) + np.einsum("va,vab,vb->", dp, D, dp))
 
@@ -132,7 +135,7 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     done = stalled = False
     last_trusted = np.inf
     run = 0  # trial steps taken in a row
-    last_step = None  # the last step taken (before any extension), scaled by sqrt(diag J^T J)
+    last_step: np.ndarray | None = None  # the last step taken (before any extension), scaled by sqrt(diag J^T J)
     while it < max_iterations and not (done or stalled):
         it += 1
         A, gi, B, D, gp = blocks = prob.normal_equations(x)[1]
@@ -205,7 +208,7 @@ def geometric_extension(previous: np.ndarray, step: np.ndarray) -> float:
     n_prev, n_step = np.linalg.norm(previous), np.linalg.norm(step)
     if not n_step < n_prev or previous @ step < EXTRAPOLATE_COS * n_prev * n_step:
         return 1.0
-    return min(1.0 / (1.0 - n_step / n_prev), EXTRAPOLATE_MAX)
+    return min(float(1.0 / (1.0 - n_step / n_prev)), EXTRAPOLATE_MAX)
 
 
 def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tuple[np.ndarray, int, bool, str]:

@@ -108,8 +108,9 @@ def _neighbour_pairs(xy: np.ndarray, chunk: int = 256) -> np.ndarray:
     n = len(xy)
     if n < 2:
         return np.empty((0, 2), np.int64)
-    d = [np.linalg.norm(xy[i : i + chunk, None, :] - xy[None, :, :], axis=2) for i in range(0, n, chunk)]
-    d = np.concatenate(d)
+    d = np.concatenate(
+        [np.linalg.norm(xy[i : i + chunk, None, :] - xy[None, :, :], axis=2) for i in range(0, n, chunk)]
+    )
     d[np.tril_indices(n)] = np.inf
     i, j = np.nonzero(d <= 1.01 * d.min())
     return np.stack([i, j], axis=1)

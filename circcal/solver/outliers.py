@@ -28,12 +28,15 @@ import enum
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
 from circcal.errors import CalibrationError, InputError
 from circcal.observations import MIN_POINTS_PER_VIEW, check_observations
+
+if TYPE_CHECKING:  # annotations only
+    from circcal.model import Camera
 
 __all__ = [
     "OutlierReason",
@@ -166,11 +169,11 @@ class Rejections:
         order ``board_points`` (P, 3) mm), with every rejected point set to NaN: exactly what the result was fitted
         to."""
         index = {tuple(k): i for i, k in enumerate(np.round(board_points, 6).tolist())}
-        out = []
+        out: list[np.ndarray] = []
         for v in self.kept_views:
             c = np.array(centres[v], dtype=np.float64)
             for r in self.points_of(v):
-                c[index[tuple(np.round(r.object_mm, 6).tolist())]] = np.nan
+                c[index[tuple(np.round(np.asarray(r.object_mm, dtype=np.float64), 6).tolist())]] = np.nan
             out.append(c)
         return out
 
@@ -194,19 +197,35 @@ def _view_scale(r: np.ndarray) -> float:
     return float(MAD_TO_SIGMA * np.median(np.abs(r)))
 
 
+class Solution(Protocol):
+    """What :func:`reject_outliers` reads of a solve (a :class:`~circcal.solver.CalibrationResult`: this module
+    does not import the solver): a dataclass with an ``outliers`` field and these attributes."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @property
+    def camera(self) -> Camera: ...
+    @property
+    def residuals(self) -> list[np.ndarray]: ...
+    @property
+    def sigma_px(self) -> float: ...
+
+
+_Solved = TypeVar("_Solved", bound=Solution)
+
 #: One solve for :func:`reject_outliers`: (object points per view, image points per view, initial camera or None)
 #: -> a :class:`~circcal.solver.CalibrationResult` (:func:`circcal.solver.calibrate` with the calibration's options).
-Solve = Callable[[list[np.ndarray], list[np.ndarray], Any], Any]
+Solve = Callable[[list[np.ndarray], list[np.ndarray], "Camera | None"], Solution]
 
 
 def reject_outliers(
-    solve: Solve,
+    solve: Callable[[list[np.ndarray], list[np.ndarray], Camera | None], _Solved],
     object_points: Sequence[np.ndarray],
     image_points: Sequence[np.ndarray],
     image_size: tuple[int, int],
     rule: OutlierRule,
-    initial: Any = None,
-):
+    initial: Camera | None = None,
+) -> _Solved:
     """Outlier rejection by ``rule`` around a solver (see the module): solve, leave out what the rule rejects,
     re-solve from the current camera, until nothing more is rejected.
 
@@ -242,7 +261,7 @@ def reject_outliers(
 
     caught: list[warnings.WarningMessage] = []
 
-    def solve_kept(start):
+    def solve_kept(start: Camera | None) -> _Solved:
         # a solve's warnings (non-convergence, large residuals) matter only for the final one: they are re-issued
         # for it alone, the intermediate solves still hold the outliers being removed
         with warnings.catch_warnings(record=True) as w:

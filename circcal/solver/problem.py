@@ -12,15 +12,20 @@ whole views (:data:`EVALUATE_CHUNK` points): the solver's normal equations are s
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from circcal.errors import CalibrationError
-from circcal.model import distort, fisheye_distort, lens_model, project_camera_jacobian
+from circcal.model import distort, lens_model, project_camera_jacobian
+from circcal.model.fisheye import fisheye_distort
 from circcal.observations import BOARD_KEY_DECIMALS, distinct_points
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
+
+if TYPE_CHECKING:  # annotations only
+    from scipy.sparse import csr_matrix
 
 __all__ = [
     "BoardModel",
@@ -31,7 +36,11 @@ __all__ = [
     "project_pixels",
     "MIN_VIEWS_PER_BOARD_POINT",
     "BOARD_KEY_DECIMALS",
+    "NormalBlocks",
 ]
+
+#: The blocks of ``J^T J`` and ``J^T f`` of :meth:`Problem.normal_equations`: ``(A, gi, B, D, gp)``.
+NormalBlocks = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 #: Points projected at a time (whole views, at least one): the residuals' and the Jacobian's temporaries stay a few
 #: MB whatever N (measured as fast as one pass over 49,000 points), and the whole Jacobian never exists.
@@ -59,7 +68,9 @@ def chunks(counts: np.ndarray, size: int) -> list[Chunk]:
     """Views of ``counts`` (V,) points each in consecutive chunks of at most ``size`` points (at least one view)."""
     ends = np.cumsum(counts)
     uniform = bool(np.all(counts == counts[0]))
-    out, v0 = [], 0
+    out: list[Chunk] = []
+    v0 = 0
+    groups: tuple[tuple[np.ndarray, np.ndarray | None], ...]
     while v0 < len(counts):
         a = int(ends[v0] - counts[v0])
         v1 = max(v0 + 1, int(np.searchsorted(ends, a + size, side="right")))
@@ -81,7 +92,8 @@ def project_pixels(Xc: np.ndarray, p: np.ndarray, pinhole: bool) -> np.ndarray:
     :func:`circcal.model.project_camera_jacobian` without its derivatives, in the same arithmetic (the two agree to
     the bit, so a trial step's cost is the cost the Jacobian pass sees there)."""
     xd = distort(Xc[:, :2] * (1.0 / Xc[:, 2])[:, None], p[4:]) if pinhole else fisheye_distort(Xc, p[4:])
-    return xd * p[:2] + p[2:4]
+    uv: np.ndarray = xd * p[:2] + p[2:4]
+    return uv
 
 
 @dataclass
@@ -144,14 +156,14 @@ class Problem:
 
     def __init__(
         self,
-        obj,
-        img,
+        obj: Sequence[np.ndarray],
+        img: Sequence[np.ndarray],
         base: np.ndarray,
         free: list[int],
         aspect: float | None,
         board: BoardModel | None = None,
         lens: str = "opencv5",
-    ):
+    ) -> None:
         self.counts = np.array([len(o) for o in obj])
         #: every view holds the same number of points: per-view products are one batched product (no gathers)
         self.uniform = bool(np.all(self.counts == self.counts[0]))
@@ -187,18 +199,26 @@ class Problem:
         self.pinhole = lens_model(lens).pinhole
         self.chunks = chunks(self.counts, EVALUATE_CHUNK)
         self._frame_x: bytes | None = None
+        self._frame_kept: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
         self._residuals_x: bytes | None = None
+        self._residuals: tuple[np.ndarray, np.ndarray] | None = None
         self._normal_x: bytes | None = None
+        self._normal: tuple[np.ndarray, NormalBlocks] | None = None
 
     def intrinsics(self, x: np.ndarray) -> np.ndarray:
-        return self.base + self.T @ x[: self.nf]
+        p: np.ndarray = self.base + self.T @ x[: self.nf]
+        return p
 
     def board_points(self, x: np.ndarray) -> np.ndarray | None:
         """(P, 3) mm: the board points at ``x`` (None without board refinement)."""
         if self.board is None:
             return None
-        pts = self.board.nominal.copy().ravel()
-        pts[self.board.free] = x[self.nf : self.ng]
+        return self._board_points(self.board, x)
+
+    def _board_points(self, board: BoardModel, x: np.ndarray) -> np.ndarray:
+        """(P, 3) mm: ``board``'s points with its free coordinates taken from ``x``."""
+        pts = board.nominal.copy().ravel()
+        pts[board.free] = x[self.nf : self.ng]
         return pts.reshape(-1, 3)
 
     def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
@@ -216,16 +236,17 @@ class Problem:
         gather), else through the (n, 3, m) gathered matrices."""
         if self.uniform:
             k = chunk.v1 - chunk.v0
-            return (A.reshape(k, -1, 3) @ M[chunk.v0 : chunk.v1]).reshape(*A.shape[:-1], M.shape[-1])
-        return np.einsum("n...j,njk->n...k", A, M[self.view[chunk.a : chunk.b]])
+            out: np.ndarray = (A.reshape(k, -1, 3) @ M[chunk.v0 : chunk.v1]).reshape(*A.shape[:-1], M.shape[-1])
+            return out
+        return np.asarray(np.einsum("n...j,njk->n...k", A, M[self.view[chunk.a : chunk.b]]))
 
-    def _frame(self, x: np.ndarray, key: bytes):
+    def _frame(self, x: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What every pass needs at ``x`` (``key``: its bytes): intrinsics (4 + n_dist,), rvecs (V, 3), R (V, 3, 3),
         tvecs (V, 3) and the board points (N, 3) mm of the stacked observations. The last is kept: an accepted trial
         step's Jacobian pass follows its residual pass at the same x."""
         if key != self._frame_x:
             rv, tv = self.poses(x)
-            X = self.X if self.board is None else self.board_points(x)[self.board.point_index]
+            X = self.X if self.board is None else self._board_points(self.board, x)[self.board.point_index]
             self._frame_x, self._frame_kept = key, (self.intrinsics(x), rv, rodrigues(rv), tv, X)
         return self._frame_kept
 
@@ -241,7 +262,7 @@ class Problem:
         """-> (f (2N,) projected - observed px, Xc (N, 3) mm) without the Jacobian (a trial step's cost), chunk by
         chunk; equal to the bit to :meth:`normal_equations`' residuals. The last evaluation is kept."""
         key = x.tobytes()
-        if key == self._residuals_x:
+        if key == self._residuals_x and self._residuals is not None:
             return self._residuals
         self._residuals_x = self._residuals = None  # freed before the new arrays, unless a caller holds them
         p, _, R, tv, X = self._frame(x, key)
@@ -282,7 +303,7 @@ class Problem:
             Jp[:, :, 3:] = dP
             yield c, Jg, Jp
 
-    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, NormalBlocks]:
         """``(f, (A, gi, B, D, gp))`` at ``x``: the residuals f (2N,) px and the blocks of ``J^T J`` and ``J^T f``,
         A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6) (each view's rows touch only the global
         parameters and its own pose). Assembled chunk by chunk, so the (2N, ng + 6) Jacobian never exists: per
@@ -291,13 +312,13 @@ class Problem:
         solver's last step, its convergence test, the information and the covariance all ask at the solution);
         it also sets :meth:`residuals`' kept one."""
         key = x.tobytes()
-        if key == self._normal_x:
+        if key == self._normal_x and self._normal is not None:
             return self._normal
         self._normal_x = self._normal = None
         ng, V = self.ng, self.n_views
         # the Jacobian pass's residuals equal residuals()' to the bit: a kept evaluation at x is refilled in place
         # with the same numbers (no second copy)
-        if key == self._residuals_x:
+        if key == self._residuals_x and self._residuals is not None:
             f, Xc = self._residuals
         else:
             self._residuals_x = self._residuals = None
@@ -337,7 +358,7 @@ class Problem:
     def fun(self, x: np.ndarray) -> np.ndarray:
         return self.residuals(x)[0]
 
-    def jac(self, x: np.ndarray):
+    def jac(self, x: np.ndarray) -> csr_matrix:
         from scipy.sparse import csr_matrix
 
         m, row_nnz = 2 * len(self.X), self.ng + 6

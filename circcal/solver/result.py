@@ -4,13 +4,16 @@ fit statistics, and its sections of model.json."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from circcal.formats import model_json
 from circcal.model import Camera
 from circcal.solver.covariance import StateCovariance
+
+if TYPE_CHECKING:  # annotations only (outliers refers to this module the same way)
+    from circcal.solver.outliers import Rejections
 
 __all__ = ["CalibrationResult"]
 
@@ -45,8 +48,8 @@ class CalibrationResult:
     rvecs: np.ndarray
     tvecs: np.ndarray
     residuals: list[np.ndarray]
-    errors: dict
-    per_view_errors: list[dict]
+    errors: dict[str, float]
+    per_view_errors: list[dict[str, float]]
     sigma_px: float
     n_iterations: int
     converged: bool
@@ -60,13 +63,13 @@ class CalibrationResult:
     covariance: StateCovariance | None = None
     object_points: list[np.ndarray] | None = None
     image_points: list[np.ndarray] | None = None
-    outliers: Any = None
+    outliers: Rejections | None = None
 
     def board_lookup(self, object_points: np.ndarray) -> np.ndarray:
         """Nominal board points (N, 3) mm -> the refined ones (N, 3) mm (unchanged without board refinement).
         Raises ``ValueError`` for a point the calibration never saw."""
         o = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
-        if self.board_points is None:
+        if self.board_points is None or self.board_nominal is None:  # set together, by board refinement
             return o.copy()
         index = {tuple(k): i for i, k in enumerate(np.round(self.board_nominal, 6).tolist())}
         try:
@@ -107,18 +110,22 @@ class CalibrationResult:
             "n_iterations": int(self.n_iterations),
             "converged": bool(self.converged),
             "views": views,
-            **(
-                {}
-                if self.board_points is None
-                else {
-                    "board_refinement": {
-                        "gauge": [int(i) for i in self.board_gauge],
-                        "nominal_mm": np.round(self.board_nominal, 9).tolist(),
-                        "points_mm": self.board_points.tolist(),
-                        "std_mm": self.board_std.tolist(),
-                    }
-                }
-            ),
+            **self._board_section(),
+        }
+
+    def _board_section(self) -> dict[str, Any]:
+        """``{"board_refinement": ...}`` of :meth:`model_sections` with board refinement, else empty."""
+        if self.board_points is None:
+            return {}
+        if self.board_nominal is None or self.board_std is None or self.board_gauge is None:
+            raise ValueError("board_points is set without board_nominal, board_std and board_gauge")
+        return {
+            "board_refinement": {
+                "gauge": [int(i) for i in self.board_gauge],
+                "nominal_mm": np.round(self.board_nominal, 9).tolist(),
+                "points_mm": self.board_points.tolist(),
+                "std_mm": self.board_std.tolist(),
+            }
         }
 
     def to_model_json(self) -> dict[str, Any]:

@@ -106,7 +106,8 @@ def worst_direction_stdev(cov2: np.ndarray) -> np.ndarray:
     """Square root of the larger eigenvalue of each 2x2 covariance (..., 2, 2) -> (...): the standard deviation in
     the worst direction (mrcal.worst_direction_stdev)."""
     a, b, c = cov2[..., 0, 0], cov2[..., 1, 0], cov2[..., 1, 1]
-    return np.sqrt(np.maximum((a + c) / 2 + np.sqrt((a - c) ** 2 / 4 + b * b), 0.0))
+    stdev: np.ndarray = np.sqrt(np.maximum((a + c) / 2 + np.sqrt((a - c) ** 2 / 4 + b * b), 0.0))
+    return stdev
 
 
 def projection_stdev(

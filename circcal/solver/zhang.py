@@ -128,7 +128,8 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
 
 def homography(object_xy: np.ndarray, image_points: np.ndarray) -> np.ndarray:
     """One view's plane homography (3, 3): :func:`homographies` for a single view."""
-    return homographies([object_xy], [image_points])[0]
+    H: np.ndarray = homographies([object_xy], [image_points])[0]
+    return H
 
 
 def _pixel_normaliser(image_size: tuple[int, int]) -> np.ndarray:
@@ -175,7 +176,7 @@ def intrinsics_from_homographies(
     T = _pixel_normaliser(image_size)
     Hs = np.asarray(homographies, dtype=np.float64)
     known = principal_point is not None
-    if known:
+    if principal_point is not None:
         Tc = np.array([[1.0, 0.0, -principal_point[0]], [0.0, 1.0, -principal_point[1]], [0.0, 0.0, 1.0]])
         s = 0.5 * max(image_size)
         T = np.diag([1.0 / s, 1.0 / s, 1.0]) @ Tc
@@ -245,10 +246,17 @@ def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.n
 def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
     """Angle (deg) between each board's normal and the optical axis, (V,) from rvecs (V, 3)."""
     R = rodrigues(np.asarray(rvecs, dtype=np.float64).reshape(-1, 3))
-    return np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
+    tilts: np.ndarray = np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
+    return tilts
 
 
-def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.ndarray:
+def _radial_from_poses(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+) -> np.ndarray:
     """Linear least-squares (k1, k2) given intrinsics and poses (Zhang 2000, sec. 3.3): observed pixel offsets from
     the ideal projections are ``(u - cx) (k1 r^2 + k2 r^4)``."""
     rows, rhs = [], []
@@ -260,11 +268,17 @@ def _radial_from_poses(object_points, image_points, camera, rvecs, tvecs) -> np.
         d = ideal - np.array([camera.cx, camera.cy])
         rows.append(np.stack([d * r2[:, None], d * (r2 * r2)[:, None]], axis=-1).reshape(-1, 2))
         rhs.append((np.asarray(p, dtype=np.float64) - ideal).reshape(-1))
-    k, *_ = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)
+    k: np.ndarray = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
     return k
 
 
-def _rms(object_points, image_points, camera, rvecs, tvecs) -> float:
+def _rms(
+    object_points: Sequence[np.ndarray],
+    image_points: Sequence[np.ndarray],
+    camera: Camera,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+) -> float:
     """RMS reprojection error per coordinate (px); inf when a point does not project."""
     r = np.concatenate(
         [project(o, rv, tv, camera) - p for o, p, rv, tv in zip(object_points, image_points, rvecs, tvecs)]
@@ -303,10 +317,10 @@ def zhang(
     all_img = np.concatenate(img)
     splits = np.cumsum([len(p) for p in img])[:-1]
     x_prev = None
-    best = None
+    best: tuple[ZhangResult, float] | None = None
     k = np.zeros(2)
     for _ in range(distortion_rounds + 1):
-        if np.any(k):
+        if best is not None and np.any(k):  # k is non-zero only once a round has been kept
             cam0 = best[0].camera
             cam_k = Camera(int(w), int(h), cam0.fx, cam0.fy, cam0.cx, cam0.cy, np.array([k[0], k[1], 0, 0, 0]))
             und = undistort(pixel_to_normalized(all_img, cam_k), cam_k.dist, x0=x_prev, tol=1e-12)
@@ -343,10 +357,19 @@ def zhang(
         if np.all(np.abs(k_new - k) <= 1e-4 * (np.abs(k_new) + 1e-3)):
             break
         k = k_new
+    if best is None:
+        raise ValueError(f"distortion_rounds must be >= 0, got {distortion_rounds}")
     return best[0]
 
 
-def _closed_form(obj, img, image_size, principal_point, aspect_ratio, min_tilt_deg) -> ZhangResult:
+def _closed_form(
+    obj: Sequence[np.ndarray],
+    img: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    principal_point: tuple[float, float] | None,
+    aspect_ratio: float | None,
+    min_tilt_deg: float,
+) -> ZhangResult:
     w, h = image_size
     Hs = homographies([o[:, :2] for o in obj], img)
     centre = (0.5 * (w - 1), 0.5 * (h - 1))
