@@ -58,15 +58,41 @@ DIVERGED_RMS_PX = 100.0
 class ReferenceResult:
     """What one reference calibrator produced on one problem.
 
-    ``status``: "ok" | "unavailable" (reference not installed) | "unsupported" (input it cannot handle, e.g. an
-    asymmetric grid for mrcal) | "failed" (crash, divergence, bad input); ``message`` says why.
-    ``camera``: the calibrated :class:`circcal.model.Camera` (None unless ok). ``std``: standard deviations keyed by
-    ``circcal.model.param_names(camera.lens)`` (a fixed parameter has 0.0), or None when the reference offers none.
-    ``rvecs``, ``tvecs``: (V, 3) board-to-camera poses (rad; mm). ``residuals``: list of (N_v, 2) px,
-    observed - projected (NaN for points a reference dropped as outliers). ``errors``:
-    :func:`circcal.metrics.error_stats` of all residuals. ``object_points``/``image_points``: the observations actually used (per view; (N_v, 3) mm and
-    (N_v, 2) px). ``views``: indices (into the caller's views/images) of the views used. ``extra``: reference-specific
-    facts (fixed parameters, flags, mrcal statistics, seeds) that a report should show.
+    Attributes
+    ----------
+    name, version : str
+        The reference and its version.
+    mode : str
+        "fair" or "default" (see :data:`MODES`).
+    status : str
+        "ok" | "unavailable" (reference not installed) | "unsupported" (input it cannot handle, e.g. an asymmetric grid
+        for mrcal) | "failed" (crash, divergence, bad input).
+    message : str
+        Why, when the status is not "ok".
+    camera : circcal.model.Camera or None
+        The calibrated camera (None unless ok).
+    std : dict of str to float, or None
+        Standard deviations keyed by ``circcal.model.param_names(camera.lens)`` (a fixed parameter has 0.0), or None
+        when the reference offers none.
+    rvecs, tvecs : ndarray, shape (V, 3), or None
+        Board-to-camera poses (rad; mm).
+    residuals : list of ndarray, shape (N_v, 2), or None
+        Per view, observed - projected in px (NaN for points a reference dropped as outliers).
+    errors : dict or None
+        :func:`circcal.metrics.error_stats` of all residuals.
+    time_s : float
+        Wall time of the solve (s).
+    object_points, image_points : list of ndarray or None
+        The observations actually used, per view: (N_v, 3) mm and (N_v, 2) px.
+    views : list of int or None
+        Indices (into the caller's views/images) of the views used.
+    extra : dict
+        Reference-specific facts (fixed parameters, flags, mrcal statistics, seeds) that a report should show.
+
+    Raises
+    ------
+    ValueError
+        ``status`` is not one of :data:`STATUSES` (a bug in the adapter).
     """
 
     name: str
@@ -95,7 +121,15 @@ class ReferenceResult:
         return self.status == "ok"
 
     def summary(self) -> str:
-        """One line for logs and CLI tables."""
+        """One line for logs and CLI tables.
+
+        Returns
+        -------
+        str
+            Name, version, mode and status; for an ok result the intrinsics, distortion, RMS per point (px) and time
+            (s),
+            otherwise the message.
+        """
         head = f"{self.name} {self.version} [{self.mode}]: {self.status}"
         if not self.ok:
             return f"{head}: {self.message}"
@@ -108,7 +142,13 @@ class ReferenceResult:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (arrays as lists; residuals per view)."""
+        """The result as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            Every field but the observations; arrays as lists, residuals per view, ``extra`` made JSON-safe.
+        """
 
         def arr(a: Any) -> Any:
             return None if a is None else np.asarray(a, dtype=float).tolist()
@@ -137,21 +177,43 @@ REQUIRED_MEMBERS: tuple[str, ...] = ("name", "available", "calibrate_observation
 
 
 def missing_members(obj: Any) -> list[str]:
-    """The members of :data:`REQUIRED_MEMBERS` that ``obj`` lacks (empty: it can be used as a reference)."""
+    """The members of :data:`REQUIRED_MEMBERS` that an object lacks.
+
+    Parameters
+    ----------
+    obj : object
+        A candidate reference calibrator (e.g. a plug-in's entry point, loaded).
+
+    Returns
+    -------
+    list of str
+        The missing member names; empty when ``obj`` can be used as a reference.
+    """
     return [m for m in REQUIRED_MEMBERS if not hasattr(obj, m)]
 
 
 @runtime_checkable
 class ReferenceCalibrator(Protocol):
-    """What the registry hands out. Third-party plug-ins implement this (subclassing :class:`BaseCalibrator` is the
-    easy way) and register under the entry-point group ``circcal.validators``."""
+    """What the registry hands out.
+
+    Third-party plug-ins implement this (subclassing :class:`BaseCalibrator` is the easy way) and register under the
+    entry-point group ``circcal.validators``. The methods never raise: failures come back as a :class:`ReferenceResult`
+    status.
+    """
 
     name: str
 
     @property
     def version(self) -> str: ...
 
-    def available(self) -> tuple[bool, str]: ...
+    def available(self) -> tuple[bool, str]:
+        """Whether the reference can run here.
+
+        Returns
+        -------
+        tuple of (bool, str)
+            ``(True, "")``, or ``(False, reason)`` when the reference is not installed or cannot run.
+        """
 
     def calibrate_observations(
         self,
@@ -161,7 +223,27 @@ class ReferenceCalibrator(Protocol):
         *,
         mode: Mode = "fair",
         initial: Camera | None = None,
-    ) -> ReferenceResult: ...
+    ) -> ReferenceResult:
+        """Calibrate from given centres (see :meth:`BaseCalibrator.calibrate_observations`).
+
+        Parameters
+        ----------
+        object_points : sequence of ndarray, shape (N_v, 3)
+            Board points per view, mm, z = 0.
+        image_points : sequence of ndarray, shape (N_v, 2)
+            Detected centres per view, px.
+        image_size : tuple of int
+            (width, height) px.
+        mode : {"fair", "default"}
+            Estimator to run.
+        initial : circcal.model.Camera, optional
+            A starting camera, for references that take one.
+
+        Returns
+        -------
+        ReferenceResult
+            Never raises; failures are a status.
+        """
 
     def calibrate_images(
         self,
@@ -171,13 +253,48 @@ class ReferenceCalibrator(Protocol):
         *,
         mode: Mode = "fair",
         initial: Camera | None = None,
-    ) -> ReferenceResult: ...
+    ) -> ReferenceResult:
+        """Detect with the reference's own detector, then calibrate.
+
+        Parameters
+        ----------
+        paths : sequence of path-like
+            Image files.
+        board : circcal.board.Board
+            The calibration target.
+        image_size : tuple of int, optional
+            (width, height) px; from the images when None.
+        mode : {"fair", "default"}
+            Estimator to run.
+        initial : circcal.model.Camera, optional
+            A starting camera, for references that take one.
+
+        Returns
+        -------
+        ReferenceResult
+            Never raises; failures are a status.
+        """
 
 
 def lens_support(cal: Any, lens: str) -> tuple[bool, str]:
-    """Whether reference ``cal`` (any :class:`ReferenceCalibrator`, plug-ins included) fits lens model ``lens``, and
-    the reason when it does not (the reference's own words from ``unsupported_lenses``, else a generic one). A
-    reference without a ``lenses`` attribute fits :data:`DEFAULT_LENSES` only."""
+    """Whether a reference fits a lens model, and why not when it does not.
+
+    A reference without a ``lenses`` attribute fits :data:`DEFAULT_LENSES` only.
+
+    Parameters
+    ----------
+    cal : ReferenceCalibrator
+        Any reference, plug-ins included.
+    lens : str
+        A :data:`circcal.model.LENS_MODELS` name.
+
+    Returns
+    -------
+    ok : bool
+        True when ``lens`` is one of the reference's ``lenses``.
+    why : str
+        "" when ok; else the reference's own words from ``unsupported_lenses``, or a generic reason.
+    """
     lenses = tuple(getattr(cal, "lenses", DEFAULT_LENSES))
     if lens in lenses:
         return True, ""
@@ -193,7 +310,24 @@ def residuals_of(
     object_points: Sequence[np.ndarray],
     image_points: Sequence[np.ndarray],
 ) -> list[np.ndarray]:
-    """Per-view residuals ``observed - projected`` (N_v, 2) px, projected with :func:`circcal.model.project`."""
+    """Per-view residuals ``observed - projected``, projected with :func:`circcal.model.project`.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The calibrated camera.
+    rvecs, tvecs : ndarray, shape (V, 3)
+        Board-to-camera poses (rad; mm).
+    object_points : sequence of ndarray, shape (N_v, 3)
+        Board points per view, mm.
+    image_points : sequence of ndarray, shape (N_v, 2)
+        Observed centres per view, px.
+
+    Returns
+    -------
+    list of ndarray, shape (N_v, 2)
+        Residuals per view, px.
+    """
     return [
         np.asarray(p, dtype=np.float64) - project(o, r, t, camera)
         for o, p, r, t in zip(object_points, image_points, np.asarray(rvecs), np.asarray(tvecs))
@@ -201,8 +335,24 @@ def residuals_of(
 
 
 class BaseCalibrator:
-    """Convenience base: subclasses set ``name``, implement ``_version``, ``_available`` and ``_calibrate`` (and
-    ``_calibrate_images`` where the reference has its own detector). The public methods never raise."""
+    """Convenience base for reference adapters.
+
+    Subclasses set ``name``, implement ``_version``, ``_available`` and ``_calibrate`` (and ``_calibrate_images`` where
+    the reference has its own detector). The public methods never raise.
+
+    Attributes
+    ----------
+    name : str
+        The reference's registry name.
+    modes : tuple of str
+        Modes this reference distinguishes; others give the same estimator for both.
+    lenses : tuple of str
+        Lens models this reference fits (:data:`circcal.model.LENS_MODELS` names).
+    lens : str
+        The one it fits now (subclasses take ``lens=`` in their constructor).
+    unsupported_lenses : dict of str to str
+        Lens -> why not, for the others.
+    """
 
     name: str = "base"
     #: modes this reference distinguishes; others give the same estimator for both.
@@ -249,6 +399,13 @@ class BaseCalibrator:
             return f"unknown ({exc})"
 
     def available(self) -> tuple[bool, str]:
+        """Whether the reference can run here (never raises).
+
+        Returns
+        -------
+        tuple of (bool, str)
+            ``(True, "")``, or ``(False, reason)``; an exception in ``_available`` becomes its type and message.
+        """
         try:
             ok, why = self._available()
             return bool(ok), str(why)
@@ -264,9 +421,32 @@ class BaseCalibrator:
         mode: Mode = "fair",
         initial: Camera | None = None,
     ) -> ReferenceResult:
-        """Calibrate from given centres. ``object_points``: per view (N_v, 3) mm (z = 0); ``image_points``: per view
-        (N_v, 2) px; ``image_size``: (width, height). ``mode``: "fair" (plain least squares, the estimator of
-        cv2.calibrateCamera) or "default" (what the reference's users get out of the box)."""
+        """Calibrate from given centres.
+
+        The observations are checked with :func:`circcal.observations.check_observations` and the lens with
+        :func:`lens_support`; the whole call runs under :func:`run_safely`, so it never raises.
+
+        Parameters
+        ----------
+        object_points : sequence of ndarray, shape (N_v, 3)
+            Board points per view, mm, z = 0.
+        image_points : sequence of ndarray, shape (N_v, 2)
+            Detected centres per view, px.
+        image_size : tuple of int
+            (width, height) px.
+        mode : {"fair", "default"}
+            "fair": plain least squares, the estimator of cv2.calibrateCamera; "default": what the reference's users get
+            out of the box.
+        initial : circcal.model.Camera, optional
+            A starting camera, for references that take one.
+
+        Returns
+        -------
+        ReferenceResult
+            Status "ok", or "unavailable" / "unsupported" / "failed" with the reason (bad observations, an unfitted
+            lens,
+            a crash or a divergence).
+        """
 
         def go() -> ReferenceResult:
             self._check_lens()
@@ -284,7 +464,26 @@ class BaseCalibrator:
         mode: Mode = "fair",
         initial: Camera | None = None,
     ) -> ReferenceResult:
-        """Detect with the reference's own detector, then calibrate. ``board``: :class:`circcal.board.Board`."""
+        """Detect with the reference's own detector, then calibrate (never raises).
+
+        Parameters
+        ----------
+        paths : sequence of path-like
+            Image files.
+        board : circcal.board.Board
+            The calibration target.
+        image_size : tuple of int, optional
+            (width, height) px; from the images when None.
+        mode : {"fair", "default"}
+            Estimator to run.
+        initial : circcal.model.Camera, optional
+            A starting camera, for references that take one.
+
+        Returns
+        -------
+        ReferenceResult
+            "unsupported" when the reference has no detector of its own.
+        """
 
         def go() -> ReferenceResult:
             self._check_lens()
@@ -301,6 +500,23 @@ class BaseCalibrator:
             raise NotImplementedError(why)
 
     def result(self, mode: str, status: str, message: str = "", **kw: Any) -> ReferenceResult:
+        """A :class:`ReferenceResult` stamped with this reference's name and version.
+
+        Parameters
+        ----------
+        mode : str
+            The mode solved.
+        status : str
+            One of :data:`STATUSES`.
+        message : str
+            Why, when not ok.
+        **kw
+            Further :class:`ReferenceResult` fields.
+
+        Returns
+        -------
+        ReferenceResult
+        """
         return ReferenceResult(name=self.name, version=self.version, mode=mode, status=status, message=message, **kw)
 
     def finish(
@@ -319,7 +535,38 @@ class BaseCalibrator:
         message: str = "",
         **extra: Any,
     ) -> ReferenceResult:
-        """Assemble an "ok" result (residuals computed with circcal.model unless given) and check for divergence."""
+        """Assemble an "ok" result and check it for divergence.
+
+        Parameters
+        ----------
+        mode : str
+            The mode solved.
+        camera : circcal.model.Camera
+            The calibrated camera.
+        rvecs, tvecs : array_like, shape (V, 3)
+            Board-to-camera poses (rad; mm); reshaped to (V, 3).
+        object_points : list of ndarray, shape (N_v, 3)
+            Board points used, per view, mm.
+        image_points : list of ndarray, shape (N_v, 2)
+            Centres used, per view, px.
+        t0 : float
+            ``time.perf_counter()`` at the start of the solve (s).
+        std : dict of str to float, optional
+            Standard deviations by parameter name.
+        residuals : list of ndarray, shape (N_v, 2), optional
+            Residuals in px; computed with :mod:`circcal.model` (:func:`residuals_of`) when None.
+        views : list of int, optional
+            Indices of the views used; all, in order, when None.
+        message : str
+            A note for the result.
+        **extra
+            Stored in ``extra``.
+
+        Returns
+        -------
+        ReferenceResult
+            Status "ok", or "failed" when :func:`check_divergence` finds it diverged.
+        """
         rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
         tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
         if residuals is None:
@@ -345,8 +592,23 @@ class BaseCalibrator:
 
 
 def check_divergence(res: ReferenceResult, max_rms_px: float = DIVERGED_RMS_PX) -> ReferenceResult:
-    """Turn an "ok" result with non-finite parameters or an absurd RMS into status "failed" (kept camera for
-    inspection)."""
+    """Turn a diverged "ok" result into status "failed".
+
+    Diverged: non-finite intrinsics or poses, an RMS per point above ``max_rms_px``, or a rational pole inside the
+    field (:func:`rational_pole`). The camera is kept for inspection. The result is changed in place.
+
+    Parameters
+    ----------
+    res : ReferenceResult
+        Any result; one that is not ok comes back unchanged.
+    max_rms_px : float
+        Largest acceptable RMS per point (px).
+
+    Returns
+    -------
+    ReferenceResult
+        ``res`` itself.
+    """
     if not res.ok:
         return res
     c = res.camera
@@ -370,11 +632,27 @@ def check_divergence(res: ReferenceResult, max_rms_px: float = DIVERGED_RMS_PX) 
 def rational_pole(
     camera: Camera, object_points: Sequence[np.ndarray] | None, rvecs: np.ndarray | None, tvecs: np.ndarray | None
 ) -> str:
-    """Why a rational or thin-prism solution is not a lens ("" when it is): its radial denominator
-    1 + k4 r^2 + k5 r^4 + k6 r^6 reaches 0 between the axis and the farthest observed point (r: the undistorted
-    normalised radius), a pole inside the field where OpenCV's model is undefined. Such a solution can fit the
-    observations better than the lens does, numerator and denominator vanishing together (measured on
-    ``rational-wide`` with 0.01 px noise: 5.7e-4 lower in cost), so the suite reports it rather than comparing it."""
+    """Why a rational or thin-prism solution is not a lens ("" when it is).
+
+    Its radial denominator 1 + k4 r^2 + k5 r^4 + k6 r^6 reaches 0 between the axis and the farthest observed point
+    (r: the undistorted normalised radius), a pole inside the field where OpenCV's model is undefined. Such a solution
+    can fit the observations better than the lens does, numerator and denominator vanishing together, so the suite
+    reports it rather than comparing it (the measurement is in docs/validation.md, "Rational poles").
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The solution; other lens models give "".
+    object_points : sequence of ndarray, shape (N_v, 3), or None
+        Board points per view, mm.
+    rvecs, tvecs : ndarray, shape (V, 3), or None
+        Board-to-camera poses (rad; mm).
+
+    Returns
+    -------
+    str
+        "" for a lens (or when an input is None), else one line naming r at the pole and k4, k5, k6.
+    """
     if camera.lens not in ("rational", "thin-prism") or object_points is None or rvecs is None or tvecs is None:
         return ""
     d = dict(zip(camera.model.dist_names, np.asarray(camera.dist, dtype=np.float64)))
@@ -404,11 +682,29 @@ def run_safely(
     mode: str = "fair",
     available: Callable[[], tuple[bool, str]] | None = None,
 ) -> ReferenceResult:
-    """Run ``fn`` and always return a :class:`ReferenceResult`.
+    """Run an adapter call and always return a :class:`ReferenceResult`.
 
-    ``available`` (optional) is checked first: a missing reference gives status "unavailable" with its reason.
-    Any exception becomes status "failed" with ``"<ExceptionType>: message"`` (traceback in ``extra``); a
-    ``NotImplementedError`` becomes "unsupported".
+    ``available`` (optional) is checked first: a missing reference gives status "unavailable" with its reason. Any
+    exception becomes status "failed" with ``"<ExceptionType>: message"`` (traceback in ``extra``); a
+    ``NotImplementedError`` becomes "unsupported". An "ok" result still goes through :func:`check_divergence`.
+
+    Parameters
+    ----------
+    fn : callable
+        Takes nothing, returns a :class:`ReferenceResult`.
+    name : str
+        The reference's name, for the results built here.
+    version : str or callable
+        Its version, or a function giving it (an exception there gives "unknown (...)").
+    mode : str
+        The mode; one not in :data:`MODES` gives status "failed".
+    available : callable, optional
+        Returns ``(ok, why)``.
+
+    Returns
+    -------
+    ReferenceResult
+        Never raises.
     """
     t0 = time.perf_counter()
 
@@ -456,11 +752,29 @@ def seed_camera(
     image_size: tuple[int, int],
     lens: str = "opencv5",
 ) -> Camera:
-    """A rough pinhole seed (no distortion) from ``cv2.initCameraMatrix2D`` (Zhang with the principal point at the
-    image centre), for references that need a starting focal length (mrcal's ``focal_estimate``, pycolmap's camera).
-    Only a starting point: each reference then solves its own least-squares problem. ``lens``: the model of the
-    returned camera, its distortion all zero; for "fisheye" (where a pinhole seed means nothing) the
-    equidistant focal length of :func:`fisheye_seed_focal`."""
+    """A rough pinhole seed (no distortion), for references that need a starting focal length.
+
+    From ``cv2.initCameraMatrix2D`` (Zhang with the principal point at the image centre); used for mrcal's
+    ``focal_estimate`` and pycolmap's camera. Only a starting point: each reference then solves its own least-squares
+    problem. A non-finite or non-positive focal length falls back to max(w, h).
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray, shape (N_v, 3)
+        Board points per view, mm.
+    image_points : sequence of ndarray, shape (N_v, 2)
+        Centres per view, px.
+    image_size : tuple of int
+        (width, height) px.
+    lens : str
+        The model of the returned camera, its distortion all zero; for "fisheye" (where a pinhole seed means nothing)
+        the equidistant focal length of :func:`fisheye_seed_focal`.
+
+    Returns
+    -------
+    circcal.model.Camera
+        Principal point at the image centre ((w - 1) / 2, (h - 1) / 2) px, zero distortion.
+    """
     import cv2
 
     if lens == "fisheye":
@@ -493,11 +807,28 @@ FISHEYE_FOCAL_SWEEP: tuple[float, ...] = (0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.
 def fisheye_seed_focal(
     object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], image_size: tuple[int, int]
 ) -> float:
-    """A starting equidistant focal length (px) for a fisheye calibration: of :data:`FISHEYE_FOCAL_SWEEP` x
-    max(w, h) / pi, the one whose poses reproject the observations best, with the principal point at the image
-    centre and k1-k4 = 0. Per candidate f the observations are lifted to the z = 1 plane (theta = r / f, clamped
-    below 90 deg, x = tan(theta) (u - c) / r) and each view's pose comes from ``cv2.solvePnP`` on them (IPPE for the
-    planar board); the cost is the pixel residual through :func:`circcal.model.project` with that camera."""
+    """A starting equidistant focal length for a fisheye calibration.
+
+    Of :data:`FISHEYE_FOCAL_SWEEP` x max(w, h) / pi, the one whose poses reproject the observations best, with the
+    principal point at the image centre and k1-k4 = 0. Per candidate f the observations are lifted to the z = 1 plane
+    (theta = r / f, clamped below 90 deg, x = tan(theta) (u - c) / r) and each view's pose comes from ``cv2.solvePnP``
+    on them (IPPE for the planar board); the cost is the pixel residual through :func:`circcal.model.project` with
+    that camera.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray, shape (N_v, 3)
+        Board points per view, mm, z = 0.
+    image_points : sequence of ndarray, shape (N_v, 2)
+        Centres per view, px.
+    image_size : tuple of int
+        (width, height) px.
+
+    Returns
+    -------
+    float
+        Focal length, px (max(w, h) / pi when no candidate gives a finite cost).
+    """
     import cv2
 
     w, h = int(image_size[0]), int(image_size[1])

@@ -38,8 +38,21 @@ TRUTH_PARAMS = ("fx", "fy", "cx", "cy")
 
 @dataclass
 class Check:
-    """One verdict: ``value`` against ``bound`` (NaN for a yes/no check), ``passed``, and a ``note`` that says
-    what was measured beside it."""
+    """One verdict: a measured value against its bound.
+
+    Attributes
+    ----------
+    name : str
+        What was checked, with its unit.
+    value : float
+        The measurement (NaN for a yes/no check).
+    bound : float
+        The bound it is held to (NaN for a yes/no check).
+    passed : bool
+        The verdict.
+    note : str
+        What was measured beside it.
+    """
 
     name: str
     value: float
@@ -55,14 +68,24 @@ STOPS_SHORT: frozenset[str] = frozenset({"lensboy"})
 
 
 def solver_bound(reference: str) -> float:
-    """The identical-observations bound for a reference (mrcal's and lensboy's solvers stop earlier than the
-    others)."""
+    """The identical-observations bound for a reference.
+
+    Parameters
+    ----------
+    reference : str
+        A reference name.
+
+    Returns
+    -------
+    float
+        Max projection difference, px: :data:`SOLVER_MRCAL_PX` for mrcal and :data:`SOLVER_LENSBOY_PX` for lensboy
+        (their solvers stop earlier than the others), :data:`SOLVER_PX` otherwise.
+    """
     return {"mrcal": SOLVER_MRCAL_PX, "lensboy": SOLVER_LENSBOY_PX}.get(reference, SOLVER_PX)
 
 
 def solver_agreement(label: str, ref: Any, max_px: float, circcal_ssr: float, bound: float) -> Check:
-    """The identical-observations check: ``ref``'s solve (a :class:`~circcal.validators.base.ReferenceResult`)
-    against circcal's solver on the same points.
+    """The identical-observations check: a reference's solve against circcal's solver on the same points.
 
     Passes when the max projection difference ``max_px`` is within ``bound``. Beyond it the costs decide: on a flat
     problem (k3 at a long focal length) two solvers can stop 1e-6..1e-5 px apart with costs equal to ~1e-13
@@ -70,6 +93,23 @@ def solver_agreement(label: str, ref: Any, max_px: float, circcal_ssr: float, bo
     real cost difference fails, and the note says which side missed the minimum. For a reference in
     :data:`STOPS_SHORT` a difference beyond :data:`SOLVER_PX` passes within ``bound`` only with its cost not below
     circcal's (the note gives the excess).
+
+    Parameters
+    ----------
+    label : str
+        The reference as the check's name shows it.
+    ref : circcal.validators.base.ReferenceResult
+        The reference's "ok" solve (its ``residuals`` give its cost).
+    max_px : float
+        Max projection difference between its camera and circcal's over the imager, px.
+    circcal_ssr : float
+        circcal's sum of squared residuals on the same points, px^2.
+    bound : float
+        The bound, px (:func:`solver_bound`).
+
+    Returns
+    -------
+    Check
     """
     name = f"{label} vs circcal on identical observations: max projection difference, px"
     within = bool(np.isfinite(max_px) and max_px <= bound)
@@ -122,11 +162,37 @@ def truth_checks(
     rms_px: float | None = None,
     std_note: str = "",
 ) -> tuple[list[Check], dict[str, float]]:
-    """``camera`` against the true camera: each of :data:`TRUTH_PARAMS` within ``sigmas`` of its stated standard
-    deviation (``std``; a missing or zero sigma fails), and, when ``rms_px`` is given, the RMS projection difference
-    over the imager (implied rotation fitted, :func:`~circcal.analysis.compare.projection_diff`) within it.
-    Returns ``(checks, measured)``: the checks, and every number measured (``fx_sigmas`` ..., ``truth_rms_px``,
-    ``truth_max_px``) for the tables."""
+    """A camera against the true camera.
+
+    Each of :data:`TRUTH_PARAMS` must lie within ``sigmas`` of its stated standard deviation (a missing or zero sigma
+    fails), and, when ``rms_px`` is given, the RMS projection difference over the imager (implied rotation fitted,
+    :func:`~circcal.analysis.compare.projection_diff`) within it.
+
+    Parameters
+    ----------
+    who : str
+        The solver, as the checks' names show it.
+    camera : circcal.model.Camera
+        The estimate.
+    std : dict of str to float, or None
+        Its standard deviations by parameter name (px for fx, fy, cx, cy).
+    truth : circcal.model.Camera
+        The true camera.
+    sigmas : float
+        Bound on |estimate - truth| / sigma.
+    rms_px : float, optional
+        Bound on the RMS projection difference, px; no such check when None.
+    std_note : str
+        Appended to each note after the sigma (e.g. where the sigmas came from).
+
+    Returns
+    -------
+    checks : list of Check
+        One per parameter, then the projection check when asked.
+    measured : dict of str to float
+        Every number measured, for the tables: ``fx_sigmas`` ... ``cy_sigmas`` (signed), ``truth_rms_px``,
+        ``truth_max_px``.
+    """
     checks, measured = [], {}
     pd = param_diff(truth, camera, None, std)
     for n in TRUTH_PARAMS:

@@ -1,40 +1,13 @@
-"""The conformance matrix: every fixture scenario x variant x calibrator, each case checked against ground truth and
-against circcal's solver on identical observations. Plain functions and data; :mod:`circcal.validators.pytest_plugin`
-and ``tests/conformance`` parametrise pytest over them, and anything else (a script, another test runner) can call
-them.
+"""The conformance matrix: every fixture scenario x variant x lens x calibrator, each case checked against ground truth
+and against circcal's solver on identical observations.
 
-A *case* is ``(scenario, variant, lens, reference, mode)`` with a readable id (``paper-normal-circcal``,
-``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``; a lens other than the scenario's own is named:
-``rational-wide-clean-thin-prism-mrcal_fair``). The lens model is a dimension of the matrix: each scenario is
-calibrated with its true camera's lens, plus the models in :data:`LENSES`; a reference that does not fit a lens
-model answers "unsupported" with its reason, which the case asserts (never an error, never a silent pass). The expensive part, circcal's
-:func:`circcal.pipeline.calibrate_images` on one scenario-variant, is done once by :func:`observe`; every reference case of that scenario-variant then fits
-the same observations (circcal's final centres rounded to float32, OpenCV's input type, exactly as
-:func:`circcal.validators.validate.run_validation` hands them out) and is compared with circcal's solver run on exactly
-those points.
-
-What a case asserts (bounds below, each with its reason):
-
-* ``circcal``: every image accounted for (used, or rejected with a reason); fx, fy, cx, cy within
-  :func:`suite_truth_sigmas` of their *stated* standard deviations of the true camera (the primary truth check); RMS
-  projection difference to the true camera over the whole imager, implied rotation fitted, below the scenario's
-  ``truth_px`` (secondary); mean 2-D reprojection error (the paper's convention) below the scenario's ``mean_2d_px``
-  (the paper reports 0.1016-0.1199 px; circcal's own bar on ``paper`` is 0.05 px); final centres within
-  :data:`CENTRE_MAX_PX` of the true centre projections (a labelling guard).
-* a reference in ``fair`` mode (and a user's calibrator): it runs; the same two truth checks (its own stated
-  sigmas, or circcal's on the same observations when it states none: same estimator, same points, same
-  covariance); max projection difference to circcal's solver on identical observations <= :data:`SOLVER_PX`
-  (mrcal: :data:`SOLVER_MRCAL_PX`, lensboy: ``SOLVER_LENSBOY_PX``: their solvers stop earlier).
-* a reference in ``default`` mode (mrcal's board warp, regularisation and outlier rejection: a different estimator):
-  it runs; its differences to circcal and to the truth are measured and printed, not asserted.
-* a (scenario, reference) pair in :data:`EXPECTED_UNSUPPORTED` (mrcal on the staggered asymmetric grid): the
-  reference must answer status "unsupported" with a reason naming the cause; anything else fails.
-* a reference on a lens model it does not fit (its ``lenses``; :func:`circcal.validators.base.lens_support`): a
-  built-in must answer status "unsupported" with a reason; a plug-in that declares no such model is not called and
-  its case reports the reason.
-
-Reprojection errors name their convention (:mod:`circcal.metrics`); projection differences come from
-:func:`circcal.analysis.compare.projection_diff` (60-wide pixel grid, corners included).
+Plain functions and data; :mod:`circcal.validators.pytest_plugin` and ``tests/conformance`` parametrise pytest over
+them, and anything else (a script, another test runner) can call them. A *case* is ``(scenario, variant, lens,
+reference, mode)`` with a readable id (``paper-normal-circcal``, ``wide-jpeg-opencv``, ``paper-uneven-mrcal_fair``,
+``rational-wide-clean-thin-prism-mrcal_fair``). circcal calibrates each scenario-variant once (:func:`observe`);
+every reference case fits those same observations. What each case asserts, and why, is in docs/validation.md
+("What a conformance case asserts"); the bounds, each with its reason, are :data:`BOUNDS` and
+:mod:`circcal.validators.bounds`.
 """
 
 from __future__ import annotations
@@ -109,9 +82,19 @@ PAPER_MEAN_2D_PX = 0.12
 
 @dataclass(frozen=True)
 class ScenarioBounds:
-    """Per-scenario bounds for circcal (``truth_px`` also for fair references): ``truth_px``: RMS projection
-    difference to the true camera over the whole imager, implied rotation fitted, px; ``mean_2d_px``: mean 2-D
-    reprojection error (the paper's convention), px. ``reason``: why these numbers."""
+    """Per-scenario bounds for circcal (``truth_px`` also for fair references).
+
+    Attributes
+    ----------
+    truth_px : float
+        RMS projection difference to the true camera over the whole imager, implied rotation fitted, px.
+    mean_2d_px : float
+        Mean 2-D reprojection error (the paper's convention), px.
+    reason : str
+        Why these numbers.
+    variant_truth_px : dict of str to float
+        Variant -> its own ``truth_px``, where it differs.
+    """
 
     truth_px: float
     mean_2d_px: float
@@ -119,6 +102,18 @@ class ScenarioBounds:
     variant_truth_px: dict[str, float] = field(default_factory=dict)
 
     def truth_px_for(self, variant: str) -> float:
+        """The ``truth_px`` bound of one variant.
+
+        Parameters
+        ----------
+        variant : str
+            A variant name of the scenario.
+
+        Returns
+        -------
+        float
+            px: the variant's own bound, else the scenario's.
+        """
         return self.variant_truth_px.get(variant, self.truth_px)
 
 
@@ -192,7 +187,18 @@ LENSES: dict[str, tuple[str, ...]] = {"rational-wide": ("thin-prism",)}
 
 
 def scenario_lens(scenario: str) -> str:
-    """The lens model of scenario ``scenario``'s true camera (what its cases fit unless they name another)."""
+    """The lens model of a scenario's true camera (what its cases fit unless they name another).
+
+    Parameters
+    ----------
+    scenario : str
+        A :data:`circcal.fixtures.scenarios.SCENARIOS` name.
+
+    Returns
+    -------
+    str
+        Its lens model name; "opencv5" for an unknown scenario.
+    """
     from circcal.fixtures.scenarios import SCENARIOS
 
     return SCENARIOS[scenario].camera.lens if scenario in SCENARIOS else "opencv5"
@@ -224,9 +230,15 @@ SUITE_FAMILY_ALPHA = 0.01
 
 
 def observation_sets() -> int:
-    """The number of distinct observation sets the suite checks against the truth: scenario x variant x lens model
-    (:data:`LENSES`), less the scenarios circcal does not calibrate (every reference case of a set fits the same
-    observations, so its truth checks are not independent of circcal's)."""
+    """The number of distinct observation sets the suite checks against the truth.
+
+    Scenario x variant x lens model (:data:`LENSES`), less the scenarios circcal does not calibrate (every reference
+    case of a set fits the same observations, so its truth checks are not independent of circcal's).
+
+    Returns
+    -------
+    int
+    """
     from circcal.fixtures.scenarios import SCENARIOS
 
     return sum(
@@ -237,13 +249,24 @@ def observation_sets() -> int:
 
 
 def suite_truth_sigmas(alpha: float = SUITE_FAMILY_ALPHA) -> float:
-    """The suite's bound on |estimate - truth| of fx, fy, cx, cy in stated sigmas: Bonferroni over its
-    ``observation_sets() x 4`` parameter checks, two-sided, at family-wise rate ``alpha`` (47 sets: 4.04). The
-    per-run bound :data:`TRUTH_SIGMAS` (3) suits one calibration (~1% false alarms over its 4 parameters); over 47
-    sets it would fail a correct estimator ~40% of the time: markers-noise's fixture draw puts cy at 3.09 stated
-    sigmas for every calibrator, while 24 re-noised draws of the same cell (studies/markers-noise.yaml) give cy no
-    bias (0.06 sigma [-0.44, 0.56]), its spread 1.18x [0.92, 1.66] the stated sigma, and 24 of 24 runs within 3.
-    Bias is what the Monte-Carlo studies measure, with intervals; this bound catches gross errors."""
+    """The suite's bound on |estimate - truth| of fx, fy, cx, cy in stated sigmas.
+
+    Bonferroni over its ``observation_sets() x 4`` parameter checks, two-sided, at family-wise rate ``alpha`` (47 sets:
+    4.04). The per-run bound :data:`TRUTH_SIGMAS` (3) suits one calibration (~1% false alarms over its 4 parameters);
+    over 47 sets it would fail a correct estimator ~40% of the time (the case that showed it is in docs/validation.md,
+    "Why the suite's truth bound is 4.04"). Bias is what the Monte-Carlo studies measure, with intervals; this bound
+    catches gross errors.
+
+    Parameters
+    ----------
+    alpha : float
+        Family-wise false-alarm rate, in (0, 1).
+
+    Returns
+    -------
+    float
+        The bound, in stated standard deviations.
+    """
     from statistics import NormalDist
 
     return NormalDist().inv_cdf(1.0 - alpha / (2 * 4 * observation_sets()))
@@ -260,6 +283,18 @@ FAST: dict[tuple[str, str], tuple[str, ...] | None] = {
 
 
 def bounds_for(scenario: str) -> ScenarioBounds:
+    """The bounds of a scenario.
+
+    Parameters
+    ----------
+    scenario : str
+        A scenario name.
+
+    Returns
+    -------
+    ScenarioBounds
+        Its entry in :data:`BOUNDS`, else the wide-angle default.
+    """
     return BOUNDS.get(scenario, _DEFAULT_BOUNDS)
 
 
@@ -270,9 +305,31 @@ def bounds_for(scenario: str) -> ScenarioBounds:
 
 @dataclass(frozen=True)
 class Case:
-    """One conformance case. ``reference``: ``"circcal"``, a registry name or a user calibrator's label;
-    ``mode``: "fair" or "default"; ``modes``: how many modes that reference has (the id names the mode only when it
-    has several); ``user``: a calibrator given with ``--calibrator``; ``slow``: outside the fast slice."""
+    """One conformance case.
+
+    Attributes
+    ----------
+    scenario, variant : str
+        The rendered scenario-variant.
+    reference : str
+        ``"circcal"``, a registry name or a user calibrator's label.
+    mode : str
+        "fair" or "default".
+    n_modes : int
+        How many modes that reference has (the id names the mode only when it has several).
+    user : bool
+        A calibrator given with ``--calibrator``.
+    slow : bool
+        Outside the fast slice.
+    lens_model : str
+        The lens model fitted; "" = the scenario's own (:func:`scenario_lens`).
+    lens : str
+        The lens model fitted, resolved.
+    label : str
+        The reference, with its mode when it has several.
+    id : str
+        The readable case id, e.g. ``paper-uneven-mrcal_fair``.
+    """
 
     scenario: str
     variant: str
@@ -303,7 +360,18 @@ class Case:
 
 
 def reference_modes(cal: Any) -> tuple[str, ...]:
-    """The modes a calibrator distinguishes (its ``modes`` attribute, default ``("fair",)``)."""
+    """The modes a calibrator distinguishes.
+
+    Parameters
+    ----------
+    cal : ReferenceCalibrator
+        Any calibrator.
+
+    Returns
+    -------
+    tuple of str
+        Its ``modes`` attribute restricted to "fair" and "default"; ``("fair",)`` when it names none.
+    """
     modes = tuple(m for m in getattr(cal, "modes", ("fair",)) if m in ("fair", "default"))
     return modes or ("fair",)
 
@@ -318,12 +386,29 @@ def cases(
 ) -> list[Case]:
     """The case matrix, scenario-variant-lens major (circcal's case first, then each reference and mode).
 
-    ``references``: (name, modes) of the built-in/plug-in references (default: every registered one, modes from
-    its class). ``user``: (label, modes) of calibrators under test; when given they replace circcal's case and the
-    registered references (the suite then tests only them). ``scenarios``: default every one in
-    :data:`circcal.fixtures.scenarios.SCENARIOS`. ``fast``: the slice left unmarked by ``slow`` (default :data:`FAST`;
-    only the scenario's own lens is fast). ``lenses``: scenario -> lens models beyond its own (default
-    :data:`LENSES`).
+    Parameters
+    ----------
+    references : sequence of (str, tuple of str), optional
+        (name, modes) of the built-in/plug-in references; default every registered one, modes from its class.
+    user : sequence of (str, tuple of str)
+        (label, modes) of calibrators under test; when given they replace circcal's case and the registered references
+        (the suite then tests only them).
+    scenarios : iterable of str, optional
+        Default every one in :data:`circcal.fixtures.scenarios.SCENARIOS`.
+    fast : dict, optional
+        The slice left unmarked by ``slow``: (scenario, variant) -> references (None = all); default :data:`FAST`.
+        Only the scenario's own lens is fast.
+    lenses : dict of str to tuple of str, optional
+        Scenario -> lens models beyond its own; default :data:`LENSES`.
+
+    Returns
+    -------
+    list of Case
+
+    Raises
+    ------
+    KeyError
+        A scenario name that is not in ``SCENARIOS``.
     """
     from circcal.fixtures.scenarios import SCENARIOS
 
@@ -355,8 +440,14 @@ def cases(
 
 
 def registered_references() -> list[tuple[str, tuple[str, ...]]]:
-    """(name, modes) of every registered reference; one that cannot load gets ("fair",) (its case then fails with
-    the load error)."""
+    """The registered references and their modes.
+
+    Returns
+    -------
+    list of (str, tuple of str)
+        (name, modes) of every registered reference; one that cannot load gets ("fair",) (its case then fails with the
+        load error).
+    """
     from circcal.validators import registry
 
     out = []
@@ -376,10 +467,29 @@ def registered_references() -> list[tuple[str, tuple[str, ...]]]:
 
 @dataclass
 class Outcome:
-    """What one case found. ``status``: "checked" (every check asserted), "unsupported" (an expected refusal,
-    asserted as such), "measured" (numbers printed, only that it ran asserted), "skip" (``skip_reason`` says why:
-    no observations, or a user calibrator that does not support the scenario). ``checks`` are what a test asserts;
-    ``measured`` holds numbers printed, not asserted."""
+    """What one case found.
+
+    Attributes
+    ----------
+    case : Case
+        The case.
+    status : str
+        "checked" (every check asserted), "unsupported" (an expected refusal, asserted as such), "measured" (numbers
+        printed, only that it ran asserted), "rejected" (circcal rejected every view where that is allowed), "skip"
+        (``skip_reason`` says why: no observations, or a user calibrator that does not support the scenario).
+    checks : list of Check
+        What a test asserts.
+    measured : dict of str to float
+        Numbers printed, not asserted.
+    notes : list of str
+        Lines printed with the case.
+    result : ReferenceResult or None
+        The reference's result, for a reference case.
+    skip_reason : str
+        Why the case was skipped.
+    passed : bool
+        Every check passed.
+    """
 
     case: Case
     status: str
@@ -395,6 +505,16 @@ class Outcome:
 
 
 def failed_checks(outcome: Outcome) -> list[Check]:
+    """The checks of a case that failed.
+
+    Parameters
+    ----------
+    outcome : Outcome
+
+    Returns
+    -------
+    list of Check
+    """
     return [c for c in outcome.checks if not c.passed]
 
 
@@ -420,9 +540,29 @@ def _accounting(obs: Observations) -> Check:
 def predicted_truth_rms(
     camera: Camera, std: dict[str, float], correlation: np.ndarray | None, *, n: int = 200, seed: int = 0
 ) -> dict[str, float]:
-    """What the stated covariance predicts for the RMS projection difference to the truth (rotation fitted, as in
-    the truth check): ``n`` cameras drawn from N(camera, covariance) against ``camera``; returns
-    ``{"p50", "p95", "p99"}`` px. Printed beside the measured value, not asserted."""
+    """What the stated covariance predicts for the RMS projection difference to the truth.
+
+    ``n`` cameras drawn from N(camera, covariance) are compared with ``camera`` (rotation fitted, as in the truth
+    check); draws that are not a valid camera are dropped. Printed beside the measured value, not asserted.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The estimate.
+    std : dict of str to float
+        Standard deviations by :func:`circcal.model.param_names` name (a missing one counts as 0).
+    correlation : ndarray, shape (P, P), or None
+        Parameter correlation matrix; None: uncorrelated.
+    n : int
+        Number of draws.
+    seed : int
+        Random seed.
+
+    Returns
+    -------
+    dict of str to float
+        ``{"p50", "p95", "p99"}`` in px (NaN when no draw is valid).
+    """
     names = param_names(camera.lens)
     sd = np.array([float(std.get(k, 0.0) or 0.0) for k in names])
     corr = np.eye(len(names)) if correlation is None else np.nan_to_num(np.asarray(correlation, dtype=np.float64))
@@ -444,7 +584,24 @@ def predicted_truth_rms(
 
 
 def run_circcal_case(case: Case, obs: Observations) -> Outcome:
-    """circcal's own case on its observations (see the module docstring for what is checked)."""
+    """circcal's own case on its observations.
+
+    Checks: every image accounted for; a refusal naming the cause for a scenario in :data:`CIRCCAL_UNSUPPORTED`;
+    every partial view used (:data:`USES_PARTIAL_VIEWS`); fx, fy, cx, cy within :func:`suite_truth_sigmas`; the RMS
+    projection difference to the truth within the scenario's ``truth_px``; the mean 2-D error within ``mean_2d_px``;
+    every final centre within :data:`CENTRE_MAX_PX` of its true projection.
+
+    Parameters
+    ----------
+    case : Case
+        A case whose reference is ``"circcal"``.
+    obs : Observations
+        :func:`observe`'s result for its scenario-variant.
+
+    Returns
+    -------
+    Outcome
+    """
     b = bounds_for(case.scenario)
     out = Outcome(case, "checked")
     out.measured["circcal_time_s"] = obs.time_s
@@ -540,12 +697,28 @@ def run_circcal_case(case: Case, obs: Observations) -> Outcome:
 def run_reference_case(
     case: Case, obs: Observations, calibrator: ReferenceCalibrator, *, solver_px: float | None = None
 ) -> Outcome:
-    """A reference (or user) calibrator on circcal's observations of ``case``'s scenario-variant.
+    """A reference (or user) calibrator on circcal's observations of a case's scenario-variant.
 
-    ``solver_px``: the agreement bound with circcal's solver (default :func:`~circcal.validators.checks.solver_bound`:
-    :data:`SOLVER_PX`, lensboy ``SOLVER_LENSBOY_PX``, mrcal
-    :data:`SOLVER_MRCAL_PX`); ``float('inf')`` measures without asserting. Availability is the caller's business
-    (a test skips or fails); an "unavailable" result here becomes a skip outcome.
+    Availability is the caller's business (a test skips or fails); an "unavailable" result here becomes a skip
+    outcome. A "default" mode case is measured, not asserted; a reference that left observations out is compared with
+    circcal's solve on the same subset.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    obs : Observations
+        :func:`observe`'s result for its scenario-variant.
+    calibrator : ReferenceCalibrator
+        The reference, set up for ``case.lens``.
+    solver_px : float, optional
+        The agreement bound with circcal's solver, px; default :func:`~circcal.validators.checks.solver_bound`
+        (:data:`SOLVER_PX`, lensboy ``SOLVER_LENSBOY_PX``, mrcal :data:`SOLVER_MRCAL_PX`); ``float('inf')`` measures
+        without asserting.
+
+    Returns
+    -------
+    Outcome
     """
     out = Outcome(case, "checked")
     expect = EXPECTED_UNSUPPORTED.get((case.scenario, case.reference))
@@ -664,7 +837,16 @@ def _lens_unsupported(case: Case, obs: Observations, calibrator: ReferenceCalibr
 
 
 def format_outcome(outcome: Outcome) -> str:
-    """Multi-line text of a case: every check with value and bound, measured numbers, notes."""
+    """Multi-line text of a case: every check with value and bound, measured numbers, notes.
+
+    Parameters
+    ----------
+    outcome : Outcome
+
+    Returns
+    -------
+    str
+    """
     lines = [f"{outcome.case.id}: {outcome.status}"]
     if outcome.result is not None:
         lines.append(f"  {outcome.result.summary()}")
@@ -683,7 +865,16 @@ def format_outcome(outcome: Outcome) -> str:
 
 
 def summary_line(outcome: Outcome) -> str:
-    """One line for the end-of-run table: the case, its status and its key numbers."""
+    """One line for the end-of-run table: the case, its status and its key numbers.
+
+    Parameters
+    ----------
+    outcome : Outcome
+
+    Returns
+    -------
+    str
+    """
     m = outcome.measured
     keys = [
         ("images_used", "images used"),

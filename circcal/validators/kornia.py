@@ -1,31 +1,9 @@
 """kornia/torch as a reference: Zhang initialisation + Levenberg-Marquardt on kornia's own projection.
 
 kornia has no calibration routine, so this adapter is a small, independent calibrator built only from kornia/torch
-pieces (float64 throughout):
-
-* model: ``X_cam = R(r) X + t`` with ``kornia.geometry.conversions.axis_angle_to_rotation_matrix``, then for the
-  pinhole lens models ``kornia.geometry.calibration.distort_points(x/z, K, dist, new_K=I)`` with OpenCV's
-  coefficient vector as it is: 5 (``opencv5``), 8 (``rational``) or 12 (``thin-prism``) entries, the lengths that
-  function accepts (it pads them to 14 and applies k4-k6 as the rational denominator, s1-s4 as thin prism); for
-  ``fisheye`` ``kornia.geometry.camera.distort_points_kannala_brandt(x/z, [fx, fy, cx, cy, k1, k2, k3, k4])``
-  (theta = atan(|x/z|), theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8): cv2.fisheye's model without skew). That
-  function takes points on the z = 1 plane, so it cannot see a point at or beyond 90 deg off axis: a solution with
-  such a point is reported "unsupported";
-* initialisation: board-to-image homographies from ``kornia.geometry.homography.find_homography_dlt``, Zhang's
-  image-of-the-absolute-conic solve with zero skew (falls back to the principal point at the image centre, as
-  OpenCV's ``initIntrinsicParams2D`` does, when the closed form is not positive definite), poses from H; for
-  ``fisheye`` (where a homography of the pixels means nothing) as cv2.fisheye does: the principal point at the image
-  centre, an equidistant focal length (the best of a sweep around max(w, h) / pi), the observations lifted to the
-  z = 1 plane with it, and poses from their homographies;
-* refinement: poses alone, then (rational, thin prism) OpenCV's 5 coefficients, then everything (from the
-  distortion-free start a wide lens's 8 or 12 coefficients at once ran into a far minimum on ``rational-wide``),
-  by Levenberg-Marquardt (Marquardt's diagonal scaling) with Jacobians from ``torch.func.jacfwd``,
-  vectorised over problems with ``torch.func.vmap``: :meth:`KorniaCalibrator.calibrate_batch` solves many problems
-  at once (CPU, or CUDA when available), for Monte-Carlo studies;
-* standard deviations: sqrt(diag(sigma^2 (J^T J)^-1)), sigma^2 = SSR / (2N - n_free_params), as OpenCV does.
-
-It deliberately does not import circcal's solver: it is the reference's own path. "fair" and "default" are the same
-estimator (plain least squares).
+pieces (float64 throughout); it deliberately does not import circcal's solver. "fair" and "default" are the same
+estimator (plain least squares). The model, initialisation, refinement and standard deviations are described in
+docs/references.md ("How the adapters work: kornia").
 """
 
 from __future__ import annotations
@@ -60,7 +38,22 @@ SINGLE_THREAD_BELOW_POINTS = 20_000
 
 
 def n_intrinsics(lens: str) -> int:
-    """fx, fy, cx, cy and the distortion coefficients of ``lens``."""
+    """The number of intrinsics of a lens model: fx, fy, cx, cy and its distortion coefficients.
+
+    Parameters
+    ----------
+    lens : str
+        A :data:`circcal.model.LENS_MODELS` name.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    KeyError
+        An unknown lens model.
+    """
     return 4 + len(LENS_MODELS[lens].dist_names)
 
 
@@ -345,9 +338,21 @@ def _lm(theta, obj, img, w, free, *, max_iter: int = 200, tol: float = 1e-20, le
 class KorniaCalibrator(BaseCalibrator):
     """Reference built from kornia's projection and a torch Levenberg-Marquardt.
 
-    ``lens``: the lens model fitted (:data:`KORNIA_LENSES`: every circcal model). ``fix_k3``: hold k3 at its
-    initial value (0). ``device``: "cpu", "cuda" or None (CUDA when available, for :meth:`calibrate_batch`; single
-    problems run on CPU). ``max_iter``: LM iterations.
+    Parameters
+    ----------
+    lens : str
+        The lens model fitted (:data:`KORNIA_LENSES`: every circcal model).
+    fix_k3 : bool
+        Hold k3 at its initial value (0).
+    device : {"cpu", "cuda"} or None
+        Where :meth:`calibrate_batch` runs; None: CUDA when available. Single problems run on CPU.
+    max_iter : int
+        LM iterations.
+
+    Raises
+    ------
+    ValueError
+        An unknown lens model.
     """
 
     name = "kornia"
@@ -399,9 +404,25 @@ class KorniaCalibrator(BaseCalibrator):
         return out
 
     def calibrate_batch(self, problems: Sequence[Problem], *, mode: str = "fair") -> list[ReferenceResult]:
-        """Solve many problems at once (vectorised LM). ``problems``: dicts with "object_points", "image_points"
-        (per view lists), "image_size" (w, h) and optional "initial" (Camera). Problems may differ in views and
-        points (padded with zero weights). Returns one :class:`ReferenceResult` per problem (never raises)."""
+        """Solve many problems at once (vectorised LM); never raises.
+
+        Problems may differ in views and points (padded with zero weights). A problem whose observations fail
+        :func:`circcal.observations.check_observations` gets status "failed" with the reason; the others are still
+        solved.
+
+        Parameters
+        ----------
+        problems : sequence of dict
+            Each with "object_points" (per view (N_v, 3) mm), "image_points" (per view (N_v, 2) px), "image_size"
+            (w, h) px and optional "initial" (:class:`circcal.model.Camera`).
+        mode : str
+            "fair" (the only estimator here).
+
+        Returns
+        -------
+        list of ReferenceResult
+            One per problem, in order.
+        """
         ok, why = self.available()
         if not ok:
             return [self.result(mode, "unavailable", why) for _ in problems]

@@ -1,37 +1,10 @@
 """lensboy as a reference: its Ceres calibration of OpenCV's model from any target's points.
 
-lensboy (MIT, PyPI; 4.0.3 checked) fits ``lensboy.OpenCV`` (fx, fy, cx, cy and OpenCV's 14-coefficient vector in
-OpenCV's order, ``lensboy/camera_models/opencv.py``) with a mask of the coefficients it frees
-(``OpenCVConfig.included_distortion_coefficients``, shape (14,)); it projects with ``cv2.projectPoints``, so its
-pixels are OpenCV's (integer coordinates are pixel centres). It seeds itself (a centred stereographic model, PnP per
-frame over a focal-length sweep). Lens models: ``opencv5`` (k1, k2, p1, p2, k3: ``OpenCVConfig.STANDARD``),
-``rational`` (+ k4, k5, k6), ``thin-prism`` (+ s1-s4); ``fisheye`` is unsupported (lensboy has OpenCV's pinhole
-model and splined pinhole models, no equidistant one).
-
-Modes
------
-* ``"fair"``: ``estimate_target_warp=False, outlier_threshold_stddevs=None``: plain least squares over the rigid board,
-  the estimator of cv2.calibrateCamera and of circcal. It stops short of the minimum, and no option lensboy exposes
-  changes that: its Ceres solve (``lensboy_bindings.calibrate_opencv``; source ``cpp_src/calibrate_opencv.cpp`` of
-  Robertleoj/lensboy: plain squared residuals, no loss function, the board warp applied only when estimated; the 4.0.3
-  binary holds only the warped cost function, ``ReprojectionError<2, 18, 6, 3, 5>``, the source read is a later
-  revision) keeps Ceres's default tolerances, and Ceres ends a solve without taking a step that would lower the cost by
-  at most :data:`CERES_FUNCTION_TOLERANCE` (1e-6) of it. On the flat directions of a distortion fit that leaves it
-  1.6e-4 .. 5.6e-3 px from circcal's solution while its own cost exceeds circcal's by 2.8e-9 .. 7.8e-7 (relative, on
-  lensboy's own objective; true centres of 12 circle-board scenario-lenses; on the 43 compared fair conformance cases
-  9.5e-6 .. 8.7e-3 px, 3e-10 .. 1.0e-6): circcal's solution is the lower point of lensboy's objective, and lensboy
-  started there stays there (tests/test_lens_references.py). Restarted from its answer it takes no step; from its answer
-  with f moved by 1e-5 .. 1e-3 it stops 1.3e-3 .. 2.9e-3 px away again (rational-wide). Hence ``SOLVER_LENSBOY_PX``, and
-  a lensboy difference beyond 1e-6 px passes only with its cost above circcal's (``checks.STOPS_SHORT``).
-* ``"default"``: lensboy's defaults: a Legendre-polynomial board warp (a, b, c, d, e along the board normal) and
-  outlier filtering (5 robust sigma of the residual norm, two passes). Its residuals are lensboy's own (warped
-  board; outliers NaN), as mrcal's default mode reports them; a view lensboy drops entirely is left out of ``views``.
-
-Install: ``pip install --no-deps lensboy``. Its declared dependency ``opencv-contrib-python`` would install a second
-OpenCV distribution over the ``opencv-contrib-python-headless`` that provides ``cv2`` here; lensboy's calibration
-runs on that cv2 (5.0) as it is, except one path: a frame whose first PnP fails is re-posed through
-``cv2.undistortPointsIter``, which OpenCV 5 removed (that run is reported failed, with this reason).
-lensboy states no parameter standard deviations: ``std`` is None.
+lensboy (MIT, PyPI; 4.0.3 checked) fits ``lensboy.OpenCV`` with a mask of the coefficients it frees. Lens models:
+``opencv5``, ``rational``, ``thin-prism``; ``fisheye`` is unsupported. Modes: "fair" (plain least squares over the
+rigid board; it stops short of the minimum, hence ``SOLVER_LENSBOY_PX``) and "default" (lensboy's board warp and
+outlier filtering). Install: ``pip install --no-deps lensboy``. The details and measurements are in
+docs/references.md ("How the adapters work: lensboy").
 """
 
 from __future__ import annotations
@@ -66,8 +39,18 @@ INSTALL_HINT = (
 
 
 def to_lensboy(camera: Camera) -> lensboy.OpenCV:
-    """``camera`` (opencv5, rational or thin-prism) as a ``lensboy.OpenCV``: the same intrinsics, its coefficients
-    placed in lensboy's 14-vector (OpenCV's order; the absent ones 0)."""
+    """A circcal camera as a ``lensboy.OpenCV``.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        An opencv5, rational or thin-prism camera.
+
+    Returns
+    -------
+    lensboy.OpenCV
+        The same intrinsics, the coefficients placed in lensboy's 14-vector (OpenCV's order; the absent ones 0).
+    """
     import lensboy as lb
 
     d = dict(zip(param_names(camera.lens)[4:], camera.dist))
@@ -89,8 +72,15 @@ def _coefficient_mask(lens: str) -> np.ndarray:
 
 
 class LensboyCalibrator(BaseCalibrator):
-    """Reference: lensboy's ``calibrate_camera`` with ``OpenCVConfig``. ``lens``: "opencv5", "rational" or
-    "thin-prism"."""
+    """Reference: lensboy's ``calibrate_camera`` with ``OpenCVConfig``.
+
+    lensboy states no parameter standard deviations: ``std`` is None.
+
+    Parameters
+    ----------
+    lens : {"opencv5", "rational", "thin-prism"}
+        The lens model fitted ("fisheye" answers "unsupported" with the reason).
+    """
 
     name = "lensboy"
     modes = ("fair", "default")

@@ -1,27 +1,10 @@
 """mrcal as a reference, run out of process.
 
 mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.formats.mrcal_worker` runs under another
-interpreter (the plumbing, shared with the ``.cameramodel`` export, is :mod:`circcal.formats.mrcal_process`; its
-names are re-exported here). The worker uses mrcal's Python API (``seed_stereographic``, then staged
-``mrcal.optimize``); it supports the 2.2 and 2.5 APIs.
-
-Lens models: ``LENSMODEL_OPENCV5`` / ``OPENCV8`` / ``OPENCV12`` for circcal's ``opencv5`` / ``rational`` /
-``thin-prism``: intrinsics [fx, fy, cx, cy] + OpenCV's distortion vector in OpenCV's order (k1, k2, p1, p2, k3,
-k4, k5, k6, s1, s2, s3, s4; mrcal's ``lensmodel_num_params`` 9 / 12 / 16; ``mrcal.project`` equals
-``cv2.projectPoints`` for them). ``fisheye`` is unsupported: mrcal 2.2's ``supported_lensmodels()`` has no
-equidistant (Kannala-Brandt) model.
-
-Modes
------
-* ``"fair"``: no board warp, no regularisation, no outlier rejection: the estimator of cv2.calibrateCamera.
-* ``"default"``: what mrcal users get: board warp, regularisation, outlier rejection. Its residuals are mrcal's own
-  (warped board; outliers NaN) and its RMS differs from OpenCV's by design.
-
-mrcal's board model is a full W x H lattice per image (points (j s, i s, 0), row-major): the observations are mapped
-onto the lattice their board coordinates span (missing points get weight -1). A staggered (asymmetric) grid does not
-map onto it and is reported "unsupported". mrcal reports RMS per coordinate; ``errors`` here follow
-:func:`circcal.metrics.error_stats` (all three conventions). mrcal offers projection uncertainty rather than
-parameter standard deviations: ``std`` is None.
+interpreter (the plumbing is :mod:`circcal.formats.mrcal_process`; its names are re-exported here). Lens models
+``opencv5`` / ``rational`` / ``thin-prism`` (``LENSMODEL_OPENCV5`` / ``8`` / ``12``); ``fisheye`` and staggered
+(asymmetric) grids are unsupported. Modes: "fair" (no board warp, regularisation or outlier rejection) and
+"default" (all three). The details are in docs/references.md ("How the adapters work: mrcal").
 """
 
 from __future__ import annotations
@@ -70,9 +53,19 @@ def _seed_frames(
 
 
 class MrcalCalibrator(BaseCalibrator):
-    """Reference: mrcal (out of process). ``lens``: the circcal lens model fitted (:data:`LENSMODELS`).
-    ``python``: interpreter to use (default: ``$CIRCCAL_MRCAL_PYTHON`` or ``/usr/bin/python3``). ``timeout_s``:
-    limit for one worker run."""
+    """Reference: mrcal (out of process).
+
+    mrcal offers projection uncertainty rather than parameter standard deviations: ``std`` is None.
+
+    Parameters
+    ----------
+    lens : str
+        The circcal lens model fitted (:data:`LENSMODELS`).
+    python : str, optional
+        Interpreter to use; default ``$CIRCCAL_MRCAL_PYTHON`` or ``/usr/bin/python3``.
+    timeout_s : float
+        Limit for one worker run, s.
+    """
 
     name = "mrcal"
     modes = ("fair", "default")
@@ -118,7 +111,28 @@ class MrcalCalibrator(BaseCalibrator):
         modes: tuple[str, ...] = ("fair", "default"),
         initial: Camera | None = None,
     ) -> list[ReferenceResult]:
-        """Several modes from one worker run (same seed). Never raises; one result per mode."""
+        """Several modes from one worker run (same seed); never raises.
+
+        Parameters
+        ----------
+        object_points : list of ndarray, shape (N_v, 3)
+            Board points per view, mm, z = 0.
+        image_points : list of ndarray, shape (N_v, 2)
+            Centres per view, px.
+        image_size : tuple of int
+            (width, height) px.
+        modes : tuple of str
+            The modes to solve, each of "fair" and "default".
+        initial : circcal.model.Camera, optional
+            Not used by mrcal's seed; passed through.
+
+        Returns
+        -------
+        list of ReferenceResult
+            One per mode, in order; a failure (bad observations, an unsupported lens or grid, a worker error) is the
+            same
+            for every mode.
+        """
         holder: dict[str, list[ReferenceResult]] = {}
 
         def go() -> ReferenceResult:

@@ -1,27 +1,9 @@
 """OpenCV as a reference: ``cv2.findCirclesGrid`` (blob centroids), ``cv2.calibrateCameraExtended`` and
 ``cv2.fisheye.calibrate``.
 
-* Solver, by lens model (``lens=``): ``opencv5`` 5 distortion coefficients (k1, k2, p1, p2, k3; OpenCV's default),
-  ``rational`` ``CALIB_RATIONAL_MODEL`` (8), ``thin-prism`` ``CALIB_RATIONAL_MODEL | CALIB_THIN_PRISM_MODEL`` (12),
-  all through calibrateCameraExtended (standard deviations from it); ``fisheye`` ``cv2.fisheye.calibrate`` with
-  ``CALIB_RECOMPUTE_EXTRINSIC | CALIB_FIX_SKEW`` (k1-k4, skew held 0; it gives no standard deviations), started
-  with ``CALIB_USE_INTRINSIC_GUESS`` from the generic equidistant seed that pycolmap's fisheye also starts from
-  (:func:`circcal.validators.base.seed_camera`: f from a sweep over max(w, h) / pi scored by PnP reprojection,
-  principal point at the image centre, k1-k4 = 0; computed from the observations alone, nothing of circcal's
-  solve). Why: OpenCV 5's own start (``modules/calib/src/fisheye.cpp``: f = max(w, h) / 2, where OpenCV 4 had
-  max(w, h) / pi) is 1.5x the focal length of a ~170 deg lens; from it the first Gauss-Newton step (no line search:
-  the step is only scaled by 1 - 0.6^(iter+1)) lands at a false point (RMS 38 px on the ``fisheye`` scenario's
-  views) that every later iteration leaves unchanged. Optionally k3 fixed (``fix_k3=True``, ``CALIB_FIX_K3``),
-  tight criteria. calibrateCamera takes float32 points: the observations are rounded to float32 and the result
-  records the rounded values it actually used (feed float32-representable centres when comparing solvers to
-  1e-6 px); cv2.fisheye takes float64 ``(1, N, 3)``
-  arrays (``(N, 1, 3)`` raises a size error in OpenCV 5.0), given the same float32-rounded values.
-  ``CALIB_DISABLE_SCHUR_COMPLEMENT`` is never used: in OpenCV 5 it equals ``CALIB_TILTED_MODEL``.
-* "fair" and "default" are the same estimator here (OpenCV has no regularisation, warp or outlier rejection).
-* Detector: a SimpleBlobDetector whose area limits follow the expected dot size (OpenCV's default ``maxArea`` of
-  5000 px^2 misses large dots), symmetric/asymmetric flags, and a ``CALIB_CB_CLUSTERING`` retry.
-  Symmetric square grids may come back rotated by 90 degrees between views: see
-  :func:`circcal.analysis.compare.match_grid_order` before comparing centres one by one.
+Every circcal lens model is fitted (:data:`LENS_FLAGS`); "fair" and "default" are the same estimator here (OpenCV
+has no regularisation, warp or outlier rejection). The solver flags, the fisheye seed and why, the float32
+rounding and the blob detector are described in docs/references.md ("How the adapters work: OpenCV").
 """
 
 from __future__ import annotations
@@ -62,13 +44,30 @@ def make_blob_detector(
     threshold_step: float = 10.0,
     permissive: bool = False,
 ):
-    """A ``cv2.SimpleBlobDetector`` whose area window fits the dots of ``board`` in an image of ``image_size``.
+    """A ``cv2.SimpleBlobDetector`` whose area window fits the dots of a board in an image.
 
-    Otherwise OpenCV's defaults (or, with ``permissive``, wider thresholds and looser shape filters).
+    Otherwise OpenCV's defaults (or, with ``permissive``, wider thresholds and looser shape filters). The dot's
+    apparent diameter is bounded by assuming the dot grid spans between ``min_fill`` and ``max_fill`` of the image's
+    longer side (perspective can enlarge the near dots: the upper bound gets another factor 1.5).
 
-    The dot's apparent diameter is bounded by assuming the dot grid spans between ``min_fill`` and ``max_fill`` of
-    the image's longer side (perspective can enlarge the near dots: the upper bound gets another factor 1.5).
-    ``board``: :class:`circcal.board.Board` (pitch and diameter in mm). ``min_area``/``max_area`` (px^2) override.
+    Parameters
+    ----------
+    board : circcal.board.Board
+        Pitch and diameter in mm.
+    image_size : tuple of int
+        (width, height) px.
+    min_fill, max_fill : float
+        Bounds on the grid's extent as a fraction of the image's longer side.
+    min_area, max_area : float, optional
+        Override the area window, px^2.
+    threshold_step : float
+        The detector's threshold step (grey levels).
+    permissive : bool
+        Wider thresholds and looser shape filters.
+
+    Returns
+    -------
+    cv2.SimpleBlobDetector
     """
     cv2 = _cv2()
     x0, y0, x1, y1 = board.feature_extent_mm()
@@ -97,8 +96,34 @@ def make_blob_detector(
 def find_circles_grid(
     image: np.ndarray, board: Any, *, detector: Any = None, clustering_fallback: bool = True
 ) -> tuple[np.ndarray | None, str]:
-    """Detect ``board``'s grid in a grey ``image`` (H, W) uint8. Returns ((rows*cols, 2) float64 px in OpenCV's order
-    or None, how it was found: "plain" | "clustering" | reason it failed)."""
+    """Detect a board's grid in a grey image with ``cv2.findCirclesGrid``.
+
+    OpenCV's default blob detector first (its baseline), then the area window fitted to the dot size, then the
+    permissive one; each plain, then with ``CALIB_CB_CLUSTERING``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3)
+        uint8; a colour (BGR) image is converted to grey.
+    board : circcal.board.Board
+        A symmetric or asymmetric circle grid.
+    detector : cv2.SimpleBlobDetector, optional
+        Use only this detector.
+    clustering_fallback : bool
+        Retry with ``CALIB_CB_CLUSTERING``.
+
+    Returns
+    -------
+    centres : ndarray, shape (rows*cols, 2), or None
+        float64 px in OpenCV's order; None when not found.
+    how : str
+        "plain" | "clustering" (prefixed by the detector's label), or the reason it failed.
+
+    Raises
+    ------
+    ValueError
+        The board is not a circle grid.
+    """
     cv2 = _cv2()
     if board.layout not in ("symmetric", "asymmetric"):
         raise ValueError(f"findCirclesGrid needs a circle grid, got layout {board.layout!r}")
@@ -182,9 +207,20 @@ def _fisheye_limit(object_points, image_points, size: tuple[int, int], exc: Exce
 class OpenCVCalibrator(BaseCalibrator):
     """Reference: OpenCV's calibrateCameraExtended / cv2.fisheye.calibrate and findCirclesGrid.
 
-    ``lens``: the lens model fitted (every circcal model; :data:`LENS_FLAGS`). ``fix_k3``: hold k3 at its initial
-    value (0 unless ``initial`` says otherwise) (``CALIB_FIX_K3``; the fisheye's k3 is its theta^6 coefficient).
-    ``criteria``: cv2 termination criteria (default: 500 iterations, eps 1e-16).
+    Parameters
+    ----------
+    lens : str
+        The lens model fitted (every circcal model; :data:`LENS_FLAGS`).
+    fix_k3 : bool
+        Hold k3 at its initial value (0 unless ``initial`` says otherwise) (``CALIB_FIX_K3``; the fisheye's k3 is its
+        theta^6 coefficient).
+    criteria : tuple, optional
+        cv2 termination criteria (default: 500 iterations, eps 1e-16).
+
+    Raises
+    ------
+    ValueError
+        An unknown lens model.
     """
 
     name = "opencv"
@@ -296,8 +332,24 @@ class OpenCVCalibrator(BaseCalibrator):
         )
 
     def detect(self, paths: Sequence[Any], board: Any, *, detector: Any = None) -> dict[str, Any]:
-        """Run findCirclesGrid on every image. Returns ``{"image_points": [...], "views": [indices found],
-        "how": {index: "plain"|"clustering"}, "missed": {path: reason}, "image_size": (w, h)}``."""
+        """Run :func:`find_circles_grid` on every image.
+
+        Parameters
+        ----------
+        paths : sequence of path-like
+            Image files.
+        board : circcal.board.Board
+            The calibration target.
+        detector : cv2.SimpleBlobDetector, optional
+            Use only this detector.
+
+        Returns
+        -------
+        dict
+            ``{"image_points": [(N, 2) px ...], "views": [indices found], "how": {index: "plain"|"clustering"},
+            "missed": {path: reason}, "image_size": (w, h) or None}``; an unreadable image or one whose size differs
+            from the first is missed with the reason.
+        """
         cv2 = _cv2()
         image_points, views, how, missed = [], [], {}, {}
         size = None

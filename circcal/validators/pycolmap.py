@@ -1,27 +1,10 @@
 """pycolmap as a reference: COLMAP's Ceres bundle adjustment with the board held constant.
 
-The calibration is posed as a bundle adjustment: the world frame is the board, every view is an image whose pose
-``cam_from_world`` is the board-to-camera transform, and the board points are constant 3-D points (they fix the
-gauge; no extra gauge fixing). Intrinsics are refined with ``refine_principal_point=True`` (COLMAP's default is
-False).
-
-Models (COLMAP's parameter order, as ``pycolmap.Camera.params_info`` of pycolmap 4.2.1 lists it and COLMAP's
-``src/colmap/sensor/models.h`` defines it)
-------
-* lens ``opencv5``: ``"FULL_OPENCV"`` (default): fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 with k4-k6 held at 0
-  by a ``pyceres.SubsetManifold`` = OpenCV's 5-coefficient model; or ``"OPENCV"``: fx, fy, cx, cy, k1, k2, p1, p2;
-  k3 is fixed at 0 (compare with OpenCV's ``CALIB_FIX_K3``).
-* lens ``rational``: ``"FULL_OPENCV"`` with every parameter free: OpenCV's rational model, the radial factor
-  (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6); COLMAP's order already is OpenCV's 8-vector's.
-* lens ``fisheye``: ``"OPENCV_FISHEYE"``: fx, fy, cx, cy, k1, k2, k3, k4; theta = atan(r) of the point on the z = 1
-  plane (COLMAP rejects a point with z < epsilon: nothing at or beyond 90 deg), theta_d = theta (1 + k1 theta^2 +
-  k2 theta^4 + k3 theta^6 + k4 theta^8): cv2.fisheye's model without its skew.
-* lens ``thin-prism``: unsupported. COLMAP has no pinhole model with OpenCV's s1-s4: ``THIN_PRISM_FISHEYE``
-  (k1, k2, p1, p2, k3, k4, sx1, sy1) and ``RAD_TAN_THIN_PRISM_FISHEYE`` are equidistant fisheye models.
-
-COLMAP puts the top-left pixel centre at (0.5, 0.5) (OpenCV: (0, 0)); observations are shifted by +0.5 on the way
-in and cx, cy by -0.5 on the way out. Standard deviations: ``pycolmap.estimate_ba_covariance`` (unit-noise
-covariance of the intrinsics block) times sigma^2 = SSR / (2N - n_free_params), the formula OpenCV uses.
+The world frame is the board, every view an image whose pose ``cam_from_world`` is the board-to-camera transform,
+and the board points are constant 3-D points. Lens models ``opencv5`` and ``rational`` (``FULL_OPENCV``), ``fisheye``
+(``OPENCV_FISHEYE``); ``thin-prism`` is unsupported. COLMAP puts the top-left pixel centre at (0.5, 0.5)
+(OpenCV: (0, 0)). The models, parameter orders and standard deviations are described in docs/references.md ("How
+the adapters work: pycolmap").
 """
 
 from __future__ import annotations
@@ -73,10 +56,28 @@ def _import(name: str):
 
 
 def to_colmap_params(camera: Camera, model: str) -> np.ndarray:
-    """COLMAP parameters (its order, :data:`MODEL_PARAMS`) of ``camera`` for ``model``: circcal's names map one to
-    one; the principal point shifted by +0.5 px (COLMAP's pixel convention); a COLMAP parameter the camera's lens
-    lacks (k4-k6 of FULL_OPENCV for opencv5) is 0. ``ValueError`` when the camera has a coefficient ``model`` lacks
-    and it is not 0 (k3 in OPENCV)."""
+    """COLMAP parameters of a camera for a COLMAP model.
+
+    circcal's names map one to one; the principal point is shifted by +0.5 px (COLMAP's pixel convention); a COLMAP
+    parameter the camera's lens lacks (k4-k6 of FULL_OPENCV for opencv5) is 0.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The camera.
+    model : str
+        One of :data:`MODELS`.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        In COLMAP's order (:data:`MODEL_PARAMS`); px for fx, fy, cx, cy.
+
+    Raises
+    ------
+    ValueError
+        The camera has a coefficient ``model`` lacks and it is not 0 (k3 in OPENCV).
+    """
     values = dict(zip(param_names(camera.lens), np.asarray(camera.intrinsics, dtype=np.float64)))
     values["cx"] += COLMAP_OFFSET
     values["cy"] += COLMAP_OFFSET
@@ -88,8 +89,28 @@ def to_colmap_params(camera: Camera, model: str) -> np.ndarray:
 
 
 def from_colmap_params(params: np.ndarray, model: str, lens: str, width: int, height: int) -> Camera:
-    """The circcal camera of ``lens`` from COLMAP ``model`` parameters (the inverse of :func:`to_colmap_params`).
-    ``ValueError`` when a COLMAP parameter the lens lacks is not 0."""
+    """The circcal camera of a lens from COLMAP model parameters (the inverse of :func:`to_colmap_params`).
+
+    Parameters
+    ----------
+    params : ndarray, shape (P,)
+        In COLMAP's order (:data:`MODEL_PARAMS`).
+    model : str
+        One of :data:`MODELS`.
+    lens : str
+        The circcal lens model.
+    width, height : int
+        Image size, px.
+
+    Returns
+    -------
+    circcal.model.Camera
+
+    Raises
+    ------
+    ValueError
+        A COLMAP parameter the lens lacks is not 0.
+    """
     values = dict(zip(MODEL_PARAMS[model], np.asarray(params, dtype=np.float64)))
     values["cx"] -= COLMAP_OFFSET
     values["cy"] -= COLMAP_OFFSET
@@ -101,9 +122,22 @@ def from_colmap_params(params: np.ndarray, model: str, lens: str, width: int, he
 
 
 class PycolmapCalibrator(BaseCalibrator):
-    """Reference: pycolmap's Ceres bundle adjustment. ``lens``: the circcal lens model fitted (see the module
-    docstring); ``model``: the COLMAP model, default the one of :data:`LENS_TO_MODEL`; for ``opencv5`` also
-    "OPENCV" (no k3: k3 = 0). ``max_iterations``: Ceres iterations (tolerances are set tight)."""
+    """Reference: pycolmap's Ceres bundle adjustment.
+
+    Parameters
+    ----------
+    lens : str
+        The circcal lens model fitted: "opencv5", "rational" or "fisheye" (docs/references.md).
+    model : str, optional
+        The COLMAP model; default the one of :data:`LENS_TO_MODEL`; for ``opencv5`` also "OPENCV" (no k3: k3 = 0).
+    max_iterations : int
+        Ceres iterations (tolerances are set tight).
+
+    Raises
+    ------
+    ValueError
+        An unknown COLMAP model, or one that does not fit ``lens``.
+    """
 
     name = "pycolmap"
     modes = ("fair",)

@@ -61,8 +61,18 @@ _PROPERTY = "circcal_conformance"
 
 
 class FunctionCalibrator(BaseCalibrator):
-    """A plain function ``fn(object_points, image_points, image_size)`` as a
-    :class:`~circcal.validators.base.ReferenceCalibrator` (see the module docstring for what ``fn`` may return)."""
+    """A plain function as a :class:`~circcal.validators.base.ReferenceCalibrator`.
+
+    See the module docstring for what ``fn`` may return; a wrong return type fails the case with a ``TypeError``
+    naming what was expected. Without returned poses they are solved with :func:`circcal.solver.fit_pose`.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(object_points, image_points, image_size)``.
+    name : str, optional
+        The calibrator's name; default the function's ``__name__``.
+    """
 
     modes = ("fair",)
 
@@ -121,7 +131,30 @@ def _solve_poses(
 
 
 def parse_spec(spec: str) -> tuple[str | None, str, str]:
-    """``[LABEL=]MODULE:ATTR`` or ``[LABEL=]PATH.py:ATTR`` -> (label or None, module or path, attr)."""
+    """Split a ``--calibrator`` spec.
+
+    Parameters
+    ----------
+    spec : str
+        ``[LABEL=]MODULE:ATTR`` or ``[LABEL=]PATH.py:ATTR``.
+
+    Returns
+    -------
+    label : str or None
+    where : str
+        The module or the path.
+    attr : str
+
+    Raises
+    ------
+    ValueError
+        The spec has no ``:ATTR`` or an empty part; the message quotes it and the expected forms.
+
+    Examples
+    --------
+    >>> parse_spec("mine=pkg.mod:calibrate")
+    ('mine', 'pkg.mod', 'calibrate')
+    """
     label, _, target = spec.rpartition("=") if "=" in spec.split(":", 1)[0] else (None, "", spec)
     where, sep, attr = target.rpartition(":")
     if not sep or not where or not attr:
@@ -147,8 +180,26 @@ def _import(where: str) -> Any:
 
 
 def load_calibrator(spec: str) -> Any:
-    """The calibrator named by ``spec`` (see :func:`parse_spec`) as a ReferenceCalibrator; ``ValueError`` saying
-    what is wrong otherwise."""
+    """The calibrator named by a ``--calibrator`` spec (see :func:`parse_spec`), as a ReferenceCalibrator.
+
+    A class or zero-argument factory is called; a plain function is wrapped in :class:`FunctionCalibrator`; the
+    label, when given, is stored as ``label``.
+
+    Parameters
+    ----------
+    spec : str
+        ``[LABEL=]MODULE:ATTR`` or ``[LABEL=]PATH.py:ATTR``.
+
+    Returns
+    -------
+    ReferenceCalibrator
+
+    Raises
+    ------
+    ValueError
+        Saying what is wrong: a bad spec, a missing file, an import error, a missing attribute, a constructor that
+        fails, or an object that lacks a required member.
+    """
     label, where, attr = parse_spec(spec)
     try:
         module = _import(where)
@@ -199,6 +250,19 @@ def _no_args(fn: Callable[..., Any]) -> bool:
 
 
 def calibrator_label(cal: Any) -> str:
+    """The label a calibrator's case ids use.
+
+    Parameters
+    ----------
+    cal : ReferenceCalibrator
+        A calibrator under test.
+
+    Returns
+    -------
+    str
+        Its ``label``, else its ``name``, else "calibrator"; characters other than letters, digits, "_" and "."
+        replaced by "_".
+    """
     label = str(getattr(cal, "label", None) or getattr(cal, "name", "calibrator"))
     return "".join(ch if ch.isalnum() or ch in "_." else "_" for ch in label)
 
@@ -209,6 +273,12 @@ def calibrator_label(cal: Any) -> str:
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
+    """pytest hook: add ``--calibrator`` and ``--calibrator-tol``.
+
+    Parameters
+    ----------
+    parser : pytest.Parser
+    """
     group = parser.getgroup("circcal", "circcal conformance suite")
     group.addoption(
         "--calibrator",
@@ -231,6 +301,17 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    """pytest hook: load the ``--calibrator`` objects and register the end-of-run summary.
+
+    Parameters
+    ----------
+    config : pytest.Config
+
+    Raises
+    ------
+    pytest.UsageError
+        A spec that cannot be loaded, or two calibrators with the same label.
+    """
     specs = config.getoption("calibrator", default=None) or []
     cals = []
     for spec in specs:
@@ -256,6 +337,17 @@ def _user(config: pytest.Config) -> list:
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
+    """pytest hook: name the calibrators under test in the header.
+
+    Parameters
+    ----------
+    config : pytest.Config
+
+    Returns
+    -------
+    list of str
+        One line, or none without ``--calibrator``.
+    """
     cals = config.stash.get(_USER_KEY, [])
     if not cals:
         return []
@@ -266,6 +358,14 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    """pytest hook: parametrise ``conformance_case`` over :func:`circcal.validators.conformance.cases`.
+
+    Cases outside the fast slice are marked ``slow``; a case in ``KNOWN_FAILURES`` is ``xfail(strict=True)``.
+
+    Parameters
+    ----------
+    metafunc : pytest.Metafunc
+    """
     if "conformance_case" not in metafunc.fixturenames:
         return
     from circcal.validators import conformance
@@ -308,9 +408,18 @@ class _Summary:
 
 
 class ObservationCache:
-    """circcal's observations per (scenario, variant, lens model), computed once. Under pytest-xdist the workers share a folder
-    in the run's base temp directory (unique per run) and a file lock, so each scenario-variant is calibrated once
-    per run, not once per worker."""
+    """circcal's observations per (scenario, variant, lens model), computed once.
+
+    Under pytest-xdist the workers share a folder in the run's base temp directory (unique per run) and a file lock,
+    so each scenario-variant is calibrated once per run, not once per worker. Call it as
+    ``cache(scenario, variant, lens=None)`` (lens default: the scenario's own) to get an
+    :class:`~circcal.validators.conformance.Observations`.
+
+    Parameters
+    ----------
+    shared : Path or None
+        The shared folder; None: memory only.
+    """
 
     def __init__(self, shared: Path | None) -> None:
         self.shared = shared
@@ -342,8 +451,19 @@ class ObservationCache:
 def conformance_observations(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
 ) -> ObservationCache:
-    """``get(scenario, variant, lens=None) -> circcal.validators.conformance.Observations`` (circcal's calibration
-    with that lens model, default the scenario's own, computed once)."""
+    """Session fixture: circcal's observations of a scenario-variant, computed once.
+
+    Parameters
+    ----------
+    request : pytest.FixtureRequest
+    tmp_path_factory : pytest.TempPathFactory
+
+    Returns
+    -------
+    ObservationCache
+        ``get(scenario, variant, lens=None) -> circcal.validators.conformance.Observations`` (circcal's calibration
+        with that lens model, default the scenario's own).
+    """
     shared = None
     if hasattr(request.config, "workerinput"):  # a pytest-xdist worker: basetemp/.. is this run's, shared
         shared = tmp_path_factory.getbasetemp().parent / "circcal-conformance"
@@ -352,10 +472,20 @@ def conformance_observations(
 
 @pytest.fixture(scope="session")
 def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], Any]:
-    """``get(case) -> ReferenceCalibrator``: the ``--calibrator`` object for a user case, else the registry's
-    reference set up for the case's lens model (one instance per name and lens:
-    :func:`circcal.validators.registry.get_for_lens`). A reference that cannot be loaded raises ``ImportError``
-    with the cause."""
+    """Session fixture: the calibrator of a case.
+
+    Parameters
+    ----------
+    request : pytest.FixtureRequest
+
+    Returns
+    -------
+    callable
+        ``get(case) -> ReferenceCalibrator``: the ``--calibrator`` object for a user case, else the registry's
+        reference set up for the case's lens model (one instance per name and lens:
+        :func:`circcal.validators.registry.get_for_lens`). A reference that cannot be loaded raises ``ImportError``
+        with the cause.
+    """
     from circcal.validators.registry import get_for_lens
 
     user = {calibrator_label(c): c for c in _user(request.config)}
@@ -374,7 +504,18 @@ def conformance_calibrator(request: pytest.FixtureRequest) -> Callable[[Any], An
 
 @pytest.fixture
 def conformance_record(record_property: Callable[[str, Any], None]) -> Callable[[Any], None]:
-    """``record(outcome)``: add a case's one-line summary to the end-of-run table (works under xdist)."""
+    """Fixture: add a case's one-line summary to the end-of-run table (works under xdist).
+
+    Parameters
+    ----------
+    record_property : callable
+        pytest's ``record_property`` fixture.
+
+    Returns
+    -------
+    callable
+        ``record(outcome)``.
+    """
     from circcal.validators.conformance import summary_line
 
     def record(outcome: Any) -> None:
@@ -384,7 +525,19 @@ def conformance_record(record_property: Callable[[str, Any], None]) -> Callable[
 
 
 def solver_tolerance(config: pytest.Config, case: Any) -> float | None:
-    """The agreement bound for a case: ``--calibrator-tol`` for user calibrators, else the module default."""
+    """The agreement bound for a case.
+
+    Parameters
+    ----------
+    config : pytest.Config
+    case : circcal.validators.conformance.Case
+
+    Returns
+    -------
+    float or None
+        px: ``--calibrator-tol`` for user calibrators (default 1e-6), else None (the module default,
+        :func:`~circcal.validators.checks.solver_bound`).
+    """
     if case.user:
         tol = config.getoption("calibrator_tol", default=None)
         return 1e-6 if tol is None else float(tol)

@@ -50,7 +50,13 @@ def _plugins() -> dict[str, Any]:
 
 
 def names() -> list[str]:
-    """Built-in names first (fixed order), then plug-ins sorted."""
+    """Every known reference name.
+
+    Returns
+    -------
+    list of str
+        Built-in names first (fixed order), then plug-ins sorted.
+    """
     return list(BUILTINS) + sorted(_plugins())
 
 
@@ -65,8 +71,34 @@ def _load(name: str) -> Callable[..., ReferenceCalibrator]:
 
 
 def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
-    """An instance of reference ``name`` (``kwargs`` go to its constructor). ``KeyError`` for an unknown name;
-    a plug-in that cannot be imported raises ``ImportError`` naming it."""
+    """An instance of a reference calibrator.
+
+    Parameters
+    ----------
+    name : str
+        A name from :func:`names`.
+    **kwargs
+        Passed to its constructor (e.g. ``lens="rational"``).
+
+    Returns
+    -------
+    ReferenceCalibrator
+
+    Raises
+    ------
+    KeyError
+        An unknown name.
+    ImportError
+        A reference (plug-in) that cannot be imported; the message names it.
+    TypeError
+        The object lacks a member of :data:`~circcal.validators.base.REQUIRED_MEMBERS`.
+
+    Examples
+    --------
+    >>> from circcal.validators import registry
+    >>> registry.get("opencv").name  # doctest: +SKIP
+    'opencv'
+    """
     try:
         factory = _load(name)
     except KeyError:
@@ -83,10 +115,31 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
 
 
 def get_for_lens(name: str, lens: str, **kwargs: Any) -> ReferenceCalibrator:
-    """Reference ``name`` set up for lens model ``lens``: constructed with ``lens=`` when it is a built-in (every one
-    takes it, and answers "unsupported" with its reason for a model it does not fit) or a plug-in that declares the
-    model in its ``lenses``; else as it comes (a plug-in without that model: the caller reports
-    :func:`~circcal.validators.base.lens_support`'s reason instead of calling it)."""
+    """A reference set up for a lens model.
+
+    Constructed with ``lens=`` when it is a built-in (every one takes it, and answers "unsupported" with its reason
+    for a model it does not fit) or a plug-in that declares the model in its ``lenses``; else as it comes (a plug-in
+    without that model: the caller reports :func:`~circcal.validators.base.lens_support`'s reason instead of calling
+    it).
+
+    Parameters
+    ----------
+    name : str
+        A name from :func:`names`.
+    lens : str
+        A :data:`circcal.model.LENS_MODELS` name.
+    **kwargs
+        Passed to its constructor.
+
+    Returns
+    -------
+    ReferenceCalibrator
+
+    Raises
+    ------
+    KeyError, ImportError, TypeError
+        As :func:`get`.
+    """
     plain = get(name, **kwargs)
     if lens == getattr(plain, "lens", "opencv5"):
         return plain
@@ -96,7 +149,14 @@ def get_for_lens(name: str, lens: str, **kwargs: Any) -> ReferenceCalibrator:
 
 
 def all_available() -> dict[str, tuple[bool, str]]:
-    """``{name: (available, reason)}`` for every known reference; never raises."""
+    """Which references can run here; never raises.
+
+    Returns
+    -------
+    dict of str to tuple of (bool, str)
+        ``{name: (available, reason)}`` for every known reference; a reference that cannot be loaded is unavailable
+        with the exception as its reason.
+    """
     out: dict[str, tuple[bool, str]] = {}
     for n in names():
         try:
@@ -107,6 +167,12 @@ def all_available() -> dict[str, tuple[bool, str]]:
 
 
 def problems() -> dict[str, str]:
-    """Plug-ins ignored while listing (name -> why)."""
+    """Plug-ins ignored while listing.
+
+    Returns
+    -------
+    dict of str to str
+        Name -> why (a plug-in whose name is a built-in's).
+    """
     _plugins()
     return dict(_problems)

@@ -1,6 +1,7 @@
-"""circcal's observations of one scenario-variant, the expensive part of the conformance suite (once per
-scenario-variant, :func:`observe`), which every reference case of it then fits (:mod:`circcal.validators.conformance`),
-and circcal's solve on a subset of them (:func:`solve_subset`: for a reference that leaves observations out)."""
+"""circcal's observations of one scenario-variant (:func:`observe`, the expensive part of the conformance suite, once
+per scenario-variant), which every reference case of it then fits, and circcal's solve on a subset of them
+(:func:`solve_subset`: for a reference that leaves observations out).
+"""
 
 from __future__ import annotations
 
@@ -25,13 +26,45 @@ __all__ = ["Observations", "observe", "solve_subset"]
 class Observations:
     """circcal's calibration of one scenario-variant and the observations every reference case reuses.
 
-    ``status``: "ok" or "failed" (``message`` then holds circcal's error). ``accounted``: path -> "used" or the
-    reason code (:class:`circcal.detector.Reason` value) it was rejected with, for every image that circcal accounted
-    for; ``failed``: the rejections themselves (path, code, words). ``object_points``/``image_points``: per used
-    view (N_v, 3) mm / (N_v, 2) px, circcal's final centres rounded to float32 (OpenCV's input type) and back;
-    ``solver_camera``/``solver_std``: circcal's solver on exactly those points (what references are compared with).
-    ``centre_errors``: (N,) px, |final centre - true projection| over all used points, grid order matched to the
-    truth. Picklable (a cache may share it between test workers)."""
+    Picklable (a cache may share it between test workers).
+
+    Attributes
+    ----------
+    scenario, variant, folder : str
+        The fixture and its folder.
+    truth : circcal.model.Camera
+        The true camera.
+    board : circcal.board.Board
+        The fixture's board.
+    paths : list of str
+        Its images.
+    lens : str
+        The lens model fitted.
+    status : str
+        "ok" or "failed" (``message`` then holds circcal's error).
+    camera, std, correlation, errors
+        circcal's calibration: camera, standard deviations by name, (P, P) correlation, error statistics (px).
+    used : list of int
+        Indices of the images used.
+    failed : list of circcal.detector.Rejection
+        The rejections themselves (path, code, words).
+    accounted : dict of str to str
+        Path -> "used" or the reason code (:class:`circcal.detector.Reason` value) it was rejected with, for every
+        image that circcal accounted for.
+    object_points, image_points : list of ndarray or None
+        Per used view (N_v, 3) mm / (N_v, 2) px, circcal's final centres rounded to float32 (OpenCV's input type) and
+        back.
+    solver_camera, solver_std, solver_ssr
+        circcal's solver on exactly those points (what references are compared with); SSR in px^2.
+    centre_errors : ndarray, shape (N,), or None
+        px, |final centre - true projection| over all used points, grid order matched to the truth.
+    time_s : float
+        circcal's calibration time, s.
+    ok : bool
+        ``status == "ok"``.
+    image_size : tuple of int
+        (width, height) px of the true camera.
+    """
 
     scenario: str
     variant: str
@@ -78,10 +111,28 @@ def _matched_centre_errors(centres: Sequence[np.ndarray], truth: Sequence[np.nda
 
 
 def observe(scenario: str, variant: str, lens: str | None = None, *, progress: bool = False) -> Observations:
-    """Render (or fetch) the fixture and run circcal's :func:`~circcal.solver.calibrate_images` on it with lens
-    model ``lens`` (default: the true camera's).
+    """Render (or fetch) a fixture and run circcal's :func:`~circcal.pipeline.calibrate_images` on it.
 
-    Never raises for circcal's own failure (status "failed" with the message); fixture problems do raise.
+    Never raises for circcal's own failure (an ``InputError``: status "failed" with the message, and the rejections
+    when too few images were usable); fixture problems do raise.
+
+    Parameters
+    ----------
+    scenario, variant : str
+        The fixture (:data:`circcal.fixtures.scenarios.SCENARIOS`).
+    lens : str, optional
+        The lens model fitted; default the true camera's.
+    progress : bool
+        Show progress while rendering and calibrating.
+
+    Returns
+    -------
+    Observations
+
+    Examples
+    --------
+    >>> obs = observe("paper", "normal")  # doctest: +SKIP
+    >>> obs.ok, len(obs.object_points)  # doctest: +SKIP
     """
     from circcal.fixtures.scenarios import fixture_dir, load_truth
     from circcal.pipeline import TooFewImagesError, calibrate_images
@@ -123,9 +174,28 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
 def solve_subset(
     obs: Observations, res: ReferenceResult, left_out: dict[int, list[int]]
 ) -> tuple[Camera, float, ReferenceResult]:
-    """circcal's solver on the shared observations less ``left_out`` (view -> indices of the points a reference left
-    out), started from circcal's solve on all of them; returns ``(camera, SSR px^2, res with only the fitted
-    points' residuals)``, so that the agreement check compares the two solves of one problem."""
+    """circcal's solver on the shared observations less the points a reference left out.
+
+    Started from circcal's solve on all of them, so that the agreement check compares the two solves of one problem.
+
+    Parameters
+    ----------
+    obs : Observations
+        An ok observation set.
+    res : ReferenceResult
+        The reference's result.
+    left_out : dict
+        View (int or its str) -> indices of the points the reference left out.
+
+    Returns
+    -------
+    camera : circcal.model.Camera
+        circcal's solve on the subset.
+    ssr : float
+        Its sum of squared residuals, px^2.
+    fitted : ReferenceResult
+        ``res`` with only the fitted points' residuals.
+    """
     from circcal.solver import calibrate
 
     keep = []

@@ -20,8 +20,19 @@ __all__ = ["SharedObservations", "share", "ssr"]
 
 
 def ssr(residuals: list[np.ndarray] | None) -> float:
-    """Sum of squared residuals (px^2) over every view. NaN entries (points a reference dropped as outliers) make it
-    NaN: such a cost is not comparable with a plain least-squares one."""
+    """Sum of squared residuals over every view.
+
+    Parameters
+    ----------
+    residuals : list of ndarray, shape (N_v, 2), or None
+        Residuals per view, px.
+
+    Returns
+    -------
+    float
+        px^2; NaN for none. NaN entries (points a reference dropped as outliers) make it NaN: such a cost is not
+        comparable with a plain least-squares one.
+    """
     if not residuals:
         return float("nan")
     return float(sum(np.sum(np.asarray(r, dtype=np.float64) ** 2) for r in residuals))
@@ -29,9 +40,21 @@ def ssr(residuals: list[np.ndarray] | None) -> float:
 
 @dataclass
 class SharedObservations:
-    """``object_points`` (N_v, 3) mm and ``image_points`` (N_v, 2) px per view, float32-rounded and back to
-    float64; ``image_size`` (W, H); ``result``: circcal's solver on exactly these points, started from circcal's
-    final model."""
+    """The observations every reference fits, and circcal's solve on them.
+
+    Attributes
+    ----------
+    object_points : list of ndarray, shape (N_v, 3)
+        Board points per view, mm, float32-rounded and back to float64.
+    image_points : list of ndarray, shape (N_v, 2)
+        Centres per view, px, float32-rounded and back to float64.
+    image_size : tuple of int
+        (W, H) px.
+    result : circcal.solver.CalibrationResult
+        circcal's solver on exactly these points, started from circcal's final model.
+    ssr : float
+        Its sum of squared residuals, px^2.
+    """
 
     object_points: list[np.ndarray]
     image_points: list[np.ndarray]
@@ -44,12 +67,14 @@ class SharedObservations:
 
 
 def share(cal: Any, board: Any, options: CalibrationOptions | None = None) -> SharedObservations:
-    """The shared observations of a :class:`circcal.pipeline.ImagesCalibration` of ``board``.
+    """The shared observations of an images calibration.
 
     Parameters
     ----------
     cal : circcal.pipeline.ImagesCalibration
+        A finished calibration.
     board : circcal.board.Board
+        Its board.
     options : CalibrationOptions or None
         The calibration's options (its held parameters, board refinement, lens model), for circcal's solve on the
         shared points; outlier rejection is not repeated (the points are the final ones, outliers already out).

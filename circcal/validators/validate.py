@@ -44,14 +44,30 @@ __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_r
 
 @dataclass(frozen=True)
 class Bounds:
-    """Agreement bounds (px). ``solver``: a reference in ``fair`` mode on circcal's observations vs circcal's solve,
-    max projection difference; ``solver_mrcal``: the same for mrcal (its solver stops earlier); ``truth_sigmas``:
-    circcal's fx, fy, cx, cy within this many of their stated sigmas of the true camera; ``solver_lensboy``: the
-    same for lensboy (its solver stops earlier still); ``truth``: if set, also
-    bound circcal's RMS projection difference to the true camera (implied rotation fitted), px. That one is off by
-    default: with a long lens the focal length is weakly observable (std(fx) 0.3 px at fx 4900 even from exact
-    centres with 0.003 px noise), which alone moves the image edge by ~0.05 px, so a fixed px bound would test the
-    fixture geometry, not the calibrator."""
+    """Agreement bounds of a validation run.
+
+    Parameters
+    ----------
+    solver : float
+        A reference in ``fair`` mode on circcal's observations vs circcal's solve, max projection difference, px.
+    solver_mrcal : float
+        The same for mrcal (its solver stops earlier), px.
+    truth_sigmas : float
+        circcal's fx, fy, cx, cy within this many of their stated sigmas of the true camera.
+    truth : float, optional
+        If set, also bound circcal's RMS projection difference to the true camera (implied rotation fitted), px. Off
+        by default: with a long lens the focal length is weakly observable (std(fx) 0.3 px at fx 4900 even from exact
+        centres with 0.003 px noise), which alone moves the image edge by ~0.05 px, so a fixed px bound would test the
+        fixture geometry, not the calibrator.
+    solver_lensboy : float
+        The same as ``solver`` for lensboy (its solver stops earlier still), px.
+
+    Raises
+    ------
+    circcal.errors.InputError
+        A bound that is not a finite positive number (NaN, inf, 0 or less would make its check pass or fail
+        regardless of the result); ``truth`` may be None.
+    """
 
     solver: float = SOLVER_PX
     solver_mrcal: float = SOLVER_MRCAL_PX
@@ -73,6 +89,39 @@ class Bounds:
 
 @dataclass
 class ValidationRun:
+    """Everything one validation run found.
+
+    Attributes
+    ----------
+    source : dict
+        Where the images came from (``{"images": [...]}`` or the fixture's name and variant).
+    board : circcal.board.Board
+    image_size : tuple of int
+        (width, height) px.
+    truth : circcal.model.Camera or None
+        The true camera, when known.
+    circcal : dict
+        circcal's calibration: status, message, camera, std, errors, time_s, failed, rounds (and, when ok, n_views,
+        converged, solver_camera, solver_ssr).
+    references : list of ReferenceResult
+        One per reference and mode.
+    comparisons : list of dict
+        One per calibrator row (circcal first): ``vs_truth`` and ``vs_circcal`` projection differences (px) and
+        parameter differences.
+    checks : list of Check
+        What the run gates on.
+    observations : str
+        "circcal" or "own".
+    shared : SharedObservations or None
+        What every reference fitted (circcal's centres rounded to float32) and circcal's solver on exactly those.
+    skipped : list of str
+        References that were not available and were allowed to be missing (``allow_missing``), with the reason.
+    lens : str
+        The lens model every calibrator fitted (:data:`circcal.model.LENS_MODELS`).
+    passed : bool
+        Every check passed, and there was at least one.
+    """
+
     source: dict[str, Any]
     board: Board
     image_size: tuple[int, int]
@@ -145,22 +194,56 @@ def run_validation(
     source: dict[str, Any] | None = None,
     allow_missing: bool = False,
 ) -> ValidationRun:
-    """Calibrate ``paths`` with circcal, then with each reference in ``against`` ("all" = every registered one),
-    and compare. ``mode``: "fair", "default" or "both" (a reference with one estimator runs once).
-    ``observations``: "circcal" (every reference gets circcal's final centres) or "own" (a reference's own detector
-    where it has one; the others report "unsupported"). Never raises for a reference's failure: it becomes a row.
+    """Calibrate images with circcal, then with each reference, and compare.
 
-    The run fails (:attr:`ValidationRun.passed` false) when a check fails and when nothing was checked (no check
-    at all: a gate that cannot pass vacuously). A reference that is not available fails it too: asked for by name,
-    or, under "all", a built-in reference (``make setup`` installs every one), unless ``allow_missing`` (then each
-    one missing is listed as skipped).
+    Never raises for a reference's failure: it becomes a row. The run fails (:attr:`ValidationRun.passed` false) when
+    a check fails and when nothing was checked (no check at all: a gate that cannot pass vacuously). A reference that
+    is not available fails it too: asked for by name, or, under "all", a built-in reference (``make setup`` installs
+    every one), unless ``allow_missing`` (then each one missing is listed as skipped).
 
-    ``options``: how circcal calibrates (:class:`~circcal.solver.options.CalibrationOptions`; default: the
-    defaults for the true camera's lens model, else ``opencv5``). ``options.lens`` is the lens model circcal and
-    every reference fit; a reference that does not fit it is a row with status "unsupported" and its reason (no
-    check: nothing to compare). A held k3 (``"k3" in options.fixed``) is held by the references that can (opencv,
-    kornia). Raises :class:`~circcal.errors.InputError` for an unknown ``mode`` (:data:`RUN_MODES`),
-    ``observations`` (:data:`OBSERVATIONS`) or reference name.
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        Image files.
+    board : circcal.board.Board
+        The calibration target.
+    options : CalibrationOptions, optional
+        How circcal calibrates (:class:`~circcal.solver.options.CalibrationOptions`); default: the defaults for the
+        true camera's lens model, else ``opencv5``. ``options.lens`` is the lens model circcal and every reference fit;
+        a reference that does not fit it is a row with status "unsupported" and its reason (no check: nothing to
+        compare). A held k3 (``"k3" in options.fixed``) is held by the references that can (opencv, kornia).
+    truth : circcal.model.Camera, optional
+        The true camera (a fixture's); adds the truth checks.
+    against : sequence of str
+        Reference names; "all" = every registered one.
+    mode : {"fair", "default", "both"}
+        Which estimators to run (a reference with one estimator runs once).
+    observations : {"circcal", "own"}
+        "circcal": every reference gets circcal's final centres; "own": a reference's own detector where it has one
+        (the others report "unsupported").
+    bounds : Bounds
+        The agreement bounds.
+    progress : bool
+        Show circcal's progress.
+    source : dict, optional
+        Stored as :attr:`ValidationRun.source`; default ``{"images": paths}``.
+    allow_missing : bool
+        Let unavailable references be skipped instead of failing the run.
+
+    Returns
+    -------
+    ValidationRun
+
+    Raises
+    ------
+    circcal.errors.InputError
+        An unknown ``mode`` (:data:`RUN_MODES`), ``observations`` (:data:`OBSERVATIONS`) or reference name.
+
+    Examples
+    --------
+    >>> run = run_validation(paths, board, against=["opencv"], truth=truth)  # doctest: +SKIP
+    >>> run.passed  # doctest: +SKIP
+    True
     """
     from circcal.pipeline import calibrate_images
 
@@ -302,7 +385,18 @@ def run_validation(
 
 
 def format_table(run: ValidationRun) -> str:
-    """The side-by-side table ``circcal validate`` prints (markdown-compatible)."""
+    """The side-by-side table ``circcal validate`` prints (markdown-compatible).
+
+    Parameters
+    ----------
+    run : ValidationRun
+
+    Returns
+    -------
+    str
+        Header lines, one row per calibrator (truth first when known), notes, circcal's parameters vs truth, and
+        every check.
+    """
     lines = []
     src = ", ".join(f"{k}={v}" for k, v in run.source.items() if k != "images") or f"{len(run.source['images'])} images"
     lines.append(
@@ -403,6 +497,16 @@ def format_table(run: ValidationRun) -> str:
 
 
 def to_dict(run: ValidationRun) -> dict[str, Any]:
+    """A validation run as a JSON-ready dict (what ``validation.json`` holds).
+
+    Parameters
+    ----------
+    run : ValidationRun
+
+    Returns
+    -------
+    dict
+    """
     cc = {k: v for k, v in run.circcal.items()}
     return jsonable(
         {
@@ -422,8 +526,22 @@ def to_dict(run: ValidationRun) -> dict[str, Any]:
 
 
 def write_report(run: ValidationRun, out: str | Path) -> Path:
-    """Write ``validation.json`` and ``validation.md`` into the folder ``out`` (made if missing; the command stages
-    it and commits it with its other outputs: :mod:`circcal.outputs`). Returns ``out``."""
+    """Write ``validation.json`` and ``validation.md`` into a folder.
+
+    The folder is made if missing; the command stages it and commits it with its other outputs
+    (:mod:`circcal.outputs`).
+
+    Parameters
+    ----------
+    run : ValidationRun
+    out : str or Path
+        The folder.
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "validation.json").write_text(json.dumps(to_dict(run), indent=1))
