@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 from circcal import atomic
 from circcal.errors import InputError, ModelFileError
@@ -111,7 +112,7 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
     )
 
 
-def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict | None]:
+def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict[str, Any] | None]:
     """The camera in ``path`` (any supported format: ``fmt``, else from its content and name) and, for a
     model.json, the whole document (None for the other formats). Errors name the file: a missing or unreadable
     file, an unknown format, a malformed file or a value outside the model (:class:`~circcal.errors.ModelFileError`,
@@ -151,7 +152,7 @@ def write_camera(
     camera: Camera,
     fmt: str | None = None,
     *,
-    document: dict | None = None,
+    document: dict[str, Any] | None = None,
     colmap_model: str = "auto",
     name: str = "camera",
 ) -> str:

@@ -164,7 +164,9 @@ def export_cameramodel(
             "observed_pixel_uncertainty": uncertainty.get("observed_pixel_uncertainty"),
         }
     reply = _run_worker(req, python)
-    info = {k: reply[k] for k in ("version", "api", "rms_per_coord_px", "max_abs_gradient") if k in reply}
+    info: dict[str, Any] = {
+        k: reply[k] for k in ("version", "api", "rms_per_coord_px", "max_abs_gradient") if k in reply
+    }
     info["lensmodel"] = "LENSMODEL_OPENCV4" if opencv4 else LENSMODELS[camera.lens]
     info["notes"] = notes
     info["lattice"] = {"width_n": W, "height_n": H, "spacing_mm": float(lat["spacing"]), "origin_mm": origin.tolist()}
@@ -214,7 +216,8 @@ def document_views(document: dict[str, Any] | None) -> dict[str, Any] | None:
     """:func:`result_views` read back from a model.json document (its ``views``: ``rvec``, ``tvec_mm``,
     ``object_mm``, ``image_px``); None when the document holds no observations (a model.json written before they
     were, or a bare camera). Raises :class:`~circcal.errors.InputError` naming the view for a malformed entry."""
-    views = (document or {}).get("views")
+    doc = document or {}
+    views = doc.get("views")
     if not views or not all(isinstance(v, dict) and "object_mm" in v and "image_px" in v for v in views):
         return None
     try:
@@ -233,8 +236,8 @@ def document_views(document: dict[str, Any] | None) -> dict[str, Any] | None:
         "tvecs": tv,
         "object_points": obj,
         "image_points": img,
-        "fixed": tuple(document.get("fixed") or ()),
-        "refined_board": "board_refinement" in document,
+        "fixed": tuple(doc.get("fixed") or ()),
+        "refined_board": "board_refinement" in doc,
     }
 
 

@@ -86,10 +86,10 @@ def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
         )
     if len(lines[0]) < 4:
         raise ModelFileError(f"a camera line needs CAMERA_ID MODEL WIDTH HEIGHT PARAMS..., got {' '.join(lines[0])!r}")
-    cid, model, w, h, *vals = lines[0]
+    cid, model, w_text, h_text, *vals = lines[0]
     try:
         q = [float(v) for v in vals]
-        w, h = float(w), float(h)
+        w, h = float(w_text), float(h_text)
     except ValueError:
         raise ModelFileError(
             f"COLMAP camera {cid}: the size and parameters must be numbers, got {' '.join(lines[0][2:])!r}"

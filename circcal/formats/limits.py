@@ -194,7 +194,7 @@ def _bounded_loader() -> Any:
     def at(node_or_event: Any) -> str:
         return f"at line {node_or_event.start_mark.line + 1}"
 
-    class BoundedLoader(yaml.SafeLoader):
+    class BoundedLoader(yaml.SafeLoader):  # type: ignore[misc]  # PyYAML ships no stubs here: SafeLoader is Any
         _depth = 0
 
         def compose_node(self, parent: Any, index: Any) -> Any:
@@ -214,7 +214,7 @@ def _bounded_loader() -> Any:
 
         def construct_mapping(self, node: Any, deep: bool = False) -> Any:
             if isinstance(node, yaml.MappingNode):
-                seen: set = set()
+                seen: set[Any] = set()
                 for key_node, _ in node.value:
                     key = key_node.value if isinstance(key_node, yaml.ScalarNode) else None
                     if key is None:
@@ -247,9 +247,9 @@ def check_nesting(text: str) -> None:
             f"an XML <!{m.group(1).upper()} declaration at line {line}: document types and entities "
             f"are refused (camera files need none)"
         )
-    line = depth_over(text, MAX_NESTING_DEPTH)
-    if line is not None:
-        raise ModelFileError(f"nested deeper than {MAX_NESTING_DEPTH} levels (at line {line})")
+    deep_line = depth_over(text, MAX_NESTING_DEPTH)
+    if deep_line is not None:
+        raise ModelFileError(f"nested deeper than {MAX_NESTING_DEPTH} levels (at line {deep_line})")
     m = _COMPACT_NESTING.search(text)
     if m:
         raise ModelFileError(

@@ -124,7 +124,7 @@ def camera_from_json(data: Any) -> Camera:
         raise ModelFileError(str(exc)) from None
 
 
-def _check_sections(doc: dict, known: tuple[str, ...]) -> None:
+def _check_sections(doc: dict[str, Any], known: tuple[str, ...]) -> None:
     """The document-level checks of :func:`camera_from_json`."""
     unknown = [k for k in doc if k not in known]
     if unknown:

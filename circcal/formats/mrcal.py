@@ -66,7 +66,7 @@ def camera_to_cameramodel(camera: Camera) -> str:
     )
 
 
-def parse_cameramodel(text: str) -> dict:
+def parse_cameramodel(text: str) -> dict[str, Any]:
     """The dict of mrcal ``.cameramodel`` text, read as a Python literal without evaluating anything:
     ``ast.parse(mode="eval")``, then a walk that allows only dicts, lists, tuples, strings, bytes (mrcal's
     optimisation inputs), numbers (a unary minus or plus on a number literal included), True, False and None.
@@ -111,7 +111,7 @@ def _literal(node: ast.AST, depth: int) -> Any:
         items = [_literal(e, depth + 1) for e in node.elts]
         return items if isinstance(node, ast.List) else tuple(items)
     if isinstance(node, ast.Dict):
-        out: dict = {}
+        out: dict[Any, Any] = {}
         for k, v in zip(node.keys, node.values):
             if k is None:
                 raise ModelFileError(f"a ** unpacking {line} is not a literal")

@@ -65,7 +65,7 @@ NOT_FOUND_MESSAGE = (
 
 
 @lru_cache(maxsize=8)
-def _probe(python: str) -> tuple[bool, str, dict]:
+def _probe(python: str) -> tuple[bool, str, dict[str, Any]]:
     """Whether ``python`` runs the worker's ``--probe``: ``(ok, why not, {"version", "api", "python"})``; cached
     per interpreter."""
     try:
@@ -81,7 +81,7 @@ def _probe(python: str) -> tuple[bool, str, dict]:
     return True, "", info
 
 
-def mrcal_python() -> tuple[str | None, str, dict]:
+def mrcal_python() -> tuple[str | None, str, dict[str, Any]]:
     """The interpreter that runs mrcal: ``$CIRCCAL_MRCAL_PYTHON`` if set, else ``/usr/bin/python3`` if it can
     import mrcal.
 
@@ -134,7 +134,7 @@ def run_worker(python: str, request: dict[str, Any], timeout_s: float) -> dict[s
     except subprocess.TimeoutExpired:
         raise RuntimeError(f"mrcal worker ran past {timeout_s:g} s") from None
     try:
-        reply = json.loads(proc.stdout)
+        reply: dict[str, Any] = json.loads(proc.stdout)  # the worker replies with one JSON object
     except json.JSONDecodeError:
         raise RuntimeError(
             f"mrcal worker crashed (exit {proc.returncode}): {(proc.stderr or proc.stdout).strip()[-500:]}"

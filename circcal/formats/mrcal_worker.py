@@ -50,13 +50,18 @@ import json
 import os
 import subprocess
 import sys
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # annotations only: the worker imports numpy (mrcal's) inside its functions
+    import numpy as np
 
 # This script sits beside formats/mrcal.py: drop its own folder from the path so `import mrcal` finds mrcal.
 _HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path[:] = [p for p in sys.path if os.path.realpath(p or os.curdir) != _HERE]
 
 
-def _version(mrcal) -> tuple[str, str]:
+def _version(mrcal: ModuleType) -> tuple[str, str]:
     v = getattr(mrcal, "__version__", None)
     if v:
         return str(v), "mrcal.__version__"
@@ -76,7 +81,7 @@ def _version(mrcal) -> tuple[str, str]:
     return "unknown", "none"
 
 
-def _api(mrcal) -> str:
+def _api(mrcal: ModuleType) -> str:
     return "2.5" if hasattr(mrcal, "measurements_board") else "2.2"
 
 
@@ -85,7 +90,7 @@ def _names(api: str) -> tuple[str, str]:
     return ("rt_cam_ref", "rt_ref_frame") if api == "2.5" else ("extrinsics_rt_fromref", "frames_rt_toref")
 
 
-def solve(req: dict) -> dict:
+def solve(req: dict[str, Any]) -> dict[str, Any]:
     import mrcal
     import numpy as np
 
@@ -113,7 +118,7 @@ def solve(req: dict) -> dict:
     lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
     n_intr = int(mrcal.lensmodel_num_params(lensmodel))
 
-    def seed(frames_given):
+    def seed(frames_given: Any) -> tuple[np.ndarray, np.ndarray]:
         """(intrinsics (1, n_intr), frames (Nframes, 6)): stereographic, geometry only, then + core (as
         mrcal-calibrate-cameras does), from mrcal's own pose seed or ``frames_given``."""
         obs = obs0.copy()
@@ -150,8 +155,8 @@ def solve(req: dict) -> dict:
             seed_intr = np.concatenate([intrinsics, (rng.random((1, n_intr - 4)) - 0.5) * 2e-6], axis=1)
         return seed_intr, frames.copy()
 
-    seeds = {}
-    results = []
+    seeds: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    results: list[dict[str, Any]] = []
     for mode in req["modes"]:
         given = req.get("seed_frames_fair") if mode == "fair" else None
         key = "fair" if given is not None else "mrcal"
@@ -223,7 +228,7 @@ def solve(req: dict) -> dict:
     return {"version": version, "version_source": vsrc, "api": api, "results": results}
 
 
-def _export_inputs(req: dict, api: str) -> dict:
+def _export_inputs(req: dict[str, Any], api: str) -> dict[str, Any]:
     """mrcal.optimize() inputs at a given solution (no optimisation run): ``req["lensmodel"]`` (default
     LENSMODEL_OPENCV5; OPENCV4 when k3 is held at 0), the board lattice observations, the frames, and the fair-mode switches (no warp, no regularisation, no
     outlier rejection: circcal's estimator, whose optimum this is)."""
@@ -262,7 +267,7 @@ def _export_inputs(req: dict, api: str) -> dict:
     return inputs
 
 
-def _uncertainty_at(mrcal, model, uv, distance, sigma):
+def _uncertainty_at(mrcal: ModuleType, model: Any, uv: Any, distance: float | None, sigma: float | None) -> list[float]:
     """mrcal.projection_uncertainty (worst-direction stdev, px) at pixels ``uv`` (N, 2), ``distance`` along each
     ray (None: infinity) and per-coordinate noise ``sigma`` (None: mrcal's estimate from the residuals)."""
     import numpy as np
@@ -276,7 +281,7 @@ def _uncertainty_at(mrcal, model, uv, distance, sigma):
     return np.asarray(s, dtype=np.float64).reshape(-1).tolist()
 
 
-def export(req: dict) -> dict:
+def export(req: dict[str, Any]) -> dict[str, Any]:
     """A ``.cameramodel`` carrying mrcal's optimisation inputs, built from circcal's observations and solution.
 
     Request: ``{"command": "export", "width_n", "height_n", "spacing", "observations" (Nframes, H, W, 3) with
@@ -316,7 +321,7 @@ def export(req: dict) -> dict:
     return out
 
 
-def uncertainty(req: dict) -> dict:
+def uncertainty(req: dict[str, Any]) -> dict[str, Any]:
     """mrcal's projection uncertainty of a ``.cameramodel`` with optimisation inputs. Request: ``{"command":
     "uncertainty", "cameramodel": text, "uv": (N, 2), "distance": mm | null, "observed_pixel_uncertainty": px |
     null}``. Reply: ``{"version", "api", "stdev" (N,) px, "lensmodel", "imagersize"}``; ``{"error"}`` when the model

@@ -11,12 +11,16 @@ format's extras: ignored."""
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from circcal.errors import ModelFileError
 from circcal.formats.limits import check_K, check_nesting, integer, number, show
 from circcal.model import Camera
+
+if TYPE_CHECKING:  # annotations only: cv2 is imported where a file is read or written
+    import cv2
 
 __all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES", "pinhole_lens_of"]
 
@@ -102,7 +106,7 @@ def camera_from_opencv_yaml(text: str) -> Camera:
 _FS_DT = re.compile(r"1?[ucwsifdh]")
 
 
-def _fs_scalar(node) -> object:
+def _fs_scalar(node: cv2.FileNode) -> object:
     """A FileStorage scalar as Python: a number (float), a string, or a short description of what it is instead."""
     if node.isInt() or node.isReal():
         return node.real()
@@ -111,7 +115,7 @@ def _fs_scalar(node) -> object:
     return "<a sequence>" if node.isSeq() else "<a mapping>" if node.isMap() else "<nothing>"
 
 
-def _fs_unique_keys(node, where: str) -> None:
+def _fs_unique_keys(node: cv2.FileNode, where: str) -> None:
     """Refuse a key repeated in the FileStorage mapping ``node`` (OpenCV's parser keeps both and reads the first)."""
     if not node.isMap():
         raise ModelFileError(f"expected a mapping at {where}, got {show(_fs_scalar(node))}")
@@ -122,7 +126,7 @@ def _fs_unique_keys(node, where: str) -> None:
         seen.add(key)
 
 
-def _fs_matrix(node, field: str, max_size: int) -> np.ndarray:
+def _fs_matrix(node: cv2.FileNode, field: str, max_size: int) -> np.ndarray:
     """An ``opencv-matrix`` node (``rows``, ``cols``, ``dt``, ``data``) as a float64 (rows, cols) array of at most
     ``max_size`` elements, every element a finite number. Raises :class:`~circcal.errors.ModelFileError`."""
     if node.empty():

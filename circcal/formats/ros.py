@@ -9,6 +9,8 @@ refused with that reason."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from circcal.errors import InputError, ModelFileError
@@ -38,7 +40,7 @@ def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
             "equidistant only): write another format, or calibrate with --lens rational"
         )
 
-    def matrix(a: np.ndarray) -> dict:
+    def matrix(a: np.ndarray) -> dict[str, Any]:
         a = np.atleast_2d(a)
         return {"rows": int(a.shape[0]), "cols": int(a.shape[1]), "data": [float(v) for v in a.ravel()]}
 
@@ -52,7 +54,7 @@ def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
         "rectification_matrix": matrix(np.eye(3)),
         "projection_matrix": matrix(np.hstack([camera.K, np.zeros((3, 1))])),
     }
-    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    return str(yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
 
 
 def camera_from_ros_yaml(text: str) -> Camera:
@@ -90,6 +92,7 @@ def camera_from_ros_yaml(text: str) -> Camera:
     K = matrix(k, field, (3, 3), rows, cols)
     dfield, _ = entry("distortion_coefficients", "D")
     dv, rows, cols = data("distortion_coefficients", "D")
+    D: np.ndarray | None
     if dv is not None and (rows is not None or cols is not None):
         r, c = integer(rows, f"{dfield} rows", 0, 14), integer(cols, f"{dfield} cols", 0, 14)
         D = matrix(dv, dfield, (r, c), rows, cols).ravel()
