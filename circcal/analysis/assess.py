@@ -115,6 +115,8 @@ class Assessment:
         elif cv.status != "ok":
             lines.append(f"cross-validation: {cv.message}")
         else:
+            if cv.verdict is None or cv.diff is None or cv.diff.share_within is None:
+                raise ValueError("a cross-validation with status 'ok' carries its verdict and its diff's share")
             lines.append(
                 f"cross-validation: {cv.verdict.replace('-', ' ')}"
                 + (f", {len(cv.flagged_views)} view(s) disagree" if cv.flagged_views else "")

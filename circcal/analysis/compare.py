@@ -163,7 +163,7 @@ def match_grid_order(
             f"expected {n} points for a {board.rows}x{board.cols} grid, got {len(det)} detected and "
             f"{len(ref)} reference"
         )
-    best = None
+    best: tuple[np.ndarray, str, float] | None = None
     for sym in board.symmetries(reflections=mirror):
         cand = det[sym.perm]
         d2 = np.sum((cand - ref) ** 2, axis=1)
@@ -171,6 +171,8 @@ def match_grid_order(
         rms = float(np.sqrt(np.mean(d2))) if d2.size else float("inf")
         if best is None or rms < best[2]:
             best = (cand, sym.label, rms)
+    if best is None:  # symmetries() always yields the identity
+        raise ValueError("the board lists no symmetry, not even the identity")
     return best
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -39,11 +40,11 @@ class Coverage:
     height: int
     counts: np.ndarray
     region_counts: dict[str, int]
-    empty: list[dict]
+    empty: list[dict[str, Any]]
     covered_share: float
     warnings: list[str] = field(default_factory=list)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "cells_across": int(self.counts.shape[1]),
             "counts": self.counts.tolist(),

@@ -31,8 +31,9 @@ import numpy as np
 
 from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 from circcal.errors import InputError
+from circcal.model import Camera
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
-from circcal.solver import CalibrationOptions, calibrate, leave_one_out
+from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
 
 __all__ = [
     "CrossValidation",
@@ -136,6 +137,8 @@ class CrossValidation:
 
 
 def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
+    if d.share_within is None:
+        raise ValueError("_verdict needs a ModelDiff made with both models' uncertainties")
     share = 100.0 * d.share_within
     base = (
         f"the halves differ by {d.rms_px:.3g} px RMS (p95 {d.p95_px:.3g}, max {d.max_px:.3g}, centre "
@@ -166,13 +169,13 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions)
     size = (full.camera.width, full.camera.height)
     models: dict[int, Any] = {}
 
-    def fit(rest: list[int]):
+    def fit(rest: list[int]) -> CalibrationResult:
         (k,) = set(range(len(obj))) - set(rest)
         res = calibrate([obj[i] for i in rest], [img[i] for i in rest], size, options, initial=full.camera)
         models[k] = res
         return res
 
-    def held_out(k: int, res: Any):
+    def held_out(k: int, res: CalibrationResult) -> tuple[np.ndarray, np.ndarray, Camera]:
         return res.board_lookup(np.asarray(obj[k], dtype=np.float64)), img[k], res.camera
 
     rows = leave_one_out(len(obj), fit, held_out)
@@ -311,7 +314,7 @@ def cross_validate_observations(
     obj = [object_points[i] for i in kept]
     img = [image_points[i] for i in kept]
 
-    def fit_half(h: list[int]):
+    def fit_half(h: list[int]) -> CalibrationResult:
         return calibrate([obj[i] for i in h], [img[i] for i in h], image_size, options)
 
     return full, cross_validate(
@@ -343,7 +346,7 @@ def cross_validate_detections(
     dets = [cal.detections[i] for i in cal.used]
     size = (full.camera.width, full.camera.height)
 
-    def fit_half(h: list[int]):
+    def fit_half(h: list[int]) -> CalibrationResult:
         exclude = None
         if options.outlier_rule is not None:  # the detector's bad dots stay out, as in the full model
             from circcal.dotcheck import bad_dot_rejections

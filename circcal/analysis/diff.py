@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,7 @@ class ModelDiff:
     consistent: bool | None = None
     where: list[tuple[str, float]] = field(default_factory=list)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """The numbers, JSON-ready (maps left out)."""
         out = {
             k: getattr(self, k)
@@ -100,8 +101,8 @@ class ModelDiff:
 
 def _points(uv: np.ndarray, cam: Camera, distance: float | None) -> np.ndarray:
     r = unproject(uv, cam)
-    r = r / np.linalg.norm(r, axis=1, keepdims=True)
-    return r if distance is None else r * float(distance)
+    unit: np.ndarray = r / np.linalg.norm(r, axis=1, keepdims=True)
+    return unit if distance is None else unit * float(distance)
 
 
 def model_diff(
@@ -138,10 +139,10 @@ def model_diff(
         Pa = _points(uv, a, distance)
         R, t = np.eye(3), np.zeros(3)
         if focus_radius_px > 0:
-            centre = np.array([(a.width - 1) / 2, (a.height - 1) / 2])
+            centre_xy = np.array([(a.width - 1) / 2, (a.height - 1) / 2])
             Pb = _points(uv, b, distance)
             focus = (
-                (np.linalg.norm(uv - centre, axis=1) <= focus_radius_px)
+                (np.linalg.norm(uv - centre_xy, axis=1) <= focus_radius_px)
                 & np.all(np.isfinite(Pa), axis=1)
                 & np.all(np.isfinite(Pb), axis=1)
             )

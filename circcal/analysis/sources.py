@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from circcal.formats.limits import MAX_MODEL_FILE_BYTES
 from circcal.formats.mrcal import cameramodel_has_optimization_inputs, check_optimization_inputs
 from circcal.jsonio import read_text
 from circcal.model import Camera
+
+if TYPE_CHECKING:  # annotations only: the solver is imported where a document is re-solved
+    from circcal.solver import CalibrationResult
 
 __all__ = ["LoadedModel", "load_model", "resolve_document", "RESOLVE_TOL_PX"]
 
@@ -43,7 +47,7 @@ class LoadedModel:
     note: str
 
 
-def resolve_document(camera: Camera, document: dict):
+def resolve_document(camera: Camera, document: dict[str, Any]) -> CalibrationResult | None:
     """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module), or None
     when it holds none or the solve does not land on its camera."""
     from circcal.analysis.compare import projection_diff

@@ -38,6 +38,8 @@ def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera
     p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
     flat = o.copy()
     flat[:, :, 2] = 0.0
+    if not camera.model.pinhole:  # OpenCV's pose solvers hold no fisheye: circcal's own model, through its rays
+        return _fit_pose_rays(o.reshape(-1, 3), p.reshape(-1, 2), camera)
     ok, rvec, tvec = cv2.solvePnP(flat, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
@@ -45,6 +47,36 @@ def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera
         o, p, camera.K, camera.dist, rvec, tvec, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
     )
     return rvec.reshape(3), tvec.reshape(3)
+
+
+def _fit_pose_rays(obj: np.ndarray, img: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_pose` for a lens OpenCV's pose solvers cannot hold (the fisheye): the IPPE start from the points'
+    rays (:func:`circcal.model.unproject`, in front of the camera), then the pixel residuals of
+    :func:`circcal.model.project` minimised over the 6 pose parameters (scipy's least squares)."""
+    import cv2
+    from scipy.optimize import least_squares
+
+    from circcal.model import unproject
+
+    rays = unproject(img, camera)
+    front = np.all(np.isfinite(rays), axis=1) & (rays[:, 2] > 1e-6)
+    if front.sum() < 4:
+        raise CalibrationError("no board pose fits this view with the given camera (too few points in front of it)")
+    norm = rays[front, :2] / rays[front, 2:3]
+    flat = obj[front].copy()
+    flat[:, 2] = 0.0
+    ok, rvec, tvec = cv2.solvePnP(
+        flat.reshape(-1, 1, 3), norm.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
+    )
+    if not ok:
+        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        r: np.ndarray = (project(obj, x[:3], x[3:], camera) - img).ravel()
+        return r
+
+    fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return fit.x[:3], fit.x[3:]
 
 
 def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> dict[str, float]:
