@@ -122,33 +122,16 @@ def calibrate(
 
     Notes
     -----
-    Held parameters (``options.fixed``) stay at ``initial``'s values, else at their defaults: 0 for a distortion
-    coefficient (k3, k2 and p1, p2 held together leave the one-coefficient radial model k1), the image centre
-    ((w-1)/2, (h-1)/2) for cx and cy (both held: Zhang's closed form is solved with that principal point), 1 for
-    ``aspect_ratio`` (fx = aspect * fy). ``options.max_iterations``: Jacobian evaluations allowed; reaching it
-    warns and returns ``converged=False``. ``options.solver``: ``"schur"`` (default) is Levenberg-Marquardt with
-    exact Schur-complement solves (:func:`circcal.solver.lm.levenberg_marquardt`: reaches the minimum to ~1e-11
-    relative, like OpenCV); ``"scipy"`` is ``scipy.optimize.least_squares`` (trust-region reflective, sparse
-    analytic Jacobian, LSMR) on the same residuals and Jacobian, slower and stopping ~1e-7 relative short of the
-    minimum: an independent cross-check.
+    Held parameters (``options.fixed``) stay at ``initial``'s values, else at their defaults (0 for a distortion
+    coefficient, the image centre for cx, cy, 1 for ``aspect_ratio``). Reaching ``options.max_iterations`` warns
+    (RuntimeWarning) and returns ``converged=False``. What each option does, the starts and the two solvers:
+    docs/solver.md, "calibrate(): options in detail".
 
-    ``options.refine_board``: also estimate the 3-D position of every board point (a printed board is rarely flat or
-    printed to scale; the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``). Board
-    points are identified across views by their nominal coordinates. ``options.board_gauge`` (a, b, c): indices of
-    distinct points, in order of first appearance across the views, held at their nominal positions (a and b in x,
-    y, z; c in z only): the 7 constraints that fix the board's frame and scale, exactly like calibrateCameraRO's
-    first point, ``iFixedPoint`` and last point's z. Default: the first point, the point farthest from it, and the
-    point farthest from the line through both. Points seen in fewer than 3 views are held. The refined points come
-    back in ``CalibrationResult.board_points``.
-
-    ``options.outlier_rule``: a :class:`circcal.solver.outliers.OutlierRule` to reject outlying points and views
-    (each rejection listed in ``CalibrationResult.outliers``, the solve repeated until none is left,
-    :func:`circcal.solver.outliers.reject_outliers`); None fits every observation given, as every reference
-    calibrator does.
-
-    Pinhole models start from Zhang's closed form with ``k1, k2`` (every other coefficient 0), as
-    ``cv2.calibrateCamera`` does; the fisheye from an equidistant lens whose focal length is searched for
-    (:func:`circcal.solver.fisheye_start.fisheye_start`).
+    Examples
+    --------
+    >>> from circcal.solver import CalibrationOptions, calibrate
+    >>> res = calibrate(object_points, image_points, (1280, 960), CalibrationOptions(lens="rational"))  # doctest: +SKIP
+    >>> res.camera.fx, res.errors["rms_per_coord_px"]  # doctest: +SKIP
     """
     if options is None:
         options = CalibrationOptions(lens=initial.lens if initial is not None else DEFAULT_LENS)
