@@ -65,9 +65,20 @@ __all__ = [
 
 @dataclass(frozen=True)
 class LensModel:
-    """One lens model: its ``name`` (``Camera.lens``), its distortion coefficients' names in the order of
-    ``Camera.dist`` (OpenCV's order), and ``pinhole``: True when the image is a distorted perspective projection
-    (z > 0 only; :func:`undistort` inverts it), False for the fisheye (any direction, theta up to pi)."""
+    """One lens model of :data:`LENS_MODELS`.
+
+    Attributes
+    ----------
+    name : str
+        The model's name (``Camera.lens``).
+    dist_names : tuple of str
+        Its distortion coefficients' names in the order of ``Camera.dist`` (OpenCV's order).
+    pinhole : bool
+        True when the image is a distorted perspective projection (z > 0 only; :func:`undistort` inverts it), False
+        for the fisheye (any direction, theta up to pi).
+    description : str
+        One line in words.
+    """
 
     name: str
     dist_names: tuple[str, ...]
@@ -76,6 +87,7 @@ class LensModel:
 
     @property
     def n_dist(self) -> int:
+        """The number of distortion coefficients (``len(dist_names)``)."""
         return len(self.dist_names)
 
     @property
@@ -123,15 +135,55 @@ PARAM_NAMES: tuple[str, ...] = LENS_MODELS[DEFAULT_LENS].param_names
 
 
 def lens_model(name: str) -> LensModel:
-    """The :class:`LensModel` called ``name``; :class:`~circcal.errors.InputError` listing the known ones
-    otherwise."""
+    """The :class:`LensModel` called ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A :data:`LENS_MODELS` name: ``opencv5``, ``rational``, ``thin-prism`` or ``fisheye``.
+
+    Returns
+    -------
+    LensModel
+
+    Raises
+    ------
+    InputError
+        ``name`` is not a known model (the message lists the known ones).
+
+    Examples
+    --------
+    >>> lens_model("rational").n_dist
+    8
+    """
     if not isinstance(name, str) or name not in LENS_MODELS:
         raise InputError(f"unknown lens model {name!r}; known: {', '.join(LENS_MODELS)}")
     return LENS_MODELS[name]
 
 
 def param_names(lens: str = DEFAULT_LENS) -> tuple[str, ...]:
-    """The names of :attr:`Camera.intrinsics` for ``lens``: fx, fy, cx, cy, then the distortion coefficients."""
+    """The names of :attr:`Camera.intrinsics` for ``lens``.
+
+    Parameters
+    ----------
+    lens : str
+        A :data:`LENS_MODELS` name (default ``opencv5``).
+
+    Returns
+    -------
+    tuple of str
+        fx, fy, cx, cy, then the distortion coefficients' names.
+
+    Raises
+    ------
+    InputError
+        Unknown lens model.
+
+    Examples
+    --------
+    >>> param_names("fisheye")
+    ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'k3', 'k4')
+    """
     return lens_model(lens).param_names
 
 
@@ -139,11 +191,31 @@ def param_names(lens: str = DEFAULT_LENS) -> tuple[str, ...]:
 class Camera:
     """Intrinsics of a camera: pinhole ``K`` (no skew) and one lens model's distortion.
 
-    ``width``/``height`` in pixels (positive integers); ``fx, fy, cx, cy`` in pixels (OpenCV pixel-centre
-    convention; finite, focal lengths positive); ``dist``: the coefficients of ``lens`` in
-    ``LENS_MODELS[lens].dist_names`` order (unitless; finite; default all 0); ``lens``: a :data:`LENS_MODELS` name
-    (default ``opencv5``: ``[k1, k2, p1, p2, k3]``). Every value is checked on construction
-    (:class:`~circcal.errors.InputError` naming the field): a camera that exists holds only values that project.
+    Every value is checked on construction: a camera that exists holds only values that project.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in px (positive integers; an integral float is accepted).
+    fx, fy, cx, cy : float
+        Focal lengths and principal point in px (OpenCV pixel-centre convention; finite, focal lengths positive).
+    dist : array_like of float, optional
+        The coefficients of ``lens`` in ``LENS_MODELS[lens].dist_names`` order (unitless, finite); default all 0.
+        Stored as a float64 (n_dist,) array.
+    lens : str
+        A :data:`LENS_MODELS` name (default ``opencv5``: ``[k1, k2, p1, p2, k3]``).
+
+    Raises
+    ------
+    InputError
+        A value of the wrong type, not finite, out of range, the wrong number of coefficients or an unknown lens
+        model; the message names the field.
+
+    Examples
+    --------
+    >>> cam = Camera(1280, 960, 1000.0, 1000.0, 639.5, 479.5, [-0.1, 0.01, 0.0, 0.0, 0.0])
+    >>> float(cam.K[0, 2]), cam.model.n_dist
+    (639.5, 5)
     """
 
     width: int
@@ -203,7 +275,26 @@ class Camera:
 
     @classmethod
     def from_intrinsics(cls, width: int, height: int, params: np.ndarray, lens: str = DEFAULT_LENS) -> Camera:
-        """Inverse of :attr:`intrinsics`: ``params`` = (4 + n_dist,) fx, fy, cx, cy, then ``lens``'s coefficients."""
+        """The camera of a parameter vector: the inverse of :attr:`intrinsics`.
+
+        Parameters
+        ----------
+        width, height : int
+            Image size in px.
+        params : ndarray
+            (4 + n_dist,) fx, fy, cx, cy in px, then ``lens``'s coefficients.
+        lens : str
+            A :data:`LENS_MODELS` name (default ``opencv5``).
+
+        Returns
+        -------
+        Camera
+
+        Raises
+        ------
+        InputError
+            A value the camera refuses (see the class).
+        """
         p = np.asarray(params, dtype=np.float64)
         n = lens_model(lens).n_dist
         return cls(
@@ -211,9 +302,15 @@ class Camera:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``camera`` block of truth.json / model.json. ``lens`` is written for every model but the default
-        ``opencv5``, where it is left out: files (and fixture content hashes) of 5-coefficient cameras stay as
-        they were, and readers take a missing ``lens`` as ``opencv5``."""
+        """The ``camera`` block of truth.json / model.json.
+
+        Returns
+        -------
+        dict
+            ``width``, ``height`` (int px), ``fx``, ``fy``, ``cx``, ``cy`` (float px), ``dist`` (list of float) and
+            ``lens`` for every model but the default ``opencv5``, where it is left out: files (and fixture content
+            hashes) of 5-coefficient cameras stay as they were, and readers take a missing ``lens`` as ``opencv5``.
+        """
         d: dict[str, Any] = {
             "width": int(self.width),
             "height": int(self.height),
@@ -229,8 +326,23 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Camera:
-        """Read a ``camera`` block (``lens`` optional, default ``opencv5``); every value is checked (see the class)
-        and a missing key named (:class:`~circcal.errors.InputError`)."""
+        """Read a ``camera`` block (the inverse of :meth:`to_dict`).
+
+        Parameters
+        ----------
+        d : dict
+            ``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``, ``dist`` and optionally ``lens`` (default
+            ``opencv5``).
+
+        Returns
+        -------
+        Camera
+
+        Raises
+        ------
+        InputError
+            Not a mapping, a missing key (named), ``dist`` None, or a value the camera refuses (see the class).
+        """
         if not isinstance(d, dict):
             raise InputError(f"a camera block must be a mapping, got {type(d).__name__}")
         missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy", "dist") if k not in d]
@@ -255,7 +367,22 @@ def _finite(v: Any) -> bool:
 
 
 def transform(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    """Board points (N, 3) into the camera frame: ``R(rvec) @ X + tvec``. Returns (N, 3)."""
+    """Board points into the camera frame: ``R(rvec) @ X + tvec``.
+
+    Parameters
+    ----------
+    points : ndarray
+        (N, 3) board coordinates, mm.
+    rvec : ndarray
+        (3,) axis-angle rotation, rad.
+    tvec : ndarray
+        (3,) translation, mm.
+
+    Returns
+    -------
+    ndarray
+        (N, 3) camera-frame points, mm.
+    """
     R = rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))
     Xc: np.ndarray = np.asarray(points, dtype=np.float64) @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
     return Xc
@@ -268,10 +395,33 @@ def _is_pinhole(lens: str) -> bool:
 def project_camera_jacobian(
     Xc: np.ndarray, params: np.ndarray, lens: str = DEFAULT_LENS
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Camera-frame points (N, 3) -> pixels, with derivatives: the projection of :func:`project` after the pose.
+    """Camera-frame points -> pixels, with derivatives: the projection of :func:`project` after the pose.
 
-    ``params``: (4 + n_dist,) intrinsics in :func:`param_names` order (:attr:`Camera.intrinsics`) of ``lens``.
-    Returns ``(uv (N, 2) px, J_intr (N, 2, 4 + n_dist) = d uv / d params, J_X (N, 2, 3) = d uv / d Xc)``.
+    Parameters
+    ----------
+    Xc : ndarray
+        (N, 3) camera-frame points, mm.
+    params : ndarray
+        (4 + n_dist,) intrinsics in :func:`param_names` order (:attr:`Camera.intrinsics`) of ``lens``: px, then
+        unitless coefficients.
+    lens : str
+        A :data:`LENS_MODELS` name (default ``opencv5``).
+
+    Returns
+    -------
+    uv : ndarray
+        (N, 2) px.
+    J_intr : ndarray
+        (N, 2, 4 + n_dist): d uv / d params.
+    J_X : ndarray
+        (N, 2, 3): d uv / d Xc, px per mm.
+
+    Raises
+    ------
+    InputError
+        Unknown lens model.
+    ValueError
+        ``params`` of the wrong length for ``lens``.
     """
     params = np.asarray(params, dtype=np.float64)
     Xc = np.asarray(Xc, dtype=np.float64)
@@ -317,8 +467,22 @@ def project_jacobian(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`project` with derivatives, for one view.
 
-    ``points``: (N, 3) mm. Returns ``(uv, J_intr, J_pose)``: uv (N, 2) px; ``J_intr`` (N, 2, 4 + n_dist) with
-    respect to :attr:`Camera.intrinsics`; ``J_pose`` (N, 2, 6) with respect to rvec (3) then tvec (3).
+    Parameters
+    ----------
+    points : ndarray
+        (N, 3) board coordinates, mm.
+    rvec, tvec : ndarray
+        (3,) the pose: rad (axis-angle) and mm.
+    camera : Camera
+
+    Returns
+    -------
+    uv : ndarray
+        (N, 2) px.
+    J_intr : ndarray
+        (N, 2, 4 + n_dist) with respect to :attr:`Camera.intrinsics`.
+    J_pose : ndarray
+        (N, 2, 6) with respect to rvec (3) then tvec (3).
     """
     r = np.asarray(rvec, dtype=np.float64).reshape(3)
     Y = np.asarray(points, dtype=np.float64) @ rodrigues(r).T
@@ -337,8 +501,20 @@ def _distorted_normalised(P: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def project_camera(P: np.ndarray, camera: Camera) -> np.ndarray:
-    """Camera-frame points or rays (N, 3) -> pixels (N, 2). Pinhole models: NaN for points at or behind the camera
-    (z <= 0); fisheye: any direction (theta = atan2(|xy|, z) up to pi; NaN only straight behind)."""
+    """Camera-frame points or rays -> pixels.
+
+    Parameters
+    ----------
+    P : ndarray
+        (N, 3) camera-frame points (mm) or ray directions.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (N, 2) px. Pinhole models: NaN for points at or behind the camera (z <= 0); fisheye: any direction (theta
+        = atan2(|xy|, z) up to pi; NaN only straight behind).
+    """
     P = np.asarray(P, dtype=np.float64)
     return normalized_to_pixel(_distorted_normalised(P, camera), camera)
 
@@ -349,10 +525,31 @@ def project(
     tvec: np.ndarray,
     camera: Camera,
 ) -> np.ndarray:
-    """Project board points into the image: (N, 3) board coordinates -> (N, 2) pixels (OpenCV convention).
+    """Project board points into the image (OpenCV's pixel convention).
 
     Equals ``cv2.projectPoints(points, rvec, tvec, camera.K, camera.dist)`` for the pinhole models and
     ``cv2.fisheye.projectPoints`` for ``fisheye`` (points in front of the camera; see :func:`project_camera`).
+
+    Parameters
+    ----------
+    points : ndarray
+        (N, 3) board coordinates, mm.
+    rvec : ndarray
+        (3,) axis-angle rotation board -> camera, rad.
+    tvec : ndarray
+        (3,) translation, mm.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (N, 2) px. Pinhole models divide by z whatever its sign, as OpenCV does.
+
+    Examples
+    --------
+    >>> cam = Camera(640, 480, 500.0, 500.0, 319.5, 239.5)
+    >>> project(np.array([[0.0, 0.0, 0.0]]), np.zeros(3), np.array([0.0, 0.0, 100.0]), cam)
+    array([[319.5, 239.5]])
     """
     Xc = transform(points, rvec, tvec)
     if camera.model.pinhole:  # OpenCV divides by z whatever its sign
@@ -361,9 +558,21 @@ def project(
 
 
 def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Pixels (N, 2) -> rays (N, 3). Pinhole models: z = 1 (undistorted normalised coordinates), NaN where the
-    distortion has no unique inverse (see :func:`undistort`). Fisheye: unit-norm rays (theta up to pi, z < 0 beyond
-    90 deg), NaN beyond the lens's one-to-one field (:func:`theta_max`)."""
+    """Pixels -> rays.
+
+    Parameters
+    ----------
+    uv : ndarray
+        (N, 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (N, 3). Pinhole models: z = 1 (undistorted normalised coordinates), NaN where the distortion has no unique
+        inverse (see :func:`undistort`). Fisheye: unit-norm rays (theta up to pi, z < 0 beyond 90 deg), NaN beyond
+        the lens's one-to-one field (:func:`theta_max`).
+    """
     xd = pixel_to_normalized(uv, camera)
     if not camera.model.pinhole:
         return fisheye_rays(xd, camera.dist)
@@ -372,20 +581,56 @@ def unproject(uv: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def pixel_to_normalized(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """(..., 2) pixels -> (..., 2) *distorted* normalised coordinates (K^-1 only)."""
+    """Pixels -> *distorted* normalised coordinates (K^-1 only).
+
+    Parameters
+    ----------
+    uv : ndarray
+        (..., 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (..., 2) unitless.
+    """
     uv = np.asarray(uv, dtype=np.float64)
     return np.stack([(uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy], axis=-1)
 
 
 def normalized_to_pixel(xn: np.ndarray, camera: Camera) -> np.ndarray:
-    """(..., 2) normalised coordinates -> (..., 2) pixels (K only)."""
+    """Normalised coordinates -> pixels (K only).
+
+    Parameters
+    ----------
+    xn : ndarray
+        (..., 2) unitless.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (..., 2) px.
+    """
     xn = np.asarray(xn, dtype=np.float64)
     return np.stack([xn[..., 0] * camera.fx + camera.cx, xn[..., 1] * camera.fy + camera.cy], axis=-1)
 
 
 def undistort_pixels(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Distorted pixels (..., 2) -> ideal pinhole pixels (..., 2) with the same K (distortion removed). For the
-    fisheye the perspective image exists only in front of the camera: NaN for rays at or beyond 90 deg."""
+    """Distorted pixels -> ideal pinhole pixels with the same K (distortion removed).
+
+    Parameters
+    ----------
+    uv : ndarray
+        (..., 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (..., 2) px; NaN where the inverse does not exist. For the fisheye the perspective image exists only in
+        front of the camera: NaN for rays at or beyond 90 deg.
+    """
     if camera.model.pinhole:
         return normalized_to_pixel(undistort(pixel_to_normalized(uv, camera), camera.dist), camera)
     rays = unproject(uv, camera)
@@ -394,7 +639,19 @@ def undistort_pixels(uv: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def distort_pixels(uv: np.ndarray, camera: Camera) -> np.ndarray:
-    """Ideal pinhole pixels (..., 2) -> distorted pixels (..., 2); inverse of :func:`undistort_pixels`."""
+    """Ideal pinhole pixels -> distorted pixels: the inverse of :func:`undistort_pixels`.
+
+    Parameters
+    ----------
+    uv : ndarray
+        (..., 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray
+        (..., 2) px.
+    """
     xn = pixel_to_normalized(uv, camera)
     if camera.model.pinhole:
         return normalized_to_pixel(distort(xn, camera.dist), camera)

@@ -34,7 +34,23 @@ _MAX_STEP_HALVINGS = 40
 
 
 def check_dist(dist: np.ndarray) -> np.ndarray:
-    """``dist`` as a float64 (n,) array with n in :data:`N_COEFFS`; ValueError otherwise."""
+    """``dist`` as a float64 vector of a length this module implements.
+
+    Parameters
+    ----------
+    dist : array_like
+        5, 8 or 12 coefficients in OpenCV's order (any shape; raveled).
+
+    Returns
+    -------
+    ndarray
+        (n,) float64, n in :data:`N_COEFFS`.
+
+    Raises
+    ------
+    ValueError
+        Another number of coefficients.
+    """
     d = np.asarray(dist, dtype=np.float64).ravel()
     if d.size not in N_COEFFS:
         raise ValueError(f"a pinhole distortion vector holds 5, 8 or 12 coefficients (OpenCV's order), got {d.size}")
@@ -155,8 +171,27 @@ def _coefficient_jacobian(
 def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Apply the distortion to normalised coordinates.
 
-    ``xn``: (..., 2) undistorted normalised coordinates; ``dist``: (5,), (8,) or (12,) in OpenCV's order.
-    Returns (..., 2) distorted normalised coordinates.
+    Parameters
+    ----------
+    xn : ndarray
+        (..., 2) undistorted normalised coordinates (unitless).
+    dist : ndarray
+        (5,), (8,) or (12,) in OpenCV's order.
+
+    Returns
+    -------
+    ndarray
+        (..., 2) distorted normalised coordinates.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` of another length.
+
+    Examples
+    --------
+    >>> distort(np.array([0.1, 0.0]), np.array([0.1, 0, 0, 0, 0]))
+    array([0.1001, 0.    ])
     """
     xn = np.asarray(xn, dtype=np.float64)
     xd, yd = _brown(xn[..., 0], xn[..., 1], check_dist(dist), False)
@@ -177,8 +212,26 @@ def _distort_jacobian_into(
 def distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distortion with its derivatives.
 
-    ``xn``: (..., 2), ``dist``: (n,) with n = 5, 8 or 12. Returns ``(xd, J_x, J_d)``: xd (..., 2); ``J_x`` =
-    d xd / d xn, (..., 2, 2); ``J_d`` = d xd / d dist, (..., 2, n), columns in ``dist``'s order.
+    Parameters
+    ----------
+    xn : ndarray
+        (..., 2) undistorted normalised coordinates.
+    dist : ndarray
+        (n,), n = 5, 8 or 12.
+
+    Returns
+    -------
+    xd : ndarray
+        (..., 2) distorted normalised coordinates.
+    J_x : ndarray
+        (..., 2, 2): d xd / d xn.
+    J_d : ndarray
+        (..., 2, n): d xd / d dist, columns in ``dist``'s order.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` of another length.
     """
     xn = np.asarray(xn, dtype=np.float64)
     d = check_dist(dist)
@@ -202,13 +255,33 @@ def undistort(
 ) -> np.ndarray:
     """Invert :func:`distort` by a vectorised, damped Newton iteration.
 
-    ``xd``: (..., 2) distorted normalised coordinates; ``dist``: (5,), (8,) or (12,); ``x0``: optional (..., 2)
-    initial guess (e.g. a neighbouring solution: two Newton steps then suffice). Stops when every residual
-    ``|distort(x) - xd|`` (max norm, normalised units) is below ``tol`` (relative to ``|xd|`` beyond 1); 1e-15
-    normalised is ~1e-11 px for f up to 10^4 px. A step that does not reduce a point's residual is halved (guards
-    strong barrel distortion). Returns (..., 2) undistorted normalised coordinates. Points where the model folds
-    over (no unique inverse, far outside a sensible field of view: the radial factor not positive, or the map
-    orientation-reversing) come back as NaN rather than a wrong value.
+    A step that does not reduce a point's residual is halved (guards strong barrel distortion). Points where the
+    model folds over (no unique inverse, far outside a sensible field of view: the radial factor not positive, or the
+    map orientation-reversing) come back as NaN rather than a wrong value.
+
+    Parameters
+    ----------
+    xd : ndarray
+        (..., 2) distorted normalised coordinates.
+    dist : ndarray
+        (5,), (8,) or (12,).
+    x0 : ndarray, optional
+        (..., 2) initial guess (e.g. a neighbouring solution: two Newton steps then suffice); default ``xd``.
+    tol : float
+        Stop when every residual ``|distort(x) - xd|`` (max norm, normalised units) is below ``tol`` (relative to
+        ``|xd|`` beyond 1); 1e-15 normalised is ~1e-11 px for f up to 10^4 px.
+    max_iter : int
+        Newton iterations at most; points not converged by then are NaN.
+
+    Returns
+    -------
+    ndarray
+        (..., 2) undistorted normalised coordinates, NaN where there is no inverse.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` of another length.
     """
     xd = np.asarray(xd, dtype=np.float64)
     d = check_dist(dist)

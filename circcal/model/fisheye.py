@@ -45,8 +45,27 @@ def theta_distort(theta: np.ndarray, dist: np.ndarray, derivative: Literal[True]
 def theta_distort(
     theta: np.ndarray, dist: np.ndarray, derivative: bool = False
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """``theta_d`` (same shape as ``theta``, radians) of angles ``theta`` (radians); with ``derivative`` also
-    ``d theta_d / d theta``."""
+    """The distorted angle ``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)``.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Angles from the optical axis, rad (any shape).
+    dist : ndarray
+        (4,) ``[k1, k2, k3, k4]``.
+    derivative : bool
+        Also return ``d theta_d / d theta``.
+
+    Returns
+    -------
+    ndarray or tuple of ndarray
+        ``theta_d`` (rad, the shape of ``theta``); with ``derivative`` ``(theta_d, d theta_d / d theta)``.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` not of 4 coefficients.
+    """
     k1, k2, k3, k4 = _check(dist)
     t2 = theta * theta
     td: np.ndarray = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
@@ -56,8 +75,23 @@ def theta_distort(
 
 
 def theta_max(dist: np.ndarray) -> float:
-    """The largest angle (radians, <= pi) up to which ``theta_d`` increases: the lens's one-to-one field (half
-    angle). The first positive root of ``d theta_d / d theta`` (a quartic in theta^2), else pi."""
+    """The lens's one-to-one field: the largest angle up to which ``theta_d`` increases.
+
+    Parameters
+    ----------
+    dist : ndarray
+        (4,) ``[k1, k2, k3, k4]``.
+
+    Returns
+    -------
+    float
+        Half angle in rad, <= pi: the first positive root of ``d theta_d / d theta`` (a quartic in theta^2), else pi.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` not of 4 coefficients.
+    """
     k1, k2, k3, k4 = _check(dist)
     coeffs = np.array([9.0 * k4, 7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0])  # in u = theta^2, highest power first
     nz = np.flatnonzero(coeffs)
@@ -68,8 +102,26 @@ def theta_max(dist: np.ndarray) -> float:
 
 
 def fisheye_distort(P: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Camera-frame points or rays (N, 3) -> (N, 2) distorted normalised coordinates ``(xd, yd)`` (pixels are
-    ``fx xd + cx``, ``fy yd + cy``). A point on the optical axis behind the camera (theta = pi) has no image: NaN."""
+    """Camera-frame points or rays -> distorted normalised coordinates.
+
+    Parameters
+    ----------
+    P : ndarray
+        (N, 3) camera-frame points (mm) or rays, any direction.
+    dist : ndarray
+        (4,) ``[k1, k2, k3, k4]``.
+
+    Returns
+    -------
+    ndarray
+        (N, 2) ``(xd, yd)`` (pixels are ``fx xd + cx``, ``fy yd + cy``). A point on the optical axis behind the
+        camera (theta = pi) has no image: NaN.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` not of 4 coefficients.
+    """
     xd: np.ndarray = fisheye_distort_jacobian(P, dist, jacobian=False)[0]
     return xd
 
@@ -77,8 +129,31 @@ def fisheye_distort(P: np.ndarray, dist: np.ndarray) -> np.ndarray:
 def fisheye_distort_jacobian(
     P: np.ndarray, dist: np.ndarray, jacobian: bool = True
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """:func:`fisheye_distort` with derivatives: ``(xd (N, 2), J_P (N, 2, 3) = d xd / d P, J_d (N, 2, 4) =
-    d xd / d [k1, k2, k3, k4])`` (the Jacobians None without ``jacobian``)."""
+    """:func:`fisheye_distort` with derivatives.
+
+    Parameters
+    ----------
+    P : ndarray
+        (N, 3) camera-frame points (mm) or rays.
+    dist : ndarray
+        (4,) ``[k1, k2, k3, k4]``.
+    jacobian : bool
+        Compute the Jacobians (default True).
+
+    Returns
+    -------
+    xd : ndarray
+        (N, 2) distorted normalised coordinates.
+    J_P : ndarray or None
+        (N, 2, 3): d xd / d P (None without ``jacobian``).
+    J_d : ndarray or None
+        (N, 2, 4): d xd / d [k1, k2, k3, k4] (None without ``jacobian``).
+
+    Raises
+    ------
+    ValueError
+        ``dist`` not of 4 coefficients.
+    """
     P = np.asarray(P, dtype=np.float64)
     if not jacobian:
         return _fisheye(P, _check(dist)), None, None
@@ -152,11 +227,31 @@ def _fisheye(
 
 
 def fisheye_rays(xd: np.ndarray, dist: np.ndarray, *, tol: float = 1e-15, max_iter: int = 100) -> np.ndarray:
-    """Distorted normalised coordinates (..., 2) -> unit rays (..., 3): the inverse of :func:`fisheye_distort`.
+    """Distorted normalised coordinates -> unit rays: the inverse of :func:`fisheye_distort`.
 
-    Solves ``theta_d(theta) = |xd|`` for theta in [0, :func:`theta_max`] by Newton's method kept inside a
-    bisection bracket (converges for every monotonic polynomial), to ``tol`` radians. Beyond the lens's one-to-one
-    field (``|xd| > theta_d(theta_max)``) the ray is NaN.
+    Solves ``theta_d(theta) = |xd|`` for theta in [0, :func:`theta_max`] by Newton's method kept inside a bisection
+    bracket (converges for every monotonic polynomial).
+
+    Parameters
+    ----------
+    xd : ndarray
+        (..., 2) distorted normalised coordinates.
+    dist : ndarray
+        (4,) ``[k1, k2, k3, k4]``.
+    tol : float
+        Convergence tolerance on theta, rad.
+    max_iter : int
+        Iterations at most.
+
+    Returns
+    -------
+    ndarray
+        (..., 3) unit rays; NaN beyond the lens's one-to-one field (``|xd| > theta_d(theta_max)``).
+
+    Raises
+    ------
+    ValueError
+        ``dist`` not of 4 coefficients.
     """
     d = _check(dist)
     xd = np.asarray(xd, dtype=np.float64)

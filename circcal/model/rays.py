@@ -9,12 +9,25 @@ __all__ = ["ray_homography", "ray_homographies", "plane_normal"]
 
 
 def ray_homography(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray | None:
-    """The homography ``H`` (3, 3) with ``H (X, Y, 1) ~ d`` for board points ``board_xy`` (N, 2) mm (N >= 4) seen
-    along rays ``d = rays`` (N, 3) in any direction, with the sign that makes ``H (X, Y, 1)`` point along the rays
-    and ``|h1| + |h2| = 2`` (so ``H = [r1 r2 t]`` for a pose when the points are exact). A DLT on the cross product
-    ``d x H a = 0`` with the board points Hartley-normalised and the rays made unit (null vector of the normal
-    matrix). None when the points are
-    collinear or coincident (no homography is determined). :func:`ray_homographies` does many views at once."""
+    """The homography of a planar board onto the rays it is seen along, in any direction.
+
+    ``H (X, Y, 1) ~ d``, with the sign that makes ``H (X, Y, 1)`` point along the rays and ``|h1| + |h2| = 2`` (so
+    ``H = [r1 r2 t]`` for a pose when the points are exact). A DLT on the cross product ``d x H a = 0`` with the board
+    points Hartley-normalised and the rays made unit (null vector of the normal matrix). :func:`ray_homographies`
+    does many views at once.
+
+    Parameters
+    ----------
+    board_xy : ndarray
+        (N, 2) board coordinates, mm, N >= 4.
+    rays : ndarray
+        (N, 3) ray directions (any length, any direction).
+
+    Returns
+    -------
+    ndarray or None
+        (3, 3); None when the points are collinear or coincident (no homography is determined).
+    """
     H = ray_homographies(
         np.asarray(board_xy, dtype=np.float64).reshape(1, -1, 2), np.asarray(rays, dtype=np.float64).reshape(1, -1, 3)
     )[0]
@@ -22,8 +35,20 @@ def ray_homography(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray | None:
 
 
 def ray_homographies(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray:
-    """:func:`ray_homography` of V views with N points each, batched: ``board_xy`` (V, N, 2) mm, ``rays`` (V, N, 3)
-    -> (V, 3, 3), NaN for a view whose homography is not determined (N < 4, collinear or coincident points)."""
+    """:func:`ray_homography` of V views with N points each, batched.
+
+    Parameters
+    ----------
+    board_xy : ndarray
+        (V, N, 2) board coordinates, mm.
+    rays : ndarray
+        (V, N, 3) ray directions.
+
+    Returns
+    -------
+    ndarray
+        (V, 3, 3); NaN for a view whose homography is not determined (N < 4, collinear or coincident points).
+    """
     a = np.asarray(board_xy, dtype=np.float64)
     d = np.asarray(rays, dtype=np.float64)
     V, N = a.shape[:2]
@@ -63,8 +88,18 @@ def ray_homographies(board_xy: np.ndarray, rays: np.ndarray) -> np.ndarray:
 
 
 def plane_normal(H: np.ndarray) -> np.ndarray:
-    """(3,) unit normal of the board plane in the camera frame, ``h1 x h2`` of a homography ``H`` (3, 3) board ->
-    rays (its sign: the board's +z)."""
+    """The board plane's unit normal in the camera frame, ``h1 x h2`` of a homography.
+
+    Parameters
+    ----------
+    H : ndarray
+        (3, 3) homography board -> rays (:func:`ray_homography`).
+
+    Returns
+    -------
+    ndarray
+        (3,) unit normal, its sign the board's +z.
+    """
     n = np.cross(H[:, 0], H[:, 1])
     unit: np.ndarray = n / np.linalg.norm(n)
     return unit
