@@ -89,8 +89,23 @@ class StateCovariance:
 def state_covariance(
     prob: Problem, x: np.ndarray, cov_global_unit: np.ndarray, sigma_px: float
 ) -> StateCovariance | None:
-    """The :class:`StateCovariance` of ``prob`` at its solution ``x``, from ``cov_global_unit`` = S^-1 (ng, ng)
-    the solver already inverted (None when it is not finite: the information matrix was singular)."""
+    """The :class:`StateCovariance` of ``prob`` at its solution.
+
+    Parameters
+    ----------
+    prob : Problem
+    x : ndarray
+        (n,) the solution.
+    cov_global_unit : ndarray
+        (ng, ng) ``S^-1``, the unit covariance of the global parameters the solver already inverted.
+    sigma_px : float
+        The solve's per-coordinate noise estimate, px.
+
+    Returns
+    -------
+    StateCovariance or None
+        None when ``cov_global_unit`` is not finite (the information matrix was singular).
+    """
     if not np.all(np.isfinite(cov_global_unit)):
         return None
     _, _, B, D, _ = prob.normal_equations(x)[1]

@@ -27,10 +27,28 @@ __all__ = ["fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
 def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The board pose that best explains one view with ``camera`` held fixed.
 
-    ``object_points``: (N, 3) mm on the board (z = 0, or the near-planar points of a refined board);
-    ``image_points``: (N, 2) px. IPPE start from the points flattened onto z = 0, then OpenCV's Levenberg-Marquardt
-    refinement with the actual points to convergence. Returns ``rvec`` (3,) rad, ``tvec`` (3,) mm;
-    :class:`~circcal.errors.CalibrationError` when no pose is found.
+    IPPE start from the points flattened onto z = 0, then Levenberg-Marquardt refinement with the actual points to
+    convergence.
+
+    Parameters
+    ----------
+    object_points : ndarray
+        (N, 3) mm on the board (z = 0, or the near-planar points of a refined board).
+    image_points : ndarray
+        (N, 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    rvec : ndarray
+        (3,) rad.
+    tvec : ndarray
+        (3,) mm.
+
+    Raises
+    ------
+    CalibrationError
+        No pose is found.
     """
     import cv2
 
@@ -80,8 +98,27 @@ def _fit_pose_rays(obj: np.ndarray, img: np.ndarray, camera: Camera) -> tuple[np
 
 
 def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> dict[str, float]:
-    """:func:`circcal.metrics.error_stats` of ``image_points`` (N, 2) px against ``object_points`` (N, 3) mm
-    projected with ``camera`` at the pose :func:`fit_pose` finds (6 pose parameters fitted, intrinsics held)."""
+    """How well ``camera`` predicts a view it was not fitted to (6 pose parameters fitted, intrinsics held).
+
+    Parameters
+    ----------
+    object_points : ndarray
+        (N, 3) mm.
+    image_points : ndarray
+        (N, 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    dict
+        :func:`circcal.metrics.error_stats` of ``image_points`` against the points projected at the pose
+        :func:`fit_pose` finds (px).
+
+    Raises
+    ------
+    CalibrationError
+        No pose is found.
+    """
     img = np.asarray(image_points, dtype=np.float64)
     rvec, tvec = fit_pose(object_points, img, camera)
     return error_stats(img - project(np.asarray(object_points, dtype=np.float64), rvec, tvec, camera))
@@ -90,12 +127,23 @@ def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera
 def leave_one_out(
     n_views: int, fit: Callable[[list[int]], Any], held_out: Callable[[int, Any], tuple[np.ndarray, np.ndarray, Camera]]
 ) -> list[dict[str, Any]]:
-    """For each view k of ``n_views``: ``model = fit(every other view's index)``, then ``(object_points,
-    image_points, camera) = held_out(k, model)`` (the held-out view's points as that model sees them, e.g. its
-    centres re-corrected under it and its refined board points) and their :func:`prediction_error`.
+    """Predict each view from a model fitted to all the others.
 
-    Returns one dict per view: ``{"view": k, **error_stats}``, or ``{"view": k, "failed": why}`` where the other
-    views give no model or the view no pose (an :class:`~circcal.errors.InputError`; anything else propagates).
+    Parameters
+    ----------
+    n_views : int
+    fit : callable
+        ``fit(indices of every other view) -> model``.
+    held_out : callable
+        ``held_out(k, model) -> (object_points (N, 3) mm, image_points (N, 2) px, camera)``: the held-out view's
+        points as that model sees them (e.g. its centres re-corrected under it and its refined board points).
+
+    Returns
+    -------
+    list of dict
+        One per view: ``{"view": k, **error_stats}`` (:func:`prediction_error`), or ``{"view": k, "failed": why}``
+        where the other views give no model or the view no pose (an :class:`~circcal.errors.InputError`; anything
+        else propagates).
     """
     out: list[dict[str, Any]] = []
     for k in range(n_views):
@@ -114,10 +162,25 @@ def holdout_errors(
     image_size: tuple[int, int],
     options: CalibrationOptions | None = None,
 ) -> list[dict[str, Any]]:
-    """Leave-one-view-out check of :func:`~circcal.solver.calibrate` on fixed observations: each view predicted by
-    the model calibrated on all the others with ``options`` (:class:`~circcal.solver.options.CalibrationOptions`;
-    None: the defaults; with ``refine_board`` the view's board points are that model's refined ones). See
-    :func:`leave_one_out` for what comes back."""
+    """Leave-one-view-out check of :func:`~circcal.solver.calibrate` on fixed observations.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray
+        Per view (N_v, 3) mm.
+    image_points : sequence of ndarray
+        Per view (N_v, 2) px.
+    image_size : tuple of int
+        (width, height) px.
+    options : CalibrationOptions or None
+        The calibration's options (None: the defaults; with ``refine_board`` the view's board points are that
+        model's refined ones).
+
+    Returns
+    -------
+    list of dict
+        As :func:`leave_one_out`.
+    """
 
     def fit(rest: list[int]) -> CalibrationResult:
         return calibrate([object_points[i] for i in rest], [image_points[i] for i in rest], image_size, options)

@@ -63,10 +63,36 @@ GRADIENT_FLOOR = 1e-12
 def schur_complement(
     A: np.ndarray, B: np.ndarray, D: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``S = A - sum_v B_v D_v^-1 B_v^T`` (ng, ng) for the blocks of :meth:`Problem.normal_equations`; also returns
-    ``D_v^-1`` (V, 6, 6), ``D_v^-1 B_v^T`` (V, 6, ng) and ``[B_1 ... B_V]`` (ng, 6V) for the back-substitution. The
-    6x6 blocks are inverted, as OpenCV's solver does (one batched inverse and product: half the time of a batched
-    solve with ng + 1 right-hand sides)."""
+    """Eliminate the 6x6 pose blocks: ``S = A - sum_v B_v D_v^-1 B_v^T``.
+
+    The 6x6 blocks are inverted, as OpenCV's solver does (one batched inverse and product: half the time of a batched
+    solve with ng + 1 right-hand sides).
+
+    Parameters
+    ----------
+    A : ndarray
+        (ng, ng) global block of ``J^T J`` (:meth:`Problem.normal_equations`).
+    B : ndarray
+        (V, ng, 6) per-view coupling blocks.
+    D : ndarray
+        (V, 6, 6) pose blocks.
+
+    Returns
+    -------
+    S : ndarray
+        (ng, ng) the Schur complement.
+    D_inv : ndarray
+        (V, 6, 6) ``D_v^-1``.
+    Dinv_Bt : ndarray
+        (V, 6, ng) ``D_v^-1 B_v^T``.
+    Bf : ndarray
+        (ng, 6V) ``[B_1 ... B_V]``, for the back-substitution.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        A singular pose block.
+    """
     ng, V = A.shape[0], len(D)
     D_inv = np.linalg.inv(D)
     Dinv_Bt = D_inv @ np.transpose(B, (0, 2, 1))
@@ -75,8 +101,20 @@ def schur_complement(
 
 
 def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
-    """Schur complement (ng, ng) of the pose blocks in J^T J at ``x``: the information on the free intrinsics (and
-    board coordinates) with the poses marginalised."""
+    """The information on the global parameters with the poses marginalised.
+
+    Parameters
+    ----------
+    prob : Problem
+    x : ndarray
+        (n,) the parameter vector (:class:`~circcal.solver.problem.Problem`'s layout).
+
+    Returns
+    -------
+    ndarray
+        (ng, ng) the symmetrised Schur complement of the pose blocks in ``J^T J`` at ``x`` (free intrinsics, then
+        any board coordinates).
+    """
     A, _, B, D, _ = prob.normal_equations(x)[1]
     S = schur_complement(A, B, D)[0]
     sym: np.ndarray = 0.5 * (S + S.T)
@@ -84,7 +122,20 @@ def global_information(prob: Problem, x: np.ndarray) -> np.ndarray:
 
 
 def schur_step(A: np.ndarray, gi: np.ndarray, B: np.ndarray, D: np.ndarray, gp: np.ndarray, lam: float) -> np.ndarray:
-    """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks. Returns (ng + 6V,)."""
+    """Solve ``(J^T J + lam diag(J^T J)) step = -J^T f`` by eliminating the 6x6 pose blocks.
+
+    Parameters
+    ----------
+    A, gi, B, D, gp : ndarray
+        The blocks of :meth:`Problem.normal_equations`: A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6).
+    lam : float
+        Marquardt damping (times the diagonal); 0 for Gauss-Newton.
+
+    Returns
+    -------
+    ndarray
+        (ng + 6V,) the step: global part, then each view's (rvec, tvec); all NaN when the reduced system is singular.
+    """
     if lam:
         A = A + lam * np.diag(np.diag(A))
         D = D + lam * np.diagonal(D, axis1=1, axis2=2)[:, :, None] * np.eye(6)
@@ -100,31 +151,55 @@ def schur_step(A: np.ndarray, gi: np.ndarray, B: np.ndarray, D: np.ndarray, gp: 
 
 
 def quadratic_form(A: np.ndarray, B: np.ndarray, D: np.ndarray, di: np.ndarray, dp: np.ndarray) -> float:
-    """``s^T (J^T J) s`` for a step split into its global part ``di`` (ng,) and pose part ``dp`` (V, 6)."""
+    """``s^T (J^T J) s`` of a step from the blocks of ``J^T J``.
+
+    Parameters
+    ----------
+    A, B, D : ndarray
+        (ng, ng), (V, ng, 6), (V, 6, 6) blocks (:meth:`Problem.normal_equations`).
+    di : ndarray
+        (ng,) the step's global part.
+    dp : ndarray
+        (V, 6) the step's pose part.
+
+    Returns
+    -------
+    float
+        px^2.
+    """
     return float(di @ A @ di + 2.0 * np.einsum("a,vab,vb->", di, B, dp) + np.einsum("va,vab,vb->", dp, D, dp))
 
 
 def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int, bool, str]:
     """Levenberg-Marquardt on ``prob`` with exact Schur-complement solves of the damped normal equations.
 
-    Each iteration forms ``J^T J`` blockwise (global block A: intrinsics and any board coordinates; per-view
-    coupling B_v and 6x6 pose blocks D_v), damps the diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
-    like ``x_scale='jac'``), eliminates the poses (``S = A - sum B_v D_v^-1 B_v^T``) and back-substitutes. A trial
-    step is judged by its cost alone (:meth:`Problem.residuals`: a rejected one costs no Jacobian) unless the
-    :data:`ACCEPTED_RUN` steps before it were taken (then with its normal equations, :meth:`Problem.normal_equations`,
-    whose residuals are the same numbers). A step continuing the one before it as a geometric sequence (same
-    direction, shorter: the damped steps' crawl along the rational model's narrow valley, Gauss-Newton's linear rate
-    at the end) is also tried extended towards the sequence's limit (:func:`geometric_extension`, at most
-    :data:`EXTRAPOLATE_MAX` times; a second residual pass, the lower cost taken; among trusted steps followed).
-    Stopping: once the damping is negligible (lambda <= :data:`LAMBDA_GAUSS_NEWTON`, the step is Gauss-Newton's) and
-    the step's predicted decrease of the cost (from the local quadratic model, exact to rounding even where the cost
-    itself is not) is below :data:`TRUST_MODEL_REL` of the cost, the cost can no longer rank steps and the model is
-    trusted: steps that do not raise the cost beyond its rounding are taken until one predicts less than
-    :data:`FINAL_STEP_REL` of the cost (or no less than the step before it: nothing left to gain), which is taken
-    last.
-    The parameters then sit ~1e-9 of their own standard deviations from the minimum. A solve that can no
-    longer lower the cost otherwise ends "stalled" and is judged by its gradient.
-    Returns ``(x, iterations, converged, message)``.
+    Each iteration forms ``J^T J`` blockwise, damps its diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
+    like ``x_scale='jac'``), eliminates the poses and back-substitutes (:func:`schur_step`). A trial step is judged by
+    its cost alone (a rejected one costs no Jacobian) unless the :data:`ACCEPTED_RUN` steps before it were taken. A
+    step continuing the one before it as a geometric sequence is also tried extended towards the sequence's limit
+    (:func:`geometric_extension`). Once the damping is negligible and the predicted decrease is below
+    :data:`TRUST_MODEL_REL` of the cost, the quadratic model is trusted (the cost can no longer rank steps) until a step
+    predicts less than :data:`FINAL_STEP_REL`; the parameters then sit ~1e-9 of their own standard deviations from the
+    minimum. A solve that can no longer lower the cost otherwise ends "stalled" and is judged by its gradient. The
+    design in detail: docs/solver.md.
+
+    Parameters
+    ----------
+    prob : Problem
+    x0 : ndarray
+        (n,) start.
+    max_iterations : int
+        Jacobian evaluations at most.
+
+    Returns
+    -------
+    x : ndarray
+        (n,) the solution.
+    iterations : int
+    converged : bool
+        The scaled gradient is within :data:`GRADIENT_TOL` sqrt(cost) + :data:`GRADIENT_FLOOR`.
+    message : str
+        ``"converged"``, the iteration limit, or why it stalled.
     """
     ng = prob.ng
     x = x0.copy()
@@ -202,9 +277,19 @@ def _cost(f: np.ndarray) -> float:
 
 
 def geometric_extension(previous: np.ndarray, step: np.ndarray) -> float:
-    """The factor ``1 / (1 - q)`` (at most :data:`EXTRAPOLATE_MAX`) that takes ``step`` to the limit of the
-    geometric sequence it continues, when it points along ``previous`` (cosine >= :data:`EXTRAPOLATE_COS`) and is
-    shorter by q < 1; else 1. Both (n,), in the same scaled units."""
+    """The factor that takes ``step`` to the limit of the geometric sequence it continues.
+
+    Parameters
+    ----------
+    previous, step : ndarray
+        (n,) the last step taken and this one, in the same scaled units.
+
+    Returns
+    -------
+    float
+        ``1 / (1 - q)`` (at most :data:`EXTRAPOLATE_MAX`) when ``step`` points along ``previous`` (cosine >=
+        :data:`EXTRAPOLATE_COS`) and is shorter by q < 1; else 1.
+    """
     n_prev, n_step = np.linalg.norm(previous), np.linalg.norm(step)
     if not n_step < n_prev or previous @ step < EXTRAPOLATE_COS * n_prev * n_step:
         return 1.0
@@ -212,7 +297,29 @@ def geometric_extension(previous: np.ndarray, step: np.ndarray) -> float:
 
 
 def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tuple[np.ndarray, int, bool, str]:
-    """Run the chosen least-squares solver. Returns ``(x, iterations, converged, message)``."""
+    """Run the chosen least-squares solver.
+
+    Parameters
+    ----------
+    prob : Problem
+    x0 : ndarray
+        (n,) start.
+    max_iterations : int
+        Jacobian (``"schur"``) or function (``"scipy"``) evaluations at most.
+    solver : str
+        ``"schur"`` (:func:`levenberg_marquardt`) or ``"scipy"`` (``scipy.optimize.least_squares``, TRF with a sparse
+        Jacobian and LSMR: an independent cross-check).
+
+    Returns
+    -------
+    tuple
+        ``(x (n,), iterations, converged, message)``.
+
+    Raises
+    ------
+    ValueError
+        Another ``solver`` (the options check names it first).
+    """
     if solver == "schur":
         return levenberg_marquardt(prob, x0, max_iterations)
     if solver != "scipy":
@@ -238,7 +345,21 @@ def solve(prob: Problem, x0: np.ndarray, max_iterations: int, solver: str) -> tu
 
 
 def is_sane(prob: Problem, x: np.ndarray, converged: bool) -> bool:
-    """A solve worth keeping: converged, finite, positive focal lengths, every point in front of the camera."""
+    """Whether a solve is worth keeping.
+
+    Parameters
+    ----------
+    prob : Problem
+    x : ndarray
+        (n,) the solution.
+    converged : bool
+        The solver's verdict.
+
+    Returns
+    -------
+    bool
+        Converged, finite, positive focal lengths and every point in front of the camera.
+    """
     if not converged or not np.all(np.isfinite(x)):
         return False
     f, Xc = prob.residuals(x)

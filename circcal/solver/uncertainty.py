@@ -51,10 +51,27 @@ def projection_state_jacobian(
     *,
     distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``G = d q^+ / d b`` of the mean-frames reprojection of pixels ``uv`` (N, 2) px, split as the state is:
-    ``(G_global (N, 2, ng), G_pose (N, 2, V, 6))``, with respect to the free intrinsics (board coordinates do not
-    enter: zero columns) and every pose (rvec rad, tvec mm). ``distance``: mm along each pixel's ray (None: at
-    infinity, rotations only). Pixels whose ray cannot be unprojected (beyond the lens's fold) give NaN rows."""
+    """``G = d q^+ / d b`` of the mean-frames reprojection of pixels, split as the state is.
+
+    Parameters
+    ----------
+    camera : Camera
+    rvecs, tvecs : ndarray
+        (V, 3) the solve's poses, rad and mm.
+    cov : StateCovariance
+    uv : ndarray
+        (N, 2) px.
+    distance : float or None
+        mm along each pixel's ray (None: at infinity, rotations only).
+
+    Returns
+    -------
+    G_global : ndarray
+        (N, 2, ng) with respect to the free intrinsics (board coordinates do not enter: zero columns).
+    G_pose : ndarray
+        (N, 2, V, 6) with respect to every pose (rvec rad, tvec mm). Pixels whose ray cannot be unprojected (beyond
+        the lens's fold) give NaN rows.
+    """
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     rays = unproject(uv, camera)  # (N, 3), z = 1 (fisheye: unit rays)
     if distance is None:
@@ -94,17 +111,46 @@ def projection_covariance(
     distance: float | None = None,
     sigma_px: float | None = None,
 ) -> np.ndarray:
-    """First-order covariance (N, 2, 2) px^2 of the projection of pixels ``uv`` (N, 2) (see the module):
+    """First-order covariance of the projection of pixels (see the module).
+
     ``sigma^2 G C G^T`` with ``C`` the unit covariance of the whole state (:meth:`StateCovariance.quadratic`).
-    ``sigma_px``: the per-coordinate observation noise (default: the solve's estimate ``cov.sigma_px``)."""
+
+    Parameters
+    ----------
+    camera : Camera
+    rvecs, tvecs : ndarray
+        (V, 3) the solve's poses, rad and mm.
+    cov : StateCovariance
+    uv : ndarray
+        (N, 2) px.
+    distance : float or None
+        mm along each ray (None: infinity).
+    sigma_px : float or None
+        Per-coordinate observation noise, px (default: the solve's estimate ``cov.sigma_px``).
+
+    Returns
+    -------
+    ndarray
+        (N, 2, 2) px^2.
+    """
     G_global, G_pose = projection_state_jacobian(camera, rvecs, tvecs, cov, uv, distance=distance)
     s = cov.sigma_px if sigma_px is None else float(sigma_px)
     return s * s * cov.quadratic(G_global, G_pose)
 
 
 def worst_direction_stdev(cov2: np.ndarray) -> np.ndarray:
-    """Square root of the larger eigenvalue of each 2x2 covariance (..., 2, 2) -> (...): the standard deviation in
-    the worst direction (mrcal.worst_direction_stdev)."""
+    """The standard deviation in the worst direction of each 2x2 covariance (mrcal.worst_direction_stdev).
+
+    Parameters
+    ----------
+    cov2 : ndarray
+        (..., 2, 2) px^2.
+
+    Returns
+    -------
+    ndarray
+        (...) px: the square root of the larger eigenvalue.
+    """
     a, b, c = cov2[..., 0, 0], cov2[..., 1, 0], cov2[..., 1, 1]
     stdev: np.ndarray = np.sqrt(np.maximum((a + c) / 2 + np.sqrt((a - c) ** 2 / 4 + b * b), 0.0))
     return stdev
@@ -120,8 +166,28 @@ def projection_stdev(
     distance: float | None = None,
     sigma_px: float | None = None,
 ) -> np.ndarray:
-    """Worst-direction standard deviation (N,) px of the projection of ``uv`` (N, 2) px (:func:`projection_covariance`
-    then :func:`worst_direction_stdev`); NaN where a ray cannot be unprojected."""
+    """Worst-direction standard deviation of the projection of pixels.
+
+    :func:`projection_covariance` then :func:`worst_direction_stdev`.
+
+    Parameters
+    ----------
+    camera : Camera
+    rvecs, tvecs : ndarray
+        (V, 3) rad and mm.
+    cov : StateCovariance
+    uv : ndarray
+        (N, 2) px.
+    distance : float or None
+        mm along each ray (None: infinity).
+    sigma_px : float or None
+        Per-coordinate noise, px (default ``cov.sigma_px``).
+
+    Returns
+    -------
+    ndarray
+        (N,) px; NaN where a ray cannot be unprojected.
+    """
     return worst_direction_stdev(
         projection_covariance(camera, rvecs, tvecs, cov, uv, distance=distance, sigma_px=sigma_px)
     )
@@ -130,8 +196,32 @@ def projection_stdev(
 def result_projection_stdev(
     result: CalibrationResult, uv: np.ndarray, *, distance: float | None = None, sigma_px: float | None = None
 ) -> np.ndarray:
-    """:func:`projection_stdev` of a :class:`~circcal.solver.CalibrationResult` (its camera, poses and state
-    covariance). Raises :class:`~circcal.errors.CalibrationError` when the solve has no finite covariance."""
+    """:func:`projection_stdev` of a calibration result (its camera, poses and state covariance).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+    uv : ndarray
+        (N, 2) px.
+    distance : float or None
+        mm along each ray (None: infinity).
+    sigma_px : float or None
+        Per-coordinate noise, px (default: the solve's estimate).
+
+    Returns
+    -------
+    ndarray
+        (N,) px.
+
+    Raises
+    ------
+    CalibrationError
+        The solve has no finite covariance.
+
+    Examples
+    --------
+    >>> result_projection_stdev(res, np.array([[639.5, 479.5]]), distance=1000.0)  # doctest: +SKIP
+    """
     from circcal.errors import CalibrationError
 
     if result.covariance is None:
@@ -154,11 +244,28 @@ def mean_frames_reprojection(
     *,
     distance: float | None = None,
 ) -> np.ndarray:
-    """The quantity whose spread :func:`projection_covariance` predicts, exactly (not linearised): pixels ``uv``
-    (N, 2) unprojected with solve 0 (``camera0``, poses ``rvecs0``/``tvecs0`` (V, 3)) to ``distance`` mm (None: a
-    direction), carried into each view's board frame with solve 0's pose, back out with solve 1's pose, averaged
-    over the views and projected with ``camera1``. Returns (N, 2) px; equals ``uv`` when both solves are the same.
-    Monte-Carlo studies compare its spread over re-solves with the prediction."""
+    """The quantity whose spread :func:`projection_covariance` predicts, exactly (not linearised).
+
+    Pixels ``uv`` unprojected with solve 0 to ``distance``, carried into each view's board frame with solve 0's pose,
+    back out with solve 1's pose, averaged over the views and projected with ``camera1``. Monte-Carlo studies compare
+    its spread over re-solves with the prediction.
+
+    Parameters
+    ----------
+    camera0, camera1 : Camera
+        The two solves' cameras.
+    rvecs0, tvecs0, rvecs1, tvecs1 : ndarray
+        (V, 3) their poses, rad and mm.
+    uv : ndarray
+        (N, 2) px.
+    distance : float or None
+        mm along each ray (None: a direction).
+
+    Returns
+    -------
+    ndarray
+        (N, 2) px; equals ``uv`` when both solves are the same.
+    """
     from circcal.model import project_camera
 
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
