@@ -58,17 +58,50 @@ _MD_SPECIAL = re.compile(r"([\\`*_\[\]<>|&~$])")
 
 
 def md_text(text: Any) -> str:
-    """``text`` as literal Markdown text on one line, also inside a GFM table cell: :func:`display_name` (no line
-    breaks, no control characters), then a backslash before each character Markdown or GFM would read as markup
-    (``\\ ` * _ [ ] < > | & ~ $``)."""
+    r"""Text as literal Markdown on one line, also inside a GFM table cell.
+
+    :func:`display_name` first (no line breaks, no control characters), then a backslash before each character
+    Markdown or GFM would read as markup (``\ ` * _ [ ] < > | & ~ $``).
+
+    Parameters
+    ----------
+    text : object
+        Any value; str() of it is used (bytes as a file name).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> md_text("a_b*c")
+    'a\\_b\\*c'
+    """
     return _MD_SPECIAL.sub(r"\\\1", display_name(str(text)))
 
 
 def md_name(name: Any, cell: bool = False) -> str:
-    """A file name as a Markdown code span (shown verbatim, monospace): :func:`display_name`, fenced by one more
-    backtick than its longest run of backticks, padded with a space where it begins or ends with a backtick or a
-    space. ``cell``: inside a GFM table row, where ``|`` must be written ``\\|`` even in a code span (GFM removes the
-    backslash)."""
+    r"""A file name as a Markdown code span (shown verbatim, monospace).
+
+    :func:`display_name`, fenced by one more backtick than its longest run of backticks, padded with a space where it
+    begins or ends with a backtick or a space.
+
+    Parameters
+    ----------
+    name : object
+        A file name (str, bytes or path).
+    cell : bool
+        Inside a GFM table row, where ``|`` must be written ``\|`` even in a code span (GFM removes the backslash).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> md_name("a`b.png")
+    '``a`b.png``'
+    """
     s = display_name(name)
     fence = "`" * (max((len(r) for r in re.findall("`+", s)), default=0) + 1)
     if s.strip(" ") and (s[0] in "` " or s[-1] in "` "):
@@ -111,7 +144,20 @@ def _overlay(path: str, detection: Any, dest: Path) -> str | None:
 
 
 def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
-    """Draw every figure into ``folder/figures`` and return the templates' context."""
+    """Draw every figure into ``folder/figures`` and build the templates' context.
+
+    Parameters
+    ----------
+    assessment : circcal.analysis.assess.Assessment
+        The calibration and its assessment.
+    folder : Path
+        The report folder.
+
+    Returns
+    -------
+    dict
+        The context both templates render (and ``report.json`` is built from).
+    """
     cal, res = assessment.cal, assessment.result
     cam = res.camera
     names_p = cam.model.param_names  # the lens model's (fx, fy, cx, cy, then its distortion coefficients)

@@ -61,9 +61,22 @@ NAME_CHARS = 32
 
 
 def name_label(name: str, limit: int = NAME_CHARS) -> str:
-    """``name`` as a figure label: :func:`~circcal.pathnames.display_name`, and if longer than ``limit`` characters
-    its start and end (where image series keep their numbers and extensions) around an ellipsis. Draw it with
-    :data:`PLAIN_TEXT`."""
+    """A file name as a figure label, printable and short.
+
+    :func:`~circcal.pathnames.display_name`, and if longer than ``limit`` characters its start and end (where image
+    series keep their numbers and extensions) around an ellipsis. Draw it with :data:`PLAIN_TEXT`.
+
+    Parameters
+    ----------
+    name : str
+        The file name.
+    limit : int
+        Longest label, characters.
+
+    Returns
+    -------
+    str
+    """
     s = display_name(name)
     if len(s) <= limit:
         return s
@@ -78,8 +91,21 @@ def _figure(width_in: float, height_in: float) -> Any:
 
 
 def save_png(fig: Any, path: str | Path) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically (folders made); no software stamp. Returns the path. A character
-    of a name that the font lacks (an emoji) is drawn as a box without a warning: the report's tables give it."""
+    """Write a figure as PNG atomically (folders made); no software stamp.
+
+    A character of a name that the font lacks (an emoji) is drawn as a box without a warning: the report's tables give
+    it.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : str or Path
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     import matplotlib
 
     path = Path(path)
@@ -127,7 +153,21 @@ def _heat(
 
 
 def fig_uncertainty(unc: Any, width: int, height: int, points: np.ndarray | None = None) -> Any:
-    """The projection-uncertainty map (:class:`circcal.analysis.assess.UncertaintyMap`), observed points as dots."""
+    """The projection-uncertainty map, observed points as dots.
+
+    Parameters
+    ----------
+    unc : circcal.analysis.assess.UncertaintyMap
+        1-sigma worst-direction uncertainty over the image, px.
+    width, height : int
+        Image size, px.
+    points : ndarray, shape (N, 2), optional
+        Observed points, px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = _figure(6.4, 6.4 * height / width + 0.6)
     ax = fig.add_subplot()
     vmax = float(np.nanmax(unc.stdev)) or 1.0
@@ -158,7 +198,19 @@ def _nice_levels(vmax: float) -> list[float]:
 
 
 def fig_coverage(cov: Any, points: np.ndarray) -> Any:
-    """Where the observations lie: points per map cell, every observed point, the regions without any hatched."""
+    """Where the observations lie: points per map cell, every observed point, the regions without any hatched.
+
+    Parameters
+    ----------
+    cov : circcal.analysis.coverage.Coverage
+        The coverage map.
+    points : ndarray, shape (N, 2)
+        Every observed point, px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     from matplotlib.patches import Rectangle
 
     w, h = cov.width, cov.height
@@ -194,7 +246,23 @@ def fig_coverage(cov: Any, points: np.ndarray) -> Any:
 def fig_view_bars(
     names: Sequence[str], rms: Sequence[float], heldout: Sequence[float] | None, n_rejected: Sequence[int]
 ) -> Any:
-    """Per-view RMS residual per coordinate (and, with cross-validation, each view's held-out prediction error)."""
+    """Per-view RMS residual per coordinate, and each view's held-out prediction error with cross-validation.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The views' image names.
+    rms : sequence of float
+        RMS residual per coordinate per view, px.
+    heldout : sequence of float, optional
+        Held-out prediction error per view, px.
+    n_rejected : sequence of int
+        Points rejected per view.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     n = len(names)
     fig = _figure(max(6.4, 0.45 * n + 2), 3.4)
     ax = fig.add_subplot()
@@ -229,8 +297,27 @@ def fig_residual_vectors(
     width: int,
     height: int,
 ) -> Any:
-    """One panel per view: each point's residual (observed - projected) as an arrow, one arrow scale for every panel
-    (key arrow in the first), rejected points as red crosses."""
+    """One panel per view: each point's residual (observed - projected) as an arrow.
+
+    One arrow scale for every panel (key arrow in the first); rejected points as red crosses.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The views' image names.
+    points : sequence of ndarray, shape (N_v, 2)
+        Observed points per view, px.
+    residuals : sequence of ndarray, shape (N_v, 2)
+        Residuals per view, px.
+    rejected : sequence of ndarray, shape (N_v,)
+        bool, rejected points per view.
+    width, height : int
+        Image size, px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     n = len(names)
     cols = min(VECTOR_COLUMNS, n)
     rows = int(math.ceil(n / cols))
@@ -280,7 +367,19 @@ def fig_residual_vectors(
 
 
 def fig_histogram(residuals: np.ndarray, sigma: float) -> Any:
-    """Residual coordinates (x and y pooled) against the Gaussian of the solve's noise estimate."""
+    """Residual coordinates (x and y pooled) against the Gaussian of the solve's noise estimate.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (N, 2)
+        px.
+    sigma : float
+        The solve's noise estimate per coordinate, px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     r = np.asarray(residuals, dtype=np.float64).ravel()
     fig = _figure(6.4, 3.4)
     ax = fig.add_subplot()
@@ -302,7 +401,19 @@ def fig_histogram(residuals: np.ndarray, sigma: float) -> Any:
 
 
 def fig_correlation(corr: np.ndarray, names: Sequence[str]) -> Any:
-    """The parameters' correlation matrix (held parameters blank)."""
+    """The parameters' correlation matrix (held parameters blank).
+
+    Parameters
+    ----------
+    corr : ndarray, shape (P, P)
+        NaN for held parameters.
+    names : sequence of str
+        The P parameter names.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = _figure(4.6, 3.9)
     ax = fig.add_subplot()
     im = ax.imshow(np.asarray(corr, dtype=np.float64), cmap="RdBu_r", vmin=-1, vmax=1)
@@ -321,8 +432,22 @@ def fig_correlation(corr: np.ndarray, names: Sequence[str]) -> Any:
 
 
 def fig_diff(d: Any, width: int, height: int, title: str) -> Any:
-    """A projection difference (:class:`circcal.analysis.diff.ModelDiff`): the difference map and, with both
-    uncertainties, the combined uncertainty on the same colour scale and the ratio with its 2x contour."""
+    """A projection difference: the difference map and, with both uncertainties, the combined uncertainty.
+
+    The combined uncertainty is drawn on the same colour scale, with the ratio and its 2x contour.
+
+    Parameters
+    ----------
+    d : circcal.analysis.diff.ModelDiff
+    width, height : int
+        Image size, px.
+    title : str
+        The figure's title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     with_unc = d.ratio is not None
     panels = 3 if with_unc else 1
     pw = 4.2
@@ -357,7 +482,18 @@ def fig_diff(d: Any, width: int, height: int, title: str) -> Any:
 
 
 def fig_crossval(cv: Any, width: int, height: int) -> Any:
-    """The cross-validation's difference map between the two halves (:func:`fig_diff`)."""
+    """The cross-validation's difference map between the two halves (:func:`fig_diff`).
+
+    Parameters
+    ----------
+    cv : circcal.analysis.cross.CrossValidation
+    width, height : int
+        Image size, px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     a, b = cv.halves
     return fig_diff(
         cv.diff, width, height, f"Cross-validation: half B ({len(b)} views) against half A ({len(a)} views)"
