@@ -66,7 +66,19 @@ BIAS_DETECTORS = ("circcal", "circcal_nomodel", "opencv", "perfect_centroid")
 
 
 def bias_geometry(camera: Camera = BIAS_CAMERA) -> tuple[float, float]:
-    """(distance mm, px per mm at the board centre) at which the point grid spans :data:`BIAS_SPAN_PX` at tilt 0."""
+    """Where the bias study's board stands.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+
+    Returns
+    -------
+    distance : float
+        mm, at which the point grid spans :data:`BIAS_SPAN_PX` at tilt 0.
+    px_per_mm : float
+        At the board centre.
+    """
     f = 0.5 * (camera.fx + camera.fy)
     distance = f * (BIAS_GRID - 1) * BIAS_PITCH_MM / BIAS_SPAN_PX
     return distance, f / distance
@@ -127,8 +139,20 @@ def _centres(
 
 
 def bias_study(cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, Any], float]:
-    """Mean and max centre error (px) of each of :data:`BIAS_DETECTORS` per (tilt, diameter) of ``cfg``'s grid
-    (NaN where a detector found no grid, with a note why). Returns (numbers, seconds)."""
+    """Mean and max centre error of each of :data:`BIAS_DETECTORS` per (tilt, diameter) of a config's grid.
+
+    Parameters
+    ----------
+    cfg : ReportConfig
+        ``bias_tilts_deg`` and ``bias_diameters_px``.
+    progress : bool
+
+    Returns
+    -------
+    numbers : dict
+        px; NaN where a detector found no grid, with a note why.
+    seconds : float
+    """
     from tqdm import tqdm
 
     from circcal.analysis.compare import match_grid_order

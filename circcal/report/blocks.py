@@ -11,7 +11,14 @@ __all__ = ["Block", "Bullets", "Heading", "Image", "Paragraph", "Table"]
 
 @dataclass(frozen=True)
 class Heading:
-    """A section heading; ``level`` 1 is the title."""
+    """A section heading.
+
+    Attributes
+    ----------
+    text : str
+    level : int
+        1 is the title.
+    """
 
     level: int
     text: str
@@ -20,19 +27,41 @@ class Heading:
 
 @dataclass(frozen=True)
 class Paragraph:
+    """A paragraph of text (backticks mark code).
+
+    Attributes
+    ----------
+    text : str
+    """
+
     text: str
     kind: ClassVar[str] = "paragraph"
 
 
 @dataclass(frozen=True)
 class Bullets:
+    """A bullet list.
+
+    Attributes
+    ----------
+    items : tuple of str
+    """
+
     items: tuple[str, ...]
     kind: ClassVar[str] = "bullets"
 
 
 @dataclass(frozen=True)
 class Table:
-    """``head``: column titles; ``rows``: cells as text, as many per row as ``head`` has."""
+    """A table of text cells.
+
+    Attributes
+    ----------
+    head : tuple of str
+        Column titles.
+    rows : tuple of tuple of str
+        Cells as text, as many per row as ``head`` has.
+    """
 
     head: tuple[str, ...]
     rows: tuple[tuple[str, ...], ...]
@@ -41,7 +70,14 @@ class Table:
 
 @dataclass(frozen=True)
 class Image:
-    """A figure: the PNG's file name (beside the document) and its caption."""
+    """A figure.
+
+    Attributes
+    ----------
+    file : str
+        The PNG's file name (beside the document).
+    caption : str
+    """
 
     file: str
     caption: str

@@ -22,7 +22,17 @@ PASSED_ON: tuple[type[Warning], ...] = (DeprecationWarning, PendingDeprecationWa
 
 
 def summarise(caught: list[warnings.WarningMessage]) -> list[dict[str, object]]:
-    """One entry per distinct (category, message), in the order first seen: ``{"category", "message", "count"}``."""
+    """Caught warnings, deduplicated with counts.
+
+    Parameters
+    ----------
+    caught : list of warnings.WarningMessage
+
+    Returns
+    -------
+    list of dict
+        One ``{"category", "message", "count"}`` per distinct (category, message), in the order first seen.
+    """
     seen: dict[tuple[str, str], dict[str, object]] = {}
     for w in caught:
         key = (w.category.__name__, str(w.message))
@@ -33,8 +43,30 @@ def summarise(caught: list[warnings.WarningMessage]) -> list[dict[str, object]]:
 
 @contextmanager
 def study_warnings(log: dict[str, list[dict[str, object]]], study: str) -> Iterator[None]:
-    """Record the warnings issued inside the block into ``log[study]`` (see :func:`summarise`); the entry is written
-    even when the block raises."""
+    """Record the warnings issued inside the block into ``log[study]`` (see :func:`summarise`).
+
+    The entry is written even when the block raises.
+
+    Parameters
+    ----------
+    log : dict of str to list of dict
+        Where the summary goes.
+    study : str
+        The study's key.
+
+    Yields
+    ------
+    None
+
+    Examples
+    --------
+    >>> import warnings
+    >>> log = {}
+    >>> with study_warnings(log, "paper"):
+    ...     warnings.warn("did not converge", RuntimeWarning)
+    >>> log["paper"][0]["count"]
+    1
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:

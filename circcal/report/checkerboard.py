@@ -31,9 +31,25 @@ SUBPIX_EPS_PX = 1e-4
 
 
 def find_chessboard(gray: np.ndarray, board: Board) -> tuple[np.ndarray | None, str]:
-    """Inner corners of ``board`` (checkerboard) in a grey uint8 image: ``cv2.findChessboardCorners`` (adaptive
-    threshold, normalised) refined by ``cv2.cornerSubPix`` (:data:`SUBPIX_WINDOW`); ``cv2.findChessboardCornersSB``
-    (accuracy flag) if that fails. Returns ((N, 2) px or None, how they were found or why not)."""
+    """Inner corners of a checkerboard in a grey image.
+
+    ``cv2.findChessboardCorners`` (adaptive threshold, normalised) refined by ``cv2.cornerSubPix``
+    (:data:`SUBPIX_WINDOW`); ``cv2.findChessboardCornersSB`` (accuracy flag) if that fails.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W)
+        uint8.
+    board : circcal.board.Board
+        A checkerboard.
+
+    Returns
+    -------
+    corners : ndarray, shape (N, 2), or None
+        px.
+    how : str
+        How they were found, or why not.
+    """
     import cv2
 
     ok, c = cv2.findChessboardCorners(
@@ -55,7 +71,16 @@ def find_chessboard(gray: np.ndarray, board: Board) -> tuple[np.ndarray | None, 
 
 
 def checkerboard_label(board: Board) -> str:
-    """The row label: OpenCV's version and the board as inner corners (columns x rows) and squares."""
+    """The row label: OpenCV's version and the board as inner corners (columns x rows) and squares.
+
+    Parameters
+    ----------
+    board : circcal.board.Board
+
+    Returns
+    -------
+    str
+    """
     import cv2
 
     return (
@@ -124,8 +149,22 @@ def _checkerboard_row(views: list[Any], truth: Any) -> dict[str, Any]:
 
 
 def checkerboard_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, Any], float]:
-    """One illumination condition: the calibrator row, with ``n_views`` (the views tried), and the seconds taken
-    (rendering or loading the fixture included)."""
+    """One illumination condition of the ``paper-checkerboard`` fixture through OpenCV.
+
+    Parameters
+    ----------
+    variant : str
+        The condition.
+    cfg : ReportConfig
+    progress : bool
+
+    Returns
+    -------
+    row : dict
+        The calibrator row, with ``n_views`` (the views tried).
+    seconds : float
+        Time taken, s (rendering or loading the fixture included).
+    """
     t0 = time.perf_counter()
     truth, views = load_fixture("paper-checkerboard", variant, cfg.n_views, progress)
     row = _checkerboard_row(views, truth)

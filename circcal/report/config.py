@@ -41,11 +41,28 @@ STUDIES_ENV = "CIRCCAL_STUDIES"
 
 @dataclass(frozen=True)
 class ReportConfig:
-    """What a report run covers. ``n_views``: first N views of each fixture (None: all of them); ``references``:
-    names for :func:`circcal.validators.validate.run_validation`; ``bias_*``: the clean-render grid of the bias
-    study (tilt in degrees, dot diameter in px at the board centre); ``realdata``: folder names under
-    :func:`realdata_root`; ``heldout``: run the leave-one-view-out checks on the real photographs; ``studies``:
-    folder names under :func:`studies_root` of finished studies (``circcal study``) whose summaries the report shows."""
+    """What a report run covers.
+
+    Attributes
+    ----------
+    name : str
+        "full" or "quick".
+    conditions, checkerboard_conditions : tuple of str
+        Illumination conditions (variants) of the paper and checkerboard studies.
+    n_views : int or None
+        First N views of each fixture (None: all of them).
+    references : tuple of str
+        Names for :func:`circcal.validators.validate.run_validation`.
+    bias_tilts_deg, bias_diameters_px : tuple of float
+        The clean-render grid of the bias study (tilt in degrees, dot diameter in px at the board centre).
+    realdata : tuple of str
+        Folder names under :func:`realdata_root`.
+    heldout : bool
+        Run the leave-one-view-out checks on the real photographs.
+    studies : tuple of str
+        Folder names under :func:`studies_root` of finished studies (``circcal study``) whose summaries the report
+        shows.
+    """
 
     name: str = "full"
     conditions: tuple[str, ...] = CONDITIONS
@@ -72,9 +89,15 @@ QUICK = ReportConfig(
 
 
 def realdata_root() -> Path:
-    """The folder of real photographs: ``$CIRCCAL_REALDATA`` when set, else ``../shared/data/realdata`` beside the
-    repository this package was loaded from. It may not exist (an installed package, a checkout without the data):
-    the report then marks each set "missing"."""
+    """The folder of real photographs.
+
+    ``$CIRCCAL_REALDATA`` when set, else ``../shared/data/realdata`` beside the repository this package was loaded from.
+    It may not exist (an installed package, a checkout without the data): the report then marks each set "missing".
+
+    Returns
+    -------
+    Path
+    """
     env = os.environ.get(REALDATA_ENV)
     if env:
         return Path(env).expanduser()
@@ -82,8 +105,15 @@ def realdata_root() -> Path:
 
 
 def studies_root() -> Path:
-    """The folder of finished studies: ``$CIRCCAL_STUDIES`` when set, else ``reports/studies`` of the repository
-    this package was loaded from (where ``make study-reports`` writes them)."""
+    """The folder of finished studies.
+
+    ``$CIRCCAL_STUDIES`` when set, else ``reports/studies`` of the repository this package was loaded from (where
+    ``make study-reports`` writes them).
+
+    Returns
+    -------
+    Path
+    """
     env = os.environ.get(STUDIES_ENV)
     if env:
         return Path(env).expanduser()

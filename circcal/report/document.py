@@ -109,8 +109,19 @@ def _studies_section(results: dict[str, Any], caption: dict[str, str]) -> list[B
 
 
 def document(results: dict[str, Any], header: str) -> list[Block]:
-    """Every block of the report, in order. ``results``: report.json's tree with ``timings`` (run times, s)
-    added; ``header``: the line under the title (:func:`circcal.report.prose.header_line`)."""
+    """Every block of the report, in order.
+
+    Parameters
+    ----------
+    results : dict
+        report.json's tree with ``timings`` (run times, s) added.
+    header : str
+        The line under the title (:func:`circcal.report.prose.header_line`).
+
+    Returns
+    -------
+    list of Block
+    """
     caption = prose.captions(results, figure_files(results))
     conds = paper_conditions(results)
     out: list[Block] = [Heading(1, TITLE), Paragraph(header), Paragraph(prose.conventions(results))]

@@ -54,7 +54,13 @@ def _circcal_version() -> str:
 
 
 def environment() -> dict[str, Any]:
-    """``{"versions": {name: version}, "platform", "machine", "cpu_count"}``."""
+    """The library versions and the machine a report ran on.
+
+    Returns
+    -------
+    dict
+        ``{"versions": {name: version}, "platform", "machine", "cpu_count"}``.
+    """
     versions: dict[str, str] = {"python": platform.python_version()}
     versions.update({name: _version(module) for module, name in LIBRARIES})
     versions["mrcal"] = _mrcal_version()

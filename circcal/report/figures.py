@@ -64,7 +64,15 @@ def _grid(b: dict[str, Any], detector: str) -> np.ndarray:
 
 
 def fig_per_view(results: dict, path: Path) -> None:
-    """Per-view mean 2-D reprojection error, circcal vs the OpenCV circle pipeline, one panel per condition."""
+    """Per-view mean 2-D reprojection error, circcal vs the OpenCV circle pipeline, one panel per condition.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    """
     conds = paper_conditions(results)
     fig = _figure(8.5, 2.3 * len(conds) + 0.4)
     axes = fig.subplots(len(conds), 1, squeeze=False)
@@ -94,7 +102,15 @@ def fig_per_view(results: dict, path: Path) -> None:
 
 
 def fig_bias(results: dict, path: Path) -> None:
-    """Centre error against tilt (largest dot size) and against dot size (largest tilt)."""
+    """Centre error against tilt (largest dot size) and against dot size (largest tilt).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    """
     b = results["bias"]
     tilts, diams = np.array(b["tilts_deg"]), np.array(b["diameters_px"])
     series = (
@@ -130,7 +146,15 @@ def fig_bias(results: dict, path: Path) -> None:
 
 
 def fig_bias_grid(results: dict, path: Path) -> None:
-    """Mean centre error over the whole tilt x dot-size grid, circcal vs OpenCV vs perfect centroid."""
+    """Mean centre error over the whole tilt x dot-size grid, circcal vs OpenCV vs perfect centroid.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    """
     from matplotlib.colors import LogNorm
 
     b = results["bias"]
@@ -171,8 +195,21 @@ def fig_bias_grid(results: dict, path: Path) -> None:
 
 
 def heatmap_panels(results: dict, condition: str) -> list[tuple[dict, str]]:
-    """(row, title) of every calibrator drawn in a condition's heatmap: circcal, the OpenCV circle pipeline, mrcal's
-    default mode and the checkerboard, where each has a model."""
+    """The calibrators drawn in a condition's heatmap.
+
+    circcal, the OpenCV circle pipeline, mrcal's default mode and the checkerboard, where each has a model.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    condition : str
+
+    Returns
+    -------
+    list of (dict, str)
+        (row, title).
+    """
     rows = results["paper"][condition]["rows"]
     panels = [
         (rows.get("circcal"), "circcal"),
@@ -184,7 +221,16 @@ def heatmap_panels(results: dict, condition: str) -> list[tuple[dict, str]]:
 
 
 def fig_heatmaps(results: dict, path: Path, condition: str) -> None:
-    """Projection difference to the true camera over the image, one panel per calibrator."""
+    """Projection difference to the true camera over the image, one panel per calibrator.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    condition : str
+    """
     from circcal.analysis.compare import projection_diff
 
     truth = Camera.from_dict(results["fixtures"]["paper"]["camera"])
@@ -210,7 +256,15 @@ def fig_heatmaps(results: dict, path: Path, condition: str) -> None:
 
 
 def fig_truth_bars(results: dict, path: Path) -> None:
-    """Residual (what calibrators report) beside error against truth (what matters), per condition."""
+    """Residual (what calibrators report) beside error against truth (what matters), per condition.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    """
     conds = paper_conditions(results)
     keys = [
         ("circcal", "circcal", "tab:blue"),
@@ -250,13 +304,36 @@ def fig_truth_bars(results: dict, path: Path) -> None:
 
 
 def refined_boards(results: dict) -> list[tuple[str, dict]]:
-    """(name, set) of the real-data sets with a refined board to draw."""
+    """The real-data sets with a refined board to draw.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    list of (str, dict)
+        (name, set).
+    """
     return [(n, s) for n, s in realdata_sets(results) if dig(s, "circcal_refined", "board", "deviation_mm")]
 
 
 def gauge_counts(board: dict[str, Any]) -> tuple[int, int]:
-    """(points held in x, y and z, points held in z only) of a refined board entry: the gauge, read from the zero
-    standard deviations."""
+    """The gauge of a refined board entry, read from the zero standard deviations.
+
+    Parameters
+    ----------
+    board : dict
+        A refined board entry (:func:`circcal.report.realdata.board_block`).
+
+    Returns
+    -------
+    full : int
+        Points held in x, y and z.
+    z_only : int
+        Points held in z only.
+    """
     std = np.array(board["std_mm"], dtype=np.float64)
     full = np.all(std == 0, axis=1)
     return int(full.sum()), int(((std[:, 2] == 0) & ~full).sum())
@@ -349,7 +426,15 @@ def _board_panel(ax: Any, fig: Any, name: str, s: dict) -> None:
 
 
 def fig_realdata_board(results: dict, path: Path) -> None:
-    """The refined board of each real set against the nominal one (:func:`_board_panel` each)."""
+    """The refined board of each real set against the nominal one (``_board_panel`` each).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    """
     sets = refined_boards(results)
     fig = _figure(5.6 * len(sets), 4.6)
     axes = fig.subplots(1, len(sets), squeeze=False)
@@ -391,7 +476,19 @@ STUDY_FIGURES = ("ratio", "bias", "pass_rate")
 
 
 def fig_study(results: dict, path: Path, name: str, kind: str) -> None:
-    """One figure of the finished study ``name``: drawn by the study package from the cells the results hold."""
+    """One figure of a finished study, drawn by the study package from the cells the results hold.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    path : Path
+        The PNG to write.
+    name : str
+        The study.
+    kind : str
+        Which figure.
+    """
     import tempfile
 
     from circcal.report.studies import study_cells
@@ -403,12 +500,34 @@ def fig_study(results: dict, path: Path, name: str, kind: str) -> None:
 
 
 def figure_files(results: dict) -> list[str]:
-    """The file names of the figures this run draws (what the document shows)."""
+    """The file names of the figures this run draws (what the document shows).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    list of str
+    """
     return list(_drawers(results))
 
 
 def make_figures(results: dict, folder: Path) -> list[str]:
-    """Draw every figure of the run into ``folder`` under :data:`STYLE`; returns the file names."""
+    """Draw every figure of the run into a folder under :data:`STYLE`.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    folder : Path
+
+    Returns
+    -------
+    list of str
+        The file names.
+    """
     import matplotlib
 
     drawers = _drawers(results)

@@ -28,7 +28,18 @@ _MEANS = ("mean_2d_px", "rms_per_point_px", "rms_per_coord_px")
 
 
 def mean_of_views(per: list[dict[str, Any]]) -> dict[str, Any]:
-    """The per-view entries and, over the views that did not fail, the mean of each convention (px)."""
+    """Per-view held-out entries and their means.
+
+    Parameters
+    ----------
+    per : list of dict
+        One entry per view (a failed one has a status).
+
+    Returns
+    -------
+    dict
+        The per-view entries and, over the views that did not fail, the mean of each convention (px).
+    """
     good = [p for p in per if "failed" not in p]
     return {
         "per_view": per,
@@ -72,11 +83,31 @@ def heldout_block(
     opencv_ok: bool,
     opencv_ordered: list[np.ndarray] | None,
 ) -> dict[str, Any]:
-    """The held-out entries of one set (:func:`mean_of_views` each): ``circcal`` and, with ``refined``,
-    ``circcal_refined`` from ``cal`` (a :class:`~circcal.pipeline.ImagesCalibration` or None); ``opencv`` from the
-    baseline's views when OpenCV's solver fitted them (``opencv_ok``); ``opencv_refined`` from those views in
-    circcal's point order (``opencv_ordered``, None when their board-refined fit failed). A loop needs
-    :data:`MIN_HELDOUT_VIEWS` views."""
+    """The held-out entries of one real-data set (:func:`mean_of_views` each).
+
+    A loop needs :data:`MIN_HELDOUT_VIEWS` views.
+
+    Parameters
+    ----------
+    cal : circcal.pipeline.ImagesCalibration or None
+        circcal's calibration; gives ``circcal`` and, with ``refined``, ``circcal_refined``.
+    board : circcal.board.Board
+    size : tuple of int
+        (width, height) px.
+    refined : bool
+        Also run the board-refined loops.
+    opencv_views : list of (str, ndarray)
+        The baseline's views: (name, (N, 2) px centres).
+    opencv_ok : bool
+        OpenCV's solver fitted them (gives ``opencv``).
+    opencv_ordered : list of ndarray or None
+        Those views in circcal's point order, for ``opencv_refined`` (None when their board-refined fit failed).
+
+    Returns
+    -------
+    dict
+        Name -> :func:`mean_of_views` entry.
+    """
     from circcal.pipeline import holdout_detections
     from circcal.solver import CalibrationOptions, holdout_errors
 

@@ -13,8 +13,20 @@ __all__ = ["bias_notes", "paper_notes", "realdata_notes", "warning_notes"]
 
 
 def warning_notes(results: dict[str, Any], prefix: str) -> list[str]:
-    """The warnings recorded for every study whose key starts with ``prefix``: "study: Category: message (n
-    times)"."""
+    """The warnings recorded for every study whose key starts with a prefix.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree.
+    prefix : str
+        Study key prefix.
+
+    Returns
+    -------
+    list of str
+        "study: Category: message (n times)".
+    """
     out = []
     for study, entries in (results.get("warnings") or {}).items():
         if study == prefix or study.startswith(prefix + "/"):
@@ -42,7 +54,17 @@ def _paper_condition_notes(c: str, pc: dict[str, Any]) -> list[str]:
 
 
 def paper_notes(results: dict[str, Any]) -> list[str]:
-    """Notes of the paper and checkerboard studies (section 1)."""
+    """Notes of the paper and checkerboard studies (section 1).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree.
+
+    Returns
+    -------
+    list of str
+    """
     out = [n for c in paper_conditions(results) for n in _paper_condition_notes(c, results["paper"][c])]
     for c in results["config"]["checkerboard_conditions"]:
         r = results["checkerboard"].get(c)
@@ -52,7 +74,17 @@ def paper_notes(results: dict[str, Any]) -> list[str]:
 
 
 def bias_notes(results: dict[str, Any]) -> list[str]:
-    """Renders where a detector found no grid, and the study's warnings (section 3)."""
+    """Renders where a detector found no grid, and the study's warnings (section 3).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree.
+
+    Returns
+    -------
+    list of str
+    """
     return list(results["bias"].get("notes") or []) + warning_notes(results, "bias")
 
 
@@ -93,5 +125,15 @@ def _set_notes(name: str, s: dict[str, Any]) -> list[str]:
 
 
 def realdata_notes(results: dict[str, Any]) -> list[str]:
-    """Failures, model differences and left-out views of the real sets, and their warnings (section 6)."""
+    """Failures, model differences and left-out views of the real sets, and their warnings (section 6).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree.
+
+    Returns
+    -------
+    list of str
+    """
     return [n for name, s in realdata_sets(results) for n in _set_notes(name, s)] + warning_notes(results, "realdata")

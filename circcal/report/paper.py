@@ -86,7 +86,22 @@ def _opencv_pipeline_row(paths: list[str], views: list[Any], run: Any) -> tuple[
 
 
 def paper_condition(variant: str, cfg: ReportConfig, *, progress: bool = True) -> tuple[dict[str, Any], dict]:
-    """One illumination condition of the ``paper`` scenario. Returns (numbers, run times in s per calibrator)."""
+    """One illumination condition of the ``paper`` scenario.
+
+    Parameters
+    ----------
+    variant : str
+        The condition.
+    cfg : ReportConfig
+    progress : bool
+
+    Returns
+    -------
+    numbers : dict
+        Every calibrator's row.
+    timings : dict
+        Run times, s, per calibrator.
+    """
     from circcal.validators.validate import run_validation
 
     truth, views = load_fixture("paper", variant, cfg.n_views, progress)

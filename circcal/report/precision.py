@@ -20,14 +20,48 @@ CHECK_QUANTUM = 1e-7
 
 
 def quantise(value: Any, quantum: float) -> Any:
-    """A finite float rounded to a multiple of ``quantum``; anything else unchanged."""
+    """A finite float rounded to a multiple of a quantum; anything else unchanged.
+
+    Parameters
+    ----------
+    value : object
+    quantum : float
+        The step (e.g. :data:`CHECK_QUANTUM` px).
+
+    Returns
+    -------
+    object
+
+    Examples
+    --------
+    >>> quantise(0.123456, 0.01)
+    0.12
+    """
     if isinstance(value, (float, np.floating)) and np.isfinite(value):
         return float(np.round(float(value) / quantum) * quantum)
     return value
 
 
 def round_sig(tree: Any, sig: int = SIG_DIGITS) -> Any:
-    """A JSON tree with every float rounded to ``sig`` significant digits."""
+    """A JSON tree with every float rounded to a number of significant digits.
+
+    Parameters
+    ----------
+    tree : object
+        Dicts, lists and scalars.
+    sig : int
+        Significant digits.
+
+    Returns
+    -------
+    object
+        A tree of the same shape.
+
+    Examples
+    --------
+    >>> round_sig({"a": [3.14159, 2]}, 3)
+    {'a': [3.14, 2]}
+    """
     if isinstance(tree, dict):
         return {k: round_sig(v, sig) for k, v in tree.items()}
     if isinstance(tree, list):
@@ -38,7 +72,12 @@ def round_sig(tree: Any, sig: int = SIG_DIGITS) -> Any:
 
 
 def precision_note() -> str:
-    """The sentence report.json carries about its own precision."""
+    """The sentence report.json carries about its own precision.
+
+    Returns
+    -------
+    str
+    """
     return (
         f"floats rounded to {SIG_DIGITS} significant digits; agreement-check values to {CHECK_QUANTUM:g} px and "
         f"kept only for failed checks (they move between runs at that level)"

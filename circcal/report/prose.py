@@ -60,12 +60,39 @@ REALDATA_PROVENANCE = "BoofCV-Data, CC BY 4.0, Sony DSC-HX5V"
 
 
 def apart(a: float, b: float) -> float:
-    """|a - b| relative to b."""
+    """The relative difference of two numbers.
+
+    Parameters
+    ----------
+    a, b : float
+
+    Returns
+    -------
+    float
+        |a - b| / |b|.
+
+    Examples
+    --------
+    >>> apart(1.1, 1.0)  # doctest: +ELLIPSIS
+    0.1000...
+    """
     return abs(a - b) / abs(b)
 
 
 def header_line(run_name: str, date: str) -> str:
-    """The line under the title: when and by which command the report was made."""
+    """The line under the title: when and by which command the report was made.
+
+    Parameters
+    ----------
+    run_name : str
+        The run folder's name.
+    date : str
+        When the numbers were computed.
+
+    Returns
+    -------
+    str
+    """
     quick = " --quick" if run_name == "quick" else ""
     return f"Generated {date} by `circcal report{quick}` ({run_name} run)."
 
@@ -84,7 +111,17 @@ def _views(results: dict[str, Any]) -> str:
 
 
 def conventions(results: dict[str, Any]) -> str:
-    """The opening paragraph: the error conventions and the rendered fixtures."""
+    """The opening paragraph: the error conventions and the rendered fixtures.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     fx = results["fixtures"]
     dots, cam = Board.from_dict(fx["paper"]["board"]), fx["paper"]["camera"]
     cb = Board.from_dict(fx["paper-checkerboard"]["board"])
@@ -106,7 +143,18 @@ def conventions(results: dict[str, Any]) -> str:
 
 
 def reduced_run(results: dict[str, Any]) -> str:
-    """What a reduced run leaves out ("" for the full run)."""
+    """What a reduced run leaves out.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+        "" for the full run.
+    """
     cfg = results["config"]
     if cfg["name"] == "full":
         return ""
@@ -139,7 +187,17 @@ def _render_terms(b: dict[str, Any]) -> str:
 
 
 def bias_setup(results: dict[str, Any]) -> str:
-    """The bias study's setup paragraph."""
+    """The bias study's setup paragraph.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     b = results["bias"]
     return (
         f"Clean renders ({_render_terms(b)}) of a {b['board']['rows']}x{b['board']['cols']} grid of dots at "
@@ -152,7 +210,17 @@ def bias_setup(results: dict[str, Any]) -> str:
 
 
 def bias_table_intro(results: dict[str, Any]) -> str:
-    """The line above the bias table: how many dots each error is taken over."""
+    """The line above the bias table: how many dots each error is taken over.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     return f"Mean (and max) centre error over the {results['bias']['board']['n_points']} dots, px:"
 
 
@@ -168,7 +236,17 @@ def _bounds(names: list[str]) -> str:
 
 
 def fair_references(results: dict[str, Any]) -> str:
-    """Why the fair references are not drawn: the agreement bound they are held to, and whether every check held."""
+    """Why the fair references are not drawn: the agreement bound they are held to, and whether every check held.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     names = [k.removesuffix("-fair") for k in calibrator_keys(results) if k.endswith("-fair")]
     within = _bounds(names)
     passed = all(results["paper"][c]["validation_passed"] for c in paper_conditions(results))
@@ -191,7 +269,17 @@ def _image_sizes(sets: list[tuple[str, dict]]) -> str:
 
 
 def realdata_method(results: dict[str, Any]) -> str:
-    """What the real-data section compares and how held-out prediction works."""
+    """What the real-data section compares and how held-out prediction works.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     sets = realdata_sets(results)
     found = [(n, s) for n, s in sets if s.get("baseline")]
     flags = " and ".join(dict.fromkeys(str(dig(s, "baseline", "flags")) for _, s in found)) or "as stated"
@@ -361,8 +449,20 @@ def _adapter_order(s: dict) -> list[str]:
 
 
 def realdata_summary(name: str, s: dict) -> str:
-    """What the numbers of one real-data set (an entry of ``results["realdata"]``) show, in words. Empty when a
-    rigid or board-refined row is missing."""
+    """What the numbers of one real-data set show, in words.
+
+    Parameters
+    ----------
+    name : str
+        The set.
+    s : dict
+        Its entry of ``results["realdata"]``.
+
+    Returns
+    -------
+    str
+        Empty when a rigid or board-refined row is missing.
+    """
     needed = (
         dig(s, "circcal", "errors", "rms_per_point_px"),
         dig(s, "opencv", "errors", "rms_per_point_px"),
@@ -388,7 +488,17 @@ def realdata_summary(name: str, s: dict) -> str:
 
 
 def machine(results: dict[str, Any]) -> str:
-    """The machine and library versions (in :data:`~circcal.report.environment.VERSION_ORDER`)."""
+    """The machine and library versions (in :data:`~circcal.report.environment.VERSION_ORDER`).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     env = results["environment"]
     vers = env["versions"]
     order = [k for k in VERSION_ORDER if k in vers] + sorted(k for k in vers if k not in VERSION_ORDER)
@@ -400,7 +510,17 @@ def machine(results: dict[str, Any]) -> str:
 
 
 def run_times_intro(results: dict[str, Any]) -> str:
-    """What the run-time table's rows cover."""
+    """What the run-time table's rows cover.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     return (
         "Run times (wall clock, this run; they vary between runs and are not part of report.json). 'circcal' is "
         "the whole `circcal calibrate` (detection, calibration, re-correction rounds) with its default of "
@@ -429,7 +549,20 @@ def _board_caption(results: dict[str, Any]) -> str:
 
 
 def captions(results: dict[str, Any], files: list[str]) -> dict[str, str]:
-    """The caption of each figure file drawn for this run."""
+    """The caption of each figure file drawn for this run.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    files : list of str
+        The figure files (:func:`circcal.report.figures.figure_files`).
+
+    Returns
+    -------
+    dict of str to str
+        File name -> caption.
+    """
     out = {
         "truth_vs_residual.png": "A low residual does not prove the bias is gone: left, the residual each calibrator "
         "reports; right, its error against the true camera on the same images.",
@@ -464,7 +597,17 @@ def captions(results: dict[str, Any], files: list[str]) -> dict[str, str]:
 
 
 def studies_intro(results: dict[str, Any]) -> str:
-    """What the studies section shows, and where its numbers come from."""
+    """What the studies section shows, and where its numbers come from.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     return (
         "Monte-Carlo studies run by `circcal study` (scenarios x variants x seeds x calibrators on a Dask "
         "cluster; one Parquet row per run, resumable) and summarised per cell (one scenario, variant, "
@@ -477,7 +620,17 @@ def studies_intro(results: dict[str, Any]) -> str:
 
 
 def study_summary(entry: dict[str, Any]) -> str:
-    """One study's description and run counts."""
+    """One study's description and run counts.
+
+    Parameters
+    ----------
+    entry : dict
+        A :mod:`circcal.report.studies` entry.
+
+    Returns
+    -------
+    str
+    """
     cells = entry.get("cells") or []
     n_runs = sum(c.get("n_runs", 0) for c in cells)
     n_ok = sum(c.get("n_ok", 0) for c in cells)
@@ -545,7 +698,17 @@ def _headline_set(name: str, s: dict[str, Any]) -> str:
 
 
 def headline(results: dict[str, Any]) -> str:
-    """One paragraph with the headline numbers (for the index reports/README.md)."""
+    """One paragraph with the headline numbers (for the index reports/README.md).
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    str
+    """
     parts = [_headline_condition(results, c) for c in paper_conditions(results)]
     parts += _headline_bias(results["bias"])
     parts += [_headline_set(n, s) for n, s in realdata_sets(results)]

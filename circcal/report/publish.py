@@ -65,9 +65,21 @@ def _trim_checks(paper: dict[str, Any]) -> None:
 
 def compute(cfg: ReportConfig = FULL, *, progress: bool = True) -> dict[str, Any]:
     """Every number of the report (JSON-ready, :data:`~circcal.report.precision.SIG_DIGITS` significant digits).
+
     ``result["warnings"]`` holds what each study warned (:func:`~circcal.report.capture.study_warnings`);
-    ``result["timings"]`` holds run times (s) and is the only part that changes from run to run:
-    :func:`write_report` keeps it out of ``report.json``."""
+    ``result["timings"]`` holds run times (s) and is the only part that changes from run to run: :func:`write_report`
+    keeps it out of ``report.json``.
+
+    Parameters
+    ----------
+    cfg : ReportConfig
+        What the run covers (:data:`~circcal.report.config.FULL` or ``QUICK``).
+    progress : bool
+
+    Returns
+    -------
+    dict
+    """
     log: dict[str, list] = {}
     timings: dict[str, Any] = {}
     t0 = time.perf_counter()
@@ -117,8 +129,20 @@ def _report_json(results: dict[str, Any]) -> str:
 
 
 def published_results(report_json: str, timings: dict[str, Any]) -> dict[str, Any]:
-    """The results as the document is drawn from them: report.json's tree read back, with the run times of
-    timings.json (``{"date", "timings"}``)."""
+    """The results as the document is drawn from them.
+
+    Parameters
+    ----------
+    report_json : str
+        report.json's text.
+    timings : dict
+        timings.json's ``{"date", "timings"}``.
+
+    Returns
+    -------
+    dict
+        report.json's tree read back, with the run times.
+    """
     return {**json.loads(report_json), "timings": timings.get("timings")}
 
 
@@ -130,9 +154,30 @@ def write_report(
     header: str | None = None,
     date: str | None = None,
 ) -> Path:
-    """Write ``out_dir/name/`` (index.md, index.html, *.png, report.json, timings.json) atomically, then update
-    ``out_dir/README.md``. ``header``: the line under the title (default: when and by which command); ``date``: when
-    the numbers were computed (default: now; give timings.json's to re-render a report with the current code)."""
+    """Write ``out_dir/name/`` atomically, then update ``out_dir/README.md``.
+
+    The folder holds index.md, index.html, the PNG figures, report.json and timings.json; it is written into a
+    temporary folder beside the target and renamed into place (a failure leaves the previous report untouched).
+
+    Parameters
+    ----------
+    results : dict
+        :func:`compute`'s output.
+    out_dir : str or Path
+        The reports folder.
+    name : str
+        The run folder's name.
+    header : str, optional
+        The line under the title; default: when and by which command.
+    date : str, optional
+        When the numbers were computed; default now (give timings.json's to re-render a report with the current
+        code).
+
+    Returns
+    -------
+    Path
+        ``out_dir / name``.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()) if date is None else date
@@ -159,5 +204,25 @@ def write_report(
 def generate(
     out: str | Path = "reports", *, quick: bool = False, progress: bool = True, config: ReportConfig | None = None
 ) -> Path:
-    """Compute and write the report into ``out/latest``; returns that folder."""
+    """Compute and write the report into ``out/latest``.
+
+    Parameters
+    ----------
+    out : str or Path
+        The reports folder.
+    quick : bool
+        Use :data:`~circcal.report.config.QUICK`.
+    progress : bool
+    config : ReportConfig, optional
+        Overrides ``quick``.
+
+    Returns
+    -------
+    Path
+        ``out/latest``.
+
+    Examples
+    --------
+    >>> generate("reports", quick=True)  # doctest: +SKIP
+    """
     return write_report(compute(config or (QUICK if quick else FULL), progress=progress), out)

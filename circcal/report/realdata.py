@@ -30,8 +30,26 @@ _UNIT_MM = {"metres": 1000.0, "meters": 1000.0, "mm": 1.0, "millimetres": 1.0}
 
 
 def realdata_board(folder: Path) -> tuple[Board, dict[str, Any]]:
-    """The board of a real-data folder and its OpenCV baseline: grid and spacing from ``opencv_baseline.json``, dot
-    diameter from ``SOURCE.txt`` ("diameter <x> cm"). Lengths in mm."""
+    """The board of a real-data folder and its OpenCV baseline.
+
+    Grid and spacing from ``opencv_baseline.json``, dot diameter from ``SOURCE.txt`` ("diameter <x> cm").
+
+    Parameters
+    ----------
+    folder : Path
+
+    Returns
+    -------
+    board : circcal.board.Board
+        Lengths in mm.
+    baseline : dict
+        ``opencv_baseline.json``'s content.
+
+    Raises
+    ------
+    ValueError
+        ``SOURCE.txt`` states no dot diameter.
+    """
     base = json.loads((folder / "opencv_baseline.json").read_text())
     m = re.search(r"diameter\s+([0-9.]+)\s*cm", (folder / "SOURCE.txt").read_text())
     if m is None:
@@ -49,10 +67,21 @@ def realdata_board(folder: Path) -> tuple[Board, dict[str, Any]]:
 
 
 def board_block(res: Any) -> dict[str, Any]:
-    """The refined board of a :class:`circcal.solver.CalibrationResult`: nominal points, the refined ones'
-    deviations from them and their standard deviations (mm), the gauge, and how far the sheet is from the nominal
-    board (``max_abs_dev_mm``: the largest deviation of one coordinate; ``max_abs_dxy_mm``: the largest in-plane
-    displacement; ``median_std_mm``: over the estimated coordinates, the held ones left out)."""
+    """The refined board of a calibration.
+
+    Parameters
+    ----------
+    res : circcal.solver.CalibrationResult
+        A board-refined result.
+
+    Returns
+    -------
+    dict
+        Nominal points, the refined ones' deviations from them and their standard deviations (mm), the gauge, and how
+        far the sheet is from the nominal board (``max_abs_dev_mm``: the largest deviation of one coordinate;
+        ``max_abs_dxy_mm``: the largest in-plane displacement; ``median_std_mm``: over the estimated coordinates, the
+        held ones left out).
+    """
     dev = res.board_points - res.board_nominal
     std = res.board_std
     med = float(np.median(std[std > 0]))
@@ -72,7 +101,18 @@ def board_block(res: Any) -> dict[str, Any]:
 
 
 def refined_entry(res: Any, views: list[str]) -> dict[str, Any]:
-    """A board-refined calibration as an entry: model, errors, per-view mean 2-D error and :func:`board_block`."""
+    """A board-refined calibration as an entry: model, errors, per-view mean 2-D error and :func:`board_block`.
+
+    Parameters
+    ----------
+    res : circcal.solver.CalibrationResult
+    views : list of str
+        The views' image names.
+
+    Returns
+    -------
+    dict
+    """
     return {
         "status": "ok",
         "message": "",
@@ -235,7 +275,21 @@ def _findcirclesgrid_order(
 
 
 def realdata_set(folder: Path, *, heldout: bool = True) -> tuple[dict[str, Any], dict[str, float]]:
-    """Every number of one real-data set, and the run times (s) of its parts."""
+    """Every number of one real-data set, and the run times of its parts.
+
+    Parameters
+    ----------
+    folder : Path
+        The set's folder.
+    heldout : bool
+        Run the held-out loops.
+
+    Returns
+    -------
+    numbers : dict
+    timings : dict of str to float
+        s.
+    """
     board, base = realdata_board(folder)
     size = tuple(int(v) for v in base["image_size_wh"])
     paths = sorted(str(p) for p in folder.glob("*.jpg"))
@@ -277,8 +331,20 @@ def realdata_set(folder: Path, *, heldout: bool = True) -> tuple[dict[str, Any],
 
 
 def realdata_entry(name: str, cfg: ReportConfig) -> tuple[dict[str, Any], dict[str, float]]:
-    """:func:`realdata_set` on the set ``name`` under :func:`~circcal.report.config.realdata_root`, or a "missing"
-    entry saying where it was looked for."""
+    """:func:`realdata_set` on a named set under :func:`~circcal.report.config.realdata_root`.
+
+    Parameters
+    ----------
+    name : str
+    cfg : ReportConfig
+
+    Returns
+    -------
+    numbers : dict
+        Or a "missing" entry saying where it was looked for.
+    timings : dict of str to float
+        s.
+    """
     folder = realdata_root() / name
     if not folder.is_dir():
         why = f"{folder} not found (set {REALDATA_ENV} to the folder of real photographs)"

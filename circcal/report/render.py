@@ -23,7 +23,17 @@ _CODE = re.compile(r"`([^`]+)`")
 
 
 def template_source(name: str) -> str:
-    """The text of the template ``name`` from the package's templates folder."""
+    """The text of a template from the package's templates folder.
+
+    Parameters
+    ----------
+    name : str
+        E.g. ``"report.md.j2"``.
+
+    Returns
+    -------
+    str
+    """
     return resources.files("circcal.report").joinpath(TEMPLATES, name).read_text(encoding="utf-8")
 
 
@@ -57,16 +67,54 @@ def _environment(autoescape: bool):
 
 
 def to_markdown(blocks: Sequence[Block]) -> str:
-    """The document as Markdown."""
+    """The document as Markdown.
+
+    Parameters
+    ----------
+    blocks : sequence of Block
+
+    Returns
+    -------
+    str
+    """
     return _environment(False).get_template("report.md.j2").render(blocks=blocks)
 
 
 def to_html(blocks: Sequence[Block], images: Mapping[str, bytes], *, title: str) -> str:
-    """The document as one HTML page; ``images``: PNG bytes of every figure file the blocks show."""
+    """The document as one self-contained HTML page (autoescaped).
+
+    Parameters
+    ----------
+    blocks : sequence of Block
+    images : mapping of str to bytes
+        PNG bytes of every figure file the blocks show (embedded as base64).
+    title : str
+        The page title.
+
+    Returns
+    -------
+    str
+    """
     data = {name: base64.b64encode(png).decode("ascii") for name, png in images.items()}
     return _environment(True).get_template("report.html.j2").render(blocks=blocks, images=data, title=title)
 
 
 def readme(*, name: str, date: str, kind: str, headline: str) -> str:
-    """The reports folder's index (README.md): one row for the run folder ``name``."""
+    """The reports folder's index (README.md): one row for a run folder.
+
+    Parameters
+    ----------
+    name : str
+        The run folder.
+    date : str
+        When its numbers were computed.
+    kind : str
+        The run's kind (full or quick).
+    headline : str
+        One line of its results.
+
+    Returns
+    -------
+    str
+    """
     return _environment(False).get_template("readme.md.j2").render(name=name, date=date, kind=kind, headline=headline)

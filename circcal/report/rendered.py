@@ -18,8 +18,27 @@ __all__ = ["calibrator_row", "fixture_summary", "load_fixture", "vs_truth"]
 
 
 def load_fixture(scenario: str, variant: str, n_views: int | None, progress: bool) -> tuple[Any, list[Any]]:
-    """The truth of ``scenario``/``variant`` (rendered on demand into the fixture cache) and its first ``n_views``
-    views (all for None)."""
+    """The truth of a fixture (rendered on demand into the fixture cache) and its first views.
+
+    Parameters
+    ----------
+    scenario, variant : str
+        The fixture.
+    n_views : int or None
+        How many views; None: all.
+    progress : bool
+        Show rendering progress.
+
+    Returns
+    -------
+    truth : circcal.fixtures.scenarios.Truth
+    views : list of circcal.fixtures.scenarios.View
+
+    Raises
+    ------
+    circcal.errors.InputError
+        An unknown scenario or variant.
+    """
     from circcal.fixtures.scenarios import fixture_dir, load_truth
 
     truth = load_truth(fixture_dir(scenario, variant, progress=progress))
@@ -28,8 +47,18 @@ def load_fixture(scenario: str, variant: str, n_views: int | None, progress: boo
 
 
 def vs_truth(truth: Camera, camera: Camera | None) -> dict[str, float] | None:
-    """RMS and max projection difference (px) of ``camera`` to ``truth``, rotation fitted and not (None for no
-    camera)."""
+    """The projection difference of a camera to the true one, rotation fitted and not.
+
+    Parameters
+    ----------
+    truth : circcal.model.Camera
+    camera : circcal.model.Camera or None
+
+    Returns
+    -------
+    dict of str to float or None
+        ``rms_px``, ``max_px`` (rotation fitted), ``nofit_rms_px``, ``nofit_max_px``, px; None for no camera.
+    """
     from circcal.analysis.compare import projection_diff
 
     if camera is None:
@@ -60,9 +89,37 @@ def calibrator_row(
     detector: str = "",
     observations: str = "",
 ) -> dict[str, Any]:
-    """One calibrator on one condition: its model and stated sigmas, reprojection errors (three conventions),
-    error vs truth, detector centre error against the true projections, per-view mean 2-D error (px) with the
-    indices of the views used."""
+    """One calibrator on one condition, as a row of the condition table.
+
+    Parameters
+    ----------
+    label : str
+        The calibrator as the table names it.
+    status, message : str
+        Its status and why.
+    camera : circcal.model.Camera or None
+        Its model.
+    std : dict or None
+        Its stated standard deviations by parameter name.
+    errors : dict or None
+        Reprojection errors (three conventions), px.
+    truth : circcal.model.Camera
+        The true camera (for the error vs truth).
+    centre : dict, optional
+        Detector centre error against the true projections, px.
+    centre_note : str
+        How the centres were matched.
+    per_view : list, optional
+        Per-view mean 2-D error, px.
+    views : list, optional
+        Indices of the views used.
+    detector, observations : str
+        Which detector and whose centres.
+
+    Returns
+    -------
+    dict
+    """
     return {
         "label": label,
         "status": status,
@@ -81,8 +138,18 @@ def calibrator_row(
 
 
 def fixture_summary(scenario: str) -> dict[str, Any]:
-    """The geometry of a scenario as the report states it: its true camera, its board and how many views it
-    renders."""
+    """The geometry of a scenario as the report states it.
+
+    Parameters
+    ----------
+    scenario : str
+        A scenario name.
+
+    Returns
+    -------
+    dict
+        Its true camera, its board and how many views it renders.
+    """
     from circcal.fixtures.scenarios import get_scenario
 
     sc = get_scenario(scenario)

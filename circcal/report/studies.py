@@ -12,9 +12,19 @@ __all__ = ["study_results", "study_cells"]
 
 
 def study_results(cfg: ReportConfig) -> dict[str, dict[str, Any]]:
-    """name -> ``{"status": "ok", "description", "cells": [summary.json's cells]}`` for each of ``cfg.studies``,
-    or ``{"status": "missing", "message"}`` where the study has not been run (or not summarised) in
-    :func:`~circcal.report.config.studies_root`."""
+    """The summaries of the finished studies a report shows.
+
+    Parameters
+    ----------
+    cfg : ReportConfig
+        Its ``studies`` names folders under :func:`~circcal.report.config.studies_root`.
+
+    Returns
+    -------
+    dict of str to dict
+        Name -> ``{"status": "ok", "description", "cells": [summary.json's cells]}``, or
+        ``{"status": "missing", "message"}`` where the study has not been run (or not summarised).
+    """
     from circcal.jsonio import read_json
     from circcal.study.spec import load_spec
 
@@ -31,7 +41,18 @@ def study_results(cfg: ReportConfig) -> dict[str, dict[str, Any]]:
 
 
 def study_cells(entry: dict[str, Any]) -> list[Any]:
-    """The :class:`circcal.study.summary.CellSummary` objects of one study entry of the results."""
+    """The cell summaries of one study entry of the results.
+
+    Parameters
+    ----------
+    entry : dict
+        One value of :func:`study_results`.
+
+    Returns
+    -------
+    list of circcal.study.summary.CellSummary
+        Empty for a missing study.
+    """
     from circcal.study.summary import CellSummary
 
     return [CellSummary.from_dict(c) for c in entry.get("cells") or []]

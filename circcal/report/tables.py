@@ -41,8 +41,25 @@ def _cell(row: dict | None, metric: Callable[[dict], Any], spec: str) -> str:
 def condition_table(
     results: dict[str, Any], metric: Callable[[dict], Any], *, spec: str = ".4f", published: bool = False
 ) -> Table:
-    """One row per calibrator, one column per condition: ``metric(row)`` formatted with ``spec``; the checkerboard
-    last, the paper's Table 7 after it with ``published``."""
+    """One row per calibrator, one column per condition: ``metric(row)`` formatted with ``spec``.
+
+    The checkerboard comes last, the paper's Table 7 after it with ``published``.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    metric : callable
+        Row dict -> value (None or NaN: "-").
+    spec : str
+        Format spec.
+    published : bool
+        Add the paper's published numbers.
+
+    Returns
+    -------
+    Table
+    """
     conds = all_conditions(results)
     paper = [results["paper"][c]["rows"] for c in paper_conditions(results)]
     rows = []
@@ -74,7 +91,17 @@ def condition_table(
 
 
 def bias_table(results: dict[str, Any]) -> Table:
-    """Mean and max centre error per (tilt, dot diameter) of the bias study."""
+    """Mean and max centre error (px) per (tilt, dot diameter) of the bias study.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    Table
+    """
     b = results["bias"]
     m, x = b["mean_2d_px"], b["max_2d_px"]
     rows = []
@@ -105,7 +132,19 @@ def bias_table(results: dict[str, Any]) -> Table:
 
 
 def parameter_table(results: dict[str, Any], condition: str) -> Table:
-    """The true parameters beside each calibrator's, +- its stated standard deviation."""
+    """The true parameters beside each calibrator's, +- its stated standard deviation.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+    condition : str
+        The illumination condition.
+
+    Returns
+    -------
+    Table
+    """
     pc = results["paper"][condition]
     cols = [
         ("circcal", pc["rows"].get("circcal")),
@@ -164,8 +203,17 @@ def _baseline_row(name: str, board: str, base: dict[str, Any]) -> tuple[str, ...
 
 
 def realdata_table(results: dict[str, Any]) -> Table:
-    """Every calibration of every real set: errors, held-out errors and the main parameters; the baseline as
-    stated."""
+    """Every calibration of every real set: errors, held-out errors and the main parameters; the baseline as stated.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    Table
+    """
     rows = []
     for name, s in realdata_sets(results):
         board = _board_text(s.get("board") or {})
@@ -210,7 +258,17 @@ def realdata_table(results: dict[str, Any]) -> Table:
 
 
 def timings_table(results: dict[str, Any]) -> Table:
-    """The run times (s) of this run, per part."""
+    """The run times (s) of this run, per part.
+
+    Parameters
+    ----------
+    results : dict
+        The results tree (report.json's).
+
+    Returns
+    -------
+    Table
+    """
     tm = results.get("timings") or {}
     rows = []
     for c, d in (tm.get("paper") or {}).items():
@@ -235,9 +293,22 @@ def _interval(value: Any, ci: Any, spec: str = ".3f") -> str:
 
 
 def study_tables(entry: dict[str, Any]) -> list[Table]:
-    """The tables of one finished study (a :mod:`circcal.report.studies` entry): sigma honesty (empirical spread
-    over the mean stated sigma, 1 = honest) and bias (mean error in stated sigmas, 0 = unbiased) of each parameter
-    per cell with 95 % intervals, and the truth-check pass rate beside an honest estimator's."""
+    """The tables of one finished study.
+
+    Sigma honesty (empirical spread over the mean stated sigma, 1 = honest) and bias (mean error in stated sigmas,
+    0 = unbiased) of each parameter per cell with 95 % intervals, and the truth-check pass rate beside an honest
+    estimator's.
+
+    Parameters
+    ----------
+    entry : dict
+        A :mod:`circcal.report.studies` entry.
+
+    Returns
+    -------
+    list of Table
+        Empty for a missing study.
+    """
     from circcal.study.summary import TABLE_PARAMS
 
     cells = entry.get("cells") or []
