@@ -36,6 +36,10 @@ __all__ = [
     "calibrate_detections",
     "holdout_detections",
     "duplicates_of",
+    "choose_lens",
+    "LensChoice",
+    "LENS_CANDIDATES",
+    "RECOVERABLE",
 ]
 
 
@@ -43,6 +47,50 @@ MAX_ROUNDS = 8
 """Calibrations of the re-correction loop at most. Most cameras settle below ``tol_px`` in 2-4; a wide lens fitted
 with the rational model converges more slowly, each round's centre shift ~5-10x the next (rational-wide clean:
 0.56, 0.029, 0.015, 0.0028, 3.0e-4, 1.9e-5 px: settled in the 7th calibration, which 6 rounds cut off)."""
+
+
+#: Reasons a view refused by the first detection (no model) may be found by a second one with the first model: the
+#: lattice of a strongly distorted board is recognised on undistorted candidates, its centres checked under the lens.
+RECOVERABLE = frozenset(
+    {
+        Reason.GRID_NOT_RECOGNISED,
+        Reason.IRREGULAR_GRID,
+        Reason.AMBIGUOUS_VIEW,
+        Reason.TOO_FEW_POINTS,
+        Reason.GRID_MISMATCH,
+        Reason.CENTRE_CORRECTION_FAILED,
+    }
+)
+
+#: The lens models ``--lens auto`` tries, simplest first (a later one is chosen only where it predicts held-out views
+#: better by more than :data:`AUTO_MARGIN`).
+LENS_CANDIDATES = ("opencv5", "fisheye", "rational")
+AUTO_MARGIN = 0.05
+"""A richer lens model is chosen over a simpler one only where its held-out RMS is lower by more than this share:
+within it the two predict alike, and the simpler model extrapolates more safely beyond the observed field."""
+
+
+@dataclass(frozen=True)
+class LensChoice:
+    """How :func:`choose_lens` chose: ``lens`` the model chosen, ``why`` in words, ``candidates`` one row per model
+    tried: ``{"lens", "rms_per_point_px", "heldout_rms_px", "fits", "error"}`` (``error``: why it gave no model)."""
+
+    lens: str
+    why: str
+    candidates: tuple[dict[str, Any], ...]
+
+    def lines(self) -> list[str]:
+        out = [f"lens model chosen (--lens auto): {self.lens}: {self.why}"]
+        for c in self.candidates:
+            if c.get("error"):
+                out.append(f"  {c['lens']:>10}: no model ({c['error']})")
+            else:
+                out.append(
+                    f"  {c['lens']:>10}: RMS per point {c['rms_per_point_px']:.4f} px, held-out RMS per point "
+                    f"{c['heldout_rms_px']:.4f} px, residuals "
+                    + {True: "fit the model", False: "hold a radial pattern", None: "too few to tell"}[c["fits"]]
+                )
+        return out
 
 
 class TooFewImagesError(CalibrationError):
@@ -70,6 +118,10 @@ class ImagesCalibration:
     failed: list[Rejection]
     rounds: list[dict] = field(default_factory=list)
     centres: list[np.ndarray] = field(default_factory=list)
+    #: paths of views the first detection refused and a second pass with the first model found (:data:`RECOVERABLE`)
+    recovered: list[str] = field(default_factory=list)
+    #: how ``--lens auto`` chose the lens model (:class:`LensChoice`), None when the lens was given
+    lens_choice: LensChoice | None = None
 
     def to_model_json(self, board) -> dict[str, Any]:
         """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out
@@ -170,6 +222,8 @@ def calibrate_images(
     image_size: tuple[int, int] | None = None,
     max_rounds: int = MAX_ROUNDS,
     tol_px: float = 1e-4,
+    lens_candidates: Sequence[str] | None = None,
+    second_pass: bool = True,
 ) -> ImagesCalibration:
     """Detect the board in every image, calibrate, then re-correct every centre under the current model
     (perspective and distortion aware, ``circcal.detector.recorrect``) and recalibrate, until no centre moves more than
@@ -197,6 +251,13 @@ def calibrate_images(
         board is not found, or of another size, are left out and listed in ``failed`` with their reason.
     max_rounds, tol_px
         The re-correction loop's limits (:func:`calibrate_detections`).
+    lens_candidates : sequence of str or None
+        ``--lens auto``: the lens models to choose from (:func:`choose_lens`; e.g. :data:`LENS_CANDIDATES`);
+        ``options.lens`` is then ignored. None: ``options.lens``.
+    second_pass : bool
+        Detect again, with the first model, the images whose board was refused for a reason a lens can cause
+        (:data:`RECOVERABLE`: a strongly distorted lattice), and recalibrate with the views it finds
+        (``recovered``).
 
     Returns
     -------
@@ -253,6 +314,41 @@ def calibrate_images(
             + "".join(f"\n  {display_name(r.path)}: {display_name(r.reason)}" for r in failed),
             failed,
         )
+    choice = None
+    if lens_candidates is not None:
+        choice = choose_lens([detections[i] for i in used], board, image_size, options, lens_candidates)
+        options = options.replace(lens=choice.lens)
+    cal = _solve(paths, detections, used, failed, board, image_size, options, max_rounds, tol_px)
+    if second_pass:
+        again = [
+            k
+            for k, r in enumerate(failed)
+            if r.code in RECOVERABLE and detections[paths.index(r.path)].image_size in (None, tuple(image_size))
+        ]
+        if again:
+            redo = det_mod.detect_files(
+                [failed[k].path for k in again], board, camera=cal.result.camera, progress=False, jobs=jobs
+            )
+            found_again = {failed[k].path: d for k, d in zip(again, redo) if d.found}
+            if found_again:
+                for path, d in found_again.items():
+                    detections[paths.index(path)] = d
+                used = sorted(used + [paths.index(p) for p in found_again])
+                failed = [r for r in failed if r.path not in found_again]
+                cal = _solve(paths, detections, used, failed, board, image_size, options, max_rounds, tol_px)
+                cal.recovered = [p for p in paths if p in found_again]
+    cal.lens_choice = choice
+    return cal
+
+
+def _same_size(size: Any, image_size: tuple[int, int]) -> bool:
+    """Whether a refused view may be of the calibration's size (unknown where the image was not measured)."""
+    return size is None or tuple(size) == tuple(image_size)
+
+
+def _solve(paths, detections, used, failed, board, image_size, options, max_rounds, tol_px) -> ImagesCalibration:
+    """The used views' calibration loop, with the bad dots and the solve's outliers (a dropped view to ``failed``)."""
+    failed = list(failed)
     exclude = bad = None
     if options.outlier_rule is not None:
         from circcal.dotcheck import bad_dot_rejections
@@ -268,6 +364,84 @@ def calibrate_images(
         used, centres = [used[i] for i in rej.kept_views], rej.kept_centres(centres, board.object_points())
     result = replace(result, outliers=rej, view_names=[Path(paths[i]).name for i in used])
     return ImagesCalibration(result, paths, detections, used, failed, rounds, centres)
+
+
+def choose_lens(
+    detections: Sequence[Any],
+    board,
+    image_size: tuple[int, int],
+    options: CalibrationOptions,
+    candidates: Sequence[str] = LENS_CANDIDATES,
+) -> LensChoice:
+    """Choose the lens model of ``--lens auto``: each candidate fitted through the re-correction loop (no outlier
+    rule), its residuals tested for a radial pattern (:func:`circcal.solver.modelfit.model_fit`) and each view
+    predicted by the model of the others (:func:`circcal.solver.holdout_errors`, centres re-corrected under the
+    candidate's model).
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+        The found views.
+    board : circcal.board.Board
+    image_size : tuple of int
+        (width, height) px.
+    options : CalibrationOptions
+        Held parameters and the rest; a hold a candidate lacks (``--fix-tangential`` for the fisheye) leaves that
+        candidate out, with the reason.
+    candidates : sequence of str
+        Lens models, simplest first.
+
+    Returns
+    -------
+    LensChoice
+        The first candidate whose residuals fit and whose held-out RMS is within :data:`AUTO_MARGIN` of the best
+        such; where none fits, the lowest held-out RMS.
+
+    Raises
+    ------
+    CalibrationError
+        No candidate gave a model (every reason named).
+    """
+    from circcal.solver import holdout_errors
+    from circcal.solver.modelfit import model_fit
+
+    rows: list[dict[str, Any]] = []
+    for lens in candidates:
+        row: dict[str, Any] = {"lens": lens}
+        rows.append(row)
+        try:
+            opts = options.replace(lens=lens, outlier_rule=None, refine_board=False)
+            with warnings.catch_warnings():  # a candidate's own troubles (a fold, no convergence) are its row's
+                warnings.simplefilter("ignore")
+                res, centres, _ = calibrate_detections(detections, board, image_size, opts)
+                obj, img = zip(*[_points_of(c, board.object_points()) for c in centres])
+                held = holdout_errors(list(obj), list(img), image_size, opts)
+        except InputError as exc:
+            row["error"] = str(exc).splitlines()[0]
+            continue
+        fit = model_fit(res)
+        errs = np.concatenate([[h["rms_per_point_px"]] for h in held if "rms_per_point_px" in h] or [[np.inf]])
+        row.update(
+            rms_per_point_px=float(res.errors["rms_per_point_px"]),
+            heldout_rms_px=float(np.sqrt(np.mean(errs**2))),
+            fits=None if fit is None else bool(fit.fits),
+        )
+    ok = [r for r in rows if "error" not in r and np.isfinite(r["heldout_rms_px"])]
+    if not ok:
+        raise CalibrationError(
+            "no lens model gave a model: "
+            + "; ".join(f"{r['lens']}: {r.get('error', 'no held-out view')}" for r in rows)
+        )
+    fitting = [r for r in ok if r["fits"] is not False] or ok
+    best = min(r["heldout_rms_px"] for r in fitting)
+    chosen = next(r for r in fitting if r["heldout_rms_px"] <= best * (1 + AUTO_MARGIN))
+    others = ", ".join(f"{r['lens']} {r['heldout_rms_px']:.4f}" for r in ok if r is not chosen)
+    why = (
+        f"held-out RMS per point {chosen['heldout_rms_px']:.4f} px (others: {others or 'none'})"
+        + ("" if chosen["fits"] is not False else "; no candidate's residuals are free of a radial pattern")
+        + ("" if chosen is fitting[0] else f"; the simpler models predict worse by more than {AUTO_MARGIN:.0%}")
+    )
+    return LensChoice(chosen["lens"], why, tuple(rows))
 
 
 def calibrate_detections(

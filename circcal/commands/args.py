@@ -128,13 +128,18 @@ LENS_CHOICES: dict[str, str] = {
 }
 
 
-def add_lens_argument(p: argparse.ArgumentParser) -> None:
-    """``--lens``: the lens model a command fits (default opencv5)."""
+def add_lens_argument(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
+    """``--lens``: the lens model a command fits (default opencv5); with ``auto``, also ``--lens auto`` (the model
+    chosen from the images: :func:`circcal.pipeline.choose_lens`)."""
+    choices = {
+        **LENS_CHOICES,
+        **({"auto": "the one of opencv5, fisheye, rational that predicts held-out views best"} if auto else {}),
+    }
     p.add_argument(
         "--lens",
-        choices=tuple(LENS_CHOICES),
+        choices=tuple(choices),
         default="opencv5",
-        help="lens model: " + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items()) + " (default opencv5)",
+        help="lens model: " + "; ".join(f"{k} ({v})" for k, v in choices.items()) + " (default opencv5)",
     )
 
 
@@ -188,7 +193,7 @@ def calibration_options(args: argparse.Namespace):
     return CalibrationOptions.from_flags(
         **flags,
         spell=lambda name: "--" + name.replace("_", "-"),
-        lens=getattr(args, "lens", None) or "opencv5",
+        lens=lens if (lens := getattr(args, "lens", None)) not in (None, "auto") else "opencv5",
         refine_board=bool(getattr(args, "refine_board", False)),
         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K),
     )

@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
-    add_lens_argument(p)
+    add_lens_argument(p, auto=True)
     add_fix_arguments(p)
     p.add_argument(
         "--refine-board",
@@ -158,6 +158,15 @@ def format_summary(cal, *, worst: int = 3) -> str:
                 for r in rounds
             )
         )
+    choice = getattr(cal, "lens_choice", None)
+    if choice is not None:
+        lines += choice.lines()
+    recovered = getattr(cal, "recovered", None)
+    if recovered:
+        lines.append(
+            f"second detection pass with the first model: {len(recovered)} view(s) recovered: "
+            + ", ".join(display_name(Path(p).name) for p in recovered)
+        )
     lines += _detection_lines(cal)
     failed = getattr(cal, "failed", None)
     if failed:
@@ -196,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.errors import InputError
     from circcal.formats import detect_format, write_camera
     from circcal.outputs import Outputs
-    from circcal.pipeline import calibrate_images
+    from circcal.pipeline import LENS_CANDIDATES, calibrate_images
     from circcal.solver import CalibrationError
 
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
@@ -206,7 +215,10 @@ def run(args: argparse.Namespace) -> int:
         model_path = outputs.file(args.out, "--out")
         report_dir = None if args.report is None else outputs.folder(args.report, "--report", kind="report")
         fmt = detect_format(args.out)
-        if fmt == "mrcal" and options.lens == "fisheye":
+        candidates = None
+        if args.lens == "auto":  # mrcal's files hold no fisheye: not a candidate for a .cameramodel
+            candidates = tuple(c for c in LENS_CANDIDATES if not (fmt == "mrcal" and c == "fisheye"))
+        if fmt == "mrcal" and options.lens == "fisheye" and args.lens != "auto":
             from circcal.formats.mrcal import MRCAL_UNSUPPORTED
 
             raise InputError(
@@ -214,10 +226,14 @@ def run(args: argparse.Namespace) -> int:
                 f"COLMAP cameras.txt or ROS camera_info instead"
             )
         try:
-            cal = calibrate_images(args.images, board, options, progress=not args.no_progress, jobs=args.jobs)
+            cal = calibrate_images(
+                args.images, board, options, progress=not args.no_progress, jobs=args.jobs, lens_candidates=candidates
+            )
         except CalibrationError as exc:
-            print(f"circcal calibrate: no model: {exc}", file=sys.stderr)
+            hint = "" if args.lens == "auto" else f" (fitted with --lens {args.lens}; a wide lens: try --lens auto)"
+            print(f"circcal calibrate: no model: {exc}{hint}", file=sys.stderr)
             return 1
+        options = options.replace(lens=cal.result.camera.lens)
         print(format_summary(cal))
         assessment = assess(
             cal,
