@@ -65,8 +65,30 @@ RESTART_DISTORTION_ROUNDS = 10
 def initial_poses(
     obj: Sequence[np.ndarray], img: Sequence[np.ndarray], camera: Camera
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Poses from homographies of the undistorted, normalised observations under ``camera`` (fisheye: of their
-    rays, :func:`circcal.solver.fisheye_start.poses_from_rays`)."""
+    """Poses from homographies of the undistorted, normalised observations under ``camera``.
+
+    Fisheye: from their rays (:func:`circcal.solver.fisheye_start.poses_from_rays`).
+
+    Parameters
+    ----------
+    obj : sequence of ndarray
+        Per view (N_v, 3) mm.
+    img : sequence of ndarray
+        Per view (N_v, 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    rvecs : ndarray
+        (V, 3) rad.
+    tvecs : ndarray
+        (V, 3) mm.
+
+    Raises
+    ------
+    CalibrationError
+        A point ``camera`` cannot unproject, or a view without a homography.
+    """
     if not camera.model.pinhole:
         rays = [unproject(p, camera) for p in img]
         if not all(np.all(np.isfinite(r)) for r in rays):

@@ -40,9 +40,26 @@ def _by_count(n_points: Sequence[int]) -> list[np.ndarray]:
 
 
 def ray_homographies(object_xy: Sequence[np.ndarray], rays: Sequence[np.ndarray]) -> np.ndarray:
-    """Per view the homography (V, 3, 3) board mm -> rays of :func:`circcal.model.rays.ray_homography` (any
-    direction; ``H (X, Y, 1)`` along the rays, ``|h1| + |h2| = 2``), views of equal point counts batched. Raises
-    CalibrationError for fewer than 4 points or collinear ones."""
+    """Per view the homography board -> rays of :func:`circcal.model.rays.ray_homography`, views of equal point counts
+    batched.
+
+    Parameters
+    ----------
+    object_xy : sequence of ndarray
+        Per view (N_v, 2) mm.
+    rays : sequence of ndarray
+        Per view (N_v, 3) ray directions (any direction).
+
+    Returns
+    -------
+    ndarray
+        (V, 3, 3) with ``H (X, Y, 1)`` along the rays and ``|h1| + |h2| = 2``.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 4 points, or collinear ones.
+    """
     H = np.empty((len(object_xy), 3, 3))
     for idx in _by_count([len(o) for o in object_xy]):
         H[idx] = model_rays.ray_homographies(
@@ -55,8 +72,29 @@ def ray_homographies(object_xy: Sequence[np.ndarray], rays: Sequence[np.ndarray]
 
 
 def poses_from_rays(object_points: Sequence[np.ndarray], rays: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Board poses (rvecs (V, 3) rad, tvecs (V, 3) mm) from board points (N_v, 3) mm (z = 0) and the rays (N_v, 3)
-    they are seen along: ``H = [r1 r2 t]`` of :func:`ray_homographies`, the rotation orthonormalised."""
+    """Board poses from board points and the rays they are seen along.
+
+    ``H = [r1 r2 t]`` of :func:`ray_homographies`, the rotation orthonormalised.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray
+        Per view (N_v, 3) mm, z = 0.
+    rays : sequence of ndarray
+        Per view (N_v, 3).
+
+    Returns
+    -------
+    rvecs : ndarray
+        (V, 3) rad.
+    tvecs : ndarray
+        (V, 3) mm.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 4 points, or collinear ones.
+    """
     Hs = ray_homographies([np.asarray(o)[:, :2] for o in object_points], rays)
     return poses_from_homographies(Hs, np.eye(3), signed=True)
 
@@ -110,10 +148,32 @@ def fisheye_start(
 ) -> tuple[Camera, np.ndarray, np.ndarray]:
     """The equidistant starting camera (``lens="fisheye"``, k = 0) and poses (see the module).
 
-    ``object_points``: per view (N_v, 3) mm, z = 0; ``image_points``: per view (N_v, 2) px; ``image_size``:
-    (width, height). ``principal_point``: (cx, cy) px (default the image centre ((w-1)/2, (h-1)/2));
-    ``aspect_ratio``: fx / fy (default 1). Returns ``(camera, rvecs (V, 3), tvecs (V, 3))``. Raises
-    CalibrationError when no focal length gives plane poses that reproject (inconsistent correspondences)."""
+    Parameters
+    ----------
+    object_points : sequence of ndarray
+        Per view (N_v, 3) mm, z = 0.
+    image_points : sequence of ndarray
+        Per view (N_v, 2) px.
+    image_size : tuple of int
+        (width, height) px.
+    principal_point : tuple of float or None
+        (cx, cy) px (default the image centre ((w-1)/2, (h-1)/2)).
+    aspect_ratio : float or None
+        fx / fy (default 1).
+
+    Returns
+    -------
+    camera : Camera
+    rvecs : ndarray
+        (V, 3) rad.
+    tvecs : ndarray
+        (V, 3) mm.
+
+    Raises
+    ------
+    CalibrationError
+        No focal length gives plane poses that reproject (inconsistent correspondences).
+    """
     from scipy.optimize import minimize_scalar
 
     w, h = image_size

@@ -117,11 +117,22 @@ def _neighbour_pairs(xy: np.ndarray, chunk: int = 256) -> np.ndarray:
 
 
 def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.ndarray]) -> float:
-    """Per-coordinate noise (px) from the residual differences of board neighbours in each view.
+    """Per-coordinate noise from the residual differences of board neighbours in each view.
 
-    ``object_points``: per view (N_v, 3) mm; ``residuals``: per view (N_v, 2) px. Neighbours: pairs of a view's
-    points at most 1.01 x the view's smallest point spacing apart. A robust scale (1.4826 x the median absolute
-    difference) so that a few bad points do not set it. NaN with fewer than 10 pairs.
+    Neighbours: pairs of a view's points at most 1.01 x the view's smallest point spacing apart. A robust scale
+    (1.4826 x the median absolute difference) so that a few bad points do not set it.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray
+        Per view (N_v, 3) mm.
+    residuals : sequence of ndarray
+        Per view (N_v, 2) px.
+
+    Returns
+    -------
+    float
+        px; NaN with fewer than 10 pairs.
     """
     diffs = []
     for obj, res in zip(object_points, residuals):
@@ -135,10 +146,31 @@ def neighbour_noise(object_points: Sequence[np.ndarray], residuals: Sequence[np.
 
 
 def chi2_survival_even(k: int, x: float) -> float:
-    """P(X >= x) for X ~ chi-square with an even number ``k`` of degrees of freedom: exactly
-    exp(-x/2) * sum_{i < k/2} (x/2)^i / i! (the Poisson sum; scipy.special.chdtrc gives the same, but importing
-    scipy.special costs a calibrate process ~0.3 s, a third of its start-up). Raises ``ValueError`` for odd or
-    non-positive ``k``."""
+    """P(X >= x) for X ~ chi-square with an even number of degrees of freedom.
+
+    Exactly ``exp(-x/2) * sum_{i < k/2} (x/2)^i / i!`` (the Poisson sum; scipy.special.chdtrc gives the same, but
+    importing scipy.special costs a calibrate process ~0.3 s, a third of its start-up).
+
+    Parameters
+    ----------
+    k : int
+        Degrees of freedom, even and positive.
+    x : float
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Odd or non-positive ``k``.
+
+    Examples
+    --------
+    >>> round(chi2_survival_even(2, 2.0), 6)
+    0.367879
+    """
     if k <= 0 or k % 2:
         raise ValueError(f"k must be a positive even number of degrees of freedom, got {k}")
     if x <= 0:
@@ -148,8 +180,17 @@ def chi2_survival_even(k: int, x: float) -> float:
 
 
 def model_fit(result: Any) -> ModelFit | None:
-    """Test a :class:`~circcal.solver.CalibrationResult`'s residuals (module rule); None when it holds too few points
-    to tell (fewer than 4 per ring, or no neighbours for the noise)."""
+    """Test a calibration's residuals for a lens model that does not fit (the module's rule).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+
+    Returns
+    -------
+    ModelFit or None
+        None when it holds too few points to tell (fewer than 4 per ring, or no neighbours for the noise).
+    """
     cam = result.camera
     obs = np.concatenate(result.image_points)
     res = np.concatenate(result.residuals)

@@ -65,7 +65,19 @@ class Chunk:
 
 
 def chunks(counts: np.ndarray, size: int) -> list[Chunk]:
-    """Views of ``counts`` (V,) points each in consecutive chunks of at most ``size`` points (at least one view)."""
+    """Views in consecutive chunks of at most ``size`` points (at least one view each).
+
+    Parameters
+    ----------
+    counts : ndarray
+        (V,) points per view.
+    size : int
+        Points per chunk at most.
+
+    Returns
+    -------
+    list of Chunk
+    """
     ends = np.cumsum(counts)
     uniform = bool(np.all(counts == counts[0]))
     out: list[Chunk] = []
@@ -88,9 +100,24 @@ def chunks(counts: np.ndarray, size: int) -> list[Chunk]:
 
 
 def project_pixels(Xc: np.ndarray, p: np.ndarray, pinhole: bool) -> np.ndarray:
-    """Camera-frame points (n, 3) mm -> pixels (n, 2) under intrinsics ``p`` (4 + n_dist,): the value of
-    :func:`circcal.model.project_camera_jacobian` without its derivatives, in the same arithmetic (the two agree to
-    the bit, so a trial step's cost is the cost the Jacobian pass sees there)."""
+    """Camera-frame points -> pixels: :func:`circcal.model.project_camera_jacobian`'s value without its derivatives.
+
+    In the same arithmetic: the two agree to the bit, so a trial step's cost is the cost the Jacobian pass sees there.
+
+    Parameters
+    ----------
+    Xc : ndarray
+        (n, 3) mm.
+    p : ndarray
+        (4 + n_dist,) intrinsics.
+    pinhole : bool
+        A pinhole lens model (else the fisheye).
+
+    Returns
+    -------
+    ndarray
+        (n, 2) px.
+    """
     xd = distort(Xc[:, :2] * (1.0 / Xc[:, 2])[:, None], p[4:]) if pinhole else fisheye_distort(Xc, p[4:])
     uv: np.ndarray = xd * p[:2] + p[2:4]
     return uv
@@ -116,8 +143,25 @@ class BoardModel:
 def board_model(obj: list[np.ndarray], gauge: tuple[int, int, int] | None) -> BoardModel:
     """Identify the distinct board points across views (by their coordinates) and choose the gauge.
 
-    Default gauge: a = the first point, b = the point farthest from a, c = the point farthest from the line a-b (any
-    three non-collinear points give the same intrinsics and residuals; only the board frame changes).
+    Parameters
+    ----------
+    obj : list of ndarray
+        Per view (N_v, 3) mm.
+    gauge : tuple of int or None
+        (a, b, c) point indices, in order of first appearance. Default: a = the first point, b = the point farthest
+        from a, c = the point farthest from the line a-b (any three non-collinear points give the same intrinsics and
+        residuals; only the board frame changes).
+
+    Returns
+    -------
+    BoardModel
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 4 distinct board points.
+    ValueError
+        A gauge of repeated, out-of-range or collinear points.
     """
     nominal, per_view = distinct_points(obj)
     point_index = np.concatenate(per_view)

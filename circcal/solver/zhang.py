@@ -100,13 +100,27 @@ def _homographies_same_size(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndarray]) -> np.ndarray:
-    """Plane homographies (V, 3, 3), one per view, mapping board coordinates ``object_xy[v]`` (N_v, 2) mm to
-    ``image_points[v]`` (N_v, 2), N_v >= 4.
+    """Plane homographies board -> pixels, one per view.
 
     Hartley-normalised direct linear transform over all points (algebraic least squares; exact on noiseless data),
-    batched over views with equal point counts, :data:`HOMOGRAPHY_CHUNK` points at a time. Each scaled to unit
-    Frobenius norm with ``H[2, 2] >= 0``.
-    Raises :class:`CalibrationError` for fewer than 4 points or collinear / coincident points.
+    batched over views with equal point counts, :data:`HOMOGRAPHY_CHUNK` points at a time.
+
+    Parameters
+    ----------
+    object_xy : sequence of ndarray
+        Per view (N_v, 2) board coordinates, mm, N_v >= 4.
+    image_points : sequence of ndarray
+        Per view (N_v, 2) px.
+
+    Returns
+    -------
+    ndarray
+        (V, 3, 3), each scaled to unit Frobenius norm with ``H[2, 2] >= 0``.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 4 points, or collinear / coincident points.
     """
     src = [np.asarray(o, dtype=np.float64).reshape(-1, 2) for o in object_xy]
     dst = [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points]
@@ -127,7 +141,25 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
 
 
 def homography(object_xy: np.ndarray, image_points: np.ndarray) -> np.ndarray:
-    """One view's plane homography (3, 3): :func:`homographies` for a single view."""
+    """One view's plane homography: :func:`homographies` for a single view.
+
+    Parameters
+    ----------
+    object_xy : ndarray
+        (N, 2) mm, N >= 4.
+    image_points : ndarray
+        (N, 2) px.
+
+    Returns
+    -------
+    ndarray
+        (3, 3).
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 4 points, or collinear / coincident points.
+    """
     H: np.ndarray = homographies([object_xy], [image_points])[0]
     return H
 
@@ -165,13 +197,26 @@ def intrinsics_from_homographies(
     principal_point: tuple[float, float] | None = None,
     aspect_ratio: float | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Zero-skew ``K`` (3, 3) from the image of the absolute conic.
+    """Zero-skew ``K`` from the image of the absolute conic.
 
-    ``homographies``: (V, 3, 3) board -> pixels. ``principal_point``: (cx, cy) px to hold fixed (then ``V >= 1``);
-    ``aspect_ratio``: fx / fy to impose on the solution (applied after the linear solve, as the geometric mean).
-    Returns ``(K, condition)`` where ``condition`` = s_1 / s_{n-1} of the normalised constraint matrix (its
-    smallest singular direction is the solution; a second near-zero singular value means the solution is not
-    determined). ``K`` is NaN when the conic is not positive definite (inconsistent or degenerate views).
+    Parameters
+    ----------
+    homographies : ndarray
+        (V, 3, 3) board -> pixels.
+    image_size : tuple of int
+        (width, height) px.
+    principal_point : tuple of float or None
+        (cx, cy) px to hold fixed (then ``V >= 1``; else ``V >= 2``).
+    aspect_ratio : float or None
+        fx / fy to impose on the solution (applied after the linear solve, as the geometric mean).
+
+    Returns
+    -------
+    K : ndarray
+        (3, 3) px; NaN when the conic is not positive definite (inconsistent or degenerate views).
+    condition : float
+        s_1 / s_{n-1} of the normalised constraint matrix (its smallest singular direction is the solution; a second
+        near-zero singular value means the solution is not determined).
     """
     T = _pixel_normaliser(image_size)
     Hs = np.asarray(homographies, dtype=np.float64)
@@ -214,11 +259,26 @@ def intrinsics_from_homographies(
 
 
 def poses_from_homographies(Hs: np.ndarray, K: np.ndarray, *, signed: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Board poses from homographies ``Hs`` (V, 3, 3) board mm -> pixels and intrinsics ``K`` (3, 3).
+    """Board poses from homographies and intrinsics.
 
-    ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in
-    front of the camera (``signed``: the sign ``Hs`` carries, for homographies onto rays in any direction),
-    ``[r1 r2 r1xr2]`` orthonormalised by SVD. Returns ``rvecs`` (V, 3) radians, ``tvecs`` (V, 3) mm.
+    ``K^-1 H = s [r1 r2 t]``; ``s`` from the mean norm of the first two columns, the sign so the board lies in front
+    of the camera, ``[r1 r2 r1xr2]`` orthonormalised by SVD.
+
+    Parameters
+    ----------
+    Hs : ndarray
+        (V, 3, 3) board mm -> pixels.
+    K : ndarray
+        (3, 3) px.
+    signed : bool
+        Keep the sign ``Hs`` carries (homographies onto rays in any direction) instead of choosing it.
+
+    Returns
+    -------
+    rvecs : ndarray
+        (V, 3) rad.
+    tvecs : ndarray
+        (V, 3) mm.
     """
     import cv2
 
@@ -237,14 +297,39 @@ def poses_from_homographies(Hs: np.ndarray, K: np.ndarray, *, signed: bool = Fal
 
 
 def pose_from_homography(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One view's pose: :func:`poses_from_homographies` for a single (3, 3) homography. Returns ``rvec`` (3,),
-    ``tvec`` (3,)."""
+    """One view's pose: :func:`poses_from_homographies` for a single homography.
+
+    Parameters
+    ----------
+    H : ndarray
+        (3, 3) board mm -> pixels.
+    K : ndarray
+        (3, 3) px.
+
+    Returns
+    -------
+    rvec : ndarray
+        (3,) rad.
+    tvec : ndarray
+        (3,) mm.
+    """
     rv, tv = poses_from_homographies(np.asarray(H)[None], K)
     return rv[0], tv[0]
 
 
 def view_tilts_deg(rvecs: np.ndarray) -> np.ndarray:
-    """Angle (deg) between each board's normal and the optical axis, (V,) from rvecs (V, 3)."""
+    """The angle between each board's normal and the optical axis.
+
+    Parameters
+    ----------
+    rvecs : ndarray
+        (V, 3) rad.
+
+    Returns
+    -------
+    ndarray
+        (V,) degrees, 0 for a fronto-parallel board.
+    """
     R = rodrigues(np.asarray(rvecs, dtype=np.float64).reshape(-1, 3))
     tilts: np.ndarray = np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))
     return tilts
@@ -298,18 +383,42 @@ def zhang(
 ) -> ZhangResult:
     """Closed-form intrinsics and poses from planar views, with an optional linear radial-distortion estimate.
 
-    ``object_points``: per view (N_v, 3) mm with z = 0 (N_v >= 4); ``image_points``: per view (N_v, 2) px;
-    ``image_size``: (width, height). With ``principal_point`` None the zero-skew IAC is solved for (fx, fy, cx, cy)
-    (needs >= 2 views); if that gives an implausible principal point (outside the image) or a non-positive conic,
-    the image centre ``((w-1)/2, (h-1)/2)`` is used and only (fx, fy) are solved, as OpenCV does.
+    With ``principal_point`` None the zero-skew IAC is solved for (fx, fy, cx, cy) (needs >= 2 views); if that gives
+    an implausible principal point (outside the image) or a non-positive conic, the image centre ``((w-1)/2,
+    (h-1)/2)`` is used and only (fx, fy) are solved, as OpenCV does. ``distortion_rounds`` > 0 alternates (Zhang 2000,
+    sec. 3.3): linear (k1, k2) from the current intrinsics and poses, undistort the observations with them, re-solve
+    the closed form; the round with the lowest reprojection RMS is kept (round 0 is the plain closed form with zero
+    distortion).
 
-    ``distortion_rounds`` > 0 alternates (Zhang 2000, sec. 3.3): linear (k1, k2) from the current intrinsics and
-    poses, undistort the observations with them, re-solve the closed form; the round with the lowest reprojection
-    RMS is kept (round 0 is the plain closed form with zero distortion). Returns a :class:`ZhangResult` whose camera
-    carries ``dist = [k1, k2, 0, 0, 0]``.
+    Parameters
+    ----------
+    object_points : list of ndarray
+        Per view (N_v, 3) mm with z = 0, N_v >= 4.
+    image_points : list of ndarray
+        Per view (N_v, 2) px.
+    image_size : tuple of int
+        (width, height) px.
+    principal_point : tuple of float or None
+        (cx, cy) px to hold fixed.
+    aspect_ratio : float or None
+        fx / fy to impose.
+    distortion_rounds : int
+        Rounds of the linear radial estimate (>= 0; 0: the plain closed form).
+    min_tilt_deg : float
+        Views tilted less than this are named when the focal length is not observable.
 
-    Raises :class:`DegenerateViewsError` when no positive-definite conic exists (e.g. all views fronto-parallel),
-    naming the views tilted less than ``min_tilt_deg``.
+    Returns
+    -------
+    ZhangResult
+        Its camera carries ``dist = [k1, k2, 0, 0, 0]``.
+
+    Raises
+    ------
+    DegenerateViewsError
+        No positive-definite conic exists (e.g. all views fronto-parallel), naming the views tilted less than
+        ``min_tilt_deg``.
+    CalibrationError
+        Fewer than 4 points in a view, or collinear / coincident points.
     """
     w, h = image_size
     obj = [np.asarray(o, dtype=np.float64) for o in object_points]
