@@ -30,5 +30,15 @@ __all__ = [
 
 
 def read_rows(folder):
-    """Every stored row of the study in ``folder`` as a pyarrow Table (see :mod:`circcal.study.rows`)."""
+    """Every stored row of a study as a pyarrow Table (see :mod:`circcal.study.rows`).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The study folder.
+
+    Returns
+    -------
+    pyarrow.Table
+    """
     return RowStore(folder).read()

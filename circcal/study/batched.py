@@ -2,9 +2,8 @@
 (:meth:`circcal.validators.kornia.KorniaCalibrator.calibrate_batch`): one task's runs (the same views, many noise
 draws) as one batch, on CUDA when present and asked for (``device: auto``), on CPU otherwise.
 
-Each result equals circcal's solver on the same points to 1e-6 px (max projection difference over the imager,
-tested on CPU in tests/test_study_batched.py); the CUDA path runs the same torch code on another device and is
-untested here (no GPU on the development machines).
+Each result equals circcal's solver on the same points to 1e-6 px (tested on CPU in tests/test_study_batched.py;
+the CUDA path is the same torch code on another device, see docs/studies.md).
 """
 
 from __future__ import annotations
@@ -21,7 +20,17 @@ KORNIA = "kornia"
 
 
 def resolve_device(device: str) -> str:
-    """ "auto" -> "cuda" when torch sees a GPU, else "cpu"; "cpu" and "cuda" unchanged."""
+    """The torch device of a study's ``device`` field.
+
+    Parameters
+    ----------
+    device : {"auto", "cpu", "cuda"}
+
+    Returns
+    -------
+    str
+        "auto" -> "cuda" when torch sees a GPU, else "cpu"; "cpu" and "cuda" unchanged.
+    """
     if device != "auto":
         return device
     import torch
@@ -37,10 +46,26 @@ def solve_batch(
     device: str = "auto",
     mode: str = "fair",
 ) -> list[ReferenceResult]:
-    """One kornia batch: ``object_points`` per view (N_v, 3) mm shared by every problem, ``image_points`` one list
-    of per-view (N_v, 2) px arrays per problem, ``image_size`` (width, height). Returns one
-    :class:`~circcal.validators.base.ReferenceResult` per problem (``time_s``: the batch's time / its size;
-    ``extra["device"]``, ``extra["batch_size"]``); never raises."""
+    """One kornia batch; never raises.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray, shape (N_v, 3)
+        Board points per view, mm, shared by every problem.
+    image_points : sequence of sequence of ndarray, shape (N_v, 2)
+        One list of per-view centres (px) per problem.
+    image_size : tuple of int
+        (width, height) px.
+    device : {"auto", "cpu", "cuda"}
+        See :func:`resolve_device`.
+    mode : str
+        "fair".
+
+    Returns
+    -------
+    list of ReferenceResult
+        One per problem; ``time_s`` is the batch's time / its size; ``extra["device"]``, ``extra["batch_size"]``.
+    """
     from circcal.validators.kornia import KorniaCalibrator
 
     cal = KorniaCalibrator(device=resolve_device(device))

@@ -21,8 +21,23 @@ TABLE_PARAMS = ("fx", "fy", "cx", "cy", "k1")
 
 @dataclass
 class ParamSummary:
-    """One parameter of one cell (units of the parameter; what each number is: :mod:`circcal.study.summary`);
-    ``ci``: (low, high)."""
+    """One parameter of one cell, in the parameter's units (what each number is: :mod:`circcal.study.summary`).
+
+    Attributes
+    ----------
+    n : int
+        Ok runs.
+    bias, bias_ci : float, (float, float)
+        mean(estimate - truth) and its interval.
+    spread, spread_ci : float, (float, float)
+        Standard deviation of the estimates and its interval.
+    stated : float
+        Mean stated sigma.
+    ratio, ratio_ci : float, (float, float)
+        spread / stated and its interval.
+    bias_sigmas, bias_sigmas_ci : float, (float, float)
+        bias / stated and its interval.
+    """
 
     n: int
     bias: float
@@ -38,8 +53,27 @@ class ParamSummary:
 
 @dataclass
 class CellSummary:
-    """One cell: its identity, run counts, per-parameter summaries, the truth-check pass rate and the
-    distribution of the projection difference to the truth (px) and of the run time (s)."""
+    """One cell: its identity, run counts, per-parameter summaries, the truth-check pass rate and the distributions of
+    the projection difference to the truth (px) and of the run time (s).
+
+    Attributes
+    ----------
+    kind, scenario, variant, calibrator, lens_model : str
+        The cell's identity.
+    n_runs, n_ok : int
+        Runs, and those with status "ok".
+    params : dict of str to ParamSummary
+    pass_rate : float
+        Share of runs passing the truth check, with ``pass_ci`` (Wilson).
+    pass_expected : float
+        What an honest Gaussian estimator gets.
+    truth_rms_median_px, truth_rms_p95_px : float
+        px.
+    time_median_s : float
+        s.
+    statuses : dict of str to int
+        Runs per status.
+    """
 
     kind: str
     scenario: str
@@ -59,7 +93,16 @@ class CellSummary:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CellSummary:
-        """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists)."""
+        """Inverse of ``dataclasses.asdict`` (what summary.json holds; JSON turns tuples into lists).
+
+        Parameters
+        ----------
+        d : dict
+
+        Returns
+        -------
+        CellSummary
+        """
 
         def params(v: dict[str, Any]) -> ParamSummary:
             return ParamSummary(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})

@@ -44,10 +44,27 @@ CONNECT_TIMEOUT_S = 30.0
 
 @dataclass
 class StudyRun:
-    """What :func:`run_study` did. ``n_runs``: distinct runs in the spec; ``n_done_before``: already stored; ``n_computed``:
-    rows written now; ``errors``: one line per task that failed (its runs are still missing); ``wall_s``: seconds
-    from submitting the first task to the last row written (cluster start-up not included: ``startup_s``);
-    ``workers``: Dask workers when the tasks were submitted."""
+    """What :func:`run_study` did.
+
+    Attributes
+    ----------
+    spec : StudySpec
+    folder : Path
+    n_runs : int
+        Distinct runs in the spec.
+    n_done_before : int
+        Already stored.
+    n_computed : int
+        Rows written now.
+    errors : list of str
+        One line per task that failed (its runs are still missing).
+    wall_s : float
+        Seconds from submitting the first task to the last row written (cluster start-up not included: ``startup_s``).
+    workers : int
+        Dask workers when the tasks were submitted.
+    complete : bool
+        Every run of the spec is stored.
+    """
 
     spec: StudySpec
     folder: Path
@@ -65,7 +82,16 @@ class StudyRun:
 
 
 def study_keys(spec: StudySpec) -> set[str]:
-    """The run keys of ``spec``."""
+    """The run keys of a spec.
+
+    Parameters
+    ----------
+    spec : StudySpec
+
+    Returns
+    -------
+    set of str
+    """
     return {r.key for t in plan(spec) for r in t.runs}
 
 
@@ -123,13 +149,41 @@ def run_study(
     flush_s: float = FLUSH_S,
     client: Any = None,
 ) -> StudyRun:
-    """Run every missing run of ``spec`` and store its row under ``folder`` (see the module docstring).
+    """Run every missing run of a spec and store its row under a folder (see the module docstring).
 
-    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); None starts an embedded cluster of ``workers``
-    processes (default one per core). With a scheduler, ``workers`` is how many workers to wait for before
-    submitting. ``client``: a ``dask.distributed.Client`` of the caller's to use instead (left open).
-    ``flush_rows``/``flush_s``: rows per Parquet part / longest wait before a part is written.
     Interrupting (Ctrl-C) writes the rows received so far, then re-raises.
+
+    Parameters
+    ----------
+    spec : StudySpec
+    folder : str or Path
+        The study folder (rows under ``rows/``).
+    scheduler : str, optional
+        A Dask scheduler address (``tcp://host:8786``); None starts an embedded cluster of ``workers`` processes.
+    workers : int, optional
+        Embedded: processes (default one per core); with a scheduler: how many workers to wait for before submitting.
+    progress : bool
+    flush_rows : int
+        Rows per Parquet part.
+    flush_s : float
+        Longest wait before a part is written, s.
+    client : dask.distributed.Client, optional
+        The caller's client to use instead (left open).
+
+    Returns
+    -------
+    StudyRun
+
+    Raises
+    ------
+    circcal.errors.InputError
+        A scheduler that cannot be reached.
+
+    Examples
+    --------
+    >>> run = run_study(load_spec("studies/monte-carlo.yaml"), "out/mc", workers=2)  # doctest: +SKIP
+    >>> run.complete  # doctest: +SKIP
+    True
     """
     from dask.distributed import as_completed
     from tqdm import tqdm

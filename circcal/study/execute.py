@@ -33,8 +33,18 @@ __all__ = ["calibrator_for", "execute"]
 
 @cache
 def calibrator_for(spec: CalibratorSpec) -> Any:
-    """The reference calibrator of ``spec``, made once per worker process: a registry reference, or a user's
-    calibrator through :func:`circcal.validators.pytest_plugin.load_calibrator`."""
+    """The reference calibrator of a calibrator spec, made once per worker process.
+
+    Parameters
+    ----------
+    spec : CalibratorSpec
+
+    Returns
+    -------
+    ReferenceCalibrator
+        A registry reference (set up for its lens), or a user's calibrator through
+        :func:`circcal.validators.pytest_plugin.load_calibrator`.
+    """
     if spec.plugin is not None:
         from circcal.validators.pytest_plugin import load_calibrator
 
@@ -45,7 +55,17 @@ def calibrator_for(spec: CalibratorSpec) -> Any:
 
 
 def execute(task: Task) -> list[dict[str, Any]]:
-    """The rows of ``task``'s runs (one per run, in the task's order)."""
+    """The rows of a task's runs.
+
+    Parameters
+    ----------
+    task : circcal.study.plan.Task
+
+    Returns
+    -------
+    list of dict
+        One row (:func:`circcal.study.rows.make_row`) per run, in the task's order.
+    """
     if not task.runs:
         return []
     return _images(task) if task.cell.kind == "images" else _observations(task)

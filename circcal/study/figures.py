@@ -78,7 +78,18 @@ def _pass_rate(cells: Sequence[CellSummary], path: Path) -> Path:
 
 
 def draw_figures(cells: Sequence[CellSummary], folder: str | Path) -> dict[str, Path]:
-    """Draw the figures of ``cells`` into ``folder``; returns title -> file (nothing for no cells)."""
+    """Draw the figures of cells into a folder.
+
+    Parameters
+    ----------
+    cells : sequence of CellSummary
+    folder : str or Path
+
+    Returns
+    -------
+    dict of str to Path
+        Title -> file (nothing for no cells).
+    """
     cells = [c for c in cells if c.n_ok]
     if not cells:
         return {}

@@ -20,7 +20,22 @@ DEFAULT_LENS_MODEL = "opencv5"
 
 
 def check_lens_model(name: str) -> str:
-    """``name`` if it is a known lens model; :class:`~circcal.errors.InputError` listing the known ones otherwise."""
+    """A lens model name, checked.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    str
+        ``name``.
+
+    Raises
+    ------
+    circcal.errors.InputError
+        An unknown model (the message lists the known ones).
+    """
     if name not in LENS_MODELS:
         raise InputError(f"unknown lens model {name!r}; known: {', '.join(LENS_MODELS)}")
     return name

@@ -36,7 +36,23 @@ def _hash(obj: Any, n: int = KEY_HEX) -> str:
 
 @dataclass(frozen=True)
 class Run:
-    """One row to be: a cell's scenario, variant, seed, calibrator and lens model, and its ``key``."""
+    """One row to be.
+
+    Attributes
+    ----------
+    key : str
+        The content hash (see the module docstring).
+    cell : int
+        Index of its cell.
+    kind, scenario, variant : str
+    seed : int
+    calibrator : CalibratorSpec
+    lens_model : str
+    vary : str
+        Images cells: "noise" or "scene".
+    noise_px : float
+        Observations cells: the noise sigma, px.
+    """
 
     key: str
     cell: int
@@ -52,8 +68,19 @@ class Run:
 
 @dataclass(frozen=True)
 class Task:
-    """Runs computed together on one worker (see the module docstring). ``study``: the study's name (for the
-    rows); ``cache``: keep rendered fixtures in the content-hash cache."""
+    """Runs computed together on one worker (see the module docstring).
+
+    Attributes
+    ----------
+    study : str
+        The study's name (for the rows).
+    cell : CellSpec
+    runs : tuple of Run
+    cache : bool
+        Keep rendered fixtures in the content-hash cache.
+    key : str
+        The Dask key: the same runs give the same key (so a task is never computed twice at once).
+    """
 
     study: str
     cell: CellSpec
@@ -66,13 +93,32 @@ class Task:
         return f"circcal-study-{self.cell.kind}-{_hash(sorted(r.key for r in self.runs), 16)}"
 
     def without(self, done: set[str]) -> Task:
-        """This task less the runs already done."""
+        """This task less the runs already done.
+
+        Parameters
+        ----------
+        done : set of str
+            Stored run keys.
+
+        Returns
+        -------
+        Task
+        """
         return replace(self, runs=tuple(r for r in self.runs if r.key not in done))
 
 
 def geometry_identity(cell: CellSpec) -> dict[str, Any]:
-    """What decides the fixed views of an observations cell: its inline geometry, or its scenario's spec (camera,
-    board, pose sampling; everything but the variants)."""
+    """What decides the fixed views of an observations cell.
+
+    Parameters
+    ----------
+    cell : CellSpec
+
+    Returns
+    -------
+    dict
+        Its inline geometry, or its scenario's spec (camera, board, pose sampling; everything but the variants).
+    """
     if cell.geometry is not None:
         return cell.geometry.identity()
     from circcal.fixtures.scenarios import get_scenario
@@ -133,7 +179,16 @@ def _observation_tasks(study: StudySpec, cell: CellSpec) -> Iterable[Task]:
 
 
 def plan(study: StudySpec) -> list[Task]:
-    """Every task of ``study``, cell by cell (cells in spec order)."""
+    """Every task of a study, cell by cell (cells in spec order).
+
+    Parameters
+    ----------
+    study : StudySpec
+
+    Returns
+    -------
+    list of Task
+    """
     tasks: list[Task] = []
     for cell in study.cells:
         tasks += _image_tasks(study, cell) if cell.kind == "images" else _observation_tasks(study, cell)

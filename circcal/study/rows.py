@@ -9,7 +9,8 @@ the three conventions (:mod:`circcal.metrics`): ``rms_per_point_px`` (OpenCV), `
 ``mean_2d_px`` (the paper). ``time_s``: the run's own calibration time (a batched solve: the batch's time / its
 size); ``fixture_s``: the time to render the fixture the run used (shared by the runs of one render; a
 ``vary: noise`` seed's render starts from the views' noise-free render kept by the worker,
-:func:`circcal.study.seeded.geometry`, so it is the noise and the files; 0 for observations runs). Missing numbers are NaN, missing counts -1, so every column keeps one type.
+:func:`circcal.study.seeded.geometry`, so it is the noise and the files; 0 for observations runs). Missing numbers
+are NaN, missing counts -1, so every column keeps one type.
 """
 
 from __future__ import annotations
@@ -74,7 +75,12 @@ TIME_COLUMNS = ("time_s", "fixture_s")
 
 
 def schema():
-    """The pyarrow schema of a study table."""
+    """The pyarrow schema of a study table.
+
+    Returns
+    -------
+    pyarrow.Schema
+    """
     import pyarrow as pa
 
     types = {"str": pa.string(), "int": pa.int64(), "float": pa.float64()}
@@ -83,7 +89,13 @@ def schema():
 
 @lru_cache(maxsize=1)
 def versions() -> str:
-    """JSON of the versions that decide a run's numbers on this worker: circcal, Python, numpy, OpenCV."""
+    """The versions that decide a run's numbers on this worker: circcal, Python, numpy, OpenCV.
+
+    Returns
+    -------
+    str
+        JSON.
+    """
     import cv2
 
     import circcal
@@ -119,8 +131,38 @@ def make_row(
     batch_size: int = 1,
     calibrator_version: str = "",
 ) -> dict[str, Any]:
-    """The row of ``run`` (a :class:`circcal.study.plan.Run`): its axes, then what the calibration gave (NaN where
-    it gave nothing: a failed or unsupported run keeps its status and message)."""
+    """The row of a run: its axes, then what the calibration gave.
+
+    NaN where it gave nothing: a failed or unsupported run keeps its status and message.
+
+    Parameters
+    ----------
+    run : circcal.study.plan.Run
+    study : str
+        The study's name.
+    status, message : str
+        The calibrator's status and why.
+    truth : circcal.model.Camera
+    camera : circcal.model.Camera, optional
+    std : dict of str to float, optional
+        Stated standard deviations.
+    errors : dict of str to float, optional
+        Reprojection errors, px.
+    n_views, n_points, images_total, images_used : int
+        -1 when unknown.
+    time_s : float
+        The run's calibration time, s.
+    fixture_s : float
+        Render time of its fixture, s.
+    device : str
+    batch_size : int
+    calibrator_version : str
+
+    Returns
+    -------
+    dict
+        Column -> value (:func:`schema`).
+    """
     import circcal
     from circcal.analysis.compare import projection_diff
 

@@ -15,8 +15,7 @@ or, with ``cache``, into the content-hash cache (``cache_root()/study``), once p
 The seeds of a ``vary: noise`` cell differ only in their noise: each worker process renders the views' noise-free
 images once (:func:`geometry`, an ``lru_cache`` of :data:`GEOMETRY_CACHE_SIZE` geometries keyed by
 :meth:`circcal.fixtures.scenarios.Scenario.geometry_spec`) and adds every seed's perturbations to them, the same draw
-as before, so the images are the same bit for bit (tests/test_study_geometry_cache.py); on ``paper`` this is ~80 % of
-a seed's render.
+as before, so the images are the same bit for bit (tests/test_study_geometry_cache.py; what it saves: docs/studies.md).
 """
 
 from __future__ import annotations
@@ -50,27 +49,46 @@ __all__ = ["GEOMETRY_CACHE", "GEOMETRY_CACHE_SIZE", "SeededScenario", "geometry"
 
 @dataclass(frozen=True)
 class SeededScenario(Scenario):
-    """A scenario whose poses come from ``pose_seed`` (None: from ``seed``, as in the catalogue) while ``seed``
-    decides the perturbations."""
+    """A scenario whose poses come from ``pose_seed`` (None: from ``seed``, as in the catalogue) while ``seed`` decides
+    the perturbations.
+    """
 
     pose_seed: int | None = None
 
     def poses(self):
+        """The views' poses, drawn from ``pose_seed`` (or ``seed``).
+
+        Returns
+        -------
+        list of (ndarray, ndarray)
+            (rvec (3,) rad, tvec (3,) mm) per view.
+        """
         if self.pose_seed is None or self.pose_seed == self.seed:
             return super().poses()
         return Scenario.poses(dataclasses.replace(self, seed=self.pose_seed, pose_seed=None))
 
     def spec(self) -> dict[str, Any]:
-        """The catalogue spec, plus ``pose_seed`` where it differs from ``seed`` (so an unchanged scenario keeps
-        its catalogue key)."""
+        """The catalogue spec, plus ``pose_seed`` where it differs from ``seed`` (so an unchanged scenario keeps its
+        catalogue key).
+
+        Returns
+        -------
+        dict
+        """
         out = super().spec()
         if self.pose_seed is not None and self.pose_seed != self.seed:
             out["pose_seed"] = self.pose_seed
         return out
 
     def geometry_spec(self) -> dict[str, Any]:
-        """The catalogue's geometry spec with the seed the poses come from (so every seed of a ``vary: noise``
-        cell has the same one: one noise-free render serves them all)."""
+        """The catalogue's geometry spec with the seed the poses come from.
+
+        So every seed of a ``vary: noise`` cell has the same one: one noise-free render serves them all.
+
+        Returns
+        -------
+        dict
+        """
         out = super().geometry_spec()
         out.pop("pose_seed", None)
         out["seed"] = self.seed if self.pose_seed is None else self.pose_seed
@@ -105,8 +123,18 @@ def _geometry(key: _GeometryKey) -> tuple[ViewGeometry, ...]:
 
 
 def geometry(scenario: Scenario) -> tuple[ViewGeometry, ...]:
-    """The noise-free render of ``scenario``'s views, rendered once per worker process and geometry spec
-    (:data:`GEOMETRY_CACHE_SIZE` kept); ``geometry.cache_clear()`` / ``cache_info()`` reach the cache."""
+    """The noise-free render of a scenario's views, rendered once per worker process and geometry spec.
+
+    :data:`GEOMETRY_CACHE_SIZE` are kept; ``geometry.cache_clear()`` / ``cache_info()`` reach the cache.
+
+    Parameters
+    ----------
+    scenario : Scenario
+
+    Returns
+    -------
+    tuple of ViewGeometry
+    """
     return _geometry(_GeometryKey(scenario))
 
 
@@ -115,7 +143,28 @@ geometry.cache_info = _geometry.cache_info  # type: ignore[attr-defined]
 
 
 def seeded_scenario(name: str, seed: int, vary: str = "noise") -> SeededScenario:
-    """Scenario ``name`` of the catalogue under study seed ``seed`` (see the module docstring)."""
+    """A catalogue scenario under a study seed (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        A catalogue scenario.
+    seed : int
+        The study seed.
+    vary : {"noise", "scene"}
+        What the seed changes.
+
+    Returns
+    -------
+    SeededScenario
+
+    Raises
+    ------
+    circcal.errors.InputError
+        An unknown scenario.
+    ValueError
+        An unknown ``vary``.
+    """
     if vary not in VARY:
         raise ValueError(f"vary must be one of {', '.join(VARY)}, got {vary!r}")
     base = get_scenario(name)
@@ -126,12 +175,25 @@ def seeded_scenario(name: str, seed: int, vary: str = "noise") -> SeededScenario
 
 @contextmanager
 def rendered(scenario: SeededScenario, variants: Sequence[str], *, cache: bool = False) -> Iterator[dict[str, Path]]:
-    """Folders (variant -> folder with the images and truth.json) of ``scenario``'s ``variants``, rendered on this
-    machine. Without ``cache``: a temporary folder, removed when the block ends. With ``cache``: the catalogue's
-    cache when the seeded scenario is the catalogue's own, else ``cache_root()/study/<name>-<variant>-<key>``
-    (rendered once per machine under a lock, folders placed atomically). A ``vary: noise`` scenario (poses pinned by
-    ``pose_seed``) starts from its noise-free render kept in this process (:func:`geometry`, when
-    :data:`GEOMETRY_CACHE`): the same images, bit for bit, without rendering the views again for every seed."""
+    """Folders of a seeded scenario's variants, rendered on this machine.
+
+    Without ``cache``: a temporary folder, removed when the block ends. With ``cache``: the catalogue's cache when the
+    seeded scenario is the catalogue's own, else ``cache_root()/study/<name>-<variant>-<key>`` (rendered once per
+    machine under a lock, folders placed atomically). A ``vary: noise`` scenario (poses pinned by ``pose_seed``)
+    starts from its noise-free render kept in this process (:func:`geometry`, when :data:`GEOMETRY_CACHE`): the same
+    images, bit for bit, without rendering the views again for every seed.
+
+    Parameters
+    ----------
+    scenario : SeededScenario
+    variants : sequence of str
+    cache : bool
+
+    Yields
+    ------
+    dict of str to Path
+        Variant -> folder with the images and truth.json.
+    """
     variants = list(variants)
 
     def render(out: Path, which: list[str]) -> dict[str, Path]:

@@ -74,9 +74,21 @@ MAX_RUNS = 10_000_000
 
 @dataclass(frozen=True)
 class CalibratorSpec:
-    """One calibrator of a cell. ``name``: "circcal", a registry name, or a plug-in's label; ``mode``: "fair" or
-    "default"; ``observations``: images cells only, "own" (its own detector) or "circcal" (circcal's final centres);
-    ``plugin``: the ``load_calibrator`` spec of a user's calibrator (None for built-ins)."""
+    """One calibrator of a cell.
+
+    Attributes
+    ----------
+    name : str
+        "circcal", a registry name, or a plug-in's label.
+    mode : str
+        "fair" or "default".
+    observations : str
+        Images cells only: "own" (its own detector) or "circcal" (circcal's final centres).
+    plugin : str or None
+        The ``load_calibrator`` spec of a user's calibrator (None for built-ins).
+    label : str
+        The calibrator's name in rows and tables: ``opencv``, ``mrcal_default``, ``opencv-on-circcal``.
+    """
 
     name: str
     mode: str = "fair"
@@ -90,14 +102,32 @@ class CalibratorSpec:
         return out + ("-on-circcal" if self.observations == "circcal" and self.name != CIRCCAL else "")
 
     def identity(self) -> dict[str, Any]:
-        """What decides this calibrator's results (part of a run's key)."""
+        """What decides this calibrator's results (part of a run's key).
+
+        Returns
+        -------
+        dict
+        """
         return {"name": self.name, "mode": self.mode, "observations": self.observations, "plugin": self.plugin}
 
 
 @dataclass(frozen=True)
 class Geometry:
-    """Fixed views for observations cells: a camera (``circcal.model.Camera.to_dict`` form), a board
-    (``circcal.board.Board.to_dict`` form) and ``views`` poses from ``sample_poses(..., pose_seed, ...)``."""
+    """Fixed views for observations cells.
+
+    Attributes
+    ----------
+    name : str
+    camera : dict
+        ``circcal.model.Camera.to_dict`` form.
+    board : dict
+        ``circcal.board.Board.to_dict`` form.
+    views : int
+        Poses from ``sample_poses(..., pose_seed, ...)``.
+    pose_seed : int
+    max_tilt_deg, min_tilt_deg : float
+        Degrees.
+    """
 
     name: str
     camera: dict[str, Any]
@@ -108,6 +138,12 @@ class Geometry:
     min_tilt_deg: float = 0.0
 
     def identity(self) -> dict[str, Any]:
+        """What decides the views (part of a run's key).
+
+        Returns
+        -------
+        dict
+        """
         return {
             "camera": self.camera,
             "board": self.board,
@@ -120,8 +156,32 @@ class Geometry:
 
 @dataclass(frozen=True)
 class CellSpec:
-    """One cell of a study (see the module docstring). ``variants``: scenario variants (images) or
-    :func:`noise_variant` labels of ``noise_px`` (observations)."""
+    """One cell of a study (see the module docstring).
+
+    Attributes
+    ----------
+    index : int
+        Position in the spec.
+    kind : str
+        "images" or "observations".
+    scenario : str
+    variants : tuple of str
+        Scenario variants (images) or :func:`noise_variant` labels of ``noise_px`` (observations).
+    seeds : tuple of int
+    calibrators : tuple of CalibratorSpec
+    lens_models : tuple of str
+    vary : str
+        Images: "noise" or "scene".
+    noise_px : tuple of float
+        Observations: per-coordinate sigmas, px.
+    geometry : Geometry or None
+    batch : int
+        Runs per task (observations).
+    device : str
+        kornia's batch device: "auto", "cpu" or "cuda".
+    n_runs : int
+        Runs in the cell.
+    """
 
     index: int
     kind: str
@@ -143,7 +203,19 @@ class CellSpec:
 
 @dataclass(frozen=True)
 class StudySpec:
-    """A parsed study. ``source``: the YAML text it came from (stored beside the results)."""
+    """A parsed study.
+
+    Attributes
+    ----------
+    name, description : str
+    cells : tuple of CellSpec
+    cache : bool
+        Keep rendered fixtures in the content-hash cache.
+    source : str
+        The YAML text it came from (stored beside the results).
+    n_runs : int
+        Runs in every cell.
+    """
 
     name: str
     description: str
@@ -157,12 +229,46 @@ class StudySpec:
 
 
 def noise_variant(sigma_px: float) -> str:
-    """The variant label of an observations cell's noise level: ``noise0.0023px``."""
+    """The variant label of an observations cell's noise level.
+
+    Parameters
+    ----------
+    sigma_px : float
+        Per-coordinate sigma, px.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> noise_variant(0.0023)
+    'noise0.0023px'
+    """
     return f"noise{sigma_px:g}px"
 
 
 def load_spec(path: str | Path) -> StudySpec:
-    """Read and check a study spec (YAML). :class:`~circcal.errors.InputError` naming the file and the problem."""
+    """Read and check a study spec (YAML).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    StudySpec
+
+    Raises
+    ------
+    circcal.errors.InputError
+        Naming the file and the problem (missing, unreadable, not YAML, or a field of a cell).
+
+    Examples
+    --------
+    >>> spec = load_spec("studies/monte-carlo.yaml")  # doctest: +SKIP
+    >>> spec.n_runs  # doctest: +SKIP
+    """
     import yaml
 
     p = Path(path)
@@ -382,7 +488,26 @@ def _cell(i: int, v: Any) -> CellSpec:
 
 
 def parse_spec(data: Any, *, source: str = "", default_name: str = "study") -> StudySpec:
-    """A :class:`StudySpec` from parsed YAML (see the module docstring)."""
+    """A :class:`StudySpec` from parsed YAML (see the module docstring).
+
+    Parameters
+    ----------
+    data : object
+        The parsed YAML.
+    source : str
+        The YAML text (stored in the spec).
+    default_name : str
+        The name when the spec gives none.
+
+    Returns
+    -------
+    StudySpec
+
+    Raises
+    ------
+    circcal.errors.InputError
+        Naming the cell and the field of every problem.
+    """
     if not isinstance(data, dict):
         raise InputError("expected a mapping with name and cells")
     unknown = set(data) - {"name", "description", "cache", "cells"}

@@ -26,7 +26,19 @@ def _finite(x) -> np.ndarray:
 
 
 def mean_interval(x, conf: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(mean, low, high) of the finite values of ``x``; NaNs for fewer than 2 values."""
+    """The mean with Student's t interval, of the finite values.
+
+    Parameters
+    ----------
+    x : array_like
+    conf : float
+        Two-sided confidence.
+
+    Returns
+    -------
+    tuple of float
+        (mean, low, high); NaNs for fewer than 2 values.
+    """
     from scipy import stats
 
     a = _finite(x)
@@ -38,8 +50,19 @@ def mean_interval(x, conf: float = CONFIDENCE) -> tuple[float, float, float]:
 
 
 def std_interval(x, conf: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(sample std, low, high) of the finite values of ``x`` (normal-theory chi-square interval); NaNs for fewer
-    than 2 values."""
+    """The sample standard deviation (ddof 1) with the normal-theory chi-square interval, of the finite values.
+
+    Parameters
+    ----------
+    x : array_like
+    conf : float
+        Two-sided confidence.
+
+    Returns
+    -------
+    tuple of float
+        (std, low, high); NaNs for fewer than 2 values.
+    """
     from scipy import stats
 
     a = _finite(x)
@@ -52,7 +75,28 @@ def std_interval(x, conf: float = CONFIDENCE) -> tuple[float, float, float]:
 
 
 def wilson_interval(k: int, n: int, conf: float = CONFIDENCE) -> tuple[float, float, float]:
-    """(k / n, low, high): Wilson's score interval of a proportion; NaNs for n = 0."""
+    """A proportion with Wilson's score interval.
+
+    Parameters
+    ----------
+    k : int
+        Successes.
+    n : int
+        Trials.
+    conf : float
+        Two-sided confidence.
+
+    Returns
+    -------
+    tuple of float
+        (k / n, low, high); NaNs for n = 0.
+
+    Examples
+    --------
+    >>> p, lo, hi = wilson_interval(10, 10)
+    >>> p, round(hi, 12), lo < 1
+    (1.0, 1.0, True)
+    """
     from scipy import stats
 
     if n <= 0:

@@ -25,18 +25,34 @@ PART_GLOB = "part-*.parquet"
 
 
 class RowStore:
-    """The rows of the study in ``folder`` (its ``rows/`` subfolder)."""
+    """The rows of the study in a folder (its ``rows/`` subfolder).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The study folder.
+    """
 
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
         self.rows_dir = self.folder / "rows"
 
     def parts(self) -> list[Path]:
-        """The Parquet parts, oldest first (their names start with the time they were written)."""
+        """The Parquet parts, oldest first (their names start with the time they were written).
+
+        Returns
+        -------
+        list of Path
+        """
         return sorted(self.rows_dir.glob(PART_GLOB)) if self.rows_dir.is_dir() else []
 
     def done_keys(self) -> set[str]:
-        """Keys of every stored run."""
+        """Keys of every stored run.
+
+        Returns
+        -------
+        set of str
+        """
         import pyarrow.parquet as pq
 
         keys: set[str] = set()
@@ -45,7 +61,18 @@ class RowStore:
         return keys
 
     def append(self, rows: Sequence[dict[str, Any]]) -> Path | None:
-        """Write ``rows`` as one new part (atomically); returns it (None for no rows)."""
+        """Write rows as one new part (atomically).
+
+        Parameters
+        ----------
+        rows : sequence of dict
+            :func:`circcal.study.rows.make_row` rows.
+
+        Returns
+        -------
+        Path or None
+            The part; None for no rows.
+        """
         if not rows:
             return None
         import pyarrow as pa
@@ -64,7 +91,12 @@ class RowStore:
         return path
 
     def read(self) -> Any:
-        """Every stored row as one pyarrow Table (a key stored twice counts once), in the order written."""
+        """Every stored row as one pyarrow Table (a key stored twice counts once), in the order written.
+
+        Returns
+        -------
+        pyarrow.Table
+        """
         import pyarrow as pa
         import pyarrow.parquet as pq
 
@@ -82,8 +114,15 @@ class RowStore:
         return table if len(first) == len(keys) else table.take(first)
 
     def compact(self) -> Path | None:
-        """Merge every part into one (written first, then the old parts removed: an interruption leaves
-        duplicates, which :meth:`read` drops). Returns the merged part (None when there is at most one)."""
+        """Merge every part into one.
+
+        Written first, then the old parts removed: an interruption leaves duplicates, which :meth:`read` drops.
+
+        Returns
+        -------
+        Path or None
+            The merged part; None when there is at most one.
+        """
         parts = self.parts()
         if len(parts) <= 1:
             return None

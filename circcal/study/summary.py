@@ -73,7 +73,17 @@ def _param(err: np.ndarray, std: np.ndarray) -> ParamSummary:
 
 
 def summarise(table: Any) -> list[CellSummary]:
-    """The cells of a study table (pyarrow Table of :mod:`circcal.study.rows` columns), in order of first row."""
+    """The cells of a study table, in order of first row.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        :mod:`circcal.study.rows` columns.
+
+    Returns
+    -------
+    list of CellSummary
+    """
     if table.num_rows == 0:
         return []
     ids = list(zip(*(table.column(c).to_pylist() for c in CELL_COLUMNS)))
@@ -122,8 +132,21 @@ def _ci(v: float, ci: tuple[float, float], fmt: str = ".3f") -> str:
 def summary_markdown(
     name: str, description: str, cells: list[CellSummary], *, figures: dict[str, str] | None = None, heading: str = "#"
 ) -> str:
-    """The Markdown of a study summary; ``figures``: title -> relative path of each figure to show; ``heading``: the
-    Markdown level of the title (``"##"`` to nest it in a report)."""
+    """The Markdown of a study summary.
+
+    Parameters
+    ----------
+    name, description : str
+    cells : list of CellSummary
+    figures : dict of str to str, optional
+        Title -> relative path of each figure to show.
+    heading : str
+        The Markdown level of the title (``"##"`` to nest it in a report).
+
+    Returns
+    -------
+    str
+    """
     sub = heading + "#"
     conf = f"{100 * CONFIDENCE:.0f} %"
     n_runs, n_ok = sum(c.n_runs for c in cells), sum(c.n_ok for c in cells)
@@ -208,8 +231,16 @@ def summary_markdown(
 
 @dataclass
 class StudySection:
-    """A study's part of a report: ``markdown`` (its figures linked relative to ``figures_dir``'s parent),
-    ``figures`` (title -> file), ``cells``."""
+    """A study's part of a report.
+
+    Attributes
+    ----------
+    markdown : str
+        Its figures linked relative to ``figures_dir``'s parent.
+    figures : dict of str to Path
+        Title -> file.
+    cells : list of CellSummary
+    """
 
     markdown: str
     figures: dict[str, Path]
@@ -217,8 +248,28 @@ class StudySection:
 
 
 def study_section(folder: str | Path, figures_dir: str | Path | None = None, *, heading: str = "##") -> StudySection:
-    """The summary of the finished study in ``folder`` (rows of its current spec only), figures drawn into
-    ``figures_dir`` (default ``folder/figures``) and linked relative to that folder's parent."""
+    """The summary of a finished study, with its figures.
+
+    Only the rows of its current spec (``study.yaml``) count; without a spec file, every stored row.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The study folder.
+    figures_dir : str or Path, optional
+        Where the figures are drawn; default ``folder/figures``. They are linked relative to its parent.
+    heading : str
+        The Markdown level of the title.
+
+    Returns
+    -------
+    StudySection
+
+    Raises
+    ------
+    circcal.errors.InputError
+        A ``study.yaml`` that cannot be read or checked (:func:`circcal.study.spec.load_spec`).
+    """
     folder = Path(folder)
     table, spec = _table_of(folder)
     cells = summarise(table)
@@ -250,7 +301,22 @@ def _table_of(folder: Path) -> tuple[Any, Any]:
 
 
 def write_summary(folder: str | Path) -> Path:
-    """Write ``summary.md``, ``summary.json`` and ``figures/*.png`` into the study ``folder``; returns summary.md."""
+    """Write ``summary.md``, ``summary.json`` and ``figures/*.png`` into a study folder.
+
+    Parameters
+    ----------
+    folder : str or Path
+
+    Returns
+    -------
+    Path
+        summary.md.
+
+    Raises
+    ------
+    circcal.errors.InputError
+        As :func:`study_section`.
+    """
     folder = Path(folder)
     section = study_section(folder, heading="#")
     atomic.write_text(folder / "summary.md", section.markdown)
