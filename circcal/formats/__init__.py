@@ -72,8 +72,30 @@ FORMATS: tuple[str, ...] = ("json", "opencv", "mrcal", "colmap", "ros")
 
 
 def detect_format(path: str | Path, text: str | None = None) -> str:
-    """Format of a camera file from its name and (when ``text`` is given) its content. Returns one of
-    :data:`FORMATS`; raises :class:`~circcal.errors.InputError` when neither tells."""
+    """The format of a camera file from its name and (when ``text`` is given) its content.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file's name (not opened).
+    text : str or None
+        Its content, when read.
+
+    Returns
+    -------
+    str
+        One of :data:`FORMATS`.
+
+    Raises
+    ------
+    InputError
+        Neither the name nor the content tells.
+
+    Examples
+    --------
+    >>> detect_format("camera_info.yaml")
+    'ros'
+    """
     p = Path(path)
     ext = p.suffix.lower()
     name = p.name.lower()
@@ -113,12 +135,32 @@ def detect_format(path: str | Path, text: str | None = None) -> str:
 
 
 def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict[str, Any] | None]:
-    """The camera in ``path`` (any supported format: ``fmt``, else from its content and name) and, for a
-    model.json, the whole document (None for the other formats). Errors name the file: a missing or unreadable
-    file, an unknown format, a malformed file or a value outside the model (:class:`~circcal.errors.ModelFileError`,
-    an :class:`~circcal.errors.InputError`). Every reader applies :mod:`circcal.formats.limits`: the file's size
-    (checked before it is read), nesting, integers' digits, repeated keys, and the camera's values
-    (:func:`~circcal.formats.limits.check_camera`)."""
+    """The camera in ``path`` (any supported format) and, for a model.json, the whole document.
+
+    Every reader applies :mod:`circcal.formats.limits`: the file's size (checked before it is read), nesting, integers'
+    digits, repeated keys, and the camera's values (:func:`~circcal.formats.limits.check_camera`).
+
+    Parameters
+    ----------
+    path : str or Path
+    fmt : str or None
+        One of :data:`FORMATS`; None: from the content and the name.
+
+    Returns
+    -------
+    camera : Camera
+    document : dict or None
+        The model.json document; None for the other formats.
+
+    Raises
+    ------
+    ModelFileError
+        Naming the file: missing or unreadable, an unknown format, malformed, or a value outside the model.
+
+    Examples
+    --------
+    >>> camera, doc = read_model("out/model.json")  # doctest: +SKIP
+    """
     p = Path(path)
     try:
         text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
@@ -143,7 +185,23 @@ def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict[s
 
 
 def read_camera(path: str | Path, fmt: str | None = None) -> Camera:
-    """The camera in ``path``: :func:`read_model` without the document."""
+    """The camera in ``path``: :func:`read_model` without the document.
+
+    Parameters
+    ----------
+    path : str or Path
+    fmt : str or None
+        One of :data:`FORMATS`; None: from the content and the name.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+        As :func:`read_model`.
+    """
     return read_model(path, fmt)[0]
 
 
@@ -156,12 +214,34 @@ def write_camera(
     colmap_model: str = "auto",
     name: str = "camera",
 ) -> str:
-    """Write ``camera`` to ``path`` in ``fmt`` (default: from the file name), atomically. For ``json``,
-    ``document`` (a :func:`~circcal.formats.modeljson.model_json` document, e.g. from
-    :meth:`circcal.pipeline.ImagesCalibration.to_model_json`) is written when given, its camera block replaced by
-    ``camera``'s, else the bare camera block. ``colmap_model``: ``"auto"`` (the camera's lens model: OPENCV when k3 =
-    0, else FULL_OPENCV; OPENCV_FISHEYE), or a COLMAP model name. A format without the camera's lens model raises
-    :class:`~circcal.errors.InputError` with the reason. Returns the format written."""
+    """Write ``camera`` to ``path`` in ``fmt``, atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+    camera : Camera
+    fmt : str or None
+        One of :data:`FORMATS` (default: from the file name).
+    document : dict or None
+        For ``json``: a :func:`~circcal.formats.modeljson.model_json` document (e.g. from
+        :meth:`circcal.pipeline.ImagesCalibration.to_model_json`) written with its camera block replaced by
+        ``camera``'s; None: the bare camera block.
+    colmap_model : str
+        ``"auto"`` (the camera's lens model: OPENCV when k3 = 0, else FULL_OPENCV; OPENCV_FISHEYE), or a COLMAP model
+        name.
+    name : str
+        The ROS ``camera_name``.
+
+    Returns
+    -------
+    str
+        The format written.
+
+    Raises
+    ------
+    InputError
+        A format that cannot tell from the name, or one without the camera's lens model (with the reason).
+    """
     p = Path(path)
     fmt = fmt or detect_format(p)
     if fmt == "json":
