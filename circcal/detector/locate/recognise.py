@@ -29,6 +29,7 @@ from circcal.detector.locate.candidates import Candidate
 from circcal.detector.locate.grid import order_lattice, orient
 from circcal.detector.locate.labels import Labelling, label_patch, seed_score_needed
 from circcal.detector.locate.lattice import Lattice, find_lattices
+from circcal.detector.locate.smooth import local_residual
 
 __all__ = ["Recognition", "recognise", "order_grid", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
 
@@ -50,7 +51,9 @@ PATCH_RESIDUAL = 0.1
 :data:`~circcal.detector.measure.trust.QUADRATIC_FROM` dots on, for lens distortion) explains its candidates' rough centres
 to this share of a lattice step (RMS): contour centroids of real dots err by a few hundredths of a step (perspective
 bias of large dots included); chance alignments of blobs, which growth accepts within a quarter of a step, by a
-tenth and more."""
+tenth and more. A patch that global fit does not follow (a grid bent by a fisheye or a wide lens) counts when each
+dot against the quadratic of its own neighbours (:func:`~circcal.detector.locate.smooth.local_residual`, a share of
+the local step) is within this share instead."""
 PATCH_FILL_SPREAD = 0.35
 """... and when its dots' areas over their local lattice cells agree: relative spread (MAD over median) at most
 this, markers apart (a board's dots agree within a few percent)."""
@@ -147,7 +150,10 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
         return False
     step = float(np.sqrt(np.median(cell[ok])))
     if float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) > PATCH_RESIDUAL * step:
-        return False
+        # a grid bent by a wide lens: each dot against the smooth map of its own neighbours
+        local = local_residual(ab, P)
+        if local is None or local > PATCH_RESIDUAL:
+            return False
     fill = area[lat.index][ok] / cell[ok]
     if board.has_markers:  # markers apart: the dots nearer the smaller mode
         fill = fill[fill < np.median(fill) * board.marker_scale]

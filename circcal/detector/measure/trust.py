@@ -30,6 +30,7 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.detector.kernels.jit import njit
+from circcal.detector.locate.smooth import local_residual
 from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.measure.robust import median, row_medians
 
@@ -110,7 +111,11 @@ CLEARANCE_ANGLES = 48
 """Samples per ring (one per 7.5 deg; the tables _COS, _SIN below)."""
 MAX_LATTICE_RESIDUAL = 0.06
 """The RMS residual of the lattice fit (below) is at most this share of the local lattice step: <= 0.01 on renders
-without distortion, <= 0.03 with k1 = -0.3 and on real 640x480 photographs (measured); aligned noise specks: > 0.1."""
+without distortion, <= 0.03 with k1 = -0.3 and on real 640x480 photographs (measured); aligned noise specks: > 0.1.
+Where that global fit does not follow the grid (the rows a fisheye or a wide lens bends over a large board), each dot
+is measured against the quadratic of its own lattice neighbours instead
+(:func:`~circcal.detector.locate.smooth.local_residual`: the same scale, a share of the local step), and the smaller
+of the two is held to this bound."""
 QUADRATIC_FROM = 20
 """Grids of at least this many dots are fitted with a homography plus a quadratic term in board coordinates (lens
 distortion bends rows over a large board); smaller ones with the homography alone (8 parameters: enough)."""
@@ -552,6 +557,9 @@ def check_grid(
     if not np.isfinite(step) or step <= 0:
         return "the dots have no lattice neighbours"
     rel = float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) / step
+    if rel > MAX_LATTICE_RESIDUAL:  # a grid bent by a wide lens: each dot against the smooth map of its neighbours
+        local = local_residual(obj, centres)
+        rel = rel if local is None else min(rel, local)
     if rel > MAX_LATTICE_RESIDUAL:
         return (
             f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
