@@ -33,11 +33,26 @@ __all__ = ["StateCovariance", "state_covariance"]
 class StateCovariance:
     """First-order covariance of a solve's whole state, per unit of per-coordinate noise, in factored form.
 
-    ``S_inv``: (ng, ng) the global block ``S^-1``; ``M``: (V, 6, ng) ``D_v^-1 B_v^T``; ``D_inv``: (V, 6, 6);
-    ``intrinsics_map``: (4 + n_dist, nf), d(intrinsics) / d(free intrinsics) (a held parameter has a zero row; a
-    held aspect ratio puts ``a`` in fx's row); ``n_board``: free board coordinates (0 without board refinement);
-    ``sigma_px``: the per-coordinate noise estimate of the solve, sqrt(SSR / (2N - n)). Multiply by
-    ``sigma_px^2`` for the covariance.
+    Multiply by ``sigma_px^2`` for the covariance.
+
+    Attributes
+    ----------
+    S_inv : ndarray, shape (ng, ng)
+        The global block ``S^-1``.
+    M : ndarray, shape (V, 6, ng)
+        ``D_v^-1 B_v^T``.
+    D_inv : ndarray, shape (V, 6, 6)
+    intrinsics_map : ndarray, shape (4 + n_dist, nf)
+        d(intrinsics) / d(free intrinsics) (a held parameter has a zero row; a held aspect ratio puts ``a`` in fx's
+        row).
+    n_board : int
+        Free board coordinates (0 without board refinement).
+    sigma_px : float
+        The per-coordinate noise estimate of the solve, sqrt(SSR / (2N - n)), px.
+    n_views : int
+        V (property).
+    n_global : int
+        ng = nf + nb (property).
     """
 
     S_inv: np.ndarray
@@ -54,6 +69,7 @@ class StateCovariance:
 
     @property
     def n_views(self) -> int:
+        """The number of views V."""
         return int(self.M.shape[0])
 
     @property
@@ -62,8 +78,20 @@ class StateCovariance:
         return int(self.S_inv.shape[0])
 
     def quadratic(self, G_global: np.ndarray, G_pose: np.ndarray) -> np.ndarray:
-        """``G C_unit G^T`` (N, k, k) for N linear functions of the state with derivatives ``G_global`` (N, k, ng)
-        and ``G_pose`` (N, k, V, 6) (see the module); cost O(N k V ng), no dense state matrix."""
+        """``G C_unit G^T`` for N linear functions of the state; cost O(N k V ng), no dense state matrix.
+
+        Parameters
+        ----------
+        G_global : ndarray, shape (N, k, ng)
+            The functions' derivatives with respect to the global parameters (see the module).
+        G_pose : ndarray, shape (N, k, V, 6)
+            Their derivatives with respect to each view's pose.
+
+        Returns
+        -------
+        ndarray, shape (N, k, k)
+            Per unit of per-coordinate noise (multiply by ``sigma_px^2``).
+        """
         H = G_global - np.einsum("nkvj,vjg->nkg", G_pose, self.M)
         out: np.ndarray = np.einsum("nag,gh,nbh->nab", H, self.S_inv, H) + np.einsum(
             "navi,vij,nbvj->nab", G_pose, self.D_inv, G_pose

@@ -44,10 +44,27 @@ MIN_EFFECT_NOISE = 0.5
 
 @dataclass(frozen=True)
 class ModelFit:
-    """``fits``: False when the residuals hold the radial pattern of a too simple lens model (module rule).
-    ``lens``: the model tested. ``noise_px``: per-coordinate noise from neighbour differences. ``radius_px`` (B,):
-    each ring's mean radius; ``radial_px`` (B,): its mean radial residual (positive: observed beyond the projection);
-    ``z`` (B,): in standard errors; ``chi2`` with ``p_value``; ``n_points``."""
+    """Whether the lens model fits: the radial pattern of the residuals (module rule).
+
+    Attributes
+    ----------
+    fits : bool
+        False when the residuals hold the radial pattern of a too simple lens model.
+    lens : str
+        The model tested.
+    noise_px : float
+        Per-coordinate noise from neighbour differences, px.
+    radius_px : ndarray, shape (B,)
+        Each ring's mean radius, px.
+    radial_px : ndarray, shape (B,)
+        Its mean radial residual, px (positive: observed beyond the projection).
+    z : ndarray, shape (B,)
+        The same in standard errors.
+    chi2 : float
+        With ``p_value``.
+    p_value : float
+    n_points : int
+    """
 
     fits: bool
     lens: str
@@ -65,6 +82,13 @@ class ModelFit:
         return int(np.argmax(np.abs(self.radial_px)))
 
     def message(self) -> str:
+        """The verdict in one line of words: the residuals' radial profile and, when the model does not fit, which
+        ``--lens`` to try.
+
+        Returns
+        -------
+        str
+        """
         k = self.worst
         profile = (
             f"mean radial residual up to {self.radial_px[k]:+.3f} px at {self.radius_px[k]:.0f} px from the "
@@ -86,6 +110,14 @@ class ModelFit:
         )
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary, with the rule in words.
+
+        Returns
+        -------
+        dict
+            ``fits``, ``lens``, ``noise_px_per_coord``, ``radius_px``, ``radial_residual_px``, ``z``, ``chi2``,
+            ``p_value``, ``n_points``, ``rule``.
+        """
         return {
             "fits": self.fits,
             "lens": self.lens,

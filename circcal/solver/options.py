@@ -130,9 +130,16 @@ class CalibrationOptions:
         spell: Callable[[str], str] = str,
         **options: Any,
     ) -> CalibrationOptions:
-        """The options of the command line's flags: each ``fix_*`` that is true holds what :data:`FLAG_HOLDS`
-        says; ``options`` are the other fields (``lens``, ``refine_board``, ...); ``spell``: how an error names a
-        flag (e.g. ``fix_k3`` -> ``--fix-k3``).
+        """The options of the command line's flags.
+
+        Parameters
+        ----------
+        fix_k2, fix_k3, fix_tangential, fix_aspect_ratio, fix_principal_point : bool
+            Each that is true holds what :data:`FLAG_HOLDS` says.
+        spell : callable, str -> str
+            How an error names a flag (e.g. ``fix_k3`` -> ``--fix-k3``).
+        **options
+            The other fields (``lens``, ``refine_board``, ...).
 
         Returns
         -------
@@ -143,6 +150,11 @@ class CalibrationOptions:
         InputError
             A flag that holds what the lens model does not have (``fix_tangential`` with the fisheye), named by the
             flag; or any field's error (see the class).
+
+        Examples
+        --------
+        >>> CalibrationOptions.from_flags(fix_k3=True, lens="opencv5").holds("k3")
+        True
         """
         flags = dict(
             fix_k2=fix_k2,
@@ -164,15 +176,47 @@ class CalibrationOptions:
         return cls(fixed=tuple(fixed), **options)
 
     def replace(self, **changes: Any) -> CalibrationOptions:
-        """A copy with ``changes`` (field -> value; :func:`dataclasses.replace`), checked like a new one."""
+        """A copy with ``changes`` (:func:`dataclasses.replace`), checked like a new one.
+
+        Parameters
+        ----------
+        **changes
+            Field -> value.
+
+        Returns
+        -------
+        CalibrationOptions
+
+        Raises
+        ------
+        InputError
+            A field's error (see the class).
+        """
         return dataclasses.replace(self, **changes)
 
     def holds(self, name: str) -> bool:
-        """Whether parameter (or ``"aspect_ratio"``) ``name`` is held."""
+        """Whether a parameter is held.
+
+        Parameters
+        ----------
+        name : str
+            A parameter name of the lens model, or ``"aspect_ratio"``.
+
+        Returns
+        -------
+        bool
+        """
         return name in self.fixed
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready summary (the outlier rule's numbers, or None)."""
+        """A JSON-ready summary.
+
+        Returns
+        -------
+        dict
+            ``lens``, ``fixed``, ``refine_board``, ``board_gauge``, ``solver``, ``max_iterations``, ``outlier_rule`` (the
+            rule's numbers, or None).
+        """
         r = self.outlier_rule
         return {
             "lens": self.lens,

@@ -66,7 +66,17 @@ MAD_TO_SIGMA = 1.4826
 
 
 class OutlierReason(str, enum.Enum):
-    """Why an observation was left out (the values are what model.json carries; :data:`OUTLIER_TEXT` in words)."""
+    """Why an observation was left out (the values are what model.json carries; :data:`OUTLIER_TEXT` in words).
+
+    Attributes
+    ----------
+    POINT : str
+        ``"outlier-point"``.
+    VIEW : str
+        ``"outlier-view"``.
+    BAD_DOT : str
+        ``"bad-dot"``.
+    """
 
     POINT = "outlier-point"
     VIEW = "outlier-view"
@@ -83,8 +93,23 @@ OUTLIER_TEXT: dict[OutlierReason, str] = {
 
 @dataclass(frozen=True)
 class OutlierRule:
-    """``k``: threshold in standard deviations (> 0); ``sigma_floor_px``: the least noise assumed (px, >= 0);
-    ``max_view_loss``: share of a view's points beyond which the view is dropped (0..1); ``max_rounds``."""
+    """The outlier rule's numbers (module docstring).
+
+    Attributes
+    ----------
+    k : float
+        Threshold in standard deviations (> 0).
+    sigma_floor_px : float
+        The least noise assumed, px (>= 0).
+    max_view_loss : float
+        Share of a view's points beyond which the view is dropped (in (0, 1)).
+    max_rounds : int
+
+    Raises
+    ------
+    InputError
+        ``k``, ``sigma_floor_px`` or ``max_view_loss`` out of range (on construction).
+    """
 
     k: float = DEFAULT_K
     sigma_floor_px: float = SIGMA_FLOOR_PX
@@ -102,12 +127,29 @@ class OutlierRule:
 
 @dataclass
 class Rejected:
-    """One observation left out. ``view``: index of the view as given; ``point``: index of the point among that
-    view's points as given to the solve (for a bad dot, flagged before any solve: its index in the board's order;
-    None for a whole view; ``object_mm`` names the board point either way); ``object_mm`` (3,) / ``image_px`` (2,) the point (None for a view);
-    ``residual_px``: (2,) observed - projected when it was left out (for a view: the RMS per coordinate of its points,
-    one number); ``sigma_px``: the noise level the test used; ``round``: the solve after which it was left out (0 =
-    before any solve: a bad dot); ``reason``; ``detail``: in words."""
+    """One observation left out.
+
+    Attributes
+    ----------
+    view : int
+        Index of the view as given.
+    point : int or None
+        Index of the point among that view's points as given to the solve (for a bad dot, flagged before any solve:
+        its index in the board's order); None for a whole view (``object_mm`` names the board point either way).
+    object_mm : ndarray, shape (3,), or None
+        The board point, mm (None for a view).
+    image_px : ndarray, shape (2,), or None
+        Its image point, px (None for a view).
+    residual_px : ndarray, shape (2,), or float
+        Observed - projected when it was left out, px (for a view: the RMS per coordinate of its points, one number).
+    sigma_px : float
+        The noise level the test used, px.
+    round : int
+        The solve after which it was left out (0 = before any solve: a bad dot).
+    reason : OutlierReason
+    detail : str
+        In words.
+    """
 
     view: int
     point: int | None
@@ -120,6 +162,14 @@ class Rejected:
     detail: str
 
     def to_dict(self) -> dict[str, Any]:
+        """The model.json entry.
+
+        Returns
+        -------
+        dict
+            ``view``, ``reason``, ``detail``, ``round``, ``sigma_px``, ``residual_px`` and, for a point, ``point``,
+            ``object_mm``, ``image_px``.
+        """
         d: dict[str, Any] = {
             "view": self.view,
             "reason": self.reason.value,
@@ -139,10 +189,24 @@ class Rejected:
 
 @dataclass
 class Rejections:
-    """What outlier rejection left out of one calibration. ``items``: every :class:`Rejected`; ``kept_views``: the
-    given views' indices that remain, in order (view i of the result is given view ``kept_views[i]``);
-    ``n_views``/``n_points``: how many were given; ``rounds``: solves made; ``rule``; ``view_names``: the given
-    views' names when the caller knows them (image files)."""
+    """What outlier rejection left out of one calibration.
+
+    Attributes
+    ----------
+    rule : OutlierRule
+    kept_views : list of int
+        The given views' indices that remain, in order (view i of the result is given view ``kept_views[i]``).
+    n_views, n_points : int
+        How many were given.
+    rounds : int
+        Solves made.
+    items : list of Rejected
+        Every rejection.
+    view_names : list of str or None
+        The given views' names when the caller knows them (image files).
+    dropped_views : list of Rejected
+        The whole views left out (property).
+    """
 
     rule: OutlierRule
     kept_views: list[int]
@@ -154,20 +218,53 @@ class Rejections:
 
     @property
     def dropped_views(self) -> list[Rejected]:
+        """The whole views left out (the items whose ``point`` is None)."""
         return [r for r in self.items if r.point is None]
 
     def points_of(self, view: int) -> list[Rejected]:
-        """Rejected points of given view ``view`` (a kept one)."""
+        """The rejected points of a given view.
+
+        Parameters
+        ----------
+        view : int
+            Index of a given (kept) view.
+
+        Returns
+        -------
+        list of Rejected
+        """
         return [r for r in self.items if r.view == view and r.point is not None]
 
     def view_entries(self, i: int) -> list[dict[str, Any]]:
-        """model.json entries of the points left out of the result's view ``i``."""
+        """The model.json entries of the points left out of one of the result's views.
+
+        Parameters
+        ----------
+        i : int
+            Index of the view in the result (not as given).
+
+        Returns
+        -------
+        list of dict
+            :meth:`Rejected.to_dict` of each.
+        """
         return [r.to_dict() for r in self.points_of(self.kept_views[i])]
 
     def kept_centres(self, centres: Sequence[np.ndarray], board_points: np.ndarray) -> list[np.ndarray]:
-        """The kept views' centres out of ``centres`` (one (P, 2) px array per given view, in the board's point
-        order ``board_points`` (P, 3) mm), with every rejected point set to NaN: exactly what the result was fitted
-        to."""
+        """The kept views' centres with every rejected point set to NaN: exactly what the result was fitted to.
+
+        Parameters
+        ----------
+        centres : sequence of ndarray, each shape (P, 2)
+            One array per given view, px, in the board's point order.
+        board_points : ndarray, shape (P, 3)
+            That order, mm.
+
+        Returns
+        -------
+        list of ndarray, each shape (P, 2)
+            One per kept view, px.
+        """
         index = {tuple(k): i for i, k in enumerate(np.round(board_points, 6).tolist())}
         out: list[np.ndarray] = []
         for v in self.kept_views:
@@ -178,6 +275,14 @@ class Rejections:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """The model.json ``outliers`` section.
+
+        Returns
+        -------
+        dict
+            ``rule`` (k, sigma_floor_px, max_view_loss), ``rounds``, ``n_views``, ``n_points``, ``kept_views``,
+            ``rejected`` (:meth:`Rejected.to_dict` of each).
+        """
         return {
             "rule": {
                 "k": self.rule.k,
@@ -198,17 +303,34 @@ def _view_scale(r: np.ndarray) -> float:
 
 
 class Solution(Protocol):
-    """What :func:`reject_outliers` reads of a solve (a :class:`~circcal.solver.CalibrationResult`: this module
-    does not import the solver): a dataclass with an ``outliers`` field and these attributes."""
+    """What :func:`reject_outliers` reads of a solve (a :class:`~circcal.solver.CalibrationResult`: this module does not
+    import the solver): a dataclass with an ``outliers`` field and these attributes.
+
+    Attributes
+    ----------
+    camera : Camera
+    residuals : list of ndarray, each shape (N_v, 2)
+        Observed - projected, px.
+    sigma_px : float
+        The per-coordinate noise estimate, px.
+    """
 
     __dataclass_fields__: ClassVar[dict[str, Any]]
 
     @property
-    def camera(self) -> Camera: ...
+    def camera(self) -> Camera:
+        """The calibrated camera."""
+        ...
+
     @property
-    def residuals(self) -> list[np.ndarray]: ...
+    def residuals(self) -> list[np.ndarray]:
+        """Per view (N_v, 2) px, observed - projected."""
+        ...
+
     @property
-    def sigma_px(self) -> float: ...
+    def sigma_px(self) -> float:
+        """The per-coordinate noise estimate, px."""
+        ...
 
 
 _Solved = TypeVar("_Solved", bound=Solution)

@@ -53,9 +53,18 @@ MIN_VIEWS_PER_BOARD_POINT = 3
 
 @dataclass(frozen=True)
 class Chunk:
-    """Consecutive whole views ``v0:v1`` and their stacked observations ``a:b``, evaluated together; ``groups``:
-    ``(views (k,), rows (k c,) into the chunk or None)`` of its views by point count c (one group with rows None
-    when every view of the problem holds the same count: its rows are a free reshape)."""
+    """Consecutive whole views ``v0:v1`` and their stacked observations ``a:b``, evaluated together.
+
+    Attributes
+    ----------
+    a, b : int
+        The chunk's rows among the stacked observations.
+    v0, v1 : int
+        Its views.
+    groups : tuple of (ndarray, ndarray or None)
+        ``(views (k,), rows (k c,) into the chunk or None)`` of its views by point count c (one group with rows None
+        when every view of the problem holds the same count: its rows are a free reshape).
+    """
 
     a: int
     b: int
@@ -127,10 +136,20 @@ def project_pixels(Xc: np.ndarray, p: np.ndarray, pinhole: bool) -> np.ndarray:
 class BoardModel:
     """Board points as unknowns (the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``).
 
-    ``nominal``: (P, 3) mm, the distinct board points in order of first appearance; ``point_index``: (N,) the board
-    point of each stacked observation; ``free``: indices into ``nominal.ravel()`` of the coordinates estimated (the
-    rest are held: the gauge and points seen in fewer than 3 views); ``gauge``: (a, b, c) point indices: a and b held
-    in x, y, z, c in z (7 constraints: the similarity transform a planar board's shape cannot fix by itself).
+    Attributes
+    ----------
+    nominal : ndarray, shape (P, 3)
+        The distinct board points in order of first appearance, mm.
+    point_index : ndarray, shape (N,)
+        The board point of each stacked observation.
+    free : ndarray
+        Indices into ``nominal.ravel()`` of the coordinates estimated (the rest are held: the gauge and points seen
+        in fewer than 3 views).
+    gauge : tuple of int, (a, b, c)
+        Point indices: a and b held in x, y, z, c in z (7 constraints: the similarity transform a planar board's
+        shape cannot fix by itself).
+    held_unseen : list of int
+        The points held because fewer than 3 views saw them.
     """
 
     nominal: np.ndarray
@@ -196,6 +215,37 @@ class Problem:
 
     Parameter vector: the free intrinsics (``nf``), then the free board coordinates (``nb``, only with board
     refinement), then 6 pose parameters per view; ``ng = nf + nb`` "global" parameters are shared by all views.
+
+    Parameters
+    ----------
+    obj : sequence of ndarray, each shape (N_v, 3)
+        Board points per view, mm.
+    img : sequence of ndarray, each shape (N_v, 2)
+        Their observed image points, px.
+    base : ndarray, shape (4 + n_dist,)
+        The intrinsics (fx, fy, cx, cy px, distortion); the held ones keep these values.
+    free : list of int
+        Indices into ``base`` of the free intrinsics.
+    aspect : float or None
+        With a held aspect ratio: fx = aspect * fy.
+    board : BoardModel or None
+        Board points as unknowns (board refinement).
+    lens : str
+        The lens model's name.
+
+    Attributes
+    ----------
+    n_views : int
+        V.
+    nf, nb, ng, n : int
+        Free intrinsics, free board coordinates, global parameters, all parameters (ng + 6 V).
+    X : ndarray, shape (N, 3)
+        The stacked board points, mm.
+    uv : ndarray, shape (N, 2)
+        The stacked observations, px.
+    view : ndarray, shape (N,)
+        The view of each.
+    chunks : list of Chunk
     """
 
     def __init__(
@@ -250,11 +300,34 @@ class Problem:
         self._normal: tuple[np.ndarray, NormalBlocks] | None = None
 
     def intrinsics(self, x: np.ndarray) -> np.ndarray:
+        """The camera's parameters at ``x``: ``base + T @ x[:nf]``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        ndarray, shape (4 + n_dist,)
+            fx, fy, cx, cy (px), then the distortion coefficients.
+        """
         p: np.ndarray = self.base + self.T @ x[: self.nf]
         return p
 
     def board_points(self, x: np.ndarray) -> np.ndarray | None:
-        """(P, 3) mm: the board points at ``x`` (None without board refinement)."""
+        """The board points at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        ndarray, shape (P, 3), or None
+            mm; None without board refinement.
+        """
         if self.board is None:
             return None
         return self._board_points(self.board, x)
@@ -266,11 +339,40 @@ class Problem:
         return pts.reshape(-1, 3)
 
     def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
+        """The parameter vector of given intrinsics and poses (board coordinates at their nominal values).
+
+        Parameters
+        ----------
+        intr : ndarray, shape (4 + n_dist,)
+            The intrinsics (only the free ones are taken).
+        rvecs : ndarray, shape (V, 3)
+            Board -> camera rotations, rad.
+        tvecs : ndarray, shape (V, 3)
+            Translations, mm.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
         xi = np.array([intr[k] for k in self.free])
         xb = self.board.nominal.ravel()[self.board.free] if self.board is not None else np.zeros(0)
         return np.concatenate([xi, xb, np.column_stack([rvecs, tvecs]).ravel()])
 
     def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The views' poses at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        rvecs : ndarray, shape (V, 3)
+            Board -> camera rotations, rad (copies).
+        tvecs : ndarray, shape (V, 3)
+            Translations, mm.
+        """
         P = x[self.ng :].reshape(-1, 6)
         return P[:, :3].copy(), P[:, 3:].copy()
 
@@ -303,8 +405,22 @@ class Problem:
         return Y, Y + t
 
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """-> (f (2N,) projected - observed px, Xc (N, 3) mm) without the Jacobian (a trial step's cost), chunk by
-        chunk; equal to the bit to :meth:`normal_equations`' residuals. The last evaluation is kept."""
+        """The residuals without the Jacobian (a trial step's cost), chunk by chunk.
+
+        Equal to the bit to :meth:`normal_equations`' residuals. The last evaluation is kept.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        f : ndarray, shape (2N,)
+            Projected - observed, px.
+        Xc : ndarray, shape (N, 3)
+            The board points in the camera frame, mm.
+        """
         key = x.tobytes()
         if key == self._residuals_x and self._residuals is not None:
             return self._residuals
@@ -348,13 +464,26 @@ class Problem:
             yield c, Jg, Jp
 
     def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, NormalBlocks]:
-        """``(f, (A, gi, B, D, gp))`` at ``x``: the residuals f (2N,) px and the blocks of ``J^T J`` and ``J^T f``,
-        A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6) (each view's rows touch only the global
-        parameters and its own pose). Assembled chunk by chunk, so the (2N, ng + 6) Jacobian never exists: per
-        chunk, A and gi are one product over its rows, B, D and gp one batched product over its views (views of
-        equal point count are a free reshape, others gathered by count). The last evaluation is kept (the
-        solver's last step, its convergence test, the information and the covariance all ask at the solution);
-        it also sets :meth:`residuals`' kept one."""
+        """The residuals and the blocks of ``J^T J`` and ``J^T f`` at ``x``.
+
+        Each view's rows touch only the global parameters and its own pose. Assembled chunk by chunk, so the
+        (2N, ng + 6) Jacobian never exists: per chunk, A and gi are one product over its rows, B, D and gp one batched
+        product over its views (views of equal point count are a free reshape, others gathered by count). The last
+        evaluation is kept (the solver's last step, its convergence test, the information and the covariance all ask at
+        the solution); it also sets :meth:`residuals`' kept one.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        f : ndarray, shape (2N,)
+            Projected - observed, px.
+        blocks : tuple (A, gi, B, D, gp)
+            A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6).
+        """
         key = x.tobytes()
         if key == self._normal_x and self._normal is not None:
             return self._normal
@@ -389,9 +518,23 @@ class Problem:
         return self._normal
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """-> (f (2N,) projected - observed px, Xc (N, 3) mm, J_global (N, 2, ng), J_pose (N, 2, 6)): the whole
-        Jacobian, for the scipy cross-check and tests (the Levenberg-Marquardt solver needs only
-        :meth:`normal_equations`)."""
+        """The residuals and the whole Jacobian, for the scipy cross-check and tests (the Levenberg-Marquardt solver needs
+        only :meth:`normal_equations`).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        f : ndarray, shape (2N,)
+            Projected - observed, px.
+        Xc : ndarray, shape (N, 3)
+            Camera-frame points, mm.
+        J_global : ndarray, shape (N, 2, ng)
+        J_pose : ndarray, shape (N, 2, 6)
+        """
         N = len(self.X)
         f, Xc = np.empty(2 * N), np.empty((N, 3))
         Jg, Jp = np.empty((N, 2, self.ng)), np.empty((N, 2, 6))
@@ -400,9 +543,31 @@ class Problem:
         return f, Xc, Jg, Jp
 
     def fun(self, x: np.ndarray) -> np.ndarray:
+        """The residuals alone (``scipy.optimize.least_squares``' ``fun``).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (2N,)
+            Projected - observed, px.
+        """
         return self.residuals(x)[0]
 
     def jac(self, x: np.ndarray) -> csr_matrix:
+        """The Jacobian as a sparse matrix (``scipy.optimize.least_squares``' ``jac``): each row holds the ng global columns
+        and its view's 6 pose columns.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (2N, n)
+        """
         from scipy.sparse import csr_matrix
 
         m, row_nnz = 2 * len(self.X), self.ng + 6

@@ -22,24 +22,51 @@ __all__ = ["CalibrationResult"]
 class CalibrationResult:
     """A calibrated camera with its uncertainty and fit statistics.
 
-    ``std``: standard deviation of each of the camera's parameters (``camera.model.param_names``: fx, fy, cx, cy in
-    px, then the distortion coefficients, unitless) from ``sigma_px^2 (J^T J)^-1`` with the poses marginalised; 0.0
-    for a parameter held fixed (listed in ``fixed``); with a fixed aspect ratio fx = a * fy, fx's std is a * std(fy).
-    ``correlation``: (4 + n_dist, 4 + n_dist), NaN in the rows and columns of
-    fixed parameters. ``rvecs``/``tvecs``: (V, 3) board -> camera (radians / mm). ``residuals``: per view (N_v, 2)
-    px, observed - projected. ``errors``: :func:`circcal.metrics.error_stats` over all points (keys name the
-    convention: rms_per_point_px = OpenCV's RMS, rms_per_coord_px = mrcal's, mean_2d_px = the paper's eq. 22);
-    ``per_view_errors`` the same per view. ``sigma_px``: per-coordinate noise estimate sqrt(SSR / (2N - n_params)).
-    ``fixed``: names of parameters held at their initial value, plus ``"aspect_ratio"`` when fx/fy was held.
-    ``view_names``: optional label per view (image file names when calibrating images). With board refinement
-    (``calibrate(refine_board=True)``): ``board_nominal`` (P, 3) mm the distinct board points in order of first
-    appearance, ``board_points`` (P, 3) mm their estimated positions, ``board_std`` (P, 3) mm standard deviations (0
-    for held coordinates), ``board_gauge`` the three points that fix the board frame; all None otherwise.
-    ``covariance``: the first-order covariance of the whole state (intrinsics, board coordinates, every pose;
-    :class:`circcal.solver.covariance.StateCovariance`), None when the information matrix is singular: projection
-    uncertainty (:mod:`circcal.solver.uncertainty`) needs it. ``object_points`` / ``image_points``: per view (N_v, 3)
-    mm / (N_v, 2) px, the observations the model was fitted to (after any outlier rejection). ``outliers``: what
-    outlier rejection left out (:class:`circcal.solver.outliers.Rejections`), None when it did not run.
+    Attributes
+    ----------
+    camera : Camera
+    std : dict of str to float
+        Standard deviation of each of the camera's parameters (``camera.model.param_names``: fx, fy, cx, cy in px,
+        then the distortion coefficients, unitless) from ``sigma_px^2 (J^T J)^-1`` with the poses marginalised; 0.0
+        for a parameter held fixed (listed in ``fixed``); with a fixed aspect ratio fx = a * fy, fx's std is
+        a * std(fy).
+    correlation : ndarray, shape (4 + n_dist, 4 + n_dist)
+        NaN in the rows and columns of fixed parameters.
+    rvecs, tvecs : ndarray, shape (V, 3)
+        Board -> camera (radians / mm).
+    residuals : list of ndarray, each shape (N_v, 2)
+        Per view, px, observed - projected.
+    errors : dict of str to float
+        :func:`circcal.metrics.error_stats` over all points (keys name the convention: rms_per_point_px = OpenCV's
+        RMS, rms_per_coord_px = mrcal's, mean_2d_px = the paper's eq. 22).
+    per_view_errors : list of dict
+        The same per view.
+    sigma_px : float
+        Per-coordinate noise estimate sqrt(SSR / (2N - n_params)), px.
+    n_iterations : int
+    converged : bool
+    fixed : tuple of str
+        Names of parameters held at their initial value, plus ``"aspect_ratio"`` when fx/fy was held.
+    view_names : list of str or None
+        Optional label per view (image file names when calibrating images).
+    n_params : int
+    board_nominal : ndarray, shape (P, 3), or None
+        With board refinement (``calibrate(refine_board=True)``): the distinct board points in order of first
+        appearance, mm; None otherwise (as the next three).
+    board_points : ndarray, shape (P, 3), or None
+        Their estimated positions, mm.
+    board_std : ndarray, shape (P, 3), or None
+        Standard deviations, mm (0 for held coordinates).
+    board_gauge : tuple of int or None
+        The three points that fix the board frame.
+    covariance : StateCovariance or None
+        The first-order covariance of the whole state (intrinsics, board coordinates, every pose;
+        :class:`circcal.solver.covariance.StateCovariance`), None when the information matrix is singular: projection
+        uncertainty (:mod:`circcal.solver.uncertainty`) needs it.
+    object_points, image_points : list of ndarray or None
+        Per view (N_v, 3) mm / (N_v, 2) px, the observations the model was fitted to (after any outlier rejection).
+    outliers : Rejections or None
+        What outlier rejection left out (:class:`circcal.solver.outliers.Rejections`), None when it did not run.
     """
 
     camera: Camera
@@ -66,8 +93,23 @@ class CalibrationResult:
     outliers: Rejections | None = None
 
     def board_lookup(self, object_points: np.ndarray) -> np.ndarray:
-        """Nominal board points (N, 3) mm -> the refined ones (N, 3) mm (unchanged without board refinement).
-        Raises ``ValueError`` for a point the calibration never saw."""
+        """Nominal board points -> the refined ones (unchanged without board refinement).
+
+        Parameters
+        ----------
+        object_points : ndarray, shape (N, 3)
+            Nominal board points, mm.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            mm.
+
+        Raises
+        ------
+        ValueError
+            A point the calibration never saw (a caller's bug, not an input error).
+        """
         o = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
         if self.board_points is None or self.board_nominal is None:  # set together, by board refinement
             return o.copy()
@@ -79,10 +121,15 @@ class CalibrationResult:
         return self.board_points[rows]
 
     def model_sections(self) -> dict[str, Any]:
-        """This result's sections of model.json (:func:`circcal.formats.model_json`): ``std``, ``fixed``,
-        ``parameter_order``, ``correlation`` (NaN -> null), ``errors`` (overall, convention in each key), ``sigma_px``,
-        solver facts, one entry per view (name, pose, errors, the observations it contributed and the points outlier
-        rejection left out of it) and, with board refinement, the refined board."""
+        """This result's sections of model.json (:func:`circcal.formats.model_json`).
+
+        Returns
+        -------
+        dict
+            ``std``, ``fixed``, ``parameter_order``, ``correlation`` (NaN -> null), ``errors`` (overall, convention in
+            each key), ``sigma_px``, solver facts, one entry per view (name, pose, errors, the observations it
+            contributed and the points outlier rejection left out of it) and, with board refinement, the refined board.
+        """
         views = []
         for i in range(len(self.rvecs)):
             entry: dict[str, Any] = {}
@@ -129,5 +176,14 @@ class CalibrationResult:
         }
 
     def to_model_json(self) -> dict[str, Any]:
-        """model.json content (:func:`circcal.formats.model_json`) of this result alone."""
+        """model.json content (:func:`circcal.formats.model_json`) of this result alone.
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> text = circcal.jsonio.dumps(result.to_model_json())  # doctest: +SKIP
+        """
         return model_json(self.camera, **self.model_sections())

@@ -50,12 +50,22 @@ HOMOGRAPHY_CHUNK = 4096
 
 @dataclass(frozen=True)
 class ZhangResult:
-    """Closed-form estimate. ``rvecs``/``tvecs``: (V, 3) radians / mm; ``homographies``: (V, 3, 3) board mm ->
-    pixels (of the distortion-corrected points of the kept round); ``condition``: condition number of the
-    normalised IAC system (informative only: noise hides near-degeneracy from it; the solver judges observability
-    from the final Jacobian);
-    ``principal_point_fixed``: True when the principal point was given or the free solution was implausible and
-    the image centre was used instead."""
+    """Closed-form estimate.
+
+    Attributes
+    ----------
+    camera : Camera
+    rvecs, tvecs : ndarray, shape (V, 3)
+        Radians / mm.
+    homographies : ndarray, shape (V, 3, 3)
+        Board mm -> pixels (of the distortion-corrected points of the kept round).
+    condition : float
+        Condition number of the normalised IAC system (informative only: noise hides near-degeneracy from it; the
+        solver judges observability from the final Jacobian).
+    principal_point_fixed : bool
+        True when the principal point was given or the free solution was implausible and the image centre was used
+        instead.
+    """
 
     camera: Camera
     rvecs: np.ndarray
