@@ -55,14 +55,25 @@ WORKER_TIMEOUT_S = 120.0
 
 
 class ExportError(RuntimeError):
-    """The optimisation inputs cannot be written (no mrcal, a layout or model mrcal's inputs cannot hold); the
-    message says why."""
+    """The optimisation inputs cannot be written (no mrcal, a layout or model mrcal's inputs cannot hold); the message says
+    why.
+
+    Not an :class:`~circcal.errors.InputError`: the caller writes the plain model instead (:func:`cameramodel_text`).
+    """
 
 
 @dataclass
 class ExportedModel:
-    """A ``.cameramodel`` with optimisation inputs: ``text`` (the file), ``info`` (mrcal's version and API, its
-    residual RMS per coordinate and max cost gradient at circcal's state, the notes written into the file)."""
+    """A ``.cameramodel`` with optimisation inputs.
+
+    Attributes
+    ----------
+    text : str
+        The file.
+    info : dict
+        mrcal's version and API, its residual RMS per coordinate (px) and max cost gradient at circcal's state, the
+        notes written into the file.
+    """
 
     text: str
     info: dict[str, Any] = field(default_factory=dict)
@@ -96,13 +107,38 @@ def export_cameramodel(
 ) -> ExportedModel:
     """The ``.cameramodel`` of ``camera`` with mrcal's optimisation inputs for the observations it was fitted to.
 
-    ``rvecs``/``tvecs``: (V, 3) board -> camera (rad / mm) of the solve; ``object_points``: per view (N_v, 3) mm on
-    the nominal board; ``image_points``: per view (N_v, 2) px (OpenCV's pixel convention, which is mrcal's);
-    ``fixed``: the names circcal held (:attr:`CalibrationResult.fixed`); ``refined_board``: the solve estimated the
-    board's shape (refused: mrcal's inputs cannot hold it). ``uncertainty``: optionally ``{"uv" (N, 2), "distance"
-    mm | None, "observed_pixel_uncertainty" px | None}``: mrcal's projection uncertainty of the written model there
-    comes back in ``info["uncertainty_stdev"]``. Raises :class:`ExportError` (see the module) when the inputs cannot
-    be written."""
+    Parameters
+    ----------
+    camera : Camera
+    rvecs, tvecs : ndarray, shape (V, 3)
+        Board -> camera (rad / mm) of the solve.
+    object_points : sequence of ndarray, each shape (N_v, 3)
+        Per view, mm on the nominal board.
+    image_points : sequence of ndarray, each shape (N_v, 2)
+        Per view, px (OpenCV's pixel convention, which is mrcal's).
+    fixed : sequence of str
+        The names circcal held (:attr:`CalibrationResult.fixed`).
+    refined_board : bool
+        The solve estimated the board's shape (refused: mrcal's inputs cannot hold it).
+    note : str or None
+        A note written into the file.
+    uncertainty : dict or None
+        Optionally ``{"uv" (N, 2), "distance" mm | None, "observed_pixel_uncertainty" px | None}``: mrcal's
+        projection uncertainty of the written model there comes back in ``info["uncertainty_stdev"]``.
+    python : str or None
+        The interpreter that runs the mrcal worker (None: :func:`~circcal.formats.mrcal_process.mrcal_python`).
+
+    Returns
+    -------
+    ExportedModel
+
+    Raises
+    ------
+    ExportError
+        The inputs cannot be written (see the module).
+    InputError
+        Poses and views of different counts.
+    """
     if refined_board:
         raise ExportError(
             "the board's shape was estimated (--refine-board): mrcal's optimisation inputs model a "
@@ -183,9 +219,32 @@ def mrcal_uncertainty(
     observed_pixel_uncertainty: float | None = None,
     python: str | None = None,
 ) -> np.ndarray:
-    """mrcal's projection uncertainty (worst-direction standard deviation, px) of a ``.cameramodel`` with
-    optimisation inputs at pixels ``uv`` (N, 2), ``distance`` mm along each ray (None: infinity). Raises
-    :class:`ExportError` without mrcal or without optimisation inputs."""
+    """mrcal's projection uncertainty (worst-direction standard deviation) of a ``.cameramodel`` with optimisation
+    inputs.
+
+    Parameters
+    ----------
+    cameramodel_text : str
+        The ``.cameramodel`` text.
+    uv : ndarray, shape (N, 2)
+        Pixels, px.
+    distance : float or None
+        mm along each ray (None: infinity).
+    observed_pixel_uncertainty : float or None
+        px; None: mrcal's own.
+    python : str or None
+        The interpreter that runs the mrcal worker.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        px.
+
+    Raises
+    ------
+    ExportError
+        Without mrcal or without optimisation inputs.
+    """
     reply = _run_worker(
         {
             "command": "uncertainty",
@@ -200,8 +259,18 @@ def mrcal_uncertainty(
 
 
 def result_views(result: Any) -> dict[str, Any]:
-    """What :func:`export_cameramodel` needs from a :class:`circcal.solver.CalibrationResult`: its poses, the
-    observations it was fitted to, the names it held and whether it refined the board."""
+    """What :func:`export_cameramodel` needs from a :class:`circcal.solver.CalibrationResult`.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+
+    Returns
+    -------
+    dict
+        ``rvecs``, ``tvecs``, ``object_points``, ``image_points`` (the observations it was fitted to), ``fixed`` (the
+        names it held), ``refined_board`` (whether it refined the board).
+    """
     return {
         "rvecs": result.rvecs,
         "tvecs": result.tvecs,
@@ -213,9 +282,25 @@ def result_views(result: Any) -> dict[str, Any]:
 
 
 def document_views(document: dict[str, Any] | None) -> dict[str, Any] | None:
-    """:func:`result_views` read back from a model.json document (its ``views``: ``rvec``, ``tvec_mm``,
-    ``object_mm``, ``image_px``); None when the document holds no observations (a model.json written before they
-    were, or a bare camera). Raises :class:`~circcal.errors.InputError` naming the view for a malformed entry."""
+    """:func:`result_views` read back from a model.json document (its ``views``: ``rvec``, ``tvec_mm``, ``object_mm``,
+    ``image_px``).
+
+    Parameters
+    ----------
+    document : dict or None
+        A model.json document.
+
+    Returns
+    -------
+    dict or None
+        As :func:`result_views`; None when the document holds no observations (a model.json written before they
+        were, or a bare camera).
+
+    Raises
+    ------
+    InputError
+        Naming the view, for a malformed entry.
+    """
     doc = document or {}
     views = doc.get("views")
     if not views or not all(isinstance(v, dict) and "object_mm" in v and "image_px" in v for v in views):
@@ -244,10 +329,29 @@ def document_views(document: dict[str, Any] | None) -> dict[str, Any] | None:
 def cameramodel_text(
     camera: Camera, views: dict[str, Any] | None, *, note: str | None = None
 ) -> tuple[str, dict[str, Any]]:
-    """The ``.cameramodel`` text to write for ``camera``: with mrcal's optimisation inputs when ``views``
-    (:func:`result_views` / :func:`document_views`) are given and mrcal can build them, else the plain model
-    (:func:`circcal.formats.camera_to_cameramodel`). Returns ``(text, info)``: ``info["optimization_inputs"]`` says
-    which, ``info["why"]`` why not (no observations, no mrcal, a refined board, ...)."""
+    """The ``.cameramodel`` text to write for ``camera``: with mrcal's optimisation inputs when ``views`` are given and
+    mrcal can build them, else the plain model (:func:`circcal.formats.camera_to_cameramodel`).
+
+    Parameters
+    ----------
+    camera : Camera
+    views : dict or None
+        :func:`result_views` / :func:`document_views`.
+    note : str or None
+        A note written into the file.
+
+    Returns
+    -------
+    text : str
+    info : dict
+        ``info["optimization_inputs"]`` says which, ``info["why"]`` why not (no observations, no mrcal, a refined
+        board, ...).
+
+    Raises
+    ------
+    InputError
+        A lens model mrcal lacks (:func:`~circcal.formats.camera_to_cameramodel`), or views of different counts.
+    """
     from circcal.formats import camera_to_cameramodel
 
     if views is None:

@@ -27,10 +27,27 @@ COLMAP_MODELS = {
 
 
 def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) -> str:
-    """COLMAP ``cameras.txt`` with one camera. ``model``: ``"auto"`` (opencv5: OPENCV when k3 = 0, else
-    FULL_OPENCV; rational: FULL_OPENCV; fisheye: OPENCV_FISHEYE), or one of those names (``OPENCV`` refuses a
-    nonzero k3: it cannot be dropped silently). The principal point is shifted by +0.5 px into COLMAP's pixel
-    convention. A thin-prism camera raises :class:`~circcal.errors.InputError` (COLMAP has no such model)."""
+    """COLMAP ``cameras.txt`` with one camera.
+
+    The principal point is shifted by +0.5 px into COLMAP's pixel convention.
+
+    Parameters
+    ----------
+    camera : Camera
+    model : str
+        ``"auto"`` (opencv5: OPENCV when k3 = 0, else FULL_OPENCV; rational: FULL_OPENCV; fisheye: OPENCV_FISHEYE),
+        or one of those names (``OPENCV`` refuses a nonzero k3: it cannot be dropped silently).
+    camera_id : int
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        A thin-prism camera (COLMAP has no such model), or a model that cannot hold the camera.
+    """
     model = model.upper()
     lens = camera.lens
     if lens == "thin-prism":
@@ -74,9 +91,28 @@ def camera_to_colmap(camera: Camera, model: str = "auto", camera_id: int = 1) ->
 
 
 def camera_from_colmap(text: str, camera_id: int | None = None) -> Camera:
-    """Camera from COLMAP ``cameras.txt`` (the first camera, or ``camera_id``). Models SIMPLE_PINHOLE, PINHOLE,
-    SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV (``rational`` when k4..k6 are nonzero, else ``opencv5``) and
-    OPENCV_FISHEYE (``fisheye``); the principal point is shifted by -0.5 px into OpenCV's convention."""
+    """Camera from COLMAP ``cameras.txt``.
+
+    Models SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV (``rational`` when k4..k6 are nonzero,
+    else ``opencv5``) and OPENCV_FISHEYE (``fisheye``); the principal point is shifted by -0.5 px into OpenCV's
+    convention.
+
+    Parameters
+    ----------
+    text : str
+        The file's content.
+    camera_id : int or None
+        The camera to read; None: the first.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+        No such camera line, a malformed line, an unsupported model or a value outside the limits.
+    """
     lines = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if camera_id is not None:
         lines = [ln for ln in lines if ln[0] == str(camera_id)]

@@ -76,7 +76,21 @@ _MARKUP_DECLARATION = re.compile(r"<!\s*(DOCTYPE|ENTITY|ELEMENT|ATTLIST)", re.I)
 
 
 def show(v: Any) -> str:
-    """``repr(v)``, cut to a readable length (a hostile file's value may be megabytes long)."""
+    """``repr(v)``, cut to a readable length (a hostile file's value may be megabytes long).
+
+    Parameters
+    ----------
+    v : object
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> show(10**400)
+    'an integer of ~400 digits'
+    """
     if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 200:
         return f"an integer of ~{int(v.bit_length() * 0.30103)} digits"
     r = repr(v)
@@ -95,8 +109,30 @@ def _float(v: Any) -> float:
 
 
 def integer(v: Any, field: str, lo: int = 1, hi: int = MAX_IMAGE_SIDE) -> int:
-    """``v`` as an int in [``lo``, ``hi``]: an int, or a float with an integral value (never a boolean or a
-    string). Raises :class:`~circcal.errors.ModelFileError` naming ``field``."""
+    """``v`` as an int in [``lo``, ``hi``]: an int, or a float with an integral value (never a boolean or a string).
+
+    Parameters
+    ----------
+    v : object
+    field : str
+        Names the value in the message.
+    lo, hi : int
+        The bounds, inclusive.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ModelFileError
+        Naming ``field``.
+
+    Examples
+    --------
+    >>> integer(640.0, "image width")
+    640
+    """
     if _is_real(v):
         f = _float(v)
         if math.isfinite(f) and f == int(f) and lo <= f <= hi:
@@ -105,8 +141,27 @@ def integer(v: Any, field: str, lo: int = 1, hi: int = MAX_IMAGE_SIDE) -> int:
 
 
 def number(v: Any, field: str, lo: float = -math.inf, hi: float = math.inf, unit: str = "") -> float:
-    """``v`` as a finite float in [``lo``, ``hi``] (never a boolean or a string). Raises
-    :class:`~circcal.errors.ModelFileError` naming ``field``."""
+    """``v`` as a finite float in [``lo``, ``hi``] (never a boolean or a string).
+
+    Parameters
+    ----------
+    v : object
+    field : str
+        Names the value in the message.
+    lo, hi : float
+        The bounds, inclusive.
+    unit : str
+        Appended to the range in the message (e.g. ``" px"``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ModelFileError
+        Naming ``field``.
+    """
     if _is_real(v):
         f = _float(v)
         if math.isfinite(f) and lo <= f <= hi:
@@ -116,8 +171,25 @@ def number(v: Any, field: str, lo: float = -math.inf, hi: float = math.inf, unit
 
 
 def number_list(v: Any, field: str, size: int | Sequence[int] | None = None) -> np.ndarray:
-    """``v`` (a list or tuple of numbers) as a float64 vector, each finite; ``size``: the length (or lengths)
-    allowed. Raises :class:`~circcal.errors.ModelFileError` naming ``field`` (and the element)."""
+    """``v`` (a list or tuple of numbers) as a float64 vector, each finite.
+
+    Parameters
+    ----------
+    v : object
+    field : str
+        Names the value in the message.
+    size : int, sequence of int, or None
+        The length (or lengths) allowed; None: any.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+
+    Raises
+    ------
+    ModelFileError
+        Naming ``field`` (and the element).
+    """
     if not isinstance(v, (list, tuple)):
         raise ModelFileError(f"{field} must be a list of numbers, got {show(v)}")
     sizes = (size,) if isinstance(size, int) else size
@@ -127,9 +199,28 @@ def number_list(v: Any, field: str, size: int | Sequence[int] | None = None) -> 
 
 
 def matrix(values: Any, field: str, shape: tuple[int, int], rows: Any = None, cols: Any = None) -> np.ndarray:
-    """A ``shape`` matrix from ``values`` (row-major numbers), with the file's own declared ``rows``/``cols`` (when
-    it states them) checked against ``shape`` and against the data's length. Raises
-    :class:`~circcal.errors.ModelFileError` naming ``field``."""
+    """A ``shape`` matrix from ``values`` (row-major numbers), with the file's own declared ``rows``/``cols`` (when it
+    states them) checked against ``shape`` and against the data's length.
+
+    Parameters
+    ----------
+    values : object
+        A list of numbers.
+    field : str
+        Names the matrix in the message.
+    shape : tuple of int, (rows, cols)
+    rows, cols : object or None
+        What the file declares.
+
+    Returns
+    -------
+    ndarray, shape ``shape``
+
+    Raises
+    ------
+    ModelFileError
+        Naming ``field``.
+    """
     if rows is not None or cols is not None:
         r = integer(rows, f"{field} rows", 1, 10**6)
         c = integer(cols, f"{field} cols", 1, 10**6)
@@ -142,18 +233,44 @@ def matrix(values: Any, field: str, shape: tuple[int, int], rows: Any = None, co
 
 
 def check_K(K: np.ndarray, field: str = "camera matrix") -> None:
-    """A 3x3 camera matrix's third row is (0, 0, 1) within :data:`K_ROW3_RTOL` (an OpenCV matrix with another
-    third row is a homography, not a camera). Raises :class:`~circcal.errors.ModelFileError`."""
+    """A 3x3 camera matrix's third row is (0, 0, 1) within :data:`K_ROW3_RTOL` (an OpenCV matrix with another third row
+    is a homography, not a camera).
+
+    Parameters
+    ----------
+    K : ndarray, shape (3, 3)
+    field : str
+        Names the matrix in the message.
+
+    Raises
+    ------
+    ModelFileError
+    """
     scale = max(1.0, float(np.max(np.abs(K))))
     if np.any(np.abs(K[2] - (0.0, 0.0, 1.0)) > K_ROW3_RTOL * scale):
         raise ModelFileError(f"{field}: the third row must be [0, 0, 1], got {[float(v) for v in K[2]]}")
 
 
 def check_camera(camera: Any) -> Any:
-    """Refuse a :class:`~circcal.model.Camera` outside the bounds above (:data:`MAX_IMAGE_SIDE`, focal lengths in
-    [:data:`MIN_FOCAL_PX`, :data:`MAX_FOCAL_PX`], principal point within :data:`MAX_PRINCIPAL_POINT_FACTOR` image
-    sizes, distortion within :data:`MAX_DIST_COEFF`); returns it. Raises :class:`~circcal.errors.ModelFileError`
-    naming the field."""
+    """Refuse a :class:`~circcal.model.Camera` outside the bounds above; returns it.
+
+    The bounds: :data:`MAX_IMAGE_SIDE`, focal lengths in [:data:`MIN_FOCAL_PX`, :data:`MAX_FOCAL_PX`], principal
+    point within :data:`MAX_PRINCIPAL_POINT_FACTOR` image sizes, distortion within :data:`MAX_DIST_COEFF`.
+
+    Parameters
+    ----------
+    camera : Camera
+
+    Returns
+    -------
+    Camera
+        ``camera`` itself.
+
+    Raises
+    ------
+    ModelFileError
+        Naming the field.
+    """
     integer(camera.width, "camera width")
     integer(camera.height, "camera height")
     for name in ("fx", "fy"):
@@ -167,10 +284,26 @@ def check_camera(camera: Any) -> Any:
 
 
 def load_yaml(text: str) -> Any:
-    """``yaml.safe_load(text)`` bounded for camera files: nesting deeper than :data:`MAX_NESTING_DEPTH`, an anchor
-    or alias (a 562-byte file of nested aliases expands to gigabytes; camera files need none), a key repeated in one
-    mapping and an integer of more than :data:`MAX_INTEGER_DIGITS` digits are refused, each with its line. Raises
-    :class:`~circcal.errors.ModelFileError` (also for YAML that does not parse)."""
+    """``yaml.safe_load(text)`` bounded for camera files.
+
+    Nesting deeper than :data:`MAX_NESTING_DEPTH`, an anchor or alias (a 562-byte file of nested aliases expands to
+    gigabytes; camera files need none), a key repeated in one mapping and an integer of more than
+    :data:`MAX_INTEGER_DIGITS` digits are refused, each with its line.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    object
+        The parsed document.
+
+    Raises
+    ------
+    ModelFileError
+        Any of the above, and YAML that does not parse.
+    """
     import yaml
 
     try:
@@ -236,10 +369,20 @@ def _bounded_loader() -> Any:
 
 
 def check_nesting(text: str) -> None:
-    """Refuse a YAML or XML text (before a parser sees it) nesting deeper than :data:`MAX_NESTING_DEPTH` in flow
-    brackets, XML elements or compact YAML block indicators (OpenCV's parser recurses on the C stack: 100,000
-    brackets crash the process), and any XML document type declaration (``<!DOCTYPE``, ``<!ENTITY``: entities
-    expand without bound; camera files need none). Raises :class:`~circcal.errors.ModelFileError`."""
+    """Refuse a YAML or XML text (before a parser sees it) nesting too deep, or declaring a document type.
+
+    Nesting deeper than :data:`MAX_NESTING_DEPTH` in flow brackets, XML elements or compact YAML block indicators
+    (OpenCV's parser recurses on the C stack: 100,000 brackets crash the process), and any XML document type
+    declaration (``<!DOCTYPE``, ``<!ENTITY``: entities expand without bound; camera files need none).
+
+    Parameters
+    ----------
+    text : str
+
+    Raises
+    ------
+    ModelFileError
+    """
     m = _MARKUP_DECLARATION.search(text)
     if m:
         line = text.count("\n", 0, m.start()) + 1

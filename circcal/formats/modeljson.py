@@ -57,8 +57,24 @@ MODEL_SECTIONS: tuple[str, ...] = (
 
 
 def model_json(camera: Camera, **sections: Any) -> dict[str, Any]:
-    """A model.json document: the header, ``camera``'s block and the given ``sections`` (names from
-    :data:`MODEL_SECTIONS`, in that order; a name outside it is a bug and raises ``TypeError``)."""
+    """A model.json document: the header, ``camera``'s block and the given ``sections``.
+
+    Parameters
+    ----------
+    camera : Camera
+    **sections
+        Names from :data:`MODEL_SECTIONS`, written in that order.
+
+    Returns
+    -------
+    dict
+        ``format``, ``version``, ``camera`` and the sections.
+
+    Raises
+    ------
+    TypeError
+        A section name outside :data:`MODEL_SECTIONS` (a bug, not an input error).
+    """
     unknown = set(sections) - set(MODEL_SECTIONS)
     if unknown:
         raise TypeError(f"model.json has no section(s) {sorted(unknown)}; known: {', '.join(MODEL_SECTIONS)}")
@@ -80,12 +96,27 @@ FIXED_NAMES: frozenset[str] = frozenset({"aspect_ratio"}.union(*(m.param_names f
 
 
 def camera_from_json(data: Any) -> Camera:
-    """Camera from model.json / truth.json (their ``camera`` block) or a bare camera block; every value checked
-    (:class:`~circcal.errors.ModelFileError` naming the field). circcal's own files hold only what its writers
-    write: an unknown top-level section or camera field is refused by name (:data:`MODEL_SECTIONS`,
-    :data:`TRUTH_SECTIONS`, :data:`CAMERA_FIELDS`), as is a ``format`` other than :data:`MODEL_FORMAT`, a
-    ``version`` above :data:`MODEL_VERSION`, a ``fixed`` that is not a list of parameter names, ``views`` that are
-    not a list of objects."""
+    """Camera from model.json / truth.json (their ``camera`` block) or a bare camera block; every value checked.
+
+    circcal's own files hold only what its writers write: an unknown top-level section or camera field is refused by
+    name (:data:`MODEL_SECTIONS`, :data:`TRUTH_SECTIONS`, :data:`CAMERA_FIELDS`), as is a ``format`` other than
+    :data:`MODEL_FORMAT`, a ``version`` above :data:`MODEL_VERSION`, a ``fixed`` that is not a list of parameter
+    names, ``views`` that are not a list of objects.
+
+    Parameters
+    ----------
+    data : object
+        The parsed JSON.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+        Naming the field.
+    """
     if not isinstance(data, dict):
         raise ModelFileError(
             f"expected a JSON object with a 'camera' block (or a bare camera block), got {type(data).__name__}"

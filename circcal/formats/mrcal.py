@@ -46,8 +46,21 @@ MRCAL_UNSUPPORTED = {
 
 
 def camera_to_cameramodel(camera: Camera) -> str:
-    """mrcal ``.cameramodel`` text (:data:`MRCAL_LENSMODELS`; identity extrinsics). mrcal's pixel convention is
-    OpenCV's. A lens model mrcal lacks raises :class:`~circcal.errors.InputError` with the reason."""
+    """mrcal ``.cameramodel`` text (:data:`MRCAL_LENSMODELS`; identity extrinsics). mrcal's pixel convention is OpenCV's.
+
+    Parameters
+    ----------
+    camera : Camera
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        A lens model mrcal lacks, with the reason.
+    """
     if camera.lens not in MRCAL_LENSMODELS:
         raise InputError(
             f"cannot write a {camera.lens} camera as a mrcal .cameramodel: {MRCAL_UNSUPPORTED[camera.lens]}"
@@ -67,13 +80,31 @@ def camera_to_cameramodel(camera: Camera) -> str:
 
 
 def parse_cameramodel(text: str) -> dict[str, Any]:
-    """The dict of mrcal ``.cameramodel`` text, read as a Python literal without evaluating anything:
+    """The dict of mrcal ``.cameramodel`` text, read as a Python literal without evaluating anything.
+
     ``ast.parse(mode="eval")``, then a walk that allows only dicts, lists, tuples, strings, bytes (mrcal's
     optimisation inputs), numbers (a unary minus or plus on a number literal included), True, False and None.
-    Operators, names, calls, repeated keys, integers of more than
-    :data:`~circcal.formats.limits.MAX_INTEGER_DIGITS` digits and nesting deeper than
-    :data:`~circcal.formats.limits.MAX_NESTING_DEPTH` are refused by name with their line. Raises
-    :class:`~circcal.errors.ModelFileError`."""
+    Operators, names, calls, repeated keys, integers of more than :data:`~circcal.formats.limits.MAX_INTEGER_DIGITS`
+    digits and nesting deeper than :data:`~circcal.formats.limits.MAX_NESTING_DEPTH` are refused by name with their
+    line.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ModelFileError
+
+    Examples
+    --------
+    >>> parse_cameramodel("{'lensmodel': 'LENSMODEL_PINHOLE', 'imagersize': [640, 480]}")["imagersize"]
+    [640, 480]
+    """
     try:
         tree = ast.parse(text, mode="eval")
     except (SyntaxError, ValueError, MemoryError, RecursionError) as exc:
@@ -138,11 +169,25 @@ def _is_num(v: Any) -> bool:
 
 
 def camera_from_cameramodel(text: str) -> Camera:
-    """Camera from mrcal ``.cameramodel`` text (:func:`parse_cameramodel`; no mrcal needed). Accepts
-    LENSMODEL_PINHOLE and LENSMODEL_OPENCV4/5/8/12 (the lens model from the coefficients, zeros beyond k3 reading
-    as ``opencv5``: :func:`circcal.formats.opencv.pinhole_lens_of`). Keys other than ``lensmodel``, ``intrinsics``
-    and ``imagersize`` (``extrinsics``, ``optimization_inputs``, ``valid_intrinsics_region``, ...) are a foreign
-    format's extras: ignored here. Raises :class:`~circcal.errors.ModelFileError`."""
+    """Camera from mrcal ``.cameramodel`` text (:func:`parse_cameramodel`; no mrcal needed).
+
+    Accepts LENSMODEL_PINHOLE and LENSMODEL_OPENCV4/5/8/12 (the lens model from the coefficients, zeros beyond k3
+    reading as ``opencv5``: :func:`circcal.formats.opencv.pinhole_lens_of`). Keys other than ``lensmodel``,
+    ``intrinsics`` and ``imagersize`` (``extrinsics``, ``optimization_inputs``, ``valid_intrinsics_region``, ...) are
+    a foreign format's extras: ignored here.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+    """
     d = parse_cameramodel(text)
     missing = [k for k in ("lensmodel", "intrinsics", "imagersize") if k not in d]
     if missing:
@@ -196,8 +241,18 @@ MAX_OPTIMIZATION_INPUTS_BYTES = 256 * 2**20
 
 
 def cameramodel_has_optimization_inputs(text: str) -> bool:
-    """Whether ``.cameramodel`` text carries mrcal's ``optimization_inputs`` (what mrcal-show-projection-uncertainty
-    and mrcal-show-residuals need); no mrcal needed. False for text that is no .cameramodel."""
+    """Whether ``.cameramodel`` text carries mrcal's ``optimization_inputs`` (what mrcal-show-projection-uncertainty and
+    mrcal-show-residuals need); no mrcal needed.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    bool
+        False for text that is no .cameramodel.
+    """
     try:
         d = parse_cameramodel(text)
     except ModelFileError:
@@ -206,10 +261,20 @@ def cameramodel_has_optimization_inputs(text: str) -> bool:
 
 
 def check_optimization_inputs(text: str) -> None:
-    """Check the ``optimization_inputs`` of ``.cameramodel`` text before mrcal is asked to use them: bytes (mrcal's
-    base85 npz), with ``icam_intrinsics`` an integer >= 0, unpacking to at most
-    :data:`MAX_OPTIMIZATION_INPUTS_BYTES`, and holding every array of :data:`MRCAL_REQUIRED_INPUTS`. Raises
-    :class:`~circcal.errors.ModelFileError` naming the key."""
+    """Check the ``optimization_inputs`` of ``.cameramodel`` text before mrcal is asked to use them.
+
+    Bytes (mrcal's base85 npz), with ``icam_intrinsics`` an integer >= 0, unpacking to at most
+    :data:`MAX_OPTIMIZATION_INPUTS_BYTES`, and holding every array of :data:`MRCAL_REQUIRED_INPUTS`.
+
+    Parameters
+    ----------
+    text : str
+
+    Raises
+    ------
+    ModelFileError
+        Naming the key.
+    """
     import base64
     import binascii
     import io

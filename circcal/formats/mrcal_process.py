@@ -146,7 +146,10 @@ def run_worker(python: str, request: dict[str, Any], timeout_s: float) -> dict[s
 
 class UnsupportedLayout(NotImplementedError):
     """Board points that mrcal's rectangular lattice cannot hold (off a square lattice; a staggered grid where not
-    allowed)."""
+    allowed).
+
+    Not an input error: the caller says why mrcal cannot take part (the message holds the reason).
+    """
 
 
 def board_lattice(object_points: list[np.ndarray], *, rel_tol: float = 1e-6, staggered: bool = False) -> dict[str, Any]:

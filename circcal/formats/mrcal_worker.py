@@ -91,6 +91,18 @@ def _names(api: str) -> tuple[str, str]:
 
 
 def solve(req: dict[str, Any]) -> dict[str, Any]:
+    """A calibration by mrcal, in each of the request's modes (module docstring: Request, Reply, Modes).
+
+    Parameters
+    ----------
+    req : dict
+        The request (module docstring).
+
+    Returns
+    -------
+    dict
+        The reply: ``version``, ``version_source``, ``api``, ``results`` (one per mode).
+    """
     import mrcal
     import numpy as np
 
@@ -284,13 +296,21 @@ def _uncertainty_at(mrcal: ModuleType, model: Any, uv: Any, distance: float | No
 def export(req: dict[str, Any]) -> dict[str, Any]:
     """A ``.cameramodel`` carrying mrcal's optimisation inputs, built from circcal's observations and solution.
 
-    Request: ``{"command": "export", "width_n", "height_n", "spacing", "observations" (Nframes, H, W, 3) with
-    w = 1 observed and -1 missing, "imagersize", "lensmodel" (optional, default LENSMODEL_OPENCV5), "intrinsics"
-    (4 + n,), "frames_rt_toref" (Nframes, 6) in mrcal's
-    board frame, "opencv4": bool (k3 held at 0), "note": str, "uncertainty": null | {"uv", "distance",
-    "observed_pixel_uncertainty"}}``. Reply: ``{"version", "api", "cameramodel" (the file's text),
-    "rms_per_coord_px" (mrcal's, from its own residuals at this state), "max_abs_gradient" (of mrcal's cost in its
-    packed state: ~0 at an optimum), "uncertainty_stdev" (px, when asked)}``."""
+    Parameters
+    ----------
+    req : dict
+        ``{"command": "export", "width_n", "height_n", "spacing", "observations" (Nframes, H, W, 3) with w = 1
+        observed and -1 missing, "imagersize", "lensmodel" (optional, default LENSMODEL_OPENCV5), "intrinsics"
+        (4 + n,), "frames_rt_toref" (Nframes, 6) in mrcal's board frame, "opencv4": bool (k3 held at 0), "note": str,
+        "uncertainty": null | {"uv", "distance", "observed_pixel_uncertainty"}}``.
+
+    Returns
+    -------
+    dict
+        ``{"version", "api", "cameramodel" (the file's text), "rms_per_coord_px" (mrcal's, from its own residuals at
+        this state), "max_abs_gradient" (of mrcal's cost in its packed state: ~0 at an optimum),
+        "uncertainty_stdev" (px, when asked)}``.
+    """
     import io
 
     import mrcal
@@ -322,10 +342,24 @@ def export(req: dict[str, Any]) -> dict[str, Any]:
 
 
 def uncertainty(req: dict[str, Any]) -> dict[str, Any]:
-    """mrcal's projection uncertainty of a ``.cameramodel`` with optimisation inputs. Request: ``{"command":
-    "uncertainty", "cameramodel": text, "uv": (N, 2), "distance": mm | null, "observed_pixel_uncertainty": px |
-    null}``. Reply: ``{"version", "api", "stdev" (N,) px, "lensmodel", "imagersize"}``; ``{"error"}`` when the model
-    has no optimisation inputs."""
+    """mrcal's projection uncertainty of a ``.cameramodel`` with optimisation inputs.
+
+    Parameters
+    ----------
+    req : dict
+        ``{"command": "uncertainty", "cameramodel": text, "uv": (N, 2), "distance": mm | null,
+        "observed_pixel_uncertainty": px | null}``.
+
+    Returns
+    -------
+    dict
+        ``{"version", "api", "stdev" (N,) px, "lensmodel", "imagersize"}``.
+
+    Raises
+    ------
+    ValueError
+        The model has no optimisation inputs (:func:`main` replies ``{"error"}``).
+    """
     import io
 
     import mrcal
@@ -347,6 +381,18 @@ COMMANDS = {"export": export, "uncertainty": uncertainty}
 
 
 def main(argv: list[str]) -> int:
+    """The worker's entry point: ``--probe``, or one request from stdin answered on stdout (module docstring).
+
+    Parameters
+    ----------
+    argv : list of str
+        The command line's arguments.
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success, 1 with ``{"error": ..., "traceback": ...}`` on stdout.
+    """
     if "--probe" in argv:
         try:
             import mrcal

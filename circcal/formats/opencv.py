@@ -31,9 +31,21 @@ SKEW_TOL = 1e-12
 
 
 def opencv_yaml_text(camera: Camera, *, xml: bool = False) -> str:
-    """The FileStorage text (YAML, or XML) OpenCV's calibration sample writes: ``image_width``, ``image_height``,
-    ``camera_matrix`` (3x3) and ``distortion_coefficients`` (1x5, 1x8 or 1x12: OpenCV's vector of the lens model);
-    for a fisheye ``fisheye_model: 1`` and the 4x1 ``D`` of cv2.fisheye."""
+    """The FileStorage text (YAML, or XML) OpenCV's calibration sample writes.
+
+    ``image_width``, ``image_height``, ``camera_matrix`` (3x3) and ``distortion_coefficients`` (1x5, 1x8 or 1x12:
+    OpenCV's vector of the lens model); for a fisheye ``fisheye_model: 1`` and the 4x1 ``D`` of cv2.fisheye.
+
+    Parameters
+    ----------
+    camera : Camera
+    xml : bool
+        XML instead of YAML.
+
+    Returns
+    -------
+    str
+    """
     import cv2
 
     fs = cv2.FileStorage(".xml" if xml else ".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
@@ -50,14 +62,28 @@ def opencv_yaml_text(camera: Camera, *, xml: bool = False) -> str:
 
 
 def camera_from_opencv_yaml(text: str) -> Camera:
-    """Camera from an OpenCV FileStorage text (YAML or XML). Pinhole: 4, 5, 8, 12 or 14 distortion coefficients
-    (the lens model from them, :func:`pinhole_lens_of`; the tilt of 14 must be zero); with a nonzero
-    ``fisheye_model`` (OpenCV's calibration sample) a cv2.fisheye camera with its 4 coefficients.
-    ``image_width``/``image_height`` (or ``image_size``) are required. Each matrix must be an ``opencv-matrix``
-    mapping whose ``rows`` x ``cols`` match its ``data`` and whose ``dt`` is a one-channel type; every value is
-    checked (:mod:`circcal.formats.limits`). XML document types and entities, and nesting deeper than
-    :data:`~circcal.formats.limits.MAX_NESTING_DEPTH`, are refused before OpenCV's parser sees the text. Other
-    nodes (OpenCV's sample writes many) are ignored. Raises :class:`~circcal.errors.ModelFileError`."""
+    """Camera from an OpenCV FileStorage text (YAML or XML).
+
+    Pinhole: 4, 5, 8, 12 or 14 distortion coefficients (the lens model from them, :func:`pinhole_lens_of`; the tilt of
+    14 must be zero); with a nonzero ``fisheye_model`` (OpenCV's calibration sample) a cv2.fisheye camera with its 4
+    coefficients. ``image_width``/``image_height`` (or ``image_size``) are required. Each matrix must be an
+    ``opencv-matrix`` mapping whose ``rows`` x ``cols`` match its ``data`` and whose ``dt`` is a one-channel type;
+    every value is checked (:mod:`circcal.formats.limits`). XML document types and entities, and nesting deeper than
+    :data:`~circcal.formats.limits.MAX_NESTING_DEPTH`, are refused before OpenCV's parser sees the text. Other nodes
+    (OpenCV's sample writes many) are ignored.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+    """
     import cv2
 
     check_nesting(text)
@@ -159,9 +185,30 @@ _PINHOLE_LENSES = (("opencv5", 5), ("rational", 8), ("thin-prism", 12))
 
 
 def pinhole_lens_of(d: np.ndarray) -> str:
-    """The smallest pinhole lens model that holds OpenCV's distortion vector ``d`` (of 0-12 coefficients) exactly:
+    """The smallest pinhole lens model that holds OpenCV's distortion vector exactly.
+
     ``opencv5`` unless k4-k6 are nonzero (``rational``) or s1-s4 are (``thin-prism``). A file's zeros beyond k3 thus
-    read as the 5-coefficient camera they are."""
+    read as the 5-coefficient camera they are.
+
+    Parameters
+    ----------
+    d : ndarray, shape (n,)
+        0-12 coefficients (more when the extra ones are zero), OpenCV's order.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ModelFileError
+        More than the thin-prism model's 12 coefficients are nonzero.
+
+    Examples
+    --------
+    >>> pinhole_lens_of([0.1, 0.01, 0, 0, 0, 0, 0, 0])
+    'opencv5'
+    """
     d = np.asarray(d, dtype=np.float64).ravel()
     for name, n in _PINHOLE_LENSES:
         if not np.any(d[n:]):
@@ -172,12 +219,32 @@ def pinhole_lens_of(d: np.ndarray) -> str:
 def camera_from_K_dist(
     w: float, h: float, K: np.ndarray, d: np.ndarray, what: str = "", lens: str | None = None
 ) -> Camera:
-    """A :class:`~circcal.model.Camera` from OpenCV's 3x3 camera matrix ``K`` and distortion vector ``d`` for a
-    ``w`` x ``h`` image. ``lens`` None: a pinhole model, ``d`` any of :data:`OPENCV_DIST_SIZES` (the tilted
-    model's tau of 14 must be zero) and the model :func:`pinhole_lens_of` ``d``; ``lens="fisheye"``: cv2.fisheye's
-    ``D`` (4 coefficients). ``what`` names the model in messages (e.g. the mrcal lens model). Raises
-    :class:`~circcal.errors.ModelFileError` (also for a size that is not an integer in 1..2**20, a non-finite
-    value, or a third row of ``K`` other than (0, 0, 1))."""
+    """A :class:`~circcal.model.Camera` from OpenCV's camera matrix and distortion vector for a ``w`` x ``h`` image.
+
+    Parameters
+    ----------
+    w, h : float
+        The image size, px (an integer in 1..2**20).
+    K : ndarray, shape (3, 3)
+        The camera matrix, px.
+    d : ndarray, shape (n,)
+        The distortion vector: with ``lens`` None any of :data:`OPENCV_DIST_SIZES` (the tilted model's tau of 14 must
+        be zero); with ``lens="fisheye"`` cv2.fisheye's ``D`` (4 coefficients).
+    what : str
+        Names the model in messages (e.g. the mrcal lens model).
+    lens : str or None
+        None: a pinhole model, the one :func:`pinhole_lens_of` ``d``; or ``"fisheye"``.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+        Also for a size that is not an integer in 1..2**20, a non-finite value, or a third row of ``K`` other than
+        (0, 0, 1).
+    """
     where = f"{what}: " if what else ""
     w, h = integer(w, f"{where}image width"), integer(h, f"{where}image height")
     K = np.asarray(K, dtype=np.float64)

@@ -29,9 +29,25 @@ ROS_DISTORTION_MODELS: dict[str, str] = {
 
 
 def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
-    """ROS ``camera_info`` YAML as camera_calibration_parsers writes it (what camera_info_manager loads):
-    the distortion model of :data:`ROS_DISTORTION_MODELS` with its D, K, R = I, P = [K | 0] (``yaml.safe_dump``).
-    A thin-prism camera raises :class:`~circcal.errors.InputError` (ROS has no such model)."""
+    """ROS ``camera_info`` YAML as camera_calibration_parsers writes it (what camera_info_manager loads).
+
+    The distortion model of :data:`ROS_DISTORTION_MODELS` with its D, K, R = I, P = [K | 0] (``yaml.safe_dump``).
+
+    Parameters
+    ----------
+    camera : Camera
+    name : str
+        ``camera_name``.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        A thin-prism camera (ROS has no such model).
+    """
     import yaml
 
     if camera.lens not in ROS_DISTORTION_MODELS:
@@ -58,13 +74,27 @@ def camera_to_ros_yaml(camera: Camera, name: str = "camera") -> str:
 
 
 def camera_from_ros_yaml(text: str) -> Camera:
-    """Camera from ROS camera_info YAML: the camera_calibration_parsers layout (``camera_matrix.data``,
-    ``distortion_coefficients.data``, ``image_width``) or the message layout (``K``, ``D``, ``width``, ``height``).
-    The distortion model: plumb_bob, rational_polynomial (``rational``; ``opencv5`` when k4..k6 are 0) or
-    equidistant (``fisheye``). Parsed with :func:`circcal.formats.limits.load_yaml` (no anchors or aliases, no
-    repeated keys, bounded depth); a matrix's ``rows`` x ``cols`` must match its data; numbers must be numbers (a
-    boolean is none). Other keys (``camera_name``, ``rectification_matrix``, ``projection_matrix``, ...) are a
-    foreign format's extras: ignored. Raises :class:`~circcal.errors.ModelFileError`."""
+    """Camera from ROS camera_info YAML.
+
+    The camera_calibration_parsers layout (``camera_matrix.data``, ``distortion_coefficients.data``,
+    ``image_width``) or the message layout (``K``, ``D``, ``width``, ``height``). The distortion model: plumb_bob,
+    rational_polynomial (``rational``; ``opencv5`` when k4..k6 are 0) or equidistant (``fisheye``). Parsed with
+    :func:`circcal.formats.limits.load_yaml` (no anchors or aliases, no repeated keys, bounded depth); a matrix's
+    ``rows`` x ``cols`` must match its data; numbers must be numbers (a boolean is none). Other keys
+    (``camera_name``, ``rectification_matrix``, ``projection_matrix``, ...) are a foreign format's extras: ignored.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ModelFileError
+    """
     try:
         d = load_yaml(text)
     except ModelFileError as exc:
