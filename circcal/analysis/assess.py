@@ -28,8 +28,25 @@ __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
 
 @dataclass
 class UncertaintyMap:
-    """``uv`` (H, W, 2) grid px; ``stdev`` (H, W) px; ``worst_px`` and where (``worst_uv``); ``centre_px`` at the
-    image centre; ``distance_mm`` (None: infinity); ``sigma_px`` the per-coordinate noise it assumes."""
+    """A calibration's projection uncertainty over a grid of its image.
+
+    Attributes
+    ----------
+    uv : ndarray, shape (H, W, 2)
+        The grid, px.
+    stdev : ndarray, shape (H, W)
+        Worst-direction standard deviation, px.
+    worst_px : float
+        The largest, px.
+    worst_uv : tuple of float
+        Where, px.
+    centre_px : float
+        At the image centre, px.
+    distance_mm : float or None
+        None: infinity.
+    sigma_px : float
+        The per-coordinate noise it assumes, px.
+    """
 
     uv: np.ndarray
     stdev: np.ndarray
@@ -40,6 +57,13 @@ class UncertaintyMap:
     sigma_px: float
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (the grid left out), with the definition in words.
+
+        Returns
+        -------
+        dict
+            ``worst_px``, ``worst_at_px``, ``centre_px``, ``distance_mm``, ``sigma_px``, ``grid_shape``, ``definition``.
+        """
         return {
             "worst_px": self.worst_px,
             "worst_at_px": list(self.worst_uv),
@@ -57,8 +81,21 @@ class UncertaintyMap:
 def uncertainty_map(
     result: Any, *, distance: float | None = None, gridn_width: int = GRID_WIDTH
 ) -> UncertaintyMap | None:
-    """The projection-uncertainty map of a :class:`~circcal.solver.CalibrationResult` over a ``gridn_width``-wide
-    grid of its image (None when it has no finite covariance)."""
+    """The projection-uncertainty map of a :class:`~circcal.solver.CalibrationResult`.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+    distance : float or None
+        mm along each ray; None: infinity.
+    gridn_width : int
+        Grid points across the image.
+
+    Returns
+    -------
+    UncertaintyMap or None
+        None when the result has no finite covariance.
+    """
     from circcal.solver.uncertainty import result_projection_stdev
 
     if result.covariance is None:
@@ -84,9 +121,24 @@ def uncertainty_map(
 
 @dataclass
 class Assessment:
-    """``cal``: the calibration; ``board``; ``uncertainty``: :class:`UncertaintyMap` or None; ``coverage``;
-    ``crossval``: :class:`~circcal.analysis.cross.CrossValidation` or None (not asked); ``timings`` (s);
-    ``lens_fit``: whether the lens model fits (:mod:`circcal.solver.modelfit`; None: too few points to tell)."""
+    """Everything that says whether a calibration is right.
+
+    Attributes
+    ----------
+    cal : ImagesCalibration
+        The calibration.
+    board : Board
+    uncertainty : UncertaintyMap or None
+    coverage : Coverage
+    crossval : CrossValidation or None
+        :class:`~circcal.analysis.cross.CrossValidation`; None: not asked.
+    timings : dict of str to float
+        s.
+    lens_fit : ModelFit or None
+        Whether the lens model fits (:mod:`circcal.solver.modelfit`; None: too few points to tell).
+    result : CalibrationResult
+        ``cal.result`` (property).
+    """
 
     cal: Any
     board: Any
@@ -98,10 +150,16 @@ class Assessment:
 
     @property
     def result(self) -> Any:
+        """The calibration's :class:`~circcal.solver.CalibrationResult` (``cal.result``)."""
         return self.cal.result
 
     def verdict(self) -> list[str]:
-        """Three lines: the error in the three conventions, the cross-validation, the worst uncertainty."""
+        """The verdict in three lines: the error in the three conventions, the cross-validation, the worst uncertainty.
+
+        Returns
+        -------
+        list of str
+        """
         e = self.result.errors
         v = len(self.result.rvecs)
         lines = [
@@ -134,7 +192,12 @@ class Assessment:
         return lines
 
     def lines(self) -> list[str]:
-        """The console summary of what the calibration summary does not already say."""
+        """The console summary of what the calibration summary does not already say.
+
+        Returns
+        -------
+        list of str
+        """
         out = list(self.verdict())
         if self.lens_fit is not None:
             out.append(self.lens_fit.message())
@@ -172,13 +235,25 @@ class Assessment:
         return out
 
     def cal_view_names(self) -> list[str]:
-        """Names of the views as given to the solve (before outlier rejection dropped any)."""
+        """Names of the views as given to the solve (before outlier rejection dropped any).
+
+        Returns
+        -------
+        list of str
+        """
         rej = self.result.outliers
         if rej is not None and rej.view_names:
             return list(rej.view_names)
         return list(self.result.view_names or [])
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary.
+
+        Returns
+        -------
+        dict
+            ``verdict``, ``uncertainty``, ``coverage``, ``outliers``, ``cross_validation``, ``lens_fit``, ``timings_s``.
+        """
         return {
             "verdict": self.verdict(),
             "uncertainty": None if self.uncertainty is None else self.uncertainty.to_dict(),

@@ -44,10 +44,19 @@ def param_diff(
 ) -> dict[str, dict[str, float]]:
     """Per-parameter difference ``b - a``.
 
-    Returns ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for every parameter of the two cameras' lens
-    model (:func:`circcal.model.param_names`; for two different lens models only fx, fy, cx, cy, the parameters they
-    share the meaning of), where ``sigma`` combines the stated standard deviations: sqrt(std_a^2 + std_b^2) over
-    those given (NaN when neither states one, or both are 0).
+    Parameters
+    ----------
+    a, b : Camera
+    std_a, std_b : dict of str to float, or None
+        Their stated standard deviations by parameter name.
+
+    Returns
+    -------
+    dict
+        ``{name: {"a", "b", "diff", "sigma", "diff_sigmas"}}`` for every parameter of the two cameras' lens model
+        (:func:`circcal.model.param_names`; for two different lens models only fx, fy, cx, cy, the parameters they
+        share the meaning of), where ``sigma`` combines the stated standard deviations: sqrt(std_a^2 + std_b^2) over
+        those given (NaN when neither states one, or both are 0).
     """
     names = param_names(a.lens) if a.lens == b.lens else param_names(a.lens)[:4]
     va = dict(zip(param_names(a.lens), a.intrinsics))
@@ -78,8 +87,21 @@ GRID_WIDTH = 60
 
 
 def pixel_grid(camera: Camera, gridn_width: int = GRID_WIDTH, gridn_height: int | None = None) -> np.ndarray:
-    """(gridn_height * gridn_width, 2) pixels spanning the whole imager, corners included (pixel centres
-    0..W-1, 0..H-1). ``gridn_height`` defaults to keep the cells square."""
+    """Pixels spanning the whole imager, corners included (pixel centres 0..W-1, 0..H-1).
+
+    Parameters
+    ----------
+    camera : Camera
+    gridn_width : int
+        Grid points across.
+    gridn_height : int or None
+        Grid points down; None: to keep the cells square.
+
+    Returns
+    -------
+    ndarray, shape (gridn_height * gridn_width, 2)
+        px, row by row.
+    """
     w, h = camera.width, camera.height
     if gridn_height is None:
         gridn_height = max(2, int(round(gridn_width * (h - 1) / max(w - 1, 1))) + 1)
@@ -106,8 +128,21 @@ def projection_diff(
     that best aligns ``b``'s unprojection of the same pixels onto ``a``'s points is applied first, as
     ``mrcal.projection_diff`` does: an implied rotation between the two models is not counted as a difference.
 
-    Returns ``{"rms_px", "max_px", "median_px", "n", "n_invalid", "R", "t", "diff" (N,), "uv" (N, 2)}``; the RMS
-    is of the 2-D difference per grid point.
+    Parameters
+    ----------
+    a, b : Camera
+    gridn_width : int
+    distance : float or None
+        mm; None: infinity.
+    fit : bool
+    margin_px : float
+        px in from the border.
+
+    Returns
+    -------
+    dict
+        ``{"rms_px", "max_px", "median_px", "n", "n_invalid", "R", "t", "diff" (N,), "uv" (N, 2)}``; the RMS is of
+        the 2-D difference per grid point.
     """
     w, h = a.width, a.height
     uv = pixel_grid(a, gridn_width)
@@ -150,10 +185,30 @@ def match_grid_order(
 ) -> tuple[np.ndarray, str, float]:
     """Re-order a detected grid to the order of ``reference`` (e.g. true centre projections).
 
-    ``detected``, ``reference``: (N, 2) px for ``board``'s N points (NaN rows are left out of the distance). Tries
-    the board's symmetries (:meth:`circcal.board.Board.symmetries`: rotations, and with ``mirror`` reflections too)
-    and keeps the one with the smallest RMS distance. Returns (re-ordered (N, 2), the symmetry's label, rms
-    distance px).
+    Tries the board's symmetries (:meth:`circcal.board.Board.symmetries`: rotations, and with ``mirror`` reflections
+    too) and keeps the one with the smallest RMS distance.
+
+    Parameters
+    ----------
+    detected, reference : ndarray, shape (N, 2)
+        px for ``board``'s N points (NaN rows are left out of the distance).
+    board : Board
+    mirror : bool
+        Try reflections too.
+
+    Returns
+    -------
+    matched : ndarray, shape (N, 2)
+        Re-ordered, px.
+    label : str
+        The symmetry's label.
+    rms : float
+        RMS distance, px.
+
+    Raises
+    ------
+    ValueError
+        Not N points each (a caller's bug).
     """
     det = np.asarray(detected, dtype=np.float64).reshape(-1, 2)
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 2)
@@ -181,13 +236,31 @@ def match_views(
 ) -> tuple[list[np.ndarray], list[str]]:
     """Each detected view in the point order of ``reference`` (:func:`match_grid_order` per view, rotations only).
 
-    ``detected``, ``reference``: per view (N, 2) px of ``board``; ``reference`` entries may hold NaN for points its
-    detector missed, or be None (that view is kept as detected, label ``rot0``). A symmetric grid's 180-degree
-    ambiguity (90 degrees when square) is resolved by each detector its own way (findCirclesGrid numbers the real
-    10x8 set in opposite directions in its plain and clustering modes, so a plain-then-clustering fallback reverses 2
-    of 6 views against circcal): harmless while the board is rigid, since the pose absorbs it, but it mixes up points
-    once each point's position is estimated. Returns (views re-ordered, (N, 2) float64 each; the symmetry's label per
-    view, ``rot0`` where the order was kept).
+    A symmetric grid's 180-degree ambiguity (90 degrees when square) is resolved by each detector its own way
+    (findCirclesGrid numbers the real 10x8 set in opposite directions in its plain and clustering modes, so a
+    plain-then-clustering fallback reverses 2 of 6 views against circcal): harmless while the board is rigid, since
+    the pose absorbs it, but it mixes up points once each point's position is estimated.
+
+    Parameters
+    ----------
+    detected : sequence of ndarray, each shape (N, 2)
+        Per view, px of ``board``.
+    reference : sequence of (ndarray, shape (N, 2), or None)
+        Entries may hold NaN for points its detector missed, or be None (that view is kept as detected, label
+        ``rot0``).
+    board : Board
+
+    Returns
+    -------
+    views : list of ndarray, each shape (N, 2)
+        Re-ordered, float64.
+    labels : list of str
+        The symmetry's label per view, ``rot0`` where the order was kept.
+
+    Raises
+    ------
+    ValueError
+        Different view counts (a caller's bug).
     """
     if len(detected) != len(reference):
         raise ValueError(f"{len(detected)} detected views but {len(reference)} reference views")
@@ -209,10 +282,25 @@ def centre_errors(
 ) -> dict[str, Any]:
     """Detected centres against true centre projections.
 
-    ``detected``, ``truth``: per view (N_v, 2) px, same order unless ``board`` is given, in which case each
-    detected view is first re-matched with :func:`match_grid_order` (over the board's symmetries). Returns
-    ``{"overall": error_stats, "per_view": [error_stats], "errors": [(N_v, 2) detected - truth], "matched":
-    [label per view]}``.
+    Parameters
+    ----------
+    detected, truth : sequence of ndarray, each shape (N_v, 2)
+        Per view, px, same order unless ``board`` is given.
+    board : Board or None
+        Given: each detected view is first re-matched with :func:`match_grid_order` (over the board's symmetries).
+    mirror : bool
+        Reflections too, in that match.
+
+    Returns
+    -------
+    dict
+        ``{"overall": error_stats, "per_view": [error_stats], "errors": [(N_v, 2) detected - truth], "matched":
+        [label per view]}``.
+
+    Raises
+    ------
+    ValueError
+        Different view counts or shapes (a caller's bug).
     """
     if len(detected) != len(truth):
         raise ValueError(f"{len(detected)} detected views but {len(truth)} truth views")

@@ -32,9 +32,23 @@ REGIONS = (
 
 @dataclass
 class Coverage:
-    """``counts``: (rows, CELLS_ACROSS) observed points per cell; ``region_counts``: {region: points};
-    ``empty``: the regions below :data:`MIN_POINTS_PER_REGION`, each with its pixel bounds; ``covered_share``: the
-    share of map cells holding a point; ``warnings``: one sentence per empty region."""
+    """Where in the image the observations lie.
+
+    Attributes
+    ----------
+    width, height : int
+        The image, px.
+    counts : ndarray of int, shape (rows, CELLS_ACROSS)
+        Observed points per cell.
+    region_counts : dict of str to int
+        {region: points}.
+    empty : list of dict
+        The regions below :data:`MIN_POINTS_PER_REGION`, each with its pixel bounds.
+    covered_share : float
+        The share of map cells holding a point.
+    warnings : list of str
+        One sentence per empty region.
+    """
 
     width: int
     height: int
@@ -45,6 +59,13 @@ class Coverage:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary, with the rule in words.
+
+        Returns
+        -------
+        dict
+            ``cells_across``, ``counts``, ``region_counts``, ``empty_regions``, ``covered_share``, ``warnings``, ``rule``.
+        """
         return {
             "cells_across": int(self.counts.shape[1]),
             "counts": self.counts.tolist(),
@@ -58,7 +79,19 @@ class Coverage:
 
 
 def coverage(image_points: Sequence[np.ndarray], width: int, height: int) -> Coverage:
-    """The coverage of observations ``image_points`` (per view (N_v, 2) px) over a ``width`` x ``height`` image."""
+    """The coverage of observations over an image.
+
+    Parameters
+    ----------
+    image_points : sequence of ndarray, each shape (N_v, 2)
+        Per view, px (non-finite rows are left out).
+    width, height : int
+        The image, px.
+
+    Returns
+    -------
+    Coverage
+    """
     pts = (
         np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in image_points])
         if len(image_points)

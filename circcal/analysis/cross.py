@@ -62,8 +62,30 @@ SPLITS = ("alternate", "random")
 
 
 def split_views(n: int, how: str = "alternate", seed: int = 0) -> tuple[list[int], list[int]]:
-    """Two disjoint halves of views 0..n-1: ``"alternate"`` (even, odd: both halves span the capture session) or
-    ``"random"`` (a seeded permutation cut in two)."""
+    """Two disjoint halves of views 0..n-1.
+
+    Parameters
+    ----------
+    n : int
+    how : {"alternate", "random"}
+        ``"alternate"``: even, odd (both halves span the capture session); ``"random"``: a seeded permutation cut in
+        two.
+    seed : int
+
+    Returns
+    -------
+    tuple of (list of int, list of int)
+
+    Raises
+    ------
+    InputError
+        An unknown ``how``.
+
+    Examples
+    --------
+    >>> split_views(5)
+    ([0, 2, 4], [1, 3])
+    """
     if how == "alternate":
         return list(range(0, n, 2)), list(range(1, n, 2))
     if how == "random":
@@ -74,9 +96,23 @@ def split_views(n: int, how: str = "alternate", seed: int = 0) -> tuple[list[int
 
 @dataclass
 class ViewCheck:
-    """Leave-one-view-out for one view: ``heldout_rms_per_coord_px`` its prediction error by the others' model
-    (NaN when it failed), ``ratio`` to the views' median, ``shift_sigmas`` the largest parameter move on leaving it
-    out (in the full solve's standard deviations) and ``shift_param`` which, ``flagged`` and ``why``."""
+    """Leave-one-view-out for one view.
+
+    Attributes
+    ----------
+    view : int
+    name : str
+    heldout_rms_per_coord_px : float
+        Its prediction error by the others' model, px (NaN when it failed).
+    ratio : float
+        That to the views' median.
+    shift_sigmas : float
+        The largest parameter move on leaving it out (in the full solve's standard deviations).
+    shift_param : str
+        Which parameter.
+    flagged : bool
+    why : str
+    """
 
     view: int
     name: str
@@ -88,16 +124,42 @@ class ViewCheck:
     why: str
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields, JSON-ready.
+
+        Returns
+        -------
+        dict
+        """
         return dict(self.__dict__)
 
 
 @dataclass
 class CrossValidation:
-    """The outcome. ``status``: ``"ok"``, ``"too-few-views"`` or ``"failed"`` (a half could not be calibrated);
-    ``message``: in words; ``split``/``seed``; ``halves``: the two views lists (indices of the full model's views);
-    ``models``: the halves' :class:`~circcal.solver.CalibrationResult`; ``diff``: :class:`ModelDiff` of B against A
-    with both uncertainties; ``verdict``: ``"consistent"`` or ``"model-or-data-problem"`` (None unless ok);
-    ``views``: :class:`ViewCheck` per view; ``distance_mm`` (None: infinity)."""
+    """The outcome of a cross-validation.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"``, ``"too-few-views"`` or ``"failed"`` (a half could not be calibrated).
+    message : str
+        In words.
+    split : str
+    seed : int
+    halves : tuple of (list of int, list of int)
+        The two views lists (indices of the full model's views).
+    models : list of CalibrationResult
+        The halves' :class:`~circcal.solver.CalibrationResult`.
+    diff : ModelDiff or None
+        B against A with both uncertainties.
+    verdict : str or None
+        ``"consistent"`` or ``"model-or-data-problem"`` (None unless ok).
+    views : list of ViewCheck
+        One per view.
+    distance_mm : float or None
+        None: infinity.
+    flagged_views : list of ViewCheck
+        The views flagged (property).
+    """
 
     status: str
     message: str
@@ -112,16 +174,30 @@ class CrossValidation:
 
     @property
     def flagged_views(self) -> list[ViewCheck]:
+        """The :class:`ViewCheck` of each view flagged."""
         return [v for v in self.views if v.flagged]
 
     def lines(self) -> list[str]:
-        """The console summary."""
+        """The console summary.
+
+        Returns
+        -------
+        list of str
+        """
         out = [f"cross-validation ({self.split} halves): {self.message}"]
         for v in self.flagged_views:
             out.append(f"  view {v.name} disagrees with the rest: {v.why}")
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary.
+
+        Returns
+        -------
+        dict
+            ``status``, ``message``, ``split``, ``seed``, ``halves``, ``verdict``, ``distance_mm``, ``diff``
+            (:meth:`ModelDiff.summary`), ``half_models`` (camera and errors), ``views``.
+        """
         return {
             "status": self.status,
             "message": self.message,
@@ -304,10 +380,34 @@ def cross_validate_observations(
     seed: int = 0,
     distance: float | None = None,
 ) -> tuple[Any, CrossValidation]:
-    """Calibrate fixed observations (per view (N_v, 3) mm, (N_v, 2) px) with ``options``
-    (:func:`circcal.solver.calibrate`) and cross-validate (``full``: that calibration, if already made; the other
-    parameters as :func:`cross_validate`'s). Returns ``(full, CrossValidation)``; with outlier rejection the halves
-    are drawn from the views it kept."""
+    """Calibrate fixed observations with ``options`` (:func:`circcal.solver.calibrate`) and cross-validate.
+
+    With outlier rejection the halves are drawn from the views it kept.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray, each shape (N_v, 3)
+        Per view, mm.
+    image_points : sequence of ndarray, each shape (N_v, 2)
+        Per view, px.
+    image_size : tuple of int
+        (width, height), px.
+    options : CalibrationOptions
+    full : CalibrationResult or None
+        That calibration, if already made.
+    names, split, seed, distance
+        As :func:`cross_validate`'s.
+
+    Returns
+    -------
+    full : CalibrationResult
+    cv : CrossValidation
+
+    Raises
+    ------
+    InputError
+        As :func:`circcal.solver.calibrate` (the full calibration), or an unknown ``split``.
+    """
     if full is None:
         full = calibrate(object_points, image_points, image_size, options)
     kept = full.outliers.kept_views if full.outliers is not None else list(range(len(object_points)))
@@ -337,9 +437,28 @@ def cross_validate_detections(
     seed: int = 0,
     distance: float | None = None,
 ) -> CrossValidation:
-    """Cross-validate an :class:`circcal.pipeline.ImagesCalibration` made with ``options``: each half through the
-    whole loop (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct, recalibrate) from its views'
-    detections, with the same ``options`` (the other parameters as :func:`cross_validate`'s)."""
+    """Cross-validate an :class:`circcal.pipeline.ImagesCalibration` made with ``options``.
+
+    Each half runs through the whole loop (:func:`circcal.pipeline.calibrate_detections`: calibrate, re-correct,
+    recalibrate) from its views' detections, with the same ``options``.
+
+    Parameters
+    ----------
+    cal : ImagesCalibration
+    board : Board
+    options : CalibrationOptions
+    split, seed, distance
+        As :func:`cross_validate`'s.
+
+    Returns
+    -------
+    CrossValidation
+
+    Raises
+    ------
+    InputError
+        An unknown ``split``.
+    """
     from circcal.pipeline import calibrate_detections
 
     full = cal.result

@@ -39,8 +39,24 @@ _THIRDS = (
 
 
 def region_names(uv: np.ndarray, width: int, height: int) -> np.ndarray:
-    """(N,) the name of the third of the image each pixel (N, 2) lies in ("top-left corner", "left edge",
-    "centre", ...)."""
+    """The name of the third of the image each pixel lies in ("top-left corner", "left edge", "centre", ...).
+
+    Parameters
+    ----------
+    uv : ndarray, shape (N, 2)
+        px.
+    width, height : int
+        The image, px.
+
+    Returns
+    -------
+    ndarray of str (object), shape (N,)
+
+    Examples
+    --------
+    >>> list(region_names([[320, 240]], 640, 480))
+    ['centre']
+    """
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     col = np.clip((uv[:, 0] + 0.5) * 3 // width, 0, 2).astype(int)
     row = np.clip((uv[:, 1] + 0.5) * 3 // height, 0, 2).astype(int)
@@ -49,12 +65,37 @@ def region_names(uv: np.ndarray, width: int, height: int) -> np.ndarray:
 
 @dataclass
 class ModelDiff:
-    """The difference of B against A over A's image. ``uv``: (H, W, 2) grid px; ``diff``: (H, W) px; ``centre_px``:
-    at the image centre; ``rms_px`` / ``p95_px`` / ``max_px`` over the grid (finite pixels); ``R``/``t``: the implied
-    transformation (A's frame into B's: B sees A's point X at R X + t); ``focus_radius_px`` (None: whole image);
-    ``distance_mm`` (None: infinity). With uncertainties: ``sigma_a``/``sigma_b`` (H, W) px, ``ratio`` = diff /
-    (sigma_a + sigma_b), ``share_within`` the share of the grid within :data:`CONSISTENT_RATIO` of it, ``consistent``
-    and ``where`` (the image thirds where it is exceeded, worst first, with the share of their pixels)."""
+    """The difference of B against A over A's image.
+
+    Attributes
+    ----------
+    uv : ndarray, shape (H, W, 2)
+        The grid, px.
+    diff : ndarray, shape (H, W)
+        px.
+    centre_px : float
+        At the image centre, px.
+    rms_px, p95_px, max_px : float
+        Over the grid (finite pixels), px.
+    R : ndarray, shape (3, 3)
+    t : ndarray, shape (3,)
+        The implied transformation (A's frame into B's: B sees A's point X at R X + t), mm.
+    focus_radius_px : float or None
+        None: whole image.
+    distance_mm : float or None
+        None: infinity.
+    n_invalid : int
+        Grid pixels that could not be compared.
+    sigma_a, sigma_b : ndarray, shape (H, W), or None
+        With uncertainties: each model's, px.
+    ratio : ndarray, shape (H, W), or None
+        diff / (sigma_a + sigma_b).
+    share_within : float or None
+        The share of the grid within :data:`CONSISTENT_RATIO` of it.
+    consistent : bool or None
+    where : list of (str, float)
+        The image thirds where it is exceeded, worst first, with the share of their pixels.
+    """
 
     uv: np.ndarray
     diff: np.ndarray
@@ -75,7 +116,12 @@ class ModelDiff:
     where: list[tuple[str, float]] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
-        """The numbers, JSON-ready (maps left out)."""
+        """The numbers, JSON-ready (maps left out).
+
+        Returns
+        -------
+        dict
+        """
         out = {
             k: getattr(self, k)
             for k in (
@@ -115,11 +161,31 @@ def model_diff(
     uncertainty_a: Callable[[np.ndarray], np.ndarray] | None = None,
     uncertainty_b: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> ModelDiff:
-    """The projection difference of ``b`` against ``a`` (see the module). ``distance``: mm along each ray (None:
-    infinity); ``focus_radius_px``: fit the implied transformation over the grid pixels within this radius of the
-    image centre (None: the whole image; 0: no fit); ``uncertainty_a``/``_b``: functions pixels (N, 2) -> projection
-    standard deviation (N,) px of each model at ``distance`` (e.g. :func:`circcal.solver.uncertainty
-    .result_projection_stdev`). Raises :class:`~circcal.errors.InputError` for models of different image sizes."""
+    """The projection difference of ``b`` against ``a`` (see the module).
+
+    Parameters
+    ----------
+    a, b : Camera
+    distance : float or None
+        mm along each ray (None: infinity).
+    focus_radius_px : float or None
+        Fit the implied transformation over the grid pixels within this radius of the image centre (None: the whole
+        image; 0: no fit).
+    gridn_width : int
+        Grid points across.
+    uncertainty_a, uncertainty_b : callable or None
+        Functions pixels (N, 2) -> projection standard deviation (N,) px of each model at ``distance`` (e.g.
+        :func:`circcal.solver.uncertainty.result_projection_stdev`).
+
+    Returns
+    -------
+    ModelDiff
+
+    Raises
+    ------
+    InputError
+        Models of different image sizes, or a ``distance`` that is not a positive number.
+    """
     if (a.width, a.height) != (b.width, b.height):
         raise InputError(
             f"the models have different image sizes ({a.width}x{a.height} and {b.width}x{b.height}): "

@@ -38,8 +38,18 @@ RESOLVE_TOL_PX = 1e-6
 
 @dataclass
 class LoadedModel:
-    """``camera``; ``uncertainty``: pixels (N, 2) -> worst-direction projection standard deviation (N,) px at
-    ``distance`` mm (None: infinity), or None; ``note``: where the uncertainty comes from, or why there is none."""
+    """A camera file with its projection uncertainty.
+
+    Attributes
+    ----------
+    path : Path
+    camera : Camera
+    uncertainty : callable or None
+        ``uncertainty(uv, distance)``: pixels (N, 2) -> worst-direction projection standard deviation (N,) px at
+        ``distance`` mm (None: infinity); None when none is known.
+    note : str
+        Where the uncertainty comes from, or why there is none.
+    """
 
     path: Path
     camera: Camera
@@ -48,8 +58,25 @@ class LoadedModel:
 
 
 def resolve_document(camera: Camera, document: dict[str, Any]) -> CalibrationResult | None:
-    """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module), or None
-    when it holds none or the solve does not land on its camera."""
+    """The :class:`~circcal.solver.CalibrationResult` of a model.json's own observations (see the module).
+
+    Parameters
+    ----------
+    camera : Camera
+        The file's camera.
+    document : dict
+        The model.json document.
+
+    Returns
+    -------
+    CalibrationResult or None
+        None when it holds none, the solve refuses them, or the solve does not land on its camera.
+
+    Raises
+    ------
+    InputError
+        A malformed ``views`` entry (:func:`~circcal.formats.cameramodel_export.document_views`).
+    """
     from circcal.analysis.compare import projection_diff
     from circcal.errors import InputError
     from circcal.formats.cameramodel_export import document_views
@@ -73,10 +100,32 @@ def resolve_document(camera: Camera, document: dict[str, Any]) -> CalibrationRes
 
 
 def load_model(path: str | Path) -> LoadedModel:
-    """Read ``path`` (any format; :class:`~circcal.errors.ModelFileError` naming the file when it cannot be read)
-    and find its uncertainty (see the module). An mrcal file's optimisation inputs are checked before mrcal gets
-    them (:func:`circcal.formats.mrcal.check_optimization_inputs`), and mrcal's refusal of them later, when the
-    uncertainty is asked for, is a :class:`~circcal.errors.ModelFileError` naming the file too."""
+    """Read a camera file (any format) and find its uncertainty (see the module).
+
+    An mrcal file's optimisation inputs are checked before mrcal gets them
+    (:func:`circcal.formats.mrcal.check_optimization_inputs`), and mrcal's refusal of them later, when the
+    uncertainty is asked for, is a :class:`~circcal.errors.ModelFileError` naming the file too.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    LoadedModel
+
+    Raises
+    ------
+    ModelFileError
+        Naming the file, when it cannot be read.
+    InputError
+        A model.json whose ``views`` entries are malformed (:func:`resolve_document`).
+
+    Examples
+    --------
+    >>> m = load_model("out/model.json")  # doctest: +SKIP
+    >>> m.uncertainty(uv, None)  # doctest: +SKIP
+    """
     from circcal.solver.uncertainty import result_projection_stdev
 
     p = Path(path)

@@ -57,6 +57,13 @@ the local step) is within this share instead."""
 PATCH_FILL_SPREAD = 0.35
 """... and when its dots' areas over their local lattice cells agree: relative spread (MAD over median) at most
 this, markers apart (a board's dots agree within a few percent)."""
+REAL_LINE_SHARE = 0.5
+"""A lattice that labels as larger than the board is trimmed of an outer row or column (:func:`_trimmed`) where
+fewer than this share of the positions looked at on it hold a dot of the board's size: a blob of texture, a screw
+hole or a speck of the plate that the lattice took in beside the board (one in 16 positions) ..."""
+REAL_FILL_FACTOR = 1.6
+"""... a dot of the board's size: its area over the local lattice cell within this factor of the patch's median
+either way (perspective and blur change it by tens of percent at most; the lattice admits blobs within 6.5x)."""
 CLAIM_MIN_DOTS = 9
 """What a lattice that is not the board says about it (larger than the board, transposed, ambiguous) is only
 claimed for a lattice of at least this many dots grown from a seed with all 8 neighbours (a 3 x 3 block at the
@@ -161,6 +168,47 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
     return bool(np.median(np.abs(fill - med)) <= PATCH_FILL_SPREAD * med)
 
 
+def _trimmed(
+    board: Board, lat: Lattice, pts: np.ndarray, area: np.ndarray, cut: np.ndarray, lab: Labelling
+) -> tuple[Lattice, Labelling]:
+    """Patch ``lat`` and its labelling ``lab`` ("larger"), or the patch less its outer rows and columns that are not
+    real dots of the board, where that is labelled as the board or part of it. An outer line (in patch
+    coordinates) is not real when fewer than :data:`REAL_LINE_SHARE` of the positions looked at on it inside the
+    image (its dots and its misses) hold a dot of the board's size: not cut by the image border, its area over the
+    local lattice cell within :data:`REAL_FILL_FACTOR` of the patch's median (a marker's larger area allowed). A
+    lattice that truly continues beyond the board (``--grid`` smaller than the board) has real dots there and is
+    refused as before."""
+    cell = cell_areas(board, lat, pts)
+    q = area[lat.index] / cell
+    ok = np.isfinite(q) & (q > 0) & ~cut[lat.index]
+    if np.sum(ok) < 4:
+        return lat, lab
+    med = float(np.median(q[ok]))
+    real = ok & (q > med / REAL_FILL_FACTOR) & (q < med * REAL_FILL_FACTOR * board.marker_scale**2)
+    ab = lat.ab
+    keep = np.ones(len(ab), bool)
+    removed = True
+    while removed and np.sum(keep) >= 4:
+        removed = False
+        for axis in (0, 1):
+            for end in (np.min, np.max):
+                at = int(end(ab[keep, axis]))
+                line = keep & (ab[:, axis] == at)
+                lo, hi = ab[keep, 1 - axis].min(), ab[keep, 1 - axis].max()
+                missed = sum(1 for m in lat.misses if m[axis] == at and lo <= m[1 - axis] <= hi)
+                if np.sum(real[line]) < REAL_LINE_SHARE * (np.sum(line) + missed) and np.sum(keep & ~line) >= 4:
+                    keep &= ~line
+                    removed = True
+    if np.all(keep):
+        return lat, lab
+    misses = dict(lat.misses)
+    misses.update({(int(a), int(b)): pts[i] for (a, b), i in zip(ab[~keep].tolist(), lat.index[~keep])})
+    sub = Lattice(lat.index[keep], ab[keep], misses, lat.seed_score)
+    flags = marker_flags(board, sub, pts, area, cut) if board.has_markers else None
+    sub_lab = label_patch(board, sub.ab, flags, closed=_closed(sub))
+    return (sub, sub_lab) if sub_lab.status == "labelled" else (lat, lab)
+
+
 def _closed(lat: Lattice) -> bool:
     """Every 4-neighbour of the patch was looked at inside the image and holds no dot."""
     occ = {tuple(q) for q in lat.ab.tolist()}
@@ -219,7 +267,10 @@ def recognise(
         if deadline is not None:
             deadline.check()
         flags = marker_flags(board, lat, pts, area, cut) if board.has_markers else None
-        labelled.append((lat, label_patch(board, lat.ab, flags, closed=_closed(lat))))
+        lab = label_patch(board, lat.ab, flags, closed=_closed(lat))
+        if lab.status == "larger":  # a blob or texture beside the board is not a row of the board
+            lat, lab = _trimmed(board, lat, pts, area, cut, lab)
+        labelled.append((lat, lab))
     whole = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and lab.complete]
     part = [
         (lat, lab)
