@@ -10,7 +10,10 @@ conics, in the image as observed):
 * **fit**: the RMS geometric distance of a dot's edge points from its ellipse (first order: ``|x^T Q x| / |grad|``)
   above :data:`FIT_RATIO` times the median over the image's dots and above :data:`FIT_FLOOR_PX`;
 * **area**: the ellipse's area differs from the median of its grid neighbours' by more than a factor
-  :data:`AREA_RATIO`.
+  :data:`AREA_RATIO`, each area taken over the area its dot is printed with (a board's markers, printed larger,
+  are compared as the plain dots are: :meth:`circcal.board.Board.radii_mm`); a dot larger than that on a board
+  that declares no markers is a marker the user did not declare (an orientation dot) and is kept, as the detector
+  keeps it (:mod:`circcal.detector.measure.trust`): only a smaller one is flagged there.
 
 Measured on every rendered fixture variant (clean to defocused, motion-blurred, cluttered) and the two real sets:
 the worst dot's fit residual is 8x its image's median and 0.16 px at most, neighbouring areas agree within 1.4x
@@ -85,10 +88,25 @@ def _neighbour_medians(grid: np.ndarray) -> np.ndarray:
     return row_medians(nb.reshape(-1, 4)).reshape(grid.shape)
 
 
-def bad_dots(detection, rows: int, cols: int) -> list[BadDot]:
-    """The dots of a found ``detection`` (a :class:`circcal.detector.Detection` of a ``rows`` x ``cols`` grid, board
-    order) the detector can tell are bad (see the module); [] when there are none or the detection holds no edge
-    points."""
+def bad_dots(detection, rows: int, cols: int, radii_mm: np.ndarray | None = None) -> list[BadDot]:
+    """The dots of a found ``detection`` the detector can tell are bad (see the module).
+
+    Parameters
+    ----------
+    detection : circcal.detector.Detection
+        A detection of a ``rows`` x ``cols`` grid, board order.
+    rows, cols : int
+        The grid's size.
+    radii_mm : (rows * cols,) ndarray, optional
+        The printed radius of every dot (:meth:`circcal.board.Board.radii_mm`): areas are compared over the printed
+        ones, and a larger dot is flagged only where the radii differ (declared markers). ``None``: all dots alike,
+        larger ones flagged too.
+
+    Returns
+    -------
+    list of BadDot
+        In board order; [] when there are none or the detection holds no edge points.
+    """
     dropped = getattr(detection, "dropped", None) or {}
     out: list[BadDot] = [BadDot(int(i), float("nan"), "detector", str(why)) for i, why in sorted(dropped.items())]
     if detection.edge_points is None or detection.conics is None:
@@ -111,10 +129,16 @@ def bad_dots(detection, rows: int, cols: int) -> list[BadDot]:
     area = _areas(detection.conics)
     if len(area) == rows * cols:
         area[list(dropped)] = np.nan
+        larger_too = True
+        if radii_mm is not None:
+            r = np.asarray(radii_mm, dtype=np.float64).reshape(-1)
+            area = area / (r * r)  # over the printed area (a common factor pi aside)
+            larger_too = bool(np.ptp(r) > 0)
         ratio = area / _neighbour_medians(area.reshape(rows, cols)).ravel()
         flagged = {b.index for b in out}
         with np.errstate(invalid="ignore", divide="ignore"):
-            far = np.isfinite(ratio) & (ratio > 0) & (np.maximum(ratio, 1.0 / ratio) > AREA_RATIO)
+            worse = 1.0 / ratio if not larger_too else np.maximum(ratio, 1.0 / ratio)
+            far = np.isfinite(ratio) & (ratio > 0) & (worse > AREA_RATIO)
         for k in np.flatnonzero(far):
             if int(k) not in flagged:
                 out.append(
@@ -133,7 +157,7 @@ def bad_dot_rejections(detections, board) -> tuple[list[list[int]], list]:
     exclude: list[list[int]] = []
     items = []
     for v, d in enumerate(detections):
-        bad = bad_dots(d, board.rows, board.cols)
+        bad = bad_dots(d, board.rows, board.cols, board.radii_mm())
         exclude.append([b.index for b in bad])
         for b in bad:
             items.append(

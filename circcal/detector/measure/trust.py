@@ -32,7 +32,7 @@ from circcal.board import Board
 from circcal.detector.kernels.jit import njit
 from circcal.detector.locate.smooth import local_residual
 from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
-from circcal.detector.measure.robust import median, row_medians
+from circcal.detector.measure.robust import MAD_TO_SIGMA, median, row_medians
 
 __all__ = ["ABSENT_MAX_SHARE", "absent_dots", "bad_dots", "check_grid", "local_steps"]
 
@@ -75,6 +75,11 @@ rim is sampled at half and at the whole of this (or of half the gap to the neare
 CLEARANCE_LEVEL = 0.3
 """... and a sample counts as dark when it lies this share of the dot's contrast (ring median - dot centre) below
 the ring's median (the noise of the weak-light renders is ~5 % of their contrast) ..."""
+TEXTURE_SIGMAS = 4.0
+"""... or this many times the view's texture (:func:`clearance_level`), when that is more: the grain of a matte
+plate at 10 % of a low-contrast print's contrast darkened 3-6 of the 96 samples of a quarter of its dots'
+rings, none of them biased by it (renders of :mod:`circcal.fixtures.texture`); sensor noise on printed boards
+stays under the fixed level (its sigma, at most ~7 % of the contrast, times 4)."""
 CLEARANCE_SHARE = 0.035
 """... and the dot is left out when more than this share of the ring's samples are dark (3 of the 96: an occluder
 next to the rim darkens an arc, and one touching 4 % of the ring of a 37 px marker moved it by 0.2 px; noise at
@@ -100,6 +105,14 @@ very noisy fixtures' dots measure up to 2.6x their view's median, 0.14 at most).
 EDGE_RING_PX = 2.0
 """... and its contrast measured against the samples this far outside its rim (past the blurred edge; a close
 neighbour's dark covers less than half of them)."""
+GRADIENT_MIN_SAMPLES = 24
+"""The white's plane around a dot (:func:`_inside_gradients`) is fitted to at least this many bright samples of the
+96 on its two rings (a quarter: the neighbouring dots of a dense grid darken the rest), else taken as flat."""
+PLANE_MISFIT = 0.05
+"""... and the gradient the edge model follows is only taken off where that plane explains the bright samples to
+this share of the contrast (RMS): a shadow's edge across the dot is a step that no plane follows (the real 10x8
+set's hand shadow: 0.04-0.07; the median dot there 0.015), smooth light is a plane to a few thousandths (renders
+under a spotlight: <= 0.005)."""
 INSIDE_RING_SHARE = 0.5
 """The dot's inside is sampled on its ellipse shrunk by this share of the minor semi-axis (half-way to the centre:
 clear of the blurred rim)."""
@@ -286,28 +299,102 @@ def dark_neighbourhood(
     v = _rings(g, centres, axes, angle, np.stack([0.5 * near, near, start, 0.5 * (start + far), far], 1))
     white = row_medians(v.reshape(D, -1))
     shade, grey = np.empty(D), np.empty(D)
-    _ring_shares(v, white, inner, near, far, CLEARANCE_LEVEL, CLEARANCE_MIN_PX, shade, grey)
-    return shade, grey, _uneven_inside(g, centres, axes, angle)
+    _ring_shares(v, white, inner, near, far, clearance_level(v, white, inner), CLEARANCE_MIN_PX, shade, grey)
+    return shade, grey, _unfollowed_inside(g, centres, axes, angle)
+
+
+def clearance_level(v: np.ndarray, white: np.ndarray, inner: np.ndarray) -> float:
+    """The share of a dot's contrast by which a ring sample must lie below the white to count as dark (and above
+    the dot's dark to count as grey) in this view: :data:`CLEARANCE_LEVEL`, or :data:`TEXTURE_SIGMAS` times the
+    view's texture where that is more: the median over the dots of the robust sigma (MAD) of the samples on the
+    level rings (``v`` (D, 5, A), rings 2-4: the board around each dot, half-way to its neighbours at most) about
+    their white ``white`` (D,), over the contrast ``white - inner`` (D,). A printed board on paper under little
+    noise keeps the fixed level; the grain and mottling of a matte plate under a low-contrast print (a few dark
+    samples on every dot's ring) raise it, so that only an object darker than the board's own texture counts."""
+    D = len(white)
+    contrast = white - inner
+    ok = contrast > 0
+    if D == 0 or not np.any(ok):
+        return CLEARANCE_LEVEL
+    dev = np.abs(v[:, 2:].reshape(D, -1) - white[:, None])
+    sigma = MAD_TO_SIGMA * row_medians(np.ascontiguousarray(dev[ok])) / contrast[ok]
+    return float(max(CLEARANCE_LEVEL, TEXTURE_SIGMAS * median(sigma)))
+
+
+def _inside_gradients(
+    g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grey-level gradients of :func:`_uneven_inside` and :func:`_unfollowed_inside`: ``(inside (D, 2), outside
+    (D, 2), ratio (D,), contrast (D,))``. Gradients in grey levels per px along each ellipse's major and minor
+    axes: inside, from the first harmonic of the samples on the ellipse shrunk to :data:`INSIDE_RING_SHARE` of the
+    minor semi-axis; outside, a plane fitted (least squares) to the bright samples (above half-way from the inside
+    to the white) of the rings :data:`EDGE_RING_PX` and twice that outside the rim (a neighbouring dot's dark left
+    out; 0 where fewer than :data:`GRADIENT_MIN_SAMPLES` are bright). ``ratio``: the inside's median over the
+    plane's white at the centre (the edge model's dark-to-white ratio); ``contrast``: the median of the samples
+    just outside the rim less that of those inside."""
+    b = axes[:, 1]
+    D = len(b)
+    radii = np.stack([-INSIDE_RING_SHARE * b, np.full(D, EDGE_RING_PX), np.full(D, 2.0 * EDGE_RING_PX)], 1)
+    rings = _rings(g, centres, axes, angle, radii)
+    v = rings[:, 0]  # (D, A)
+    inner = row_medians(np.ascontiguousarray(v))
+    contrast = row_medians(np.ascontiguousarray(rings[:, 1])) - inner
+    A = v.shape[1]
+    c1 = (2.0 / A) * (v @ _COS)  # the first harmonic: a' (gx cos + gy sin) along the major axis
+    s1 = (2.0 / A) * (v @ _SIN)  # ... and b' (-gx sin + gy cos) along the minor one
+    g_in = np.stack(
+        [
+            c1 / np.maximum(axes[:, 0] - INSIDE_RING_SHARE * b, 1e-9),
+            s1 / np.maximum((1.0 - INSIDE_RING_SHARE) * b, 1e-9),
+        ],
+        1,
+    )
+    out = rings[:, 1:].reshape(D, -1)  # (D, 2A)
+    r = radii[:, 1:]
+    X = np.concatenate([(axes[:, 0:1] + r[:, 0:1]) * _COS, (axes[:, 0:1] + r[:, 1:2]) * _COS], 1)
+    Y = np.concatenate([(b[:, None] + r[:, 0:1]) * _SIN, (b[:, None] + r[:, 1:2]) * _SIN], 1)
+    w = (out > (inner + 0.5 * contrast)[:, None]).astype(np.float64)
+    basis = np.stack([np.ones_like(X), X, Y], 2)  # (D, 2A, 3)
+    N = np.einsum("dki,dk,dkj->dij", basis, w, basis)
+    rhs = np.einsum("dki,dk,dk->di", basis, w, out)
+    fit = (w.sum(1) >= GRADIENT_MIN_SAMPLES) & (np.abs(np.linalg.det(N)) > 1e-9)
+    plane = np.zeros((D, 3))
+    if np.any(fit):
+        plane[fit] = np.linalg.solve(N[fit], rhs[fit][..., None])[..., 0]
+    white = np.where(fit, plane[:, 0], inner + contrast)
+    res = out - np.einsum("dki,di->dk", basis, plane)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(white > 0, inner / white, 0.0)
+        misfit = np.where(fit, np.sqrt(np.sum(w * res * res, 1) / np.maximum(w.sum(1), 1.0)), np.inf) / contrast
+    return g_in, plane[:, 1:], ratio, contrast, misfit
 
 
 def _uneven_inside(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """(D,) how far the grey level inside each dot changes across its minor semi-axis, as a share of its contrast
     (the median of the samples just outside its rim, :data:`EDGE_RING_PX`, less that of those inside; 0 where there
     is none): the gradient from the first harmonic of the samples on the ellipse shrunk to
-    :data:`INSIDE_RING_SHARE` of the minor semi-axis inside the rim. The edge model takes a dot's dark level as the
-    white level's multiple (light that multiplies the board's albedo: the dark level of a dot 0.1 of the white
-    changes ~0.1 as much); light added on top, a specular reflection, changes it as much as the white."""
-    b = axes[:, 1]
-    rings = _rings(g, centres, axes, angle, np.stack([-INSIDE_RING_SHARE * b, np.full(len(b), EDGE_RING_PX)], 1))
-    v = rings[:, 0]  # (D, A)
-    contrast = row_medians(np.ascontiguousarray(rings[:, 1])) - row_medians(np.ascontiguousarray(v))
-    A = v.shape[1]
-    c1 = (2.0 / A) * (v @ _COS)  # the first harmonic: a' (gx cos + gy sin) along the major axis
-    s1 = (2.0 / A) * (v @ _SIN)  # ... and b' (-gx sin + gy cos) along the minor one
-    ga = c1 / np.maximum(axes[:, 0] - INSIDE_RING_SHARE * b, 1e-9)
-    gb = s1 / np.maximum((1.0 - INSIDE_RING_SHARE) * b, 1e-9)
+    :data:`INSIDE_RING_SHARE` of the minor semi-axis inside the rim (:func:`_inside_gradients`). Light added on
+    top, a specular reflection, changes it as much as the white; light that multiplies the board's albedo by the
+    dark's share of the white (:func:`_unfollowed_inside` leaves that out)."""
+    g_in, _, _, contrast, _ = _inside_gradients(g, centres, axes, angle)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.hypot(ga, gb) * b / contrast
+        out = np.hypot(g_in[:, 0], g_in[:, 1]) * axes[:, 1] / contrast
+    return np.where(contrast > 0, out, 0.0)
+
+
+def _unfollowed_inside(g: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(D,) the part of :func:`_uneven_inside`'s gradient that the edge model does not follow, as a share of the
+    contrast across the minor semi-axis: the edge model takes a dot's dark level as its dark-to-white ratio times
+    the plane of the white around it (:mod:`circcal.detector.measure.edges`), so the inside's gradient less that
+    ratio times the outside's (:func:`_inside_gradients`). Light that multiplies the albedo leaves ~0 whatever the
+    dot's contrast (a dot printed paler, its ratio 0.4 rather than 0.1, tilts inside 4x as much under the same
+    light, and is measured as well); light added on top (a reflection's flank) or a shadow's edge that the plane
+    cannot follow leaves its own gradient."""
+    g_in, g_out, ratio, contrast, misfit = _inside_gradients(g, centres, axes, angle)
+    followed = misfit <= PLANE_MISFIT  # a plane explains the white around the dot: the edge model follows it
+    r = g_in - np.where(followed, ratio, 0.0)[:, None] * g_out
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.hypot(r[:, 0], r[:, 1]) * axes[:, 1] / contrast
     return np.where(contrast > 0, out, 0.0)
 
 
