@@ -10,14 +10,38 @@ from pathlib import Path
 
 
 def write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder, flushed to disk, and a rename: a
-    reader (and a crash, a full disk, a quota) sees the old file or the whole new one. The temporary file is removed
-    when the write fails; the error propagates."""
+    """Write ``text`` to ``path`` through a temporary file in the same folder, flushed to disk, and a rename.
+
+    A reader (and a crash, a full disk, a quota) sees the old file or the whole new one. The temporary file is removed
+    when the write fails; the error propagates.
+
+    Parameters
+    ----------
+    path : str or Path
+    text : str
+        Written UTF-8.
+
+    Raises
+    ------
+    OSError
+        The write failed (the old file, if any, is intact).
+    """
     write_bytes(path, text.encode())
 
 
 def write_bytes(path: str | Path, data: bytes) -> None:
-    """:func:`write_text` for bytes (an image, a pickle). Missing parent folders are made."""
+    """:func:`write_text` for bytes (an image, a pickle). Missing parent folders are made.
+
+    Parameters
+    ----------
+    path : str or Path
+    data : bytes
+
+    Raises
+    ------
+    OSError
+        The write failed (the old file, if any, is intact).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

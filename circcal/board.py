@@ -90,10 +90,17 @@ PATTERN_MAX_POINTS = 400
 class Symmetry:
     """A rigid map of a board's point set onto itself (a rotation about the grid centre, possibly after a mirror).
 
-    ``perm`` (N,): point ``i`` goes to point ``perm[i]``; for centres ``c`` (N, 2) in some valid board order,
-    ``c[perm]`` is another valid order (the same physical board, relabelled). ``det``: +1 for a rotation, -1 for a
-    reflection. ``label``: ``rot0``, ``rot90``, ``rot180``, ``rot270`` (quarter turns in the board frame), with a
-    ``mirror+`` prefix (``mirror`` alone for x -> -x) for reflections."""
+    Attributes
+    ----------
+    label : str
+        ``rot0``, ``rot90``, ``rot180``, ``rot270`` (quarter turns in the board frame), with a ``mirror+`` prefix
+        (``mirror`` alone for x -> -x) for reflections.
+    perm : ndarray of int, shape (N,)
+        Point ``i`` goes to point ``perm[i]``; for centres ``c`` (N, 2) in some valid board order, ``c[perm]`` is
+        another valid order (the same physical board, relabelled).
+    det : int
+        +1 for a rotation, -1 for a reflection.
+    """
 
     label: str
     perm: np.ndarray
@@ -115,10 +122,36 @@ def _object_points(rows: int, cols: int, pitch_mm: float, staggered: bool) -> np
 
 @dataclass(frozen=True)
 class Board:
-    """A planar target. ``pitch_mm`` and ``diameter_mm`` in mm (``diameter_mm`` is 0 for a checkerboard);
-    ``margin_mm``: white border around the outermost features (defaults to one pitch). ``markers``: indices
-    (OpenCV's order) of the dots printed with the larger diameter ``marker_diameter_mm`` (see the module docstring;
-    empty and 0 for a board without markers)."""
+    """A planar target.
+
+    Parameters
+    ----------
+    rows, cols : int
+        Points down and across.
+    pitch_mm : float
+        mm.
+    diameter_mm : float
+        mm; 0 for a checkerboard.
+    layout : {"symmetric", "asymmetric", "checkerboard"}
+    margin_mm : float or None
+        White border around the outermost features, mm (None: one pitch).
+    markers : tuple of int
+        Indices (OpenCV's order) of the dots printed with the larger diameter ``marker_diameter_mm`` (see the module
+        docstring; empty for a board without markers).
+    marker_diameter_mm : float
+        mm; 0 without markers.
+
+    Raises
+    ------
+    InputError
+        A field out of range or inconsistent (an unknown layout, a non-positive pitch, markers on a checkerboard,
+        repeated or out-of-range marker indices, ...).
+
+    Examples
+    --------
+    >>> Board(4, 5, 10.0, 5.0).object_points().shape
+    (20, 3)
+    """
 
     rows: int
     cols: int
@@ -218,6 +251,7 @@ class Board:
 
     @property
     def n_points(self) -> int:
+        """rows * cols."""
         return self.rows * self.cols
 
     @property
@@ -227,6 +261,7 @@ class Board:
 
     @property
     def radius_mm(self) -> float:
+        """Half the dot diameter, mm."""
         return 0.5 * self.diameter_mm
 
     @property
@@ -236,16 +271,29 @@ class Board:
 
     @property
     def has_markers(self) -> bool:
+        """Whether any dot is a marker."""
         return bool(self.markers)
 
     def is_marker(self) -> np.ndarray:
-        """(N,) bool: which points are markers (OpenCV's order)."""
+        """Which points are markers.
+
+        Returns
+        -------
+        ndarray of bool, shape (N,)
+            OpenCV's order.
+        """
         out = np.zeros(self.n_points, bool)
         out[list(self.markers)] = True
         return out
 
     def radii_mm(self) -> np.ndarray:
-        """(N,) printed radius of every dot (mm): markers have ``marker_diameter_mm / 2``."""
+        """The printed radius of every dot: markers have ``marker_diameter_mm / 2``.
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            mm.
+        """
         r = np.full(self.n_points, self.radius_mm)
         r[list(self.markers)] = 0.5 * self.marker_diameter_mm
         return r
@@ -256,20 +304,40 @@ class Board:
         return self.marker_diameter_mm / self.diameter_mm if self.markers else 1.0
 
     def lattice_coords(self) -> np.ndarray:
-        """(N, 2) int64 integer lattice coordinates of the points (the object points' x, y over the pitch): ``(j, i)``
-        on a symmetric grid, ``(2j + i % 2, i)`` on an asymmetric one; checkerboard corners as a symmetric grid."""
+        """Integer lattice coordinates of the points (the object points' x, y over the pitch).
+
+        ``(j, i)`` on a symmetric grid, ``(2j + i % 2, i)`` on an asymmetric one; checkerboard corners as a symmetric
+        grid.
+
+        Returns
+        -------
+        ndarray of int64, shape (N, 2)
+        """
         return np.rint(self.object_points()[:, :2] / self.pitch_mm).astype(np.int64)
 
     @property
     def margin(self) -> float:
+        """The white border around the outermost features, mm (``margin_mm``, or one pitch)."""
         return self.pitch_mm if self.margin_mm is None else float(self.margin_mm)
 
     def object_points(self) -> np.ndarray:
-        """(rows*cols, 3) float64 board coordinates in mm, OpenCV's order (a fresh array the caller may change)."""
+        """The board coordinates of the points, OpenCV's order (a fresh array the caller may change).
+
+        Returns
+        -------
+        ndarray of float64, shape (rows*cols, 3)
+            mm (z = 0).
+        """
         return _object_points(self.rows, self.cols, float(self.pitch_mm), self.layout == "asymmetric").copy()
 
     def feature_extent_mm(self) -> tuple[float, float, float, float]:
-        """(xmin, ymin, xmax, ymax) of the printed features (dot rims or squares, markers included), mm."""
+        """The bounding box of the printed features (dot rims or squares, markers included).
+
+        Returns
+        -------
+        tuple of float
+            (xmin, ymin, xmax, ymax), mm.
+        """
         p = self.object_points()
         if self.layout == "checkerboard":
             return (-self.pitch_mm, -self.pitch_mm, self.cols * self.pitch_mm, self.rows * self.pitch_mm)
@@ -282,25 +350,58 @@ class Board:
         )
 
     def extent_mm(self) -> tuple[float, float, float, float]:
-        """(xmin, ymin, xmax, ymax) of the white board including its margin, mm."""
+        """The bounding box of the white board including its margin.
+
+        Returns
+        -------
+        tuple of float
+            (xmin, ymin, xmax, ymax), mm.
+        """
         x0, y0, x1, y1 = self.feature_extent_mm()
         m = self.margin
         return (x0 - m, y0 - m, x1 + m, y1 + m)
 
     def centre_mm(self) -> np.ndarray:
-        """(3,) centre of the point grid in board coordinates."""
+        """The centre of the point grid in board coordinates.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            mm.
+        """
         return self.object_points().mean(axis=0)
 
     def symmetries(self, *, reflections: bool = True) -> tuple[Symmetry, ...]:
-        """Every rigid map of the point set onto itself (:class:`Symmetry`), identity first; reflections only when
-        asked. A symmetric grid has 2 rotations (4 when square), an asymmetric one 2 with an even number of rows
-        and only the identity otherwise; each rotation has its mirrored twin. Markers must map onto markers (a
-        marker board usually has the identity alone)."""
+        """Every rigid map of the point set onto itself, identity first; reflections only when asked.
+
+        A symmetric grid has 2 rotations (4 when square), an asymmetric one 2 with an even number of rows and only the
+        identity otherwise; each rotation has its mirrored twin. Markers must map onto markers (a marker board usually
+        has the identity alone).
+
+        Parameters
+        ----------
+        reflections : bool
+
+        Returns
+        -------
+        tuple of Symmetry
+
+        Examples
+        --------
+        >>> [s.label for s in Board(4, 5, 10.0, 5.0).symmetries(reflections=False)]
+        ['rot0', 'rot180']
+        """
         return tuple(s for s in _symmetries(self) if reflections or s.det > 0)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``board`` block of truth.json, model.json and detections JSON: rows, cols, pitch_mm, diameter_mm,
-        layout, margin_mm, markers (point indices, OpenCV's order; [] for none), marker_diameter_mm (0 for none)."""
+        """The ``board`` block of truth.json, model.json and detections JSON.
+
+        Returns
+        -------
+        dict
+            rows, cols, pitch_mm, diameter_mm, layout, margin_mm, markers (point indices, OpenCV's order; [] for none),
+            marker_diameter_mm (0 for none).
+        """
         d = asdict(self)
         d["margin_mm"] = self.margin
         d["markers"] = list(self.markers)
@@ -308,7 +409,23 @@ class Board:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Board:
-        """The board of a ``board`` block (:meth:`to_dict`); the marker fields may be absent (no markers)."""
+        """The board of a ``board`` block (:meth:`to_dict`); the marker fields may be absent (no markers).
+
+        Parameters
+        ----------
+        d : dict
+
+        Returns
+        -------
+        Board
+
+        Raises
+        ------
+        InputError
+            A value the board refuses (see the class).
+        KeyError, TypeError, ValueError
+            ``rows``, ``cols`` or ``pitch_mm`` missing or not numbers (callers reading a file check the block first).
+        """
         return cls(
             int(d["rows"]),
             int(d["cols"]),
@@ -321,9 +438,22 @@ class Board:
         )
 
     def signed_distance_mm(self, xy: np.ndarray) -> np.ndarray:
-        """Signed distance (mm) from board points ``xy`` (..., 2) to the nearest feature edge; negative on dark
-        (inside a dot / on a black square). Exact for dots; the Chebyshev-style distance to the nearest square
-        edge for a checkerboard (what the renderer needs to find edge pixels)."""
+        """Signed distance from board points to the nearest feature edge; negative on dark (inside a dot / on a black
+        square).
+
+        Exact for dots; the Chebyshev-style distance to the nearest square edge for a checkerboard (what the renderer
+        needs to find edge pixels).
+
+        Parameters
+        ----------
+        xy : ndarray, shape (..., 2)
+            Board points, mm.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            mm.
+        """
         xy = np.asarray(xy, dtype=np.float64)
         x, y = xy[..., 0], xy[..., 1]
         s = self.pitch_mm
@@ -402,9 +532,19 @@ LATTICE_ROTATIONS: tuple[np.ndarray, ...] = tuple(
 
 @dataclass(frozen=True)
 class Placement:
-    """One way to lay observed lattice points onto a board: rotation ``quarter`` (index into
-    :data:`LATTICE_ROTATIONS`), translation ``shift`` (2,) int, ``points`` (K,) the board point of each observed
-    point, ``mismatches``: observed marker flags that disagree with the board's."""
+    """One way to lay observed lattice points onto a board.
+
+    Attributes
+    ----------
+    quarter : int
+        The rotation: an index into :data:`LATTICE_ROTATIONS`.
+    shift : tuple of int, (2,)
+        The translation, lattice units.
+    points : ndarray of int, shape (K,)
+        The board point of each observed point.
+    mismatches : int
+        Observed marker flags that disagree with the board's.
+    """
 
     quarter: int
     shift: tuple[int, int]
@@ -415,12 +555,26 @@ class Placement:
 def placements(
     board: Board, xy: np.ndarray, flags: np.ndarray | None = None, *, max_mismatches: int = 0
 ) -> list[Placement]:
-    """Every placement of the observed lattice points ``xy`` (K, 2) int onto ``board``'s points by a rotation and
-    an integer translation (no reflection: ``xy`` must have the board frame's handedness) that puts every observed
-    point on a board point and has at most ``max_mismatches`` marker disagreements. ``flags`` (K,) int: 1 for a
-    dot seen as a marker, 0 for a dot seen as a plain dot, -1 for unknown (not compared); ``None``: all unknown.
-    Cost: O(translations x K) per rotation, vectorised (translations: the ways the observed bounding box fits in
-    the board's)."""
+    """Every placement of observed lattice points onto ``board``'s points by a rotation and an integer translation.
+
+    No reflection: ``xy`` must have the board frame's handedness. Kept: those that put every observed point on a
+    board point and have at most ``max_mismatches`` marker disagreements. Cost: O(translations x K) per rotation,
+    vectorised (translations: the ways the observed bounding box fits in the board's).
+
+    Parameters
+    ----------
+    board : Board
+    xy : ndarray of int, shape (K, 2)
+        The observed lattice points.
+    flags : ndarray of int, shape (K,), or None
+        1 for a dot seen as a marker, 0 for a dot seen as a plain dot, -1 for unknown (not compared); ``None``: all
+        unknown.
+    max_mismatches : int
+
+    Returns
+    -------
+    list of Placement
+    """
     xy = np.asarray(xy, np.int64).reshape(-1, 2)
     K = len(xy)
     flags = np.full(K, -1, np.int64) if flags is None else np.asarray(flags, np.int64).reshape(K)
@@ -499,17 +653,48 @@ def _window_pairs(board: Board, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def window_conflicts(board: Board, k: int, min_distance: int = PATTERN_MIN_DISTANCE) -> int:
-    """How many (window, other placement) pairs break the marker pattern's promise: for every ``k`` x ``k`` window
-    of ``board`` seen on its own, every placement of it other than the true one must disagree with the markers it
-    shows in at least ``min_distance`` dots. 0 = the promise holds."""
+    """How many (window, other placement) pairs break the marker pattern's promise.
+
+    For every ``k`` x ``k`` window of ``board`` seen on its own, every placement of it other than the true one must
+    disagree with the markers it shows in at least ``min_distance`` dots.
+
+    Parameters
+    ----------
+    board : Board
+    k : int
+        The window side, points.
+    min_distance : int
+        Dots.
+
+    Returns
+    -------
+    int
+        0 = the promise holds.
+    """
     A, B = _window_pairs(board, k)
     m = board.is_marker()
     return int(np.sum(np.sum(m[A] != m[B], axis=1) < min_distance))
 
 
 def pattern_window(rows: int, cols: int) -> int:
-    """The smallest window side (points) for which :func:`marker_pattern` finds a pattern (it tries sides from
-    :data:`PATTERN_SMALL_WINDOW` up)."""
+    """The smallest window side for which :func:`marker_pattern` finds a pattern (it tries sides from
+    :data:`PATTERN_SMALL_WINDOW` up).
+
+    Parameters
+    ----------
+    rows, cols : int
+        The symmetric grid.
+
+    Returns
+    -------
+    int
+        Points per side.
+
+    Raises
+    ------
+    InputError
+        As :func:`marker_pattern`.
+    """
     return _pattern(rows, cols, "symmetric")[1]
 
 
@@ -601,20 +786,58 @@ def _search_pattern(board: Board, k: int, near: np.ndarray, rng: np.random.Gener
 
 
 def marker_pattern(rows: int, cols: int, layout: str = "symmetric") -> tuple[int, ...]:
-    """circcal's marker pattern for a ``rows`` x ``cols`` circle grid (module docstring): point indices (OpenCV's
-    order) such that every window of :func:`pattern_window` points per side differs from every other window
-    position and rotation in at least :data:`PATTERN_MIN_DISTANCE` markers; markers are never nearest neighbours.
-    Deterministic: a seeded search (:func:`_search_pattern`) for the smallest window side it can make unique, from
-    :data:`PATTERN_SMALL_WINDOW` up. Raises :class:`~circcal.errors.InputError` for a board on which none was
-    found or with more than :data:`PATTERN_MAX_POINTS` dots."""
+    """circcal's marker pattern for a ``rows`` x ``cols`` circle grid (module docstring).
+
+    Point indices (OpenCV's order) such that every window of :func:`pattern_window` points per side differs from every
+    other window position and rotation in at least :data:`PATTERN_MIN_DISTANCE` markers; markers are never nearest
+    neighbours. Deterministic: a seeded search (:func:`_search_pattern`) for the smallest window side it can make
+    unique, from :data:`PATTERN_SMALL_WINDOW` up.
+
+    Parameters
+    ----------
+    rows, cols : int
+    layout : str
+        ``"symmetric"`` or ``"asymmetric"``.
+
+    Returns
+    -------
+    tuple of int
+
+    Raises
+    ------
+    InputError
+        A board on which none was found or with more than :data:`PATTERN_MAX_POINTS` dots.
+    """
     return _pattern(int(rows), int(cols), layout)[0]
 
 
 def with_markers(board: Board, style: str, marker_diameter_mm: float | None = None) -> Board:
-    """``board`` with the markers of ``style`` (:data:`MARKER_STYLES`; ``"none"`` removes them): ``origin``
-    (ROS-Industrial's modified circle grid, the marker at point ``(rows - 1) * cols``, :data:`ORIGIN_MARKER_SCALE`)
-    or ``pattern`` (:func:`marker_pattern`, :data:`PATTERN_MARKER_SCALE`). ``marker_diameter_mm`` overrides the
-    marker diameter."""
+    """``board`` with the markers of ``style``.
+
+    Parameters
+    ----------
+    board : Board
+    style : str
+        One of :data:`MARKER_STYLES`, or ``"none"`` (removes them): ``origin`` (ROS-Industrial's modified circle
+        grid, the marker at point ``(rows - 1) * cols``, :data:`ORIGIN_MARKER_SCALE`) or ``pattern``
+        (:func:`marker_pattern`, :data:`PATTERN_MARKER_SCALE`).
+    marker_diameter_mm : float or None
+        Overrides the marker diameter, mm.
+
+    Returns
+    -------
+    Board
+
+    Raises
+    ------
+    InputError
+        An unknown style, a checkerboard, or no pattern (:func:`marker_pattern`).
+
+    Examples
+    --------
+    >>> with_markers(Board(4, 5, 10.0, 5.0), "origin").markers
+    (15,)
+    """
     from dataclasses import replace
 
     if style == "none":

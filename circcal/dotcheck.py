@@ -41,8 +41,19 @@ AREA_RATIO = 2.0
 
 @dataclass(frozen=True)
 class BadDot:
-    """``index``: the dot (board order); ``value``: the measured fit residual (px) or area ratio; ``reason``:
-    ``"fit"``, ``"area"`` or the detector's own; ``detail``: in words."""
+    """One dot the check finds bad.
+
+    Attributes
+    ----------
+    index : int
+        The dot (board order).
+    value : float
+        The measured fit residual (px) or area ratio.
+    reason : str
+        ``"fit"``, ``"area"`` or the detector's own.
+    detail : str
+        In words.
+    """
 
     index: int
     value: float
@@ -51,8 +62,20 @@ class BadDot:
 
 
 def fit_residuals(edge_points: list[np.ndarray], conics: np.ndarray) -> np.ndarray:
-    """(N,) px: RMS first-order geometric distance of each dot's edge points (M_k, 2) from its conic (3, 3) (NaN for
-    a dot without edge points). All dots' points in one pass."""
+    """RMS first-order geometric distance of each dot's edge points from its conic. All dots' points in one pass.
+
+    Parameters
+    ----------
+    edge_points : list of (ndarray, shape (M_k, 2), or None)
+        Each dot's edge points, px.
+    conics : ndarray, shape (N, 3, 3)
+        Each dot's conic.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        px; NaN for a dot without edge points.
+    """
     n = len(edge_points)
     sizes = np.array([0 if P is None else len(P) for P in edge_points], dtype=np.int64)
     if not sizes.any():
@@ -148,9 +171,22 @@ def bad_dots(detection, rows: int, cols: int, radii_mm: np.ndarray | None = None
 
 
 def bad_dot_rejections(detections, board) -> tuple[list[list[int]], list]:
-    """For found ``detections`` (one per view, board order): the indices of each view's bad dots (to leave out of
-    every solve) and one :class:`circcal.solver.outliers.Rejected` per bad dot (round 0: before any solve; ``point``
-    is the dot's index in the board's order, the view's position among the detections given)."""
+    """The bad dots of found detections, to leave out of every solve.
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+        Found ones, one per view, board order.
+    board : Board
+
+    Returns
+    -------
+    exclude : list of list of int
+        The indices of each view's bad dots.
+    rejected : list of Rejected
+        One :class:`circcal.solver.outliers.Rejected` per bad dot (round 0: before any solve; ``point`` is the dot's
+        index in the board's order, the view's position among the detections given).
+    """
     from circcal.solver.outliers import OutlierReason, Rejected
 
     board_pts = board.object_points()

@@ -19,9 +19,25 @@ __all__ = ["jsonable", "dumps", "read_text", "parse_json", "read_json", "depth_o
 
 
 def jsonable(x: Any) -> Any:
-    """A JSON-ready copy of ``x``: dicts (keys as str), lists, tuples and arrays recursed; numpy scalars to Python;
-    non-finite floats to None; an enum to its value; a named tuple to a dict of its fields; an object with a
-    ``to_dict()`` method (a :class:`circcal.model.Camera`, a :class:`circcal.board.Board`) to that dict."""
+    """A JSON-ready copy of ``x``.
+
+    Dicts (keys as str), lists, tuples and arrays recursed; numpy scalars to Python; non-finite floats to None; an
+    enum to its value; a named tuple to a dict of its fields; an object with a ``to_dict()`` method (a
+    :class:`circcal.model.Camera`, a :class:`circcal.board.Board`) to that dict.
+
+    Parameters
+    ----------
+    x : object
+
+    Returns
+    -------
+    object
+
+    Examples
+    --------
+    >>> jsonable({"a": np.array([1.0, np.nan])})
+    {'a': [1.0, None]}
+    """
     if isinstance(x, dict):
         return {str(k.value if isinstance(k, enum.Enum) else k): jsonable(v) for k, v in x.items()}
     if isinstance(x, enum.Enum):
@@ -46,13 +62,47 @@ def jsonable(x: Any) -> Any:
 
 
 def dumps(x: Any, **kwargs: Any) -> str:
-    """``json.dumps(jsonable(x))``, refusing anything left that JSON cannot hold (``allow_nan=False``)."""
+    """``json.dumps(jsonable(x))``, refusing anything left that JSON cannot hold (``allow_nan=False``).
+
+    Parameters
+    ----------
+    x : object
+    **kwargs
+        ``json.dumps``' keywords (``indent``, ...).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    TypeError, ValueError
+        A value JSON cannot hold (a bug: every writer's data is JSON-ready).
+    """
     return json.dumps(jsonable(x), allow_nan=False, **kwargs)
 
 
 def read_text(path: str | Path, what: str = "file", *, max_bytes: int | None = None) -> str:
-    """The text in ``path``; :class:`~circcal.errors.InputError` naming the file (as ``what``) when it is missing,
-    not a file, larger than ``max_bytes`` (checked before reading), or cannot be read or decoded."""
+    """The text in ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        Names the file's kind in messages.
+    max_bytes : int or None
+        The largest size allowed (checked before reading).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        Naming the file (as ``what``) when it is missing, not a file, larger than ``max_bytes``, or cannot be read or
+        decoded.
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{what} {p}: {'no such file' if not p.exists() else 'not a file'}")
@@ -76,9 +126,26 @@ _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[{}\[\]:,]|[^\s{}\[\]:,"]+')
 
 
 def depth_over(text: str, max_depth: int) -> int | None:
-    """The line where ``text``'s brackets (``[``/``{`` against ``]``/``}``, as JSON's and YAML's flow collections
-    nest) first nest deeper than ``max_depth``, or None. Double-quoted strings are left out; numpy counts the
-    brackets, so a 64 MiB text costs well under a second."""
+    """The line where ``text``'s brackets (``[``/``{`` against ``]``/``}``, as JSON's and YAML's flow collections nest)
+    first nest deeper than ``max_depth``.
+
+    Double-quoted strings are left out; numpy counts the brackets, so a 64 MiB text costs well under a second.
+
+    Parameters
+    ----------
+    text : str
+    max_depth : int
+
+    Returns
+    -------
+    int or None
+        The line (from 1); None when never.
+
+    Examples
+    --------
+    >>> depth_over("[\\n[[1]]]", 2)
+    2
+    """
     bare = _STRING.sub('""', text) if '"' in text else text
     b = np.frombuffer(bare.encode(), dtype=np.uint8)
     step = ((b == ord("[")) | (b == ord("{"))).astype(np.int8) - ((b == ord("]")) | (b == ord("}")))
@@ -123,11 +190,27 @@ def _duplicate_key(text: str) -> tuple[str, int] | None:
 def parse_json(
     text: str, *, max_depth: int | None = None, max_int_digits: int | None = None, unique_keys: bool = False
 ) -> Any:
-    """``json.loads(text)``; :class:`~circcal.errors.InputError` with the line and column of a syntax error. Hostile
-    texts are refused in words, never with Python's own exceptions: nesting deeper than ``max_depth`` (checked before
-    parsing; without it, as deep as Python's recursion allows), integers of more than ``max_int_digits`` digits
-    (without it, Python's 4300), and with ``unique_keys`` a key repeated in one object (``duplicate key 'fx' at line
-    N``)."""
+    """``json.loads(text)``, hostile texts refused in words, never with Python's own exceptions.
+
+    Parameters
+    ----------
+    text : str
+    max_depth : int or None
+        Nesting deeper is refused (checked before parsing; without it, as deep as Python's recursion allows).
+    max_int_digits : int or None
+        Integers of more digits are refused (without it, Python's 4300).
+    unique_keys : bool
+        Refuse a key repeated in one object (``duplicate key 'fx' at line N``).
+
+    Returns
+    -------
+    object
+
+    Raises
+    ------
+    InputError
+        With the line and column of a syntax error, or any of the above.
+    """
     if max_depth is not None:
         line = depth_over(text, max_depth)
         if line is not None:
@@ -159,9 +242,25 @@ def parse_json(
 
 
 def read_json(path: str | Path, what: str = "JSON file", **limits: Any) -> Any:
-    """The data in ``path``; :class:`~circcal.errors.InputError` naming the file for a missing, unreadable or
-    malformed one. ``what`` names the kind of file in messages; ``limits``: ``max_bytes`` (:func:`read_text`) and
-    the keywords of :func:`parse_json`."""
+    """The data in ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        Names the kind of file in messages.
+    **limits
+        ``max_bytes`` (:func:`read_text`) and the keywords of :func:`parse_json`.
+
+    Returns
+    -------
+    object
+
+    Raises
+    ------
+    InputError
+        Naming the file for a missing, unreadable or malformed one.
+    """
     text = read_text(path, what, max_bytes=limits.pop("max_bytes", None))
     try:
         return parse_json(text, **limits)

@@ -18,9 +18,22 @@ SQRT2 = float(np.sqrt(2.0))
 
 
 def error_stats(residuals: np.ndarray) -> dict[str, float]:
-    """``residuals``: (..., 2) reprojection errors in px (NaN rows are ignored).
+    """Reprojection error statistics in the three conventions.
 
-    Returns ``{"n_points", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_2d_px"}``.
+    Parameters
+    ----------
+    residuals : ndarray, shape (..., 2)
+        Reprojection errors, px (NaN rows are ignored).
+
+    Returns
+    -------
+    dict of str to float
+        ``{"n_points", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_2d_px"}`` (NaN without points).
+
+    Examples
+    --------
+    >>> error_stats(np.array([[3.0, 4.0]]))["rms_per_point_px"]
+    5.0
     """
     r = np.asarray(residuals, dtype=np.float64).reshape(-1, 2)
     r = r[np.all(np.isfinite(r), axis=1)]
@@ -40,9 +53,19 @@ def error_stats(residuals: np.ndarray) -> dict[str, float]:
 
 def error_stats_per_view(residuals: Sequence[np.ndarray]) -> tuple[dict[str, float], list[dict[str, float]]]:
     """:func:`error_stats` of all views' residuals together and of each view's, in one vectorised pass (a solve's
-    statistics are computed once, not once per view): ``residuals`` per view (N_v, 2) px (NaN rows ignored).
-    Returns ``(overall, [per view])``, the same keys and values as :func:`error_stats` (sums in another order:
-    equal to ~1e-15 relative)."""
+    statistics are computed once, not once per view).
+
+    Parameters
+    ----------
+    residuals : sequence of ndarray, each shape (N_v, 2)
+        Per view, px (NaN rows ignored).
+
+    Returns
+    -------
+    overall : dict of str to float
+    per_view : list of dict
+        The same keys and values as :func:`error_stats` (sums in another order: equal to ~1e-15 relative).
+    """
     if len(residuals) == 0:
         return error_stats(np.zeros((0, 2))), []
     views = [np.asarray(x, dtype=np.float64).reshape(-1, 2) for x in residuals]
@@ -76,10 +99,32 @@ def error_stats_per_view(residuals: Sequence[np.ndarray]) -> tuple[dict[str, flo
 
 
 def per_point_to_per_coord(rms_per_point: float) -> float:
-    """OpenCV's RMS (2-D, per point) -> mrcal's RMS (per coordinate)."""
+    """OpenCV's RMS (2-D, per point) -> mrcal's RMS (per coordinate).
+
+    Parameters
+    ----------
+    rms_per_point : float
+        px.
+
+    Returns
+    -------
+    float
+        px.
+    """
     return rms_per_point / SQRT2
 
 
 def per_coord_to_per_point(rms_per_coord: float) -> float:
-    """mrcal's RMS (per coordinate) -> OpenCV's RMS (2-D, per point)."""
+    """mrcal's RMS (per coordinate) -> OpenCV's RMS (2-D, per point).
+
+    Parameters
+    ----------
+    rms_per_coord : float
+        px.
+
+    Returns
+    -------
+    float
+        px.
+    """
     return rms_per_coord * SQRT2

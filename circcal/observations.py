@@ -40,7 +40,27 @@ PLANAR_TOL = 1e-9
 
 def check_image_size(image_size: object) -> tuple[int, int]:
     """``(width, height)`` as two positive integers (numpy integers and integral floats accepted; booleans, NaN and
-    fractions refused). Raises :class:`~circcal.errors.InputError` saying what was given."""
+    fractions refused).
+
+    Parameters
+    ----------
+    image_size : object
+        (width, height), px.
+
+    Returns
+    -------
+    tuple of int
+
+    Raises
+    ------
+    InputError
+        Saying what was given.
+
+    Examples
+    --------
+    >>> check_image_size((640.0, 480))
+    (640, 480)
+    """
     try:
         w, h = image_size  # type: ignore[misc]
     except (TypeError, ValueError):
@@ -66,13 +86,37 @@ def check_observations(
     *,
     min_views: int = MIN_VIEWS,
 ) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
-    """Check and normalise observations; raises :class:`~circcal.errors.CalibrationError` (an ``InputError``)
-    naming the view and what is wrong.
+    """Check and normalise observations.
 
-    Returns float64 copies: object points (N_v, 3) mm, image points (N_v, 2) px, and ``(width, height)``.
     Refused: a different number of object- and image-point views, fewer than ``min_views`` views, a view whose two
     arrays differ in length or shape, fewer than :data:`MIN_POINTS_PER_VIEW` points, NaN/inf, image points outside
     the image (pixel centres run 0..W-1, so the image spans -0.5..W-0.5), board points off the plane z = 0.
+
+    Parameters
+    ----------
+    object_points : sequence of ndarray, each shape (N_v, 3)
+        mm (OpenCV's (N_v, 1, 3) accepted).
+    image_points : sequence of ndarray, each shape (N_v, 2)
+        px (OpenCV's (N_v, 1, 2) accepted).
+    image_size : object
+        (width, height), px (:func:`check_image_size`).
+    min_views : int
+
+    Returns
+    -------
+    object_points : list of ndarray, each shape (N_v, 3)
+        float64 copies, mm.
+    image_points : list of ndarray, each shape (N_v, 2)
+        float64 copies, px.
+    image_size : tuple of int
+        ``(width, height)``.
+
+    Raises
+    ------
+    CalibrationError
+        (an ``InputError``) naming the view and what is wrong.
+    InputError
+        A malformed ``image_size``.
     """
     w, h = check_image_size(image_size)
     if len(object_points) != len(image_points):
@@ -159,11 +203,20 @@ BOARD_KEY_DECIMALS = 6
 
 
 def distinct_points(object_points: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The distinct board points across views (views may observe different subsets), identified by their
-    coordinates to :data:`BOARD_KEY_DECIMALS`.
+    """The distinct board points across views (views may observe different subsets), identified by their coordinates to
+    :data:`BOARD_KEY_DECIMALS`.
 
-    ``object_points``: per view (N_v, 3) mm. Returns ``(points (P, 3) mm in order of first appearance, per view
-    (N_v,) int64 the index of each observed point in points)``.
+    Parameters
+    ----------
+    object_points : sequence of ndarray, each shape (N_v, 3)
+        Per view, mm.
+
+    Returns
+    -------
+    points : ndarray, shape (P, 3)
+        mm, in order of first appearance.
+    index : list of ndarray of int64, each shape (N_v,)
+        Per view, the index of each observed point in ``points``.
     """
     sizes = [len(o) for o in object_points]
     X = np.concatenate([np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in object_points])

@@ -85,8 +85,26 @@ def _existing_ancestor(path: Path) -> Path:
 
 
 def check_writable_place(path: Path, option: str) -> Path:
-    """The nearest existing folder above ``path``, checked writable (permissions, a read-only mount); the staging
-    place made in it next is the final proof. Raises :class:`~circcal.errors.InputError` naming the path."""
+    """The nearest existing folder above ``path``, checked writable (permissions, a read-only mount); the staging place
+    made in it next is the final proof.
+
+    Parameters
+    ----------
+    path : Path
+        The output.
+    option : str
+        Names it in messages (e.g. ``"--out"``).
+
+    Returns
+    -------
+    Path
+        That folder.
+
+    Raises
+    ------
+    InputError
+        Naming the path.
+    """
     parent = _existing_ancestor(path)
     if not parent.is_dir():
         raise InputError(f"{option} {_display(path)}: {_display(parent)} is not a folder")
@@ -123,8 +141,22 @@ def _sha256(path: Path) -> str:
 
 
 def folder_manifest(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (relative path -> SHA-256), the marker left out. Raises ``InputError`` for an
-    entry that is neither a file nor a folder (a link, a device): circcal writes none."""
+    """Every file under ``folder``, the marker left out.
+
+    Parameters
+    ----------
+    folder : Path
+
+    Returns
+    -------
+    dict of str to str
+        Relative path -> SHA-256.
+
+    Raises
+    ------
+    InputError
+        An entry that is neither a file nor a folder (a link, a device): circcal writes none.
+    """
     out: dict[str, str] = {}
     for root, dirs, files in os.walk(folder):
         for name in sorted(dirs + files):
@@ -142,7 +174,21 @@ def folder_manifest(folder: Path) -> dict[str, str]:
 
 
 def write_manifest(folder: Path, kind: str, commit_id: str = "") -> None:
-    """Write :data:`MARKER` into ``folder``: its ``kind`` and :func:`folder_manifest`."""
+    """Write :data:`MARKER` into ``folder``: its ``kind`` and :func:`folder_manifest`.
+
+    Parameters
+    ----------
+    folder : Path
+    kind : str
+        ``"report"``, ``"overlays"``, ...
+    commit_id : str
+        The commit that writes it.
+
+    Raises
+    ------
+    InputError
+        As :func:`folder_manifest`.
+    """
     doc = {"circcal": kind, "commit": commit_id, "files": folder_manifest(folder)}
     (folder / MARKER).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
 
@@ -156,9 +202,28 @@ def _read_marker(folder: Path) -> dict[str, Any] | None:
 
 
 def check_folder_output(path: Path, kind: str, option: str, shown: Path | None = None) -> str:
-    """Refuse a folder output that is not new, empty, or an earlier intact circcal folder of ``kind``; returns how
-    it stands (``"new"``, ``"empty"``, ``"earlier"``). Raises :class:`~circcal.errors.InputError` naming the folder
-    (as ``shown``, default ``path``) and the first foreign entry."""
+    """Refuse a folder output that is not new, empty, or an earlier intact circcal folder of ``kind``.
+
+    Parameters
+    ----------
+    path : Path
+    kind : str
+        ``"report"``, ``"overlays"``, ...
+    option : str
+        Names it in messages.
+    shown : Path or None
+        The path as the user gave it (default ``path``).
+
+    Returns
+    -------
+    str
+        How it stands: ``"new"``, ``"empty"``, ``"earlier"``.
+
+    Raises
+    ------
+    InputError
+        Naming the folder (as ``shown``) and the first foreign entry.
+    """
     shown = path if shown is None else shown
     if not path.exists():
         return "new"
@@ -296,18 +361,66 @@ class Outputs:
         return out
 
     def file(self, path: str | os.PathLike[str], option: str) -> Path:
-        """Plan the file output ``path`` (named ``option`` in messages, e.g. ``"--out"``) and return its staging
-        path, to write in full before :meth:`commit`. Raises :class:`~circcal.errors.InputError` (see the module
-        docstring)."""
+        """Plan a file output and return its staging path, to write in full before :meth:`commit`.
+
+        Parameters
+        ----------
+        path : str or PathLike
+        option : str
+            Names it in messages, e.g. ``"--out"``.
+
+        Returns
+        -------
+        Path
+            The staging path.
+
+        Raises
+        ------
+        InputError
+            See the module docstring.
+
+        Examples
+        --------
+        >>> with Outputs() as outs:  # doctest: +SKIP
+        ...     staging = outs.file("model.json", "--out")
+        ...     staging.write_text(text)
+        ...     outs.commit()
+        """
         return self._plan(Path(path), option, None).staging
 
     def folder(self, path: str | os.PathLike[str], option: str, *, kind: str) -> Path:
-        """Plan the folder output ``path`` of ``kind`` (``"report"``, ``"overlays"``, ...) and return its staging
-        folder (empty), to fill before :meth:`commit`. Raises :class:`~circcal.errors.InputError`."""
+        """Plan a folder output of ``kind`` and return its staging folder (empty), to fill before :meth:`commit`.
+
+        Parameters
+        ----------
+        path : str or PathLike
+        option : str
+            Names it in messages.
+        kind : str
+            ``"report"``, ``"overlays"``, ...
+
+        Returns
+        -------
+        Path
+            The staging folder.
+
+        Raises
+        ------
+        InputError
+        """
         return self._plan(Path(path), option, kind).staging
 
     def final(self, staging: Path) -> Path:
-        """The final place of a staging path (for messages: what the user gave)."""
+        """The final place of a staging path (for messages: what the user gave).
+
+        Parameters
+        ----------
+        staging : Path
+
+        Returns
+        -------
+        Path
+        """
         return next(o.shown for o in self._outputs if o.staging == staging)
 
     # committing ------------------------------------------------------------------------------------------------
@@ -347,9 +460,25 @@ class Outputs:
                     shutil.rmtree(out.staging, ignore_errors=True)
 
     def keep_partial(self, staging: Path) -> Path:
-        """Instead of committing: move the staged file ``staging`` to a new name beside its final place
-        (``NAME.partial-K.SUFFIX``, the first K free; nothing is replaced) and return it. For results done before an
-        interruption, kept without touching the earlier output."""
+        """Instead of committing: move the staged file to a new name beside its final place and return it.
+
+        The name is ``NAME.partial-K.SUFFIX``, the first K free; nothing is replaced. For results done before an
+        interruption, kept without touching the earlier output.
+
+        Parameters
+        ----------
+        staging : Path
+
+        Returns
+        -------
+        Path
+            Where it now lies.
+
+        Raises
+        ------
+        InputError
+            No free name.
+        """
         out = next(o for o in self._outputs if o.staging == staging)
         out.final.parent.mkdir(parents=True, exist_ok=True)
         for k in range(1, 10_000):
@@ -504,9 +633,20 @@ def _marker_commit(folder: Path) -> str | None:
 
 
 def recover(folder: Path) -> list[Path]:
-    """Finish the commits a killed circcal process left half done in ``folder`` (their journals name the steps):
-    the staged outputs still waiting are moved into place, the earlier folders they replace removed. Returns the
-    outputs it put in place. A journal whose staging places are all gone is removed."""
+    """Finish the commits a killed circcal process left half done in ``folder`` (their journals name the steps).
+
+    The staged outputs still waiting are moved into place, the earlier folders they replace removed. A journal whose
+    staging places are all gone is removed.
+
+    Parameters
+    ----------
+    folder : Path
+
+    Returns
+    -------
+    list of Path
+        The outputs it put in place.
+    """
     done: list[Path] = []
     try:
         journals = sorted(Path(folder).glob(f"{_JOURNAL_PREFIX}*.json"))
@@ -553,5 +693,14 @@ def recover(folder: Path) -> list[Path]:
 
 
 def iter_staging(folder: Path) -> Iterator[Path]:
-    """circcal's staging places left in ``folder`` by a killed process (for a clean-up or a test)."""
+    """circcal's staging places left in ``folder`` by a killed process (for a clean-up or a test).
+
+    Parameters
+    ----------
+    folder : Path
+
+    Yields
+    ------
+    Path
+    """
     yield from (p for p in Path(folder).iterdir() if p.name.startswith(".") and _STAGE in p.name)

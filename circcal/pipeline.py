@@ -72,14 +72,30 @@ within it the two predict alike, and the simpler model extrapolates more safely 
 
 @dataclass(frozen=True)
 class LensChoice:
-    """How :func:`choose_lens` chose: ``lens`` the model chosen, ``why`` in words, ``candidates`` one row per model
-    tried: ``{"lens", "rms_per_point_px", "heldout_rms_px", "fits", "error"}`` (``error``: why it gave no model)."""
+    """How :func:`choose_lens` chose.
+
+    Attributes
+    ----------
+    lens : str
+        The model chosen.
+    why : str
+        In words.
+    candidates : tuple of dict
+        One row per model tried: ``{"lens", "rms_per_point_px", "heldout_rms_px", "fits", "error"}`` (``error``: why it
+        gave no model).
+    """
 
     lens: str
     why: str
     candidates: tuple[dict[str, Any], ...]
 
     def lines(self) -> list[str]:
+        """The console summary: the choice, then one line per candidate.
+
+        Returns
+        -------
+        list of str
+        """
         out = [f"lens model chosen (--lens auto): {self.lens}: {self.why}"]
         for c in self.candidates:
             if c.get("error"):
@@ -94,8 +110,14 @@ class LensChoice:
 
 
 class TooFewImagesError(CalibrationError):
-    """Fewer images with the board found than a calibration needs; ``rejected`` lists every image left out
-    (:class:`circcal.detector.Rejection`: path, code, reason)."""
+    """Fewer images with the board found than a calibration needs.
+
+    Parameters
+    ----------
+    message : str
+    rejected : list of Rejection
+        Every image left out (:class:`circcal.detector.Rejection`: path, code, reason); kept as ``rejected``.
+    """
 
     def __init__(self, message: str, rejected: list[Rejection]):
         super().__init__(message)
@@ -104,12 +126,31 @@ class TooFewImagesError(CalibrationError):
 
 @dataclass
 class ImagesCalibration:
-    """Outcome of :func:`calibrate_images`. ``result``: the final model; ``paths``: all inputs; ``detections``:
-    one per path (``circcal.detector.Detection``); ``used``: indices of the paths in the model (the views of
-    ``result``, in order); ``failed``: a :class:`~circcal.detector.Rejection` (path, code, reason) for every image
-    left out; ``rounds``: per calibration round
-    ``{"round", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px", "max_centre_shift_px"}``; ``centres``: the
-    final (re-corrected) centres of each used view, (N, 2) px in board order, NaN where a point was not detected."""
+    """Outcome of :func:`calibrate_images`.
+
+    Attributes
+    ----------
+    result : CalibrationResult
+        The final model.
+    paths : list of str
+        All inputs.
+    detections : list of Detection
+        One per path (``circcal.detector.Detection``).
+    used : list of int
+        Indices of the paths in the model (the views of ``result``, in order).
+    failed : list of Rejection
+        A :class:`~circcal.detector.Rejection` (path, code, reason) for every image left out.
+    rounds : list of dict
+        Per calibration round ``{"round", "rms_per_point_px", "rms_per_coord_px", "mean_2d_px",
+        "max_centre_shift_px"}``.
+    centres : list of ndarray, each shape (N, 2)
+        The final (re-corrected) centres of each used view, px in board order, NaN where a point was not detected.
+    recovered : list of str
+        Paths of views the first detection refused and a second pass with the first model found
+        (:data:`RECOVERABLE`).
+    lens_choice : LensChoice or None
+        How ``--lens auto`` chose the lens model; None when the lens was given.
+    """
 
     result: CalibrationResult
     paths: list[str]
@@ -124,13 +165,24 @@ class ImagesCalibration:
     lens_choice: LensChoice | None = None
 
     def to_model_json(self, board) -> dict[str, Any]:
-        """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out
-        (path, reason code, reason) and the re-correction rounds. Each view says which board points it used
-        (``points``: indices, OpenCV's order; a partial view uses some) and which dots of it the detector left out
-        as bad (``dots_dropped``: index -> reason, e.g. cut by the image border). View names and image paths are
-        stored by :func:`circcal.pathnames.path_to_json` (lossless for names of any bytes; read them back with
-        ``path_from_json``), the texts beside them by :func:`~circcal.pathnames.display_name`: no lone surrogate
-        (a byte of a name that is not UTF-8) reaches JSON."""
+        """model.json (:func:`circcal.formats.model_json`): the result's sections, the board, every image left out (path,
+        reason code, reason) and the re-correction rounds.
+
+        Each view says which board points it used (``points``: indices, OpenCV's order; a partial view uses some) and
+        which dots of it the detector left out as bad (``dots_dropped``: index -> reason, e.g. cut by the image border).
+        View names and image paths are stored by :func:`circcal.pathnames.path_to_json` (lossless for names of any bytes;
+        read them back with ``path_from_json``), the texts beside them by :func:`~circcal.pathnames.display_name`: no
+        lone surrogate (a byte of a name that is not UTF-8) reaches JSON.
+
+        Parameters
+        ----------
+        board : Board
+            The board calibrated with.
+
+        Returns
+        -------
+        dict
+        """
         sections = self.result.model_sections()
         for entry, i, c in zip(sections.get("views", []), self.used, self.centres):
             if "name" in entry:
@@ -153,8 +205,20 @@ class ImagesCalibration:
         )
 
     def observations(self, board) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """(object_points, image_points) per used view: the final centres with their board points (finite only),
-        exactly what the final model was fitted to."""
+        """The observations of each used view: the final centres with their board points (finite only), exactly what the
+        final model was fitted to.
+
+        Parameters
+        ----------
+        board : Board
+
+        Returns
+        -------
+        object_points : list of ndarray, each shape (N_v, 3)
+            mm.
+        image_points : list of ndarray, each shape (N_v, 2)
+            px.
+        """
         pairs = [_points_of(c, board.object_points()) for c in self.centres]
         return [o for o, _ in pairs], [p for _, p in pairs]
 
@@ -169,10 +233,21 @@ def _points_of(centres: np.ndarray, board_points: np.ndarray) -> tuple[np.ndarra
 
 
 def duplicates_of(paths: Sequence[str]) -> dict[int, tuple[int, str]]:
-    """Images given more than once: ``{i: (j, how)}`` for each path ``i`` that is the same file as an earlier path
-    ``j`` (``how`` = "same file as"), or holds the same bytes ("identical content to"). Only files whose byte size
-    another file shares are read and hashed (files of different sizes cannot hold the same bytes). Files that cannot
-    be read are left to the detector (it reports them)."""
+    """Images given more than once.
+
+    Only files whose byte size another file shares are read and hashed (files of different sizes cannot hold the
+    same bytes). Files that cannot be read are left to the detector (it reports them).
+
+    Parameters
+    ----------
+    paths : sequence of str
+
+    Returns
+    -------
+    dict of int to (int, str)
+        ``{i: (j, how)}`` for each path ``i`` that is the same file as an earlier path ``j`` (``how`` = "same file
+        as"), or holds the same bytes ("identical content to").
+    """
     out: dict[int, tuple[int, str]] = {}
     seen_file: dict[tuple[int, int], int] = {}
     by_size: dict[int, list[int]] = {}
@@ -540,11 +615,26 @@ def calibrate_detections(
 def holdout_detections(
     detections: Sequence[Any], board, image_size: tuple[int, int], options: CalibrationOptions = CalibrationOptions()
 ) -> list[dict[str, Any]]:
-    """Leave-one-view-out prediction through the whole loop: each view k predicted by the model that
-    :func:`calibrate_detections` makes from the other views with ``options`` (e.g. ``refine_board``), with view
-    k's centres re-corrected under that model (the detector ran without a model, so a detection does not depend on
-    the other views) and its board points that model's (refined) ones. ``detections``: found ones, one per view.
-    See :func:`circcal.solver.leave_one_out` for what comes back."""
+    """Leave-one-view-out prediction through the whole loop.
+
+    Each view k is predicted by the model that :func:`calibrate_detections` makes from the other views with
+    ``options`` (e.g. ``refine_board``), with view k's centres re-corrected under that model (the detector ran without
+    a model, so a detection does not depend on the other views) and its board points that model's (refined) ones.
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+        Found ones, one per view.
+    board : Board
+    image_size : tuple of int
+        (width, height), px.
+    options : CalibrationOptions
+
+    Returns
+    -------
+    list of dict
+        One per view: see :func:`circcal.solver.leave_one_out`.
+    """
     board_pts = board.object_points()
 
     def fit(rest: list[int]):

@@ -19,7 +19,16 @@ _SMALL_ANGLE2_JACOBIAN = 1e-10
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x`` (``[v]x w = v x w``)."""
+    """Cross-product matrices ``[v]x`` (``[v]x w = v x w``).
+
+    Parameters
+    ----------
+    v : ndarray, shape (..., 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     v = np.asarray(v, dtype=np.float64)
     K = np.zeros(v.shape[:-1] + (3, 3))  # six entries written in place (four nested np.stack calls cost ~3x)
     K[..., 0, 1] = -v[..., 2]
@@ -32,8 +41,22 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def rodrigues(rvec: np.ndarray) -> np.ndarray:
-    """Rotation matrices from axis-angle vectors: ``rvec`` (..., 3) radians -> (..., 3, 3). Exact (series form) for
-    tiny angles. Equals ``cv2.Rodrigues``."""
+    """Rotation matrices from axis-angle vectors. Exact (series form) for tiny angles. Equals ``cv2.Rodrigues``.
+
+    Parameters
+    ----------
+    rvec : ndarray, shape (..., 3)
+        rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+
+    Examples
+    --------
+    >>> np.round(rodrigues(np.array([0.0, 0.0, np.pi / 2])) @ [1.0, 0.0, 0.0], 12) + 0.0
+    array([0., 1., 0.])
+    """
     r = np.asarray(rvec, dtype=np.float64)
     theta2 = np.sum(r * r, axis=-1)[..., None, None]
     small = theta2 < _SMALL_ANGLE2_ROTATION
@@ -50,8 +73,19 @@ def rodrigues(rvec: np.ndarray) -> np.ndarray:
 
 
 def left_jacobian(rvec: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3) (..., 3, 3) at axis-angle ``rvec`` (..., 3):
-    ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0)."""
+    """Left Jacobian of SO(3) at an axis-angle vector.
+
+    ``J_l = I + (1 - cos t)/t^2 [r]x + (t - sin t)/t^3 [r]x^2`` (series form near t = 0).
+
+    Parameters
+    ----------
+    rvec : ndarray, shape (..., 3)
+        rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     r = np.asarray(rvec, dtype=np.float64)
     t2 = np.sum(r * r, axis=-1)[..., None, None]
     small = t2 < _SMALL_ANGLE2_JACOBIAN
@@ -67,9 +101,21 @@ def left_jacobian(rvec: np.ndarray) -> np.ndarray:
 
 
 def rotated_jacobian(J_Y: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """``J_Y (-[Y]x)`` (N, k, 3): the derivative of a function of the rotated points ``Y = R X`` (N, 3) with respect
-    to a left perturbation of the rotation, given its derivative ``J_Y`` (N, k, 3) with respect to ``Y``. Row j is
-    ``Y x J_Y[:, j]``. Times :func:`left_jacobian` of the rotation's rvec it is the derivative with respect to rvec."""
+    """``J_Y (-[Y]x)``: the derivative of a function of the rotated points ``Y = R X`` with respect to a left
+    perturbation of the rotation, given its derivative ``J_Y`` with respect to ``Y``.
+
+    Row j is ``Y x J_Y[:, j]``. Times :func:`left_jacobian` of the rotation's rvec it is the derivative with respect
+    to rvec.
+
+    Parameters
+    ----------
+    J_Y : ndarray, shape (N, k, 3)
+    Y : ndarray, shape (N, 3)
+
+    Returns
+    -------
+    ndarray, shape (N, k, 3)
+    """
     y0, y1, y2 = Y[:, 0], Y[:, 1], Y[:, 2]
     out = np.empty_like(J_Y)
     for j in range(J_Y.shape[1]):  # per row j, (N,) products: broadcasting over the small k axis runs ~1.7x slower
@@ -81,9 +127,20 @@ def rotated_jacobian(J_Y: np.ndarray, Y: np.ndarray) -> np.ndarray:
 
 
 def fit_rotation(A: np.ndarray, B: np.ndarray, *, translation: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid alignment ``B ~ R A + t`` of (N, 3) point sets (Kabsch, through scipy's
-    ``Rotation.align_vectors``). Without ``translation`` the points are not centred (aligning directions: rotation
-    only) and t = 0. Returns ``(R (3, 3), t (3,))``."""
+    """Least-squares rigid alignment ``B ~ R A + t`` of point sets (Kabsch, through scipy's ``Rotation.align_vectors``).
+
+    Parameters
+    ----------
+    A, B : ndarray, shape (N, 3)
+    translation : bool
+        Without it the points are not centred (aligning directions: rotation only) and t = 0.
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+    t : ndarray, shape (3,)
+        In the points' unit.
+    """
     from scipy.spatial.transform import Rotation
 
     A = np.asarray(A, dtype=np.float64)
