@@ -45,7 +45,28 @@ def parse_length_mm(text: str) -> float:
 
 
 def parse_grid(text: str) -> tuple[int, int]:
-    """'7x7' -> (rows, cols): points per column x points per row."""
+    """'7x7' -> (rows, cols): points per column x points per row (an argparse type).
+
+    Parameters
+    ----------
+    text : str
+        ``ROWSxCOLS`` (``x``, ``X`` or ``*``).
+
+    Returns
+    -------
+    tuple of int
+        (rows, cols).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not ``ROWSxCOLS``.
+
+    Examples
+    --------
+    >>> parse_grid("11x4")
+    (11, 4)
+    """
     m = re.fullmatch(r"\s*(\d+)\s*[xX*]\s*(\d+)\s*", str(text))
     if not m:
         raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, got {text!r}")
@@ -53,7 +74,20 @@ def parse_grid(text: str) -> tuple[int, int]:
 
 
 def positive_int(text: str) -> int:
-    """'4' -> 4; at least 1."""
+    """'4' -> 4; at least 1 (an argparse type).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+    """
     try:
         value = int(text)
     except ValueError:
@@ -64,8 +98,22 @@ def positive_int(text: str) -> int:
 
 
 def positive_float(text: str) -> float:
-    """'1e-6' -> 1e-06; a finite number above 0 (NaN, inf, 0 and negatives are refused: as a tolerance they would
-    make a check pass or fail whatever was measured)."""
+    """'1e-6' -> 1e-06; a finite number above 0 (an argparse type).
+
+    NaN, inf, 0 and negatives are refused: as a tolerance they would make a check pass or fail whatever was measured.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+    """
     try:
         value = float(text)
     except ValueError:
@@ -76,7 +124,20 @@ def positive_float(text: str) -> float:
 
 
 def nonnegative_int(text: str) -> int:
-    """'5' -> 5; 0 or more (a seed: numpy's generators refuse negative seeds)."""
+    """'5' -> 5; 0 or more (a seed: numpy's generators refuse negative seeds; an argparse type).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+    """
     try:
         value = int(text)
     except ValueError:
@@ -87,7 +148,18 @@ def nonnegative_int(text: str) -> int:
 
 
 def int_between(lo: int, hi: int):
-    """An argparse type: an integer within ``lo..hi`` (a size that sets memory, e.g. a grid's pixels across)."""
+    """An argparse type: an integer within ``lo..hi`` (a size that sets memory, e.g. a grid's pixels across).
+
+    Parameters
+    ----------
+    lo, hi : int
+        The bounds, inclusive.
+
+    Returns
+    -------
+    callable, str -> int
+        Raises ``argparse.ArgumentTypeError`` outside the bounds or for a non-integer.
+    """
 
     def parse(text: str) -> int:
         try:
@@ -106,10 +178,32 @@ DIAMETER_HELP = "dot diameter, e.g. 5mm (default: half the spacing of nearest do
 
 
 def board_from_args(grid: tuple[int, int], pitch_mm: float, diameter_mm: float | None, asymmetric: bool):
-    """The :class:`circcal.board.Board` of ``--grid``, ``--pitch``, ``--diameter``, ``--asymmetric`` (one rule for
-    every subcommand). Without a diameter: half the spacing of nearest dots, ``pitch / 2`` (symmetric) or
-    ``pitch * sqrt(2) / 2`` (asymmetric: OpenCV's acircles layout puts nearest dots sqrt(2) pitches apart). The
-    detector uses the diameter only to bound the size of candidate dots."""
+    """The :class:`circcal.board.Board` of ``--grid``, ``--pitch``, ``--diameter``, ``--asymmetric`` (one rule for every
+    subcommand).
+
+    Without a diameter: half the spacing of nearest dots, ``pitch / 2`` (symmetric) or ``pitch * sqrt(2) / 2``
+    (asymmetric: OpenCV's acircles layout puts nearest dots sqrt(2) pitches apart). The detector uses the diameter
+    only to bound the size of candidate dots.
+
+    Parameters
+    ----------
+    grid : tuple of int
+        (rows, cols).
+    pitch_mm : float
+        mm.
+    diameter_mm : float or None
+        mm; None: as above.
+    asymmetric : bool
+
+    Returns
+    -------
+    Board
+
+    Raises
+    ------
+    InputError
+        A board the class refuses (:class:`circcal.board.Board`).
+    """
     from circcal.board import Board
 
     layout = "asymmetric" if asymmetric else "symmetric"
@@ -129,8 +223,14 @@ LENS_CHOICES: dict[str, str] = {
 
 
 def add_lens_argument(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
-    """``--lens``: the lens model a command fits (default opencv5); with ``auto``, also ``--lens auto`` (the model
-    chosen from the images: :func:`circcal.pipeline.choose_lens`)."""
+    """Add ``--lens``: the lens model a command fits (default opencv5).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    auto : bool
+        Also offer ``--lens auto`` (the model chosen from the images: :func:`circcal.pipeline.choose_lens`).
+    """
     choices = {
         **LENS_CHOICES,
         **({"auto": "the one of opencv5, fisheye, rational that predicts held-out views best"} if auto else {}),
@@ -155,7 +255,12 @@ FIX_FLAGS: dict[str, str] = {
 
 
 def add_fix_arguments(p: argparse.ArgumentParser) -> None:
-    """The ``--fix-*`` flags (:data:`FIX_FLAGS`)."""
+    """Add the ``--fix-*`` flags (:data:`FIX_FLAGS`).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    """
     for flag, text in FIX_FLAGS.items():
         p.add_argument(flag, action="store_true", help=text)
 

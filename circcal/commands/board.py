@@ -46,7 +46,12 @@ TEXT_PT = 7.0
 
 
 def add_marker_arguments(p: argparse.ArgumentParser) -> None:
-    """``--markers`` and ``--marker-diameter`` (the same for ``board``, ``detect`` and ``calibrate``)."""
+    """Add ``--markers`` and ``--marker-diameter`` (the same for ``board``, ``detect`` and ``calibrate``).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    """
     p.add_argument(
         "--markers",
         choices=("none", "origin", "pattern"),
@@ -64,7 +69,23 @@ def add_marker_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def board_with_markers(args: argparse.Namespace, board):
-    """``board`` with the markers the parsed ``--markers`` / ``--marker-diameter`` ask for."""
+    """``board`` with the markers the parsed ``--markers`` / ``--marker-diameter`` ask for.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    board : Board
+
+    Returns
+    -------
+    Board
+
+    Raises
+    ------
+    InputError
+        ``--marker-diameter`` without markers, or markers the board cannot have
+        (:func:`circcal.board.with_markers`).
+    """
     from circcal.board import with_markers
     from circcal.errors import InputError
 
@@ -77,7 +98,27 @@ def board_with_markers(args: argparse.Namespace, board):
 
 
 def parse_paper(text: str) -> tuple[float, float]:
-    """'a4', 'letter', ... or 'WxH' with a unit ('300x200mm', '12x9in'; mm by default) -> (width, height) mm."""
+    """'a4', 'letter', ... or 'WxH' with a unit ('300x200mm', '12x9in'; mm by default) -> (width, height) mm (an
+    argparse type).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    tuple of float
+        (width, height), mm.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+
+    Examples
+    --------
+    >>> parse_paper("300x200mm")
+    (300.0, 200.0)
+    """
     t = str(text).strip().lower()
     if t in PAPERS:
         return PAPERS[t]
@@ -94,6 +135,13 @@ def parse_paper(text: str) -> tuple[float, float]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal board`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "board",
         help="write a circle-grid board true to scale for printing (SVG or PDF)",
@@ -161,7 +209,18 @@ def _layout(
 
 
 def geometry_text(board, style: str) -> list[str]:
-    """The lines printed under the board: what ``circcal calibrate`` needs to know, and how to print it."""
+    """The lines printed under the board: what ``circcal calibrate`` needs to know, and how to print it.
+
+    Parameters
+    ----------
+    board : Board
+    style : str
+        The ``--markers`` style.
+
+    Returns
+    -------
+    list of str
+    """
     grid = f"{board.rows}x{board.cols}"
     flags = (
         f"--grid {grid} --pitch {board.pitch_mm:g}mm --diameter {board.diameter_mm:g}mm"
@@ -183,7 +242,28 @@ def geometry_text(board, style: str) -> list[str]:
 
 
 def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], style: str = "none") -> Path:
-    """Write ``board`` to ``path`` (.svg or .pdf) true to scale (module docstring). Returns the path."""
+    """Write ``board`` true to scale (module docstring).
+
+    Parameters
+    ----------
+    board : Board
+    path : Path
+        .svg or .pdf.
+    paper : tuple of float
+        (width, height), mm.
+    style : str
+        The ``--markers`` style.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        Another suffix, or a board that does not fit the paper.
+    """
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle, Rectangle
 
@@ -219,6 +299,23 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
 
 
 def run(args: argparse.Namespace) -> int:
+    """Write the board of the arguments to ``--out``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0.
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from dataclasses import replace
 
     from circcal.errors import InputError

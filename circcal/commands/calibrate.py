@@ -24,6 +24,13 @@ from circcal.pathnames import display_name
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal calibrate`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "calibrate",
         help="calibrate a camera from images of a circle grid",
@@ -103,7 +110,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def format_summary(cal, *, worst: int = 3) -> str:
-    """Human-readable summary of an :class:`circcal.pipeline.ImagesCalibration` (or a CalibrationResult)."""
+    """Human-readable summary of an :class:`circcal.pipeline.ImagesCalibration` (or a CalibrationResult).
+
+    Parameters
+    ----------
+    cal : ImagesCalibration or CalibrationResult
+    worst : int
+        How many worst views to list.
+
+    Returns
+    -------
+    str
+    """
     import numpy as np
 
     res = getattr(cal, "result", cal)
@@ -201,6 +219,23 @@ def _detection_lines(cal) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Detect, calibrate, re-correct and write the model (and the report) of the arguments.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0; 1 when no model could be made (said on stderr).
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.analysis.assess import assess
     from circcal.errors import InputError
     from circcal.formats import detect_format, write_camera

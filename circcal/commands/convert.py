@@ -7,6 +7,13 @@ from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal convert`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     from circcal.formats import FORMATS
 
     p = sub.add_parser(
@@ -31,6 +38,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Convert the input camera file to the output's format.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0.
+
+    Raises
+    ------
+    ModelFileError
+        The input cannot be read.
+    InputError
+        The output's format cannot hold the camera, or a bad output path.
+    """
     from circcal.formats import detect_format, read_model
     from circcal.outputs import Outputs
 

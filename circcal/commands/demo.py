@@ -13,6 +13,13 @@ import numpy as np
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal demo`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "demo", help="render the default fixtures and run the main job on them", description=__doc__.split("\n\n")[0]
     )
@@ -21,7 +28,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def summarize(name: str) -> None:
-    """Print the scenario's camera, board and per-variant geometry: dot sizes, tilts, blob-centroid bias."""
+    """Print the scenario's camera, board and per-variant geometry: dot sizes, tilts, blob-centroid bias.
+
+    Parameters
+    ----------
+    name : str
+        The scenario.
+    """
     from circcal.fixtures.render import area_centroids
     from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
     from circcal.model import project
@@ -61,6 +74,23 @@ def summarize(name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Summarise the scenario, then run ``circcal validate SCENARIO --against all`` on it.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: ``circcal validate``'s.
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.commands import validate
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO
 

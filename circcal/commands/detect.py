@@ -33,6 +33,13 @@ SAVE_EVERY_S = 2.0
 
 
 def add_parser(subparsers) -> None:
+    """Add the ``circcal detect`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = subparsers.add_parser(
         "detect",
         help="find circle grids and write unbiased centre projections as JSON",
@@ -91,6 +98,23 @@ def _entry(path: Path, d) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Detect the grid in every image; write the detections JSON (and the overlays).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when the grid was found in every image, else 1.
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal import atomic
     from circcal.detector import detect_files
     from circcal.detector.overlay import overlay_file

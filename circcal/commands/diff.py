@@ -17,6 +17,13 @@ MAX_GRIDN = 1000
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal diff`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "diff",
         help="projection difference between two camera models (implied transformation fitted)",
@@ -48,6 +55,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print (and write) the projection difference of the two camera files.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0.
+
+    Raises
+    ------
+    ModelFileError
+        A file that cannot be read.
+    InputError
+        Models of different image sizes, or a bad option.
+    """
     from circcal.errors import InputError
     from circcal.outputs import Outputs
 

@@ -10,6 +10,13 @@ from circcal.errors import InputError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal render`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "render",
         help="render a fixture scenario (images + truth.json)",
@@ -28,6 +35,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Render the scenario's images and truth.json into ``--out``; or list the scenarios.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0; 2 when no scenario was named (the list is printed).
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario
 
     if args.list or not args.scenario:

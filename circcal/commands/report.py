@@ -8,6 +8,13 @@ from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal report`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "report",
         help="write the comparison report (markdown + self-contained HTML + figures + report.json)",
@@ -27,6 +34,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Build the published comparison report into ``--out``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0.
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.report import generate
 
     folder = generate(args.out, quick=args.quick, progress=not args.no_progress)

@@ -13,6 +13,13 @@ from circcal.errors import EXIT_FAILED, EXIT_OK
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal study`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "study",
         help="run a study (scenarios x variants x seeds x calibrators x lens models) on Dask",
@@ -48,6 +55,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run (or resume) the study of the spec and write its summary into ``--out``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: :data:`~circcal.errors.EXIT_OK`; :data:`~circcal.errors.EXIT_FAILED` when tasks failed (their runs are
+        missing: the same command finishes them).
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.study import load_spec, run_study, write_summary
 
     spec = load_spec(args.spec)

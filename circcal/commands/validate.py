@@ -21,6 +21,13 @@ from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal validate`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
     p = sub.add_parser(
         "validate",
         help="cross-validate circcal against mrcal, opencv, kornia, pycolmap and ground truth",
@@ -99,6 +106,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Check circcal against the reference calibrators and ground truth; print the verdicts.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when every check passed; 1 when one failed or nothing was checked.
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
     from circcal.outputs import Outputs
     from circcal.validators.validate import format_table, write_report
