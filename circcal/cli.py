@@ -31,12 +31,30 @@ class OneLineParser(argparse.ArgumentParser):
     with ``-h``): ten lines of usage before the one line that matters hid it."""
 
     def error(self, message: str) -> NoReturn:
+        """Print ``message`` as one line with where the help is and exit with :data:`EXIT_BAD_INPUT`.
+
+        Parameters
+        ----------
+        message : str
+            argparse's reason (it names the option).
+        """
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see: {self.prog} -h)\n")
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The parser of every subcommand, or of ``only`` that one (what ``main`` builds when the command line names a
-    subcommand: the other command modules, and what they import, are not loaded; ~40 ms of start-up)."""
+    """The parser of every subcommand, or of one.
+
+    Parameters
+    ----------
+    only : str or None
+        A subcommand's name: only its module is imported (what ``main`` builds when the command line names a
+        subcommand: the other command modules, and what they import, are not loaded; ~40 ms of start-up).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        A :class:`OneLineParser` with one subparser per command of :data:`COMMANDS` (or ``only``'s).
+    """
     parser = OneLineParser(
         prog="circcal",
         description="Circle-grid camera calibration with unbiased centres, and cross-validation against "
@@ -61,6 +79,19 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``circcal`` command.
+
+    Parameters
+    ----------
+    argv : list of str or None
+        The arguments after ``circcal`` (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit code: 0 done; 1 a negative answer; 2 bad input (one line naming it); 70 a bug (its traceback
+        printed); 130 interrupted (:mod:`circcal.errors`).
+    """
     for stream in (sys.stdout, sys.stderr):  # a file name of any bytes never stops a message (circcal.pathnames)
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:

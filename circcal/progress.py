@@ -33,8 +33,27 @@ class _Hidden:
 
 
 def progress_bar(total: int, desc: str, unit: str, shown: bool, **kwargs: Any) -> Any:
-    """A ``tqdm(total=total, desc=desc, unit=unit, **kwargs)`` bar when ``shown``, else a stand-in with the same
-    ``update`` / ``set_postfix_str`` / ``write`` / ``close`` methods that does nothing."""
+    """A progress bar, or a silent stand-in.
+
+    Parameters
+    ----------
+    total : int
+        Steps in all.
+    desc : str
+        What is counted (shown before the bar).
+    unit : str
+        The unit of a step (``"img"``, ``"run"``).
+    shown : bool
+        Whether to show it (``--no-progress`` makes it False; tqdm is then not imported).
+    **kwargs
+        Passed on to ``tqdm``.
+
+    Returns
+    -------
+    tqdm.tqdm or object
+        ``tqdm(total=total, desc=desc, unit=unit, **kwargs)`` when ``shown``, else a stand-in with the same
+        ``update`` / ``set_postfix_str`` / ``write`` / ``close`` methods that does nothing.
+    """
     if not shown:
         return _Hidden()
     from tqdm import tqdm

@@ -16,8 +16,21 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent / "circcal"
 
-#: The packages (folders under circcal/) held to the rule; add the others here as they are converted.
-PACKAGES: tuple[str, ...] = ("validators", "fixtures", "calreport", "report", "study")
+#: The packages (folders under circcal/) held to the rule; "" is circcal/'s own modules (not its folders). The
+#: detector is not converted yet: add it here when it is.
+PACKAGES: tuple[str, ...] = (
+    "",
+    "model",
+    "solver",
+    "formats",
+    "analysis",
+    "validators",
+    "fixtures",
+    "calreport",
+    "report",
+    "study",
+    "commands",
+)
 
 
 def _sections(doc: str | None) -> set[str]:
@@ -63,7 +76,10 @@ def _needs(fn: ast.FunctionDef | ast.AsyncFunctionDef, method: bool) -> tuple[bo
 
 
 def _is_property(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
+    """A property (or a typing overload stub, documented on its implementation): no sections needed."""
     for d in fn.decorator_list:
+        if (isinstance(d, ast.Name) and d.id == "overload") or (isinstance(d, ast.Attribute) and d.attr == "overload"):
+            return True
         if isinstance(d, ast.Name) and d.id in ("property", "cached_property"):
             return True
         if isinstance(d, ast.Attribute) and d.attr in ("setter", "deleter", "cached_property"):
@@ -73,7 +89,8 @@ def _is_property(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
 
 def public_functions(package: str) -> Iterator[tuple[str, ast.FunctionDef | ast.AsyncFunctionDef, bool]]:
     """(where, node, is_method) for every public function and public method of a package under circcal/."""
-    for path in sorted((ROOT / package).rglob("*.py")):
+    paths = (ROOT / package).rglob("*.py") if package else ROOT.glob("*.py")
+    for path in sorted(paths):
         rel = path.relative_to(ROOT.parent)
         if any(p.startswith("_") and p != "__init__.py" for p in rel.parts):
             continue
@@ -89,7 +106,7 @@ def public_functions(package: str) -> Iterator[tuple[str, ast.FunctionDef | ast.
             if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
                 continue
             public = not node.name.startswith("_") or node.name in names
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and public:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and public and not _is_property(node):
                 yield f"{rel}:{node.lineno} {node.name}", node, False
             elif isinstance(node, ast.ClassDef) and public:
                 for m in node.body:
@@ -121,7 +138,7 @@ def missing_sections(node: ast.FunctionDef | ast.AsyncFunctionDef, method: bool)
 @pytest.mark.parametrize("package", PACKAGES)
 def test_public_functions_have_numpydoc_sections(package: str) -> None:
     found = list(public_functions(package))
-    assert found, f"no public function found in circcal/{package}"
+    assert found, f"no public function found in circcal/{package or '*.py'}"
     bad = [f"{where}: lacks {', '.join(m)}" for where, node, method in found if (m := missing_sections(node, method))]
     assert not bad, f"{len(bad)} of {len(found)} public functions lack numpydoc sections:\n" + "\n".join(bad)
 
