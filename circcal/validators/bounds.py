@@ -3,7 +3,7 @@ imports: the command line shows them in its help without loading the validators)
 
 from __future__ import annotations
 
-__all__ = ["SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL"]
+__all__ = ["SOLVER_PX", "SOLVER_MRCAL_PX", "SOLVER_LENSBOY_PX", "TRUTH_SIGMAS", "COST_TIE_REL", "BIAS_T"]
 
 #: Agreement of a fair reference (plain least squares) with circcal's solver on identical float32 observations, max
 #: projection difference over the imager, px. The adapters reach ~1e-9-1e-6 (OpenCV's LM ~1e-6 on the paper camera).
@@ -28,3 +28,7 @@ TRUTH_SIGMAS = 3.0
 #: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
 #: squared residuals carry ~1e-13 relative rounding).
 COST_TIE_REL = 1e-10
+#: The bias test of a calibrator under test over the conformance cases (validators.conformance.bias_tests): |t| of the
+#: mean truth-normalised error of fx, fy, cx or cy above this is a bias. Two-sided, Bonferroni over the 4 parameters at
+#: 1% family-wise per calibrator: NormalDist().inv_cdf(1 - 0.01 / 8) = 3.023.
+BIAS_T = 3.023

@@ -27,6 +27,7 @@ from circcal.validators.base import ReferenceCalibrator, ReferenceResult, lens_s
 from circcal.validators.checks import (
     SOLVER_MRCAL_PX,
     SOLVER_PX,
+    TRUTH_PARAMS,
     TRUTH_SIGMAS,
     Check,
     solver_agreement,
@@ -68,6 +69,16 @@ __all__ = [
     "KNOWN_FAILURES",
     "LENSES",
     "scenario_lens",
+    "declared_model",
+    "model_start",
+    "unrepresentable",
+    "restricted_solve",
+    "parameter_table",
+    "format_parameter_table",
+    "largest_difference",
+    "run_user_case",
+    "Bias",
+    "bias_tests",
 ]
 
 CIRCCAL = "circcal"
@@ -392,7 +403,8 @@ def cases(
         (name, modes) of the built-in/plug-in references; default every registered one, modes from its class.
     user : sequence of (str, tuple of str)
         (label, modes) of calibrators under test; when given they replace circcal's case and the registered references
-        (the suite then tests only them).
+        (the suite then tests only them), on each scenario's own lens only (they fit the model they declare), with
+        every scenario-variant of ``fast`` in the fast slice.
     scenarios : iterable of str, optional
         Default every one in :data:`circcal.fixtures.scenarios.SCENARIOS`.
     fast : dict, optional
@@ -420,14 +432,17 @@ def cases(
     out: list[Case] = []
     for name in scenarios or SCENARIOS:
         sc = SCENARIOS[name]
-        models = ("",) + tuple(m for m in lenses.get(name, ()) if m != sc.camera.lens)
+        # a calibrator under test fits its own declared model (run_user_case), not the matrix's extra lens models
+        models = ("",) + ((tuple(m for m in lenses.get(name, ()) if m != sc.camera.lens)) if not user else ())
         for variant in sc.variants:
             for lens in models:
                 key = (name, variant)
                 in_fast = key in fast and not lens
 
                 def slow_for(ref: str, in_fast: bool = in_fast, key: tuple = key) -> bool:
-                    return not (in_fast and (fast[key] is None or ref in fast[key]))
+                    # every fast scenario-variant for a calibrator under test: those its model cannot represent
+                    # are reported unsupported, so a fisheye-only calibrator still has a case to pass
+                    return not (in_fast and (user or fast[key] is None or ref in fast[key]))
 
                 if not user:
                     out.append(Case(name, variant, CIRCCAL, slow=slow_for(CIRCCAL), lens_model=lens))
@@ -487,6 +502,8 @@ class Outcome:
         The reference's result, for a reference case.
     skip_reason : str
         Why the case was skipped.
+    params : dict
+        A calibrator under test's :func:`parameter_table` (empty otherwise).
     passed : bool
         Every check passed.
     """
@@ -498,6 +515,7 @@ class Outcome:
     notes: list[str] = field(default_factory=list)
     result: ReferenceResult | None = None
     skip_reason: str = ""
+    params: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -891,3 +909,558 @@ def summary_line(outcome: Outcome) -> str:
     bad = failed_checks(outcome)
     head = "FAIL" if bad else outcome.status
     return f"{outcome.case.id:<44} {head:<11} " + "; ".join(parts)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Calibrators under test (``--calibrator``): what they declare, what they are compared with, what is wrong
+# --------------------------------------------------------------------------------------------------------------------
+
+#: Parameters a calibrator may not declare held: they have no default value to hold them at (a user's calibrator
+#: and circcal's solve could hold them at different values).
+UNHOLDABLE: tuple[str, ...] = ("fx", "fy")
+
+
+def declared_model(cal: Any) -> tuple[str, tuple[str, ...]]:
+    """The lens model a calibrator fits and the parameters it holds, as it declares them.
+
+    A calibrator declares them with the attributes ``lens`` (a :data:`circcal.model.LENS_MODELS` name; default
+    "opencv5") and ``fixes`` (names of :func:`circcal.model.param_names` of that lens, or ``"aspect_ratio"``,
+    ``"tangential"``, ``"principal_point"``; default none), on the function or on the class. A held parameter is
+    held at its default: 0 for a distortion coefficient, the image centre ((w-1)/2, (h-1)/2) for cx, cy, 1 for the
+    aspect ratio (OpenCV's ``CALIB_FIX_*`` without an intrinsic guess).
+
+    Parameters
+    ----------
+    cal : ReferenceCalibrator
+        The calibrator (a :class:`~circcal.validators.pytest_plugin.FunctionCalibrator` carries its function's
+        declarations).
+
+    Returns
+    -------
+    lens : str
+    fixed : tuple of str
+        Expanded and ordered as :class:`circcal.solver.CalibrationOptions` stores them.
+
+    Raises
+    ------
+    ValueError
+        An unknown lens model, a name the lens model does not have, fx or fy held, or ``fixes`` not a sequence of
+        names; the message names the attribute.
+    """
+    from circcal.errors import InputError
+    from circcal.solver import CalibrationOptions
+
+    lens = getattr(cal, "lens", None) or "opencv5"
+    fixes = getattr(cal, "fixes", ()) or ()
+    if isinstance(fixes, str) or not all(isinstance(f, str) for f in fixes):
+        raise ValueError(f"fixes = {fixes!r}: expected a tuple of parameter names such as ('k3',)")
+    bad = [f for f in fixes if f in UNHOLDABLE]
+    if bad:
+        raise ValueError(f"fixes = {tuple(fixes)!r}: {bad[0]} cannot be held (it has no default value to hold it at)")
+    try:
+        options = CalibrationOptions(lens=str(lens), fixed=tuple(fixes))
+    except InputError as exc:
+        raise ValueError(f"lens = {lens!r}, fixes = {tuple(fixes)!r}: {exc}") from None
+    return options.lens, options.fixed
+
+
+def _held_default(name: str, camera: Camera) -> float:
+    """The value a held parameter takes without an initial camera (see :func:`declared_model`)."""
+    if name == "cx":
+        return (camera.width - 1) / 2.0
+    if name == "cy":
+        return (camera.height - 1) / 2.0
+    return 0.0
+
+
+def model_start(camera: Camera, lens: str, fixed: Sequence[str]) -> Camera:
+    """A camera in lens model ``lens`` with the held parameters at their defaults, the others from ``camera``.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        A pinhole-family camera (its coefficients missing from ``lens`` are dropped, those ``lens`` adds are 0), or a
+        fisheye with ``lens`` "fisheye".
+    lens : str
+        The target lens model.
+    fixed : sequence of str
+        Held parameters, as :func:`declared_model` gives them.
+
+    Returns
+    -------
+    circcal.model.Camera
+    """
+    values = dict(zip(param_names(camera.lens), camera.intrinsics))
+    p = {n: float(values.get(n, 0.0)) for n in param_names(lens)}
+    for n in fixed:
+        if n in p:
+            p[n] = _held_default(n, camera)
+    if "aspect_ratio" in fixed:
+        p["fx"] = p["fy"] = (p["fx"] + p["fy"]) / 2.0
+    return Camera.from_intrinsics(camera.width, camera.height, np.array(list(p.values())), lens=lens)
+
+
+def unrepresentable(truth: Camera, lens: str, fixed: Sequence[str]) -> str:
+    """Why a lens model with held parameters cannot represent the true camera ("" when it can).
+
+    Parameters
+    ----------
+    truth : circcal.model.Camera
+        The true camera of a scenario.
+    lens : str
+        The model fitted.
+    fixed : sequence of str
+        Its held parameters (:func:`declared_model`).
+
+    Returns
+    -------
+    str
+        One line: a lens of the other family (fisheye / pinhole), a true coefficient the model lacks that is not 0, or
+        a held parameter whose true value is not the value it is held at.
+    """
+    from circcal.model import lens_model
+
+    if lens_model(lens).pinhole != truth.model.pinhole:
+        return f"the true lens is {truth.lens}; a {lens} model cannot represent it"
+    names = param_names(lens)
+    true = dict(zip(param_names(truth.lens), truth.intrinsics))
+    extra = [f"{n} = {v:g}" for n, v in true.items() if n not in names and v != 0.0]
+    if extra:
+        return f"the true {truth.lens} lens has {', '.join(extra)}, which the {lens} model lacks"
+    for n in fixed:
+        if n in names:
+            held, v = _held_default(n, truth), float(true.get(n, 0.0))
+            if abs(v - held) > 1e-9 * max(1.0, abs(held)):
+                return f"the true {n} is {v:g}; the calibrator holds it at {held:g}"
+    if "aspect_ratio" in fixed and true["fx"] != true["fy"]:
+        return f"the true fx / fy is {true['fx'] / true['fy']:.6g}; the calibrator holds it at 1"
+    return ""
+
+
+_RESTRICTED: dict[tuple, Any] = {}
+
+
+def restricted_solve(
+    obs: Observations, lens: str, fixed: Sequence[str], left_out: dict | None = None
+) -> tuple[Camera, dict[str, float], float]:
+    """circcal's solver on a case's shared observations with a calibrator's declared model.
+
+    Started from circcal's solve converted to that model (:func:`model_start`); the solve of the scenario's own model
+    without holds is the observations' own (no second solve). Cached per process.
+
+    Parameters
+    ----------
+    obs : Observations
+        An ok observation set.
+    lens : str
+        The lens model.
+    fixed : sequence of str
+        The held parameters.
+    left_out : dict, optional
+        View (int or its str) -> indices of points the calibrator left out.
+
+    Returns
+    -------
+    camera : circcal.model.Camera
+    std : dict of str to float
+        Its standard deviations (0 for a held parameter).
+    ssr : float
+        Its sum of squared residuals, px^2.
+    """
+    from circcal.solver import CalibrationOptions, calibrate
+    from circcal.validators.shared import ssr
+
+    fixed = tuple(fixed)
+    if lens == obs.lens and not fixed and not left_out:
+        return obs.solver_camera, dict(obs.solver_std or {}), obs.solver_ssr
+    key = (
+        obs.scenario,
+        obs.variant,
+        obs.lens,
+        lens,
+        fixed,
+        repr(sorted((str(k), list(v)) for k, v in (left_out or {}).items())),
+    )
+    if key not in _RESTRICTED:
+        keep = []
+        for v, o in enumerate(obs.object_points):
+            m = np.ones(len(o), bool)
+            m[list((left_out or {}).get(v, (left_out or {}).get(str(v), [])))] = False
+            keep.append(m)
+        res = calibrate(
+            [o[m] for o, m in zip(obs.object_points, keep)],
+            [q[m] for q, m in zip(obs.image_points, keep)],
+            obs.image_size,
+            CalibrationOptions(lens=lens, fixed=fixed),
+            initial=model_start(obs.solver_camera, lens, fixed),
+        )
+        _RESTRICTED[key] = (res.camera, dict(res.std), ssr(res.residuals))
+    return _RESTRICTED[key]
+
+
+def parameter_table(
+    camera: Camera,
+    std: dict[str, float] | None,
+    circcal_camera: Camera,
+    circcal_std: dict[str, float] | None,
+    truth: Camera,
+) -> dict[str, dict[str, float]]:
+    """Per parameter: the calibrator's value, its difference to circcal's solve and to the truth, in its unit and in
+    stated sigmas.
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The calibrator's camera.
+    std : dict of str to float, or None
+        Its stated standard deviations; where one is missing or 0, circcal's on the same observations is used.
+    circcal_camera : circcal.model.Camera
+        circcal's solve with the same model on the same observations.
+    circcal_std : dict of str to float, or None
+        Its standard deviations.
+    truth : circcal.model.Camera
+        The true camera (a coefficient the model has and the truth lacks is 0 in the truth).
+
+    Returns
+    -------
+    dict
+        ``{name: {"value", "sigma", "vs_circcal", "vs_circcal_sigmas", "vs_truth", "vs_truth_sigmas"}}`` for every
+        parameter of ``camera``'s lens model; fx, fy, cx, cy in px, distortion coefficients unitless. ``sigma`` is
+        NaN for a held parameter (the sigma columns are then NaN).
+    """
+    names = param_names(camera.lens)
+    mine = dict(zip(names, camera.intrinsics))
+    circ = dict(zip(param_names(circcal_camera.lens), circcal_camera.intrinsics))
+    true = dict(zip(param_names(truth.lens), truth.intrinsics)) if truth.model.pinhole == camera.model.pinhole else {}
+    out = {}
+    for n in names:
+        s = float((std or {}).get(n) or 0.0)
+        if not (np.isfinite(s) and s > 0):
+            s = float((circcal_std or {}).get(n) or 0.0)
+        s = s if np.isfinite(s) and s > 0 else float("nan")
+        d_c = float(mine[n] - circ.get(n, np.nan))
+        d_t = float(mine[n] - true.get(n, 0.0)) if true else float("nan")
+        out[n] = {
+            "value": float(mine[n]),
+            "sigma": s,
+            "vs_circcal": d_c,
+            "vs_circcal_sigmas": d_c / s,
+            "vs_truth": d_t,
+            "vs_truth_sigmas": d_t / s,
+        }
+    return out
+
+
+def format_parameter_table(table: dict[str, dict[str, float]]) -> list[str]:
+    """Lines of :func:`parameter_table`: one per parameter, largest difference to circcal's solve first.
+
+    Parameters
+    ----------
+    table : dict
+        :func:`parameter_table`'s result.
+
+    Returns
+    -------
+    list of str
+    """
+
+    def unit(n: str) -> str:
+        return " px" if n in ("fx", "fy", "cx", "cy") else ""
+
+    def sig(x: float) -> str:
+        return "held" if not np.isfinite(x) else f"{x:+.2f} sigma"
+
+    order = sorted(table, key=lambda n: -abs(np.nan_to_num(table[n]["vs_circcal_sigmas"], nan=0.0)))
+    lines = ["parameter: value (sigma) | - circcal's solve, same model and points | - truth"]
+    for n in order:
+        r = table[n]
+        lines.append(
+            f"  {n:>3}: {r['value']:.6g}{unit(n)} ({fmt_number(r['sigma'], '.3g')}) | "
+            f"{r['vs_circcal']:+.4g}{unit(n)} ({sig(r['vs_circcal_sigmas'])}) | "
+            f"{r['vs_truth']:+.4g}{unit(n)} ({sig(r['vs_truth_sigmas'])})"
+        )
+    return lines
+
+
+def largest_difference(table: dict[str, dict[str, float]]) -> str:
+    """The parameter farthest from circcal's solve, in stated sigmas, as words ("" for an empty table).
+
+    Parameters
+    ----------
+    table : dict
+        :func:`parameter_table`'s result.
+
+    Returns
+    -------
+    str
+        e.g. "cx differs by +0.5 px (+1.49 sigma) from circcal's solve".
+    """
+    ranked = [n for n in table if np.isfinite(table[n]["vs_circcal_sigmas"])]
+    if not ranked:
+        return ""
+    n = max(ranked, key=lambda k: abs(table[k]["vs_circcal_sigmas"]))
+    r = table[n]
+    u = " px" if n in ("fx", "fy", "cx", "cy") else ""
+    return f"{n} differs by {r['vs_circcal']:+.4g}{u} ({r['vs_circcal_sigmas']:+.2f} sigma) from circcal's solve"
+
+
+def run_user_case(
+    case: Case,
+    obs: Observations,
+    calibrator: ReferenceCalibrator,
+    *,
+    solver_px: float | None = None,
+    allow_unavailable: bool = False,
+) -> Outcome:
+    """A calibrator under test (``--calibrator``) on circcal's observations of a case's scenario-variant.
+
+    It is compared with circcal's solver under the same model (:func:`declared_model`, :func:`restricted_solve`) and
+    with the truth. Statuses: "checked" (its checks asserted), "unsupported" (the declared model cannot represent the
+    true camera, :func:`unrepresentable`, or the calibrator raised ``NotImplementedError``: ``skip_reason`` says
+    why), "unavailable" (``available()`` said no: a failed check unless ``allow_unavailable``, then a skip), "skip"
+    (circcal has no observations). An exception of the calibrator is a failed check whose note holds the traceback.
+    ``params`` holds :func:`parameter_table`.
+
+    Parameters
+    ----------
+    case : Case
+        A user case.
+    obs : Observations
+        :func:`observe`'s result for its scenario-variant.
+    calibrator : ReferenceCalibrator
+        The calibrator.
+    solver_px : float, optional
+        The agreement bound with circcal's solver, px (default :data:`SOLVER_PX`; ``inf``: measured only).
+    allow_unavailable : bool
+        An unavailable calibrator is skipped instead of failed.
+
+    Returns
+    -------
+    Outcome
+    """
+    out = Outcome(case, "checked")
+    name = getattr(calibrator, "name", case.reference)
+    try:
+        ok, why = calibrator.available()
+    except Exception as exc:  # noqa: BLE001  (the user's code: reported, with its traceback)
+        import traceback
+
+        ok, why = False, f"available() raised {type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+    if not ok:
+        out.status = "unavailable"
+        if allow_unavailable:
+            out.skip_reason = f"{name} unavailable (allowed by --allow-unavailable): {why}"
+        else:
+            out.checks.append(
+                Check(f"{name} is available", 0.0, 1.0, False, f"{why} (--allow-unavailable skips such cases)")
+            )
+        return out
+    if not obs.ok:
+        out.status = "skip"
+        out.skip_reason = f"no observations: circcal did not calibrate {case.scenario}-{case.variant}"
+        return out
+    lens, fixed = declared_model(calibrator)
+    why = unrepresentable(obs.truth, lens, fixed)
+    if why:
+        out.status, out.skip_reason = "unsupported", f"{name} ({_model_words(lens, fixed)}): {why}"
+        return out
+    res = calibrator.calibrate_observations(obs.object_points, obs.image_points, obs.image_size, mode=case.mode)
+    out.result = res
+    out.measured["time_s"] = float(res.time_s)
+    label = f"{res.name} {res.version} [{_model_words(lens, fixed)}]"
+    if res.status == "unsupported":
+        out.status, out.skip_reason = "unsupported", f"{label} says: {res.message}"
+        return out
+    if res.status == "unavailable":
+        out.status = "unavailable"
+        if allow_unavailable:
+            out.skip_reason = f"{label} unavailable (allowed by --allow-unavailable): {res.message}"
+        else:
+            out.checks.append(Check(f"{label} is available", 0.0, 1.0, False, res.message))
+        return out
+    note = f"status {res.status}: {res.message}"
+    if res.status == "failed" and (res.extra or {}).get("traceback"):
+        note += "\n" + str(res.extra["traceback"]).rstrip()
+    out.checks.append(Check(f"{label} runs", float(res.ok), 1.0, res.ok, note))
+    if not res.ok:
+        out.status = "failed"
+        return out
+    if res.camera.lens != lens:
+        out.checks.append(
+            Check(f"{label} returns a {lens} camera", 0.0, 1.0, False, f"it returned a {res.camera.lens} camera")
+        )
+        return out
+    left_out = (res.extra or {}).get("left_out") or {}
+    circ_cam, circ_std, circ_ssr = restricted_solve(obs, lens, fixed, left_out)
+    res_fitted = res
+    if left_out:
+        from dataclasses import replace
+
+        keep = {int(k): set(v) for k, v in left_out.items()}
+        res_fitted = replace(
+            res,
+            residuals=None
+            if res.residuals is None
+            else [np.delete(r, sorted(keep.get(i, ())), axis=0) for i, r in enumerate(res.residuals)],
+        )
+        out.notes.append(f"{label} left out {sum(map(len, left_out.values()))} observations; compared on the rest")
+    table = parameter_table(res.camera, res.std, circ_cam, circ_std, obs.truth)
+    out.params = table
+    vs = projection_diff(circ_cam, res.camera, fit=False)
+    out.measured["vs_circcal_max_px"] = vs["max_px"]
+    if "mean_2d_px" in (res.errors or {}):
+        out.measured["mean_2d_px"] = float(res.errors["mean_2d_px"])
+    std, std_note = res.std, ""
+    if not std or not all(np.isfinite(std.get(n, np.nan)) and std.get(n, 0) > 0 for n in ("fx", "fy", "cx", "cy")):
+        std, std_note = circ_std, "; circcal's on the same observations and model"
+    found, measured = truth_checks(
+        res.name,
+        res.camera,
+        std,
+        obs.truth,
+        sigmas=suite_truth_sigmas(),
+        rms_px=bounds_for(case.scenario).truth_px_for(case.variant),
+        std_note=std_note,
+    )
+    out.measured.update(measured)
+    out.checks += found
+    bound = SOLVER_PX if solver_px is None else solver_px
+    if np.isfinite(bound):
+        check = solver_agreement(label, res_fitted, vs["max_px"], circ_ssr, bound)
+        check.name = f"{label} vs circcal's solve ({_model_words(lens, fixed)}) on identical observations: max px"
+        check.note = "; ".join(x for x in (largest_difference(table), f"RMS {vs['rms_px']:.3g} px", check.note) if x)
+        out.checks.append(check)
+    out.notes += format_parameter_table(table)
+    return out
+
+
+def _model_words(lens: str, fixed: Sequence[str]) -> str:
+    return lens + (f", {', '.join(fixed)} held" if fixed else "")
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Across the matrix: a bias test per parameter
+# --------------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Bias:
+    """One parameter's bias over a calibrator's checked cases.
+
+    Attributes
+    ----------
+    label : str
+        The calibrator.
+    param : str
+        The parameter.
+    n : int
+        Cases.
+    mean : float
+        Mean error against the truth, in the parameter's unit (px for fx, fy, cx, cy).
+    mean_se : float
+        Its standard error (NaN for one case).
+    mean_sigmas : float
+        Mean truth-normalised error (error / stated sigma).
+    se_sigmas : float
+        Its standard error: max(1, sample SD) / sqrt(n); 1 is the SD honest sigmas give, so understated sigmas only
+        widen it.
+    t : float
+        ``mean_sigmas / se_sigmas``.
+    vs_circcal : float
+        Mean difference to circcal's solve on the same observations and model.
+    bound : float
+        |t| above this is a bias.
+    """
+
+    label: str
+    param: str
+    n: int
+    mean: float
+    mean_se: float
+    mean_sigmas: float
+    se_sigmas: float
+    t: float
+    vs_circcal: float
+    bound: float
+
+    @property
+    def biased(self) -> bool:
+        return bool(np.isfinite(self.t) and abs(self.t) > self.bound)
+
+    def words(self) -> str:
+        """One line: the bias against the truth (named "biased by" beyond the bound) and the mean difference to
+        circcal's solve (a least-squares calibrator's is ~0).
+
+        Returns
+        -------
+        str
+        """
+        u = " px" if self.param in ("fx", "fy", "cx", "cy") else ""
+        se = f" +- {self.mean_se:.2g}" if np.isfinite(self.mean_se) else ""
+        cases = f"{self.n} case{'s' if self.n != 1 else ''}"
+        truth = (
+            f"{self.mean:+.2f}{u}{se} vs the truth (t = {self.t:+.2f}, bound {self.bound:.2f}; "
+            f"mean {self.mean_sigmas:+.2f} sigma over {cases})"
+        )
+        solve = f"{self.vs_circcal:+.3g}{u} from circcal's solve on the same points, mean over {cases}"
+        if self.biased:
+            return f"{self.param} biased by {truth}; {solve}"
+        return f"{self.param} {solve}; mean error {truth}"
+
+
+def bias_tests(records: Iterable[dict], bound: float, params: Sequence[str] = TRUTH_PARAMS) -> list[Bias]:
+    """The bias test of each calibrator and parameter over its checked cases.
+
+    Parameters
+    ----------
+    records : iterable of dict
+        One per case: ``{"label": str, "status": str, "params": parameter_table}`` (only "checked" ones count, and
+        within them the parameters with a finite truth-normalised error).
+    bound : float
+        |t| bound (:data:`circcal.validators.bounds.BIAS_T`).
+    params : sequence of str
+        The parameters tested.
+
+    Returns
+    -------
+    list of Bias
+        Per label, per parameter with at least one case.
+    """
+    by: dict[tuple[str, str], list[dict]] = {}
+    records = list(records)
+    labels: list[str] = []
+    for r in records:
+        if r.get("status") != "checked":
+            continue
+        if r["label"] not in labels:
+            labels.append(r["label"])
+        for p in params:
+            row = (r.get("params") or {}).get(p)
+            if row and np.isfinite(row["vs_truth_sigmas"]):
+                by.setdefault((r["label"], p), []).append(row)
+    out = []
+    for label in labels:
+        for p in params:
+            rows = by.get((label, p), [])
+            if not rows:
+                continue
+            e = np.array([r["vs_truth"] for r in rows])
+            z = np.array([r["vs_truth_sigmas"] for r in rows])
+            n = len(rows)
+            sd = float(np.std(z, ddof=1)) if n > 1 else 1.0
+            se = max(1.0, sd) / np.sqrt(n)
+            out.append(
+                Bias(
+                    label,
+                    p,
+                    n,
+                    float(e.mean()),
+                    float(np.std(e, ddof=1) / np.sqrt(n)) if n > 1 else float("nan"),
+                    float(z.mean()),
+                    float(se),
+                    float(z.mean() / se),
+                    float(np.mean([r["vs_circcal"] for r in rows])),
+                    bound,
+                )
+            )
+    return out

@@ -53,6 +53,7 @@ __all__ = ["FunctionCalibrator", "load_calibrator", "parse_spec"]
 
 _USER_KEY = pytest.StashKey[list]()
 _PROPERTY = "circcal_conformance"
+_RECORD = "circcal_conformance_record"
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -79,6 +80,10 @@ class FunctionCalibrator(BaseCalibrator):
     def __init__(self, fn: Callable[..., Any], name: str | None = None) -> None:
         self.fn = fn
         self.name = name or getattr(fn, "__name__", "calibrator")
+        # what the function declares it fits (circcal.validators.conformance.declared_model)
+        self.lens = str(getattr(fn, "lens", None) or "opencv5")
+        self.lenses = (self.lens,)
+        self.fixes = tuple(getattr(fn, "fixes", ()) or ())
 
     def _version(self) -> str:
         mod = sys.modules.get(getattr(self.fn, "__module__", "") or "")
@@ -233,6 +238,12 @@ def load_calibrator(spec: str) -> Any:
             f"--calibrator {spec!r}: the calibrator lacks {missing[0]!r} (see "
             "circcal.validators.base.ReferenceCalibrator)"
         )
+    from circcal.validators.conformance import declared_model
+
+    try:
+        declared_model(obj)
+    except ValueError as exc:
+        raise ValueError(f"--calibrator {spec!r}: {exc}") from None
     if label:
         obj.label = label
     return obj
@@ -298,6 +309,26 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         help="max projection difference of --calibrator to circcal's solver on identical observations "
         "(default 1e-6 px; 'inf' = measure only)",
     )
+    group.addoption(
+        "--conformance-full",
+        action="store_true",
+        default=False,
+        help="run the whole conformance matrix (default: the fast slice; the rest is marked slow)",
+    )
+    group.addoption(
+        "--allow-unavailable",
+        action="store_true",
+        default=False,
+        help="a --calibrator whose available() says no is skipped with its reason instead of failing",
+    )
+    group.addoption(
+        "--bias-t",
+        type=float,
+        default=None,
+        metavar="T",
+        help="fail the run when a --calibrator's mean truth-normalised error of fx, fy, cx or cy over its cases has "
+        "|t| above T (default 3.023: 1%% family-wise over the 4 parameters)",
+    )
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -326,8 +357,11 @@ def pytest_configure(config: pytest.Config) -> None:
             f"--calibrator: labels must be unique, got {', '.join(sorted(dup))} twice; name them with LABEL=module:attr"
         )
     config.stash[_USER_KEY] = cals
+    config.addinivalue_line(
+        "markers", "slow: outside circcal's fast conformance slice (run with --conformance-full or -m slow)"
+    )
     if not config.pluginmanager.has_plugin("circcal-conformance-summary"):
-        config.pluginmanager.register(_Summary(), "circcal-conformance-summary")
+        config.pluginmanager.register(_Summary(config), "circcal-conformance-summary")
 
 
 def _user(config: pytest.Config) -> list:
@@ -381,11 +415,48 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     metafunc.parametrize("conformance_case", params)
 
 
-class _Summary:
-    """Collects each case's summary line from the test reports (the controller's, under xdist) and prints them."""
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """pytest hook: the fast conformance slice by default, the whole matrix with ``--conformance-full``.
 
-    def __init__(self) -> None:
+    Runs before pytest's own ``-m`` selection: with ``--conformance-full`` the conformance cases lose their ``slow``
+    mark (so a ``-m 'not slow'`` in an ini file does not drop them); without it and without ``-m``, the slow cases are
+    deselected (outside a project that configures ``-m``, pytest would otherwise run all of them).
+
+    Parameters
+    ----------
+    config : pytest.Config
+    items : list of pytest.Item
+    """
+    full = config.getoption("conformance_full", default=False)
+    keep, dropped = [], []
+    for item in items:
+        callspec = getattr(item, "callspec", None)
+        if callspec is None or "conformance_case" not in callspec.params:
+            keep.append(item)
+            continue
+        if full:
+            item.own_markers[:] = [m for m in item.own_markers if m.name != "slow"]
+            keep.append(item)
+        elif not config.getoption("markexpr", default="") and item.get_closest_marker("slow") is not None:
+            dropped.append(item)
+        else:
+            keep.append(item)
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = keep
+
+
+class _Summary:
+    """Collects each case's summary line and record from the test reports (the controller's, under xdist); prints
+    them, the calibrators' counts and bias tests; fails the run for a calibrator checked on no case or biased."""
+
+    def __init__(self, config: pytest.Config) -> None:
+        self.config = config
         self.lines: list[str] = []
+        self.records: list[dict] = []
+        self.verdict: list[str] = []
+        self.biases: list[Any] = []
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         if report.when != "call":
@@ -393,13 +464,58 @@ class _Summary:
         for key, value in getattr(report, "user_properties", ()):
             if key == _PROPERTY:
                 self.lines.append(str(value))
+            elif key == _RECORD:
+                self.records.append(dict(value))
+
+    def pytest_sessionfinish(self, session: pytest.Session) -> None:
+        config = self.config
+        cals = config.stash.get(_USER_KEY, [])
+        if not cals or hasattr(config, "workerinput") or config.getoption("collectonly", default=False):
+            return
+        from circcal.validators.bounds import BIAS_T
+        from circcal.validators.conformance import bias_tests
+
+        bound = config.getoption("bias_t", default=None)
+        bound = BIAS_T if bound is None else float(bound)
+        labels = [calibrator_label(c) for c in cals]
+        mine = [r for r in self.records if r.get("label") in labels]
+        self.biases = bias_tests(mine, bound)
+        for label in labels:
+            n = sum(1 for r in mine if r["label"] == label and r["status"] == "checked")
+            if n == 0:
+                self.verdict.append(
+                    f"{label} was checked on 0 cases: nothing was verified (see each case's reason above; run "
+                    "`python -m pytest --pyargs circcal.conformance --calibrator ...`)"
+                )
+        self.verdict += [f"{b.label}: {b.words()}" for b in self.biases if b.biased]
+        if self.verdict and session.exitstatus == 0:
+            session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
     def pytest_terminal_summary(self, terminalreporter: Any) -> None:
-        if not self.lines:
+        if self.lines:
+            terminalreporter.section("circcal conformance: every case (key numbers; FAIL = a check failed)")
+            for line in sorted(self.lines):
+                terminalreporter.write_line(line)
+        cals = self.config.stash.get(_USER_KEY, [])
+        if not cals or hasattr(self.config, "workerinput"):
             return
-        terminalreporter.section("circcal conformance: every case (key numbers; FAIL = a check failed)")
-        for line in sorted(self.lines):
-            terminalreporter.write_line(line)
+        terminalreporter.section("circcal conformance: calibrators under test")
+        for label in (calibrator_label(c) for c in cals):
+            counts: dict[str, int] = {}
+            for r in self.records:
+                if r.get("label") == label:
+                    status = "FAIL" if r.get("failed") else r["status"]
+                    counts[status] = counts.get(status, 0) + 1
+            terminalreporter.write_line(
+                f"{label}: " + (", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "no case ran")
+            )
+            mine = [b for b in self.biases if b.label == label]
+            # the most telling first: a bias beyond the bound, then the largest difference to circcal's solve
+            mine.sort(key=lambda b: (not b.biased, -abs(b.vs_circcal)))
+            for b in mine:
+                terminalreporter.write_line(f"  {b.words()}", red=b.biased)
+        for line in self.verdict:
+            terminalreporter.write_line(f"FAILED: {line}", red=True, bold=True)
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -516,10 +632,20 @@ def conformance_record(record_property: Callable[[str, Any], None]) -> Callable[
     callable
         ``record(outcome)``.
     """
-    from circcal.validators.conformance import summary_line
+    from circcal.validators.conformance import failed_checks, summary_line
 
     def record(outcome: Any) -> None:
         record_property(_PROPERTY, summary_line(outcome))
+        record_property(
+            _RECORD,
+            {
+                "label": outcome.case.reference,
+                "case": outcome.case.id,
+                "status": outcome.status,
+                "failed": bool(failed_checks(outcome)),
+                "params": {k: {kk: float(vv) for kk, vv in v.items()} for k, v in outcome.params.items()},
+            },
+        )
 
     return record
 
@@ -542,3 +668,61 @@ def solver_tolerance(config: pytest.Config, case: Any) -> float | None:
         tol = config.getoption("calibrator_tol", default=None)
         return 1e-6 if tol is None else float(tol)
     return None
+
+
+@pytest.fixture
+def conformance_run(
+    request: pytest.FixtureRequest,
+    conformance_observations: ObservationCache,
+    conformance_calibrator: Callable[[Any], Any],
+    conformance_record: Callable[[Any], None],
+) -> Callable[[Any], Any]:
+    """Fixture: run one conformance case as a test (the body of ``circcal.conformance``'s test).
+
+    Parameters
+    ----------
+    request : pytest.FixtureRequest
+    conformance_observations, conformance_calibrator, conformance_record
+        The fixtures above.
+
+    Returns
+    -------
+    callable
+        ``run(case) -> Outcome``: prints the case, records it for the summary, skips with the reason (no
+        observations, a model that cannot represent the truth, an unavailable built-in reference outside CI) and
+        fails with every check when one fails (a calibrator's exception: its traceback).
+    """
+    from circcal.validators import conformance
+
+    config = request.config
+
+    def run(case: Any) -> Any:
+        obs = conformance_observations(case.scenario, case.variant, case.lens)
+        if case.reference == conformance.CIRCCAL:
+            outcome = conformance.run_circcal_case(case, obs)
+        elif case.user:
+            outcome = conformance.run_user_case(
+                case,
+                obs,
+                conformance_calibrator(case),
+                solver_px=solver_tolerance(config, case),
+                allow_unavailable=bool(config.getoption("allow_unavailable", default=False)),
+            )
+        else:
+            cal = conformance_calibrator(case)
+            ok, why = cal.available()
+            if not ok:  # a built-in reference that is not installed; under CI, where all are, a failure
+                if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+                    pytest.fail(f"{cal.name} unavailable under CI: {why}")
+                pytest.skip(f"{cal.name} unavailable: {why}")
+            outcome = conformance.run_reference_case(case, obs, cal, solver_px=solver_tolerance(config, case))
+        text = conformance.format_outcome(outcome)
+        print(text)
+        conformance_record(outcome)
+        failed = conformance.failed_checks(outcome)
+        if outcome.skip_reason and not failed:
+            pytest.skip(f"{outcome.status}: {outcome.skip_reason}" if outcome.status != "skip" else outcome.skip_reason)
+        assert not failed, text
+        return outcome
+
+    return run

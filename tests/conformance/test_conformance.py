@@ -5,6 +5,7 @@ The default run holds a fast slice (paper-normal and wide-clean, every calibrato
 with circcal, OpenCV, pycolmap and mrcal); `make conformance` runs the whole matrix (`-m 'slow or not slow'`). circcal's calibration of a scenario-variant is computed once per run and reused by
 every reference case. With ``--calibrator MODULE:FN`` (the ``circcal`` pytest plug-in) the same cases test that
 calibrator instead; the plug-in itself is tested at the end of this file.
+The matrix's test is the installed suite's (``circcal/conformance/test_conformance.py``), collected here too.
 """
 
 from __future__ import annotations
@@ -20,11 +21,12 @@ import pytest
 from conftest import skip_unless_available
 
 from circcal.board import Board
+from circcal.conformance import test_conformance as _installed
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
 from circcal.validators import conformance
 from circcal.validators.base import ReferenceResult
-from circcal.validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator, solver_tolerance
+from circcal.validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
@@ -33,20 +35,8 @@ REPO = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 
 
-def test_conformance(conformance_case, conformance_observations, conformance_calibrator, conformance_record, request):
-    case = conformance_case
-    obs = conformance_observations(case.scenario, case.variant, case.lens)
-    if case.reference == conformance.CIRCCAL:
-        outcome = conformance.run_circcal_case(case, obs)
-    else:
-        cal = conformance_calibrator(case)
-        skip_unless_available(cal)  # under CI (CI=true) a missing reference fails instead
-        outcome = conformance.run_reference_case(case, obs, cal, solver_px=solver_tolerance(request.config, case))
-    print(conformance.format_outcome(outcome))
-    conformance_record(outcome)
-    if outcome.status == "skip":
-        pytest.skip(outcome.skip_reason)
-    assert not conformance.failed_checks(outcome), conformance.format_outcome(outcome)
+# The matrix: the installed suite's own test (python -m pytest --pyargs circcal.conformance), collected here as well
+test_conformance = _installed.test_conformance
 
 
 # --------------------------------------------------------------------------------------------------------------------
