@@ -14,7 +14,7 @@ import pytest
 from circcal.detector.find import detect
 from circcal.detector.kernels import jit
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BUILT = all(jit.aot_status().values()) and bool(jit.aot_status())
 needs_build = pytest.mark.skipif(
     not BUILT,
