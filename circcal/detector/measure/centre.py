@@ -46,7 +46,28 @@ __all__ = [
 
 
 def vanishing_line(H: np.ndarray) -> np.ndarray:
-    """(3,) homogeneous vanishing line of the board plane, ``H^-T (0, 0, 1)``, for ``H`` board -> image (3, 3)."""
+    """The homogeneous vanishing line of the board plane, ``H^-T (0, 0, 1)``.
+
+    Parameters
+    ----------
+    H : numpy.ndarray
+        (3, 3) homography board (mm) -> image (px).
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) float64: the line ``l`` (points ``x`` px on it: ``l . (x, y, 1) = 0``), up to scale.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        ``H`` is singular.
+
+    Examples
+    --------
+    >>> vanishing_line(np.eye(3))  # an affine view: the line at infinity
+    array([0., 0., 1.])
+    """
     return np.linalg.solve(np.asarray(H, dtype=np.float64).T, np.array([0.0, 0.0, 1.0]))
 
 
@@ -69,15 +90,59 @@ def _local_frames(conics: np.ndarray) -> np.ndarray:
 
 
 def pole_centre(Q: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """(2,) pole of ``line`` (3,) w.r.t. the ellipse ``Q`` (3, 3): the image of the circle's centre when ``line`` is
-    the board's vanishing line. Computed in a frame centred on the ellipse for conditioning."""
+    """The pole of a line with respect to an ellipse: the image of the circle's centre when the line is the board's
+    vanishing line.
+
+    Computed in a frame centred on the ellipse for conditioning.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) the ellipse as a conic matrix, px.
+    line : numpy.ndarray
+        (3,) homogeneous line, px (e.g. :func:`vanishing_line`).
+
+    Returns
+    -------
+    numpy.ndarray
+        (2,) float64 px ``(x, y)``.
+
+    Raises
+    ------
+    ValueError
+        ``Q`` is not a real ellipse.
+
+    Examples
+    --------
+    >>> Q = np.array([[1.0, 0.0, -10.0], [0.0, 1.0, -20.0], [-10.0, -20.0, 475.0]])  # circle at (10, 20), r 5
+    >>> pole_centre(Q, np.array([0.0, 0.0, 1.0]))  # a fronto-parallel board: the ellipse's own centre
+    array([10., 20.])
+    """
     return pole_centres(np.asarray(Q, dtype=np.float64)[None], line)[0]
 
 
 def pole_centres(conics: np.ndarray, line: np.ndarray, frames: np.ndarray | None = None) -> np.ndarray:
-    """(D, 2) poles of ``line`` (3,), or of one line per ellipse (D, 3), w.r.t. each ellipse of ``conics`` (D, 3, 3)
-    (batched :func:`pole_centre`). ``frames``: the (D, 3, 3) local frames of the conics when already computed (they
-    do not depend on ``line``)."""
+    """The poles of a line, or of one line per ellipse, with respect to each ellipse (batched :func:`pole_centre`).
+
+    Parameters
+    ----------
+    conics : numpy.ndarray
+        (D, 3, 3) the ellipses as conic matrices, px.
+    line : numpy.ndarray
+        (3,) one homogeneous line for all, or (D, 3) one per ellipse, px.
+    frames : numpy.ndarray or None
+        The (D, 3, 3) local frames of the conics when already computed (they do not depend on ``line``).
+
+    Returns
+    -------
+    numpy.ndarray
+        (D, 2) float64 px ``(x, y)``.
+
+    Raises
+    ------
+    ValueError
+        A conic is not a real ellipse (when ``frames`` is None).
+    """
     conics = np.asarray(conics, dtype=np.float64)
     T = _local_frames(conics) if frames is None else frames
     return _poles_in_frames(T, T.transpose(0, 2, 1) @ conics @ T, line)
@@ -108,12 +173,31 @@ def _line_conic(Ql: np.ndarray, p0: np.ndarray, d: np.ndarray) -> tuple[float, f
 
 
 def tangent_chord_centre(Q: np.ndarray, line: np.ndarray, n_secants: int = 4) -> np.ndarray:
-    """(2,) image of the circle's centre by the tangent/chord construction (see module docstring).
+    """The image of the circle's centre by the tangent/chord construction (see the module docstring).
 
-    ``Q``: (3, 3) ellipse; ``line``: (3,) vanishing line (may be the line at infinity, (0, 0, 1)).
-    Two points of ``line`` are taken where it meets the ellipse's two axes; through each, ``n_secants`` secants
-    cross the ellipse; per secant the tangent intersection and the harmonic conjugate give two points of the polar
-    line, which is fitted through all of them; the two polar lines meet at the result.
+    Two points of ``line`` are taken where it meets the ellipse's two axes; through each, ``n_secants`` secants cross
+    the ellipse; per secant the tangent intersection and the harmonic conjugate give two points of the polar line,
+    which is fitted through all of them; the two polar lines meet at the result. Used to cross-check
+    :func:`pole_centre`.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) the ellipse as a conic matrix, px.
+    line : numpy.ndarray
+        (3,) the vanishing line, px (may be the line at infinity, (0, 0, 1)).
+    n_secants : int
+        Secants through each of the two points.
+
+    Returns
+    -------
+    numpy.ndarray
+        (2,) float64 px ``(x, y)``.
+
+    Raises
+    ------
+    ValueError
+        ``Q`` is not a real ellipse, or a secant misses it.
     """
     T = _local_frame(Q)
     Ql = T.T @ Q @ T
@@ -164,8 +248,27 @@ def tangent_chord_centre(Q: np.ndarray, line: np.ndarray, n_secants: int = 4) ->
 
 
 def fit_homography(board_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
-    """(3, 3) least-squares homography board (N, 2) mm -> image (N, 2) px (``cv2.findHomography``, all points,
-    with OpenCV's Levenberg-Marquardt refinement of the reprojection error). Raises ``ValueError`` if degenerate."""
+    """The least-squares homography from board points to their images.
+
+    ``cv2.findHomography`` on all points, with OpenCV's Levenberg-Marquardt refinement of the reprojection error.
+
+    Parameters
+    ----------
+    board_xy : numpy.ndarray
+        (N, 2) board coordinates, mm (N >= 4).
+    image_xy : numpy.ndarray
+        (N, 2) their images, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3, 3) float64 homography board -> image.
+
+    Raises
+    ------
+    ValueError
+        The configuration is degenerate (no finite homography).
+    """
     import cv2
 
     H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64), 0)
@@ -183,18 +286,42 @@ def correct_centres(
     max_iter: int = 10,
     tol_px: float = 1e-6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Images of the circle centres from their ellipses, iterating homography and poles until no centre moves
+    """The images of the circle centres from their ellipses, iterating homography and poles until no centre moves
     ``tol_px``.
 
-    ``conics``: (N, 3, 3) ellipses (undistorted pixel coordinates), in board order; ``board_xy``: (N, 2) board
-    coordinates of the circle centres (mm); ``init``: optional (N, 2) starting centres (default: ellipse centres);
-    ``H0``: optional (3, 3) :func:`fit_homography` of ``board_xy`` to those starting centres, where the caller has
-    it (the detector's lattice check fits it). Returns ``(centres (N, 2) px, H (3, 3) board -> image)``: ``H`` is
-    fitted to the centres of the last iteration's start, which lie within ``tol_px`` of the returned ones (not
-    fitted again to the final step: a step below ``tol_px`` moves ``H``'s images by as little), or to the returned
-    centres when ``max_iter`` ran out first. The iteration contracts fast (the poles depend on the centres only
-    through the vanishing line: steps of ~1e-2, 1e-7, 0 px on the paper's views), so after a step below 1e-6 px the
-    centres are within ~4e-7 px of the fixed point (tested; one iteration fewer than a 1e-9 px tolerance).
+    The iteration contracts fast (the poles depend on the centres only through the vanishing line: steps of ~1e-2,
+    1e-7, 0 px on the paper's views), so after a step below 1e-6 px the centres are within ~4e-7 px of the fixed
+    point (tested; one iteration fewer than a 1e-9 px tolerance).
+
+    Parameters
+    ----------
+    conics : numpy.ndarray
+        (N, 3, 3) ellipses (undistorted pixel coordinates), in board order.
+    board_xy : numpy.ndarray
+        (N, 2) board coordinates of the circle centres, mm.
+    init : numpy.ndarray or None
+        (N, 2) px starting centres (default: the ellipse centres).
+    H0 : numpy.ndarray or None
+        (3, 3) :func:`fit_homography` of ``board_xy`` to those starting centres, where the caller has it (the
+        detector's lattice check fits it).
+    max_iter : int
+        Most iterations.
+    tol_px : float
+        px: the iteration stops after a step that moves no centre this far.
+
+    Returns
+    -------
+    centres : numpy.ndarray
+        (N, 2) float64 px.
+    H : numpy.ndarray
+        (3, 3) board -> image, fitted to the centres of the last iteration's start, which lie within ``tol_px`` of
+        the returned ones (not fitted again to the final step: a step below ``tol_px`` moves ``H``'s images by as
+        little), or to the returned centres when ``max_iter`` ran out first.
+
+    Raises
+    ------
+    ValueError
+        A conic is not a real ellipse, or the centres fit no homography (degenerate configuration).
     """
     conics = np.asarray(conics, dtype=np.float64)
     frames = _local_frames(conics)
@@ -213,8 +340,26 @@ def correct_centres(
 
 
 def rotations_to_axis(d: np.ndarray) -> np.ndarray:
-    """(K, 3, 3) the smallest rotations ``R`` with ``R d_k = (0, 0, 1)`` for unit directions ``d`` (K, 3) (not
-    straight backwards): ``I + [v]x + [v]x^2 / (1 + c)``, ``v = d x z``, ``c = d . z``."""
+    """The smallest rotations taking each direction to the optical axis (0, 0, 1).
+
+    ``I + [v]x + [v]x^2 / (1 + c)``, ``v = d x z``, ``c = d . z``.
+
+    Parameters
+    ----------
+    d : numpy.ndarray
+        (K, 3) unit directions, none straight backwards (0, 0, -1).
+
+    Returns
+    -------
+    numpy.ndarray
+        (K, 3, 3) float64 rotations ``R`` with ``R d_k = (0, 0, 1)``.
+
+    Examples
+    --------
+    >>> R = rotations_to_axis(np.array([[1.0, 0.0, 0.0]]))
+    >>> bool(np.allclose(R[0] @ [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]))
+    True
+    """
     d = np.asarray(d, dtype=np.float64)
     v = np.stack([d[:, 1], -d[:, 0], np.zeros(len(d))], axis=1)
     c = d[:, 2]
@@ -234,15 +379,42 @@ def correct_centres_on_rays(
     max_iter: int = 10,
     tol_px: float = 1e-9,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Images of the circle centres under any lens model, each dot corrected on a local perspective re-projection
-    (see the module): iterate board homography onto the centres' rays, per-dot virtual camera along the centre's
-    ray, ellipse fit there, pole of the vanishing line, until no centre moves ``tol_px``.
+    """The images of the circle centres under any lens model, each dot corrected on a local perspective
+    re-projection (see the module docstring).
 
-    ``edge_points``: (K, M, 2) px, each dot's rim points in the observed image (board order), ``mask`` (K, M) the
-    valid ones; ``board_xy``: (K, 2) mm the dots' board coordinates; ``camera``: the lens model; ``init``: (K, 2)
-    px starting centres (default: the mean of each dot's rim rays). Returns ``(centres (K, 2) px in the observed
-    image, H (3, 3) board -> rays of the final centres)``. Raises ``ValueError`` when a rim point has no ray, an
-    ellipse cannot be fitted or the centres fix no board plane."""
+    Iterates: board homography onto the centres' rays, per-dot virtual camera along the centre's ray, ellipse fit
+    there, pole of the vanishing line, until no centre moves ``tol_px``.
+
+    Parameters
+    ----------
+    edge_points : numpy.ndarray
+        (K, M, 2) px: each dot's rim points in the observed image (board order).
+    mask : numpy.ndarray
+        (K, M) bool: the valid ones.
+    board_xy : numpy.ndarray
+        (K, 2) mm: the dots' board coordinates.
+    camera : circcal.model.Camera
+        The lens model.
+    init : numpy.ndarray or None
+        (K, 2) px starting centres (default: the mean of each dot's rim rays).
+    max_iter : int
+        Most iterations.
+    tol_px : float
+        px: the iteration stops after a step that moves no centre this far.
+
+    Returns
+    -------
+    centres : numpy.ndarray
+        (K, 2) float64 px in the observed image.
+    H : numpy.ndarray
+        (3, 3) board -> rays of the final centres.
+
+    Raises
+    ------
+    ValueError
+        A rim point has no ray (beyond the lens model's field), an ellipse cannot be fitted, or the centres fix no
+        board plane.
+    """
     P = np.asarray(edge_points, dtype=np.float64)
     M = np.asarray(mask, bool)
     E = np.full(P.shape[:2] + (3,), np.nan)

@@ -67,8 +67,31 @@ def _stored_path(directory: Path | None = None) -> Path:
 
 
 def store_table(directory: Path | None = None) -> Path:
-    """Compute the shift table and store it (``.npy``) where :func:`_shift_table` looks for it; returns the path.
-    Older tables (of other sources) in that folder are removed."""
+    """Compute the curvature shift table and store it (``.npy``) where :func:`_shift_table` looks for it.
+
+    Older tables (of other sources) in that folder are removed. The file is written beside and then renamed, so a
+    reader never sees half a file.
+
+    Parameters
+    ----------
+    directory : pathlib.Path or None
+        The folder to store it in; None: the compiled kernels' folder (``circcal.detector.kernels.jit.AOT_DIR``).
+
+    Returns
+    -------
+    pathlib.Path
+        The stored table, ``curvature-table_<hash of this module's source>.npy``.
+
+    Raises
+    ------
+    OSError
+        The folder cannot be created or written.
+
+    Examples
+    --------
+    >>> store_table(Path("/tmp/kernels"))  # doctest: +SKIP
+    PosixPath('/tmp/kernels/curvature-table_....npy')
+    """
     path = _stored_path(directory)
     path.parent.mkdir(parents=True, exist_ok=True)
     for old in path.parent.glob("curvature-table_*.npy"):
@@ -100,15 +123,35 @@ def _shift_table() -> np.ndarray:
 
 @njit(cache=True, nogil=True, inline="always")
 def shift_at(a, b, cos_t, sin_t, sigma_t, u_table, table):
-    """``(shift, unmodelled)`` px: the outward shift from the half-level contour to the true edge at the point
-    ``(a cos t, b sin t)`` (ellipse frame) of an ellipse with semi-axes ``a``, ``b`` px, for the blur scale
-    ``sigma_t`` px: the edge modelled locally by its osculating circle blurred by a Gaussian of ``sigma_t``, faded
-    out where that model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`); and the part of the modelled shift the
-    fade leaves out, the size of the error an edge point may carry there (the tight ends of thin ellipses: up to
-    ~0.5 px). ``table``: :func:`_shift_table` at ``u_table`` (:data:`U_TABLE`), interpolated as ``np.interp(u,
-    u_table, table, left=table[0])``, the asymptote ``1 / (2 u)`` beyond it. Compiled, called per point by the edge
-    kernels (:mod:`circcal.detector.measure.edges`); the arithmetic of the vectorised numpy expressions it replaced, in
-    their order (the same values to the bit, tested)."""
+    """The outward shift from the half-level contour to the true edge at one point of a blurred ellipse.
+
+    The edge is modelled locally by its osculating circle blurred by a Gaussian of ``sigma_t``, faded out where that
+    model fails (:data:`MODEL_FROM_U`, :data:`MODEL_FULL_U`). ``table`` is interpolated as ``np.interp(u, u_table,
+    table, left=table[0])``, the asymptote ``1 / (2 u)`` beyond it, ``u`` being the radius of curvature in blur
+    sigmas. Compiled, called per point by the edge kernels (:mod:`circcal.detector.measure.edges`); the arithmetic of
+    the vectorised numpy expressions it replaced, in their order (the same values to the bit, tested).
+
+    Parameters
+    ----------
+    a, b : float
+        The ellipse's semi-axes, px.
+    cos_t, sin_t : float
+        Cosine and sine of the point's parameter t: the point is ``(a cos t, b sin t)`` in the ellipse's frame.
+    sigma_t : float
+        The blur scale, px.
+    u_table : numpy.ndarray
+        (T,) float64 increasing: :data:`U_TABLE`, radii of curvature in blur sigmas.
+    table : numpy.ndarray
+        (T,) float64: :func:`_shift_table` at ``u_table``, shifts in blur sigmas.
+
+    Returns
+    -------
+    shift : float
+        px, the modelled outward shift (after the fade); NaN where the radius of curvature is NaN.
+    unmodelled : float
+        px, the part of the modelled shift the fade leaves out: the size of the error an edge point may carry there
+        (the tight ends of thin ellipses: up to ~0.5 px).
+    """
     q = (a * sin_t) ** 2 + (b * cos_t) ** 2
     rho = q * np.sqrt(q) / (a * b)  # radius of curvature
     u = rho / sigma_t

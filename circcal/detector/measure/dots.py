@@ -59,17 +59,32 @@ views of ``asym-perspective``) are dropped, and the ellipse refitted once."""
 def fit_dots(
     gray: np.ndarray | SmoothedImage, conics0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
-    """Sub-pixel edge points and ellipse of each dot, from rough ellipses ``conics0`` (D, 3, 3) (e.g. from the
-    contours).
+    """Sub-pixel edge points and the ellipse of each dot, all dots at once, from rough starting ellipses.
 
-    ``gray``: (H, W) grey image, or a :class:`~circcal.detector.measure.smoothing.SmoothedImage` of it at
-    :data:`EDGE_SIGMA` (reused across calls). Edge points are measured :data:`FIT_PASSES` times along the normals of
-    the latest ellipse (:func:`~circcal.detector.measure.edges.subpixel_edge_points_batch`; sparser in the steering passes,
+    Edge points are measured :data:`FIT_PASSES` times along the normals of the latest ellipse
+    (:func:`~circcal.detector.measure.edges.subpixel_edge_points_batch`; sparser in the steering passes,
     :data:`STEERING_SPACING_PX`), each time fitted (direct least squares) and refitted once without the outliers
-    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). Returns
-    ``(points (D, M, 2), mask (D, M), conics (D, 3, 3), errors)``: dot ``d``'s edge points are ``points[d][mask[d]]``
-    and ``conics[d]`` the ellipse fitted to exactly them; ``errors[d]`` is ``None`` or why the dot could not be
-    measured (then its points and conic are not meaningful). Each dot's result depends on that dot alone.
+    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). Each dot's result depends on that
+    dot alone.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray or SmoothedImage
+        (H, W) grey image (float or uint8), or a :class:`~circcal.detector.measure.smoothing.SmoothedImage` of it at
+        :data:`EDGE_SIGMA` (reused across calls).
+    conics0 : numpy.ndarray
+        (D, 3, 3) float64: the rough ellipses (e.g. from the contours) as conic matrices, px.
+
+    Returns
+    -------
+    points : numpy.ndarray
+        (D, M, 2) float64 px ``(x, y)``: dot ``d``'s edge points are ``points[d][mask[d]]``.
+    mask : numpy.ndarray
+        (D, M) bool.
+    conics : numpy.ndarray
+        (D, 3, 3) float64: ``conics[d]`` is the ellipse fitted to exactly dot ``d``'s edge points.
+    errors : list of (str or None)
+        (D,): ``None``, or why the dot could not be measured (then its points and conic are not meaningful).
     """
     src = gray if isinstance(gray, SmoothedImage) else SmoothedImage(gray, EDGE_SIGMA)
     Q = np.asarray(conics0, np.float64).copy()

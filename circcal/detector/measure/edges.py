@@ -71,8 +71,7 @@ def subpixel_edge_points_batch(
     spacing_px: float = PROFILE_SPACING_PX,
     level_stride: int = 1,
 ) -> tuple[np.ndarray, ...]:
-    """Sub-pixel boundary points of the dark dots near the ellipses ``conics`` (D, 3, 3) on ``src`` (the image and its
-    smoothing scale ``sigma``).
+    """Sub-pixel boundary points of the dark dots near the given ellipses.
 
     Profiles along the ellipse normals, one per ``spacing_px`` px of perimeter (at least :data:`MIN_PROFILES`),
     sampled every :data:`PROFILE_STEP_PX` px; the edge point of a profile is its up-crossing of the dot's half level
@@ -84,13 +83,32 @@ def subpixel_edge_points_batch(
     image only where needed: the first up-crossing met is the nearest one of the whole profile, found from a few
     samples.
 
-    Returns ``(points (D, Nmax, 2) px, mask (D, Nmax) bool, errors)``: the boundary points of dot ``d`` are
-    ``points[d][mask[d]]`` (profiles without a clear edge are left out; there may be few, the caller decides);
-    ``errors[d]`` is ``None`` or why dot ``d`` gave no points at all. ``with_slack``: a fourth array ``slack``
-    (D, Nmax) px, the curvature shift left uncorrected at each point where the osculating-circle model fades out
-    (:func:`~circcal.detector.measure.curvature.shift_at`; 0 elsewhere): how far that point may lie off the true
-    edge without being an outlier. ``level_stride``: the dots' levels from every this many rows and columns of their
-    pixels (:func:`~circcal.detector.measure.levels.dot_levels_from_params`; for a pass that only steers the next).
+    Parameters
+    ----------
+    src : SmoothedImage
+        The image and its smoothing scale ``sigma`` (px).
+    conics : numpy.ndarray
+        (D, 3, 3) float64: the dots' current ellipses as conic matrices, px.
+    with_slack : bool
+        Also return ``slack`` (below).
+    spacing_px : float
+        px of perimeter per profile.
+    level_stride : int
+        The dots' levels from every this many rows and columns of their pixels
+        (:func:`~circcal.detector.measure.levels.dot_levels_from_params`; for a pass that only steers the next).
+
+    Returns
+    -------
+    points : numpy.ndarray
+        (D, Nmax, 2) float64 px ``(x, y)``: the boundary points of dot ``d`` are ``points[d][mask[d]]``.
+    mask : numpy.ndarray
+        (D, Nmax) bool; profiles without a clear edge are left out (there may be few: the caller decides).
+    errors : list of (str or None)
+        (D,): ``None``, or why dot ``d`` gave no points at all.
+    slack : numpy.ndarray
+        Only with ``with_slack``: (D, Nmax) float64 px, the curvature shift left uncorrected at each point where the
+        osculating-circle model fades out (:func:`~circcal.detector.measure.curvature.shift_at`; 0 elsewhere): how
+        far that point may lie off the true edge without being an outlier.
     """
     conics = np.ascontiguousarray(conics, np.float64)
     D = len(conics)

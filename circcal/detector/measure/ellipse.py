@@ -43,11 +43,33 @@ FIT_ERRORS = {
 
 
 def fit_ellipse_direct(points: np.ndarray) -> np.ndarray:
-    """Direct least-squares ellipse through ``points`` (M, 2) px, M >= 5 (Halir-Flusser, normalised).
+    """The direct least-squares ellipse through a set of points (Halir-Flusser, normalised).
 
     Minimises the algebraic distance subject to ``4AC - B^2 = 1`` (in normalised coordinates), so the result is
-    always an ellipse. Returns the (3, 3) conic in pixel coordinates, scaled to unit Frobenius norm with negative
-    value at the centre (``x^T Q x < 0`` inside). Raises ``ValueError`` for fewer than 5 points or degenerate input.
+    always an ellipse.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (M, 2) px ``(x, y)``, M >= 5.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3, 3) float64 conic in pixel coordinates, scaled to unit Frobenius norm with negative value at the centre
+        (``x^T Q x < 0`` inside).
+
+    Raises
+    ------
+    ValueError
+        Fewer than 5 points, or degenerate input (NaN or inf, collinear, no elliptic solution: :data:`FIT_ERRORS`).
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    >>> Q = fit_ellipse_direct(np.column_stack([10 + 5 * np.cos(t), 20 + 3 * np.sin(t)]))
+    >>> np.round(conic_centre(Q), 9) + 0.0
+    array([10., 20.])
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     Q, err = fit_ellipses_direct(p[None], None)
@@ -58,13 +80,30 @@ def fit_ellipse_direct(points: np.ndarray) -> np.ndarray:
 
 
 def fit_ellipses_direct(points: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Batched :func:`fit_ellipse_direct`: one ellipse per row of ``points`` (D, M, 2) px, using the points where
-    ``mask`` (D, M) bool is true (all when ``None``; masked-out points may hold anything, NaN included).
+    """Batched :func:`fit_ellipse_direct`: one ellipse per row of points, errors as codes instead of raising.
 
-    Returns ``(Q (D, 3, 3), err (D,) int)``: conics as in :func:`fit_ellipse_direct` (NaN where ``err != 0``) and
-    error codes (0 fitted; otherwise a key of :data:`FIT_ERRORS`). Each fit is the same normalised Halir-Flusser
-    solve as the single version, compiled and in closed form (:func:`_direct_solves`: ~7x faster than stacked
-    LAPACK solves and eigen-decompositions, the same conics to ~1e-12); it never raises for a bad row.
+    Each fit is the same normalised Halir-Flusser solve as the single version, compiled and in closed form
+    (:func:`_direct_solves`: ~7x faster than stacked LAPACK solves and eigen-decompositions, the same conics to
+    ~1e-12); it never raises for a bad row.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (D, M, 2) px ``(x, y)``.
+    mask : numpy.ndarray or None
+        (D, M) bool: the points used (all when ``None``; masked-out points may hold anything, NaN included).
+
+    Returns
+    -------
+    Q : numpy.ndarray
+        (D, 3, 3) float64 conics as in :func:`fit_ellipse_direct`; NaN where ``err != 0``.
+    err : numpy.ndarray
+        (D,) int64 error codes: 0 fitted; otherwise a key of :data:`FIT_ERRORS`.
+
+    Raises
+    ------
+    ValueError
+        ``points`` is not (D, M, 2).
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 2:
@@ -346,8 +385,29 @@ def _normalised_scatter(p: np.ndarray, use: np.ndarray):
 
 
 def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: float) -> np.ndarray:
-    """Conic of the ellipse with ``centre`` (2,) px, semi-axes ``axes = (a, b)`` px, and ``angle`` (radians) of the
-    ``a`` axis from the image x axis (towards +y). Returned scaled so that ``x^T Q x = -1`` at the centre."""
+    """The conic matrix of an ellipse given by its centre, semi-axes and angle.
+
+    Parameters
+    ----------
+    centre : numpy.ndarray
+        (2,) px ``(x, y)``.
+    axes : tuple of float
+        ``(a, b)`` semi-axes, px.
+    angle : float
+        rad: the angle of the ``a`` axis from the image x axis (towards +y).
+
+    Returns
+    -------
+    numpy.ndarray
+        (3, 3) float64, scaled so that ``x^T Q x = -1`` at the centre.
+
+    Examples
+    --------
+    >>> conic_from_params(np.array([10.0, 20.0]), (5.0, 5.0), 0.0) * 25.0
+    array([[  1.,   0., -10.],
+           [  0.,   1., -20.],
+           [-10., -20., 475.]])
+    """
     return conic_from_params_batch(
         np.asarray(centre, dtype=np.float64).reshape(1, 2),
         np.asarray(axes, dtype=np.float64).reshape(1, 2),
@@ -356,8 +416,22 @@ def conic_from_params(centre: np.ndarray, axes: tuple[float, float], angle: floa
 
 
 def conic_from_params_batch(centres: np.ndarray, axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Batched :func:`conic_from_params`: centres (D, 2) px, semi-axes (D, 2) ``(a, b)`` px, angles (D,) rad ->
-    conics (D, 3, 3), each scaled so that ``x^T Q x = -1`` at its centre."""
+    """Batched :func:`conic_from_params`: the conic matrices of ellipses given by centres, semi-axes and angles.
+
+    Parameters
+    ----------
+    centres : numpy.ndarray
+        (D, 2) px ``(x, y)``.
+    axes : numpy.ndarray
+        (D, 2) semi-axes ``(a, b)``, px.
+    angles : numpy.ndarray
+        (D,) rad: the angles of the ``a`` axes from the image x axis (towards +y).
+
+    Returns
+    -------
+    numpy.ndarray
+        (D, 3, 3) float64 conics, each scaled so that ``x^T Q x = -1`` at its centre.
+    """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
     ax = np.asarray(axes, dtype=np.float64).reshape(-1, 2)
     ang = np.asarray(angles, dtype=np.float64).reshape(-1)
@@ -373,20 +447,69 @@ def conic_from_params_batch(centres: np.ndarray, axes: np.ndarray, angles: np.nd
 
 
 def conic_centre(Q: np.ndarray) -> np.ndarray:
-    """(2,) centre of an ellipse conic."""
+    """The centre of an ellipse conic.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) conic matrix, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (2,) float64 px ``(x, y)``.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        The conic has no centre (its upper-left 2x2 block is singular: a parabola or degenerate conic).
+    """
     return np.linalg.solve(Q[:2, :2], -Q[:2, 2])
 
 
 def conic_centres(Q: np.ndarray) -> np.ndarray:
-    """(D, 2) centres of the ellipse conics ``Q`` (D, 3, 3) (closed-form 2x2 solve, :func:`conic_params_batch`'s;
-    NaN for a conic that is no real ellipse)."""
+    """The centres of a stack of ellipse conics (closed-form 2x2 solve, :func:`conic_params_batch`'s).
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (D, 3, 3) conic matrices, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (D, 2) float64 px ``(x, y)``; NaN for a conic that is no real ellipse.
+    """
     return conic_params_batch(Q)[0]
 
 
 def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]:
-    """Inverse of :func:`conic_from_params`: ``(centre (2,), (a, b) with a >= b, angle of a in (-pi/2, pi/2])``.
+    """The centre, semi-axes and angle of an ellipse conic: the inverse of :func:`conic_from_params`.
 
-    Raises ``ValueError`` if ``Q`` is not a real ellipse.
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) conic matrix, px (any scale and sign).
+
+    Returns
+    -------
+    centre : numpy.ndarray
+        (2,) float64 px ``(x, y)``.
+    axes : tuple of float
+        ``(a, b)`` semi-axes, px, with ``a >= b``.
+    angle : float
+        rad, in (-pi/2, pi/2]: the angle of the ``a`` axis from the image x axis.
+
+    Raises
+    ------
+    ValueError
+        ``Q`` is not a real ellipse.
+
+    Examples
+    --------
+    >>> c, (a, b), ang = conic_params(conic_from_params(np.array([10.0, 20.0]), (3.0, 5.0), 0.0))
+    >>> c.round(9) + 0.0, round(a, 9), round(b, 9), round(ang, 9)
+    (array([10., 20.]), 5.0, 3.0, 1.570796327)
     """
     c, axes, ang, ok = conic_params_batch(np.asarray(Q, dtype=np.float64).reshape(1, 3, 3))
     if not ok[0]:
@@ -395,11 +518,28 @@ def conic_params(Q: np.ndarray) -> tuple[np.ndarray, tuple[float, float], float]
 
 
 def conic_params_batch(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Batched :func:`conic_params` for ``Q`` (D, 3, 3): ``(centres (D, 2), axes (D, 2) as (a, b) with a >= b,
-    angles (D,) in (-pi/2, pi/2], ok (D,) bool)``; rows that are not real ellipses have ``ok`` false (and NaN
-    values) instead of raising. Closed form: the centre from a 2x2 solve, axes and angle from the closed-form
-    eigen-decomposition of the symmetric 2x2 block; one compiled pass (:func:`_conic_params_kernel`; the numpy
-    expressions it replaced took ~35 array operations, ~0.1 ms a call, four calls per image)."""
+    """Batched :func:`conic_params`: rows that are not real ellipses are flagged instead of raising.
+
+    Closed form: the centre from a 2x2 solve, axes and angle from the closed-form eigen-decomposition of the
+    symmetric 2x2 block; one compiled pass (:func:`_conic_params_kernel`; the numpy expressions it replaced took ~35
+    array operations, ~0.1 ms a call, four calls per image).
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (D, 3, 3) conic matrices, px (any scale and sign).
+
+    Returns
+    -------
+    centres : numpy.ndarray
+        (D, 2) float64 px ``(x, y)``.
+    axes : numpy.ndarray
+        (D, 2) float64 semi-axes ``(a, b)``, px, with ``a >= b``.
+    angles : numpy.ndarray
+        (D,) float64 rad, in (-pi/2, pi/2]: the angles of the ``a`` axes.
+    ok : numpy.ndarray
+        (D,) bool: false (and NaN values) for rows that are not real ellipses.
+    """
     Q = np.ascontiguousarray(Q, dtype=np.float64).reshape(-1, 3, 3)
     D = len(Q)
     c, axes, ang, ok = np.empty((D, 2)), np.empty((D, 2)), np.empty(D), np.empty(D, bool)
@@ -444,7 +584,25 @@ def _conic_params_kernel(Q, c, axes, ang, ok):
 
 
 def sample_ellipse(Q: np.ndarray, n: int) -> np.ndarray:
-    """(n, 2) points on the ellipse at equally spaced parameter angles."""
+    """Points on an ellipse at equally spaced parameter angles.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) ellipse conic, px.
+    n : int
+        Number of points.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n, 2) float64 px ``(x, y)``: ``centre + R(angle) (a cos t, b sin t)``, t = 2 pi k / n.
+
+    Raises
+    ------
+    ValueError
+        ``Q`` is not a real ellipse.
+    """
     c, (a, b), ang = conic_params(Q)
     t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     ca, sa = np.cos(ang), np.sin(ang)
@@ -454,7 +612,20 @@ def sample_ellipse(Q: np.ndarray, n: int) -> np.ndarray:
 
 
 def ellipse_normals(Q: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(M, 2) unit outward normals of the conic's level sets at ``points`` (M, 2) (gradient of x^T Q x)."""
+    """The unit outward normals of a conic's level sets at given points (the gradient of ``x^T Q x``).
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) conic matrix, px (any sign: outward is away from the centre of an ellipse).
+    points : numpy.ndarray
+        (M, 2) px ``(x, y)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (M, 2) float64 unit vectors (NaN where the gradient vanishes, at an ellipse's centre).
+    """
     p = np.asarray(points, dtype=np.float64)
     g = p @ Q[:2, :2].T + Q[:2, 2]
     if Q[0, 0] + Q[1, 1] < 0:
@@ -463,23 +634,74 @@ def ellipse_normals(Q: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def transform_conic(Q: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Conic of the image of ``Q`` under the point homography ``T`` (3, 3): ``T^-T Q T^-1``."""
+    """The conic of the image of a conic under a point homography: ``T^-T Q T^-1``.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) conic matrix.
+    T : numpy.ndarray
+        (3, 3) homography taking points ``x`` to ``T x``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3, 3) float64 conic in the target coordinates.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        ``T`` is singular.
+    """
     Ti = np.linalg.inv(T)
     return Ti.T @ Q @ Ti
 
 
 def algebraic_distance(Q: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(M,) ``x^T Q x`` for points (M, 2)."""
+    """The algebraic distance ``x^T Q x`` of points from a conic (the scale and sign of ``Q`` as given).
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) conic matrix, px.
+    points : numpy.ndarray
+        (M, 2) px ``(x, y)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (M,) float64, with ``x = (x, y, 1)``.
+    """
     p = np.asarray(points, dtype=np.float64)
     h = np.column_stack([p, np.ones(len(p))])
     return np.einsum("ij,jk,ik->i", h, Q, h)
 
 
 def sampson_distances(points: np.ndarray, conics: np.ndarray) -> np.ndarray:
-    """(D, M) first-order (Sampson) signed distances px ``x^T Q x / |grad_(u,v) x^T Q x|`` of ``points``
-    (D, M, 2) from the conics (D, 3, 3) (the sign and scale of ``Q`` as given); NaN where a point or conic is NaN or
-    where the gradient vanishes at a point on the conic, +-inf where it vanishes off it (numpy's division). One
-    compiled pass (:func:`_sampson_kernel`; numpy took ~10 array passes, ~0.2-0.4 ms for a 7x7 board)."""
+    """The first-order (Sampson) signed distances of points from conics, one conic per row of points.
+
+    ``x^T Q x / |grad_(u,v) x^T Q x|``, the sign and scale of ``Q`` as given. One compiled pass
+    (:func:`_sampson_kernel`; numpy took ~10 array passes, ~0.2-0.4 ms for a 7x7 board).
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (D, M, 2) px ``(x, y)``.
+    conics : numpy.ndarray
+        (D, 3, 3) conic matrices, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (D, M) float64 px; NaN where a point or conic is NaN or where the gradient vanishes at a point on the conic,
+        +-inf where it vanishes off it (numpy's division).
+
+    Examples
+    --------
+    >>> Q = conic_from_params(np.array([0.0, 0.0]), (5.0, 5.0), 0.0)
+    >>> sampson_distances(np.array([[[6.0, 0.0], [0.0, -4.0]]]), Q[None])  # first order: the true ones are +-1
+    array([[ 0.91666667, -1.125     ]])
+    """
     P = np.ascontiguousarray(points, np.float64).reshape(len(points), -1, 2)
     Q = np.ascontiguousarray(conics, np.float64).reshape(len(P), 3, 3)
     out = np.empty(P.shape[:2])
@@ -500,18 +722,45 @@ def _sampson_kernel(P, Q, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def perimeter(a, b):
-    """Perimeter (px) of the ellipse of semi-axes ``a``, ``b`` px: Ramanujan's second approximation (relative error
-    5e-10 at an axis ratio of 1:2, 2.5e-7 at 1:4, 1.2e-5 at 1:10, against the complete elliptic integral)."""
+    """The perimeter of an ellipse: Ramanujan's second approximation.
+
+    Relative error 5e-10 at an axis ratio of 1:2, 2.5e-7 at 1:4, 1.2e-5 at 1:10, against the complete elliptic
+    integral. Compiled (inlined into the edge kernels).
+
+    Parameters
+    ----------
+    a, b : float
+        Semi-axes, px.
+
+    Returns
+    -------
+    float
+        px.
+    """
     hab = ((a - b) / max(a + b, 1e-12)) ** 2
     return np.pi * (a + b) * (1 + 3 * hab / (10 + np.sqrt(4 - 3 * hab)))
 
 
 @njit(cache=True, nogil=True, inline="always")
 def sampson_at(Q, x, y):
-    """The Sampson distance (px, signed) of the point ``(x, y)`` from the conic ``Q`` (3, 3): ``h Q`` as numpy's
-    matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2`` over the gradient's norm
-    ``|2 (hQ0, hQ1)|``; where the gradient vanishes NaN on the conic (or for NaN), +-inf off it (numpy's division:
-    numba, like Python, would raise on a division by zero)."""
+    """The Sampson distance of one point from a conic (compiled, inlined into the kernels).
+
+    ``h Q`` as numpy's matmul sums it (``(x Q0j + y Q1j) + Q2j``), the value ``(hQ0 x + hQ1 y) + hQ2`` over the
+    gradient's norm ``|2 (hQ0, hQ1)|``.
+
+    Parameters
+    ----------
+    Q : numpy.ndarray
+        (3, 3) float64 conic matrix, px.
+    x, y : float
+        The point, px.
+
+    Returns
+    -------
+    float
+        px, signed; where the gradient vanishes NaN on the conic (or for NaN), +-inf off it (numpy's division:
+        numba, like Python, would raise on a division by zero).
+    """
     h0 = x * Q[0, 0] + y * Q[1, 0] + Q[2, 0]
     h1 = x * Q[0, 1] + y * Q[1, 1] + Q[2, 1]
     h2 = x * Q[0, 2] + y * Q[1, 2] + Q[2, 2]

@@ -52,13 +52,30 @@ def dot_levels_batch(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dark level inside each dot and the bright level around it as a plane, for all dots at once.
 
-    ``gray``: (H, W) image; ``conics``: (D, 3, 3) ellipses (px); ``boxes``: (D, 4) int ROIs ``x0, y0, x1, y1``
-    (exclusive ends) whose pixels are used. Dark: median inside the ellipse shrunk by :data:`EDGE_GAP_PX` (the
-    :data:`DARK_MIN_PIXELS` pixels nearest the centre for tiny dots); bright: plane fitted (least squares, refitted
-    once without > :data:`PLANE_OUTLIER_SIGMAS` robust-sigma residuals) to the ring :data:`EDGE_GAP_PX` ..
-    ``EDGE_GAP_PX + max(2, b/2)`` px outside, keeping only pixels brighter than halfway between the dark level and the
-    ring median (drops neighbouring dots). Returns ``(dark (D,), plane (D, 3), ok (D,) bool)``: bright(x, y) =
-    plane @ (x, y, 1) in image pixels; ``ok`` false where the ring has too few pixels.
+    Dark: the median inside the ellipse shrunk by :data:`EDGE_GAP_PX` (the :data:`DARK_MIN_PIXELS` pixels nearest the
+    centre for tiny dots). Bright: a plane fitted (least squares, refitted once without > :data:`PLANE_OUTLIER_SIGMAS`
+    robust-sigma residuals) to the ring :data:`EDGE_GAP_PX` .. ``EDGE_GAP_PX + max(2, b/2)`` px outside (b: minor
+    semi-axis), keeping only pixels brighter than halfway between the dark level and the ring median (drops
+    neighbouring dots).
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) grey image: uint8, uint16, float32 or float64 (other dtypes are read as float64).
+    conics : numpy.ndarray
+        (D, 3, 3) float64: the dots' ellipses as conic matrices, px.
+    boxes : numpy.ndarray
+        (D, 4) int: the regions of interest ``x0, y0, x1, y1`` px (exclusive ends) whose pixels are used.
+
+    Returns
+    -------
+    dark : numpy.ndarray
+        (D,) float64, in the image's grey units; NaN where not ``ok``.
+    plane : numpy.ndarray
+        (D, 3) float64: bright(x, y) = ``plane @ (x, y, 1)`` in image pixels; NaN where not ``ok``.
+    ok : numpy.ndarray
+        (D,) bool: false where the ring has too few pixels (:data:`RING_MIN_PIXELS`, :data:`PLANE_MIN_PIXELS` bright
+        ones) or they are collinear, or the conic is not a real ellipse.
     """
     return dot_levels_from_params(gray, *conic_params_batch(np.asarray(conics, np.float64)), boxes)
 
@@ -72,11 +89,39 @@ def dot_levels_from_params(
     boxes: np.ndarray,
     stride: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`dot_levels_batch` from the ellipses' parameters (centres (D, 2) px, semi-axes (D, 2) px, angles (D,)
-    rad, valid (D,) bool, as :func:`~circcal.detector.measure.ellipse.conic_params_batch` gives them). ``stride`` s > 1:
-    the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2 px use only the pixels of every s-th row and
-    column of their box (from its corner): ~1/s^2 of the work, levels ~s times noisier (for measurements that only
-    steer a later one)."""
+    """:func:`dot_levels_batch` from the ellipses' parameters, optionally from a subsample of the pixels.
+
+    The parameters are as :func:`~circcal.detector.measure.ellipse.conic_params_batch` gives them.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) grey image: uint8, uint16, float32 or float64 (other dtypes are read as float64).
+    c : numpy.ndarray
+        (D, 2) float64: the ellipses' centres ``(x, y)``, px.
+    axes : numpy.ndarray
+        (D, 2) float64: their semi-axes ``(a, b)``, px.
+    ang : numpy.ndarray
+        (D,) float64: their angles, rad.
+    okc : numpy.ndarray
+        (D,) bool: which ellipses are valid (the others are not measured).
+    boxes : numpy.ndarray
+        (D, 4) int: the regions of interest ``x0, y0, x1, y1`` px (exclusive ends) whose pixels are used.
+    stride : int
+        s > 1: the dots of minor semi-axis >= :data:`STRIDE_MIN_MINOR_PX` s / 2 px use only the pixels of every s-th
+        row and column of their box (from its corner): ~1/s^2 of the work, levels ~s times noisier (for
+        measurements that only steer a later one).
+
+    Returns
+    -------
+    dark : numpy.ndarray
+        (D,) float64, in the image's grey units; NaN where not ``ok``.
+    plane : numpy.ndarray
+        (D, 3) float64: bright(x, y) = ``plane @ (x, y, 1)`` in image pixels; NaN where not ``ok``.
+    ok : numpy.ndarray
+        (D,) bool: false where ``okc`` is, or the ring has too few pixels (:data:`RING_MIN_PIXELS`,
+        :data:`PLANE_MIN_PIXELS` bright ones) or they are collinear.
+    """
     D = len(okc)
     dark = np.full(D, np.nan)
     plane = np.full((D, 3), np.nan)

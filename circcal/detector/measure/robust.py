@@ -24,11 +24,29 @@ samples measured slower)."""
 
 
 def row_medians(values: np.ndarray) -> np.ndarray:
-    """(D,) ``np.nanmedian`` of each row of ``values`` (D, P), NaN marking the entries left out (the mean of the two
-    middle values for an even count); NaN for a row without values. Per row, the values left in selected in place
-    (compiled quickselect, :func:`_row_medians_kernel`): equal to numpy's (tested), without its masked-array path
-    (~1 ms a call) or a sort of every row, and no all-NaN warning is raised (a warning filter would be
-    process-wide state, and images run in threads)."""
+    """The median of each row of a 2-D array, NaN entries left out: ``np.nanmedian(values, axis=1)``.
+
+    Per row, the values left in are selected in place (compiled quickselect, :func:`_row_medians_kernel`): equal to
+    numpy's (tested), without its masked-array path (~1 ms a call) or a sort of every row, and no all-NaN warning is
+    raised (a warning filter would be process-wide state, and images run in threads).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        (D, P), any real dtype (read as float64; further axes are flattened into P); NaN marks the entries left
+        out.
+
+    Returns
+    -------
+    numpy.ndarray
+        (D,) float64: each row's median (the mean of the two middle values for an even count); NaN for a row
+        without values.
+
+    Examples
+    --------
+    >>> row_medians(np.array([[3.0, 1.0, 2.0], [4.0, np.nan, 1.0], [np.nan, np.nan, np.nan]]))
+    array([2. , 2.5, nan])
+    """
     values = np.ascontiguousarray(np.asarray(values, np.float64).reshape(len(values), -1))
     out = np.full(len(values), np.nan)
     if len(values) and values.shape[1]:
@@ -37,23 +55,65 @@ def row_medians(values: np.ndarray) -> np.ndarray:
 
 
 def median(values: np.ndarray) -> float:
-    """``np.median`` of ``values`` (any shape, all entries; NaN entries are left out, as :func:`row_medians` does),
-    NaN when there are none: the compiled selection, ~20x faster than numpy's on the few hundred values of a
-    detection (numpy's generic path costs ~40-190 us a call)."""
+    """The median of all entries of an array, NaN entries left out (as :func:`row_medians` does).
+
+    The compiled selection, ~20x faster than ``np.median`` on the few hundred values of a detection (numpy's generic
+    path costs ~40-190 us a call).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        Any shape, any real dtype (read as float64); all entries are used.
+
+    Returns
+    -------
+    float
+        ``np.median`` of the non-NaN entries; NaN when there are none.
+
+    Examples
+    --------
+    >>> median(np.array([[5.0, 1.0], [np.nan, 3.0]]))
+    3.0
+    """
     return float(row_medians(np.asarray(values, np.float64).reshape(1, -1))[0])
 
 
 def mad_inliers(values: np.ndarray, mask: np.ndarray, floor: np.ndarray, sigmas: float) -> np.ndarray:
-    """(D, M) bool: the entries of ``values`` (D, M) within ``max(sigmas * MAD_TO_SIGMA * MAD_d, floor)`` of 0,
-    where ``MAD_d`` is row d's median absolute deviation from its median, both over the entries where ``mask``
-    (D, M) bool (NaN values left out); ``floor`` (D, M). A row without such entries keeps nothing; entries outside
-    ``mask`` are tested too (the caller masks them). The values of::
+    """The entries of each row within a robust (MAD-based) band around 0, at least ``floor`` wide.
+
+    Entry (d, i) is kept when ``|values[d, i]| <= max(sigmas * MAD_TO_SIGMA * MAD_d, floor[d, i])``, where ``MAD_d``
+    is row d's median absolute deviation from its median, both over the entries where ``mask`` is true (NaN values
+    left out). The values of::
 
         med = row_medians(np.where(mask, values, np.nan))
         sdev = MAD_TO_SIGMA * row_medians(np.where(mask, np.abs(values - med[:, None]), np.nan))
         np.abs(values) <= np.maximum((sigmas * sdev)[:, None], floor)
 
-    in one compiled pass per row (:func:`_mad_inliers_kernel`)."""
+    in one compiled pass per row (:func:`_mad_inliers_kernel`).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        (D, M) float64 (or castable), e.g. residuals in px.
+    mask : numpy.ndarray
+        (D, M) bool: the entries the median and the MAD are taken over.
+    floor : numpy.ndarray
+        Broadcastable to (D, M), in the unit of ``values``: the least half-width of the band.
+    sigmas : float
+        The band's half-width in robust standard deviations.
+
+    Returns
+    -------
+    numpy.ndarray
+        (D, M) bool. A row without masked (non-NaN) entries keeps nothing; entries outside ``mask`` are tested too
+        (the caller masks them); NaN values or floors are never kept.
+
+    Examples
+    --------
+    >>> v = np.array([[0.1, -0.2, 0.15, 3.0]])
+    >>> mad_inliers(v, np.ones(v.shape, bool), np.zeros(v.shape), 3.0)
+    array([[ True,  True,  True, False]])
+    """
     v = np.ascontiguousarray(values, np.float64)
     out = np.zeros(v.shape, bool)
     if v.size:

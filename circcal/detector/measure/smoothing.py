@@ -30,27 +30,58 @@ one below its pixel, two above, and one of slack)."""
 
 
 class SmoothedImage:
-    """A grey image (H, W) and its Gaussian smoothing (``sigma`` px, reflected borders) as cubic B-spline coefficients
-    (mirror boundary), computed on demand in one crop per requested box (one box per dot), for sampling edge profiles.
+    """A grey image and its Gaussian smoothing as cubic B-spline coefficients, in one crop per dot, for sampling edge
+    profiles.
 
-    A crop extends beyond its box (clipped to the image) by the reach of its filters plus the spline's own support,
-    so samples inside the box equal those of smoothing the whole image. The prefilter is the exact recursive B-spline
-    filter written as its (symmetric, exponentially decaying) impulse response truncated at
-    :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both filters run in float32 (values
-    good to ~1e-6 of the grey range, edge points to ~1e-5 px): the crops inside the image as one separable filter
-    (Gaussian and prefilter convolved, the product's tails truncated, :data:`COMBINED_TAIL`:
+    The smoothing (``sigma`` px, reflected borders) and the spline coefficients (mirror boundary) are computed on
+    demand in one crop per requested box (one box per dot, :meth:`crops_for`). A crop extends beyond its box (clipped
+    to the image) by the reach of its filters plus the spline's own support, so samples inside the box equal those of
+    smoothing the whole image. A later box reuses the crop made for the same dot (a crop holding the box, centred
+    within :attr:`REUSE_PX` px of it), so a dot's samples depend on that dot alone: measuring all dots at once gives
+    the same points as one at a time.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) grey image, any real dtype.
+    sigma : float
+        The Gaussian smoothing's standard deviation, px (0: none).
+
+    Attributes
+    ----------
+    gray : numpy.ndarray
+        (H, W) the image, as given.
+    sigma : float
+        The smoothing scale, px.
+    crops : numpy.ndarray
+        (C, 4) int64: ``x0, y0, x1, y1`` px (exclusive ends) of each crop made so far.
+    shape : tuple of int
+        (H, W) of the image.
+    margin : int
+        Pixels a crop inside the image extends beyond its box.
+    border_margin : int
+        Pixels a crop at the image border extends beyond its box.
+    SLACK : int
+        Pixels a new crop extends beyond what its box needs.
+    REUSE_PX : float
+        px: how near a crop's centre must be to a box's for the box to reuse it.
+
+    Notes
+    -----
+    The prefilter is the exact recursive B-spline filter written as its (symmetric, exponentially decaying) impulse
+    response truncated at :data:`PREFILTER_HALF_LENGTH` taps (a 5e-8 share of its weight is left out). Both filters
+    run in float32 (values good to ~1e-6 of the grey range, edge points to ~1e-5 px): the crops inside the image as
+    one separable filter (Gaussian and prefilter convolved, the product's tails truncated, :data:`COMBINED_TAIL`:
     :func:`_combined_kernel`, reach :attr:`margin` - :data:`SPLINE_SUPPORT`) on all of them stacked
     (``cv2.sepFilter2D``), crops at the image border each on their own with the border reflections
     (``cv2.GaussianBlur`` then the prefilter, reach :attr:`border_margin` - :data:`SPLINE_SUPPORT`). The coefficients
     of all crops are held in one stacked atlas (:meth:`coefficient_atlas`, sampled by the compiled cubic B-spline
-    evaluation of :mod:`circcal.detector.measure.edges`). A later box reuses the crop made for the same dot (a crop holding
-    the box, centred within :attr:`REUSE_PX` px of it), so a dot's samples depend on that dot alone: measuring all
-    dots at once gives the same points as one at a time. Where the crops inside the image overlap (the dots of a
+    evaluation of :mod:`circcal.detector.measure.edges`). Where the crops inside the image overlap (the dots of a
     board seen small: the crops of a 640x480 paper view cover its board ~3.5 times over), they are filtered as one
     window, their bounding box, when that has fewer pixels than their stack (0.3x the filtering time there), and a
     later box inside that window reuses it; the values are those of each crop filtered alone to float32 rounding
     (OpenCV's vectorised and scalar loops round a pixel alike only to ~1e-7: the paper's 640x480 views' centres move
-    by < 1e-7 px). ``gray`` may be any real dtype.
+    by < 1e-7 px).
     """
 
     SLACK = 4
@@ -85,10 +116,21 @@ class SmoothedImage:
         return _gauss_radius(self.sigma) + PREFILTER_HALF_LENGTH + SPLINE_SUPPORT
 
     def crops_for(self, boxes: np.ndarray) -> np.ndarray:
-        """(D,) crop index for each box of ``boxes`` (D, 4) float ``x0, y0, x1, y1`` px (the extent of the points to
-        be sampled; rows with NaN get -1), making the crops that are missing. Which crop serves which box is one
-        compiled pass (:func:`_match_crops`: the measuring pass's boxes all lie in the steering pass's crops,
-        ~12 against ~90 us of numpy calls for a 640x480 paper view)."""
+        """The crop that serves each box, making the crops that are missing.
+
+        Which crop serves which box is one compiled pass (:func:`_match_crops`: the measuring pass's boxes all lie in
+        the steering pass's crops, ~12 against ~90 us of numpy calls for a 640x480 paper view).
+
+        Parameters
+        ----------
+        boxes : numpy.ndarray
+            (D, 4) float ``x0, y0, x1, y1`` px: the extent of the points to be sampled for each dot.
+
+        Returns
+        -------
+        numpy.ndarray
+            (D,) int64 crop index (into :attr:`crops`) for each box; -1 for a row with a NaN or infinite coordinate.
+        """
         H, W = self.gray.shape
         m = self.margin
         boxes = np.ascontiguousarray(boxes, np.float64).reshape(-1, 4)
@@ -157,9 +199,23 @@ class SmoothedImage:
         return out
 
     def coefficient_atlas(self, crop: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The spline coefficients of all crops stacked (float32 (R, C)), and for the crops ``crop`` (D,) (indices
-        from :meth:`crops_for`; -1 gives zeros) their first atlas row (D,) int and origin (D, 2) float ``x0, y0``:
-        the coefficient of image pixel (x, y) of crop k is ``atlas[rows[k] + y - y0, x - x0]``."""
+        """The spline coefficients of all crops stacked, and where the given crops lie in them.
+
+        Parameters
+        ----------
+        crop : numpy.ndarray
+            (D,) int: crop indices from :meth:`crops_for`; -1 gives zeros.
+
+        Returns
+        -------
+        atlas : numpy.ndarray
+            (R, C) float32: the coefficients of all crops stacked.
+        rows : numpy.ndarray
+            (D,) int64: each crop's first atlas row.
+        origin : numpy.ndarray
+            (D, 2) float64 ``x0, y0`` px: each crop's origin in the image. The coefficient of image pixel (x, y) of
+            crop k is ``atlas[rows[k] + y - y0, x - x0]``.
+        """
         if self._atlas is None:
             if not self._sheets:  # (no crop made: every box was empty)
                 self._atlas = np.zeros((1, 1), np.float32)
