@@ -288,6 +288,9 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
             )
     u = assessment.uncertainty
     board = assessment.board
+    resid = np.concatenate([np.asarray(r, dtype=np.float64).ravel() for r in res.residuals] or [np.zeros(0)])
+    resid = resid[np.isfinite(resid)]  # mrcal's noise estimate: the fitted residuals' standard deviation
+    mrcal_factor = float(np.std(resid) / res.sigma_px) if resid.size and res.sigma_px > 0 else None
     return {
         "title": f"Calibration report: {len(res.rvecs)} views of a {board.rows}x{board.cols} {board.layout} board",
         "generated": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -313,12 +316,20 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         else {"k": rej.rule.k, "floor": rej.rule.sigma_floor_px, "rounds": rej.rounds},
         "coverage": assessment.coverage,
         "uncertainty": u,
+        "mrcal": None
+        if mrcal_factor is None
+        else {"factor": _fmt(mrcal_factor, 3), "n": 2 * int(resid.size // 2), "dof": _dof(res)},
         "crossval": cvd,
         "failed": failed,
         "n_images": len(cal.paths),
         "figures": figs,
         "timings": {k: f"{v:.2f}" for k, v in assessment.timings.items()},
     }
+
+
+def _dof(res: Any) -> int:
+    """The free parameters of a solve: intrinsics not held and 6 per view (the board's shape not counted)."""
+    return len([n for n in res.camera.model.param_names if n not in res.fixed]) + 6 * len(res.rvecs)
 
 
 #: A lone surrogate: a byte of a file name that is not UTF-8 (os.fsdecode), or a broken string.
