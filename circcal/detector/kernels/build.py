@@ -20,8 +20,23 @@ __all__ = ["build", "synthetic_board"]
 
 
 def synthetic_board() -> tuple[np.ndarray, Board]:
-    """A 640x480 uint8 image of a 5x6 symmetric board (dots 5 mm on a 10 mm pitch) in perspective, drawn at 8x and
-    area-averaged: what :func:`build` runs the detector on."""
+    """The synthetic board image :func:`build` runs the detector on.
+
+    A 5x6 symmetric board (dots 5 mm on a 10 mm pitch) in perspective, drawn at 8x and area-averaged.
+
+    Returns
+    -------
+    image : numpy.ndarray
+        (480, 640) uint8: dark dots (30) on a bright board (230).
+    board : circcal.board.Board
+        The board drawn.
+
+    Examples
+    --------
+    >>> image, board = synthetic_board()
+    >>> image.shape, image.dtype
+    ((480, 640), dtype('uint8'))
+    """
     import cv2
 
     board = Board(5, 6, 10.0, 5.0)
@@ -66,9 +81,42 @@ def _exercise() -> None:
 
 
 def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
-    """Compile every kernel module ahead of time into ``out_dir`` (see the module docstring), skipping those whose
-    current source is built already (unless ``force``); builds of older sources are removed. Returns module -> the
-    kernels exported (or ``["(current)"]``). Needs numba and a C compiler (pycc compiles the module's C glue)."""
+    """Compile every kernel module ahead of time (``numba.pycc``) into a folder.
+
+    Runs the detector on :func:`synthetic_board` (:func:`_exercise`) so that numba compiles each kernel for the
+    argument types detection gives it, then exports every signature numba compiled (see the module docstring).
+    Modules whose current source is built already are skipped (unless ``force``); builds of older sources are
+    removed. The curvature shift table is stored beside them
+    (:func:`~circcal.detector.measure.curvature.store_table`). Each module's build is moved in whole: a reader never
+    sees half a build. Needs numba and a C compiler (pycc compiles the module's C glue).
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path
+        The folder to write to (default: :data:`~circcal.detector.kernels.jit.AOT_DIR`; modules are skipped as
+        current only there).
+    force : bool
+        Rebuild modules whose current source is built already.
+
+    Returns
+    -------
+    dict of str to list of str
+        Kernel module -> the kernels exported (``["(current)"]`` for a module skipped as built already).
+
+    Raises
+    ------
+    RuntimeError
+        The detector did not find the synthetic board (a detector change broke the build's exercise).
+    ImportError
+        numba is not installed.
+    OSError
+        ``out_dir`` cannot be written.
+
+    Examples
+    --------
+    >>> build()  # doctest: +SKIP
+    {'circcal.detector.image': ['_histogram_kernel'], ...}
+    """
     import tempfile
 
     import numba.pycc.compiler as pycc_compiler

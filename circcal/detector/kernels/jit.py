@@ -181,8 +181,27 @@ def _matches(specs: list, args: tuple) -> bool:
 
 
 class Kernel:
-    """One detector kernel: called from Python it runs the ahead-of-time build for its arguments' types, else
-    numba's JIT (imported on the first such call), else the plain Python function. ``py_func`` is the source."""
+    """One detector kernel, as :func:`njit` makes it: a callable that picks the fastest way to run its function.
+
+    Called from Python it runs the ahead-of-time build for its arguments' types, else numba's JIT (imported on the
+    first such call), else the plain Python function.
+
+    Parameters
+    ----------
+    fn : Callable
+        The kernel's Python source function.
+    options : dict of str to Any
+        numba's ``njit`` options for it (``cache``, ``nogil``, ``inline``, ``error_model``, ...).
+
+    Attributes
+    ----------
+    py_func : Callable
+        The source function (``fn``).
+    options : dict of str to Any
+        The ``njit`` options.
+    module : str
+        The name of the module that defines it (its kernel module).
+    """
 
     def __init__(self, fn: Callable, options: dict[str, Any]):
         self.py_func = fn
@@ -212,9 +231,16 @@ class Kernel:
         return out
 
     def jitted(self) -> Callable:
-        """numba's dispatcher for this kernel (the plain function without numba). The first call turns every kernel
-        of the module into numba dispatchers at once and rebinds the module's names to them, since a kernel calling
-        another is compiled by numba only if that name is numba's."""
+        """numba's dispatcher for this kernel, made on first use.
+
+        The first call turns every kernel of the module into numba dispatchers at once and rebinds the module's names
+        to them, since a kernel calling another is compiled by numba only if that name is numba's.
+
+        Returns
+        -------
+        Callable
+            numba's dispatcher; the plain Python function where numba is not installed.
+        """
         if self._jit is None:
             _jit_module(self.module)
         return self._jit  # type: ignore[return-value]
@@ -260,7 +286,31 @@ def _jit_module(module: str) -> None:
 
 
 def njit(*args, **kwargs):
-    """numba's ``njit`` signature (``@njit`` and ``@njit(...)``), returning a :class:`Kernel`."""
+    """Mark a function as a detector kernel: numba's ``njit`` signature, returning a :class:`Kernel`.
+
+    Usable as ``@njit`` and ``@njit(...)``. The kernel is registered under its module, for the ahead-of-time build
+    (:func:`circcal.detector.kernels.build.build`).
+
+    Parameters
+    ----------
+    *args : Callable
+        The function, when used bare (``@njit``).
+    **kwargs : Any
+        numba's ``njit`` options (``cache=True``, ``nogil=True``, ``inline="always"``, ``error_model="numpy"``, ...).
+
+    Returns
+    -------
+    Kernel or Callable
+        The :class:`Kernel` (bare use), or a decorator that makes one.
+
+    Examples
+    --------
+    >>> @njit(cache=True, nogil=True)  # doctest: +SKIP
+    ... def _twice(x):
+    ...     return 2.0 * x
+    >>> _twice(1.5)  # doctest: +SKIP
+    3.0
+    """
     if len(args) == 1 and callable(args[0]) and not kwargs:
         return njit()(args[0])
 
@@ -274,14 +324,29 @@ def njit(*args, **kwargs):
 
 
 def compile_seconds() -> float:
-    """Seconds this process has spent in kernel calls that made numba compile (never decreases)."""
+    """The time this process has spent in kernel calls that made numba compile.
+
+    A type the ahead-of-time build lacks, or no build; the time budget of an image
+    (:class:`circcal.detector.locate.budget.Deadline`) does not count it.
+
+    Returns
+    -------
+    float
+        s, never decreasing.
+    """
     return _compile_s
 
 
 def aot_status() -> dict[str, bool]:
-    """Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable (modules whose
-    kernels are all inlined into other modules' kernels, ``inline="always"``, have nothing of their own to build and
-    are not listed)."""
+    """Which kernel modules have an ahead-of-time build of their current source.
+
+    Returns
+    -------
+    dict of str to bool
+        Kernel module -> whether an ahead-of-time build of its current source is loaded or loadable. Modules whose
+        kernels are all inlined into other modules' kernels (``inline="always"``) have nothing of their own to
+        build and are not listed.
+    """
     return {
         m: bool(_load_aot(m)) for m, ks in _registry.items() if any(k.options.get("inline") != "always" for k in ks)
     }

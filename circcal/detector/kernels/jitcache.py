@@ -23,7 +23,23 @@ __all__ = ["enable", "sources_digest"]
 
 
 def sources_digest(paths: Sequence[str | Path]) -> str:
-    """SHA-256 (hex) of the files ``paths``, in order."""
+    """The SHA-256 of the contents of some files, in order.
+
+    Parameters
+    ----------
+    paths : sequence of (str or pathlib.Path)
+        The files.
+
+    Returns
+    -------
+    str
+        64 hex digits.
+
+    Raises
+    ------
+    OSError
+        A file cannot be read.
+    """
     h = hashlib.sha256()
     for p in paths:
         h.update(Path(p).read_bytes())
@@ -61,9 +77,22 @@ class _DependentLocator(caching._CacheLocator):
 
 
 def enable(dispatcher, dependency_files: Sequence[str | Path]) -> bool:
-    """Cache numba's ``dispatcher`` (made with ``cache=False``) on disk with the sources ``dependency_files`` in its
-    stamp. Returns False, leaving it uncached, where numba's locators are overridden (``NUMBA_CACHE_LOCATOR_CLASSES``:
-    the stamp would not be this one) or none can cache the function (no writable directory)."""
+    """Cache a numba dispatcher on disk with the sources of the kernels it calls in its stamp.
+
+    Parameters
+    ----------
+    dispatcher : numba.core.registry.CPUDispatcher
+        numba's dispatcher, made with ``cache=False``.
+    dependency_files : sequence of (str or pathlib.Path)
+        The source files of the kernel modules it calls.
+
+    Returns
+    -------
+    bool
+        True when cached; False, leaving it uncached, where numba's locators are overridden
+        (``NUMBA_CACHE_LOCATOR_CLASSES``: the stamp would not be this one) or none can cache the function (no
+        writable directory).
+    """
     if config.CACHE_LOCATOR_CLASSES:
         return False
     locator = type("Locator", (_DependentLocator,), {"digest": sources_digest(dependency_files)})
