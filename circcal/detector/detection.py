@@ -55,21 +55,50 @@ REASON_TEXT: dict[Reason, str] = {
 
 @dataclass
 class Detection:
-    """Result of :func:`circcal.detector.detect` on one image.
+    """The result of :func:`circcal.detector.detect` on one image.
 
-    ``found``: whether the board was found (whole, or a part labelled without ambiguity); ``centres``:
-    (rows*cols, 2) float64 px, images of the circle centres in OpenCV's object-point order, NaN for points not seen
-    (out of frame, occluded, or dropped as bad dots) (``None`` when not found); ``reason``: ``None`` when found,
-    else why not, in words; ``code``: the same as a :class:`Reason`. For re-correction and overlays:
-    ``edge_points`` (list of N (M_k, 2) px sub-pixel boundary points per dot, in board order, in the *distorted*
-    image as observed; (0, 2) for a point not seen), ``conics`` ((N, 3, 3) ellipses fitted to them, in the
-    undistorted image when a camera was given; NaN where not seen), ``ellipse_centres`` ((N, 2) px, the
-    uncorrected ellipse centres, distorted image), ``homography`` (board mm -> undistorted image px),
-    ``candidates`` ((K, 2) px all candidate dots), ``image_size`` (W, H), ``segmentation`` (which threshold, at
-    which scale, found the candidates). ``complete``: the view shows the board's whole extent (every point, up to
-    dropped dots); ``dropped``: why each dot of the board that was seen was left out (board point -> reason:
-    cut by the image border, an edge fit that is no ellipse, a size or shape unlike its neighbours'), so they do
-    not bias the solve; ``notes``: what else the image shows (another board, a larger dot grid), in words.
+    Attributes
+    ----------
+    found : bool
+        Whether the board was found (whole, or a part labelled without ambiguity).
+    centres : numpy.ndarray or None
+        (rows*cols, 2) float64 px: the images of the circle centres in OpenCV's object-point order, NaN for points
+        not seen (out of frame, occluded, or dropped as bad dots); ``None`` when not found.
+    reason : str or None
+        ``None`` when found, else why not, in words.
+    code : Reason or None
+        The same as a :class:`Reason`; ``None`` exactly when found.
+    edge_points : list of numpy.ndarray or None
+        For re-correction and overlays: N arrays (M_k, 2) px, each dot's sub-pixel boundary points, in board order,
+        in the *distorted* image as observed; (0, 2) for a point not seen.
+    conics : numpy.ndarray or None
+        (N, 3, 3) ellipses fitted to them, in the undistorted image when a camera was given; NaN where not seen.
+    ellipse_centres : numpy.ndarray or None
+        (N, 2) px: the uncorrected ellipse centres, distorted image.
+    homography : numpy.ndarray or None
+        (3, 3) board mm -> undistorted image px.
+    candidates : numpy.ndarray or None
+        (K, 2) px: all candidate dots.
+    image_size : tuple of int or None
+        (W, H) px.
+    segmentation : str or None
+        Which threshold, at which scale, found the candidates.
+    complete : bool
+        The view shows the board's whole extent (every point, up to dropped dots).
+    dropped : dict of int to str
+        Why each dot of the board that was seen was left out (board point -> reason: cut by the image border, an
+        edge fit that is no ellipse, a size or shape unlike its neighbours'), so they do not bias the solve.
+    notes : list of str
+        What else the image shows (another board, a larger dot grid), in words.
+    seen : numpy.ndarray or None
+        (N,) bool: the board points with a centre (``None`` when not found).
+    n_dropped : int
+        How many dots of the board were seen but left out as bad.
+
+    Raises
+    ------
+    ValueError
+        On construction, when ``code`` is given for a found board or missing for one not found.
     """
 
     found: bool
@@ -105,7 +134,17 @@ class Detection:
 
 
 class Rejection(NamedTuple):
-    """An image left out of a calibration: its path, why (:class:`Reason`) and the detector's words."""
+    """An image left out of a calibration: its path, why, and the detector's words.
+
+    Attributes
+    ----------
+    path : str
+        The image file.
+    code : Reason
+        Why, as a code.
+    reason : str
+        Why, in the detector's words.
+    """
 
     path: str
     code: Reason

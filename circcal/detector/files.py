@@ -30,16 +30,46 @@ def detect_files(
     jobs: int | None = None,
     on_result: Callable[[int, Detection], None] | None = None,
 ) -> list[Detection]:
-    """:func:`~circcal.detector.find.detect` on each image file, in the order given. A missing, unreadable or
-    corrupt file, an image the detector cannot take, or one of another size than ``camera``'s, gives
-    ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is caught. Shows a tqdm progress
-    bar when ``progress``.
+    """:func:`~circcal.detector.find.detect` on each image file, in threads, the results in the order given.
 
-    ``jobs``: images processed at once, in threads (decoding, OpenCV and the compiled loops release the GIL); ``None``
-    = one per CPU (at most :data:`MAX_DEFAULT_JOBS`). The results do not depend on it: each image is detected on its
-    own. ``on_result(i, detection)`` is called (in the calling thread) as soon as image ``i`` is done, in the order
-    they finish: a caller can save each result as it comes, so an interruption loses nothing already done. Raises
-    ``ValueError`` for ``jobs < 1``.
+    A missing, unreadable or corrupt file, an image the detector cannot take, or one of another size than
+    ``camera``'s, gives ``found=False`` with its reason and code (:func:`_detect_file`); nothing else is caught.
+    Decoding, OpenCV and the compiled loops release the GIL, so threads run in parallel. The results do not depend on
+    ``jobs``: each image is detected on its own.
+
+    Parameters
+    ----------
+    paths : list of pathlib.Path
+        The image files (str accepted).
+    board : circcal.board.Board
+        The board to find.
+    camera : circcal.model.Camera or None
+        A lens model: the centres are corrected under it, and an image of another size is refused
+        (``WRONG_IMAGE_SIZE``).
+    progress : bool
+        Show a tqdm progress bar.
+    jobs : int or None
+        Images processed at once, in threads; ``None`` = one per CPU (at most :data:`MAX_DEFAULT_JOBS`).
+    on_result : Callable[[int, Detection], None] or None
+        Called as ``on_result(i, detection)`` (in the calling thread) as soon as image ``i`` is done, in the order
+        they finish: a caller can save each result as it comes, so an interruption loses nothing already done.
+
+    Returns
+    -------
+    list of Detection
+        One per path, in the order given.
+
+    Raises
+    ------
+    ValueError
+        ``jobs < 1``.
+
+    Examples
+    --------
+    >>> from circcal.board import Board
+    >>> ds = detect_files([Path("view1.png"), Path("view2.png")], Board(7, 7, 20.0, 10.0))  # doctest: +SKIP
+    >>> [d.found for d in ds]  # doctest: +SKIP
+    [True, False]
     """
     from concurrent.futures import ThreadPoolExecutor, as_completed
 

@@ -83,9 +83,27 @@ messages handed on."""
 
 
 class ImageTooLargeError(ImageError):
-    """An image of more pixels than :func:`max_image_pixels` (claimed by its file's header, or refused for its size
-    by OpenCV's decoder): not decoded. ``pixels``: the number claimed (``None`` where only the decoder knew it);
-    ``limit``: the limit it exceeds."""
+    """An image of more pixels than :func:`max_image_pixels`: not decoded.
+
+    The size is claimed by its file's header, or OpenCV's decoder refused it for its size. An
+    :class:`~circcal.errors.ImageError` (so an :class:`~circcal.errors.InputError`).
+
+    Parameters
+    ----------
+    message : str
+        One line: what was claimed, the limit, how to raise it.
+    pixels : int or None
+        The number of pixels claimed (``None`` where only the decoder knew it).
+    limit : int
+        The limit it exceeds, pixels.
+
+    Attributes
+    ----------
+    pixels : int or None
+        The number of pixels claimed (``None`` where only the decoder knew it).
+    limit : int
+        The limit it exceeds, pixels.
+    """
 
     def __init__(self, message: str, pixels: int | None, limit: int):
         super().__init__(message)
@@ -94,13 +112,25 @@ class ImageTooLargeError(ImageError):
 
 
 def max_image_pixels() -> int:
-    """The most pixels an image file may claim: the environment variable :data:`MAX_IMAGE_PIXELS_ENV` when set
-    (a positive whole number; ``5e8`` and ``500_000_000`` are accepted), else :data:`MAX_IMAGE_PIXELS`.
+    """The most pixels an image file may claim, read from the environment at each call.
+
+    The environment variable :data:`MAX_IMAGE_PIXELS_ENV` when set (a positive whole number; ``5e8`` and
+    ``500_000_000`` are accepted), else :data:`MAX_IMAGE_PIXELS`.
+
+    Returns
+    -------
+    int
+        pixels (W x H).
 
     Raises
     ------
     InputError
         The variable is set to something else (one line naming it).
+
+    Examples
+    --------
+    >>> max_image_pixels()  # doctest: +SKIP
+    268435456
     """
     raw = os.environ.get(MAX_IMAGE_PIXELS_ENV, "").strip()
     if not raw:
@@ -175,16 +205,24 @@ def _opencv_message(text: str) -> str:
 
 
 def decode_image(data: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
-    """The image in the file contents ``data`` (bytes as a (n,) uint8 array), decoded by ``cv2.imdecode(data,
-    IMREAD_UNCHANGED)`` once its header's size is checked against :func:`max_image_pixels`, with what the decoders
-    print about the file caught.
+    """The image in the contents of an image file, decoded, with what the decoders print about the file caught.
+
+    Decoded by ``cv2.imdecode(data, IMREAD_UNCHANGED)`` once its header's size is checked against
+    :func:`max_image_pixels`.
+
+    Parameters
+    ----------
+    data : numpy.ndarray
+        (n,) uint8: the file's bytes.
 
     Returns
     -------
-    image, messages
-        The image (or ``None`` when no decoder can read it, or the decoder failed on it: OpenCV's exception becomes
-        a message) and the decoders' complaints (the stderr lines matching :data:`DECODER_NOISE` and OpenCV's error
-        lines, one each; other stderr output is written on).
+    image : numpy.ndarray or None
+        (H, W) or (H, W, 3|4) as stored (8 or 16 bit, or float); ``None`` when no decoder can read it, or the decoder
+        failed on it (OpenCV's exception becomes a message).
+    messages : list of str
+        The decoders' complaints: the stderr lines matching :data:`DECODER_NOISE` and OpenCV's error lines, one each
+        (other stderr output is written on).
 
     Raises
     ------
@@ -265,8 +303,30 @@ def _imdecode(data: np.ndarray) -> np.ndarray | cv2.error | None:
 
 
 def read_image_messages(path: Path) -> tuple[np.ndarray | None, list[str]]:
-    """:func:`read_image` and what the decoder said about the file (:func:`decode_image`; the same errors as
-    :func:`read_image`)."""
+    """:func:`read_image`, and what the decoder said about the file.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        An image file in any format OpenCV decodes (str accepted).
+
+    Returns
+    -------
+    image : numpy.ndarray or None
+        As :func:`read_image` returns it.
+    messages : list of str
+        The decoders' complaints about the file (:func:`decode_image`), one line each; empty for a clean file, and
+        for a missing or empty one.
+
+    Raises
+    ------
+    OSError
+        The file exists but cannot be read (permissions, I/O).
+    ImageTooLargeError
+        Its header claims more pixels than :func:`max_image_pixels` (see :func:`decode_image`).
+    InputError
+        :data:`MAX_IMAGE_PIXELS_ENV` is set to something other than a positive whole number.
+    """
     path = Path(path)
     if not path.is_file():
         return None, []
@@ -283,7 +343,7 @@ def read_image(path: Path) -> np.ndarray | None:
 
     Parameters
     ----------
-    path
+    path : pathlib.Path
         An image file in any format OpenCV decodes.
 
     Returns
@@ -312,7 +372,7 @@ def as_gray(image: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    image
+    image : numpy.ndarray
         (H, W), (H, W, 1) grey or (H, W, 3|4) BGR(A), of any integer or floating dtype (not bool).
 
     Returns
@@ -351,19 +411,62 @@ def as_gray(image: np.ndarray) -> np.ndarray:
 
 
 def stretch_percentiles(n_pixels: int, tail_px: float = STRETCH_TAIL_PX) -> tuple[float, float]:
-    """(low, high) percentiles stretched to 0 and 255 in an image of ``n_pixels``: :data:`STRETCH_PERCENTILES`, with
-    at most ``tail_px`` pixels beyond either (:data:`STRETCH_TAIL_PX`; an image shrunk s times passes it over s^2)."""
+    """The percentiles of an image's grey levels that the contrast stretch maps to 0 and 255.
+
+    :data:`STRETCH_PERCENTILES`, with at most ``tail_px`` pixels beyond either (:data:`STRETCH_TAIL_PX`).
+
+    Parameters
+    ----------
+    n_pixels : int
+        The image's number of pixels.
+    tail_px : float
+        The most pixels beyond either percentile (an image shrunk s times passes :data:`STRETCH_TAIL_PX` over s^2).
+
+    Returns
+    -------
+    low, high : float
+        Percentiles (0..100).
+
+    Examples
+    --------
+    >>> stretch_percentiles(640 * 480)
+    (0.5, 99.5)
+    >>> stretch_percentiles(4000 * 3000)  # 0.5 % would be 60,000 px: 2,000 at most
+    (0.016666666666666666, 99.98333333333333)
+    """
     tail = min(STRETCH_PERCENTILES[0], 100.0 * max(float(tail_px), 1.0) / max(int(n_pixels), 1))
     return tail, 100.0 - tail
 
 
 def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX, hist: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) uint8: the range of ``gray`` (H, W) between the :func:`stretch_percentiles` stretched to 0..255 (for
-    thresholding only; ``tail_px``: see there). Integer images (uint8/uint16, e.g. from :func:`as_gray`): percentiles
-    of all pixels from their histogram, the stretch through a lookup table of the same formula (identical results);
-    float images: percentiles of a subsample above :data:`FLOAT_SUBSAMPLE_ABOVE` pixels
-    (:data:`FLOAT_SUBSAMPLE_STEP`). ``hist``: (256,) int64, if given the counts of the result's values are added to
-    it (integer images: the input's histogram carried through the lookup table, no second pass over the pixels)."""
+    """The grey image contrast-stretched to uint8 (for thresholding only).
+
+    The range of ``gray`` between the :func:`stretch_percentiles` is stretched to 0..255 (clipped beyond). Integer
+    images (uint8/uint16, e.g. from :func:`as_gray`): percentiles of all pixels from their histogram, the stretch
+    through a lookup table of the same formula (identical results); float images: percentiles of a subsample above
+    :data:`FLOAT_SUBSAMPLE_ABOVE` pixels (:data:`FLOAT_SUBSAMPLE_STEP`). A flat image maps to 0.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) grey: uint8, uint16, float32 or float64 (as :func:`as_gray` gives it).
+    tail_px : float
+        See :func:`stretch_percentiles`.
+    hist : numpy.ndarray or None
+        (256,) int64; if given, the counts of the result's values are added to it in place (integer images: the
+        input's histogram carried through the lookup table, no second pass over the pixels).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) uint8.
+
+    Examples
+    --------
+    >>> normalise_u8(np.array([[10, 20], [30, 40]], np.uint8))
+    array([[  0,  84],
+           [170, 255]], dtype=uint8)
+    """
     q = stretch_percentiles(gray.size, tail_px)
     if gray.dtype in (np.uint8, np.uint16):
         counts = _counts(gray)
@@ -389,9 +492,26 @@ def normalise_u8(gray: np.ndarray, tail_px: float = STRETCH_TAIL_PX, hist: np.nd
 
 
 def histogram_u8(img: np.ndarray) -> np.ndarray:
-    """(256,) int64 counts of the values of ``img`` (H, W) uint8 (any strides): ``np.bincount(img.ravel(),
-    minlength=256)``, in one compiled pass (:func:`_histogram_kernel`; ~4x faster than ``cv2.calcHist`` at one
-    thread, and exact at any size, where calcHist counts in float32)."""
+    """The histogram of a uint8 image: ``np.bincount(img.ravel(), minlength=256)``.
+
+    One compiled pass (:func:`_histogram_kernel`; ~4x faster than ``cv2.calcHist`` at one thread, and exact at any
+    size, where calcHist counts in float32).
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        (H, W) uint8, any strides.
+
+    Returns
+    -------
+    numpy.ndarray
+        (256,) int64 counts.
+
+    Examples
+    --------
+    >>> histogram_u8(np.array([[0, 1], [1, 255]], np.uint8))[[0, 1, 2, 255]]
+    array([1, 2, 0, 1])
+    """
     out = np.zeros(256, np.int64)
     a = img if img.flags.c_contiguous else np.ascontiguousarray(img)
     _histogram_kernel(a.reshape(-1), out)
@@ -420,8 +540,15 @@ def _histogram_kernel(values, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def count_into(values, part):
-    """Adds the counts of ``values`` (n,) uint8 to the eight partial histograms ``part`` (8, 256) int32, in turn
-    (each partial count must stay below 2^31)."""
+    """Adds the counts of uint8 values to eight partial histograms, in turn (compiled, inlined into the kernels).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        (n,) uint8.
+    part : numpy.ndarray
+        (8, 256) int32, added to in place; each partial count must stay below 2^31.
+    """
     n = values.shape[0]
     i = 0
     while i + 8 <= n:

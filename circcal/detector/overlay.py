@@ -122,9 +122,9 @@ def draw_detection(image: np.ndarray, detection: Detection) -> np.ndarray:
 
     Parameters
     ----------
-    image
+    image : numpy.ndarray
         (H, W) grey or (H, W, 3|4) BGR(A) of any dtype :func:`~circcal.detector.image.as_gray` accepts.
-    detection
+    detection : Detection
         Any :class:`Detection`: found or not, complete or partial (NaN centres), with dots dropped.
 
     Returns
@@ -185,6 +185,15 @@ def _headline(detection: Detection, cs: np.ndarray) -> str:
 def write_overlay(path: Path, image: np.ndarray, detection: Detection) -> Path:
     """Write :func:`draw_detection` as PNG to ``path``, atomically (parent folders created).
 
+    Parameters
+    ----------
+    path : pathlib.Path
+        The PNG file to write (str accepted).
+    image : numpy.ndarray
+        (H, W) grey or (H, W, 3|4) BGR(A) of any dtype :func:`~circcal.detector.image.as_gray` accepts.
+    detection : Detection
+        Any :class:`Detection` (see :func:`draw_detection`).
+
     Returns
     -------
     Path
@@ -196,6 +205,11 @@ def write_overlay(path: Path, image: np.ndarray, detection: Detection) -> Path:
         ``image`` is one :func:`~circcal.detector.image.as_gray` refuses.
     OSError
         ``path`` cannot be written.
+
+    Examples
+    --------
+    >>> write_overlay(Path("overlay.png"), image, detect(image, board))  # doctest: +SKIP
+    PosixPath('overlay.png')
     """
     return _write_png(Path(path), draw_detection(image, detection))
 
@@ -208,9 +222,9 @@ def overlay_file(path: Path, detection: Detection) -> np.ndarray | None:
 
     Parameters
     ----------
-    path
-        The image file the detection was made on.
-    detection
+    path : pathlib.Path
+        The image file the detection was made on (str accepted).
+    detection : Detection
         Any :class:`Detection`.
 
     Returns
@@ -231,13 +245,28 @@ def overlay_file(path: Path, detection: Detection) -> np.ndarray | None:
 
 
 def write_overlay_file(dest: Path, path: Path, detection: Detection) -> Path | None:
-    """:func:`overlay_file` of ``path`` written as PNG to ``dest``, atomically (parent folders created): ``dest``,
-    or ``None`` with nothing written when the file gives no image (see there).
+    """:func:`overlay_file` of an image file, written as PNG, atomically (parent folders created).
+
+    Parameters
+    ----------
+    dest : pathlib.Path
+        The PNG file to write (str accepted).
+    path : pathlib.Path
+        The image file the detection was made on (str accepted).
+    detection : Detection
+        Any :class:`Detection`.
+
+    Returns
+    -------
+    Path or None
+        ``dest``; or ``None``, with nothing written, when the file gives no image (see :func:`overlay_file`).
 
     Raises
     ------
     OSError
         ``dest`` cannot be written.
+    InputError
+        Only for a setting, not a file: ``CIRCCAL_MAX_IMAGE_PIXELS`` set to something other than a whole number.
     """
     vis = overlay_file(path, detection)
     return None if vis is None else _write_png(Path(dest), vis)
