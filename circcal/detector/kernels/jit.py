@@ -2,15 +2,12 @@
 :mod:`circcal.detector.measure.ellipse`, :mod:`circcal.detector.measure.robust`): compiled ahead of time at install, numba's JIT
 where that build is missing or stale, plain Python where numba is missing too.
 
-Why ahead of time: numba costs a process ~0.3 s to import (it pulls in scipy) and ~0.45 s more at the first call of
-a kernel it has cached on disk (its type registries load then), which alone broke the 0.6 s a one-image
-``circcal detect`` may take. ``make setup`` therefore runs :func:`circcal.detector.kernels.build.build` (``python -m
+Why ahead of time, and the alternatives measured: ``docs/kernels.md`` ("Why ahead of time"). In short: numba's
+import and first cached call cost a process ~0.75 s, more than a one-image ``circcal detect`` may take;
+``make setup`` therefore runs :func:`circcal.detector.kernels.build.build` (``python -m
 circcal.detector.kernels.build``), which compiles every kernel module with ``numba.pycc`` into an extension under
 ``circcal/detector/_aot/``. Loading it needs neither numba nor scipy (~1 ms), and its code is numba's own for the
-same source and the same argument types (the same results to the bit and the same speed, measured: benchmarks/
-bench_startup.py). Alternatives measured against it: numba's on-disk cache (~0.75 s of fixed cost, above), Cython or
-vectorised numpy (the loops written a second time, in a module the detector does not own, and slower for
-quickselect and per-profile early exits).
+same source and the same argument types (the same results to the bit and the same speed).
 
 * Signatures: :func:`~circcal.detector.kernels.build.build` runs the detector on synthetic boards (uint8, uint16 and float32 images) under numba and
   exports every signature numba compiled for each kernel; a call whose arguments match none of them (checked here,
