@@ -1,5 +1,8 @@
 """``circcal validate``: circcal against the reference calibrators and ground truth; exits 1 when a check fails or
-nothing was checked, so users can gate their own CI on it."""
+nothing at all was compared, so users can gate their own CI on it. A run that compares results but has nothing to
+gate (``--observations own``, ``--mode default``, own images without a reference) says so and why, naming the
+options that would check something, and exits 0: nothing failed. The images circcal could not use are counted in the
+verdict; ``--min-images`` fails the run below a count or share of them."""
 
 from __future__ import annotations
 
@@ -33,8 +36,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="cross-validate circcal against mrcal, opencv, kornia, pycolmap and ground truth",
         description="Calibrate with circcal and with reference calibrators on the same images, compare every result "
         "with circcal and, for rendered fixtures, with the true camera. With no arguments: the `paper` "
-        "scenario against every reference. Exit status 1 when a check fails or nothing was checked, 2 on "
-        "bad input.",
+        "scenario against every reference. Exit status 1 when a check fails or nothing was compared, 0 when "
+        "every check passed or nothing is gated (the verdict says why), 2 on bad input.",
     )
     p.add_argument("scenario", nargs="?", help="fixture scenario (default: paper); see `circcal render --list`")
     p.add_argument("--variant", help="scenario variant (default: its first)")
@@ -100,9 +103,57 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="a reference that is not installed is listed as skipped instead of failing the run "
         "(`make setup` installs every built-in one)",
     )
+    p.add_argument(
+        "--min-images",
+        type=parse_min_images,
+        default=DEFAULT_MIN_IMAGES,
+        help="fail when fewer images than this gave circcal a view: a count (e.g. 4) or a share of the images "
+        "given (e.g. 50%% or 0.5; default 50%%)",
+    )
     p.add_argument("--report", type=Path, help="write validation.json and validation.md into this folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
+
+
+#: ``--min-images`` when not given: half the images must give circcal a view.
+DEFAULT_MIN_IMAGES = 0.5
+
+
+def parse_min_images(text: str) -> int | float:
+    """``--min-images``: a count (``4``) or a share (``50%``, ``0.5``).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    int or float
+        A count >= 1 (int) or a share in (0, 1] (float).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Neither (the CLI prints it with the option's name and exits 2).
+    """
+    t = text.strip()
+    try:
+        if t.endswith("%"):
+            share = float(t[:-1]) / 100.0
+        elif t.isdigit():
+            count = int(t)
+            if count >= 1:
+                return count
+            share = float("nan")
+        else:
+            share = float(t)
+    except ValueError:
+        share = float("nan")
+    if share > 0.0 and share <= 1.0:  # NaN fails both
+        return share
+    raise argparse.ArgumentTypeError(
+        f"{text!r}: expected a count of images >= 1 (e.g. 4) or a share of them (e.g. 50% or 0.5)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -116,7 +167,8 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        The exit status: 0 when every check passed; 1 when one failed or nothing was checked.
+        The exit status: 0 when every check passed or nothing is gated (the verdict says why); 1 when one failed
+        or nothing was compared.
 
     Raises
     ------
@@ -125,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     """
     from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
     from circcal.outputs import Outputs
-    from circcal.validators.validate import format_table, write_report
+    from circcal.validators.validate import format_table, verdict, write_report
 
     options = calibration_options(args)  # --lens, --fix-k3 (its lens replaced by the truth's when --lens is not given)
     with Outputs(
@@ -164,8 +216,9 @@ def run(args: argparse.Namespace) -> int:
         outputs.commit()
     if args.report:
         print(f"\nreport: {args.report}")
-    print(f"\n{'all checks passed' if result.passed else 'SOME CHECKS FAILED'}")
-    return 0 if result.passed else 1
+    lines, status = verdict(result)
+    print("\n" + "\n".join(lines))
+    return status
 
 
 def _run(args: argparse.Namespace, options, paths, board, truth_cam, against, source):
@@ -183,4 +236,5 @@ def _run(args: argparse.Namespace, options, paths, board, truth_cam, against, so
         bounds=Bounds(solver=args.solver_tol, truth_sigmas=args.truth_sigmas, truth=args.truth_tol),
         source=source,
         allow_missing=args.allow_missing,
+        min_images=args.min_images,
     )

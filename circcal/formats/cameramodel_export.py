@@ -182,7 +182,7 @@ def export_cameramodel(
             f"{len(image_points)} of image points"
         )
     try:
-        lat = board_lattice([np.asarray(o, dtype=np.float64) for o in object_points], staggered=True)
+        lat = board_lattice([np.asarray(o, dtype=np.float64) for o in object_points])
     except UnsupportedLayout as exc:
         raise ExportError(str(exc)) from None
     W, H, origin = lat["width_n"], lat["height_n"], lat["origin"]

@@ -262,5 +262,5 @@ class MrcalCalibrator(BaseCalibrator):
             mode,
             "unsupported",
             "mrcal has no circle-grid detector (its finder, mrgingham, finds chessboards): "
-            "use calibrate_observations with detected centres",
+            "with --observations circcal it fits circcal's centres",
         )

@@ -39,7 +39,11 @@ from circcal.validators.checks import (
 )
 from circcal.validators.shared import SharedObservations, share
 
-__all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "write_report"]
+__all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "verdict", "write_report", "VERDICTS"]
+
+#: What a run found, for :func:`verdict`: a check failed; every check passed (at least one); results were compared
+#: but none is gated (nothing failed, nothing was checked: own detectors, default mode only); nothing compared.
+VERDICTS: tuple[str, ...] = ("failed", "passed", "not gated", "nothing compared")
 
 
 @dataclass(frozen=True)
@@ -118,6 +122,9 @@ class ValidationRun:
         References that were not available and were allowed to be missing (``allow_missing``), with the reason.
     lens : str
         The lens model every calibrator fitted (:data:`circcal.model.LENS_MODELS`).
+    hints : list of str
+        Why no truth or reference check ran, each with the command-line option that would run one (empty when one
+        did).
     passed : bool
         Every check passed, and there was at least one.
     """
@@ -137,11 +144,30 @@ class ValidationRun:
     skipped: list[str] = field(default_factory=list)
     #: the lens model every calibrator fitted (:data:`circcal.model.LENS_MODELS`)
     lens: str = "opencv5"
+    #: why no truth or reference check ran, naming the command-line options that would run one
+    hints: list[str] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
         """Every check passed, and there was at least one."""
         return bool(self.checks) and all(c.passed for c in self.checks)
+
+    @property
+    def state(self) -> str:
+        """One of :data:`VERDICTS`: "failed", "passed", "not gated" (no check, but circcal and at least one reference
+        or the truth gave results the table compares) or "nothing compared"."""
+        if any(not c.passed for c in self.checks):
+            return "failed"
+        if self.checks:
+            return "passed"
+        compared = self.circcal.get("status") == "ok" and (self.truth is not None or any(r.ok for r in self.references))
+        return "not gated" if compared else "nothing compared"
+
+    @property
+    def images(self) -> tuple[int, int]:
+        """(usable, given): the images that gave circcal a view, of those given (0, given when circcal failed)."""
+        n = int(self.circcal.get("n_images", len(self.source.get("images", [])) or 0))
+        return int(self.circcal.get("n_views", 0) if self.circcal.get("status") == "ok" else 0), n
 
 
 def _compare(
@@ -193,13 +219,16 @@ def run_validation(
     progress: bool = True,
     source: dict[str, Any] | None = None,
     allow_missing: bool = False,
+    min_images: int | float | None = None,
 ) -> ValidationRun:
     """Calibrate images with circcal, then with each reference, and compare.
 
-    Never raises for a reference's failure: it becomes a row. The run fails (:attr:`ValidationRun.passed` false) when
-    a check fails and when nothing was checked (no check at all: a gate that cannot pass vacuously). A reference that
-    is not available fails it too: asked for by name, or, under "all", a built-in reference (``make setup`` installs
-    every one), unless ``allow_missing`` (then each one missing is listed as skipped).
+    Never raises for a reference's failure: it becomes a row. :attr:`ValidationRun.passed` is false when a check
+    fails and when nothing was checked (a gate that cannot pass vacuously); :attr:`ValidationRun.state` tells the
+    two apart ("failed"; "not gated" or "nothing compared", with :attr:`ValidationRun.hints` naming the options that
+    would check something). A reference that is not available fails the run: asked for by name, or, under "all", a
+    built-in reference (``make setup`` installs every one), unless ``allow_missing`` (then each one missing is
+    listed as skipped).
 
     Parameters
     ----------
@@ -229,6 +258,10 @@ def run_validation(
         Stored as :attr:`ValidationRun.source`; default ``{"images": paths}``.
     allow_missing : bool
         Let unavailable references be skipped instead of failing the run.
+    min_images : int or float or None
+        Fail the run (a check "images usable") when fewer images than this gave circcal a view: an int is a count
+        (>= 1), a float a share of the images given (0 < share <= 1). None: no such check (the count is still
+        reported).
 
     Returns
     -------
@@ -237,7 +270,8 @@ def run_validation(
     Raises
     ------
     circcal.errors.InputError
-        An unknown ``mode`` (:data:`RUN_MODES`), ``observations`` (:data:`OBSERVATIONS`) or reference name.
+        An unknown ``mode`` (:data:`RUN_MODES`), ``observations`` (:data:`OBSERVATIONS`) or reference name, a
+        ``min_images`` that is neither a count >= 1 nor a share in (0, 1].
 
     Examples
     --------
@@ -251,6 +285,7 @@ def run_validation(
         raise InputError(f"observations must be one of {', '.join(OBSERVATIONS)}, got {observations!r}")
     if mode not in RUN_MODES:
         raise InputError(f"mode must be one of {', '.join(RUN_MODES)}, got {mode!r}")
+    _check_min_images(min_images)
     names = registry.names() if "all" in against else list(dict.fromkeys(against))
     for n in names:
         if n not in registry.names():
@@ -262,7 +297,7 @@ def run_validation(
     fix_k3 = options.holds("k3")
 
     t0 = time.perf_counter()
-    cc: dict[str, Any] = {"status": "ok", "message": "", "camera": None}
+    cc: dict[str, Any] = {"status": "ok", "message": "", "camera": None, "n_images": len(paths)}
     shared: SharedObservations | None = None
     image_size = (truth.width, truth.height) if truth is not None else None
     try:
@@ -357,17 +392,20 @@ def run_validation(
         elif r.ok and observations == "circcal" and r.mode == "fair" and "vs_circcal" in row:
             b = {"mrcal": bounds.solver_mrcal, "lensboy": bounds.solver_lensboy}.get(r.name, bounds.solver)
             checks.append(solver_agreement(label, r, row["vs_circcal"]["max_px"], cc["solver_ssr"], b))
-    if not checks:
-        checks.append(
-            Check(
-                "something was checked",
-                0.0,
-                1.0,
-                False,
-                "nothing was checked: no ground truth and no reference result to compare (give a fixture "
-                "with truth.json, or --against a reference in fair mode on circcal's observations)",
+    hints = [] if checks else _nothing_checked(truth, refs, observations, modes)
+    if cc["status"] == "ok" and min_images is not None:
+        need = _images_needed(min_images, len(paths))
+        if cc["n_views"] < need:
+            checks.append(
+                Check(
+                    "images usable",
+                    float(cc["n_views"]),
+                    float(need),
+                    False,
+                    f"{len(paths) - cc['n_views']} of {len(paths)} images unusable (each with its reason above); --min-images "
+                    f"asks for at least {need}",
+                )
             )
-        )
     return ValidationRun(
         source or {"images": paths},
         board,
@@ -381,7 +419,88 @@ def run_validation(
         shared,
         skipped,
         lens,
+        hints,
     )
+
+
+def _check_min_images(v: int | float | None) -> None:
+    """``min_images`` is None, a count >= 1 or a share in (0, 1]; else :class:`InputError`."""
+    if v is None:
+        return
+    ok = not isinstance(v, bool) and (
+        (isinstance(v, int) and v >= 1) or (isinstance(v, float) and math.isfinite(v) and 0.0 < v <= 1.0)
+    )
+    if not ok:
+        raise InputError(
+            f"min_images must be a count >= 1 or a share in (0, 1] of the images given, got {v!r} "
+            f"(on the command line: --min-images 4 or --min-images 50%)"
+        )
+
+
+def _images_needed(v: int | float, n: int) -> int:
+    """The image count ``min_images`` asks for out of ``n`` given."""
+    return int(v) if isinstance(v, int) else max(1, math.ceil(v * n - 1e-9))
+
+
+def _nothing_checked(
+    truth: Camera | None, refs: Sequence[ReferenceResult], observations: str, modes: Sequence[str]
+) -> list[str]:
+    """Why a run checked nothing, each reason with the command-line option that would check something."""
+    out = []
+    if truth is None:
+        out.append(
+            "no ground truth (your own --images): the truth checks need a rendered scenario (`circcal validate "
+            "SCENARIO`) or --fixtures FOLDER with truth.json"
+        )
+    if not refs:
+        out.append("no reference was asked for: --against opencv,mrcal,... (or all)")
+    elif observations == "own":
+        out.append(
+            "--observations own: each reference fits its own detector's centres, so its camera differs from "
+            "circcal's by more than the solver bound; the table compares them, nothing is gated. "
+            "--observations circcal (the default) checks every reference against circcal on the same centres"
+        )
+    elif "fair" not in modes:
+        out.append(
+            "--mode default: the references' own estimators (board warp, regularisation, outlier rejection) differ "
+            "from circcal's, so they are compared, not gated; --mode fair or both checks them"
+        )
+    elif not any(r.ok for r in refs):
+        out.append("no reference gave a result (see each one's reason above)")
+    return out
+
+
+def verdict(run: ValidationRun) -> tuple[list[str], int]:
+    """What ``circcal validate`` prints last, and its exit status.
+
+    Parameters
+    ----------
+    run : ValidationRun
+
+    Returns
+    -------
+    lines : list of str
+        The verdict first ("all checks passed", "SOME CHECKS FAILED: ...", "nothing gated: ...", "NOTHING
+        COMPARED: ..."), then the images left unusable ("N of M images unusable") and why nothing was checked.
+    status : int
+        0 when nothing failed and something was compared (passed or not gated); 1 when a check failed or nothing at
+        all was compared.
+    """
+    state = run.state
+    used, given = run.images
+    lines = []
+    if state == "failed":
+        lines.append("SOME CHECKS FAILED: " + ", ".join(c.name for c in run.checks if not c.passed))
+    elif state == "passed":
+        lines.append(f"all checks passed ({len(run.checks)})")
+    elif state == "not gated":
+        lines.append("nothing gated: the results above are compared, none is checked (nothing failed)")
+    else:
+        lines.append("NOTHING COMPARED: no result to check circcal against")
+    if given and used < given:
+        lines.append(f"{given - used} of {given} images unusable (circcal used {used}; the reasons are listed above)")
+    lines += [f"- {h}" for h in run.hints]
+    return lines, (0 if state in ("passed", "not gated") else 1)
 
 
 def format_table(run: ValidationRun) -> str:
@@ -489,6 +608,8 @@ def format_table(run: ValidationRun) -> str:
             )
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "checks:"]
+    if not run.checks:
+        lines.append("- none (the verdict below says why)")
     for c in run.checks:
         mark = "PASS" if c.passed else "FAIL"
         bound = "" if not np.isfinite(c.bound) else f" (bound {c.bound:g})"
@@ -521,6 +642,8 @@ def to_dict(run: ValidationRun) -> dict[str, Any]:
             "comparisons": [{k: v for k, v in c.items()} for c in run.comparisons],
             "checks": [vars(c) for c in run.checks],
             "passed": run.passed,
+            "verdict": run.state,
+            "hints": run.hints,
         }
     )
 
@@ -545,5 +668,8 @@ def write_report(run: ValidationRun, out: str | Path) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "validation.json").write_text(json.dumps(to_dict(run), indent=1))
-    (out / "validation.md").write_text("# circcal validation\n\n" + format_table(run) + "\n")
+    lines, _ = verdict(run)
+    (out / "validation.md").write_text(
+        "# circcal validation\n\n" + format_table(run) + "\n\nverdict:\n\n" + "\n".join(lines) + "\n"
+    )
     return out
