@@ -1,4 +1,6 @@
-"""What several of the detector's test modules share: the 4x5 board, and writers of image files (good and bad)."""
+"""What several of the detector's test modules share: the repository's root, the 4x5 board and the camera of the
+accuracy renders, a render of that board with its true centres (:func:`_render`), detected centres' errors under the
+board's symmetries (:func:`matched_errors`), and writers of image files (good and bad)."""
 
 from __future__ import annotations
 
@@ -10,8 +12,39 @@ import cv2
 import numpy as np
 
 from circcal.board import Board
+from circcal.fixtures.poses import pose_looking_at
+from circcal.fixtures.render import render_view
+from circcal.model import Camera, project
+
+REPO = Path(__file__).resolve().parents[2]
 
 BOARD = Board(4, 5, 10.0, 5.0)
+
+
+def matched_errors(board: Board, centres: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) |detected - true| px under the board symmetry that fits best."""
+    best = None
+    for s in board.symmetries():
+        e = np.linalg.norm(centres - truth[s.perm], axis=1)
+        if best is None or e.mean() < best.mean():
+            best = e
+    return best
+
+
+CAM = Camera(1280, 960, 1600.0, 1600.0, 639.5, 479.5)
+
+
+def _render(camera, radius_px, tilt, axis=30.0, target=(700.0, 500.0)):
+    rvec, tvec = pose_looking_at(
+        camera,
+        BOARD,
+        distance_mm=camera.fx * BOARD.radius_mm / radius_px,
+        tilt_deg=tilt,
+        tilt_axis_deg=axis,
+        roll_deg=10.0,
+        target_px=target,
+    )
+    return render_view(camera, BOARD, rvec, tvec), project(BOARD.object_points(), rvec, tvec, camera), rvec, tvec
 
 
 def huge_png(path: Path, width: int = 100_000, height: int = 100_000) -> Path:

@@ -7,7 +7,10 @@ order, the good ones found, each bad one ``found=False`` with its :class:`Reason
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -16,7 +19,7 @@ import pytest
 from circcal.detector import Reason, detect_files
 from circcal.detector.image import MAX_IMAGE_PIXELS_ENV
 from circcal.fixtures.render import to_uint
-from tests.detector.helpers import BOARD, huge_png, tiff_with_samples, write
+from tests.detector.helpers import BOARD, CAM, REPO, _render, huge_png, matched_errors, tiff_with_samples, write
 
 
 @pytest.mark.parametrize("jobs", [1, 3])
@@ -77,3 +80,135 @@ def test_each_bad_file_is_one_rejected_image_with_its_code(tmp_path, view, jobs)
             assert d.centres is None and words in d.reason and "\n" not in d.reason, (path.name, d.reason)
     assert "limit of 268435456 pixels" in dets[paths.index(bad["huge.png"][0])].reason
     assert MAX_IMAGE_PIXELS_ENV in dets[paths.index(bad["huge.png"][0])].reason
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_detect_files_never_raises(tmp_path, jobs):
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"not an image")
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((100, 120), 200, np.uint8))
+    dets = detect_files([bad, tmp_path / "missing.png", blank], BOARD, progress=False, jobs=jobs)
+    assert [d.found for d in dets] == [False, False, False]
+    assert "unreadable" in dets[0].reason and "not found" in dets[1].reason
+    assert "candidate dots" in dets[2].reason
+    with pytest.raises(ValueError, match="jobs"):
+        detect_files([blank], BOARD, progress=False, jobs=0)
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_detect_files_gives_each_file_problem_its_reason_code(tmp_path, jobs):
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.full((5, 5), 200, np.uint8))
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((100, 120), 200, np.uint8))
+    paths = [corrupt, tmp_path / "missing.png", tmp_path, empty, tiny, blank]
+    dets = detect_files(paths, BOARD, progress=False, jobs=jobs)
+    assert [d.code for d in dets] == [
+        Reason.UNREADABLE,
+        Reason.FILE_NOT_FOUND,
+        Reason.FILE_NOT_FOUND,
+        Reason.UNREADABLE,
+        Reason.BAD_IMAGE,
+        Reason.TOO_FEW_CANDIDATES,
+    ]
+    assert not any(d.found for d in dets) and "not a file" in dets[2].reason and "too small" in dets[4].reason
+    (wrong,) = detect_files([blank], BOARD, CAM, progress=False, jobs=jobs)
+    assert wrong.code == Reason.WRONG_IMAGE_SIZE and "1280x960" in wrong.reason and wrong.image_size == (120, 100)
+
+
+@pytest.mark.parametrize("jobs", [1, 3])
+@pytest.mark.parametrize("error", [RuntimeError, ValueError])
+def test_a_bug_inside_detection_propagates_out_of_detect_files(tmp_path, monkeypatch, jobs, error):
+    # only what a file can cause becomes found=False; an exception from inside the detector (here a plain
+    # ValueError too, which is not an ImageError) is a bug and reaches the caller with its traceback
+    from circcal.detector import find
+
+    img, *_ = _render(CAM, 12, 30)
+    paths = [tmp_path / f"v{k}.png" for k in range(3)]
+    for path in paths:
+        cv2.imwrite(str(path), to_uint(img, 8))
+    paths.insert(1, tmp_path / "missing.png")
+    assert all(d.found for k, d in enumerate(detect_files(paths, BOARD, progress=False, jobs=jobs)) if k != 1)
+
+    def broken_fit(*args, **kwargs):
+        raise error("a bug in the edge fit")
+
+    monkeypatch.setattr(find, "fit_dots", broken_fit)
+    with pytest.raises(error, match="a bug in the edge fit") as raised:
+        detect_files(paths, BOARD, progress=False, jobs=jobs)
+    assert raised.traceback[-1].name == "broken_fit"
+
+
+def test_parallel_detection_gives_the_sequential_results_in_order(tmp_path):
+    paths = []
+    for k, (radius, tilt) in enumerate([(12, 30), (9, 50), (20, 10), (15, 40)]):
+        img, *_ = _render(CAM, radius, tilt)
+        paths.append(tmp_path / f"v{k}.png")
+        cv2.imwrite(str(paths[-1]), to_uint(img, 8))
+    paths.insert(2, tmp_path / "missing.png")
+    seq = detect_files(paths, BOARD, progress=False, jobs=1)
+    par = detect_files(paths, BOARD, progress=False, jobs=4)
+    assert [d.found for d in seq] == [True, True, False, True, True]
+    assert [d.found for d in par] == [d.found for d in seq] and par[2].reason == seq[2].reason
+    for a, b in zip(seq, par):
+        assert (a.centres is None and b.centres is None) or np.array_equal(a.centres, b.centres)
+
+
+def test_cli_writes_json_and_overlays(tmp_path):
+    img, truth, *_ = _render(CAM, 12, 30)
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), to_uint(img, 8))
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(b"\x00\x01")
+    out = tmp_path / "det.json"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "circcal.cli",
+            "detect",
+            str(good),
+            str(bad),
+            "--grid",
+            "4x5",
+            "--pitch",
+            "10mm",
+            "--diameter",
+            "5mm",
+            "--json",
+            str(out),
+            "--overlay",
+            str(tmp_path / "ov"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert r.returncode == 1, r.stderr  # one image failed
+    data = json.loads(out.read_text())
+    assert data["board"]["rows"] == 4 and data["board"]["cols"] == 5
+    g, b = data["images"]
+    assert g["found"] and g["reason"] is None and len(g["centers"]) == 20
+    assert matched_errors(BOARD, np.array(g["centers"]), truth).mean() < 0.01
+    assert not b["found"] and b["centers"] is None and "unreadable" in b["reason"]
+    assert (tmp_path / "ov" / "good_detect.png").exists()
+    r = subprocess.run(
+        [sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4x5", "--json", str(out), "--jobs", "0"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert r.returncode == 2 and "--jobs" in r.stderr and "at least 1" in r.stderr
+    r = subprocess.run(
+        [sys.executable, "-m", "circcal.cli", "detect", str(good), "--grid", "4by5", "--json", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert r.returncode == 2 and "--grid" in r.stderr and "ROWSxCOLS" in r.stderr

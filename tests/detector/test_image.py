@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from circcal.detector import Reason, detect_files
+from circcal.detector import Reason, detect, detect_files
 from circcal.detector.image import (
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_PIXELS_ENV,
@@ -22,7 +22,7 @@ from circcal.detector.image import (
 from circcal.detector.overlay import overlay_file
 from circcal.errors import ImageError, InputError
 from circcal.fixtures.render import to_uint
-from tests.detector.helpers import BOARD, huge_png, tiff_with_samples, write
+from tests.detector.helpers import BOARD, CAM, _render, huge_png, matched_errors, tiff_with_samples, write
 
 
 def test_every_image_kind_the_detector_takes_is_found_from_its_file(tmp_path, view):
@@ -126,3 +126,46 @@ def test_opencvs_decoding_errors_are_messages_not_exceptions(tmp_path):
     (d,) = detect_files([tiff_with_samples(tmp_path / "five.tiff", 5)], BOARD, progress=False)
     assert d.code == Reason.UNREADABLE and "Unsupported number of channels" in d.reason
     assert "loadsave.cpp" not in d.reason and "\n" not in d.reason
+
+
+def test_uint16_and_bgr_inputs_agree():
+    img, truth, *_ = _render(CAM, 12, 40)
+    a = detect(to_uint(img, 16), BOARD)
+    b = detect(cv2.cvtColor(to_uint(img, 8), cv2.COLOR_GRAY2BGR), BOARD)
+    assert a.found and b.found
+    assert matched_errors(BOARD, a.centres, truth).mean() < 0.005
+    assert matched_errors(BOARD, b.centres, truth).mean() < 0.01
+
+
+def test_compiled_histogram_is_numpys_bincount():
+    from circcal.detector.image import histogram_u8
+
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 256, (301, 407), dtype=np.uint8)
+    for a in (img, img[::3, 1::2], img[:1, :3], np.zeros((5, 0), np.uint8), np.full((64, 64), 17, np.uint8)):
+        assert np.array_equal(histogram_u8(a), np.bincount(a.ravel(), minlength=256))
+
+
+@pytest.mark.parametrize("dtype,top", [(np.uint8, 256), (np.uint16, 65536)])
+@pytest.mark.parametrize("shape", [(1, 1), (3, 7), (360, 640)])
+def test_contrast_stretch_percentiles_from_the_histogram_equal_numpys(dtype, top, shape):
+    from circcal.detector.image import _counts, _histogram_percentiles, normalise_u8
+
+    rng = np.random.default_rng(shape[0])
+    img = rng.integers(0, top // 4, shape).astype(dtype) + dtype(top // 8)  # not the full range: the stretch acts
+    q = (0.0, 0.5, 37.0, 99.5, 100.0)
+    assert np.allclose(_histogram_percentiles(_counts(img), q), np.percentile(img, q), rtol=0, atol=1e-9)
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    expect = np.clip((img.astype(np.float64) - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+    hist = np.full(256, 3, np.int64)  # (added to, as the segmentation's counts are)
+    assert np.array_equal(normalise_u8(img, hist=hist), expect)
+    assert np.array_equal(hist, 3 + np.bincount(expect.ravel(), minlength=256))  # the result's counts, carried
+
+
+def test_contrast_stretch_of_a_float_image_counts_its_result():
+    from circcal.detector.image import normalise_u8
+
+    img = np.random.default_rng(3).normal(0.5, 0.2, (90, 120)).astype(np.float32)
+    hist = np.zeros(256, np.int64)
+    out = normalise_u8(img, hist=hist)
+    assert np.array_equal(hist, np.bincount(out.ravel(), minlength=256))

@@ -13,6 +13,7 @@ import pytest
 
 from circcal.detector.find import detect
 from circcal.detector.kernels import jit
+from tests.detector.helpers import BOARD, CAM, _render
 
 REPO = Path(__file__).resolve().parents[2]
 BUILT = all(jit.aot_status().values()) and bool(jit.aot_status())
@@ -184,3 +185,33 @@ def test_threads_meeting_cold_kernels_all_get_compiled_code(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.split() == ["[True,", "True,", "True,", "True]"]
+
+
+def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):
+    # the compiled loops are ordinary Python too: blocked numba import -> warning, identical centres
+    img, truth, *_ = _render(CAM, 10, 30)
+    np.save(tmp_path / "img.npy", img)
+    code = (
+        "import sys, warnings; sys.modules['numba'] = None\n"
+        "with warnings.catch_warnings(record=True) as w:\n"
+        "    warnings.simplefilter('always')\n"
+        "    import circcal.detector.kernels.jit\n"
+        "import numpy as np\n"
+        "from circcal.board import Board\n"
+        "from circcal.detector import detect\n"
+        f"d = detect(np.load({str(tmp_path / 'img.npy')!r}), Board(4, 5, 10.0, 5.0))\n"
+        f"np.save({str(tmp_path / 'c.npy')!r}, d.centres)\n"
+        "print(circcal.detector.kernels.jit.COMPILED, any('numba is not installed' in str(x.message) for x in w))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+        env={**os.environ, "CIRCCAL_AOT": "0"},
+    )  # without the ahead-of-time kernels too
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["False", "True"]
+    d = detect(img, BOARD)
+    assert np.allclose(np.load(tmp_path / "c.npy"), d.centres, rtol=0, atol=1e-9)
