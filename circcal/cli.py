@@ -23,7 +23,19 @@ from typing import NoReturn
 from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
 
 #: Subcommands, in the order ``--help`` shows them.
-COMMANDS = ("demo", "render", "board", "detect", "calibrate", "convert", "diff", "validate", "report", "study")
+COMMANDS = (
+    "demo",
+    "render",
+    "board",
+    "detect",
+    "calibrate",
+    "convert",
+    "diff",
+    "validate",
+    "conformance",
+    "report",
+    "study",
+)
 
 
 class OneLineParser(argparse.ArgumentParser):

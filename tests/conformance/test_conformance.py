@@ -271,8 +271,8 @@ def test_option_selects_the_calibrator_under_test():
     assert "1 failed, 1 passed" in text, text[-3000:]
     assert "circcal conformance: calibrator(s) under test: opencv_calibrate (FunctionCalibrator), biased" in text
     assert re.search(
-        r"FAIL biased unknown \[fair\] vs circcal on identical observations: max projection "
-        r"difference, px: 0\.0\d+ \(bound 1e-06\)",
+        r"FAIL biased unknown \[opencv5\] vs circcal's solve \(opencv5\) on identical observations: max px: "
+        r"0\.0\d+ \(bound 1e-06\) - f[xy] differs by \+0\.\d+ px \(\+1\d\.\d+ sigma\) from circcal's solve",
         text,
     ), text[-3000:]
     assert "-circcal" not in text.split("short test summary info")[-1]
@@ -309,3 +309,118 @@ def test_predicted_truth_rms_scales_with_the_stated_sigmas():
     two = conformance.predicted_truth_rms(cam, {k: 2 * v for k, v in std.items()}, None, n=50)
     assert 0 < one["p50"] < one["p99"] < 1.0
     assert two["p99"] == pytest.approx(2 * one["p99"], rel=1e-3)  # same draws, linear regime
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Calibrators under test: declared models, verdicts that name the parameter, no vacuous pass
+# --------------------------------------------------------------------------------------------------------------------
+
+
+def test_a_calibrator_declares_its_model_and_a_bad_declaration_is_named():
+    def fn(obj, img, size):
+        raise AssertionError("not called")
+
+    fn.lens, fn.fixes = "rational", ("k3", "tangential")
+    assert conformance.declared_model(FunctionCalibrator(fn)) == ("rational", ("p1", "p2", "k3"))
+    assert conformance.declared_model(FunctionCalibrator(lambda o, i, s: None)) == ("opencv5", ())
+    for lens, fixes, words in [
+        ("opencv5", ("k4",), "k4"),
+        ("opencv5", ("fx",), "fx cannot be held"),
+        ("opencv5", "k3", "expected a tuple"),
+        ("pinhole9", (), "pinhole9"),
+    ]:
+        fn.lens, fn.fixes = lens, fixes
+        with pytest.raises(ValueError, match=re.escape(words)):
+            conformance.declared_model(FunctionCalibrator(fn))
+
+
+def test_a_truth_the_declared_model_cannot_represent_is_named():
+    wide = Camera(1280, 960, 1000.0, 998.0, 641.5, 478.3, [-0.3, 0.1, 0.0006, -0.0004, -0.01])
+    assert conformance.unrepresentable(wide, "opencv5", ()) == ""
+    assert conformance.unrepresentable(wide, "rational", ()) == ""  # k4-k6 = 0 in the truth
+    assert "the true k3 is -0.01" in conformance.unrepresentable(wide, "opencv5", ("k3",))
+    assert "the true cx is 641.5; the calibrator holds it at 639.5" in conformance.unrepresentable(
+        wide, "opencv5", ("principal_point",)
+    )
+    assert "fx / fy" in conformance.unrepresentable(wide, "opencv5", ("aspect_ratio",))
+    assert "fisheye" in conformance.unrepresentable(wide, "fisheye", ())
+    rational = Camera(1280, 960, 660.0, 660.0, 640.0, 480.0, [-0.3, 0.1, 0, 0, 0, 0.5, 0, 0], lens="rational")
+    assert "k4 = 0.5" in conformance.unrepresentable(rational, "opencv5", ())
+
+
+def test_circcal_solves_under_the_same_holds():
+    obj, img, size, cam = _problem(n_views=8)
+    obs = conformance.Observations(
+        "wide", "clean", "", cam, Board(7, 7, 15.0, 7.0), [], "opencv5", object_points=obj, image_points=img
+    )
+    from circcal.solver import calibrate
+
+    obs.solver_camera = calibrate(obj, img, size).camera
+    held, std, _ = conformance.restricted_solve(obs, "opencv5", ("k3", "principal_point"))
+    assert held.dist[4] == 0.0 and (held.cx, held.cy) == ((size[0] - 1) / 2, (size[1] - 1) / 2)
+    assert std["k3"] == 0.0 and std["fx"] > 0
+    wider, _, _ = conformance.restricted_solve(obs, "rational", ())
+    assert wider.lens == "rational"
+
+
+def _records(label, cx_offsets_px, sigma=0.34, shared=0.0):
+    """Records of a calibrator whose cx differs from circcal's solve by the offsets, circcal's solve off the truth by
+    ``shared`` (the observations' own bias) plus noise; fx, fy, cy exact."""
+    rng = np.random.default_rng(1)
+    out = []
+    for off in cx_offsets_px:
+        circ = shared + rng.normal(0, sigma)
+        row = {"value": 0.0, "sigma": sigma, "vs_circcal": off, "vs_circcal_sigmas": off / sigma}
+        row |= {"vs_truth": circ + off, "vs_truth_sigmas": (circ + off) / sigma}
+        zero = {"value": 0.0, "sigma": 1.0, "vs_circcal": 0.0, "vs_circcal_sigmas": 0.0}
+        zero |= {"vs_truth": 0.0, "vs_truth_sigmas": 0.0}
+        out.append({"label": label, "status": "checked", "params": {"cx": row, "fx": zero, "fy": zero, "cy": zero}})
+    return out
+
+
+def test_a_consistent_offset_is_named_across_cases_where_each_case_alone_is_within_its_sigmas():
+    from circcal.validators.bounds import BIAS_T
+
+    recs = _records("shifted", [0.5] * 12) + _records("honest", [0.0] * 12, shared=0.3)
+    recs.append({"label": "shifted", "status": "unsupported", "params": {}})  # not counted
+    by = {(b.label, b.param): b for b in conformance.bias_tests(recs, BIAS_T)}
+    cx = by[("shifted", "cx")]
+    assert cx.n == 12 and cx.biased and cx.vs_circcal == pytest.approx(0.5)
+    assert cx.excess_t == pytest.approx(0.5 / 0.34 * np.sqrt(12))  # SD 0 < 1: the honest-sigma SE, 1/sqrt(n)
+    assert cx.words().startswith("cx biased by +0.5 px from circcal's solve")
+    # the observations' own bias shows against the truth in circcal's solve too: not held against the calibrator
+    honest = by[("honest", "cx")]
+    assert abs(honest.t) > BIAS_T and honest.circcal_t == honest.t and not honest.biased
+    one = conformance.bias_tests(_records("once", [0.5]), BIAS_T)
+    assert not [b for b in one if b.biased]  # one case at 1.5 sigma is no evidence of a bias
+
+
+def test_an_unavailable_or_raising_calibrator_is_not_a_pass():
+    obj, img, size, cam = _problem(n_views=4)
+    obs = conformance.Observations(
+        "paper", "normal", "", cam, Board(7, 7, 15.0, 7.0), [], "opencv5", object_points=obj, image_points=img
+    )
+    obs.solver_camera = cam
+    case = conformance.Case("paper", "normal", "mine", user=True)
+
+    class Missing(FunctionCalibrator):
+        def available(self):
+            return False, "libfoo not installed"
+
+    out = conformance.run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"))
+    assert out.status == "unavailable" and "libfoo not installed" in conformance.failed_checks(out)[0].note
+    out = conformance.run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"), allow_unavailable=True)
+    assert out.skip_reason and not out.checks
+
+    def raises(o, i, s):
+        raise ValueError("singular matrix")
+
+    out = conformance.run_user_case(case, obs, FunctionCalibrator(raises, "mine"))
+    (bad,) = conformance.failed_checks(out)
+    assert out.status == "failed" and "Traceback" in bad.note and 'raise ValueError("singular matrix")' in bad.note
+
+    def refuses(o, i, s):
+        raise NotImplementedError("asymmetric grids only")
+
+    out = conformance.run_user_case(case, obs, FunctionCalibrator(refuses, "mine"))
+    assert out.status == "unsupported" and "asymmetric grids only" in out.skip_reason
