@@ -71,9 +71,10 @@ def report(tmp_path_factory):
 def test_report_holds_every_part(report):
     html = (report / "index.html").read_text()
     md = (report / "index.md").read_text()
-    body = html[html.index('<div class="verdict"') :]
-    lines = re.findall(r"<p>(.*?)</p>", body[: body.index("</div>")])
-    assert len(lines) == 3
+    body = html[html.index('<div class="verdict') :]
+    lines = re.findall(r"<p[^>]*>(.*?)</p>", body[: body.index("</div>")])
+    assert len(lines) == 5 and lines[1].startswith("Next: ")  # the headline and its next step, then the numbers
+    lines = lines[2:]
     assert "RMS per point (OpenCV)" in lines[0] and "RMS per coordinate (mrcal)" in lines[0] and "mean 2-D" in lines[0]
     assert lines[1].startswith("cross-validation: consistent")
     assert lines[2].startswith("projection uncertainty at infinity: worst")
@@ -148,6 +149,150 @@ def test_report_in_a_headless_browser(report, width, tmp_path):
     assert info["loaded"] == info["n"]
     assert info["scroll"] <= info["inner"], info
     assert info["wide"] == [], info
+
+
+@pytest.mark.skipif(
+    _chromium() is None,
+    reason="chromium is not installed (as root: apt-get install -y chromium; `make setup` does it where it can)",
+)
+def test_report_html_alone_shows_every_figure(report, tmp_path):
+    """report.html sent alone (copied into an empty folder) still shows every figure: they are embedded."""
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(report / "report.html", alone / "report.html")
+    html = (alone / "report.html").read_text()
+    srcs = re.findall(r'<img src="([^"]*)"', html)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    info = _browser_check(alone / "report.html", WIDTHS[0], tmp_path / "profile")
+    assert info["n"] == len(srcs) >= len(FIGURES) + 1 and info["loaded"] == info["n"], info
+    assert info["scroll"] <= info["inner"] and info["wide"] == [], info
+
+
+def test_verdict_comes_first_coloured_with_its_next_step(report):
+    html = (report / "index.html").read_text()
+    body = html[html.index("<body>") :]
+    first = re.search(
+        r"<div class=\"verdict (good|check|bad)\" id=\"verdict\">\s*<p class=\"headline\">(.*?)</p>", body
+    )
+    assert first and body.index('<div class="verdict') < body.index("<h2>"), body[:600]
+    assert first.group(2).startswith(first.group(1).upper() + ": ")
+    assert re.search(r'<p class="next">Next: \S', body)
+    md = (report / "index.md").read_text()
+    assert md.splitlines()[2].startswith(f"> **{first.group(1).upper()}: ")
+
+
+def test_headline_levels():
+    """bad when the lens model does not fit or the halves disagree; check when unverified; good only when
+    cross-validated, fitting and covered."""
+    from types import SimpleNamespace as NS
+
+    from circcal.calreport.document import headline
+
+    fits = NS(fits=True, lens="opencv5", message=lambda: "fits")
+    wrong = NS(fits=False, lens="opencv5", message=lambda: "does NOT fit: try --lens rational (a wide lens). (B.)")
+    ok_cv = NS(status="ok", verdict="consistent", flagged_views=[], diff=NS(where=None), message="")
+    bad_cv = NS(status="ok", verdict="model-or-data-problem", flagged_views=[], diff=NS(where=[("top-left", 0.3)]))
+    cov = NS(warnings=[])
+    res = NS(rvecs=[0] * 10)
+
+    def a(cv, fit, c=cov):
+        return NS(crossval=cv, lens_fit=fit, coverage=c, result=res)
+
+    assert headline(a(ok_cv, fits), 10)["level"] == "good"
+    h = headline(a(ok_cv, wrong), 10)
+    assert h["level"] == "bad" and h["next"] == "recalibrate with --lens rational (a wide lens)"
+    h = headline(a(bad_cv, fits), 10)
+    assert h["level"] == "bad" and "top-left" in h["text"]
+    assert "--cross-validate" in headline(a(None, fits), 10)["next"]
+    h = headline(a(ok_cv, fits, NS(warnings=["nothing in the top-left corner"])), 10)
+    assert h["level"] == "check" and "top-left" in h["next"]
+    assert headline(a(ok_cv, fits), 30)["level"] == "check"  # 10 of 30 images
+
+
+def test_text_problems_finds_clipped_and_overlapping_text():
+    """The checker the report's figures pass can fail: a title wider than its figure, two labels on one spot."""
+    from circcal.calreport import figures as F
+
+    fig = F._figure(3.0, 2.0)
+    ax = fig.add_subplot()
+    ax.set_title("a title far too long to fit a figure three inches wide, clipped at both ends")
+    ax.text(0.5, 0.5, "first label", transform=ax.transAxes)
+    ax.text(0.52, 0.5, "second label", transform=ax.transAxes)
+    probs = F.text_problems(fig)
+    assert any("leaves the figure" in p for p in probs) and any("overlaps" in p for p in probs), probs
+    fig = F._figure(3.0, 2.0)
+    fig.add_subplot().set_title("short")
+    assert F.text_problems(fig) == []
+
+
+def _real_report(folder: Path, args: list[str], problems: dict) -> Path:
+    """``circcal calibrate ARGS --report folder/report``, collecting :func:`text_problems` of every figure saved."""
+    from circcal.calreport import document
+    from circcal.calreport import figures as F
+
+    real = F.save_png
+
+    def save(fig, path):
+        problems[Path(path).stem] = F.text_problems(fig)
+        return real(fig, path)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(document.F, "save_png", save)
+        out = folder / "report"
+        assert main(["calibrate", *args, "--no-progress", "--out", str(folder / "m.json"), "--report", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def real_reports(realdata, tmp_path_factory):
+    """Reports of both real sets: the 10x8 one cross-validated (held-out bars, "N out" labels, the detector's
+    dropped dots), the asymmetric one with --refine-board (the board's shape); {name: (folder, text problems)}."""
+    out = {}
+    reg = realdata / "boofcv_sony_hx5v_circle_regular_10x8"
+    asym = realdata / "boofcv_sony_hx5v_circle_asym_4x5"
+    for name, imgs, extra in (
+        ("regular", sorted(reg.glob("image*.jpg")), ["--grid", "10x8", "--pitch", "30mm", "--cross-validate"]),
+        (
+            "asym",
+            sorted(asym.glob("image*.jpg")),
+            ["--grid", "5x4", "--pitch", "30mm", "--asymmetric", "--refine-board"],
+        ),
+    ):
+        problems: dict = {}
+        d = tmp_path_factory.mktemp(name)
+        folder = _real_report(d, [*map(str, imgs), "--diameter", "20mm", *extra], problems)
+        out[name] = (folder, problems)
+    return out
+
+
+def test_real_reports_figure_text_is_whole_and_apart(real_reports):
+    for name, (_folder, problems) in real_reports.items():
+        assert {"views", "vectors", "histogram", "coverage", "correlation"} <= set(problems), (name, problems)
+        bad = {fig: p for fig, p in problems.items() if p}
+        assert not bad, (name, bad)
+    assert "crossval" in real_reports["regular"][1] and "board" in real_reports["asym"][1]
+
+
+def test_detector_drops_have_their_own_table(real_reports):
+    folder, _ = real_reports["regular"]
+    html = (folder / "index.html").read_text()
+    md = (folder / "index.md").read_text()
+    assert "nan" not in html.lower().replace("nanmax", "")
+    drops = html[html.index("Dots the detector left out") : html.index("Residual beyond")]
+    rows = re.findall(r"<tr><td class=\"text\">(image\d+\.jpg)</td>", drops)
+    assert len(rows) >= 10, drops[:2000]  # image00005's dots under a hand's shadow, and more
+    assert "a dark object touches it" in drops or "uneven" in drops
+    beyond = html[html.index("Residual beyond") : html.index("<h2>Coverage</h2>")]
+    assert "bad-dot" not in beyond and "(nan" not in beyond
+    assert "### Dots the detector left out" in md and "(nan, nan)" not in md
+
+
+def test_refined_board_is_drawn(real_reports):
+    folder, _ = real_reports["asym"]
+    html = (folder / "index.html").read_text()
+    assert "<h2>Board shape</h2>" in html and 'src="figures/board.png"' in html
+    assert (folder / "figures" / "board.png").stat().st_size > 5000
+    assert "![the board's estimated shape](figures/board.png)" in (folder / "index.md").read_text()
 
 
 def test_report_folder_that_is_a_file_is_refused_before_the_work(tmp_path, capsys):
@@ -242,7 +387,7 @@ def hostile_report(hostile, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(image_mod, "read_image", read_image)
         index = write_report(assessment, folder)
-    assert index == folder / "index.html"
+    assert index == folder / "report.html"
     return folder
 
 

@@ -10,6 +10,12 @@ through each format's escaping: HTML by Jinja2's autoescape, Markdown by :func:`
 :func:`md_text` (backslash escapes), figures by drawing names as plain text (no mathtext, no TeX; see
 :mod:`circcal.calreport.figures`); ``report.json`` holds names as :func:`circcal.pathnames.path_to_json` (lossless).
 
+The HTML is written twice: ``report.html``, self-contained (every figure embedded as a ``data:`` URI: the one file
+to send), and ``index.html``, the same page linking ``figures/`` beside it as ``index.md`` does.
+
+The page opens with the verdict (:func:`headline`): good / check / bad, coloured, with its next step, then the three
+lines of numbers. The detector's dropped dots and the solve's outliers are two tables: a dropped dot has no residual.
+
 Errors name their convention (``rms_per_point_px`` OpenCV's RMS, ``rms_per_coord_px`` mrcal's, ``mean_2d_px`` the
 paper's); uncertainties are 1-sigma, worst direction, px.
 """
@@ -29,13 +35,27 @@ from circcal.calreport import figures as F
 from circcal.errors import ImageError
 from circcal.pathnames import display_name, path_to_json
 
-__all__ = ["write_report", "report_context", "md_name", "md_text", "OVERLAY_WIDTH_PX", "TEMPLATES"]
+__all__ = [
+    "write_report",
+    "report_context",
+    "headline",
+    "md_name",
+    "md_text",
+    "OVERLAY_WIDTH_PX",
+    "BACKDROP_WIDTH_PX",
+    "TEMPLATES",
+    "SELF_CONTAINED",
+]
 
 #: Overlays of failed images are scaled to this width (px) for the report (the detector's own overlay tool writes
 #: full size).
 OVERLAY_WIDTH_PX = 640
+#: The images behind the residual vectors are scaled to this width (px): a panel is ~300 px wide.
+BACKDROP_WIDTH_PX = 480
 #: The templates, by output file.
 TEMPLATES = {"index.html": "calibration.html.j2", "index.md": "calibration.md.j2"}
+#: The self-contained page (figures embedded), rendered from the HTML template.
+SELF_CONTAINED = "report.html"
 
 
 def _environment():
@@ -143,6 +163,98 @@ def _overlay(path: str, detection: Any, dest: Path) -> str | None:
     return None
 
 
+def _backdrop(path: str) -> np.ndarray | None:
+    """A view's image, grey and scaled to :data:`BACKDROP_WIDTH_PX`, to draw the residuals over; None when it cannot
+    be read (another process changed it)."""
+    import cv2
+
+    from circcal.detector.image import read_image
+
+    try:
+        img = read_image(Path(path))
+    except (ImageError, OSError):
+        return None
+    if img is None:
+        return None
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.shape[1] > BACKDROP_WIDTH_PX:
+        s = BACKDROP_WIDTH_PX / img.shape[1]
+        img = cv2.resize(img, (BACKDROP_WIDTH_PX, max(1, int(round(img.shape[0] * s)))), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def headline(assessment: Any, n_images: int) -> dict[str, str]:
+    """The verdict a user acts on: how the calibration looks and the next step.
+
+    "bad": the lens model does not fit, or the two halves of a cross-validation disagree; "check": nothing wrong was
+    found but something is unverified or thin (no cross-validation, views that disagree, regions of the image
+    without observations, half the images unusable); "good": cross-validated, the lens model fits, every ninth of
+    the image observed.
+
+    Parameters
+    ----------
+    assessment : circcal.analysis.assess.Assessment
+    n_images : int
+        The images given (the used views are the assessment's).
+
+    Returns
+    -------
+    dict
+        ``{"level": "good" | "check" | "bad", "text": the verdict, "next": the next step}``.
+    """
+    cv, fit, cov = assessment.crossval, assessment.lens_fit, assessment.coverage
+    used = len(assessment.result.rvecs)
+    if fit is not None and not fit.fits:
+        m = re.search(r"try (.*?)\. ", fit.message())  # the --lens options the lens-fit message suggests
+        return {
+            "level": "bad",
+            "text": f"the lens model {fit.lens} does not fit this lens: the residuals follow the radius",
+            "next": f"recalibrate with {m.group(1) if m else 'another --lens'}",
+        }
+    if cv is not None and cv.status == "ok" and cv.verdict != "consistent":
+        worst = [str(w[0]) for w in (getattr(cv.diff, "where", None) or [])[:2]]  # image thirds, worst first
+        where = f" (worst: {', '.join(worst)})" if worst else ""
+        return {
+            "level": "bad",
+            "text": f"the two halves of the views disagree beyond their uncertainty{where}",
+            "next": "look at the views flagged below (leave them out, or re-shoot them) and at the coverage; a lens "
+            "model that cannot follow the lens disagrees too",
+        }
+    if cv is None or cv.status != "ok":
+        return {
+            "level": "check",
+            "text": "fits, but unverified: a small RMS alone does not show the calibration is right",
+            "next": "rerun with --cross-validate (it calibrates two halves of the views and compares them)"
+            if cv is None
+            else f"add views: {display_name(cv.message)}",
+        }
+    if cv.flagged_views:
+        return {
+            "level": "check",
+            "text": f"consistent overall, but {len(cv.flagged_views)} view(s) disagree with the others",
+            "next": "check the flagged views in the table below; leave them out or re-shoot them",
+        }
+    if cov.warnings:
+        return {
+            "level": "check",
+            "text": "consistent, but parts of the image hold no observations: distortion there is extrapolated",
+            "next": "add views with the board in: " + "; ".join(display_name(w) for w in cov.warnings[:3]),
+        }
+    if n_images and used < n_images / 2:
+        return {
+            "level": "check",
+            "text": f"consistent, from {used} of {n_images} images",
+            "next": "see why the others gave no view (Images left out, below)",
+        }
+    return {
+        "level": "good",
+        "text": "consistent: the two halves of the views agree within their uncertainty, the lens model fits, "
+        "every ninth of the image holds observations",
+        "next": "use it; the uncertainty map shows where it is least sure",
+    }
+
+
 def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     """Draw every figure into ``folder/figures`` and build the templates' context.
 
@@ -184,7 +296,11 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
     if cv is not None and cv.status == "ok":
         heldout = [v.heldout_rms_per_coord_px for v in cv.views]
     put("views", F.fig_view_bars(names, [e["rms_per_coord_px"] for e in res.per_view_errors], heldout, n_rej))
-    put("vectors", F.fig_residual_vectors(names, pts, res.residuals, rejected_xy, w, h))
+    view_paths = [cal.paths[i] for i in cal.used] if len(cal.used) == len(names) else [None] * len(names)
+    backdrops = [_backdrop(p) if p is not None else None for p in view_paths]
+    put("vectors", F.fig_residual_vectors(names, pts, res.residuals, rejected_xy, w, h, images=backdrops))
+    if res.board_points is not None and res.board_nominal is not None:
+        put("board", F.fig_board_shape(res.board_nominal, res.board_points, res.board_std))
     put("histogram", F.fig_histogram(np.concatenate(res.residuals), res.sigma_px))
     put("coverage", F.fig_coverage(assessment.coverage, allpts))
     if assessment.uncertainty is not None:
@@ -226,10 +342,24 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
                 flag=display_name(vc.why),
             )
         views.append(row)
-    outliers = []
+    outliers, dropped = [], []
     if rej is not None:
         gnames = [display_name(n) for n in assessment.cal_view_names()]
         for r in rej.items:
+            view = gnames[r.view] if r.view < len(gnames) else f"view {r.view}"
+            if r.reason.value == "bad-dot":  # the detector's: before any solve, no residual
+                measured = r.image_px is not None and bool(np.all(np.isfinite(r.image_px)))
+                reason, _, detail = display_name(r.detail).partition(": ")
+                dropped.append(
+                    {
+                        "view": view,
+                        "point": str(r.point),
+                        "where": f"({r.image_px[0]:.1f}, {r.image_px[1]:.1f})" if measured else "not measured",
+                        "reason": reason if detail else "bad dot",
+                        "detail": detail or reason,
+                    }
+                )
+                continue
             outliers.append(
                 {
                     "view": gnames[r.view] if r.view < len(gnames) else f"view {r.view}",
@@ -311,6 +441,8 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         "params": params,
         "views": views,
         "outliers": outliers,
+        "dropped": dropped,
+        "headline": headline(assessment, len(cal.paths)),
         "outlier_rule": None
         if rej is None
         else {"k": rej.rule.k, "floor": rej.rule.sigma_floor_px, "rounds": rej.rounds},
@@ -352,6 +484,13 @@ def _report_json(x: Any, names: bool, key: str = "") -> Any:
     return x
 
 
+def _data_uri(path: Path) -> str:
+    """A PNG file as a ``data:`` URI."""
+    import base64
+
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
 def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
     """Write the report of ``assessment`` into ``folder``, an existing empty folder (the command's staging folder).
 
@@ -360,14 +499,14 @@ def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
     assessment : circcal.analysis.assess.Assessment
         The calibration and its assessment.
     folder : str or path-like
-        An existing, empty folder: ``index.html``, ``index.md``, ``report.json`` and ``figures/`` are written into
-        it; nothing is deleted or replaced. Committing the folder to its final place (together with the command's
+        An existing, empty folder: ``report.html`` (self-contained), ``index.html``, ``index.md``, ``report.json``
+        and ``figures/`` are written into it; nothing is deleted or replaced. Committing the folder to its final place (together with the command's
         other outputs) is the caller's job.
 
     Returns
     -------
     pathlib.Path
-        ``folder / "index.html"``.
+        ``folder / "report.html"``, the self-contained page.
 
     Raises
     ------
@@ -391,5 +530,9 @@ def write_report(assessment: Any, folder: str | os.PathLike) -> Path:
     }
     for out, name in TEMPLATES.items():
         (folder / out).write_text(env.get_template(name).render(**ctx), encoding="utf-8")
+    embedded = {k: _data_uri(folder / v) for k, v in ctx["figures"].items()}
+    failed = [{**f, "overlay": _data_uri(folder / f["overlay"]) if f["overlay"] else None} for f in ctx["failed"]]
+    page = env.get_template(TEMPLATES["index.html"]).render(**{**ctx, "figures": embedded, "failed": failed})
+    (folder / SELF_CONTAINED).write_text(page, encoding="utf-8")
     (folder / "report.json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")
-    return folder / "index.html"
+    return folder / SELF_CONTAINED

@@ -42,6 +42,8 @@ __all__ = [
     "fig_histogram",
     "fig_correlation",
     "fig_crossval",
+    "fig_board_shape",
+    "text_problems",
 ]
 
 #: rcParams every figure is drawn under.
@@ -51,6 +53,11 @@ VECTOR_COLUMNS = 4
 #: A residual arrow is drawn this many image widths long for the largest residual of the set (one scale for every
 #: panel, stated in a key arrow).
 ARROW_SHARE = 0.12
+#: The images behind the residual vectors are drawn this opaque (dimmed, so that the arrows stay readable).
+IMAGE_ALPHA = 0.35
+#: Texts may overlap or leave the figure by this much (px at the saved resolution) before :func:`text_problems`
+#: reports them (anti-aliasing and rounding of the extents).
+TEXT_SLACK_PX = 1.0
 #: Colour map for magnitudes (perceptually uniform, readable in grey).
 CMAP = "viridis"
 #: Text properties of every name drawn: literal text (no mathtext, no TeX).
@@ -116,6 +123,69 @@ def save_png(fig: Any, path: str | Path) -> Path:
         fig.savefig(buf, format="png", metadata={"Software": None})
     atomic.write_bytes(path, buf.getvalue())
     return path
+
+
+def _drawn_texts(fig: Any, renderer: Any) -> list[tuple[str, Any]]:
+    """Every text ``fig`` draws, with its window extent: visible, non-empty, and for tick labels only the ticks the
+    axis draws (matplotlib keeps labels of ticks outside the view, undrawn)."""
+    from matplotlib.text import Text
+
+    ticks: dict[int, bool] = {}
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            drawn = {id(t) for t in axis._update_ticks()} if ax.axison and axis.get_visible() else set()
+            for t in [*axis.get_major_ticks(), *axis.get_minor_ticks()]:
+                for lab in (t.label1, t.label2):
+                    ticks[id(lab)] = id(t) in drawn
+    out = []
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text().strip() or not ticks.get(id(t), True):
+            continue
+        if t.axes is not None and not t.axes.get_visible():
+            continue
+        out.append((t.get_text(), t.get_window_extent(renderer)))
+    return out
+
+
+def text_problems(fig: Any) -> list[str]:
+    """Texts of a figure, drawn as :func:`save_png` saves it, that leave the figure or overlap another text.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+
+    Returns
+    -------
+    list of str
+        One line per problem (the text, and where or what it overlaps); empty when every text is whole and apart.
+    """
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    with matplotlib.rc_context(STYLE), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"Glyph \d+ .*missing from font", UserWarning)
+        dpi = fig.dpi
+        fig.set_dpi(matplotlib.rcParams["savefig.dpi"])
+        try:
+            canvas = FigureCanvasAgg(fig)
+            canvas.draw()
+            renderer = canvas.get_renderer()
+            texts = _drawn_texts(fig, renderer)
+            W, H = fig.bbox.width, fig.bbox.height
+        finally:
+            fig.set_dpi(dpi)
+    e = TEXT_SLACK_PX
+    out = []
+    for label, b in texts:
+        if b.x0 < -e or b.y0 < -e or b.x1 > W + e or b.y1 > H + e:
+            out.append(
+                f"{label!r} leaves the figure ({b.x0:.0f}..{b.x1:.0f} x {b.y0:.0f}..{b.y1:.0f} of {W:.0f}x{H:.0f} px)"
+            )
+    for i, (la, a) in enumerate(texts):
+        for lb, b in texts[i + 1 :]:
+            if min(a.x1, b.x1) - max(a.x0, b.x0) > e and min(a.y1, b.y1) - max(a.y0, b.y0) > e:
+                out.append(f"{la!r} overlaps {lb!r}")
+    return out
 
 
 def _title(ax: Any, text: str, width_in: float) -> None:
@@ -264,28 +334,41 @@ def fig_view_bars(
     matplotlib.figure.Figure
     """
     n = len(names)
-    fig = _figure(max(6.4, 0.45 * n + 2), 3.4)
+    width_in = max(6.4, 0.45 * n + 2)
+    fig = _figure(width_in, 3.8)
     ax = fig.add_subplot()
     x = np.arange(n)
     wbar = 0.4 if heldout is not None else 0.7
     ax.bar(x - (wbar / 2 if heldout is not None else 0), rms, wbar, label="fit residual", color="tab:blue")
+    tops = np.asarray(rms, dtype=np.float64)
     if heldout is not None:
         ax.bar(x + wbar / 2, heldout, wbar, label="held out (predicted by the other views)", color="tab:orange")
-    for i, k in enumerate(n_rejected):
-        if k:
-            ax.annotate(
-                f"{k} out",
-                (x[i], 0),
-                xytext=(0, -24),
-                textcoords="offset points",
-                ha="center",
-                fontsize=7,
-                color="tab:red",
-            )
+        tops = np.fmax(tops, np.asarray(heldout, dtype=np.float64))
+    tops = np.where(np.isfinite(tops), tops, 0.0)
+    top = float(np.max(tops)) if n else 1.0
+    if any(n_rejected):  # "N out" above each view's bars, inside the axes: never on the tick labels
+        ax.set_ylim(0, 1.18 * top if top > 0 else 1.0)
+        for i, k in enumerate(n_rejected):
+            if k:
+                ax.annotate(
+                    f"{k} out",
+                    (x[i], tops[i]),
+                    xytext=(0, 2),
+                    textcoords="offset points",
+                    ha="center",
+                    va="bottom",
+                    fontsize=7 if n < 20 else 6,
+                    color="tab:red",
+                )
     ax.set_xticks(x, [name_label(n) for n in names], rotation=45, ha="right", fontsize=7, **PLAIN_TEXT)
     ax.set_ylabel("RMS per coordinate (px)")
-    ax.set_title("Residuals per view (RMS per coordinate, mrcal's convention)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    _title(
+        ax,
+        "Residuals per view (RMS per coordinate, mrcal's convention)"
+        + ("; red: points left out" if any(n_rejected) else ""),
+        width_in - 1.2,
+    )
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8, frameon=False)
     return fig
 
 
@@ -296,10 +379,12 @@ def fig_residual_vectors(
     rejected: Sequence[np.ndarray],
     width: int,
     height: int,
+    images: Sequence[np.ndarray | None] | None = None,
 ) -> Any:
-    """One panel per view: each point's residual (observed - projected) as an arrow.
+    """One panel per view: each point's residual (observed - projected) as an arrow over the view's image (dimmed),
+    axes in image pixels.
 
-    One arrow scale for every panel (key arrow in the first); rejected points as red crosses.
+    One arrow scale for every panel (a key arrow in the first panel's lower right); rejected points as red crosses.
 
     Parameters
     ----------
@@ -309,10 +394,13 @@ def fig_residual_vectors(
         Observed points per view, px.
     residuals : sequence of ndarray, shape (N_v, 2)
         Residuals per view, px.
-    rejected : sequence of ndarray, shape (N_v,)
-        bool, rejected points per view.
+    rejected : sequence of ndarray, shape (M_v, 2)
+        The rejected points of each view, px (NaN rows, a dot the detector dropped unmeasured, are not drawn).
     width, height : int
         Image size, px.
+    images : sequence of (ndarray or None), optional
+        Each view's image (grey or colour, any size: drawn stretched over the whole imager, dimmed by
+        :data:`IMAGE_ALPHA`); None where there is none.
 
     Returns
     -------
@@ -321,8 +409,8 @@ def fig_residual_vectors(
     n = len(names)
     cols = min(VECTOR_COLUMNS, n)
     rows = int(math.ceil(n / cols))
-    pw = 2.6
-    fig = _figure(pw * cols + 0.4, pw * height / width * rows + 0.9)
+    pw = 2.9
+    fig = _figure(pw * cols + 0.6, (pw - 0.3) * height / width * rows + 0.5 * rows + 1.0)
     axes = fig.subplots(rows, cols, squeeze=False)
     big = max([float(np.max(np.linalg.norm(r, axis=1))) for r in residuals if len(r)] + [1e-12])
     scale = big / (ARROW_SHARE * width)  # px of residual per px of arrow
@@ -331,6 +419,15 @@ def fig_residual_vectors(
             ax.set_axis_off()
             continue
         p, r = np.asarray(points[k]), np.asarray(residuals[k])
+        img = images[k] if images is not None and k < len(images) else None
+        if img is not None:
+            ax.imshow(
+                img,
+                cmap="gray" if img.ndim == 2 else None,
+                extent=[-0.5, width - 0.5, height - 0.5, -0.5],
+                alpha=IMAGE_ALPHA,
+                interpolation="antialiased",
+            )
         ax.quiver(
             p[:, 0],
             p[:, 1],
@@ -348,20 +445,111 @@ def fig_residual_vectors(
         ax.set_xlim(-0.5, width - 0.5)
         ax.set_ylim(height - 0.5, -0.5)
         ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set_xticks([0, width // 2, width - 1])
+        ax.set_yticks([0, height // 2, height - 1])
+        ax.tick_params(labelsize=6, labelleft=k % cols == 0, labelbottom=k >= n - cols)
         ax.set_title(name_label(names[k]), fontsize=8, **PLAIN_TEXT)
         if k == 0:
-            first = ax.collections[0]
+            first = ax.collections[-1]
+            first_ax = ax
     key = float(f"{big:.1g}")
     fig.suptitle(
-        f"Residual vectors over each image (one arrow scale for all panels; largest {big:.3g} px; red x: "
-        f"left out as outliers)",
+        "\n".join(
+            textwrap.wrap(
+                f"Residual vectors (observed - projected) over each image, dimmed; one arrow scale for every panel, "
+                f"the key arrow in the first panel is {key:g} px; largest {big:.3g} px; red x: left out",
+                int(11 * (pw * cols + 0.6)),
+            )
+        ),
         fontsize=9,
     )
-    fig.supxlabel(f"key: the arrow on the right is {key:g} px of residual", fontsize=8)
-    axes.ravel()[0].quiverkey(
-        first, 0.78, 0.012, key, f"{key:g} px", labelpos="E", coordinates="figure", fontproperties={"size": 8}
+    fig.supxlabel("x (px)", fontsize=8)
+    fig.supylabel("y (px)", fontsize=8)
+    first_ax.quiverkey(
+        first,
+        0.72,
+        0.1,
+        key,
+        f"{key:g} px",
+        labelpos="N",
+        coordinates="axes",
+        color="black",
+        fontproperties={"size": 7},
+    )
+    return fig
+
+
+def fig_board_shape(nominal: np.ndarray, refined: np.ndarray, std: np.ndarray | None = None) -> Any:
+    """The board's estimated shape (``--refine-board``): each point's departure from the nominal board.
+
+    Colour: the out-of-plane departure (mm); arrows: the in-plane departure, exaggerated by one factor for every
+    point (stated in the title and a key arrow).
+
+    Parameters
+    ----------
+    nominal, refined : ndarray, shape (P, 3)
+        The nominal and the estimated board points, mm (the refinement's gauge: its frame, not the nominal's).
+    std : ndarray, shape (P, 3), optional
+        Standard deviations of the estimate, mm (their largest out-of-plane one is stated).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    nominal = np.asarray(nominal, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(refined, dtype=np.float64).reshape(-1, 3) - nominal
+    span = float(np.ptp(nominal[:, :2], axis=0).max()) or 1.0
+    inplane = np.linalg.norm(d[:, :2], axis=1)
+    big = float(np.max(inplane)) if len(d) else 0.0
+    gain = float(f"{0.08 * span / big:.1g}") if big > 0 else 1.0  # the largest arrow ~8% of the board
+    x0, x1 = float(nominal[:, 0].min()), float(nominal[:, 0].max())
+    y0, y1 = float(nominal[:, 1].min()), float(nominal[:, 1].max())
+    pad = 0.12 * span
+    aspect = (y1 - y0 + 2 * pad) / (x1 - x0 + 2 * pad)
+    fig = _figure(6.4, min(8.0, 5.0 * aspect + 1.4))
+    ax = fig.add_subplot()
+    zmax = float(np.max(np.abs(d[:, 2]))) or 1e-9
+    sc = ax.scatter(
+        nominal[:, 0],
+        nominal[:, 1],
+        c=d[:, 2],
+        cmap="RdBu_r",
+        vmin=-zmax,
+        vmax=zmax,
+        s=28,
+        zorder=3,
+        edgecolors="0.4",
+        linewidths=0.5,
+    )
+    fig.colorbar(sc, ax=ax, label="out of plane, estimated - nominal (mm)", shrink=0.8)
+    q = ax.quiver(
+        nominal[:, 0],
+        nominal[:, 1],
+        d[:, 0] * gain,
+        d[:, 1] * gain,
+        angles="xy",
+        scale_units="xy",
+        scale=1.0,
+        width=0.004,
+        color="black",
+        zorder=4,
+    )
+    key = float(f"{big:.1g}") if big > 0 else 0.0
+    if key > 0:
+        ax.quiverkey(
+            q, 0.8, 0.04, key * gain, f"{key:g} mm", labelpos="N", coordinates="axes", fontproperties={"size": 7}
+        )
+    ax.set_xlim(x0 - pad, x1 + pad)
+    ax.set_ylim(y1 + pad, y0 - pad)  # the board as its image shows it: y down
+    ax.set_aspect("equal")
+    ax.set_xlabel("board x (mm)")
+    ax.set_ylabel("board y (mm)")
+    sz = "" if std is None else f"; its largest out-of-plane sigma {float(np.max(np.asarray(std)[:, 2])):.2g} mm"
+    _title(
+        ax,
+        f"Board shape (--refine-board): out of plane up to {zmax:.3g} mm (colour), in plane up to {big:.3g} mm "
+        f"(arrows x{gain:g}){sz}",
+        5.0,
     )
     return fig
 
