@@ -289,7 +289,9 @@ def test_missing_mrcal_is_unavailable(monkeypatch, problem):
     )
 
 
-def test_asymmetric_grid_unsupported_by_mrcal():
+def test_asymmetric_grid_fitted_by_mrcal():
+    """One rule for asymmetric boards across validate and convert (issue 36): mrcal fits them (its board is the
+    staggered points' full lattice with the absent points unobserved), as the .cameramodel export does."""
     from circcal.validators.mrcal import MrcalCalibrator, board_lattice
 
     board = Board(11, 4, 10.0, 5.0, layout="asymmetric")
@@ -297,8 +299,7 @@ def test_asymmetric_grid_unsupported_by_mrcal():
     cal = MrcalCalibrator()
     skip_unless_available(cal)
     res = cal.calibrate_observations(p["object_points"], p["image_points"], p["image_size"])
-    assert res.status == "unsupported"
-    assert "asymmetric" in res.message
+    assert res.status == "ok", res.message
     # the lattice mapping itself: symmetric boards map, with the right size and pitch
     lat = board_lattice([Board(8, 10, 25.0, 15.0).object_points()])
     assert (lat["width_n"], lat["height_n"], lat["spacing"]) == (10, 8, 25.0)

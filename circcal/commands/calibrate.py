@@ -303,5 +303,7 @@ def run(args: argparse.Namespace) -> int:
         outputs.commit()
     print(f"wrote {display_name(args.out)} ({fmt}{', ' + how if how else ''})")
     if args.report is not None:
-        print(f"wrote the report {display_name(args.report / 'index.html')}")
+        print(
+            f"wrote the report {display_name(args.report / 'report.html')} (one self-contained file; Markdown: index.md)"
+        )
     return 0

@@ -387,7 +387,7 @@ class BaseCalibrator:
         return self.result(
             mode,
             "unsupported",
-            f"{self.name} has no circle-grid detector of its own; use calibrate_observations with detected centres",
+            f"{self.name} has no circle-grid detector of its own; with --observations circcal it fits circcal's centres",
         )
 
     # -- public, never raising ------------------------------------------------------------------------------------

@@ -221,10 +221,10 @@ def scenario_lens(scenario: str) -> str:
 KNOWN_FAILURES: dict[str, str] = {}
 
 #: (scenario, reference) -> a word the "unsupported" message must contain.
-EXPECTED_UNSUPPORTED: dict[tuple[str, str], str] = {("asymmetric", "mrcal"): "asymmetric"}
+EXPECTED_UNSUPPORTED: dict[tuple[str, str], str] = {}
 #: reference -> board layout -> a word its "unsupported" message must contain, for every scenario with such a board
-#: (mrcal's board model is a full rectangular lattice: asym-perspective's 3x6 staggered grid as much as asymmetric's).
-UNSUPPORTED_LAYOUTS: dict[str, dict[str, str]] = {"mrcal": {"asymmetric": "asymmetric"}}
+#: (empty: mrcal fits a staggered grid as the full lattice with its absent points unobserved, issue 36).
+UNSUPPORTED_LAYOUTS: dict[str, dict[str, str]] = {}
 #: scenario -> a word circcal's refusal must contain (no reference cases: there are no circcal observations).
 CIRCCAL_UNSUPPORTED: dict[str, str] = {"paper-checkerboard": "checkerboard"}
 #: Scenarios whose views a calibrator may reject, each with a reason: if every view is rejected, circcal's case

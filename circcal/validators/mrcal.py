@@ -2,8 +2,8 @@
 
 mrcal cannot be imported beside numpy 2 on Python 3.11, so :mod:`circcal.formats.mrcal_worker` runs under another
 interpreter (the plumbing is :mod:`circcal.formats.mrcal_process`; its names are re-exported here). Lens models
-``opencv5`` / ``rational`` / ``thin-prism`` (``LENSMODEL_OPENCV5`` / ``8`` / ``12``); ``fisheye`` and staggered
-(asymmetric) grids are unsupported. Modes: "fair" (no board warp, regularisation or outlier rejection) and
+``opencv5`` / ``rational`` / ``thin-prism`` (``LENSMODEL_OPENCV5`` / ``8`` / ``12``); ``fisheye`` is unsupported;
+a staggered (asymmetric) grid is fitted as its full lattice with the absent points unobserved. Modes: "fair" (no board warp, regularisation or outlier rejection) and
 "default" (all three). The details are in docs/references.md ("How the adapters work: mrcal").
 """
 
