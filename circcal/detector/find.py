@@ -78,7 +78,9 @@ def detect(
 
     ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots
     on a dark ground is found on the inverted image, and the detection says so in its notes). ``camera``: optional
-    model; when given, the centre correction accounts for its lens distortion. ``time_budget_s``: seconds this image
+    model; when given, the board's lattice is recognised among the candidate dots undistorted by it (the rows of a
+    wide lens's view bend beyond what the pixel positions' checks follow) and the centre correction accounts for its
+    lens distortion. ``time_budget_s``: seconds this image
     may take (:data:`~circcal.detector.locate.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
     found with :attr:`Reason.TIME_BUDGET`. The board may be partly out of frame or occluded: the dots seen are
     labelled when that is unambiguous (a marker board, or the board's whole extent in view), the others are NaN.
@@ -137,7 +139,7 @@ def _not_found(
             msg += f" ({best} candidate dots)"
     if not inverted and code in (Reason.TOO_FEW_CANDIDATES, Reason.GRID_NOT_RECOGNISED):
         inv = _invert(gray)
-        if _shows_board(inv, board, deadline):
+        if _shows_board(inv, board, deadline, camera):
             d = _detect(inv, board, camera, deadline, inverted=True)
             if d.found:
                 d.notes = [*d.notes, BRIGHT_DOTS_NOTE]
@@ -152,10 +154,10 @@ def _invert(gray: np.ndarray) -> np.ndarray:
     return gray.max() - gray
 
 
-def _shows_board(gray: np.ndarray, board: Board, deadline: Deadline) -> bool:
+def _shows_board(gray: np.ndarray, board: Board, deadline: Deadline, camera: Camera | None) -> bool:
     """Whether the first segmentation of ``gray`` shows the board's lattice (whole or in part): the quick test
-    before a whole detection on the inverted image."""
-    rec, *_ = segment_and_recognise(gray, board, deadline, first_only=True)  # out of time: TIME_BUDGET, by detect
+    before a whole detection on the inverted image (recognised in ``camera``'s undistorted image, where given)."""
+    rec, *_ = segment_and_recognise(gray, board, deadline, first_only=True, camera=camera)  # (out of time: by detect)
     return rec.order is not None
 
 
@@ -163,7 +165,7 @@ def _detect(
     gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline, *, inverted: bool = False
 ) -> Detection:
     H, W = gray.shape
-    rec, cands, seg_name, best = segment_and_recognise(gray, board, deadline)
+    rec, cands, seg_name, best = segment_and_recognise(gray, board, deadline, camera=camera)
     if rec.order is None:
         return _not_found(board, rec, best, gray, camera, deadline, inverted)
     N = board.n_points
@@ -177,6 +179,7 @@ def _detect(
             np.array([cands[rec.order[k]].centre for k in lab]),
             np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1]) for k in lab]),
             gray,
+            camera,
         )
         if len(absent) > ABSENT_MAX_SHARE * len(lab):
             return Detection(
@@ -227,7 +230,7 @@ def _detect(
         H0 = fit_homography(board.object_points()[used, :2], ell_c)
     except ValueError:
         H0 = None
-    why = check_grid(board, used, ell_c, conics_d[keep], params=kept, H=H0)
+    why = check_grid(board, used, ell_c, conics_d[keep], params=kept, H=H0, camera=camera)
     if why is not None:
         return Detection(
             False,

@@ -31,6 +31,7 @@ y down, ``u_x v_y - u_y v_x > 0``), the handedness of a board seen from its fron
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -283,10 +284,13 @@ def grow(
     taken: np.ndarray,
     image_size: tuple[int, int],
     deadline: Deadline | None = None,
+    inside: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Lattice:
     """The patch grown from candidate ``seed`` with steps ``u``, ``v`` (2,) px and its 8 neighbours ``nbr8`` (8,)
     (:func:`find_seeds`); ``taken`` (M,) bool marks candidates of other patches (not used; this patch's are marked
-    on return). ``image_size`` (W, H): predictions outside the image are not misses. Grows in waves (every
+    on return). ``image_size`` (W, H): predictions outside the image are not misses; ``inside``: where given, the
+    test of which predictions (K, 2) px lie in the image instead ((K,) bool: the candidates are undistorted
+    positions, :func:`~circcal.detector.locate.undistorted.inside_image`). Grows in waves (every
     position next to the dots labelled in the last wave, predicted at once and looked up in one tree query).
     Raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past ``deadline``."""
     offsets = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))
@@ -320,11 +324,14 @@ def grow(
         qs = list(wave)
         tried.update(qs)
         pred = np.array([wave[q][:2] for q in qs])
-        inside = (pred[:, 0] >= 0.0) & (pred[:, 0] <= W - 1) & (pred[:, 1] >= 0.0) & (pred[:, 1] <= H - 1)
+        if inside is None:
+            within = (pred[:, 0] >= 0.0) & (pred[:, 0] <= W - 1) & (pred[:, 1] >= 0.0) & (pred[:, 1] <= H - 1)
+        else:
+            within = inside(pred)
         dist, jj = tree.query(pred, k=2)
         claims: dict[int, tuple[float, tuple[int, int]]] = {}
         for k, q in enumerate(qs):
-            if not inside[k]:
+            if not within[k]:
                 continue
             tol = GROW_TOLERANCE * wave[q][2]
             hit = None
@@ -453,13 +460,15 @@ def find_lattices(
     min_seed_score: int = 8,
     deadline: Deadline | None = None,
     max_patches: int | None = None,
+    inside: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> list[Lattice]:
     """Every lattice patch among the candidates (module docstring), largest first, patches of one board joined.
 
     ``points`` (M, 2) px, ``axes`` (M, 2), ``angle`` (M,), ``area`` (M,) of the candidates; ``image_size`` (W, H);
     ``min_seed_score``: neighbours (of 8) a first seed needs (a board whose dots have fewer, e.g. 2 x C, gives its
     maximum); secondary seeds need :data:`SEED_MIN_NEIGHBOURS` (or ``min_seed_score`` when lower).
-    ``max_patches``: stop after growing this many patches of at least :data:`MIN_PATCH` dots (None: all)."""
+    ``max_patches``: stop after growing this many patches of at least :data:`MIN_PATCH` dots (None: all);
+    ``inside``: the test of which positions lie in the image, for undistorted candidates (:func:`grow`)."""
     points = np.asarray(points, np.float64).reshape(-1, 2)
     M = len(points)
     if M < MIN_PATCH:
@@ -486,7 +495,7 @@ def find_lattices(
         if first and score[s] < min_seed_score:
             break  # no well-formed seed: no board
         first = False
-        lat = grow(int(s), u[s], v[s], nbr8[s], points, area, tree, taken, image_size, deadline)
+        lat = grow(int(s), u[s], v[s], nbr8[s], points, area, tree, taken, image_size, deadline, inside)
         lat.seed_score = int(score[s])
         if len(lat) >= MIN_PATCH:
             patches.append(lat)

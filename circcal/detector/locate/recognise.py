@@ -18,6 +18,7 @@ Pixels: OpenCV's convention.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,8 +31,10 @@ from circcal.detector.locate.grid import order_lattice, orient
 from circcal.detector.locate.labels import Labelling, label_patch, seed_score_needed
 from circcal.detector.locate.lattice import Lattice, find_lattices
 from circcal.detector.locate.smooth import local_residual
+from circcal.detector.locate.undistorted import inside_image, undistorted_candidates
+from circcal.model import Camera
 
-__all__ = ["Recognition", "recognise", "order_grid", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
+__all__ = ["Recognition", "recognise", "telling", "order_grid", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
 
 MAX_LABELLED = 4
 """Patches labelled per segmentation, largest first: the board, a second board, a printed logo and one more; the
@@ -228,26 +231,97 @@ def _spans(board: Board, points: np.ndarray) -> bool:
 
 
 def recognise(
-    board: Board, cands: list[Candidate], image_size: tuple[int, int], deadline: Deadline | None = None
+    board: Board,
+    cands: list[Candidate],
+    image_size: tuple[int, int],
+    deadline: Deadline | None = None,
+    camera: Camera | None = None,
 ) -> Recognition:
-    """The board among the candidates ``cands`` (module docstring); ``image_size`` (W, H)."""
+    """The board among the candidates ``cands`` (module docstring).
+
+    Parameters
+    ----------
+    board : Board
+    cands : list of Candidate
+        (M,) candidate dots, full-image px.
+    image_size : tuple of int
+        (W, H) px.
+    deadline : Deadline, optional
+        Raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past it.
+    camera : Camera, optional
+        The lens model: the lattice is recognised on the candidates undistorted
+        (:func:`~circcal.detector.locate.undistorted.undistorted_candidates`), and on their pixel positions only where
+        that finds no board and claims nothing decisive (a model far from the lens must not lose a board the pixels
+        show). Orientation and notes use the pixel positions either way.
+
+    Returns
+    -------
+    Recognition
+        ``order`` indexes ``cands``, whichever positions recognised it.
+    """
     M = len(cands)
-    N = board.n_points
     if M == 0:
         return Recognition(None, code=Reason.TOO_FEW_CANDIDATES, message="no candidate dots")
-    pts = np.array([c.centre for c in cands], np.float64)
+    pix = np.array([c.centre for c in cands], np.float64)
     axes = np.array([c.axes for c in cands], np.float64)
     ang = np.array([c.angle for c in cands], np.float64)
     area = np.pi * axes[:, 0] * axes[:, 1]
     cut = np.array([c.cut for c in cands], bool)
-    if board.layout == "symmetric" and not board.has_markers and M == N and not cut.any():
+    if camera is None:
+        return _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M)
+    keep, u_pts, u_axes, u_ang, u_area = undistorted_candidates(pix, axes, ang, area, camera)
+    rec = _recognise(
+        board, u_pts, pix[keep], u_axes, u_ang, u_area, cut[keep], image_size, deadline, M, inside_image(camera)
+    )
+    if rec.order is not None:
+        rec.order = np.where(rec.order >= 0, keep[np.maximum(rec.order, 0)], -1)
+        return rec
+    if rec.decisive:
+        return rec
+    raw = _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M)
+    return raw if raw.order is not None or telling(raw) >= telling(rec) else rec
+
+
+def telling(rec: Recognition) -> int:
+    """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
+    markers, then an ambiguous view, then too few points, then not recognised."""
+    return {
+        Reason.GRID_MISMATCH: 4,
+        Reason.MARKERS_INCONSISTENT: 3,
+        Reason.AMBIGUOUS_VIEW: 2,
+        Reason.TOO_FEW_POINTS: 1,
+    }.get(rec.code, 0)
+
+
+def _recognise(
+    board: Board,
+    pts: np.ndarray,
+    pix: np.ndarray,
+    axes: np.ndarray,
+    ang: np.ndarray,
+    area: np.ndarray,
+    cut: np.ndarray,
+    image_size: tuple[int, int],
+    deadline: Deadline | None,
+    M: int,
+    inside: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> Recognition:
+    """:func:`recognise` on candidates given as arrays: ``pts`` (K, 2) px the positions the lattice is recognised
+    on (the pixel positions, or undistorted ones with the test ``inside`` of which lie in the image), ``pix`` (K, 2)
+    px their pixel positions (orientation, notes), ``axes`` (K, 2), ``ang`` (K,), ``area`` (K,) their ellipses in
+    the frame of ``pts``, ``cut`` (K,) bool; ``M`` the candidates counted in the messages. ``order`` indexes these
+    K candidates."""
+    N = board.n_points
+    if len(pts) == 0:
+        return Recognition(None, code=Reason.TOO_FEW_CANDIDATES, message="no candidate dots")
+    if board.layout == "symmetric" and not board.has_markers and len(pts) == N and not cut.any():
         idx = order_lattice(board, pts)
         if idx is not None:
-            o = orient(board, pts[idx], idx)
+            o = orient(board, pix[idx], idx)
             if o is not None:
                 return Recognition(o, True, cut=np.zeros(N, bool))
     patches = find_lattices(
-        pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board), deadline=deadline
+        pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board), deadline=deadline, inside=inside
     )
     if not patches:
         return Recognition(
@@ -281,7 +355,7 @@ def recognise(
         and int(np.sum(~cut[lat.index])) >= MIN_PARTIAL_POINTS
     ]
     chosen = whole[0] if whole else (part[0] if part else None)
-    notes = _notes(board, labelled, chosen, pts, bool(whole))
+    notes = _notes(board, labelled, chosen, pix, bool(whole))
     if chosen is None:
         lat, lab = labelled[0]
         if lab.status != "labelled" and (len(lat) < CLAIM_MIN_DOTS or lat.seed_score < 8):
@@ -319,7 +393,7 @@ def recognise(
     cut_pts = np.zeros(N, bool)
     cut_pts[lab.points] = cut[lat.index]
     if not board.has_markers:
-        order = orient(board, np.where((order >= 0)[:, None], pts[np.maximum(order, 0)], np.nan), order)
+        order = orient(board, np.where((order >= 0)[:, None], pix[np.maximum(order, 0)], np.nan), order)
         if order is None:
             return Recognition(
                 None,

@@ -20,7 +20,7 @@ from circcal.detector.image import STRETCH_TAIL_PX, normalise_u8
 from circcal.detector.locate.budget import Deadline
 from circcal.detector.locate.candidates import Candidate, area_limits, find_candidates
 from circcal.detector.locate.neighbours import NeighbourGrid, linked_clusters
-from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition, recognise
+from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition, recognise, telling
 from circcal.detector.locate.segment import (
     MAX_STRETCHED_NOISE,
     SHRUNK_MIN_RADIUS,
@@ -30,6 +30,7 @@ from circcal.detector.locate.segment import (
     shrink,
     speckled,
 )
+from circcal.model import Camera
 
 __all__ = ["segment_and_recognise"]
 
@@ -42,6 +43,7 @@ def segment_and_recognise(
     first_only: bool = False,
     scales: list[int] | None = None,
     box: tuple[int, int, int, int] | None = None,
+    camera: Camera | None = None,
 ) -> tuple[Recognition, list[Candidate], str | None, int]:
     """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
     :func:`~circcal.detector.locate.segment.segmentation_scales` in turn (candidates in full-image pixels).
@@ -56,7 +58,9 @@ def segment_and_recognise(
     (:func:`_board_window`; the whole image again when the window does not show it). ``first_only``: the first
     segmentation at the first scale only (the inverted-board hint). ``scales``: the scales to try (default
     :func:`~circcal.detector.locate.segment.segmentation_scales`); ``box``: ``(x0, y0, x1, y1)`` px, search this window of
-    ``gray`` only (candidates still in full-image pixels)."""
+    ``gray`` only (candidates still in full-image pixels); ``camera``: the lens model, whose undistorted image the
+    lattice is recognised in (:func:`~circcal.detector.locate.recognise.recognise`; the candidates stay in
+    pixels)."""
     H, W = gray.shape
     min_area, max_area = area_limits(board, W, H)
     best = 0
@@ -99,13 +103,13 @@ def segment_and_recognise(
                 continue
             if box is not None:
                 cs = [_shifted(c, x0, y0, W, H) for c in cs]
-            rec = recognise(board, cs, (W, H), deadline)
+            rec = recognise(board, cs, (W, H), deadline, camera)
             if scale == 2 and rec.order is None:
                 unrecognised += cs
                 if box is None and not first_only and not searched:
                     # the first unrecognised mask of the finest shrunk scale: its clusters at full resolution now,
                     # before the other thresholds of this scale (they cannot make dots ~3 px across any larger)
-                    got = _search_clusters(gray, board, deadline, cs, need, searched)
+                    got = _search_clusters(gray, board, deadline, cs, need, searched, camera)
                     if got is not None and got[0].complete:
                         return got[0], got[1], got[2], max(best, got[3])
                     if got is not None and (
@@ -129,7 +133,9 @@ def segment_and_recognise(
                     if window is None and box is None and (x1 - x0) * (y1 - y0) <= WHOLE_FRAME_MAX_PX:
                         window = (x0, y0, x1, y1)  # a board filling much of a small frame: all of it
                     if window is not None:
-                        got = segment_and_recognise(gray, board, deadline, scales=list(finer_scales), box=window)
+                        got = segment_and_recognise(
+                            gray, board, deadline, scales=list(finer_scales), box=window, camera=camera
+                        )
                         if got[0].order is not None:
                             return got[0], got[1], got[2], max(best, got[3])
                     # the finer scales see no board: this scale's recognition stands (the edges are measured at
@@ -139,7 +145,7 @@ def segment_and_recognise(
                 if partial is None or np.sum(rec.order >= 0) > np.sum(partial[0].order >= 0):
                     partial = (rec, cs, label)
             else:
-                if refusal is None or _telling(rec) > _telling(refusal[0]):
+                if refusal is None or telling(rec) > telling(refusal[0]):
                     refusal = (rec, cs, label)
                 if rec.decisive:  # the dots continue beyond the board: no threshold changes that
                     return rec, cs, None, best
@@ -149,7 +155,7 @@ def segment_and_recognise(
             if partial is not None:  # a part of the board at this scale: the other scales see no more of it
                 break
     if partial is None and box is None and not first_only and unrecognised:
-        got = _search_clusters(gray, board, deadline, unrecognised, need, searched)
+        got = _search_clusters(gray, board, deadline, unrecognised, need, searched, camera)
         if got is not None:
             return got[0], got[1], got[2], max(best, got[3])
     if partial is not None:
@@ -179,10 +185,12 @@ def _search_clusters(
     cands: list[Candidate],
     need: int,
     searched: set[tuple[int, int, int, int]],
+    camera: Camera | None = None,
 ) -> tuple[Recognition, list[Candidate], str | None, int] | None:
     """The board in a window around one of the clusters of ``cands`` (:func:`_cluster_windows`), segmented again at
     full resolution: dots ~3 px across at scale 2 are candidates but too rough for the lattice search. Each window is
-    searched once (``searched``: the windows searched so far, updated), never the whole frame. Returns what
+    searched once (``searched``: the windows searched so far, updated), never the whole frame; ``camera``: the lens
+    model, as :func:`segment_and_recognise` takes it. Returns what
     :func:`_segment_and_recognise` returns for the first window whose recognition labels dots, else ``None``."""
     H, W = gray.shape
     for window in _cluster_windows(cands, need, (W, H)):
@@ -190,7 +198,7 @@ def _search_clusters(
         if window in searched:
             continue
         searched.add(window)
-        got = segment_and_recognise(gray, board, deadline, scales=[1], box=window)
+        got = segment_and_recognise(gray, board, deadline, scales=[1], box=window, camera=camera)
         if got[0].order is not None:
             return got
     return None
@@ -284,14 +292,3 @@ def _shifted(c: Candidate, x0: int, y0: int, W: int, H: int) -> Candidate:
         or centre[1] + c.axes[0] >= H - 2.0
     )
     return Candidate(centre, c.axes, c.angle, c.area, cut)
-
-
-def _telling(rec: Recognition) -> int:
-    """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
-    markers, then an ambiguous view, then too few points, then not recognised."""
-    return {
-        Reason.GRID_MISMATCH: 4,
-        Reason.MARKERS_INCONSISTENT: 3,
-        Reason.AMBIGUOUS_VIEW: 2,
-        Reason.TOO_FEW_POINTS: 1,
-    }.get(rec.code, 0)

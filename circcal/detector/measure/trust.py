@@ -15,8 +15,12 @@ out of the solve (its centre NaN, the reason counted in ``Detection.dropped``) r
 
 Trust checks (:func:`check_grid`): the measured dots together must look like the board, or nothing is reported:
 the ellipse centres lie on a lattice (a homography from the board explains them to :data:`MAX_LATTICE_RESIDUAL` of
-a lattice step, with a quadratic term for lens distortion on larger grids), and the dots fill their lattice cells
-as the board's printed dots do (:data:`DIAMETER_FACTOR`). Noise specks that happen to line up pass neither.
+a lattice step, with a quadratic term for lens distortion on larger grids; a grid bent beyond that by a wide lens
+is measured dot by dot against the smooth map of its own lattice neighbours,
+:func:`~circcal.detector.locate.smooth.local_residual`, and, where a lens model is given, by one homography of the
+centres it undistorts), and the dots fill their lattice cells as the board's printed dots do
+(:data:`DIAMETER_FACTOR`). Noise specks that happen to line up pass neither. The board points a partial labelling
+leaves out must not lie on bare board (:func:`absent_dots`; with a lens model, predicted in its undistorted image).
 
 Pixels: OpenCV's convention. Lattice steps: one pitch along the board's x and y (:meth:`Board.lattice_coords`).
 """
@@ -31,8 +35,10 @@ import numpy as np
 from circcal.board import Board
 from circcal.detector.kernels.jit import njit
 from circcal.detector.locate.smooth import local_residual
+from circcal.detector.locate.undistorted import inside_image
 from circcal.detector.measure.ellipse import conic_params_batch, perimeter, sampson_at
 from circcal.detector.measure.robust import MAD_TO_SIGMA, median, row_medians
+from circcal.model import Camera, distort_pixels, undistort_pixels
 
 __all__ = ["ABSENT_MAX_SHARE", "absent_dots", "bad_dots", "check_grid", "local_steps"]
 
@@ -614,11 +620,14 @@ def check_grid(
     conics: np.ndarray,
     params: tuple[np.ndarray, ...] | None = None,
     H: np.ndarray | None = None,
+    camera: Camera | None = None,
 ) -> str | None:
     """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
     (K, 3, 3); ``params``: ``conic_params_batch(conics)`` where the caller has it) are not trusted to be the board,
     or ``None`` (module docstring). ``H``: (3, 3) the least-squares homography board mm -> ``centres`` where the
-    caller has it (``cv2.findHomography``, all points; the detector hands it on to the centre correction)."""
+    caller has it (``cv2.findHomography``, all points; the detector hands it on to the centre correction).
+    ``camera``: the lens model, where given; a lattice fit that the pixels fail is tried on the centres undistorted
+    by it too (:func:`_undistorted_residual`)."""
     K = len(points)
     if K < 4:
         return f"only {K} dots measured"
@@ -647,6 +656,8 @@ def check_grid(
     if rel > MAX_LATTICE_RESIDUAL:  # a grid bent by a wide lens: each dot against the smooth map of its neighbours
         local = local_residual(obj, centres)
         rel = rel if local is None else min(rel, local)
+    if rel > MAX_LATTICE_RESIDUAL and camera is not None:
+        rel = min(rel, _undistorted_residual(board, points, centres, camera))
     if rel > MAX_LATTICE_RESIDUAL:
         return (
             f"the dots are not on a regular lattice (RMS {rel:.2f} of a lattice step off the best fit; at most "
@@ -666,25 +677,82 @@ def check_grid(
     return None
 
 
+def _undistorted_residual(board: Board, points: np.ndarray, centres: np.ndarray, camera: Camera) -> float:
+    """RMS residual, over the median local lattice step, of the homography board -> the ellipse centres undistorted
+    by ``camera`` (where a flat board's dots lie on one homography however strong the lens); ``inf`` where fewer
+    than 5 of them undistort (4 fix a homography: nothing to test) or no homography fits.
+
+    Parameters
+    ----------
+    board : Board
+    points : ndarray
+        (K,) board points.
+    centres : ndarray
+        (K, 2) px, their ellipse centres in the observed image.
+    camera : Camera
+
+    Returns
+    -------
+    float
+        A share of the lattice step, as :func:`check_grid` measures the pixels.
+    """
+    u = undistort_pixels(centres, camera)
+    ok = np.all(np.isfinite(u), axis=1)
+    if np.sum(ok) < 5:
+        return float("inf")
+    pts, u = np.asarray(points)[ok], u[ok]
+    obj_mm = board.object_points()[pts, :2]
+    H, _ = cv2.findHomography(obj_mm, u, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return float("inf")
+    res = u - cv2.perspectiveTransform(obj_mm.reshape(-1, 1, 2), H).reshape(-1, 2)
+    J = local_steps(board, pts, u)
+    finite = np.all(np.isfinite(J), axis=(1, 2))
+    if not np.any(finite):
+        return float("inf")
+    step = median(np.sqrt(np.abs(np.linalg.det(J[finite]))))
+    if not np.isfinite(step) or step <= 0:
+        return float("inf")
+    return float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) / step
+
+
 def absent_dots(
-    board: Board, points: np.ndarray, centres: np.ndarray, radii: np.ndarray, gray: np.ndarray
+    board: Board,
+    points: np.ndarray,
+    centres: np.ndarray,
+    radii: np.ndarray,
+    gray: np.ndarray,
+    camera: Camera | None = None,
 ) -> np.ndarray:
     """Board points of an unmarked board's partial labelling that the image shows as bare board: where the board
     has a dot, inside the image, the image is as bright as the board's white (a lattice of another layout labelled
     as part of the board, e.g. a staggered 5x5 grid whose diagonals make a square lattice spanning 7x7: a dot
     hidden by an occluder is not bright there). ``points`` (K,) labelled board points with their rough ``centres``
     (K, 2) px and ``radii`` (K,) px; ``gray`` (H, W). Positions of the other board points from the homography of the
-    labelled ones (:data:`ABSENT_RADIUS_SHARE`, :data:`ABSENT_WHITE`). Returns the absent board points (int)."""
+    labelled ones (:data:`ABSENT_RADIUS_SHARE`, :data:`ABSENT_WHITE`); with a lens model ``camera``, the homography
+    of their undistorted positions, its predictions distorted back (a wide lens bends the rows away from any
+    homography of the pixels). Returns the absent board points (int)."""
     N = board.n_points
     H_img, W_img = gray.shape
     missing = np.setdiff1d(np.arange(N), points)
     if len(points) < 4 or len(missing) == 0:
         return np.zeros(0, np.int64)
     obj = board.object_points()[:, :2]
-    Hm, _ = cv2.findHomography(obj[points], centres, 0)
+    at = centres if camera is None else undistort_pixels(centres, camera)
+    ok = np.all(np.isfinite(at), axis=1)
+    if np.sum(ok) < 4:
+        return np.zeros(0, np.int64)
+    Hm, _ = cv2.findHomography(obj[points][ok], at[ok], 0)
     if Hm is None or not np.all(np.isfinite(Hm)):
         return np.zeros(0, np.int64)
     q = cv2.perspectiveTransform(obj[missing].reshape(-1, 1, 2), Hm).reshape(-1, 2)
+    if camera is not None:
+        # in the image only where in front of the camera (the labelled dots' side of the vanishing line) and where
+        # the lens images the undistorted position (inside_image: the round trip through the model holds)
+        w = Hm[2] @ np.vstack([obj[missing].T, np.ones(len(missing))])
+        w_seen = Hm[2] @ np.vstack([obj[points][ok].T, np.ones(int(np.sum(ok)))])
+        front = np.sign(w) == np.sign(np.median(w_seen))
+        q = np.where((front & inside_image(camera)(q))[:, None], distort_pixels(q, camera), np.nan)
     r = float(np.median(radii))
     pad = 2.0 * r
     inside = (q[:, 0] >= pad) & (q[:, 1] >= pad) & (q[:, 0] <= W_img - 1 - pad) & (q[:, 1] <= H_img - 1 - pad)
