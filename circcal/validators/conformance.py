@@ -218,7 +218,11 @@ def scenario_lens(scenario: str) -> str:
 #: case id -> reason: cases that fail a bar today for a measured, understood cause; pytest marks them
 #: xfail(strict=True), so one that starts passing is reported too. (Empty since occluded-bar's mrcal and pycolmap
 #: cases were fixed: mrcal's fair mode starts from PnP poses, pycolmap's single-view points are compared on a subset.)
-KNOWN_FAILURES: dict[str, str] = {}
+KNOWN_FAILURES: dict[str, str] = {
+    "asymmetric-clean-mrcal_default": "mrcal 2.2's own seeding (default mode) on the staggered grid, given to it as the "
+    "full lattice with half its points unobserved, ends at negative focal lengths (fx -130 px); its fair mode, seeded "
+    "from PnP poses, fits the same views within 1e-4 px of circcal (issue 36 made mrcal fit asymmetric boards)",
+}
 
 #: (scenario, reference) -> a word the "unsupported" message must contain.
 EXPECTED_UNSUPPORTED: dict[tuple[str, str], str] = {}
