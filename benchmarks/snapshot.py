@@ -12,7 +12,7 @@ code and words, centres, segmentation, dropped dots with their words. ``compare`
 changed (found, reason, dropped dots or their words, the set of dots seen) and the largest centre moves; it exits 1
 when an outcome changed. A speed change is meant to leave all of it bit-identical; one that cannot (a different
 rounding, a different start for the edge fit) says so with the moves it measured, and its accuracy against the
-truth (tests/test_hard_views.py, tests/test_detect.py) decides.
+truth (tests/test_hard_views.py, tests/detector/test_find.py) decides.
 """
 
 from __future__ import annotations

@@ -140,7 +140,7 @@ def test_circcal_finds_the_grid_wherever_opencv_does_every_view(name, variant):
 
 
 def test_opencv_parity_on_the_test_renders():
-    # the renders of tests/test_detect.py's accuracy bars (4x5 board, dots 7-30 px, tilts 0-60 deg) and its
+    # the renders of tests/detector/test_find.py's accuracy bars (4x5 board, dots 7-30 px, tilts 0-60 deg) and its
     # larger frames: wherever OpenCV finds the grid, circcal finds it, at the true positions
     from circcal.board import Board
     from circcal.fixtures.poses import pose_looking_at

@@ -4,9 +4,10 @@ the earlier outputs survive intact, or the new ones are complete; never a mix on
 Each run is a fresh ``circcal`` process whose file-system calls (``open`` for writing, ``os.replace``, ``rename``,
 ``link``, ``unlink``, ``mkdir``, ``rmdir`` and the folder exchange) are counted (``WRAPPER``); the signal is sent at
 the k-th step touching the outputs' folder. Between a step and the next, Python delivers SIGINT at once, SIGKILL
-ends the process where it stands. ``make test`` injects at every step of the commit (where old and new meet) and at
-the first, middle and last step of the staging (where nothing final is touched, by construction); ``make study``
-injects at every step.
+ends the process where it stands. ``make test`` kills at every step of the commit (where old and new meet) and at
+the first, middle and last step of the staging (where nothing final is touched, by construction), and interrupts
+at the staging steps and the commit's first and last (the commit holds SIGINT back, so its steps are alike for
+it); ``make study`` does both at every step.
 """
 
 from __future__ import annotations
@@ -122,9 +123,13 @@ def _sweep(
         if steps == "all"
         else set(renames) | {staging[0], staging[len(staging) // 2], staging[-1]}
     )
+    # SIGINT and SIGTERM are held back for the whole commit (delivered after it): every commit step behaves alike
+    # for them, so the fast sweep interrupts at the staging steps and the commit's first and last; SIGKILL, which
+    # nothing holds back, at every chosen step
+    interrupted = chosen if steps == "all" else sorted({*chosen[:3], renames[0], renames[-1], *chosen[-1:]})
     outcomes = {"old": 0, "new": 0}
     for sig in signals:
-        for k in chosen:
+        for k in interrupted if sig == "INT" else chosen:
             work = tmp_path / f"{sig}-{k}"
             shutil.copytree(base, work, symlinks=True)
             run = _run(work, args, at=k, signal=sig)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from circcal.detector.kernels.jit import aot_status as _aot
 from circcal.detector.locate.neighbours import NeighbourGrid
 
 
@@ -107,6 +108,10 @@ def test_linked_clusters_are_scipys_components(kind):
     assert lab.max() + 1 < len(P)  # something was linked (not a vacuous equality)
 
 
+@pytest.mark.skipif(
+    not (all(_aot().values()) and bool(_aot())),
+    reason="no ahead-of-time build of the current kernel sources: numba (which imports scipy) runs the kernels",
+)
 def test_small_dots_are_searched_without_importing_scipy():
     # dots too small for the shrunk scale are searched again at full resolution in their clusters' windows; the
     # clusters came from scipy (cKDTree, csgraph) until linked_clusters: 0.18 s and 27 MiB of a one-image

@@ -57,7 +57,7 @@ TARGET_CPU = "host"
 _HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 #: True when the kernels run compiled (ahead of time or by numba); False: plain Python (~50x slower).
 COMPILED = _HAVE_NUMBA or (os.environ.get(AOT_ENV) != "0" and AOT_DIR.is_dir() and any(AOT_DIR.glob("*.json")))
-if not COMPILED:  # pragma: no cover - exercised by tests/test_detect.py in a subprocess
+if not COMPILED:  # pragma: no cover - exercised by tests/detector/test_kernels.py in a subprocess
     warnings.warn(
         "numba is not installed: circcal's detector runs its per-pixel loops in plain Python (same "
         "results, ~50x slower); `pip install numba` restores the speed",

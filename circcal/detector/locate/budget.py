@@ -15,7 +15,7 @@ overruns its budget by at most the one step running when the deadline passes: on
 lattice growth wave, O(pixels) or O(candidates) each, measured at most ~0.2 s of CPU on the most hostile 12 MP images
 of :mod:`circcal.fixtures.fuzz` (dense dots, leaves, stripes, checkers; ~0.7 s at 48 MP by the same rate), well
 within ``0.5 B`` for the default budget (tested with ``B = 0.3`` s on a 6 MP image, plus that step:
-tests/test_budget.py). Nothing in the search holds memory quadratic in the candidates (the neighbour grid of
+tests/detector/test_budget.py). Nothing in the search holds memory quadratic in the candidates (the neighbour grid of
 :mod:`circcal.detector.locate.neighbours` answers every distance query): a 12 MP hostile image peaks below 0.5 GB of
 resident memory in all, the interpreter and its libraries included (reports/fuzz.md).
 """

@@ -157,7 +157,7 @@ def guided_filter(gray_u8: np.ndarray, radius: int, eps: float, hist: np.ndarray
     frame of any size streams through the cache once, where the ten whole-image passes of the written-out filter
     each went through memory (3 MP: ~13 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own
     filter rounds a few pixels differently: at most one grey level apart, on ~1e-4 of a board image's pixels
-    (0.3 % of pure noise's; tests/test_detect.py)."""
+    (0.3 % of pure noise's; tests/detector/test_locate.py)."""
     img = np.ascontiguousarray(gray_u8, np.uint8)
     out = np.empty(img.shape, np.uint8)
     counts = np.zeros(256, np.int64) if hist is None else hist
