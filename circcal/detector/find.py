@@ -53,8 +53,25 @@ __all__ = ["camera_size_mismatch", "detect", "recorrect"]
 
 
 def camera_size_mismatch(camera: Camera | None, width: int, height: int) -> str | None:
-    """Why ``camera`` cannot serve an image of ``width`` x ``height`` px (its model is for another size), or
-    ``None`` when it can (or there is no camera)."""
+    """Why ``camera`` cannot serve an image of ``width`` x ``height`` px (its model is for another size).
+
+    Parameters
+    ----------
+    camera : Camera or None
+        The camera model, or ``None`` (no model: always fits).
+    width, height : int
+        The image's size, px.
+
+    Returns
+    -------
+    str or None
+        One line saying both sizes when they differ; ``None`` when the camera fits (or there is no camera).
+
+    Examples
+    --------
+    >>> camera_size_mismatch(None, 640, 480) is None
+    True
+    """
     if camera is not None and (camera.width, camera.height) != (width, height):
         return f"camera model is for {camera.width}x{camera.height} images, image is {width}x{height}"
     return None
@@ -76,17 +93,44 @@ def detect(
 ) -> Detection:
     """Find ``board``'s circle grid in ``image`` and return the images of the circle centres.
 
-    ``image``: (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots
-    on a dark ground is found on the inverted image, and the detection says so in its notes). ``camera``: optional
-    model; when given, the board's lattice is recognised among the candidate dots undistorted by it (the rows of a
-    wide lens's view bend beyond what the pixel positions' checks follow) and the centre correction accounts for its
-    lens distortion. ``time_budget_s``: seconds this image
-    may take (:data:`~circcal.detector.locate.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no limit); past it the image is not
-    found with :attr:`Reason.TIME_BUDGET`. The board may be partly out of frame or occluded: the dots seen are
-    labelled when that is unambiguous (a marker board, or the board's whole extent in view), the others are NaN.
-    Never raises for a grid that is not there (``found=False`` with a reason); raises
-    :class:`~circcal.errors.ImageError` for an image it cannot take (wrong shape/dtype, camera for another image
-    size) and :class:`~circcal.errors.InputError` for a checkerboard.
+    The board may be partly out of frame or occluded: the dots seen are labelled when that is unambiguous (a marker
+    board, or the board's whole extent in view), the others are NaN. Never raises for a grid that is not there
+    (``found=False`` with a reason).
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        (H, W) grey or (H, W, 3) BGR, uint8/uint16/float; dark dots on a bright board (a board of bright dots on a
+        dark ground is found on the inverted image, and the detection says so in its notes).
+    board : Board
+        The circle-grid board to find (not a checkerboard).
+    camera : Camera or None, optional
+        Camera model for images of this size; when given, the board's lattice is recognised among the candidate
+        dots undistorted by it (the rows of a wide lens's view bend beyond what the pixel positions' checks follow)
+        and the centre correction accounts for its lens distortion.
+    time_budget_s : float or None, optional
+        Seconds this image may take (:data:`~circcal.detector.locate.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no
+        limit); past it the image is not found with :attr:`Reason.TIME_BUDGET`.
+
+    Returns
+    -------
+    Detection
+        ``found`` with (N, 2) centres (px, OpenCV's convention, board order; NaN for dots not measured), edge
+        points, conics and the homography; or ``found=False`` with a reason and its :class:`Reason` code.
+
+    Raises
+    ------
+    circcal.errors.ImageError
+        An image it cannot take (wrong shape/dtype), or a camera model for another image size.
+    circcal.errors.InputError
+        ``board`` is a checkerboard.
+
+    Examples
+    --------
+    >>> import cv2
+    >>> d = detect(cv2.imread("view.png"), board)  # doctest: +SKIP
+    >>> d.found, d.centres.shape  # doctest: +SKIP
+    (True, (44, 2))
     """
     deadline = Deadline(time_budget_s)
     gray = as_gray(image)
@@ -313,13 +357,38 @@ def _view_wide(dropped: dict[int, str], in_view: int) -> str:
 
 
 def recorrect(detection: Detection, board: Board, camera: Camera | None) -> np.ndarray:
-    """(N, 2) centres of a found ``detection`` corrected with ``camera`` (its distortion), from the stored edge
-    points: undistort them, refit the ellipses, iterate homography/poles in the undistorted image, distort back
+    """The centres of a found ``detection`` corrected again with another camera model, from its stored edge points.
+
+    Undistort the edge points, refit the ellipses, iterate homography/poles in the undistorted image, distort back
     (a fisheye: each dot on its own local perspective re-projection,
-    :func:`~circcal.detector.measure.centre.correct_centres_on_rays`). Points not seen (no edge points) stay NaN, and so do
-    the dots whose rim a pinhole ``camera``'s distortion cannot invert (beyond the fold of its polynomial,
-    :func:`~circcal.model.undistort`: a lens model too simple for the lens); the caller says what it does with
-    those."""
+    :func:`~circcal.detector.measure.centre.correct_centres_on_rays`). What a calibrator iterating its distortion
+    estimate needs (~1 ms per view).
+
+    Parameters
+    ----------
+    detection : Detection
+        A found detection (from :func:`detect`) with its edge points.
+    board : Board
+        The board it was found for.
+    camera : Camera or None
+        The camera model whose distortion the correction removes; ``None``: no distortion.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N, 2) float centres, px, board order. Points not seen (no edge points) stay NaN, and so do the dots whose
+        rim a pinhole ``camera``'s distortion cannot invert (beyond the fold of its polynomial,
+        :func:`~circcal.model.undistort`: a lens model too simple for the lens); the caller says what it does with
+        those.
+
+    Raises
+    ------
+    ValueError
+        ``detection`` was not found (or has no edge points), an ellipse cannot be fitted, or no board homography
+        fits the centres.
+    circcal.errors.ImageError
+        ``camera`` is for another image size than the detection's.
+    """
     if not detection.found or detection.edge_points is None:
         raise ValueError(f"cannot re-correct a detection that was not found ({detection.reason})")
     if detection.image_size is not None:

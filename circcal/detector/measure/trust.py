@@ -176,10 +176,31 @@ def _steps_of(asymmetric: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 def local_steps(board: Board, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """(K, 2, 2) image Jacobian (px per pitch; columns: along board x, along board y) at each of the board points
-    ``points`` (K,) with image positions ``centres`` (K, 2), from the neighbours among them (central differences,
-    one-sided at the grid's edge; NaN where an axis has no neighbour). The differences along the two nearest-neighbour
-    steps by :func:`_step_differences` (one compiled pass over a grid of the lattice), then into board axes."""
+    """The image Jacobian at each of the board points ``points``, from the neighbours among them.
+
+    Central differences, one-sided at the grid's edge. The differences along the two nearest-neighbour steps by
+    :func:`_step_differences` (one compiled pass over a grid of the lattice), then into board axes.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (K,) int board point indices.
+    centres : numpy.ndarray
+        (K, 2) float their image positions, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (K, 2, 2) float px per pitch; columns: along board x, along board y; NaN where an axis has no neighbour.
+
+    Examples
+    --------
+    >>> board = Board(3, 4, 10.0, 5.0)
+    >>> local_steps(board, np.arange(12), board.object_points()[:, :2] * 3 + 50)[5].tolist()
+    [[30.0, 0.0], [0.0, 30.0]]
+    """
     points = np.asarray(points, np.int64)
     K = len(points)
     if K == 0:
@@ -273,12 +294,33 @@ def _ring_points(c, axes, cs, sn, radii, cos_a, sin_a, x, y):
 def dark_neighbourhood(
     gray: np.ndarray, centres: np.ndarray, axes: np.ndarray, angle: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per dot (D,), the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`; each
-    ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`),
-    the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white level is
-    measured on (:data:`LEVEL_RING_PX`), and how unevenly lit its inside is (:func:`_uneven_inside`); ``gray``
-    (H, W), ellipses ``centres`` (D, 2), ``axes`` (D, 2), ``angle`` (D,). The outer rings end half-way to the
-    nearest dot."""
+    """Per dot, the dark objects just outside its ellipse, the mid-grey around it, and how unevenly lit its inside is.
+
+    The outer rings end half-way to the nearest dot.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) the image.
+    centres : numpy.ndarray
+        (D, 2) float ellipse centres, px.
+    axes : numpy.ndarray
+        (D, 2) float semi-axes, px.
+    angle : numpy.ndarray
+        (D,) float ellipse angles, rad.
+
+    Returns
+    -------
+    shade : numpy.ndarray
+        (D,) float the share of dark samples on the rings just outside its ellipse (:data:`CLEARANCE_PX`; each
+        ring's samples median-filtered along it, so only dark arcs count: :func:`_ring_shares`).
+    grey : numpy.ndarray
+        (D,) float the share of mid-grey samples (neither the board's white nor a dot's dark) on the rings its white
+        level is measured on (:data:`LEVEL_RING_PX`).
+    uneven : numpy.ndarray
+        (D,) float how unevenly lit its inside is: the part of :func:`_uneven_inside`'s gradient that the edge model
+        does not follow (:func:`_unfollowed_inside`), a share of the contrast.
+    """
     D = len(centres)
     if D == 0:
         return np.zeros(0), np.zeros(0), np.zeros(0)
@@ -310,13 +352,29 @@ def dark_neighbourhood(
 
 
 def clearance_level(v: np.ndarray, white: np.ndarray, inner: np.ndarray) -> float:
-    """The share of a dot's contrast by which a ring sample must lie below the white to count as dark (and above
-    the dot's dark to count as grey) in this view: :data:`CLEARANCE_LEVEL`, or :data:`TEXTURE_SIGMAS` times the
-    view's texture where that is more: the median over the dots of the robust sigma (MAD) of the samples on the
-    level rings (``v`` (D, 5, A), rings 2-4: the board around each dot, half-way to its neighbours at most) about
-    their white ``white`` (D,), over the contrast ``white - inner`` (D,). A printed board on paper under little
-    noise keeps the fixed level; the grain and mottling of a matte plate under a low-contrast print (a few dark
-    samples on every dot's ring) raise it, so that only an object darker than the board's own texture counts."""
+    """The share of a dot's contrast by which a ring sample must lie below the white to count as dark in this view.
+
+    (And above the dot's dark to count as grey.) :data:`CLEARANCE_LEVEL`, or :data:`TEXTURE_SIGMAS` times the view's
+    texture where that is more: the median over the dots of the robust sigma (MAD) of the samples on the level rings
+    about their white, over the contrast ``white - inner``. A printed board on paper under little noise keeps the
+    fixed level; the grain and mottling of a matte plate under a low-contrast print (a few dark samples on every dot's
+    ring) raise it, so that only an object darker than the board's own texture counts.
+
+    Parameters
+    ----------
+    v : numpy.ndarray
+        (D, 5, A) float ring samples, grey levels; rings 2-4 are the level rings (the board around each dot,
+        half-way to its neighbours at most).
+    white : numpy.ndarray
+        (D,) float each dot's white level.
+    inner : numpy.ndarray
+        (D,) float each dot's dark level.
+
+    Returns
+    -------
+    float
+        The level, a share of the contrast (at least :data:`CLEARANCE_LEVEL`).
+    """
     D = len(white)
     contrast = white - inner
     ok = contrast > 0
@@ -463,11 +521,34 @@ def bad_dots(
     gray: np.ndarray | None = None,
     params: tuple[np.ndarray, ...] | None = None,
 ) -> dict[int, str]:
-    """Board point -> why, for the measured dots that are left out (module docstring). ``points`` (D,) board point
-    of each measured dot; ``edge_pts`` (D, M, 2), ``mask`` (D, M), ``conics`` (D, 3, 3), ``errors`` from
-    :func:`~circcal.detector.measure.dots.fit_dots`; ``image_size`` (W, H); ``gray`` (H, W): the image, for the dark
-    objects next to a dot (:func:`dark_neighbourhood`; not checked without it); ``params``: ``conic_params_batch
-    (conics)`` where the caller has it (only the rows without an error are read)."""
+    """Board point -> why, for the measured dots that are left out (module docstring).
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (D,) int board point of each measured dot.
+    edge_pts : numpy.ndarray
+        (D, M, 2) float edge points, px (from :func:`~circcal.detector.measure.dots.fit_dots`).
+    mask : numpy.ndarray
+        (D, M) bool, the valid edge points.
+    conics : numpy.ndarray
+        (D, 3, 3) float fitted conics.
+    errors : list of str or None
+        (D,) each dot's fit error (``None``: fitted).
+    image_size : tuple of int
+        (W, H) px.
+    gray : numpy.ndarray or None, optional
+        (H, W) the image, for the dark objects next to a dot (:func:`dark_neighbourhood`; not checked without it).
+    params : tuple of numpy.ndarray or None, optional
+        ``conic_params_batch(conics)`` where the caller has it (only the rows without an error are read).
+
+    Returns
+    -------
+    dict of int to str
+        The dots left out: board point -> reason, in words (e.g. ``"cut by the image border"``).
+    """
     W, H = image_size
     out: dict[int, str] = {}
     D = len(points)
@@ -622,12 +703,33 @@ def check_grid(
     H: np.ndarray | None = None,
     camera: Camera | None = None,
 ) -> str | None:
-    """Why the measured dots (board points ``points`` (K,), ellipse centres ``centres`` (K, 2) px, conics
-    (K, 3, 3); ``params``: ``conic_params_batch(conics)`` where the caller has it) are not trusted to be the board,
-    or ``None`` (module docstring). ``H``: (3, 3) the least-squares homography board mm -> ``centres`` where the
-    caller has it (``cv2.findHomography``, all points; the detector hands it on to the centre correction).
-    ``camera``: the lens model, where given; a lattice fit that the pixels fail is tried on the centres undistorted
-    by it too (:func:`_undistorted_residual`)."""
+    """Why the measured dots are not trusted to be the board, or ``None`` (module docstring).
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (K,) int board points of the measured dots.
+    centres : numpy.ndarray
+        (K, 2) float ellipse centres, px.
+    conics : numpy.ndarray
+        (K, 3, 3) float their conics.
+    params : tuple of numpy.ndarray or None, optional
+        ``conic_params_batch(conics)`` where the caller has it.
+    H : numpy.ndarray or None, optional
+        (3, 3) the least-squares homography board mm -> ``centres`` where the caller has it
+        (``cv2.findHomography``, all points; the detector hands it on to the centre correction).
+    camera : Camera or None, optional
+        The lens model, where given; a lattice fit that the pixels fail is tried on the centres undistorted by it too
+        (:func:`_undistorted_residual`).
+
+    Returns
+    -------
+    str or None
+        One line saying why not (too few dots, no lattice, dots that do not fill their cells, ...); ``None`` when
+        trusted.
+    """
     K = len(points)
     if K < 4:
         return f"only {K} dots measured"
@@ -724,14 +826,36 @@ def absent_dots(
     gray: np.ndarray,
     camera: Camera | None = None,
 ) -> np.ndarray:
-    """Board points of an unmarked board's partial labelling that the image shows as bare board: where the board
-    has a dot, inside the image, the image is as bright as the board's white (a lattice of another layout labelled
-    as part of the board, e.g. a staggered 5x5 grid whose diagonals make a square lattice spanning 7x7: a dot
-    hidden by an occluder is not bright there). ``points`` (K,) labelled board points with their rough ``centres``
-    (K, 2) px and ``radii`` (K,) px; ``gray`` (H, W). Positions of the other board points from the homography of the
-    labelled ones (:data:`ABSENT_RADIUS_SHARE`, :data:`ABSENT_WHITE`); with a lens model ``camera``, the homography
-    of their undistorted positions, its predictions distorted back (a wide lens bends the rows away from any
-    homography of the pixels). Returns the absent board points (int)."""
+    """Board points of an unmarked board's partial labelling that the image shows as bare board.
+
+    Where the board has a dot, inside the image, the image is as bright as the board's white (a lattice of another
+    layout labelled as part of the board, e.g. a staggered 5x5 grid whose diagonals make a square lattice spanning
+    7x7: a dot hidden by an occluder is not bright there). Positions of the other board points from the homography of
+    the labelled ones (:data:`ABSENT_RADIUS_SHARE`, :data:`ABSENT_WHITE`); with a lens model ``camera``, the
+    homography of their undistorted positions, its predictions distorted back (a wide lens bends the rows away from
+    any homography of the pixels).
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (K,) int labelled board points.
+    centres : numpy.ndarray
+        (K, 2) float their rough centres, px.
+    radii : numpy.ndarray
+        (K,) float their rough radii, px.
+    gray : numpy.ndarray
+        (H, W) the image.
+    camera : Camera or None, optional
+        The lens model, where given.
+
+    Returns
+    -------
+    numpy.ndarray
+        (A,) int64 the absent board points (empty when none, or when the image cannot tell: no homography, no
+        board point predicted inside the image, no white between labelled neighbours).
+    """
     N = board.n_points
     H_img, W_img = gray.shape
     missing = np.setdiff1d(np.arange(N), points)
