@@ -57,6 +57,18 @@ class Deadline:
         return time.monotonic() - (compile_seconds() - self._compiled_at_start)
 
     def expired(self) -> bool:
+        """Whether the deadline has passed (the clock less the compile time since construction).
+
+        Returns
+        -------
+        bool
+            ``True`` past the deadline; never for a deadline without limit.
+
+        Examples
+        --------
+        >>> Deadline(None).expired()
+        False
+        """
         return self._now() > self.end
 
     def check(self) -> None:
@@ -65,4 +77,11 @@ class Deadline:
             raise BudgetExceeded(f"time budget of {self.budget_s:g} s exceeded")
 
     def elapsed(self) -> float:
+        """Seconds since construction on the monotonic clock (compile time included: what the image really took).
+
+        Returns
+        -------
+        float
+            Elapsed time, s.
+        """
         return time.monotonic() - self.start

@@ -57,10 +57,24 @@ class Candidate:
 
 
 def area_limits(board: Board, width: int, height: int) -> tuple[float, float]:
-    """(min_area, max_area) px^2 for candidate dots of ``board`` in a ``width`` x ``height`` image: at most
-    :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image (times the markers' area ratio on a
-    marker board), at least :data:`MIN_AREA_PX2` (the smallest measurable dot, whatever the image size); the window
-    spans at least :data:`MIN_AREA_RANGE`."""
+    """The area window (min_area, max_area) of candidate dots of ``board`` in a ``width`` x ``height`` image.
+
+    At most :data:`MAX_AREA_FACTOR` times an average dot of a board filling the image (times the markers' area ratio
+    on a marker board), at least :data:`MIN_AREA_PX2` (the smallest measurable dot, whatever the image size); the
+    window spans at least :data:`MIN_AREA_RANGE`.
+
+    Parameters
+    ----------
+    board : Board
+        The board (its pitch, dot radius, layout, point count and marker scale).
+    width, height : int
+        The image's size, px.
+
+    Returns
+    -------
+    tuple of float
+        ``(min_area, max_area)``, px^2.
+    """
     cell = board.pitch_mm**2 * (2.0 if board.layout == "asymmetric" else 1.0)
     dot_frac = np.pi * board.radius_mm**2 / cell
     max_area = MAX_AREA_FACTOR * dot_frac * width * height / board.n_points * board.marker_scale**2
@@ -78,7 +92,7 @@ def find_candidates(
     min_convexity: float = MIN_CONVEXITY,
     scale: int = 1,
 ) -> list[Candidate]:
-    """Dark blobs of ``mask`` (H, W) uint8 (255 = dark) that look like imaged dots.
+    """Dark blobs of ``mask`` that look like imaged dots.
 
     Outer contours only (a dot is a filled component); kept when ``min_area <= area <= max_area`` (px^2),
     circularity ``4 pi S / P^2 >= min_circularity``, inertia ratio (minor/major second moment, ``(b/a)^2``)
@@ -87,9 +101,35 @@ def find_candidates(
     Contours too short to enclose ``min_area`` (a closed pixel contour of P points encloses at most
     ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them. The others are
     measured in one compiled pass (:func:`_contour_measures`: OpenCV's moments, perimeter, hull area and box to the
-    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view). ``scale``: the
-    mask is of an image shrunk that many times; the candidates are given in full-image pixels (:func:`_upscale`;
-    the area limits and tests apply at the mask's scale).
+    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray
+        (H, W) uint8 segmentation, 255 = dark.
+    min_area, max_area : float
+        The area window, px^2 at the mask's scale (:func:`area_limits`).
+    min_circularity : float, optional
+        Least ``4 pi S / P^2`` (:data:`MIN_CIRCULARITY`).
+    min_inertia : float, optional
+        Least minor/major second-moment ratio (:data:`MIN_INERTIA`).
+    min_convexity : float, optional
+        Least area / convex-hull area (:data:`MIN_CONVEXITY`).
+    scale : int, optional
+        The mask is of an image shrunk that many times; the candidates are given in full-image pixels
+        (:func:`_upscale`; the area limits and tests apply at the mask's scale).
+
+    Returns
+    -------
+    list of Candidate
+        The kept blobs, in full-image pixels (OpenCV's convention), in contour order.
+
+    Examples
+    --------
+    >>> mask = np.zeros((40, 40), np.uint8)
+    >>> _ = cv2.circle(mask, (20, 20), 6, 255, -1)
+    >>> [c.cut for c in find_candidates(mask, min_area=12.0, max_area=1000.0)]
+    [False]
     """
     H, W = mask.shape
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)

@@ -34,9 +34,28 @@ up to noise; at 0.5 a candidate could be taken for either of two nodes; strong d
 
 
 def orientation_sign(board: Board, centres: np.ndarray) -> float:
-    """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centres``
-    (N, 2) in board order (NaN rows: points not seen, left out): +1 when the board is seen from the front (see
-    module docstring), -1 mirrored."""
+    """Sign of the Jacobian determinant, at the grid centre, of the homography board -> image fitted to ``centres``.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    centres : numpy.ndarray
+        (N, 2) float px in board order; NaN rows: points not seen, left out.
+
+    Returns
+    -------
+    float
+        +1.0 when the board is seen from the front (see module docstring), -1.0 mirrored, 0.0 when fewer than 4
+        points are seen or no homography fits.
+
+    Examples
+    --------
+    >>> board = Board(3, 4, 10.0, 5.0)
+    >>> centres = board.object_points()[:, :2] * 3 + 50
+    >>> orientation_sign(board, centres), orientation_sign(board, centres[:, ::-1])
+    (1.0, -1.0)
+    """
     obj = board.object_points()[:, :2]
     centres = np.asarray(centres, np.float64)
     seen = np.all(np.isfinite(centres), axis=1)
@@ -52,11 +71,34 @@ def orientation_sign(board: Board, centres: np.ndarray) -> float:
 
 
 def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
-    """Indices ``idx`` (N,) so that ``centres[idx]`` follows the orientation rule of this module.
+    """Indices ``idx`` so that ``centres[idx]`` follows the orientation rule of this module.
 
-    ``centres``: (N, 2) px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
     One homography is fitted: relabelling by a board symmetry ``S`` composes it with ``S`` (the least-squares fit of
     the relabelled points is ``H S``), so a labelling's orientation sign is ``orientation_sign(centres) * det S``.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    centres : numpy.ndarray
+        (N, 2) float px in some valid board labelling (e.g. OpenCV's output, possibly rotated or mirrored).
+
+    Returns
+    -------
+    numpy.ndarray
+        (N,) int indices into ``centres``.
+
+    Raises
+    ------
+    ValueError
+        No labelling of the grid is seen from the board's front (a mirrored image?).
+
+    Examples
+    --------
+    >>> board = Board(3, 4, 10.0, 5.0)
+    >>> centres = board.object_points()[:, :2] * 3 + 50
+    >>> canonical_order(board, centres[::-1]).tolist()
+    [11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0]
     """
     centres = np.asarray(centres, dtype=np.float64)
     s0 = orientation_sign(board, centres)
@@ -74,10 +116,26 @@ def canonical_order(board: Board, centres: np.ndarray) -> np.ndarray:
 
 
 def orient(board: Board, centres: np.ndarray, order: np.ndarray) -> np.ndarray | None:
-    """``order`` (N,) (candidate index per board point, -1 where not seen) relabelled by the orientation rule of
-    this module, given the points' ``centres`` (N, 2) px in that order (NaN where not seen); ``None`` when no
-    labelling is seen from the board's front. With every point seen this is :func:`canonical_order`; otherwise
-    the image of point 0 of each labelling comes from the homography of the points seen."""
+    """``order`` relabelled by the orientation rule of this module, for a board seen whole or in part.
+
+    With every point seen this is :func:`canonical_order`; otherwise the image of point 0 of each labelling comes from
+    the homography of the points seen.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    centres : numpy.ndarray
+        (N, 2) float px of the points in ``order``'s labelling; NaN where not seen.
+    order : numpy.ndarray
+        (N,) int candidate index per board point, -1 where not seen.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (N,) int ``order`` relabelled; ``None`` when no labelling is seen from the board's front (or no homography
+        fits the points seen).
+    """
     centres = np.asarray(centres, np.float64)
     order = np.asarray(order, np.int64)
     if np.all(np.isfinite(centres)):
@@ -103,14 +161,34 @@ def orient(board: Board, centres: np.ndarray, order: np.ndarray) -> np.ndarray |
 
 
 def order_lattice(board: Board, points: np.ndarray, tol: float = LATTICE_TOLERANCE) -> np.ndarray | None:
-    """Fast ordering of a symmetric board whose candidates are exactly its N dots (no clutter): (N,) indices into
-    ``points`` (N, 2) px in a valid board labelling (not yet canonical), or ``None`` when the candidates do not form
-    the grid unambiguously (the caller then runs OpenCV's grid finder).
+    """Fast ordering of a symmetric board whose candidates are exactly its N dots (no clutter).
 
     The grid's four corners are the convex-hull vertices with the largest turning angles; the homography from them
     to the grid's integer coordinates must put every candidate within ``tol`` cells of a distinct grid node. Under
     perspective this is the grid itself, and exactly the assignment OpenCV's finder returns (up to a symmetry, which
     :func:`canonical_order` removes); strong lens distortion fails the test and falls back.
+
+    Parameters
+    ----------
+    board : Board
+        The board; only a symmetric layout is ordered here.
+    points : numpy.ndarray
+        (N, 2) float candidate centres, px.
+    tol : float, optional
+        Largest distance of a candidate from its grid node, in cells (:data:`LATTICE_TOLERANCE`).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (N,) int indices into ``points`` in a valid board labelling (not yet canonical), or ``None`` when the
+        candidates do not form the grid unambiguously (the caller then runs OpenCV's grid finder), when the board is
+        not symmetric or the count differs from N.
+
+    Examples
+    --------
+    >>> board = Board(3, 4, 10.0, 5.0)
+    >>> order_lattice(board, board.object_points()[:, :2] * 3 + 50).tolist()  # rotated 180 deg: not canonical
+    [11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0]
     """
     N = board.n_points
     if board.layout != "symmetric" or len(points) != N:

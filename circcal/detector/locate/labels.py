@@ -53,14 +53,48 @@ class Labelling:
 
 
 def board_frame(board: Board, ab: np.ndarray) -> np.ndarray:
-    """(K, 2) int board lattice coordinates (up to a rotation and shift) of patch coordinates ``ab`` (K, 2)."""
+    """Board lattice coordinates (up to a rotation and shift) of patch coordinates ``ab``.
+
+    Parameters
+    ----------
+    board : Board
+        The board (its layout: an asymmetric grid maps by :data:`ASYMMETRIC_FROM_PATCH`).
+    ab : numpy.ndarray
+        (K, 2) int patch coordinates.
+
+    Returns
+    -------
+    numpy.ndarray
+        (K, 2) int board lattice coordinates (a new array).
+
+    Examples
+    --------
+    >>> board_frame(Board(3, 4, 10.0, 5.0, "asymmetric"), [[1, 0], [0, 1]]).tolist()
+    [[1, -1], [1, 1]]
+    """
     ab = np.asarray(ab, np.int64).reshape(-1, 2)
     return ab @ ASYMMETRIC_FROM_PATCH.T if board.layout == "asymmetric" else ab.copy()
 
 
 def seed_score_needed(board: Board) -> int:
-    """How many of its 8 patch neighbours (``+-u, +-v, +-u+-v``) the best-placed dot of ``board`` has: what a seed
-    must show (8 on any grid with 3 rows and columns and more; fewer on 2 x C grids and thin asymmetric ones)."""
+    """How many of its 8 patch neighbours (``+-u, +-v, +-u+-v``) the best-placed dot of ``board`` has: what a seed must
+    show.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+
+    Returns
+    -------
+    int
+        8 on any grid with 3 rows and columns and more; fewer on 2 x C grids and thin asymmetric ones.
+
+    Examples
+    --------
+    >>> seed_score_needed(Board(3, 4, 10.0, 5.0)), seed_score_needed(Board(2, 5, 10.0, 5.0))
+    (8, 5)
+    """
     L = board.lattice_coords()
     occ = {tuple(p) for p in L.tolist()}
     offs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [-1, -1], [1, -1], [-1, 1]], np.int64)
@@ -69,8 +103,26 @@ def seed_score_needed(board: Board) -> int:
 
 
 def patch_grid_text(board: Board, xy: np.ndarray) -> tuple[int, int]:
-    """(rows, cols) in ``--grid`` terms of the bounding box of board-frame lattice points ``xy`` (K, 2), in the
-    rotation that best matches ``board``'s orientation (rows along y)."""
+    """(rows, cols) in ``--grid`` terms of the bounding box of board-frame lattice points ``xy``.
+
+    Parameters
+    ----------
+    board : Board
+        The board; of the two rotations of the box, the one that best matches its orientation (rows along y) is
+        given.
+    xy : numpy.ndarray
+        (K, 2) int board-frame lattice coordinates (:func:`board_frame`).
+
+    Returns
+    -------
+    tuple of int
+        ``(rows, cols)``.
+
+    Examples
+    --------
+    >>> patch_grid_text(Board(3, 4, 10.0, 5.0), np.array([[0, 0], [3, 2]]))
+    (3, 4)
+    """
     span = xy.max(axis=0) - xy.min(axis=0)
     if board.layout == "asymmetric":
         rows, cols = int(span[1]) + 1, int(span[0]) // 2 + 1
@@ -98,12 +150,37 @@ def _classes(board: Board, fits: list[Placement]) -> list[list[Placement]]:
 
 
 def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *, closed: bool = False) -> Labelling:
-    """Label a patch with coordinates ``ab`` (K, 2) on ``board`` (module docstring). ``flags`` (K,) int: 1 a dot
-    seen as a marker, 0 a plain dot, -1 unknown; ``None`` = all unknown (a board without markers ignores them).
-    ``closed``: every lattice position around the patch lies in the image and holds no dot (so a complete patch
-    smaller than the board is a whole, smaller board rather than a partial view).
+    """Label a patch with coordinates ``ab`` on ``board`` (module docstring).
+
     The ``points`` of a labelled patch follow one labelling; for an unmarked board seen whole that is one of the
-    board's symmetric labellings (the caller applies the orientation rule)."""
+    board's symmetric labellings (the caller applies the orientation rule).
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    ab : numpy.ndarray
+        (K, 2) int patch coordinates.
+    flags : numpy.ndarray or None, optional
+        (K,) int: 1 a dot seen as a marker, 0 a plain dot, -1 unknown; ``None`` = all unknown (a board without
+        markers ignores them).
+    closed : bool, optional
+        Every lattice position around the patch lies in the image and holds no dot (so a complete patch smaller than
+        the board is a whole, smaller board rather than a partial view).
+
+    Returns
+    -------
+    Labelling
+        ``"labelled"`` with the board point of each patch dot, or why not (``"larger"``, ``"transposed"``,
+        ``"markers"``, ``"smaller"``, ``"ambiguous"``) with a message for a person.
+
+    Examples
+    --------
+    >>> board = Board(3, 4, 10.0, 5.0)
+    >>> lab = label_patch(board, np.array([[i, j] for j in range(3) for i in range(4)]))
+    >>> lab.status, lab.complete
+    ('labelled', True)
+    """
     xy = board_frame(board, ab)
     K = len(xy)
     rows, cols = patch_grid_text(board, xy)

@@ -142,10 +142,28 @@ def find_seeds(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every candidate's local lattice (vectorised; see the module docstring).
 
-    ``points`` (M, 2) px, ``axes`` (M, 2) semi-axes px, ``angle`` (M,) rad, ``area`` (M,) px^2. Returns
-    ``(score (M,) int, u (M, 2), v (M, 2), neighbours (M, 8) int)``: how many of the 8 positions
-    ``+u, -u, +v, -v, +u+v, -u-v, +u-v, -u+v`` hold a matching candidate, the right-handed steps (px), and the
-    candidate at each position (-1 where none)."""
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px.
+    axes : numpy.ndarray
+        (M, 2) float semi-axes (a, b), px.
+    angle : numpy.ndarray
+        (M,) float angle of each ``a`` from the image x axis, rad.
+    area : numpy.ndarray
+        (M,) float areas, px^2.
+    tree : NeighbourGrid
+        The neighbour grid of ``points``.
+
+    Returns
+    -------
+    score : numpy.ndarray
+        (M,) int how many of the 8 positions ``+u, -u, +v, -v, +u+v, -u-v, +u-v, -u+v`` hold a matching candidate.
+    u, v : numpy.ndarray
+        (M, 2) float the right-handed steps, px.
+    neighbours : numpy.ndarray
+        (M, 8) int the candidate at each position (-1 where none).
+    """
     M = len(points)
     k = min(NEIGHBOURS + 1, M)
     score = np.zeros(M, np.int64)
@@ -286,13 +304,45 @@ def grow(
     deadline: Deadline | None = None,
     inside: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Lattice:
-    """The patch grown from candidate ``seed`` with steps ``u``, ``v`` (2,) px and its 8 neighbours ``nbr8`` (8,)
-    (:func:`find_seeds`); ``taken`` (M,) bool marks candidates of other patches (not used; this patch's are marked
-    on return). ``image_size`` (W, H): predictions outside the image are not misses; ``inside``: where given, the
-    test of which predictions (K, 2) px lie in the image instead ((K,) bool: the candidates are undistorted
-    positions, :func:`~circcal.detector.locate.undistorted.inside_image`). Grows in waves (every
-    position next to the dots labelled in the last wave, predicted at once and looked up in one tree query).
-    Raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past ``deadline``."""
+    """The patch grown from candidate ``seed`` (module docstring, step 2).
+
+    Grows in waves (every position next to the dots labelled in the last wave, predicted at once and looked up in one
+    tree query).
+
+    Parameters
+    ----------
+    seed : int
+        Index of the seed candidate.
+    u, v : numpy.ndarray
+        (2,) float the seed's lattice steps, px (:func:`find_seeds`).
+    nbr8 : numpy.ndarray
+        (8,) int the seed's 8 neighbours (:func:`find_seeds`).
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px.
+    area : numpy.ndarray
+        (M,) float candidate areas, px^2.
+    tree : NeighbourGrid
+        The neighbour grid of ``points``.
+    taken : numpy.ndarray
+        (M,) bool, candidates of other patches (not used); this patch's are marked on return (modified in place).
+    image_size : tuple of int
+        (W, H) px: predictions outside the image are not misses.
+    deadline : Deadline or None, optional
+        Checked at each wave.
+    inside : callable or None, optional
+        Where given, the test of which predictions (K, 2) px lie in the image instead ((K,) bool: the candidates are
+        undistorted positions, :func:`~circcal.detector.locate.undistorted.inside_image`).
+
+    Returns
+    -------
+    Lattice
+        The patch (the seed alone and its neighbours at the least).
+
+    Raises
+    ------
+    BudgetExceeded
+        Past ``deadline`` (:class:`~circcal.detector.locate.budget.BudgetExceeded`).
+    """
     offsets = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))
     pl = points.tolist()
     cand: dict[tuple[int, int], int] = {(0, 0): int(seed)}
@@ -380,12 +430,32 @@ def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
 
 
 def merge_patches(patches: list[Lattice], points: np.ndarray, deadline: Deadline | None = None) -> list[Lattice]:
-    """Join patches that are parts of one lattice (a board cut by an occluder): the largest first, each other patch
-    taken into it when the homography of the :data:`MERGE_NEAREST` nearest dots of the larger (lattice -> image)
-    puts every dot of the smaller within :data:`BRIDGE_TOLERANCE` of a free lattice node, in one rotation and
-    shift of its own coordinates. Returns the patches, largest first. Pairs of patches are tried (quadratic in
-    their number: clutter of thousands of small patches), so ``deadline`` is checked every
-    :data:`MERGE_CHECK_EVERY` tries (raises :class:`~circcal.detector.locate.budget.BudgetExceeded` past it)."""
+    """Join patches that are parts of one lattice (a board cut by an occluder).
+
+    The largest first, each other patch taken into it when the homography of the :data:`MERGE_NEAREST` nearest dots
+    of the larger (lattice -> image) puts every dot of the smaller within :data:`BRIDGE_TOLERANCE` of a free lattice
+    node, in one rotation and shift of its own coordinates. Pairs of patches are tried (quadratic in their number:
+    clutter of thousands of small patches), so ``deadline`` is checked every :data:`MERGE_CHECK_EVERY` tries.
+
+    Parameters
+    ----------
+    patches : list of Lattice
+        The patches, in any order.
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px (the patches' ``index`` points into it).
+    deadline : Deadline or None, optional
+        The image's deadline.
+
+    Returns
+    -------
+    list of Lattice
+        The patches, largest first.
+
+    Raises
+    ------
+    BudgetExceeded
+        Past ``deadline`` (:class:`~circcal.detector.locate.budget.BudgetExceeded`).
+    """
     patches = sorted(patches, key=len, reverse=True)
     out: list[Lattice] = []
     tries = 0
@@ -464,11 +534,46 @@ def find_lattices(
 ) -> list[Lattice]:
     """Every lattice patch among the candidates (module docstring), largest first, patches of one board joined.
 
-    ``points`` (M, 2) px, ``axes`` (M, 2), ``angle`` (M,), ``area`` (M,) of the candidates; ``image_size`` (W, H);
-    ``min_seed_score``: neighbours (of 8) a first seed needs (a board whose dots have fewer, e.g. 2 x C, gives its
-    maximum); secondary seeds need :data:`SEED_MIN_NEIGHBOURS` (or ``min_seed_score`` when lower).
-    ``max_patches``: stop after growing this many patches of at least :data:`MIN_PATCH` dots (None: all);
-    ``inside``: the test of which positions lie in the image, for undistorted candidates (:func:`grow`)."""
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px.
+    axes : numpy.ndarray
+        (M, 2) float semi-axes, px.
+    angle : numpy.ndarray
+        (M,) float ellipse angles, rad.
+    area : numpy.ndarray
+        (M,) float areas, px^2.
+    image_size : tuple of int
+        (W, H) px.
+    min_seed_score : int, optional
+        Neighbours (of 8) a first seed needs (a board whose dots have fewer, e.g. 2 x C, gives its maximum);
+        secondary seeds need :data:`SEED_MIN_NEIGHBOURS` (or ``min_seed_score`` when lower).
+    deadline : Deadline or None, optional
+        The image's deadline.
+    max_patches : int or None, optional
+        Stop after growing this many patches of at least :data:`MIN_PATCH` dots (None: all).
+    inside : callable or None, optional
+        The test of which positions lie in the image, for undistorted candidates (:func:`grow`).
+
+    Returns
+    -------
+    list of Lattice
+        Patches of at least :data:`MIN_PATCH` dots, largest first (empty with fewer than :data:`MIN_PATCH`
+        candidates or no well-formed seed).
+
+    Raises
+    ------
+    BudgetExceeded
+        Past ``deadline`` (:class:`~circcal.detector.locate.budget.BudgetExceeded`).
+
+    Examples
+    --------
+    >>> xy = np.array([[x, y] for y in range(5) for x in range(6)], float) * 30 + 40
+    >>> M = len(xy)
+    >>> [len(p) for p in find_lattices(xy, np.full((M, 2), 6.0), np.zeros(M), np.full(M, 113.0), (300, 250))]
+    [30]
+    """
     points = np.asarray(points, np.float64).reshape(-1, 2)
     M = len(points)
     if M < MIN_PATCH:

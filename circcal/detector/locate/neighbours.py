@@ -44,7 +44,30 @@ class NeighbourGrid:
         _build(self.points, float(lo[0]), float(lo[1]), h, self.shape[0], self.shape[1], self.start, self.items)
 
     def query(self, x: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """``(dist, index)`` of the ``k`` nearest points to each row of ``x`` (Q, 2) (class docstring)."""
+        """``(dist, index)`` of the ``k`` nearest points to each row of ``x`` (class docstring).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            (Q, 2) float query points, px.
+        k : int, optional
+            How many nearest points.
+
+        Returns
+        -------
+        dist : numpy.ndarray
+            (Q,) float for ``k`` 1, (Q, k) otherwise: distances, px, sorted; ``inf`` where fewer than ``k`` points exist
+            or for a query with a NaN or infinite coordinate.
+        index : numpy.ndarray
+            int64, same shape: the points' indices (``M`` where the distance is ``inf``).
+
+        Examples
+        --------
+        >>> grid = NeighbourGrid(np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 4.0]]))
+        >>> dist, index = grid.query(np.array([[1.0, 0.0]]), k=2)
+        >>> dist.tolist(), index.tolist()
+        ([[1.0, 2.0]], [[0, 1]])
+        """
         q = np.ascontiguousarray(x, np.float64).reshape(-1, 2)
         dist = np.empty((len(q), k))
         idx = np.empty((len(q), k), np.int64)
@@ -66,11 +89,31 @@ class NeighbourGrid:
 
 
 def linked_clusters(points: np.ndarray, link: float) -> np.ndarray:
-    """(M,) int64 cluster label of each of ``points`` (M, 2) px: two points are linked when their distance is below
-    ``link`` times the smaller of their nearest-neighbour distances, and a cluster is what links connect. Labels
-    count from 0 in the order of each cluster's lowest point index (``scipy.sparse.csgraph.connected_components``'
-    numbering). Each point's linked partners come from its nearest neighbours, ``k`` doubled until the ``k``-th lies
-    beyond its reach (no radius common to all: one isolated point does not make every point search the image)."""
+    """The cluster label of each of ``points``: points linked to their near neighbours, connected.
+
+    Two points are linked when their distance is below ``link`` times the smaller of their nearest-neighbour
+    distances, and a cluster is what links connect. Each point's linked partners come from its nearest neighbours,
+    ``k`` doubled until the ``k``-th lies beyond its reach (no radius common to all: one isolated point does not make
+    every point search the image).
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (M, 2) float points, px.
+    link : float
+        The link's reach, in nearest-neighbour distances.
+
+    Returns
+    -------
+    numpy.ndarray
+        (M,) int64 labels, counting from 0 in the order of each cluster's lowest point index
+        (``scipy.sparse.csgraph.connected_components``' numbering).
+
+    Examples
+    --------
+    >>> linked_clusters(np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0], [11.0, 0.0]]), 1.5).tolist()
+    [0, 0, 1, 1]
+    """
     P = np.ascontiguousarray(points, np.float64).reshape(-1, 2)
     M = len(P)
     if M < 2:
