@@ -97,9 +97,24 @@ class Recognition:
 
 
 def cell_areas(board: Board, lat: Lattice, points: np.ndarray) -> np.ndarray:
-    """(K,) area (px^2) of one board lattice cell (pitch x pitch) at each dot of patch ``lat``, from the local
-    lattice steps (central differences where both neighbours are in the patch, one-sided otherwise; NaN for a dot
-    with no neighbour along an axis)."""
+    """The area of one board lattice cell (pitch x pitch) at each dot of patch ``lat``, from the local lattice steps.
+
+    Central differences where both neighbours are in the patch, one-sided otherwise.
+
+    Parameters
+    ----------
+    board : Board
+        The board (an asymmetric grid's patch cell is two board cells).
+    lat : Lattice
+        The patch (K dots).
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px (``lat.index`` points into it).
+
+    Returns
+    -------
+    numpy.ndarray
+        (K,) float areas, px^2; NaN for a dot with no neighbour along an axis.
+    """
     pos = {tuple(q): k for k, q in enumerate(lat.ab.tolist())}
     P = points[lat.index]
     out = np.full(len(P), np.nan)
@@ -121,8 +136,26 @@ def cell_areas(board: Board, lat: Lattice, points: np.ndarray) -> np.ndarray:
 
 
 def marker_flags(board: Board, lat: Lattice, points: np.ndarray, dot_areas: np.ndarray, cut: np.ndarray) -> np.ndarray:
-    """(K,) int flags of the patch's dots: 1 marker, 0 plain, -1 unknown (:data:`MARKER_SPLIT`; cut dots and dots
-    without a local cell are unknown). ``dot_areas`` (M,) px^2 of all candidates, ``cut`` (M,) bool."""
+    """The marker flag of each dot of a patch, from its area against the local lattice cell (:data:`MARKER_SPLIT`).
+
+    Parameters
+    ----------
+    board : Board
+        The board; one without markers gets all -1.
+    lat : Lattice
+        The patch (K dots).
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px.
+    dot_areas : numpy.ndarray
+        (M,) float areas of all candidates, px^2.
+    cut : numpy.ndarray
+        (M,) bool, candidates touching the image border.
+
+    Returns
+    -------
+    numpy.ndarray
+        (K,) int64 flags: 1 marker, 0 plain, -1 unknown (cut dots and dots without a local cell are unknown).
+    """
     cell = cell_areas(board, lat, points)
     q = dot_areas[lat.index] / cell
     ok = np.isfinite(q) & ~cut[lat.index]
@@ -283,8 +316,19 @@ def recognise(
 
 
 def telling(rec: Recognition) -> int:
-    """How much a refusal tells (the one reported when no segmentation finds the board): a mismatch of --grid or
-    markers, then an ambiguous view, then too few points, then not recognised."""
+    """How much a refusal tells (the one reported when no segmentation finds the board).
+
+    Parameters
+    ----------
+    rec : Recognition
+        A recognition that did not find the board.
+
+    Returns
+    -------
+    int
+        4 a mismatch of --grid, 3 of markers, 2 an ambiguous view, 1 too few points, 0 not recognised (or anything
+        else).
+    """
     return {
         Reason.GRID_MISMATCH: 4,
         Reason.MARKERS_INCONSISTENT: 3,
@@ -438,12 +482,31 @@ def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts:
 
 
 def order_grid(board: Board, points: np.ndarray, radii: np.ndarray, image_shape: tuple[int, int]) -> np.ndarray | None:
-    """Recognise the whole board among candidate dots and order it (:func:`circcal.detector.locate.recognise.recognise`
-    on round candidates).
+    """Recognise the whole board among candidate dots and order it (:func:`recognise` on round candidates).
 
-    ``points``: (M, 2) candidate centres px; ``radii``: (M,) their rough radii px; ``image_shape``: (H, W).
-    Returns (N,) indices into ``points`` in board order (orientation rule of this module), or ``None`` when the
-    whole board is not among them.
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px.
+    radii : numpy.ndarray
+        (M,) float their rough radii, px.
+    image_shape : tuple of int
+        (H, W) px.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (N,) int indices into ``points`` in board order (orientation rule of :mod:`circcal.detector.locate.grid`),
+        or ``None`` when the whole board is not among them.
+
+    Examples
+    --------
+    >>> board = Board(4, 5, 10.0, 5.0)
+    >>> points = board.object_points()[:, :2] * 3 + 40
+    >>> order_grid(board, points[::-1], np.full(20, 7.5), (200, 240)).tolist()[:3]
+    [19, 18, 17]
     """
     points = np.asarray(points, np.float64).reshape(-1, 2)
     radii = np.asarray(radii, np.float64).reshape(-1)

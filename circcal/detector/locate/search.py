@@ -45,22 +45,51 @@ def segment_and_recognise(
     box: tuple[int, int, int, int] | None = None,
     camera: Camera | None = None,
 ) -> tuple[Recognition, list[Candidate], str | None, int]:
-    """The board among the candidate dots of ``gray`` (H, W), trying the segmentations at each scale of
-    :func:`~circcal.detector.locate.segment.segmentation_scales` in turn (candidates in full-image pixels).
+    """The board among the candidate dots of ``gray``, trying the segmentations at each scale in turn.
 
-    The first segmentation in which the whole board is recognised wins; otherwise the one with the largest part of
-    the board labelled at the first scale that labels a part (a partial view: finer scales see no more of a board
-    whose dots they resolve already); a lattice that continues beyond the board ends the search at once; otherwise
-    the most telling refusal (a lattice larger than the board, an
-    ambiguous part, before "not recognised"). Returns ``(recognition, candidates, segmentation name, most
-    candidates seen)``. A grid of dots smaller than :data:`~circcal.detector.locate.segment.SHRUNK_MIN_RADIUS` at a shrunk
-    scale sends the search on to the coarsest scale where they are not, in the board's window only
-    (:func:`_board_window`; the whole image again when the window does not show it). ``first_only``: the first
-    segmentation at the first scale only (the inverted-board hint). ``scales``: the scales to try (default
-    :func:`~circcal.detector.locate.segment.segmentation_scales`); ``box``: ``(x0, y0, x1, y1)`` px, search this window of
-    ``gray`` only (candidates still in full-image pixels); ``camera``: the lens model, whose undistorted image the
-    lattice is recognised in (:func:`~circcal.detector.locate.recognise.recognise`; the candidates stay in
-    pixels)."""
+    The scales are those of :func:`~circcal.detector.locate.segment.segmentation_scales`; candidates are in
+    full-image pixels. The first segmentation in which the whole board is recognised wins; otherwise the one with the
+    largest part of the board labelled at the first scale that labels a part (a partial view: finer scales see no
+    more of a board whose dots they resolve already); a lattice that continues beyond the board ends the search at
+    once; otherwise the most telling refusal (a lattice larger than the board, an ambiguous part, before "not
+    recognised"). A grid of dots smaller than :data:`~circcal.detector.locate.segment.SHRUNK_MIN_RADIUS` at a
+    shrunk scale sends the search on to the coarsest scale where they are not, in the board's window only
+    (:func:`_board_window`; the whole image again when the window does not show it).
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) grey image (uint8/uint16/float).
+    board : Board
+        The board.
+    deadline : Deadline
+        The image's deadline, checked at each scale, mask and contour search.
+    first_only : bool, optional
+        The first segmentation at the first scale only (the inverted-board hint).
+    scales : list of int or None, optional
+        The scales to try (default :func:`~circcal.detector.locate.segment.segmentation_scales`).
+    box : tuple of int or None, optional
+        ``(x0, y0, x1, y1)`` px: search this window of ``gray`` only (candidates still in full-image pixels).
+    camera : Camera or None, optional
+        The lens model, whose undistorted image the lattice is recognised in
+        (:func:`~circcal.detector.locate.recognise.recognise`; the candidates stay in pixels).
+
+    Returns
+    -------
+    recognition : Recognition
+        The board found (``order`` indexes ``candidates``), or why not.
+    candidates : list of Candidate
+        The candidates of the segmentation chosen, full-image px.
+    segmentation : str or None
+        That segmentation's name (``"name@1/s"`` at a shrunk scale); ``None`` when none was chosen.
+    most : int
+        The most candidates (not cut by the border) any segmentation gave.
+
+    Raises
+    ------
+    BudgetExceeded
+        Past ``deadline`` (:class:`~circcal.detector.locate.budget.BudgetExceeded`).
+    """
     H, W = gray.shape
     min_area, max_area = area_limits(board, W, H)
     best = 0

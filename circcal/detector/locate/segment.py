@@ -61,8 +61,7 @@ full range, a dense texture), not dots: a board of dots 6 px across at a pitch o
 def segmentations(
     gray_u8: np.ndarray, noise_sigma: float | None = None, hist: np.ndarray | None = None
 ) -> Iterator[tuple[str, np.ndarray]]:
-    """Yield ``(name, mask)`` for ``gray_u8`` (H, W) uint8 (contrast-stretched): masks, 255 where the image is dark
-    (dot candidates), in the order worth trying.
+    """Masks of the dark dots of ``gray_u8``, 255 where the image is dark (dot candidates), in the order worth trying.
 
     1. ``otsu``: Otsu's threshold of the image as it is (global illumination). Its threshold lies between the dots'
        dark and the board's white, about half the contrast from either (~100 grey levels after the stretch; the
@@ -76,10 +75,31 @@ def segmentations(
        is :data:`ADAPTIVE_OFFSET` (8 %) of the full contrast, 20 grey levels: there noise does cross the threshold
        unless filtered. Named ``adaptive<window px>``.
 
-    ``noise_sigma``: the image's noise (grey levels, :func:`noise_sigma_u8`), when known: an image whose noise is
-    at most :data:`GUIDED_MIN_NOISE` is not filtered at all (the filter would change no flat pixel's side of any
-    threshold). ``hist``: (256,) the counts of ``gray_u8``'s values when the caller has them
-    (:func:`~circcal.detector.image.normalise_u8` gives them), for Otsu's threshold.
+    Parameters
+    ----------
+    gray_u8 : numpy.ndarray
+        (H, W) uint8, contrast-stretched.
+    noise_sigma : float or None, optional
+        The image's noise (grey levels, :func:`noise_sigma_u8`), when known: an image whose noise is at most
+        :data:`GUIDED_MIN_NOISE` is not filtered at all (the filter would change no flat pixel's side of any
+        threshold).
+    hist : numpy.ndarray or None, optional
+        (256,) int64 the counts of ``gray_u8``'s values when the caller has them
+        (:func:`~circcal.detector.image.normalise_u8` gives them), for Otsu's threshold.
+
+    Yields
+    ------
+    name : str
+        ``"otsu"``, ``"guided-otsu"`` or ``"adaptive<window px>"``.
+    mask : numpy.ndarray
+        (H, W) uint8, 255 where dark.
+
+    Examples
+    --------
+    >>> img = np.full((40, 40), 200, np.uint8)
+    >>> img[10:20, 10:20] = 30
+    >>> [name for name, mask in segmentations(img)]
+    ['otsu', 'guided-otsu', 'adaptive5', 'adaptive13', 'adaptive3']
     """
     H, W = gray_u8.shape
     counts = histogram_u8(gray_u8) if hist is None else hist
@@ -121,8 +141,25 @@ measures more and is segmented at a coarser scale, whose block means hold less n
 
 
 def noise_sigma_u8(img: np.ndarray) -> float:
-    """Robust noise sigma (grey levels) of ``img`` (H, W) uint8 from the median absolute difference of horizontal
-    neighbours on every 4th row (``median / (0.6745 sqrt 2)``; 0 on noiseless renders, whose flat areas dominate)."""
+    """Robust noise sigma of ``img`` from the median absolute difference of horizontal neighbours on every 4th row.
+
+    ``median / (0.6745 sqrt 2)``; 0 on noiseless renders, whose flat areas dominate.
+
+    Parameters
+    ----------
+    img : numpy.ndarray
+        (H, W) uint8.
+
+    Returns
+    -------
+    float
+        Noise sigma, grey levels.
+
+    Examples
+    --------
+    >>> float(noise_sigma_u8(np.zeros((8, 8), np.uint8)))
+    0.0
+    """
     rows = img[::4]
     if rows.shape[1] < 2:
         return 0.0
@@ -132,7 +169,23 @@ def noise_sigma_u8(img: np.ndarray) -> float:
 
 
 def speckled(mask: np.ndarray) -> bool:
-    """Whether ``mask`` (H, W) uint8 is speckle rather than blobs (:data:`MAX_TRANSITIONS`; every 4th row counted)."""
+    """Whether ``mask`` is speckle rather than blobs (:data:`MAX_TRANSITIONS`; every 4th row counted).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray
+        (H, W) uint8 segmentation.
+
+    Returns
+    -------
+    bool
+        ``True`` when more than :data:`MAX_TRANSITIONS` of horizontally neighbouring pixels differ.
+
+    Examples
+    --------
+    >>> bool(speckled(np.zeros((8, 8), np.uint8)))
+    False
+    """
     rows = mask[::4]
     if rows.shape[1] < 2:
         return False
@@ -146,18 +199,34 @@ def _odd_window(n: float) -> int:
 
 
 def guided_filter(gray_u8: np.ndarray, radius: int, eps: float, hist: np.ndarray | None = None) -> np.ndarray:
-    """Self-guided filter (He, Sun & Tang 2013) of a uint8 image (H, W) on ``g = gray_u8 / 255`` (``radius`` px,
-    ``eps`` in units of the [0, 1] intensity range squared), rounded back to uint8: the edge-preserving denoise the
-    paper uses before segmentation. ``hist``: (256,) int64, if given the counts of the result's values are added to
-    it (what Otsu's threshold needs: :func:`otsu_threshold`).
+    """Self-guided filter (He, Sun & Tang 2013) of a uint8 image on ``g = gray_u8 / 255``, rounded back to uint8.
 
-    The values of ``cv2.ximgproc.guidedFilter(g, g, radius, eps)`` (box means with reflected borders, float32) as
-    their steps written out with ``cv2.boxFilter`` and float32 arithmetic give them (the same to the bit, tested), in
-    one compiled pass over the rows (:func:`_guided_kernel`): the rows in flight are held in small ring buffers, so a
-    frame of any size streams through the cache once, where the ten whole-image passes of the written-out filter
-    each went through memory (3 MP: ~13 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own
-    filter rounds a few pixels differently: at most one grey level apart, on ~1e-4 of a board image's pixels
-    (0.3 % of pure noise's; tests/detector/test_locate.py)."""
+    The edge-preserving denoise the paper uses before segmentation. The values of
+    ``cv2.ximgproc.guidedFilter(g, g, radius, eps)`` (box means with reflected borders, float32) as their steps
+    written out with ``cv2.boxFilter`` and float32 arithmetic give them (the same to the bit, tested), in one compiled
+    pass over the rows (:func:`_guided_kernel`): the rows in flight are held in small ring buffers, so a frame of any
+    size streams through the cache once, where the ten whole-image passes of the written-out filter each went through
+    memory (3 MP: ~13 against ~36 ms; 640x480: ~1.3 against ~1.7 ms, one thread). ximgproc's own filter rounds a few
+    pixels differently: at most one grey level apart, on ~1e-4 of a board image's pixels (0.3 % of pure noise's;
+    tests/detector/test_locate.py).
+
+    Parameters
+    ----------
+    gray_u8 : numpy.ndarray
+        (H, W) uint8.
+    radius : int
+        Box radius, px.
+    eps : float
+        Regularisation, in units of the [0, 1] intensity range squared.
+    hist : numpy.ndarray or None, optional
+        (256,) int64; if given, the counts of the result's values are added to it (in place: what Otsu's threshold
+        needs, :func:`otsu_threshold`).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) uint8 filtered image.
+    """
     img = np.ascontiguousarray(gray_u8, np.uint8)
     out = np.empty(img.shape, np.uint8)
     counts = np.zeros(256, np.int64) if hist is None else hist
@@ -306,9 +375,29 @@ def _slide(v1, v2, xr, r, h1, h2):
 
 
 def otsu_threshold(hist: np.ndarray) -> int:
-    """Otsu's threshold of an 8-bit image from its histogram ``hist`` (256,): the level ``t`` that maximises the
-    between-class variance of ``<= t`` and ``> t``, as ``cv2.threshold(..., THRESH_OTSU)`` computes it (the same
-    value, tested), without its own pass over the pixels (:func:`_otsu_kernel`); 0 for an empty histogram."""
+    """Otsu's threshold of an 8-bit image from its histogram ``hist``.
+
+    The level ``t`` that maximises the between-class variance of ``<= t`` and ``> t``, as
+    ``cv2.threshold(..., THRESH_OTSU)`` computes it (the same value, tested), without its own pass over the pixels
+    (:func:`_otsu_kernel`).
+
+    Parameters
+    ----------
+    hist : numpy.ndarray
+        (256,) int counts of the image's values.
+
+    Returns
+    -------
+    int
+        The threshold, grey levels; 0 for an empty histogram.
+
+    Examples
+    --------
+    >>> hist = np.zeros(256, np.int64)
+    >>> hist[20], hist[200] = 100, 300
+    >>> otsu_threshold(hist)
+    20
+    """
     h = np.ascontiguousarray(hist, np.int64)
     return int(_otsu_kernel(h)) if h.sum() > 0 else 0
 
@@ -344,17 +433,34 @@ def _otsu_kernel(hist):
 
 
 def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
-    """Image scales (1 = full, s = shrunk s times) to segment the whole image at, in order: the working scale
-    ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer pixels to filter),
-    then halving it (rounded up) down to 2 (a grid of small dots in a large image); full resolution only for an image
-    too small to shrink. At scale 2 a dot 6 px across is 3 px and still a candidate: a board recognised with dots
-    smaller than :data:`SHRUNK_MIN_RADIUS` at its scale is segmented again at the coarsest scale where they are not,
-    in its own window (:mod:`circcal.detector.locate.search`), never the whole frame (a 48 MP frame of noise alone took
-    minutes). The edges are always measured at full resolution, starting from these contours: only the starting
-    ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to ~1e-2 px on strongly
-    blurred images, where the two-pass refinement still depends slightly on its start, with the same accuracy
-    against the truth). Setting ``SHRINK_MIN_SIDE`` above any image size restores full-resolution segmentation
-    everywhere."""
+    """Image scales (1 = full, s = shrunk s times) to segment the whole image at, in order.
+
+    The working scale ``min(H, W) // SHRINK_MIN_SIDE`` first (when at least 2; pixel-area averaging; ~ s^2 fewer
+    pixels to filter), then halving it (rounded up) down to 2 (a grid of small dots in a large image); full resolution
+    only for an image too small to shrink. At scale 2 a dot 6 px across is 3 px and still a candidate: a board
+    recognised with dots smaller than :data:`SHRUNK_MIN_RADIUS` at its scale is segmented again at the coarsest scale
+    where they are not, in its own window (:mod:`circcal.detector.locate.search`), never the whole frame (a 48 MP
+    frame of noise alone took minutes). The edges are always measured at full resolution, starting from these
+    contours: only the starting ellipses differ between scales (on the fixtures the centres move by ~1e-4 px, up to
+    ~1e-2 px on strongly blurred images, where the two-pass refinement still depends slightly on its start, with the
+    same accuracy against the truth). Setting ``SHRINK_MIN_SIDE`` above any image size restores full-resolution
+    segmentation everywhere.
+
+    Parameters
+    ----------
+    height, width : int
+        The image's size, px.
+
+    Returns
+    -------
+    tuple of int
+        The scales, coarsest first.
+
+    Examples
+    --------
+    >>> segmentation_scales(1080, 1920), segmentation_scales(480, 640), segmentation_scales(3000, 4000)
+    ((3, 2), (1,), (8, 4, 2))
+    """
     s = min(height, width) // SHRINK_MIN_SIDE
     if s < 2:
         return (1,)
@@ -366,11 +472,29 @@ def segmentation_scales(height: int, width: int) -> tuple[int, ...]:
 
 
 def shrink(gray: np.ndarray, scale: int) -> np.ndarray:
-    """(H // s, W // s) averages of the s x s pixel blocks of ``gray`` (H, W), ``s = scale`` (uint8, uint16 and
-    float32 kept; other dtypes via float32, as :func:`~circcal.detector.image.as_gray` converts float64 colour).
+    """Averages of the s x s pixel blocks of ``gray``, ``s = scale``.
 
     ``cv2.resize(..., INTER_AREA)``'s values; for uint8 and ``s >= 3`` computed by :func:`_block_means_u8` (the same
-    values, ~3x faster: OpenCV has a fast path for 2x only, its general area loop took ~1.5 ms of a 1080p frame)."""
+    values, ~3x faster: OpenCV has a fast path for 2x only, its general area loop took ~1.5 ms of a 1080p frame).
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        (H, W) image.
+    scale : int
+        The block side s, px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (H // s, W // s) block means; uint8, uint16 and float32 kept, other dtypes via float32 (as
+        :func:`~circcal.detector.image.as_gray` converts float64 colour).
+
+    Examples
+    --------
+    >>> shrink(np.arange(16, dtype=np.uint8).reshape(4, 4), 2).tolist()
+    [[3, 5], [11, 13]]
+    """
     H, W = gray.shape
     g = gray[: H // scale * scale, : W // scale * scale]
     if g.dtype == np.uint8 and scale >= 3 and W // scale and H // scale:

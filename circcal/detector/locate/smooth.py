@@ -43,13 +43,32 @@ def _distinct(c: np.ndarray) -> np.ndarray:
 
 
 def local_residual(coords: np.ndarray, points: np.ndarray, n: int = LOCAL_DOTS) -> float | None:
-    """RMS over the dots of each one's prediction error from its ``n`` nearest lattice neighbours, divided by its
-    noise gain and by the local lattice step there (module docstring): a share of a lattice step, like the RMS
-    residual of a global fit over a median step.
+    """RMS over the dots of each one's prediction error from its ``n`` nearest lattice neighbours (module docstring).
 
-    ``coords`` (K, 2) lattice coordinates of the dots (patch integers, or board coordinates in pitches);
-    ``points`` (K, 2) px. Returns ``None`` for fewer than :data:`MIN_LOCAL_DOTS` dots, ``inf`` when no dot has a
-    usable neighbourhood."""
+    Each error is divided by its noise gain and by the local lattice step there: a share of a lattice step, like the
+    RMS residual of a global fit over a median step.
+
+    Parameters
+    ----------
+    coords : numpy.ndarray
+        (K, 2) float lattice coordinates of the dots (patch integers, or board coordinates in pitches).
+    points : numpy.ndarray
+        (K, 2) float their image positions, px.
+    n : int, optional
+        Neighbours each dot is predicted from (:data:`LOCAL_DOTS`).
+
+    Returns
+    -------
+    float or None
+        The RMS, in lattice steps; ``None`` for fewer than :data:`MIN_LOCAL_DOTS` dots, ``inf`` when no dot has a
+        usable neighbourhood.
+
+    Examples
+    --------
+    >>> ab = np.array([[i, j] for j in range(4) for i in range(5)], float)
+    >>> local_residual(ab, ab * 20 + 5) < 1e-12, local_residual(ab[:6], ab[:6])
+    (True, None)
+    """
     L = np.asarray(coords, np.float64).reshape(-1, 2)
     P = np.asarray(points, np.float64).reshape(-1, 2)
     K = len(L)
