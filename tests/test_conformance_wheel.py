@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.repo_copy import git_files_copy
+
 REPO = Path(__file__).resolve().parents[1]
 
 CALIBRATORS = '''
@@ -63,25 +65,11 @@ def broken(object_points, image_points, image_size):
 '''
 
 
-def _git_files_copy(dest: Path) -> None:
-    """What git would commit (tracked and untracked-not-ignored files), links as links (as tests/test_layout.py)."""
-    files = subprocess.run(
-        ["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True, text=True, check=True
-    ).stdout.split()
-    for f in files:
-        target = dest / f
-        target.parent.mkdir(parents=True, exist_ok=True)
-        if (REPO / f).is_symlink():
-            target.symlink_to(os.readlink(REPO / f))
-        elif (REPO / f).is_file():
-            shutil.copy2(REPO / f, target)
-
-
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     """(python of a fresh venv holding the circcal wheel, an empty working folder, the environment to run in)."""
     tmp = tmp_path_factory.mktemp("wheel")
-    _git_files_copy(tmp / "src")
+    git_files_copy(tmp / "src")
     run = subprocess.run(
         [
             sys.executable,

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
 import pytest
+
+from tests.repo_copy import git_files_copy
 
 REPO = Path(__file__).resolve().parents[1]
 #: Top-level import names the repository must not install (PyPI has popular packages called validators and
@@ -60,16 +61,7 @@ def test_wheel_installs_only_circcal(tmp_path):
     # built from a copy of what git would commit (so a build leaves nothing in the checkout, and a file that is
     # not added cannot make the test pass); links are copied as links
     src = tmp_path / "src"
-    files = subprocess.run(
-        ["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True, text=True, check=True
-    ).stdout.split()
-    for f in files:
-        dest = src / f
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        if (REPO / f).is_symlink():
-            dest.symlink_to(os.readlink(REPO / f))
-        elif (REPO / f).is_file():
-            shutil.copy2(REPO / f, dest)
+    git_files_copy(src)
     run = subprocess.run(
         [
             sys.executable,

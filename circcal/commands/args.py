@@ -73,6 +73,14 @@ def parse_grid(text: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def _integer(text: str) -> int:
+    """``int(text)``, refused in argparse's words (the one parse behind every integer option)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+
+
 def positive_int(text: str) -> int:
     """'4' -> 4; at least 1 (an argparse type).
 
@@ -88,10 +96,7 @@ def positive_int(text: str) -> int:
     ------
     argparse.ArgumentTypeError
     """
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    value = _integer(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
     return value
@@ -138,10 +143,7 @@ def nonnegative_int(text: str) -> int:
     ------
     argparse.ArgumentTypeError
     """
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    value = _integer(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be 0 or more, got {text!r}")
     return value
@@ -162,10 +164,7 @@ def int_between(lo: int, hi: int):
     """
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        value = _integer(text)
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be within {lo}..{hi}, got {text!r}")
         return value
