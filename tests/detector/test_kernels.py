@@ -185,6 +185,10 @@ def test_threads_meeting_cold_kernels_all_get_compiled_code(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.split() == ["[True,", "True,", "True,", "True]"]
+    # issue 35: the first run says, once, that it compiles; a run on the warm cache says nothing
+    assert r.stderr.count("compiling the detector's kernels (first run only") == 1, r.stderr[-3000:]
+    again = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
+    assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr[-3000:]
 
 
 def test_without_numba_the_same_detector_runs_as_plain_python(tmp_path):

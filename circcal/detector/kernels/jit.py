@@ -243,6 +243,32 @@ class Kernel:
         return self._jit  # type: ignore[return-value]
 
 
+#: Whether this process has said that it compiles kernels (said once, to stderr).
+_told = False
+
+
+def _tell_compiling(module: str) -> None:
+    """Say once per process, before numba compiles, that the detector's kernels are being compiled: the first run
+    without the ahead-of-time build spends up to a minute there (never charged to an image's time budget). Said
+    only where numba's disk cache holds no kernel yet (no ``.nbi`` index file beside ``module``'s source, or under
+    ``NUMBA_CACHE_DIR`` where that is set); later processes load the cache silently."""
+    global _told
+    if _told:
+        return
+    source = Path(sys.modules[module].__file__ or "")
+    pattern = "*.nbi"  # any kernel cached: a warm cache (an edited module recompiles alone, in seconds)
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")  # where set, numba caches there only
+    place = Path(cache_dir) if cache_dir else source.parent / "__pycache__"
+    if place.is_dir() and next(place.rglob(pattern), None) is not None:
+        return
+    _told = True
+    print(
+        "circcal: compiling the detector's kernels (first run only; `make setup` builds them ahead of time)",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def _jit_module(module: str) -> None:
     """Turn the kernels of ``module`` into numba dispatchers and rebind its names to them, those of the kernel modules
     it calls (:func:`_kernel_imports`) first, and its imported names of their kernels too (numba compiles a call to
@@ -259,6 +285,8 @@ def _jit_module(module: str) -> None:
         made: dict[Kernel, Callable] = {}
         if _HAVE_NUMBA:
             import numba
+
+            _tell_compiling(module)
 
             for k in kernels:
                 made[k] = numba.njit(**(dict(k.options, cache=False) if deps else k.options))(k.py_func)
