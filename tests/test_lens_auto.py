@@ -21,7 +21,13 @@ def _observed_difference(cal, truth_camera) -> float:
 
 
 @pytest.mark.parametrize(
-    "scenario, lens", [("fisheye", "fisheye"), ("rational-wide", "rational"), ("small-noisy", "opencv5")]
+    "scenario, lens",
+    [
+        ("fisheye", "fisheye"),
+        ("fisheye-central", "fisheye"),  # large central boards, up to 84 deg off axis (issue 33's scenario)
+        ("rational-wide", "rational"),
+        ("small-noisy", "opencv5"),
+    ],
 )
 def test_lens_auto_chooses_the_lens_of_the_truth(scenario, lens):
     sc = get_scenario(scenario)
