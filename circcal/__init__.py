@@ -12,8 +12,9 @@ name                      what it is
 :func:`detect`            one image (an array) -> a :class:`~circcal.detector.Detection`
 :func:`detect_files`      image files -> one Detection each (a bad file is a rejection with its reason)
 :func:`recorrect`         a detection's centres corrected again under a camera model
-:func:`calibrate`         image files -> :class:`~circcal.pipeline.ImagesCalibration` (model, sigmas, residuals,
-                          detections; detect, calibrate, re-correct until the centres settle)
+:func:`calibrate`         image files (or observations) -> :class:`~circcal.analysis.calibration.Calibration`: the
+                          model, sigmas, residuals, projection uncertainty and verdict (images: detect, calibrate,
+                          re-correct until the centres settle)
 :func:`calibrate_points`  object and image points -> a :class:`~circcal.solver.CalibrationResult`
 :func:`assess`            the verdict on a calibration: outliers, uncertainty, model fit, cross-validation
 :func:`load_model`        a camera from any file circcal reads (model.json, OpenCV, mrcal, COLMAP, ROS)
@@ -26,9 +27,9 @@ Example
 -------
 >>> import circcal                                                   # doctest: +SKIP
 >>> board = circcal.Board(7, 9, pitch_mm=10.0, diameter_mm=4.0)
->>> run = circcal.calibrate(sorted(Path("photos").glob("*.png")), board, progress=False)
->>> print(run.result.camera, run.result.errors["rms_per_point_px"])
->>> circcal.save_model("model.json", run.result.camera)
+>>> cal = circcal.calibrate(sorted(Path("photos").glob("*.png")), board)
+>>> print(cal.camera, cal.std["fx"], cal.verdict[0])
+>>> circcal.save_model("model.json", cal.camera)
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ _API: dict[str, tuple[str, str]] = {
     "detect": ("circcal.detector.find", "detect"),
     "detect_files": ("circcal.detector.files", "detect_files"),
     "recorrect": ("circcal.detector.find", "recorrect"),
-    "calibrate": ("circcal.pipeline", "calibrate_images"),
+    "calibrate": ("circcal.analysis.calibration", "calibrate"),
     "calibrate_points": ("circcal.solver.calibrate", "calibrate"),
     "assess": ("circcal.analysis.assess", "assess"),
     "load_model": ("circcal.formats", "read_camera"),

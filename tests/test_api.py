@@ -42,10 +42,17 @@ def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
 
     truth = load_truth(fixture_dir("small-noisy"))
     paths = [v.image for v in truth.views]
-    run = circcal.calibrate(paths, truth.board, circcal.CalibrationOptions(), progress=False, jobs=1)
-    cam = run.result.camera
+    run = circcal.calibrate(paths, truth.board, circcal.CalibrationOptions(), jobs=1)
+    cam = run.camera
     for name in ("fx", "fy", "cx", "cy"):  # within 4 stated sigmas of the truth
-        assert abs(getattr(cam, name) - getattr(truth.camera, name)) < 4 * run.result.std[name], name
+        assert abs(getattr(cam, name) - getattr(truth.camera, name)) < 4 * run.std[name], name
+    # the verdict and the uncertainty come with it; the images used and left out too
+    assert run.verdict and "RMS" in " ".join(run.verdict) and run.uncertainty is not None
+    assert len(run.residuals) == len(run.images.used) == len(paths) and not run.images.failed
+    # from observations: the same model to the solver's precision
+    obs = run.images.observations(truth.board)
+    again = circcal.calibrate(None, truth.board, observations=obs, image_size=(cam.width, cam.height))
+    assert np.allclose(again.camera.intrinsics, cam.intrinsics, rtol=1e-9, atol=1e-9) and again.verdict
     import cv2
 
     d = circcal.detect(cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED), truth.board)

@@ -74,14 +74,14 @@ def test_views_the_first_detection_refused_are_found_with_the_first_model(monkey
 
 def test_no_model_names_the_lens_option_to_try(tmp_path, capsys, monkeypatch):
     """An unusable start never ends in an unexplained exit 1: the message names --lens auto."""
-    import circcal.pipeline as pipeline
+    import circcal.analysis.calibration as calibration
     from circcal.cli import main
     from circcal.errors import CalibrationError
 
     def fails(*a, **k):
         raise CalibrationError("the initial camera's distortion cannot be inverted at some observed points")
 
-    monkeypatch.setattr(pipeline, "calibrate_images", fails)
+    monkeypatch.setattr(calibration, "calibrate_images", fails)
     truth = load_truth(fixture_dir("small-noisy", progress=False))
     code = main(
         [

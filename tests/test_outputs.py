@@ -32,6 +32,9 @@ def no_work(monkeypatch):
         raise AssertionError("the work started before the outputs were checked")
 
     monkeypatch.setattr(pipeline, "calibrate_images", reached)
+    import circcal.analysis.calibration as calibration
+
+    monkeypatch.setattr(calibration, "calibrate_images", reached)
     monkeypatch.setattr(files, "detect_files", reached)
     import circcal.detector as det
 

@@ -236,11 +236,11 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad argument or input file (the CLI prints it and exits 2).
     """
-    from circcal.analysis.assess import assess
+    from circcal.analysis.calibration import calibrate
     from circcal.errors import InputError
     from circcal.formats import detect_format, write_camera
     from circcal.outputs import Outputs
-    from circcal.pipeline import LENS_CANDIDATES, calibrate_images
+    from circcal.pipeline import LENS_CANDIDATES
     from circcal.solver import CalibrationError
 
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
@@ -261,24 +261,24 @@ def run(args: argparse.Namespace) -> int:
                 f"COLMAP cameras.txt or ROS camera_info instead"
             )
         try:
-            cal = calibrate_images(
-                args.images, board, options, progress=not args.no_progress, jobs=args.jobs, lens_candidates=candidates
+            calibration = calibrate(
+                args.images,
+                board,
+                options,
+                cross_validate=args.cross_validate,
+                distance=args.distance,
+                split=args.split,
+                seed=args.seed,
+                lens_candidates=candidates,
+                progress=not args.no_progress,
+                jobs=args.jobs,
             )
         except CalibrationError as exc:
             hint = "" if args.lens == "auto" else f" (fitted with --lens {args.lens}; a wide lens: try --lens auto)"
             print(f"circcal calibrate: no model: {exc}{hint}", file=sys.stderr)
             return 1
-        options = options.replace(lens=cal.result.camera.lens)
+        cal, assessment = calibration.images, calibration.assessment
         print(format_summary(cal))
-        assessment = assess(
-            cal,
-            board,
-            options,
-            distance=args.distance,
-            cross_validate=args.cross_validate,
-            split=args.split,
-            seed=args.seed,
-        )
         print("\n".join(assessment.lines()))
         model = cal.to_model_json(board)
         if fmt == "mrcal":
