@@ -445,3 +445,17 @@ def test_a_folder_stands_for_its_images_sorted(tmp_path, capsys):
     assert "photos: 2 images" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
     assert main(["detect", str(tmp_path / "empty"), "--grid", "7x7", "--json", str(out), "--quiet"]) == 2
+
+
+@pytest.mark.parametrize("command", ["", *__import__("circcal.cli", fromlist=["COMMANDS"]).COMMANDS])
+def test_help_shows_no_developer_markup(command, capsys):
+    """Issue 36: `circcal board --help` showed ":func:`add_marker_arguments`" (the module docstring as written)."""
+    import re
+
+    from circcal.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"] if command else ["--help"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and out
+    assert not re.search(r":(func|data|class|mod|meth|attr|ref):`|``", out), out

@@ -338,3 +338,26 @@ def expand_images(paths: list[Path], option: str = "images") -> list[Path]:
         else:
             out.append(p)
     return out
+
+
+def plain(text: str) -> str:
+    """A docstring as command-line help: Sphinx roles (``:func:`x` ``) and inline literals (````x````) as plain text.
+
+    Parameters
+    ----------
+    text : str
+        reStructuredText as the module docstrings write it.
+
+    Returns
+    -------
+    str
+        The same text with ``:role:`target``` reduced to its target's last name and double backquotes to single
+        ones (the help a user reads shows no developer markup).
+
+    Examples
+    --------
+    >>> plain("see :func:`circcal.commands.board.add_marker_arguments` and ``--grid RxC``")
+    'see add_marker_arguments and `--grid RxC`'
+    """
+    text = re.sub(r":[a-z]+:`~?([^`<]*?<)?([^`>]*)>?`", lambda m: m.group(2).rsplit(".", 1)[-1], text)
+    return text.replace("``", "`")

@@ -17,7 +17,7 @@ import argparse
 import re
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm
+from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, plain
 
 __all__ = ["PAPERS", "add_marker_arguments", "add_parser", "board_with_markers", "draw_board", "parse_paper", "run"]
 
@@ -145,7 +145,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "board",
         help="write a circle-grid board true to scale for printing (SVG or PDF)",
-        description=__doc__,
+        description=plain(__doc__ or ""),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")

@@ -11,6 +11,8 @@ import argparse
 
 import numpy as np
 
+from circcal.commands.args import plain
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add the ``circcal demo`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
@@ -21,7 +23,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         The command line's subparsers.
     """
     p = sub.add_parser(
-        "demo", help="render the default fixtures and run the main job on them", description=__doc__.split("\n\n")[0]
+        "demo",
+        help="render the default fixtures and run the main job on them",
+        description=plain((__doc__ or "").split("\n\n")[0]),
     )
     p.add_argument("--scenario", default=None, help="scenario (default: the built-in default, `paper`)")
     p.set_defaults(func=run)

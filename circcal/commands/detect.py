@@ -24,6 +24,7 @@ from circcal.commands.args import (
     expand_images,
     parse_grid,
     parse_length_mm,
+    plain,
     positive_int,
 )
 from circcal.commands.board import add_marker_arguments, board_with_markers
@@ -43,7 +44,7 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "detect",
         help="find circle grids and write unbiased centre projections as JSON",
-        description=__doc__,
+        description=plain(__doc__ or ""),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
