@@ -44,18 +44,19 @@ def parse_length_mm(text: str) -> float:
     return value
 
 
-def parse_grid(text: str) -> tuple[int, int]:
-    """'7x7' -> (rows, cols): points per column x points per row (an argparse type).
+def parse_grid(text: str) -> tuple[int, int] | str:
+    """'7x7' -> (rows, cols): points per column x points per row (an argparse type); ``auto`` -> ``"auto"`` (the grid
+    found from the images: :func:`resolve_grid`).
 
     Parameters
     ----------
     text : str
-        ``ROWSxCOLS`` (``x``, ``X`` or ``*``).
+        ``ROWSxCOLS`` (``x``, ``X`` or ``*``), or ``auto``.
 
     Returns
     -------
-    tuple of int
-        (rows, cols).
+    tuple of int or str
+        (rows, cols), or ``"auto"``.
 
     Raises
     ------
@@ -67,9 +68,11 @@ def parse_grid(text: str) -> tuple[int, int]:
     >>> parse_grid("11x4")
     (11, 4)
     """
+    if str(text).strip().lower() == "auto":
+        return "auto"
     m = re.fullmatch(r"\s*(\d+)\s*[xX*]\s*(\d+)\s*", str(text))
     if not m:
-        raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, got {text!r}")
+        raise argparse.ArgumentTypeError(f"grid must be ROWSxCOLS (points), e.g. 7x7 or 11x4, or auto, got {text!r}")
     return int(m.group(1)), int(m.group(2))
 
 
@@ -171,6 +174,67 @@ def int_between(lo: int, hi: int):
 
     parse.__name__ = f"integer {lo}..{hi}"
     return parse
+
+
+def resolve_grid(args: argparse.Namespace, command: str) -> None:
+    """``--grid auto``: the grid found from ``args.images`` (:func:`circcal.detector.locate.infer.infer_grid`) put in
+    ``args.grid`` and ``args.asymmetric``, and the ``--grid`` line it stands for printed; any other ``--grid`` is
+    left as it is.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With ``grid``, ``asymmetric`` and ``images`` (the files, folders expanded); modified in place.
+    command : str
+        The command's name, for the printed line.
+
+    Raises
+    ------
+    InputError
+        No image shows a lattice of dots.
+    """
+    if args.grid != "auto":
+        return
+    from circcal.detector.locate.infer import grid_text, infer_grid
+
+    rows, cols, layout, evidence = infer_grid(args.images)
+    if rows is None:
+        why = "; ".join(e.text() for e in evidence[:3])
+        raise InputError(f"--grid auto: no image shows a lattice of dots ({why}); give --grid RxC")
+    if args.asymmetric and layout != "asymmetric":
+        raise InputError(f"--grid auto found {grid_text(rows, cols, layout)}, a symmetric grid: drop --asymmetric")
+    args.grid, args.asymmetric = (rows, cols), layout == "asymmetric"
+    shown = sum(e.whole and (e.rows, e.cols, e.layout) == (rows, cols, layout) for e in evidence)
+    print(
+        f"circcal {command}: --grid auto: {grid_text(rows, cols, layout)} (whole in {shown} of {len(evidence)} images)"
+    )
+
+
+def grid_hint(images: list[Path], board) -> str:
+    """What the images show when the given grid was not found in them: the flag that fixes it, or ``""``.
+
+    Parameters
+    ----------
+    images : list of Path
+    board : circcal.board.Board
+        The board of the given ``--grid`` and ``--asymmetric``.
+
+    Returns
+    -------
+    str
+        ``"an asymmetric grid: add --asymmetric"``, ``"the grid is CxR: --grid CxR"``, or the ``--grid`` line found;
+        ``""`` when the images show that board's grid or no grid.
+    """
+    from circcal.detector.locate.infer import grid_text, infer_grid, probe_grid_of
+
+    rows, cols, layout, _ = infer_grid(images)
+    if rows is None or (rows, cols, layout) == probe_grid_of(board):
+        return ""
+    if layout == "asymmetric" and board.layout != "asymmetric" and {rows, cols} == {board.rows, board.cols}:
+        return f"an asymmetric grid: add --asymmetric ({grid_text(rows, cols, layout)})"
+    if layout == board.layout and (rows, cols) == (board.cols, board.rows):
+        return f"the grid is {rows}x{cols}: --grid {rows}x{cols}"
+    return f"the images show {grid_text(rows, cols, layout)} (or give --grid auto)"
 
 
 DIAMETER_HELP = "dot diameter, e.g. 5mm (default: half the spacing of nearest dots)"

@@ -13,11 +13,13 @@ from circcal.commands.args import (
     board_from_args,
     calibration_options,
     expand_images,
+    grid_hint,
     nonnegative_int,
     parse_grid,
     parse_length_mm,
     positive_float,
     positive_int,
+    resolve_grid,
 )
 from circcal.commands.board import add_marker_arguments, board_with_markers
 from circcal.pathnames import display_name
@@ -41,7 +43,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "mrcal .cameramodel, COLMAP cameras.txt, ROS camera_info .yaml).",
     )
     p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
-    p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
+    p.add_argument(
+        "--grid",
+        type=parse_grid,
+        required=True,
+        help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4); auto: found from the images (the line used is printed)",
+    )
     p.add_argument(
         "--pitch",
         type=parse_length_mm,
@@ -244,6 +251,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.solver import CalibrationError
 
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
+    resolve_grid(args, "calibrate")
     options = calibration_options(args)  # the one options object: its errors come before any work
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     with Outputs(inputs=args.images) as outputs:  # every output checked before the work, committed together
@@ -276,6 +284,8 @@ def run(args: argparse.Namespace) -> int:
         except CalibrationError as exc:
             hint = "" if args.lens == "auto" else f" (fitted with --lens {args.lens}; a wide lens: try --lens auto)"
             print(f"circcal calibrate: no model: {exc}{hint}", file=sys.stderr)
+            if flag := grid_hint(list(args.images), board):
+                print(f"circcal calibrate: {flag}", file=sys.stderr)
             return 1
         cal, assessment = calibration.images, calibration.assessment
         print(format_summary(cal))

@@ -22,10 +22,12 @@ from circcal.commands.args import (
     DIAMETER_HELP,
     board_from_args,
     expand_images,
+    grid_hint,
     parse_grid,
     parse_length_mm,
     plain,
     positive_int,
+    resolve_grid,
 )
 from circcal.commands.board import add_marker_arguments, board_with_markers
 
@@ -48,7 +50,9 @@ def add_parser(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
-    p.add_argument("--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points")
+    p.add_argument(
+        "--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points; auto: found from the images"
+    )
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
     p.add_argument(
         "--pitch", type=parse_length_mm, default=10.0, help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)"
@@ -125,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.pathnames import display_name
 
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
+    resolve_grid(args, "detect")
     board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
     inputs = list(args.images) + ([args.model] if args.model is not None else [])
     with Outputs(inputs=inputs) as outputs:  # checked before the work, committed together at the end
@@ -183,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
             )
         for note in d.notes:
             print(f"  {name}: {note}")
+    if n == 0 and (hint := grid_hint(list(args.images), board)):
+        print(f"circcal detect: {hint}")
     return 0 if n == len(dets) else 1
 
 
