@@ -20,6 +20,7 @@ import numpy as np
 from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import CrossValidation, cross_validate_detections
+from circcal.analysis.remedy import Remedy, remedy
 from circcal.solver import CalibrationOptions
 from circcal.solver.modelfit import ModelFit, model_fit
 
@@ -136,6 +137,9 @@ class Assessment:
         s.
     lens_fit : ModelFit or None
         Whether the lens model fits (:mod:`circcal.solver.modelfit`; None: too few points to tell).
+    remedy : Remedy or None
+        What to do next (:mod:`circcal.analysis.remedy`): the candidate that makes the halves agree, or where more
+        views are needed; None: nothing to remedy.
     result : CalibrationResult
         ``cal.result`` (property).
     """
@@ -147,6 +151,7 @@ class Assessment:
     crossval: CrossValidation | None
     timings: dict[str, float] = field(default_factory=dict)
     lens_fit: ModelFit | None = None
+    remedy: Remedy | None = None
 
     @property
     def result(self) -> Any:
@@ -169,7 +174,9 @@ class Assessment:
         ]
         cv = self.crossval
         if cv is None:
-            lines.append("cross-validation: not run (--cross-validate splits the views in two and compares)")
+            lines.append(
+                "cross-validation: not run (--no-cross-validate; without it the views are split in two and compared)"
+            )
         elif cv.status != "ok":
             lines.append(f"cross-validation: {cv.message}")
         else:
@@ -192,13 +199,32 @@ class Assessment:
         return lines
 
     def lines(self) -> list[str]:
-        """The console summary of what the calibration summary does not already say.
+        """The console summary of what the calibration summary does not already say: the verdict, what to do next
+        (:attr:`remedy`), then :meth:`details`.
 
         Returns
         -------
         list of str
         """
-        out = list(self.verdict())
+        return self.verdict() + self.next_lines() + self.details()
+
+    def next_lines(self) -> list[str]:
+        """What to do next (the remedy's lines; empty when there is nothing to remedy).
+
+        Returns
+        -------
+        list of str
+        """
+        return [] if self.remedy is None else self.remedy.lines()
+
+    def details(self) -> list[str]:
+        """The lens-model fit, the outliers, the coverage and the cross-validation's details, in lines.
+
+        Returns
+        -------
+        list of str
+        """
+        out: list[str] = []
         if self.lens_fit is not None:
             out.append(self.lens_fit.message())
         rej = self.result.outliers
@@ -252,7 +278,8 @@ class Assessment:
         Returns
         -------
         dict
-            ``verdict``, ``uncertainty``, ``coverage``, ``outliers``, ``cross_validation``, ``lens_fit``, ``timings_s``.
+            ``verdict``, ``uncertainty``, ``coverage``, ``outliers``, ``cross_validation``, ``lens_fit``, ``remedy``,
+            ``timings_s``.
         """
         return {
             "verdict": self.verdict(),
@@ -261,6 +288,7 @@ class Assessment:
             "outliers": None if self.result.outliers is None else self.result.outliers.to_dict(),
             "cross_validation": None if self.crossval is None else self.crossval.to_dict(),
             "lens_fit": None if self.lens_fit is None else self.lens_fit.to_dict(),
+            "remedy": None if self.remedy is None else self.remedy.to_dict(),
             "timings_s": dict(self.timings),
         }
 
@@ -286,7 +314,8 @@ def assess(
     distance : float or None
         mm along each pixel's ray at which uncertainty and cross-validation are evaluated (None: infinity).
     cross_validate : bool
-        Also cross-validate (:func:`circcal.analysis.cross.cross_validate_detections`, ``split`` and ``seed``).
+        Also cross-validate (:func:`circcal.analysis.cross.cross_validate_detections`, ``split`` and ``seed``) and,
+        where it finds a problem, try the candidates on its halves (:func:`circcal.analysis.remedy.remedy`).
 
     Returns
     -------
@@ -301,6 +330,7 @@ def assess(
     if cross_validate:
         cv = cross_validate_detections(cal, board, options, split=split, seed=seed, distance=distance)
     t2 = time.perf_counter()
-    return Assessment(
-        cal, board, unc, cov, cv, {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1}, model_fit(res)
-    )
+    fix = remedy(cal, board, options, cv, uncertainty=unc, coverage=cov, distance=distance)
+    t3 = time.perf_counter()
+    timings = {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1, "remedy_s": t3 - t2}
+    return Assessment(cal, board, unc, cov, cv, timings, model_fit(res), fix)

@@ -42,6 +42,8 @@ __all__ = [
     "cross_validate",
     "cross_validate_observations",
     "cross_validate_detections",
+    "detections_fitter",
+    "halves_diff",
     "MIN_VIEWS",
     "HELDOUT_RATIO",
     "INFLUENCE_SIGMAS",
@@ -285,6 +287,32 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions)
     return out
 
 
+def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float | None = None) -> ModelDiff:
+    """Two models' projection difference weighed against their combined uncertainty (the cross-validation's test).
+
+    Parameters
+    ----------
+    a, b : CalibrationResult
+        Two calibrations of disjoint views of the same camera, each with its covariance.
+    distance : float or None
+        mm along each pixel's ray at which they are compared (None: infinity).
+
+    Returns
+    -------
+    ModelDiff
+        B against A with both uncertainties (``consistent``, ``share_within``, ``where``).
+    """
+    from circcal.solver.uncertainty import result_projection_stdev
+
+    return model_diff(
+        a.camera,
+        b.camera,
+        distance=distance,
+        uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
+        uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance),
+    )
+
+
 def cross_validate(
     full: Any,
     fit_half: Callable[[list[int]], Any],
@@ -329,8 +357,6 @@ def cross_validate(
             seed,
             distance_mm=distance,
         )
-    from circcal.solver.uncertainty import result_projection_stdev
-
     halves = split_views(n, split, seed)
     models = []
     for h in halves:
@@ -356,13 +382,7 @@ def cross_validate(
             models,
             distance_mm=distance,
         )
-    d = model_diff(
-        a.camera,
-        b.camera,
-        distance=distance,
-        uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
-        uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance),
-    )
+    d = halves_diff(a, b, distance=distance)
     views = _leave_one_out(full, names, options.replace(outlier_rule=None))
     verdict, message = _verdict(d, views)
     return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance)
@@ -459,18 +479,39 @@ def cross_validate_detections(
     InputError
         An unknown ``split``.
     """
+    full = cal.result
+    fit_half = detections_fitter(cal, board, options)
+    return cross_validate(full, fit_half, options, names=full.view_names, split=split, seed=seed, distance=distance)
+
+
+def detections_fitter(cal: Any, board: Any, options: CalibrationOptions) -> Callable[[list[int]], CalibrationResult]:
+    """A function that calibrates some of an :class:`circcal.pipeline.ImagesCalibration`'s views from their detections.
+
+    Parameters
+    ----------
+    cal : ImagesCalibration
+    board : Board
+    options : CalibrationOptions
+        How each subset is calibrated (the full model's, or a candidate's: another lens model, a refined board).
+
+    Returns
+    -------
+    callable
+        ``fit(view indices)`` -> :class:`~circcal.solver.CalibrationResult`: the whole loop
+        (:func:`circcal.pipeline.calibrate_detections`) on those views (indices of ``cal.result``'s views); the
+        detector's bad dots stay out where ``options`` rejects outliers, as in the full model.
+    """
     from circcal.pipeline import calibrate_detections
 
-    full = cal.result
     dets = [cal.detections[i] for i in cal.used]
-    size = (full.camera.width, full.camera.height)
+    size = (cal.result.camera.width, cal.result.camera.height)
 
-    def fit_half(h: list[int]) -> CalibrationResult:
+    def fit(h: list[int]) -> CalibrationResult:
         exclude = None
-        if options.outlier_rule is not None:  # the detector's bad dots stay out, as in the full model
+        if options.outlier_rule is not None:
             from circcal.dotcheck import bad_dot_rejections
 
             exclude = bad_dot_rejections([dets[i] for i in h], board)[0]
         return calibrate_detections([dets[i] for i in h], board, size, options, exclude=exclude)[0]
 
-    return cross_validate(full, fit_half, options, names=full.view_names, split=split, seed=seed, distance=distance)
+    return fit

@@ -204,13 +204,16 @@ def headline(assessment: Any, n_images: int) -> dict[str, str]:
         ``{"level": "good" | "check" | "bad", "text": the verdict, "next": the next step}``.
     """
     cv, fit, cov = assessment.crossval, assessment.lens_fit, assessment.coverage
+    fix = getattr(assessment, "remedy", None)  # what the verdict tried (circcal.analysis.remedy)
     used = len(assessment.result.rvecs)
     if fit is not None and not fit.fits:
         m = re.search(r"try (.*?)\. ", fit.message())  # the --lens options the lens-fit message suggests
         return {
             "level": "bad",
             "text": f"the lens model {fit.lens} does not fit this lens: the residuals follow the radius",
-            "next": f"recalibrate with {m.group(1) if m else 'another --lens'}",
+            "next": display_name(fix.headline().removeprefix("recommended: "))
+            if fix is not None and fix.target() is not None
+            else f"recalibrate with {m.group(1) if m else 'another --lens'}",
         }
     if cv is not None and cv.status == "ok" and cv.verdict != "consistent":
         worst = [str(w[0]) for w in (getattr(cv.diff, "where", None) or [])[:2]]  # image thirds, worst first
@@ -218,14 +221,17 @@ def headline(assessment: Any, n_images: int) -> dict[str, str]:
         return {
             "level": "bad",
             "text": f"the two halves of the views disagree beyond their uncertainty{where}",
-            "next": "look at the views flagged below (leave them out, or re-shoot them) and at the coverage; a lens "
+            "next": display_name(fix.headline().removeprefix("recommended: "))
+            if fix is not None
+            else "look at the views flagged below (leave them out, or re-shoot them) and at the coverage; a lens "
             "model that cannot follow the lens disagrees too",
         }
     if cv is None or cv.status != "ok":
         return {
             "level": "check",
             "text": "fits, but unverified: a small RMS alone does not show the calibration is right",
-            "next": "rerun with --cross-validate (it calibrates two halves of the views and compares them)"
+            "next": "rerun with --cross-validate (the default, which --no-cross-validate turned off): it calibrates two "
+            "halves of the views and compares them"
             if cv is None
             else f"add views: {display_name(cv.message)}",
         }
@@ -452,6 +458,7 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         if mrcal_factor is None
         else {"factor": _fmt(mrcal_factor, 3), "n": 2 * int(resid.size // 2), "dof": _dof(res)},
         "crossval": cvd,
+        "remedy": [display_name(line) for line in assessment.remedy.lines()] if assessment.remedy else None,
         "failed": failed,
         "n_images": len(cal.paths),
         "figures": figs,

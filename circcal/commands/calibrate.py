@@ -89,15 +89,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--cross-validate",
+        dest="cross_validate",
         action="store_true",
-        help="also calibrate two disjoint halves of the views and weigh their difference against their "
-        "combined uncertainty, and predict every view from the others (needs 6 views)",
+        default=True,
+        help="the default (kept for old command lines): also calibrate two disjoint halves of the views and weigh "
+        "their difference against their combined uncertainty, predict every view from the others (needs 6 views) "
+        "and, where they disagree, try a richer lens model, the refined board and leaving the disagreeing views out "
+        "on the same halves, and print the command that makes them agree",
+    )
+    g.add_argument(
+        "--no-cross-validate",
+        dest="cross_validate",
+        action="store_false",
+        help="skip the cross-validation (faster; the verdict then cannot tell a model or data problem)",
     )
     g.add_argument(
         "--split",
         choices=("alternate", "random"),
         default="alternate",
-        help="how --cross-validate halves the views (default: alternate; random: seeded by --seed)",
+        help="how the cross-validation halves the views (default: alternate; random: seeded by --seed)",
     )
     g.add_argument("--seed", type=nonnegative_int, default=0, help="seed of --split random (default 0)")
     g.add_argument(
@@ -114,6 +124,75 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="write a self-contained HTML + Markdown report of this calibration into this folder",
     )
     p.set_defaults(func=run)
+    _keep_argv(p)
+
+
+def _keep_argv(p: argparse.ArgumentParser) -> None:
+    """Make ``p`` keep the words it parsed as ``argv`` in its namespace: the recommended command is built from the
+    arguments exactly as given (:func:`recommended_command`)."""
+    parse = p.parse_known_args
+
+    def parse_known_args(args=None, namespace=None):
+        ns, extras = parse(args, namespace)
+        ns.argv = list(sys.argv[1:] if args is None else args)
+        return ns, extras
+
+    p.parse_known_args = parse_known_args  # type: ignore[method-assign]
+
+
+def recommended_command(
+    argv: list[str] | None, given: list[Path], images: list[Path], options: tuple[str, ...], drop: tuple[str, ...]
+) -> str | None:
+    """The ``circcal calibrate`` command line of the arguments given with one change (the remedy's).
+
+    Parameters
+    ----------
+    argv : list of str or None
+        The words after ``calibrate`` as given (None: not known).
+    given : list of Path
+        The image arguments as given (files, folders).
+    images : list of Path
+        The images they stand for, in order.
+    options : tuple of str
+        Options to set (``("--lens", "rational")``, ``("--refine-board",)``): an option given already is replaced.
+    drop : tuple of str
+        Names of views to leave out (as the calibration names them: the image's name or path); the images are then
+        listed one by one.
+
+    Returns
+    -------
+    str or None
+        A shell-quoted command line; None without ``argv``.
+    """
+    import shlex
+
+    if argv is None:
+        return None
+    words = list(argv)
+    if options:
+        opt, i = options[0], 0
+        while i < len(words):
+            if words[i] == opt and len(options) > 1:
+                del words[i : i + 2]
+            elif words[i] == opt or words[i].startswith(opt + "="):
+                del words[i]
+            else:
+                i += 1
+        words += list(options)
+    if drop:
+        left = list(given)
+        kept = []
+        for w in words:  # the image arguments go; the images kept are listed in their place
+            if Path(w) in left:
+                left.remove(Path(w))
+            else:
+                kept.append(w)
+        names = set(drop)
+        keep = [
+            str(p) for p in images if str(p) not in names and p.name not in names and display_name(p.name) not in names
+        ]
+        words = keep + kept
+    return "circcal calibrate " + shlex.join(words)
 
 
 def format_summary(cal, *, worst: int = 3) -> str:
@@ -250,6 +329,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.pipeline import LENS_CANDIDATES
     from circcal.solver import CalibrationError
 
+    given = list(args.images)
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
     resolve_grid(args, "calibrate")
     options = calibration_options(args)  # the one options object: its errors come before any work
@@ -288,8 +368,15 @@ def run(args: argparse.Namespace) -> int:
                 print(f"circcal calibrate: {flag}", file=sys.stderr)
             return 1
         cal, assessment = calibration.images, calibration.assessment
+        fix = assessment.remedy
+        target = None if fix is None else fix.target()
+        if target is not None:
+            fix.command = recommended_command(
+                getattr(args, "argv", None), given, list(args.images), target.options, target.drop
+            )
+        print("\n".join(assessment.verdict() + assessment.next_lines()))  # the verdict first, then the numbers
         print(format_summary(cal))
-        print("\n".join(assessment.lines()))
+        print("\n".join(assessment.details()))
         model = cal.to_model_json(board)
         if fmt == "mrcal":
             from circcal import atomic

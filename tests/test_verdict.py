@@ -1,0 +1,101 @@
+"""The verdict a user acts on (issue 34): cross-validation by default, its verdict before the numbers, and a
+remedy that tries the candidates it names on the same halves and gives the command to run (circcal.analysis.remedy,
+circcal calibrate)."""
+
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from circcal import cli
+from circcal.analysis.coverage import REGIONS
+from circcal.commands.calibrate import recommended_command
+from circcal.fixtures.scenarios import fixture_dir, load_truth
+
+
+def _link(views, folder: Path) -> list[str]:
+    folder.mkdir()
+    out = []
+    for v in views:
+        dest = folder / Path(v.image).name
+        dest.symlink_to(v.image)
+        out.append(str(dest))
+    return out
+
+
+def _region_points(view, width: int, height: int, region: str) -> int:
+    p = np.asarray(view.centres, dtype=np.float64).reshape(-1, 2)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    col = np.clip((p[:, 0] + 0.5) * 3 // width, 0, 2).astype(int)
+    row = np.clip((p[:, 1] + 0.5) * 3 // height, 0, 2).astype(int)
+    r, c = next((r, c) for r in range(3) for c in range(3) if REGIONS[r][c] == region)
+    return int(np.sum((row == r) & (col == c)))
+
+
+def _head(out: str) -> list[str]:
+    """The console lines before the calibration summary (which opens with "camera WxH")."""
+    lines = out.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("camera "))
+    return lines[:k]
+
+
+def test_the_corner_less_set_warns_first_and_names_the_region(tmp_path, capsys):
+    """small-noisy without every view that reaches the bottom-left corner: plain `circcal calibrate` (cross-validated
+    by default) says, before the numbers, that the bottom-left corner needs views and which poses."""
+    truth = load_truth(fixture_dir("small-noisy"))
+    w, h = truth.camera.width, truth.camera.height
+    corner = "bottom-left corner"
+    keep = [v for v in truth.views if _region_points(v, w, h, corner) == 0]
+    assert 6 <= len(keep) < len(truth.views)  # the corner's views gone, enough left for the halves
+    images = _link(keep, tmp_path / "views")
+    args = ["calibrate", *images, "--grid", "7x9", "--pitch", "10mm", "--diameter", "4mm", "--no-progress"]
+    assert cli.main([*args, "--out", str(tmp_path / "m.json")]) == 0
+    head = _head(capsys.readouterr().out)
+    assert any(line.startswith("cross-validation: ") and "not run" not in line for line in head), head
+    rec = [line for line in head if line.startswith("recommended: more views")]
+    assert rec and corner in rec[0] and "tilted" in rec[0], head
+
+
+def test_an_opencv5_fit_of_a_rational_lens_recommends_the_rational_model(tmp_path, capsys):
+    """rational-wide fitted with --lens opencv5: the halves disagree; the verdict tries the candidates, recommends
+    --lens rational (it predicts the other half's views several times better) as a command line of the arguments
+    given, and that command's run agrees far better (its halves and its lens-model fit)."""
+    folder = fixture_dir("rational-wide")
+    given = [str(folder), "--grid", "6x8", "--pitch", "25mm", "--diameter", "12mm", "--no-progress"]
+    out_file = str(tmp_path / "m.json")
+    assert cli.main(["calibrate", *given, "--lens", "opencv5", "--out", out_file]) == 0
+    head = _head(capsys.readouterr().out)
+    assert any(line.startswith("cross-validation: model or data problem") for line in head), head
+    rec = next(line for line in head if line.startswith("recommended: "))
+    assert rec.startswith("recommended: --lens rational"), rec
+    tried = {line.split(":")[0].strip() for line in head if line.startswith("  tried ")}
+    assert {"tried --lens rational", "tried --refine-board"} <= tried, head
+    command = rec.split(": run ", 1)[1].split("; ", 1)[0]
+    words = shlex.split(command)
+    assert words[:2] == ["circcal", "calibrate"] and words[2] == str(folder)
+    assert words.count("--lens") == 1 and words[words.index("--lens") + 1] == "rational"
+    assert cli.main(words[1:]) == 0
+    again = _head(capsys.readouterr().out)
+    cv_line = next(line for line in again if line.startswith("cross-validation: "))
+    share = float(cv_line.split("over ")[1].split("%")[0])
+    before = float(next(line for line in head if line.startswith("cross-validation: ")).split("over ")[1].split("%")[0])
+    assert share > 90.0 > before + 40.0, (cv_line, before)
+
+
+@pytest.mark.parametrize(
+    ("argv", "options", "drop", "expected"),
+    [
+        (["d", "--lens", "opencv5", "--out", "m.json"], ("--lens", "rational"), (), "d --out m.json --lens rational"),
+        (["d", "--lens=opencv5"], ("--lens", "rational"), (), "d --lens rational"),
+        (["d", "--refine-board"], ("--refine-board",), (), "d --refine-board"),
+        (["d", "--out", "my model.json"], (), ("b.png",), "d/a.png d/c.png --out 'my model.json'"),
+    ],
+)
+def test_the_recommended_command_is_the_given_one_with_one_change(argv, options, drop, expected):
+    images = [Path("d/a.png"), Path("d/b.png"), Path("d/c.png")]
+    got = recommended_command(argv, [Path("d")], images, options, drop)
+    assert got == "circcal calibrate " + expected
+    assert recommended_command(None, [Path("d")], images, options, drop) is None
