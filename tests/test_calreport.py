@@ -255,7 +255,7 @@ def real_reports(realdata, tmp_path_factory):
         (
             "asym",
             sorted(asym.glob("image*.jpg")),
-            ["--grid", "5x4", "--pitch", "30mm", "--asymmetric", "--refine-board"],
+            ["--grid", "5x4", "--pitch", "30mm", "--asymmetric", "--refine-board", "--no-cross-validate"],
         ),
     ):
         problems: dict = {}

@@ -394,6 +394,7 @@ def test_a_dropped_dot_is_named_without_a_position(realdata, tmp_path, capsys):
                 "--diameter",
                 "15mm",
                 "--no-progress",
+                "--no-cross-validate",
                 "--out",
                 str(tmp_path / "m.json"),
             ]

@@ -188,6 +188,7 @@ def _calibrate_args(views: slice) -> list[str]:
         "--diameter",
         f"{b.diameter_mm}mm",
         "--no-progress",
+        "--no-cross-validate",
         "--report",
         "rep",
         "--out",
