@@ -62,10 +62,10 @@ REALDATA ?= ../shared/data/realdata
 realdata-reports: setup
 	@for rb in "" "--refine-board"; do sfx=$${rb:+-refine-board}; \
 	  $(VENV)/bin/circcal calibrate $(REALDATA)/boofcv_sony_hx5v_circle_regular_10x8/image*.jpg --grid 8x10 \
-	    --pitch 25mm --diameter 15mm --no-progress --cross-validate $$rb --out /tmp/circcal-realdata-10x8.json \
+	    --pitch 25mm --diameter 15mm --no-progress $$rb --out /tmp/circcal-realdata-10x8.json \
 	    --report reports/realdata/boofcv_sony_hx5v_circle_regular_10x8$$sfx || exit 1; \
 	  $(VENV)/bin/circcal calibrate $(REALDATA)/boofcv_sony_hx5v_circle_asym_4x5/image*.jpg --grid 5x4 --asymmetric \
-	    --pitch 30mm --diameter 20mm --no-progress --cross-validate $$rb --out /tmp/circcal-realdata-4x5.json \
+	    --pitch 30mm --diameter 20mm --no-progress $$rb --out /tmp/circcal-realdata-4x5.json \
 	    --report reports/realdata/boofcv_sony_hx5v_circle_asym_4x5$$sfx || exit 1; \
 	done
 
