@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from circcal.analysis.coverage import REGIONS
-from circcal.analysis.cross import CrossValidation, detections_fitter, halves_diff
+from circcal.analysis.cross import INFLUENCE_SIGMAS, CrossValidation, detections_fitter, halves_diff
 from circcal.analysis.diff import CONSISTENT_SHARE
 from circcal.errors import InputError
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
@@ -197,7 +197,7 @@ class Remedy:
             )
         if self.needs:
             return "recommended: more views: " + self.needs[0]
-        return "recommended: nothing found that makes the halves agree"
+        return "recommended: nothing found to change; see the cross-validation below"
 
     def lines(self) -> list[str]:
         """The remedy in lines: the recommendation, each trial, then what needs more views.
@@ -317,21 +317,23 @@ def _needs(
             regions.append(r)
             why[r] = note
     out = [f"the {r}: {why[r]}; take {_poses(r)}" for r in regions]
-    if cv is not None and cv.diff is not None and not cv.diff.consistent and lead is None:  # else chance
-        params = _param_gaps(cv)
-        if params:
-            names = [n for n, _ in params]
+    if cv is None or cv.diff is None or lead is not None:
+        return out
+    params = _param_gaps(cv) if not cv.diff.consistent else []  # halves that agree differ by chance
+    if params:
+        out.append(
+            "parameters the halves differ in beyond their uncertainty: "
+            + ", ".join(f"{n} ({z:.1f} sigma)" for n, z in params[:6])
+            + f"; take {_param_poses([n for n, _ in params])}"
+        )
+    for v in cv.flagged_views:
+        if v.shift_sigmas > INFLUENCE_SIGMAS and v.shift_param:
             out.append(
-                "parameters the halves differ in beyond their uncertainty: "
-                + ", ".join(f"{n} ({z:.1f} sigma)" for n, z in params[:6])
-                + f"; take {_param_poses(names)}"
+                f"{v.name} alone decides {v.shift_param} ({v.shift_sigmas:.1f} sigma when left out): take more views "
+                f"like it (its board's place and tilt), or leave it out if it is wrong"
             )
-        for v in cv.flagged_views:
-            if np.isfinite(v.shift_sigmas) and v.shift_sigmas > 0 and v.shift_param:
-                out.append(
-                    f"{v.name} alone decides {v.shift_param} ({v.shift_sigmas:.1f} sigma when left out): take more "
-                    f"views like it, or leave it out if it is wrong"
-                )
+        elif v.flagged:
+            out.append(f"{v.name} disagrees with the rest ({v.why}): re-shoot it or leave it out")
     return out
 
 
