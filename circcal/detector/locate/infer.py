@@ -72,7 +72,13 @@ class GridEvidence:
     ab: np.ndarray | None = field(default=None, repr=False)
 
     def text(self) -> str:
-        """One line for a person: the image and what its largest lattice is."""
+        """One line for a person.
+
+        Returns
+        -------
+        str
+            The image and what its largest lattice is (its grid, its dots, whether it may go on beyond the frame).
+        """
         if self.dots == 0:
             return f"{self.image}: {self.note or 'no dot lattice'}"
         what = grid_text(self.rows, self.cols, self.layout or "symmetric") if self.layout else "a partial lattice"
