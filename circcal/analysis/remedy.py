@@ -189,10 +189,11 @@ class Remedy:
         run = f": run {self.command}" if self.command else ""
         if self.lead is not None and self.lead.share_within is not None:
             t = self.lead
+            share: float = self.lead.share_within
             return (
                 f"recommended: {t.label}: each half then predicts the other's views to {t.predict_px:.3g} px RMS per "
                 f"coordinate (was {self.before_predict_px:.3g}){run}; its halves still disagree beyond their "
-                f"uncertainty over {100 * (1 - t.share_within):.1f}% of the image (at most "
+                f"uncertainty over {100 * (1 - share):.1f}% of the image (at most "
                 f"{100 * (1 - CONSISTENT_SHARE):g}% allowed): more views there (below)"
             )
         if self.needs:
@@ -308,7 +309,8 @@ def _needs(
             regions.append(r)
             why[r] = "it holds no observations"
     if uncertainty is not None and uncertainty.centre_px > 0:
-        r = region_of(*uncertainty.worst_uv, width, height)
+        u, v = uncertainty.worst_uv[0], uncertainty.worst_uv[1]
+        r = region_of(float(u), float(v), width, height)
         ratio = uncertainty.worst_px / uncertainty.centre_px
         note = f"the projection uncertainty is worst there ({uncertainty.worst_px:.3g} px, {ratio:.1f}x the centre's)"
         if r in why:
@@ -373,14 +375,18 @@ def remedy(
     """
     res = cal.result
     w, h = res.camera.width, res.camera.height
-    ok = cv is not None and cv.status == "ok" and cv.diff is not None
+    checked = cv if cv is not None and cv.status == "ok" and cv.diff is not None else None
+    ok = checked is not None
     empty = coverage is not None and bool(coverage.empty)
-    if not (ok and cv.verdict != "consistent") and not empty:
+    if not (checked is not None and checked.verdict != "consistent") and not empty:
         return None
-    before = cv.diff.share_within if ok else None
+    before = checked.diff.share_within if checked is not None and checked.diff is not None else None
     trials: list[Trial] = []
-    best = lead = None
-    if ok and not cv.diff.consistent:
+    best: Trial | None = None
+    lead: Trial | None = None
+    base = float("nan")
+    if checked is not None and checked.diff is not None and not checked.diff.consistent:
+        cv = checked
         base = _predict(*cv.models)
         trials = _trials(cal, board, options, cv, distance)
         lead = _lead(trials, base)
@@ -389,8 +395,8 @@ def remedy(
         elif lead.consistent:
             best = lead
         else:  # the model change that predicts best, with each other candidate
-            combos = [_combine(cal, board, options, cv, lead, t, distance) for t in trials if t is not lead]
-            combos = [t for t in combos if t is not None]
+            tried = [_combine(cal, board, options, cv, lead, t, distance) for t in trials if t is not lead]
+            combos = [t for t in tried if t is not None]
             trials += combos
             best = _choose(combos, base)  # none agrees: the lead alone is recommended, one change at a time
         if best is not None or (lead is not None and lead.consistent):
@@ -403,7 +409,7 @@ def _choose(trials: list[Trial], base: float) -> Trial | None:
     """The trial that makes the halves agree and predicts the other half best, better than no change (``base``, px);
     None: none does. A model that agrees only because its uncertainty grew predicts worse, and is not chosen."""
     agree = [t for t in trials if t.consistent and t.predict_px is not None and not t.predict_px >= base]
-    return min(agree, key=lambda t: (t.predict_px, trials.index(t))) if agree else None
+    return min(agree, key=lambda t: (float(t.predict_px or 0.0), trials.index(t))) if agree else None
 
 
 def _lead(trials: list[Trial], base: float) -> Trial | None:
@@ -412,8 +418,8 @@ def _lead(trials: list[Trial], base: float) -> Trial | None:
     tried = [t for t in trials if t.predict_px is not None and np.isfinite(t.predict_px) and not t.drop]
     if not tried or not np.isfinite(base):
         return None
-    t = min(tried, key=lambda t: t.predict_px)
-    return t if t.predict_px < (1.0 - LEAD_MARGIN) * base else None
+    t = min(tried, key=lambda t: float(t.predict_px or 0.0))
+    return t if float(t.predict_px or 0.0) < (1.0 - LEAD_MARGIN) * base else None
 
 
 def _candidates(
@@ -429,7 +435,8 @@ def _candidates(
             out.append((f"--lens {richer}", ("--lens", richer), (), None, str(exc)))
     if not options.refine_board:
         n = board.rows * board.cols
-        o, why = options.replace(refine_board=True), ""
+        o: CalibrationOptions | None = options.replace(refine_board=True)
+        why = ""
         if n > REFINE_MAX_POINTS:
             o, why = None, f"{n} board points: its solve takes minutes; run with --refine-board to try it"
         out.append(("--refine-board", ("--refine-board",), (), o, why))
@@ -447,7 +454,18 @@ def _trials(
     return out
 
 
-def _run(cal, board, cv, label, opts, drop, o, why, distance) -> Trial:
+def _run(
+    cal: Any,
+    board: Any,
+    cv: CrossValidation,
+    label: str,
+    opts: tuple[str, ...],
+    drop: tuple[Any, ...],
+    o: CalibrationOptions | None,
+    why: str,
+    distance: float | None,
+) -> Trial:
+    """One candidate tried on the same halves (its Trial: agreement, difference, prediction; or why not)."""
     names = tuple(v.name for v in drop)
     if o is None:
         return Trial(label, opts, names, note=why)
@@ -467,7 +485,7 @@ def _run(cal, board, cv, label, opts, drop, o, why, distance) -> Trial:
         label,
         opts,
         names,
-        float(d.share_within),
+        None if d.share_within is None else float(d.share_within),
         float(d.rms_px),
         bool(d.consistent),
         _predict(a, b),
@@ -475,7 +493,15 @@ def _run(cal, board, cv, label, opts, drop, o, why, distance) -> Trial:
     )
 
 
-def _combine(cal, board, options, cv, lead: Trial, other: Trial, distance) -> Trial | None:
+def _combine(
+    cal: Any,
+    board: Any,
+    options: CalibrationOptions,
+    cv: CrossValidation,
+    lead: Trial,
+    other: Trial,
+    distance: float | None,
+) -> Trial | None:
     """``lead`` and ``other`` together (None where they cannot be combined)."""
     if other.share_within is None or (lead.drop and other.drop):
         return None
@@ -494,7 +520,7 @@ def _predict(a: Any, b: Any) -> float:
     """RMS per coordinate (px) of each half's model predicting the other half's final observations."""
     from circcal.solver.holdout import prediction_error
 
-    sq, n = 0.0, 0
+    sq, n = 0.0, 0.0
     for m, other in ((a, b), (b, a)):
         for obj, img in zip(other.object_points or [], other.image_points or []):
             try:
