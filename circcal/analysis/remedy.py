@@ -25,6 +25,7 @@ disagree, the empty ones, the projection uncertainty's worst), the parameters th
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -475,7 +476,9 @@ def _run(
         return Trial(label, opts, names, note=f"a half would keep fewer than {SOLVER_MIN_VIEWS} views")
     fit = detections_fitter(cal, board, o)
     try:
-        a, b = (fit(hh) for hh in halves)
+        with warnings.catch_warnings():  # a candidate's own troubles (a fold, no convergence) are its trial's
+            warnings.simplefilter("ignore")
+            a, b = (fit(hh) for hh in halves)
     except InputError as exc:  # CalibrationError included: a half too weak for the candidate
         return Trial(label, opts, names, note=f"a half gives no model ({exc})")
     if a.covariance is None or b.covariance is None:
