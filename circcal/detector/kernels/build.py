@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from circcal.board import Board
+from circcal.detector.kernels import jit
 from circcal.detector.kernels.jit import AOT_DIR, TARGET_CPU, _aot_name, _host_cpu, _jit_module, _registry, _spec_of
 
 __all__ = ["build", "synthetic_board"]
@@ -124,6 +125,7 @@ def build(out_dir: Path = AOT_DIR, force: bool = False) -> dict[str, list[str]]:
 
     import circcal.detector.find  # noqa: F401 - registers every kernel module the detector uses
 
+    jit._told = True  # the build is the compiling; the first-run notice is for the detector's users
     for module in list(_registry):
         _jit_module(module)
     _exercise()
