@@ -460,3 +460,23 @@ def test_help_shows_no_developer_markup(command, capsys):
     out = capsys.readouterr().out
     assert e.value.code == 0 and out
     assert not re.search(r":(func|data|class|mod|meth|attr|ref):`|``", out), out
+
+
+def test_overlays_of_images_sharing_a_name_do_not_overwrite_each_other(tmp_path):
+    """a/x.png and b/x.png give two overlays, numbered by their place among the inputs; a lone name stays plain."""
+    import cv2
+    import numpy as np
+
+    from circcal.cli import main
+
+    paths = [tmp_path / "a" / "x.png", tmp_path / "b" / "x.png", tmp_path / "b" / "y.png"]
+    for p in paths:
+        p.parent.mkdir(exist_ok=True)
+        cv2.imwrite(str(p), np.full((40, 40), 200, np.uint8))
+    out = tmp_path / "ov"
+    main(["detect", *map(str, paths), "--grid", "7x7", "--json", str(tmp_path / "d.json"), "--overlay", str(out)])
+    assert sorted(f.name for f in out.iterdir() if not f.name.startswith(".")) == [
+        "x_0000_detect.png",
+        "x_0001_detect.png",
+        "y_detect.png",
+    ]

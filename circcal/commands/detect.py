@@ -16,6 +16,7 @@ import argparse
 import os
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 from circcal.commands.args import (
@@ -137,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         overlay_dir = None if args.overlay is None else outputs.folder(args.overlay, "--overlay", kind="overlays")
         camera = read_camera(args.model) if args.model is not None else None
         entries: dict[int, dict] = {}
+        stems = Counter(Path(p).stem for p in args.images)
+        shared_stems = {k for k, n in stems.items() if n > 1}  # counted once, not per image
         last_save = [time.monotonic()]
 
         def save(complete: bool) -> None:
@@ -154,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
 
                     ok, png = cv2.imencode(".png", vis)
                     if ok:
-                        atomic.write_bytes(overlay_dir / _overlay_name(path, i, args.images), png.tobytes())
+                        atomic.write_bytes(overlay_dir / _overlay_name(path, i, shared_stems), png.tobytes())
             if time.monotonic() - last_save[0] >= SAVE_EVERY_S:
                 save(complete=False)
 
@@ -193,9 +196,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if n == len(dets) else 1
 
 
-def _overlay_name(path: Path, i: int, paths: list[Path]) -> str:
-    """The overlay's file name: the image's stem, numbered where two inputs share a stem (a/x.png, b/x.png)."""
-    stems = [Path(p).stem for p in paths]
-    stem = os.fsencode(path.stem)
-    safe = os.fsdecode(stem.replace(b"/", b"_"))
-    return f"{safe}_detect.png" if stems.count(path.stem) == 1 else f"{safe}_{i:04d}_detect.png"
+def _overlay_name(path: Path, i: int, shared: set[str]) -> str:
+    """The overlay's file name: the image's stem, numbered where inputs share it (``shared``: a/x.png, b/x.png)."""
+    safe = os.fsdecode(os.fsencode(path.stem).replace(b"/", b"_"))
+    return f"{safe}_{i:04d}_detect.png" if path.stem in shared else f"{safe}_detect.png"
