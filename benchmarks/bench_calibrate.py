@@ -186,7 +186,9 @@ def _memory(n_views: int, repeats: int) -> dict:
 
 def _pipeline(repeats: int) -> dict:
     """Whole-pipeline timings on the paper fixture in this process (rendering not timed: cached)."""
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO
+    from circcal.fixtures.truth import load_truth
     from circcal.pipeline import calibrate_images
     from circcal.validators.opencv import OpenCVCalibrator
 
@@ -214,7 +216,9 @@ def _pipeline(repeats: int) -> dict:
 
 
 def _whole_process(repeats: int) -> dict:
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir(DEFAULT_SCENARIO, "normal"))
     b = truth.board

@@ -193,7 +193,8 @@ def _small_dots(det) -> dict:
 
 
 def _variants(det) -> dict:
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     out = {}
     with pinned(1):

@@ -44,8 +44,9 @@ def _cases(tmp: Path):
     import cv2
 
     from circcal.board import Board
+    from circcal.fixtures.cache import fixture_dir
     from circcal.fixtures.frames import embedded_board
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.truth import load_truth
 
     for scenario, variant, suffix in CASES:
         truth = load_truth(fixture_dir(scenario, variant))

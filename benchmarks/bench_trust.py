@@ -24,7 +24,9 @@ def run(repeats: int = 9) -> dict:
     from circcal.analysis.assess import assess
     from circcal.analysis.cross import cross_validate_detections
     from circcal.calreport import write_report
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO
+    from circcal.fixtures.truth import load_truth
     from circcal.pipeline import calibrate_images
     from circcal.solver import CalibrationOptions
     from circcal.solver.outliers import OutlierRule

@@ -8,7 +8,9 @@ from benchmarks.timing import MIN_REPEATS, alternate, pinned, summary
 
 
 def run(repeats: int = MIN_REPEATS) -> dict:
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO
+    from circcal.fixtures.truth import load_truth
     from circcal.validators.validate import run_validation
 
     truth = load_truth(fixture_dir(DEFAULT_SCENARIO))  # rendering is not timed (cached fixture)

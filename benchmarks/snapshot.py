@@ -38,9 +38,11 @@ def cases() -> Iterator[tuple[str, np.ndarray, object]]:
     """``(key, image, board)`` of every image of the set, in a fixed order."""
     from benchmarks.bench_detect import _paper_views
     from circcal.board import Board
+    from circcal.fixtures.cache import fixture_dir
     from circcal.fixtures.frames import embedded_board
     from circcal.fixtures.fuzz import fuzz_cases, fuzz_image
-    from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
+    from circcal.fixtures.scenarios import SCENARIOS
+    from circcal.fixtures.truth import load_truth
 
     for size, n in (((640, 480), 4), ((1920, 1080), 4), ((4000, 3000), 2)):
         for light in ("clean", "normal", "uneven", "strong", "weak"):

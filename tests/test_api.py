@@ -38,7 +38,8 @@ def test_import_circcal_loads_nothing_heavy():
 
 
 def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir("small-noisy"))
     paths = [v.image for v in truth.views]

@@ -362,7 +362,7 @@ def test_cli_calibrate_paper_fixture(tmp_path, capsys):
     import json
 
     from circcal.cli import main
-    from circcal.fixtures.scenarios import fixture_dir
+    from circcal.fixtures.cache import fixture_dir
     from circcal.formats import read_camera
 
     d = fixture_dir("paper", "normal")

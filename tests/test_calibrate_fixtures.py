@@ -10,7 +10,8 @@ import pytest
 
 from circcal.analysis.compare import match_views
 from circcal.board import Board
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.pipeline import calibrate_images
 from circcal.solver import CalibrationOptions, calibrate, holdout_errors
 from circcal.validators.opencv import OpenCVCalibrator

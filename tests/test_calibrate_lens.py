@@ -342,7 +342,8 @@ def test_rational_wide_recorrection_settles_within_the_default_rounds():
     below the pipeline's 1e-4 px within MAX_ROUNDS calibrations, without the 'did not settle' warning."""
     import warnings
 
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
     from circcal.pipeline import MAX_ROUNDS, calibrate_images
 
     t = load_truth(fixture_dir("rational-wide", "clean"))

@@ -20,7 +20,8 @@ from circcal.calreport import write_report
 from circcal.calreport.document import md_name, md_text
 from circcal.cli import main
 from circcal.errors import ImageError
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.pathnames import display_name, path_from_json
 
 #: Window widths (px) the page must fit: a laptop and a narrow window.

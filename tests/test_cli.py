@@ -185,7 +185,8 @@ def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatc
     import circcal.commands.detect as detect_cmd
     import circcal.detector.files as files
     from circcal.cli import main
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir("small-noisy"))
     paths = [str(v.image) for v in truth.views[:4]]
@@ -233,7 +234,8 @@ def test_detect_reads_the_model_in_any_format(tmp_path):
     import json
 
     from circcal.cli import main
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
     from circcal.formats import write_camera
 
     truth = load_truth(fixture_dir("small-noisy"))

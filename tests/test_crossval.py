@@ -12,7 +12,9 @@ import pytest
 
 from circcal.analysis import cross_validate_detections, cross_validate_observations, model_diff
 from circcal.analysis.cross import MIN_VIEWS, split_views
-from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.scenarios import SCENARIOS
+from circcal.fixtures.truth import load_truth
 from circcal.pipeline import calibrate_images
 from circcal.solver import CalibrationOptions
 from circcal.solver.outliers import OutlierRule

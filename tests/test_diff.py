@@ -11,7 +11,8 @@ import pytest
 
 from circcal.analysis import model_diff
 from circcal.cli import main
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.formats import write_camera
 from circcal.model import Camera
 

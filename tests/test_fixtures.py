@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
+from circcal.fixtures.cache import fixture_dir, render_fixture
 from circcal.fixtures.perturb import KINDS, apply_perturbations, validate
 from circcal.fixtures.poses import pose_looking_at
 from circcal.fixtures.render import Levels, render_coverage
-from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario, load_truth, render_fixture
+from circcal.fixtures.scenarios import SCENARIOS, get_scenario
+from circcal.fixtures.truth import load_truth
 from circcal.model import Camera, project
 
 CAM = Camera(320, 240, 300.0, 300.0, 159.5, 119.5, [0, 0, 0, 0, 0])
@@ -174,7 +176,7 @@ def test_partial_scenario_marks_hidden_points():
 
 def test_marker_scenarios_keep_the_printed_pattern():
     # the patterns are written into the scenarios (a printed board keeps its pattern): they are circcal's own
-    from circcal.board import PATTERN_MARKER_SCALE, marker_pattern
+    from circcal.markers import PATTERN_MARKER_SCALE, marker_pattern
 
     for name in ("partial", "markers", "occluded", "distractors"):
         b = SCENARIOS[name].board

@@ -13,7 +13,8 @@ import pytest
 from circcal.cli import main
 from circcal.commands.args import parse_grid
 from circcal.detector.locate.infer import infer_grid, probe_grid_of, shape_of
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "realdata"
 REGULAR = REAL / "boofcv_sony_hx5v_circle_regular_10x8"

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 from circcal.detector import detect
-from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.scenarios import SCENARIOS
+from circcal.fixtures.truth import load_truth
 
 HARD = ("markers", "occluded", "distractors", "origin", "large-dots", "asym-perspective", "partial")
 MIN_LABELLED = 0.95

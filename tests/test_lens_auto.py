@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from circcal.detector import Detection, Reason
-from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.scenarios import get_scenario
+from circcal.fixtures.truth import load_truth
 from circcal.model import project_camera, unproject
 from circcal.pipeline import LENS_CANDIDATES, calibrate_images
 from circcal.solver import CalibrationOptions

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from circcal.board import Board
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.pipeline import calibrate_images
 from circcal.solver import CalibrationOptions
 from circcal.solver.modelfit import MIN_EFFECT_PX, chi2_survival_even, model_fit, neighbour_noise

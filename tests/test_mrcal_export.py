@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from circcal.cli import main
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.formats import read_camera
 from circcal.formats.mrcal import cameramodel_has_optimization_inputs
 from tests.mrcal_pythons import mrcal_pythons

@@ -11,7 +11,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.scenarios import SCENARIOS
+from circcal.fixtures.truth import load_truth
 from circcal.model import PARAM_NAMES
 from circcal.pipeline import calibrate_detections, calibrate_images
 from circcal.solver import CalibrationOptions, calibrate

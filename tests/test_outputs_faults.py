@@ -174,7 +174,8 @@ def _same_figures(a: dict | None, b: dict | None) -> bool:
 
 
 def _calibrate_args(views: slice) -> list[str]:
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir("small-noisy"))
     b = truth.board
@@ -197,7 +198,8 @@ def _calibrate_args(views: slice) -> list[str]:
 
 
 def _detect_args(views: slice) -> list[str]:
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir("small-noisy"))
     b = truth.board

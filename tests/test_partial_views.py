@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from circcal.analysis.compare import projection_diff
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.pipeline import calibrate_images
 
 CORNER_SHARE = 1.0 / 3.0

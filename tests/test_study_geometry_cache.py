@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from circcal.fixtures.scenarios import render_fixture
+from circcal.fixtures.cache import render_fixture
 from circcal.study import parse_spec, seeded
 from circcal.study.execute import execute
 from circcal.study.plan import plan

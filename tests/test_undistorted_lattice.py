@@ -24,9 +24,10 @@ from circcal.detector import Reason, detect
 from circcal.detector.locate.candidates import Candidate
 from circcal.detector.locate.recognise import recognise
 from circcal.detector.locate.undistorted import inside_image, undistorted_candidates
+from circcal.fixtures.cache import fixture_dir
 from circcal.fixtures.fuzz import KINDS, fuzz_cases, fuzz_image
 from circcal.fixtures.render import render_view, to_uint
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.truth import load_truth
 from circcal.model import Camera, distort_pixels, project, undistort_pixels
 from tests.test_hard_views import MISLABEL_PX, labelled_errors
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from circcal.cli import main
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from circcal.validators import registry
 from circcal.validators.base import BaseCalibrator
 from circcal.validators.validate import run_validation
@@ -121,7 +122,8 @@ def test_solver_agreement_rule():
 def test_validate_cannot_pass_vacuously(tmp_path):
     """Zero checks is not "all checks passed", nor a failed check: own images (no truth) against no reference
     compare nothing; own detectors compare but gate nothing; each says why with the option that would check."""
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
     from circcal.validators.validate import run_validation, verdict
 
     truth = load_truth(fixture_dir("small-noisy"))
@@ -224,7 +226,8 @@ def test_validate_refuses_tolerances_that_decide_nothing(tol, capsys):
 def test_validate_all_fails_when_a_built_in_reference_is_missing(monkeypatch):
     """Under --against all a built-in reference that is not installed fails the run (make setup installs them all);
     --allow-missing lists it as skipped instead."""
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
     from circcal.validators import registry
     from circcal.validators.base import BaseCalibrator
     from circcal.validators.validate import run_validation

@@ -13,7 +13,8 @@ import pytest
 from circcal import cli
 from circcal.analysis.coverage import REGIONS
 from circcal.commands.calibrate import recommended_command
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 
 
 def _link(views, folder: Path) -> list[str]:

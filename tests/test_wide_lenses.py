@@ -18,7 +18,8 @@ import pytest
 from circcal.detector import detect
 from circcal.detector.locate.smooth import local_residual
 from circcal.detector.measure.trust import MAX_LATTICE_RESIDUAL, check_grid
-from circcal.fixtures.scenarios import fixture_dir, load_truth
+from circcal.fixtures.cache import fixture_dir
+from circcal.fixtures.truth import load_truth
 from tests.test_hard_views import MISLABEL_PX, NOISY_RMS_PX, _opencv_finds, labelled_errors
 
 MIN_FOUND = 0.95

@@ -84,10 +84,10 @@ def board_with_markers(args: argparse.Namespace, board):
     ------
     InputError
         ``--marker-diameter`` without markers, or markers the board cannot have
-        (:func:`circcal.board.with_markers`).
+        (:func:`circcal.markers.with_markers`).
     """
-    from circcal.board import with_markers
     from circcal.errors import InputError
+    from circcal.markers import with_markers
 
     markers = getattr(args, "markers", "none") or "none"
     if markers == "none":

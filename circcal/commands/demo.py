@@ -39,8 +39,10 @@ def summarize(name: str) -> None:
     name : str
         The scenario.
     """
+    from circcal.fixtures.cache import fixture_dir
     from circcal.fixtures.render import area_centroids
-    from circcal.fixtures.scenarios import fixture_dir, get_scenario, load_truth
+    from circcal.fixtures.scenarios import get_scenario
+    from circcal.fixtures.truth import load_truth
     from circcal.model import project
     from circcal.rotation import rodrigues
 

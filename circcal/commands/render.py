@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad argument or input file (the CLI prints it and exits 2).
     """
-    from circcal.fixtures.scenarios import SCENARIOS, fixture_dir, get_scenario
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import SCENARIOS, get_scenario
 
     if args.list or not args.scenario:
         for s in SCENARIOS.values():

@@ -175,7 +175,9 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad argument or input file (the CLI prints it and exits 2).
     """
-    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, fixture_dir, get_scenario, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.scenarios import DEFAULT_SCENARIO, get_scenario
+    from circcal.fixtures.truth import load_truth
     from circcal.outputs import Outputs
     from circcal.validators.validate import format_table, verdict, write_report
 

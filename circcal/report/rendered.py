@@ -31,15 +31,16 @@ def load_fixture(scenario: str, variant: str, n_views: int | None, progress: boo
 
     Returns
     -------
-    truth : circcal.fixtures.scenarios.Truth
-    views : list of circcal.fixtures.scenarios.View
+    truth : circcal.fixtures.truth.Truth
+    views : list of circcal.fixtures.truth.View
 
     Raises
     ------
     circcal.errors.InputError
         An unknown scenario or variant.
     """
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     truth = load_truth(fixture_dir(scenario, variant, progress=progress))
     views = truth.views if n_views is None else truth.views[:n_views]

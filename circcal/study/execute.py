@@ -108,7 +108,7 @@ def _reference_row(run: Run, study: str, res: Any, truth: Any, **kw: Any) -> dic
 
 def _images(task: Task) -> list[dict[str, Any]]:
     import circcal
-    from circcal.fixtures.scenarios import load_truth
+    from circcal.fixtures.truth import load_truth
     from circcal.study.seeded import rendered, seeded_scenario
 
     cell = task.cell

@@ -8,7 +8,7 @@ perturbation seed (``sha256(f"{seed}/{variant}/{view}")``) from one ``seed``. A 
   (:class:`SeededScenario` keeps them in ``pose_seed``).
 
 Either way the seed equal to the scenario's own reproduces its catalogue fixture exactly (the same content key, so
-:func:`circcal.fixtures.scenarios.fixture_dir`'s cache applies). Rendering needs only the catalogue, which every
+:func:`circcal.fixtures.cache.fixture_dir`'s cache applies). Rendering needs only the catalogue, which every
 worker has with circcal installed: no shared file system. :func:`rendered` renders into a private temporary folder,
 or, with ``cache``, into the content-hash cache (``cache_root()/study``), once per machine.
 
@@ -33,15 +33,8 @@ from typing import Any
 
 from filelock import FileLock
 
-from circcal.fixtures.scenarios import (
-    Scenario,
-    ViewGeometry,
-    cache_root,
-    fixture_dir,
-    get_scenario,
-    render_fixture,
-    render_geometry,
-)
+from circcal.fixtures.cache import ViewGeometry, cache_root, fixture_dir, render_fixture, render_geometry
+from circcal.fixtures.scenarios import Scenario, get_scenario
 from circcal.study.spec import VARY
 
 __all__ = ["GEOMETRY_CACHE", "GEOMETRY_CACHE_SIZE", "SeededScenario", "geometry", "rendered", "seeded_scenario"]
@@ -95,7 +88,7 @@ class SeededScenario(Scenario):
         return out
 
 
-#: Noise-free renders (:func:`circcal.fixtures.scenarios.render_geometry`) kept per worker process, most recently
+#: Noise-free renders (:func:`circcal.fixtures.cache.render_geometry`) kept per worker process, most recently
 #: used first: a ``vary: noise`` cell's seeds share one (the paper's 14 views at 1920x1080: ~0.26 GB), so two
 #: cells' scenarios interleaved on a worker each keep theirs.
 GEOMETRY_CACHE_SIZE = 2

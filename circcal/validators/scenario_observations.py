@@ -134,7 +134,8 @@ def observe(scenario: str, variant: str, lens: str | None = None, *, progress: b
     >>> obs = observe("paper", "normal")  # doctest: +SKIP
     >>> obs.ok, len(obs.object_points)  # doctest: +SKIP
     """
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
     from circcal.pipeline import TooFewImagesError, calibrate_images
     from circcal.solver import CalibrationOptions
 

@@ -132,7 +132,8 @@ def _scenario_params(names=("paper", "wide")):
 
 
 def _scenario_rate(name, variant, n_views):
-    from circcal.fixtures.scenarios import fixture_dir, load_truth
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
 
     tr = load_truth(fixture_dir(name, variant))
     views = tr.views[:n_views]
