@@ -6,6 +6,7 @@ truth from any folder::
     circcal conformance --calibrator mypkg.mymodule:calibrate
 
 The hooks, options and fixtures are the ``circcal`` pytest plug-in's (:mod:`circcal.validators.pytest_plugin`,
-entry point ``pytest11``); the cases, checks and bounds are :mod:`circcal.validators.conformance`. What a calibrator
-is, and how it declares the model it fits (``lens``, ``fixes``), is in docs/validation.md.
+entry point ``pytest11``); the cases and bounds are :mod:`circcal.validators.case_matrix`, their checks
+:mod:`circcal.validators.case_run`. What a calibrator is, and how it declares the model it fits (``lens``, ``fixes``),
+is in docs/validation.md.
 """

@@ -1,4 +1,4 @@
-"""The conformance matrix as one pytest test: every case of :func:`circcal.validators.conformance.cases`, against the
+"""The conformance matrix as one pytest test: every case of :func:`circcal.validators.case_matrix.cases`, against the
 ``--calibrator`` calibrators when given, else circcal and every registered reference (the ``circcal`` plug-in
 parametrises ``conformance_case`` and runs it: :func:`circcal.validators.pytest_plugin.conformance_run`)."""
 
