@@ -10,7 +10,7 @@ import pytest
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
 from circcal.validators import registry
-from circcal.validators.base import lens_support
+from circcal.validators.lens_support import lens_support
 
 #: reference -> (lenses it fits, the RMS per point (px) its solver reaches on exact observations). mrcal's and
 #: lensboy's solvers stop earlier (their own convergence criteria; lensboy's Ceres settings are not exposed).
@@ -301,7 +301,7 @@ def test_lensboy_stops_short_of_the_minimum_of_its_own_objective(scenario: str, 
 
 
 def test_a_rational_solution_with_a_pole_in_the_field_is_not_a_lens() -> None:
-    from circcal.validators.base import rational_pole
+    from circcal.validators.divergence import rational_pole
 
     obj = [np.array([[x, 0.0, 0.0] for x in np.linspace(0.0, 200.0, 11)])]  # r = x / 100: up to 2
     rv, tv = [np.zeros(3)], [np.array([0.0, 0.0, 100.0])]

@@ -21,7 +21,8 @@ from circcal.board import Board
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
 from circcal.validators import registry
-from circcal.validators.base import BaseCalibrator, ReferenceResult, run_safely
+from circcal.validators.base import BaseCalibrator, run_safely
+from circcal.validators.reference_result import ReferenceResult
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from circcal.validators.base import ReferenceResult
+from circcal.validators.reference_result import ReferenceResult
 
 __all__ = ["KORNIA", "resolve_device", "solve_batch"]
 

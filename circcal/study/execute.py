@@ -46,7 +46,7 @@ def calibrator_for(spec: CalibratorSpec) -> Any:
         :func:`circcal.validators.pytest_plugin.load_calibrator`.
     """
     if spec.plugin is not None:
-        from circcal.validators.pytest_plugin import load_calibrator
+        from circcal.validators.user_calibrator import load_calibrator
 
         return load_calibrator(spec.plugin)
     from circcal.validators import registry

@@ -348,7 +348,7 @@ def _calibrator(v: Any, where: str, kind: str) -> CalibratorSpec:
         raise InputError(f"{where}.observations: expected own or circcal, got {obs!r}")
     plugin = v.get("plugin")
     if plugin is not None:
-        from circcal.validators.pytest_plugin import calibrator_label, load_calibrator
+        from circcal.validators.user_calibrator import calibrator_label, load_calibrator
 
         try:
             cal = load_calibrator(str(plugin))

@@ -16,7 +16,10 @@ import numpy as np
 
 from circcal.model import LENS_MODELS, Camera, param_names
 from circcal.observations import check_observations
-from circcal.validators.base import FISHEYE_FOCAL_SWEEP, BaseCalibrator, ReferenceResult, check_divergence
+from circcal.validators.base import BaseCalibrator
+from circcal.validators.divergence import check_divergence
+from circcal.validators.reference_result import ReferenceResult
+from circcal.validators.seeds import FISHEYE_FOCAL_SWEEP
 
 __all__ = ["KorniaCalibrator", "Problem"]
 

@@ -18,7 +18,8 @@ import numpy as np
 
 from circcal.model import Camera, param_names
 from circcal.observations import distinct_points
-from circcal.validators.base import BaseCalibrator, ReferenceResult
+from circcal.validators.base import BaseCalibrator
+from circcal.validators.reference_result import ReferenceResult
 
 if TYPE_CHECKING:
     import lensboy

@@ -26,7 +26,10 @@ from circcal.metrics import error_stats
 from circcal.model import Camera, project
 from circcal.observations import check_observations
 from circcal.rotation import rodrigues
-from circcal.validators.base import BaseCalibrator, ReferenceResult, check_divergence, run_safely, seed_camera
+from circcal.validators.base import BaseCalibrator, run_safely
+from circcal.validators.divergence import check_divergence
+from circcal.validators.reference_result import ReferenceResult
+from circcal.validators.seeds import seed_camera
 
 __all__ = ["MrcalCalibrator", "mrcal_python", "board_lattice", "run_worker", "NOT_FOUND_MESSAGE", "LENSMODELS"]
 

@@ -16,7 +16,9 @@ from typing import Any
 import numpy as np
 
 from circcal.model import LENS_MODELS, Camera, param_names
-from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
+from circcal.validators.base import BaseCalibrator
+from circcal.validators.reference_result import ReferenceResult
+from circcal.validators.seeds import seed_camera
 
 __all__ = ["OpenCVCalibrator", "make_blob_detector", "find_circles_grid"]
 

@@ -16,7 +16,9 @@ import numpy as np
 from circcal.model import Camera, param_names, project
 from circcal.observations import distinct_points
 from circcal.rotation import rodrigues
-from circcal.validators.base import BaseCalibrator, ReferenceResult, seed_camera
+from circcal.validators.base import BaseCalibrator
+from circcal.validators.reference_result import ReferenceResult
+from circcal.validators.seeds import seed_camera
 
 __all__ = ["PycolmapCalibrator", "MODELS"]
 

@@ -17,7 +17,8 @@ import importlib.metadata
 from collections.abc import Callable
 from typing import Any
 
-from circcal.validators.base import ReferenceCalibrator, lens_support, missing_members
+from circcal.validators.lens_support import lens_support
+from circcal.validators.reference_protocol import ReferenceCalibrator, missing_members
 
 __all__ = ["ENTRY_POINT_GROUP", "BUILTINS", "names", "get", "get_for_lens", "all_available", "problems"]
 

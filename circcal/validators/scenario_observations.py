@@ -16,7 +16,7 @@ from circcal.board import Board
 from circcal.detector import Rejection
 from circcal.errors import InputError
 from circcal.model import Camera
-from circcal.validators.base import ReferenceResult
+from circcal.validators.reference_result import ReferenceResult
 from circcal.validators.shared import share, ssr
 
 __all__ = ["Observations", "observe", "solve_subset"]

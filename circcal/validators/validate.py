@@ -27,7 +27,6 @@ from circcal.jsonio import jsonable
 from circcal.model import DEFAULT_LENS, Camera, param_names
 from circcal.solver import CalibrationOptions
 from circcal.validators import registry
-from circcal.validators.base import ReferenceResult, lens_support
 from circcal.validators.checks import (
     SOLVER_LENSBOY_PX,
     SOLVER_MRCAL_PX,
@@ -37,6 +36,8 @@ from circcal.validators.checks import (
     solver_agreement,
     truth_checks,
 )
+from circcal.validators.lens_support import lens_support
+from circcal.validators.reference_result import ReferenceResult
 from circcal.validators.shared import SharedObservations, share
 
 __all__ = ["Bounds", "ValidationRun", "run_validation", "format_table", "verdict", "write_report", "VERDICTS"]
