@@ -139,7 +139,7 @@ bench: setup
 	$(VPY) -m benchmarks.run
 
 # The environment and build outputs. The rendered fixtures are cached outside the checkout, where
-# circcal.fixtures.scenarios.cache_root() puts them: `make clean-cache` removes them (they re-render on demand).
+# circcal.fixtures.cache.cache_root() puts them: `make clean-cache` removes them (they re-render on demand).
 FIXTURE_CACHE = $(or $(CIRCCAL_CACHE),$(HOME)/.cache/circcal)/fixtures
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info
