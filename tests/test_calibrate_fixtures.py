@@ -51,7 +51,7 @@ def test_paper_projection_difference_is_at_its_cramer_rao_level(paper):
     (<= its 99th percentile), i.e. no bias on top of the noise. Measured (rotation fitted, whole image): normal
     0.028, uneven 0.046, strong 0.021, weak 0.20 px; predicted medians 0.023, 0.052, 0.071, 0.145 px."""
     from circcal.analysis.compare import projection_diff
-    from circcal.validators.conformance import predicted_truth_rms
+    from circcal.validators.case_run import predicted_truth_rms
 
     variant, truth, cal = paper
     res = cal.result

@@ -257,13 +257,13 @@ def test_suite_truth_bound_holds_the_family_wise_rate():
     conservative: the exact family-wise rate lies just below alpha), while the per-run 3 sigmas would fail it often."""
     from statistics import NormalDist
 
-    from circcal.validators import conformance
+    from circcal.validators.case_matrix import SUITE_FAMILY_ALPHA, observation_sets, suite_truth_sigmas
 
-    n = 4 * conformance.observation_sets()
+    n = 4 * observation_sets()
     assert n >= 4 * 40  # every scenario-variant of the suite, not an empty count
-    z = conformance.suite_truth_sigmas()
+    z = suite_truth_sigmas()
     per_check = 2 * (1 - NormalDist().cdf(z))
     family = 1 - (1 - per_check) ** n
-    assert 0.9 * conformance.SUITE_FAMILY_ALPHA < family <= conformance.SUITE_FAMILY_ALPHA
+    assert 0.9 * SUITE_FAMILY_ALPHA < family <= SUITE_FAMILY_ALPHA
     at_3 = 1 - (1 - 2 * (1 - NormalDist().cdf(3.0))) ** n
     assert at_3 > 0.3
