@@ -102,8 +102,8 @@ def test_cli_rejects_unknown_reference(capsys):
 def test_solver_agreement_rule():
     """Within the px bound: pass. Beyond it: pass only for a cost tie (a flat direction double precision cannot
     resolve); a reference with a higher cost, or a lower one (circcal missed the minimum), fails."""
-    from circcal.validators.base import ReferenceResult
     from circcal.validators.checks import COST_TIE_REL, solver_agreement
+    from circcal.validators.reference_result import ReferenceResult
 
     def ref(ssr: float) -> ReferenceResult:
         r = np.full((50, 2), np.sqrt(ssr / 100.0))

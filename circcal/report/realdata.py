@@ -151,7 +151,7 @@ def _baseline_entry(base: dict[str, Any]) -> dict[str, Any]:
 
 def _opencv_rigid(base: dict[str, Any], board: Board, size: tuple[int, int]) -> tuple[list, Any, dict[str, Any]]:
     """OpenCV's solver on the baseline's own findCirclesGrid centres: ((image name, (N, 2) px) per found view, the
-    :class:`~circcal.validators.base.ReferenceResult`, its entry)."""
+    :class:`~circcal.validators.reference_result.ReferenceResult`, its entry)."""
     from circcal.validators.opencv import OpenCVCalibrator
 
     views = [

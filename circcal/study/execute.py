@@ -43,7 +43,7 @@ def calibrator_for(spec: CalibratorSpec) -> Any:
     -------
     ReferenceCalibrator
         A registry reference (set up for its lens), or a user's calibrator through
-        :func:`circcal.validators.pytest_plugin.load_calibrator`.
+        :func:`circcal.validators.user_calibrator.load_calibrator`.
     """
     if spec.plugin is not None:
         from circcal.validators.user_calibrator import load_calibrator

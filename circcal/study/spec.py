@@ -30,7 +30,7 @@ A calibrator is ``circcal``, a registry name (``opencv``, ``mrcal``, ``kornia``,
 mapping ``{name, mode: fair|default, observations: own|circcal}`` (images cells: ``own`` = the reference's own
 detector, e.g. OpenCV's findCirclesGrid pipeline, ``circcal`` = circcal's final centres, float32-shared as
 ``circcal validate`` hands them out), or a user's calibrator ``{plugin: "[LABEL=]MODULE:ATTR"}`` loaded with
-:func:`circcal.validators.pytest_plugin.load_calibrator` (the interface of the pytest plug-in; use the module form
+:func:`circcal.validators.user_calibrator.load_calibrator` (the interface of the pytest plug-in; use the module form
 on a cluster: a file path must exist on every worker).
 
 Every problem in a spec is an :class:`~circcal.errors.InputError` naming the cell and the field.

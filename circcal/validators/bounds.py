@@ -23,12 +23,12 @@ SOLVER_LENSBOY_PX = 1e-2
 #: Primary truth check of one calibration (``circcal validate``, each study run): |estimate - truth| of fx, fy, cx,
 #: cy in units of the stated standard deviation; a correct estimator with correct sigmas exceeds 3 on one of its 4
 #: parameters with probability ~1%. The conformance suite, which checks 47 observation sets, uses the Bonferroni
-#: bound over all of them instead (validators.conformance.suite_truth_sigmas, 4.04 at 1% family-wise).
+#: bound over all of them instead (validators.case_matrix.suite_truth_sigmas, 4.04 at 1% family-wise).
 TRUTH_SIGMAS = 3.0
 #: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
 #: squared residuals carry ~1e-13 relative rounding).
 COST_TIE_REL = 1e-10
-#: The bias test of a calibrator under test over the conformance cases (validators.conformance.bias_tests): |t| of the
+#: The bias test of a calibrator under test over the conformance cases (validators.bias.bias_tests): |t| of the
 #: mean truth-normalised error of fx, fy, cx or cy, less that of circcal's solve on the same points, above this is a
 #: bias (the observations' own bias is shared by every least-squares solve: a correct OpenCV wrapper over the 41 full
 #: matrix cases shows t = +3.3 for fx and fy against the truth, as circcal's solve does, and 0 in excess). Two-sided, Bonferroni over the 4 parameters at

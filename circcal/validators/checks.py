@@ -98,7 +98,7 @@ def solver_agreement(label: str, ref: Any, max_px: float, circcal_ssr: float, bo
     ----------
     label : str
         The reference as the check's name shows it.
-    ref : circcal.validators.base.ReferenceResult
+    ref : circcal.validators.reference_result.ReferenceResult
         The reference's "ok" solve (its ``residuals`` give its cost).
     max_px : float
         Max projection difference between its camera and circcal's over the imager, px.

@@ -6,7 +6,7 @@ A third party registers its calibrator in its own ``pyproject.toml``::
     mycal = "mypackage.mymodule:MyCalibrator"
 
 The target is a class (or any callable) returning an object that follows
-:class:`circcal.validators.base.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A
+:class:`circcal.validators.reference_protocol.ReferenceCalibrator`; keyword arguments given to :func:`get` are passed to it. A
 built-in name wins over a plug-in of the same name (the clash is reported by :func:`problems`).
 """
 
@@ -92,7 +92,7 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
     ImportError
         A reference (plug-in) that cannot be imported; the message names it.
     TypeError
-        The object lacks a member of :data:`~circcal.validators.base.REQUIRED_MEMBERS`.
+        The object lacks a member of :data:`~circcal.validators.reference_protocol.REQUIRED_MEMBERS`.
 
     Examples
     --------
@@ -110,7 +110,7 @@ def get(name: str, **kwargs: Any) -> ReferenceCalibrator:
     missing = missing_members(obj)
     if missing:
         raise TypeError(
-            f"reference calibrator {name!r} lacks {missing[0]!r}; see circcal.validators.base.ReferenceCalibrator"
+            f"reference calibrator {name!r} lacks {missing[0]!r}; see circcal.validators.reference_protocol.ReferenceCalibrator"
         )
     return obj
 
@@ -120,7 +120,7 @@ def get_for_lens(name: str, lens: str, **kwargs: Any) -> ReferenceCalibrator:
 
     Constructed with ``lens=`` when it is a built-in (every one takes it, and answers "unsupported" with its reason
     for a model it does not fit) or a plug-in that declares the model in its ``lenses``; else as it comes (a plug-in
-    without that model: the caller reports :func:`~circcal.validators.base.lens_support`'s reason instead of calling
+    without that model: the caller reports :func:`~circcal.validators.lens_support.lens_support`'s reason instead of calling
     it).
 
     Parameters

@@ -35,7 +35,7 @@ def declared_model(cal: Any) -> tuple[str, tuple[str, ...]]:
     Parameters
     ----------
     cal : ReferenceCalibrator
-        The calibrator (a :class:`~circcal.validators.pytest_plugin.FunctionCalibrator` carries its function's
+        The calibrator (a :class:`~circcal.validators.user_calibrator.FunctionCalibrator` carries its function's
         declarations).
 
     Returns

@@ -1,5 +1,5 @@
 """circcal's conformance suite: every fixture scenario x variant x calibrator against ground truth and, on identical
-observations, against circcal's solver (what each case asserts, and why each bound: validators/conformance.py).
+observations, against circcal's solver (what each case asserts, and why each bound: validators/case_matrix.py).
 
 The default run holds a fast slice (paper-normal and wide-clean, every calibrator; fisheye-clean and rational-wide-clean
 with circcal, OpenCV, pycolmap and mrcal); `make conformance` runs the whole matrix (`-m 'slow or not slow'`). circcal's calibration of a scenario-variant is computed once per run and reused by
@@ -24,9 +24,15 @@ from circcal.board import Board
 from circcal.conformance import test_conformance as _installed
 from circcal.model import Camera, project
 from circcal.rotation import rodrigues
-from circcal.validators import conformance
-from circcal.validators.base import ReferenceResult
-from circcal.validators.pytest_plugin import FunctionCalibrator, ObservationCache, load_calibrator
+from circcal.validators import scenario_observations
+from circcal.validators.bias import bias_tests
+from circcal.validators.case_matrix import CIRCCAL_UNSUPPORTED, Case, cases
+from circcal.validators.case_run import failed_checks, predicted_truth_rms, run_reference_case
+from circcal.validators.conformance_fixtures import ObservationCache
+from circcal.validators.reference_result import ReferenceResult
+from circcal.validators.scenario_observations import Observations
+from circcal.validators.user_calibrator import FunctionCalibrator, load_calibrator
+from circcal.validators.user_case import declared_model, restricted_solve, run_user_case, unrepresentable
 
 # kornia's import triggers torch's own deprecation notice for torch.jit.script: not ours to fix
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.script` is deprecated:DeprecationWarning")
@@ -48,13 +54,13 @@ def test_matrix_covers_every_scenario_variant_with_readable_ids():
     from circcal.fixtures.scenarios import SCENARIOS
 
     refs = [("opencv", ("fair",)), ("mrcal", ("fair", "default")), ("kornia", ("fair",))]
-    cs = conformance.cases(refs)
+    cs = cases(refs)
     ids = [c.id for c in cs]
     assert len(ids) == len(set(ids))
     for name, sc in SCENARIOS.items():
         for v in sc.variants:
             assert f"{name}-{v}-circcal" in ids
-            if name in conformance.CIRCCAL_UNSUPPORTED:
+            if name in CIRCCAL_UNSUPPORTED:
                 assert not any(i.startswith(f"{name}-{v}-") and not i.endswith("-circcal") for i in ids)
             else:
                 for i in ("opencv", "mrcal_fair", "mrcal_default", "kornia"):
@@ -78,7 +84,7 @@ def test_matrix_covers_every_scenario_variant_with_readable_ids():
 
 def test_the_lens_model_is_a_dimension_of_the_matrix():
     refs = [("mrcal", ("fair", "default")), ("pycolmap", ("fair",))]
-    cs = conformance.cases(refs, scenarios=["wide", "fisheye", "rational-wide"])
+    cs = cases(refs, scenarios=["wide", "fisheye", "rational-wide"])
     ids = [c.id for c in cs]
     assert len(ids) == len(set(ids))
     by_id = {c.id: c for c in cs}
@@ -94,7 +100,7 @@ def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
     from circcal.validators.registry import get_for_lens
 
     obj, img, size, cam = _problem(n_views=4)
-    obs = conformance.Observations(
+    obs = Observations(
         "wide",
         "clean",
         "",
@@ -109,11 +115,9 @@ def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
     # a built-in is set up for the lens and answers for itself, with its reason
     cal = get_for_lens("pycolmap", "thin-prism")
     skip_unless_available(cal)
-    out = conformance.run_reference_case(
-        conformance.Case("wide", "clean", "pycolmap", lens_model="thin-prism"), obs, cal
-    )
+    out = run_reference_case(Case("wide", "clean", "pycolmap", lens_model="thin-prism"), obs, cal)
     assert out.status == "unsupported" and out.result.status == "unsupported" and "s1-s4" in out.result.message
-    assert out.checks and not conformance.failed_checks(out)
+    assert out.checks and not failed_checks(out)
 
     # a plug-in that declares no such model is not called: its case reports why
     class Plain:
@@ -125,15 +129,13 @@ def test_a_lens_a_reference_does_not_fit_is_reported_unsupported():
         def calibrate_observations(self, *args, **kwargs):
             raise AssertionError("called for a lens it does not declare")
 
-    out = conformance.run_reference_case(
-        conformance.Case("wide", "clean", "plain", lens_model="thin-prism"), obs, Plain()
-    )
+    out = run_reference_case(Case("wide", "clean", "plain", lens_model="thin-prism"), obs, Plain())
     assert out.status == "unsupported" and out.result is None and "opencv5" in out.checks[0].note
-    assert not conformance.failed_checks(out)
+    assert not failed_checks(out)
 
 
 def test_user_calibrators_replace_circcal_and_the_references():
-    cs = conformance.cases(user=[("mine", ("fair",))])
+    cs = cases(user=[("mine", ("fair",))])
     assert {c.reference for c in cs} == {"mine"} and all(c.user for c in cs)
     assert "paper-normal-mine" in [c.id for c in cs if not c.slow]
 
@@ -145,7 +147,7 @@ def test_observations_are_computed_once_across_workers(tmp_path, monkeypatch):
         calls.append((scenario, variant, lens))
         return {"scenario": scenario, "variant": variant, "lens": lens}
 
-    monkeypatch.setattr(conformance, "observe", fake)
+    monkeypatch.setattr(scenario_observations, "observe", fake)
     a, b = ObservationCache(tmp_path), ObservationCache(tmp_path)  # two workers sharing the run's folder
     assert a("wide", "clean") == b("wide", "clean") == a("wide", "clean", "opencv5")
     assert b("wide", "jpeg")["variant"] == "jpeg"
@@ -305,8 +307,8 @@ def test_bad_calibrator_option_is_a_usage_error():
 def test_predicted_truth_rms_scales_with_the_stated_sigmas():
     cam = Camera(1280, 960, 1000.0, 1000.0, 640.0, 480.0, [-0.2, 0.05, 0.0, 0.0, 0.0])
     std = {"fx": 0.1, "fy": 0.1, "cx": 0.1, "cy": 0.1, "k1": 1e-4, "k2": 1e-4, "p1": 1e-6, "p2": 1e-6, "k3": 0.0}
-    one = conformance.predicted_truth_rms(cam, std, None, n=50)
-    two = conformance.predicted_truth_rms(cam, {k: 2 * v for k, v in std.items()}, None, n=50)
+    one = predicted_truth_rms(cam, std, None, n=50)
+    two = predicted_truth_rms(cam, {k: 2 * v for k, v in std.items()}, None, n=50)
     assert 0 < one["p50"] < one["p99"] < 1.0
     assert two["p99"] == pytest.approx(2 * one["p99"], rel=1e-3)  # same draws, linear regime
 
@@ -321,8 +323,8 @@ def test_a_calibrator_declares_its_model_and_a_bad_declaration_is_named():
         raise AssertionError("not called")
 
     fn.lens, fn.fixes = "rational", ("k3", "tangential")
-    assert conformance.declared_model(FunctionCalibrator(fn)) == ("rational", ("p1", "p2", "k3"))
-    assert conformance.declared_model(FunctionCalibrator(lambda o, i, s: None)) == ("opencv5", ())
+    assert declared_model(FunctionCalibrator(fn)) == ("rational", ("p1", "p2", "k3"))
+    assert declared_model(FunctionCalibrator(lambda o, i, s: None)) == ("opencv5", ())
     for lens, fixes, words in [
         ("opencv5", ("k4",), "k4"),
         ("opencv5", ("fx",), "fx cannot be held"),
@@ -331,35 +333,35 @@ def test_a_calibrator_declares_its_model_and_a_bad_declaration_is_named():
     ]:
         fn.lens, fn.fixes = lens, fixes
         with pytest.raises(ValueError, match=re.escape(words)):
-            conformance.declared_model(FunctionCalibrator(fn))
+            declared_model(FunctionCalibrator(fn))
 
 
 def test_a_truth_the_declared_model_cannot_represent_is_named():
     wide = Camera(1280, 960, 1000.0, 998.0, 641.5, 478.3, [-0.3, 0.1, 0.0006, -0.0004, -0.01])
-    assert conformance.unrepresentable(wide, "opencv5", ()) == ""
-    assert conformance.unrepresentable(wide, "rational", ()) == ""  # k4-k6 = 0 in the truth
-    assert "the true k3 is -0.01" in conformance.unrepresentable(wide, "opencv5", ("k3",))
-    assert "the true cx is 641.5; the calibrator holds it at 639.5" in conformance.unrepresentable(
+    assert unrepresentable(wide, "opencv5", ()) == ""
+    assert unrepresentable(wide, "rational", ()) == ""  # k4-k6 = 0 in the truth
+    assert "the true k3 is -0.01" in unrepresentable(wide, "opencv5", ("k3",))
+    assert "the true cx is 641.5; the calibrator holds it at 639.5" in unrepresentable(
         wide, "opencv5", ("principal_point",)
     )
-    assert "fx / fy" in conformance.unrepresentable(wide, "opencv5", ("aspect_ratio",))
-    assert "fisheye" in conformance.unrepresentable(wide, "fisheye", ())
+    assert "fx / fy" in unrepresentable(wide, "opencv5", ("aspect_ratio",))
+    assert "fisheye" in unrepresentable(wide, "fisheye", ())
     rational = Camera(1280, 960, 660.0, 660.0, 640.0, 480.0, [-0.3, 0.1, 0, 0, 0, 0.5, 0, 0], lens="rational")
-    assert "k4 = 0.5" in conformance.unrepresentable(rational, "opencv5", ())
+    assert "k4 = 0.5" in unrepresentable(rational, "opencv5", ())
 
 
 def test_circcal_solves_under_the_same_holds():
     obj, img, size, cam = _problem(n_views=8)
-    obs = conformance.Observations(
+    obs = Observations(
         "wide", "clean", "", cam, Board(7, 7, 15.0, 7.0), [], "opencv5", object_points=obj, image_points=img
     )
     from circcal.solver import calibrate
 
     obs.solver_camera = calibrate(obj, img, size).camera
-    held, std, _ = conformance.restricted_solve(obs, "opencv5", ("k3", "principal_point"))
+    held, std, _ = restricted_solve(obs, "opencv5", ("k3", "principal_point"))
     assert held.dist[4] == 0.0 and (held.cx, held.cy) == ((size[0] - 1) / 2, (size[1] - 1) / 2)
     assert std["k3"] == 0.0 and std["fx"] > 0
-    wider, _, _ = conformance.restricted_solve(obs, "rational", ())
+    wider, _, _ = restricted_solve(obs, "rational", ())
     assert wider.lens == "rational"
 
 
@@ -383,7 +385,7 @@ def test_a_consistent_offset_is_named_across_cases_where_each_case_alone_is_with
 
     recs = _records("shifted", [0.5] * 12) + _records("honest", [0.0] * 12, shared=0.3)
     recs.append({"label": "shifted", "status": "unsupported", "params": {}})  # not counted
-    by = {(b.label, b.param): b for b in conformance.bias_tests(recs, BIAS_T)}
+    by = {(b.label, b.param): b for b in bias_tests(recs, BIAS_T)}
     cx = by[("shifted", "cx")]
     assert cx.n == 12 and cx.biased and cx.vs_circcal == pytest.approx(0.5)
     assert cx.excess_t == pytest.approx(0.5 / 0.34 * np.sqrt(12))  # SD 0 < 1: the honest-sigma SE, 1/sqrt(n)
@@ -391,36 +393,36 @@ def test_a_consistent_offset_is_named_across_cases_where_each_case_alone_is_with
     # the observations' own bias shows against the truth in circcal's solve too: not held against the calibrator
     honest = by[("honest", "cx")]
     assert abs(honest.t) > BIAS_T and honest.circcal_t == honest.t and not honest.biased
-    one = conformance.bias_tests(_records("once", [0.5]), BIAS_T)
+    one = bias_tests(_records("once", [0.5]), BIAS_T)
     assert not [b for b in one if b.biased]  # one case at 1.5 sigma is no evidence of a bias
 
 
 def test_an_unavailable_or_raising_calibrator_is_not_a_pass():
     obj, img, size, cam = _problem(n_views=4)
-    obs = conformance.Observations(
+    obs = Observations(
         "paper", "normal", "", cam, Board(7, 7, 15.0, 7.0), [], "opencv5", object_points=obj, image_points=img
     )
     obs.solver_camera = cam
-    case = conformance.Case("paper", "normal", "mine", user=True)
+    case = Case("paper", "normal", "mine", user=True)
 
     class Missing(FunctionCalibrator):
         def available(self):
             return False, "libfoo not installed"
 
-    out = conformance.run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"))
-    assert out.status == "unavailable" and "libfoo not installed" in conformance.failed_checks(out)[0].note
-    out = conformance.run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"), allow_unavailable=True)
+    out = run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"))
+    assert out.status == "unavailable" and "libfoo not installed" in failed_checks(out)[0].note
+    out = run_user_case(case, obs, Missing(lambda o, i, s: None, "mine"), allow_unavailable=True)
     assert out.skip_reason and not out.checks
 
     def raises(o, i, s):
         raise ValueError("singular matrix")
 
-    out = conformance.run_user_case(case, obs, FunctionCalibrator(raises, "mine"))
-    (bad,) = conformance.failed_checks(out)
+    out = run_user_case(case, obs, FunctionCalibrator(raises, "mine"))
+    (bad,) = failed_checks(out)
     assert out.status == "failed" and "Traceback" in bad.note and 'raise ValueError("singular matrix")' in bad.note
 
     def refuses(o, i, s):
         raise NotImplementedError("asymmetric grids only")
 
-    out = conformance.run_user_case(case, obs, FunctionCalibrator(refuses, "mine"))
+    out = run_user_case(case, obs, FunctionCalibrator(refuses, "mine"))
     assert out.status == "unsupported" and "asymmetric grids only" in out.skip_reason
