@@ -5,17 +5,17 @@ Rules (every ``circcal`` command that writes follows them):
 - An output never deletes or replaces anything circcal did not create. A file output may replace an earlier file;
   it may not be one of the command's inputs, a folder, a device, a fifo or a socket. A symlink is written through
   (its target is replaced, the link stays). A folder output (``--report DIR``, ``--overlay DIR``) is new, empty, or
-  an earlier circcal folder of the same kind, recognised by the manifest :data:`MARKER` that lists every file
+  an earlier circcal folder of the same kind, recognised by the manifest :data:`~circcal.commit.MARKER` that lists every file
   circcal wrote there with its SHA-256: a folder holding anything else, or a file changed since, is refused. A folder
   output may not hold an input, another output, or the working folder. Each refusal is an
   :class:`~circcal.errors.InputError` naming the path, raised when the output is planned, before any work.
 - Everything is written into staging places beside the final ones (hidden names starting ``.`` and holding
   ``.circcal-``); nothing final is touched until :meth:`Outputs.commit`. A failure or an interruption before it
   removes the staging places and leaves every earlier output as it was.
-- The commit renames every staged output into place with SIGINT and SIGTERM held back (delivered right after): a
+- The commit (:mod:`circcal.commit`) renames every staged output into place with SIGINT and SIGTERM held back (delivered right after): a
   folder is swapped with ``renameat2(RENAME_EXCHANGE)`` where the kernel has it (one atomic step), else with two
   renames. A journal written first, beside every output, lists the steps; should the process be killed
-  (``SIGKILL``, power) between two renames, :func:`recover` (called by every later command that plans an output
+  (``SIGKILL``, power) between two renames, :func:`~circcal.commit.recover` (called by every later command that plans an output
   in that folder) finishes them, so the outputs of one command end all old or all new.
 
 Example
@@ -29,40 +29,40 @@ Example
 
 from __future__ import annotations
 
-import ctypes
-import errno
-import glob
 import hashlib
 import json
 import os
 import shutil
-import signal
 import stat
 import tempfile
-import threading
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
+from circcal.commit import (
+    _STAGE,
+    _UMASK,
+    MARKER,
+    _apply,
+    _fsync_file,
+    _fsync_tree,
+    _Output,
+    _read_marker,
+    _remove_stale,
+    _signals_held,
+    _unlink,
+    _write_journals,
+    recover,
+)
 from circcal.errors import InputError
 from circcal.pathnames import display_name
 
 __all__ = [
-    "MARKER",
     "Outputs",
     "check_folder_output",
     "check_writable_place",
     "folder_manifest",
-    "recover",
     "write_manifest",
 ]
-
-MARKER = ".circcal-output.json"
-"""The manifest circcal writes into every folder output: its kind and every file it wrote with its SHA-256."""
-_STAGE = ".circcal-"
-"""Staging places, old folders and journals carry this in their (hidden) names."""
-_JOURNAL_PREFIX = ".circcal-commit-"
 
 
 def _display(path: Path | str) -> str:
@@ -174,7 +174,7 @@ def folder_manifest(folder: Path) -> dict[str, str]:
 
 
 def write_manifest(folder: Path, kind: str, commit_id: str = "") -> None:
-    """Write :data:`MARKER` into ``folder``: its ``kind`` and :func:`folder_manifest`.
+    """Write :data:`~circcal.commit.MARKER` into ``folder``: its ``kind`` and :func:`folder_manifest`.
 
     Parameters
     ----------
@@ -191,14 +191,6 @@ def write_manifest(folder: Path, kind: str, commit_id: str = "") -> None:
     """
     doc = {"circcal": kind, "commit": commit_id, "files": folder_manifest(folder)}
     (folder / MARKER).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
-
-
-def _read_marker(folder: Path) -> dict[str, Any] | None:
-    try:
-        doc = json.loads((folder / MARKER).read_text())
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) and isinstance(doc.get("files"), dict) else None
 
 
 def check_folder_output(path: Path, kind: str, option: str, shown: Path | None = None) -> str:
@@ -258,16 +250,6 @@ def check_folder_output(path: Path, kind: str, option: str, shown: Path | None =
             f"{option} {_display(shown)}: {why}; circcal replaces only a folder it wrote: give a new or empty folder"
         )
     return "earlier"
-
-
-@dataclass
-class _Output:
-    shown: Path  # as the user gave it
-    final: Path  # symlinks followed
-    option: str
-    kind: str | None  # None: a file; else the folder's kind
-    staging: Path = field(default=Path())
-    old: Path | None = None
 
 
 class Outputs:
@@ -490,217 +472,3 @@ class Outputs:
             _unlink(out.staging)
             return cand
         raise InputError(f"{out.option} {_display(out.shown)}: no free name for the partial results")
-
-
-def _remove_stale(parent: Path, name: str) -> None:
-    """Remove the staging places of ``name`` in ``parent`` whose process is gone (a killed run's leftovers: their
-    names hold the pid that made them; a live process's are never touched)."""
-    for p in parent.glob(f".{glob.escape(name)}{_STAGE}*"):
-        rest = p.name[1 + len(name) + len(_STAGE) :]
-        pid = rest.split("-", 1)[0]
-        if not pid.isdigit() or _alive(int(pid)):
-            continue  # an earlier folder a killed commit set aside (recover() handles it), or a live run's
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p, ignore_errors=True)
-        else:
-            _unlink(p)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, another user's
-        return True
-    return True
-
-
-def _fsync_file(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_tree(folder: Path) -> None:
-    for root, _, files in os.walk(folder):
-        for name in files:
-            _fsync_file(Path(root) / name)
-
-
-def _unlink(path: Path) -> None:
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass
-
-
-def _read_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
-
-
-class _signals_held:
-    """Hold SIGINT and SIGTERM back in the block and deliver them after it (main thread only: elsewhere Python
-    runs no signal handler). The handlers are swapped for a recorder rather than the signals masked, because a
-    signal that arrived just before the block may still be waiting for the interpreter to run its handler."""
-
-    def __enter__(self) -> None:
-        self._got: list[int] = []
-        self._old: dict[int, object] = {}
-        if threading.current_thread() is not threading.main_thread():
-            return
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._old[sig] = signal.signal(sig, lambda signum, frame: self._got.append(signum))
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._old.items():
-            signal.signal(sig, handler)  # type: ignore[arg-type]
-        for sig in dict.fromkeys(self._got):
-            handler = self._old[sig]
-            if callable(handler):
-                handler(sig, None)
-            elif handler == signal.SIG_DFL and sig == signal.SIGINT:
-                raise KeyboardInterrupt
-            elif handler == signal.SIG_DFL:
-                os.kill(os.getpid(), sig)
-
-
-def _write_journals(outputs: list[_Output], commit_id: str) -> list[Path]:
-    """The commit's steps, written (and synced) beside every output: any of them lets :func:`recover` finish."""
-    steps = [
-        {"final": os.fsencode(o.final).hex(), "staging": os.fsencode(o.staging).hex(), "folder": o.kind}
-        for o in outputs
-    ]
-    text = json.dumps({"commit": commit_id, "steps": steps}) + "\n"
-    paths = []
-    for d in dict.fromkeys(o.staging.parent for o in outputs):
-        p = d / f"{_JOURNAL_PREFIX}{commit_id}.json"
-        with open(p, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        paths.append(p)
-    return paths
-
-
-_RENAME_EXCHANGE = 2
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where the system lacks it."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return False
-    at_fdcwd = -100
-    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EPERM):
-        return False
-    raise OSError(err, os.strerror(err), os.fsdecode(b))
-
-
-def _rename(src: Path, dst: Path) -> None:
-    """One rename of the commit (a seam for the tests that interrupt at each one)."""
-    os.replace(src, dst)
-
-
-def _apply(outputs: list[_Output], commit_id: str) -> None:
-    for out in outputs:
-        out.final.parent.mkdir(parents=True, exist_ok=True)
-        if out.kind is None or not out.final.exists():
-            _rename(out.staging, out.final)
-        elif _exchange(out.staging, out.final):
-            out.old = out.staging  # the earlier folder now lies at the staging name
-        else:
-            out.old = out.final.with_name(f".{out.final.name}{_STAGE}old-{commit_id}")
-            _rename(out.final, out.old)
-            _rename(out.staging, out.final)
-
-
-def _marker_commit(folder: Path) -> str | None:
-    doc = _read_marker(folder) if folder.is_dir() else None
-    return None if doc is None else doc.get("commit")
-
-
-def recover(folder: Path) -> list[Path]:
-    """Finish the commits a killed circcal process left half done in ``folder`` (their journals name the steps).
-
-    The staged outputs still waiting are moved into place, the earlier folders they replace removed. A journal whose
-    staging places are all gone is removed.
-
-    Parameters
-    ----------
-    folder : Path
-
-    Returns
-    -------
-    list of Path
-        The outputs it put in place.
-    """
-    done: list[Path] = []
-    try:
-        journals = sorted(Path(folder).glob(f"{_JOURNAL_PREFIX}*.json"))
-    except OSError:
-        return done
-    for j in journals:
-        try:
-            doc = json.loads(j.read_text())
-            commit_id = doc["commit"]
-            steps = [
-                (
-                    Path(os.fsdecode(bytes.fromhex(s["final"]))),
-                    Path(os.fsdecode(bytes.fromhex(s["staging"]))),
-                    s["folder"],
-                )
-                for s in doc["steps"]
-            ]
-        except (OSError, ValueError, KeyError, TypeError):
-            continue  # not one of ours, or unreadable: left alone
-        for final, staging, kind in steps:
-            if kind is None:
-                if staging.is_file():
-                    final.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(staging, final)
-                    done.append(final)
-                continue
-            old = final.with_name(f".{final.name}{_STAGE}old-{commit_id}")
-            if _marker_commit(final) == commit_id:  # in place: only the earlier folder may be left
-                for leftover in (staging, old):
-                    if leftover.is_dir() and _marker_commit(leftover) != commit_id:
-                        shutil.rmtree(leftover, ignore_errors=True)
-                continue
-            if _marker_commit(staging) == commit_id:
-                if final.exists():
-                    os.replace(final, old)
-                final.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(staging, final)
-                shutil.rmtree(old, ignore_errors=True)
-                done.append(final)
-        for d in {s.parent for _, s, _ in steps}:
-            _unlink(d / j.name)
-        _unlink(j)
-    return done
-
-
-def iter_staging(folder: Path) -> Iterator[Path]:
-    """circcal's staging places left in ``folder`` by a killed process (for a clean-up or a test).
-
-    Parameters
-    ----------
-    folder : Path
-
-    Yields
-    ------
-    Path
-    """
-    yield from (p for p in Path(folder).iterdir() if p.name.startswith(".") and _STAGE in p.name)

@@ -12,8 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
+from circcal.commit import MARKER, recover
 from circcal.errors import InputError
-from circcal.outputs import MARKER, Outputs, check_folder_output, recover
+from circcal.outputs import Outputs, check_folder_output
 
 
 def _png(path: Path) -> Path:
@@ -237,7 +238,7 @@ def test_outputs_that_overlap_are_refused(tmp_path):
 def test_a_commit_killed_between_renames_is_finished_by_the_next_run(tmp_path, monkeypatch, crash_at, exchange):
     """A process killed at any rename of the commit (simulated: the rename raises SystemExit and nothing after it
     runs) leaves each output old or new; the next run's planning (:func:`recover`) makes them all new."""
-    import circcal.outputs as O
+    import circcal.commit as O
 
     with Outputs() as out:
         out.file(tmp_path / "m.json", "--out").write_text("old")

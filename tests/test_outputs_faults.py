@@ -21,10 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from circcal.outputs import MARKER, folder_manifest, recover
+from circcal.commit import MARKER, recover
+from circcal.outputs import folder_manifest
 
 WRAPPER = r"""
 import builtins, io, json, os, signal, sys
+import circcal.commit as C
 import circcal.outputs as O
 plan = json.loads(os.environ["CIRCCAL_FAULT"])
 count = [0]
@@ -51,7 +53,7 @@ def open_(file, mode="r", *a, **k):
         step("open", file)
     return real_open(file, mode, *a, **k)
 builtins.open = io.open = open_
-O._exchange = wrap(O._exchange, "exchange")
+C._exchange = wrap(C._exchange, "exchange")
 real_commit = O.Outputs.commit
 def commit(self):
     state["commit"] = True
