@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from circcal.report import QUICK, compute, config, figures, prose, render, write_report
+from circcal.report import QUICK, compute, config, figures, prose, realdata_prose, render, write_report
 from circcal.report.capture import study_warnings
 from circcal.report.document import TITLE, document
 from circcal.report.figures import figure_files
@@ -258,7 +258,7 @@ def test_realdata_board_refined_rows(quick):
         line = next(x for x in md.splitlines() if f"| {label} |" in x)
         assert f"| {s[key]['errors']['rms_per_point_px']:.4f} |" in line, line
         assert f"| {ho[key]['mean_of_views']['mean_2d_px']:.4f} |" in line, line
-    text = prose.realdata_summary("boofcv_sony_hx5v_circle_asym_4x5", s)
+    text = realdata_prose.realdata_summary("boofcv_sony_hx5v_circle_asym_4x5", s)
     assert text in md and f"{ours:.4f} px" in text and f"{theirs:.4f} px" in text
     assert "printed sheet's shape, not centre detection" in text
     assert "![realdata_board.png](realdata_board.png)" in md and (folder / "realdata_board.png").stat().st_size > 0
@@ -361,12 +361,17 @@ PROSE_CASES = {
     "projection grid": ((config, "PROJECTION_GRID_WIDTH", 61), "1 + conditions", "61-wide", "60-wide"),
     "noise factor": ((prose, "MEAN_2D_PER_SIGMA", 1.9876), 1, "~1.988 sigma", "~1.253 sigma"),
     # both real sets' rigid RMS lie within 3% of OpenCV's (a tie); at 1e-4 they are told apart: 4x5 higher, 10x8 lower
-    "tie rule": ((prose, "TIE_REL", 1e-4), 2, ("% higher.", "% lower."), "tie"),
+    "tie rule": ((realdata_prose, "TIE_REL", 1e-4), 2, ("% higher.", "% lower."), "tie"),
     # the shape sentence stands on the 4x5 set only: on the 10x8 set circcal's refined RMS (the shadow-edge dots left
     # out) is ~20% below OpenCV's centres', no tie, so the sentence is not said there whatever the shape rule
-    "shape rule, drop": ((prose, "SHAPE_RMS_DROP", 0.01), 1, "in plane. The baseline", "printed sheet's shape"),
+    "shape rule, drop": (
+        (realdata_prose, "SHAPE_RMS_DROP", 0.01),
+        1,
+        "in plane. The baseline",
+        "printed sheet's shape",
+    ),
     "shape rule, significance": (
-        (prose, "SHAPE_SIGNIFICANCE", 100.0),
+        (realdata_prose, "SHAPE_SIGNIFICANCE", 100.0),
         1,
         "in plane. The baseline",
         "printed sheet's shape",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from circcal.report import prose
+from circcal.report import prose, realdata_prose
 from circcal.report.blocks import Block, Bullets, Heading, Image, Paragraph
 from circcal.report.figures import figure_files
 from circcal.report.notes import bias_notes, paper_notes, realdata_notes
@@ -72,13 +72,13 @@ def _bias_section(results: dict[str, Any], caption: dict[str, str]) -> list[Bloc
 def _realdata_section(results: dict[str, Any], caption: dict[str, str]) -> list[Block]:
     out: list[Block] = [
         Heading(2, "6. Real photographs"),
-        Paragraph(prose.realdata_method(results)),
+        Paragraph(realdata_prose.realdata_method(results)),
         realdata_table(results),
     ]
     notes = realdata_notes(results)
     if notes:
         out.append(Bullets(tuple(notes)))
-    out += [Paragraph(t) for t in (prose.realdata_summary(n, s) for n, s in realdata_sets(results)) if t]
+    out += [Paragraph(t) for t in (realdata_prose.realdata_summary(n, s) for n, s in realdata_sets(results)) if t]
     if "realdata_board.png" in caption:
         out.append(Image("realdata_board.png", caption["realdata_board.png"]))
     return out
