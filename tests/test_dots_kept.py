@@ -11,8 +11,8 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.detector import detect
+from circcal.detector.measure.baddots import UNEVEN_SHARE, _uneven_inside
 from circcal.detector.measure.ellipse import conic_params_batch
-from circcal.detector.measure.trust import UNEVEN_SHARE, _uneven_inside
 from circcal.dotcheck import bad_dots as dotcheck_bad_dots
 from circcal.fixtures.poses import pose_looking_at, sample_poses
 from circcal.fixtures.render import to_uint

@@ -134,7 +134,7 @@ def test_real_photographs_keep_every_point(realdata, refine_board):
     """The README's numbers hold with outlier rejection on (the default of `circcal calibrate`): the rule rejects
     nothing; the detector leaves out 11 dots of the 10x8 set's image00005 that the edge of a hand's shadow crosses
     (looked at: their rims are half in shadow, so a level-based edge is biased there) and 3 dots of image00001-2
-    under the shadow's soft edge, lit unevenly inside (trust.UNEVEN_SHARE: the refined board's RMS fell from 0.052
+    under the shadow's soft edge, lit unevenly inside (baddots.UNEVEN_SHARE: the refined board's RMS fell from 0.052
     to 0.047 px when they went)."""
     from circcal.report.realdata import realdata_board
 
@@ -187,7 +187,7 @@ def test_a_bad_dot_is_flagged_before_the_solve_and_left_out():
     e = e.copy()
     e[half] += 1.5 * (e[half] - c) / np.linalg.norm(e[half] - c, axis=1, keepdims=True)
     d.edge_points[17] = e
-    from circcal.detector.measure.ellipse import fit_ellipse_direct
+    from circcal.detector.measure.ellipsefit import fit_ellipse_direct
 
     d.conics[17] = fit_ellipse_direct(e)
     (bad,) = bad_dots(d, t.board.rows, t.board.cols)

@@ -36,16 +36,13 @@ from circcal.detector.image import as_gray
 from circcal.detector.locate.budget import DEFAULT_TIME_BUDGET_S, BudgetExceeded, Deadline
 from circcal.detector.locate.recognise import MIN_PARTIAL_POINTS, Recognition
 from circcal.detector.locate.search import segment_and_recognise
+from circcal.detector.measure.baddots import bad_dots
 from circcal.detector.measure.centre import correct_centres, correct_centres_on_rays, fit_homography
 from circcal.detector.measure.dots import EDGE_SIGMA, fit_dots
-from circcal.detector.measure.ellipse import (
-    FIT_ERRORS,
-    conic_from_params_batch,
-    conic_params_batch,
-    fit_ellipses_direct,
-)
+from circcal.detector.measure.ellipse import conic_from_params_batch, conic_params_batch
+from circcal.detector.measure.ellipsefit import FIT_ERRORS, fit_ellipses_direct
 from circcal.detector.measure.smoothing import SmoothedImage
-from circcal.detector.measure.trust import ABSENT_MAX_SHARE, absent_dots, bad_dots, check_grid
+from circcal.detector.measure.trust import ABSENT_MAX_SHARE, absent_dots, check_grid
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 

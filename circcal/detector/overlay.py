@@ -17,7 +17,8 @@ import numpy as np
 from circcal import atomic
 from circcal.detector.detection import Detection
 from circcal.detector.image import as_gray, normalise_u8, read_image
-from circcal.detector.measure.ellipse import conic_params, fit_ellipse_direct
+from circcal.detector.measure.ellipse import conic_params
+from circcal.detector.measure.ellipsefit import fit_ellipse_direct
 from circcal.errors import ImageError
 
 __all__ = ["draw_detection", "overlay_file", "write_overlay", "write_overlay_file"]

@@ -11,9 +11,9 @@ from circcal.detector.measure.ellipse import (
     conic_from_params,
     conic_params,
     ellipse_normals,
-    fit_ellipse_direct,
     sample_ellipse,
 )
+from circcal.detector.measure.ellipsefit import fit_ellipse_direct
 
 ellipses = st.tuples(
     st.floats(-2000, 4000),
@@ -94,7 +94,8 @@ def test_batched_fit_and_params_equal_the_single_versions():
     """The stacked fit (with per-row masks, padding that may hold NaN) gives each row's own fit, equal to the
     per-ellipse Halir-Flusser solve written out below, and the closed-form batched parameters equal an
     eigen-decomposition reference."""
-    from circcal.detector.measure.ellipse import conic_params_batch, fit_ellipses_direct
+    from circcal.detector.measure.ellipse import conic_params_batch
+    from circcal.detector.measure.ellipsefit import fit_ellipses_direct
 
     rng = np.random.default_rng(3)
     D, M = 12, 80
@@ -150,7 +151,8 @@ def test_closed_form_solve_equals_the_lapack_reference(axes, noise):
     eigenvectors are undetermined (the ellipse is picked by its eigenvalue, not by testing all three), for exact
     points (eigenvalue 0), thin and huge ellipses. 1e-10 of the unit-norm conic: the two differ by float rounding
     of differently ordered 3x3 arithmetic (measured <= 3e-12 on the paper views)."""
-    from circcal.detector.measure.ellipse import conic_centres, fit_ellipses_direct
+    from circcal.detector.measure.ellipse import conic_centres
+    from circcal.detector.measure.ellipsefit import fit_ellipses_direct
 
     rng = np.random.default_rng(int(axes[0] * 10 + axes[1]))
     Q0 = conic_from_params(np.array([812.3, 411.7]), axes, 0.4)

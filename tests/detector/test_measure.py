@@ -121,7 +121,7 @@ def test_shared_tables_are_computed_once_and_read_only():
 def test_the_compiled_ring_shares_are_the_numpy_rule():
     # dark_neighbourhood's shares, once numpy expressions (a median of three along each ring by np.roll, the tests'
     # means), now one compiled pass: the same values on random rings, with ties, NaN samples and no contrast
-    from circcal.detector.measure.trust import CLEARANCE_LEVEL, CLEARANCE_MIN_PX, _ring_shares
+    from circcal.detector.measure.baddots import CLEARANCE_LEVEL, CLEARANCE_MIN_PX, _ring_shares
 
     rng = np.random.default_rng(21)
     for trial in range(40):
@@ -150,7 +150,7 @@ def test_the_compiled_ring_shares_are_the_numpy_rule():
 
 
 def test_the_compiled_ring_points_are_the_numpy_expression():
-    from circcal.detector.measure.trust import _COS, _SIN, _ring_points
+    from circcal.detector.measure.baddots import _COS, _SIN, _ring_points
 
     rng = np.random.default_rng(22)
     D, R = 37, 5
@@ -595,7 +595,7 @@ def test_light_added_over_a_dot_is_measured_and_multiplied_light_is_not():
     # the inside of a dot, sampled half-way to its centre: its first harmonic is the gradient of its grey level.
     # Light added on top (a reflection) tilts the dark inside as much as the white around; light that multiplies
     # the albedo (the uneven light the edge model takes) tilts it only by the dark's share of the white
-    from circcal.detector.measure.trust import UNEVEN_SHARE, _uneven_inside
+    from circcal.detector.measure.baddots import UNEVEN_SHARE, _uneven_inside
 
     yy, xx = np.mgrid[:200, :200].astype(np.float64)
     disk = np.where((xx - 100.3) ** 2 + (yy - 99.6) ** 2 < 30.0**2, 0.12, 0.85)

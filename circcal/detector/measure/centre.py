@@ -29,7 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from circcal.detector.measure.ellipse import FIT_ERRORS, conic_params, conic_params_batch, fit_ellipses_direct
+from circcal.detector.measure.ellipse import conic_params, conic_params_batch
+from circcal.detector.measure.ellipsefit import FIT_ERRORS, fit_ellipses_direct
 from circcal.model import Camera, project_camera, unproject
 from circcal.model.rays import plane_normal, ray_homography
 

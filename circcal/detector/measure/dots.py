@@ -10,11 +10,16 @@ import numpy as np
 
 from circcal.detector.kernels.jit import njit
 from circcal.detector.measure.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
-from circcal.detector.measure.ellipse import FIT_ERRORS, _fit_kernel, _sampson_kernel
+from circcal.detector.measure.ellipse import _sampson_kernel
+from circcal.detector.measure.ellipsefit import FIT_ERRORS, _fit_kernel
 from circcal.detector.measure.robust import MAD_TO_SIGMA, _mad_inliers_kernel
 from circcal.detector.measure.smoothing import SmoothedImage
 
-KERNEL_IMPORTS = ("circcal.detector.measure.ellipse", "circcal.detector.measure.robust")
+KERNEL_IMPORTS = (
+    "circcal.detector.measure.ellipse",
+    "circcal.detector.measure.ellipsefit",
+    "circcal.detector.measure.robust",
+)
 """Kernel modules whose kernels this module's kernels call (:mod:`circcal.detector.kernels.jit`)."""
 
 __all__ = ["EDGE_SIGMA", "MIN_EDGE_POINTS", "STEERING_LEVEL_STRIDE", "STEERING_SPACING_PX", "fit_dots"]
@@ -147,7 +152,7 @@ def fit_dots(
 @njit(cache=True, nogil=True)
 def _fit_pass_kernel(P, mask, slack, min_px, sigmas, mad_to_sigma, min_points, Q, err):
     """One pass's fit of the edge points ``P`` (D, M, 2) where ``mask`` (D, M): the direct ellipse fit of each row
-    (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.measure.ellipse._fit_kernel`), then the points
+    (``Q`` (D, 3, 3), ``err`` (D,) zeros on entry: :func:`~circcal.detector.measure.ellipsefit._fit_kernel`), then the points
     within the outlier rule (the Sampson distances within ``max(sigmas * robust sigma, min_px + slack)``, the
     robust sigma from the median absolute deviation of each row: :func:`~circcal.detector.measure.robust.mad_inliers`;
     ``slack`` (D, M) each point's uncorrected curvature shift), refitted once to those where some were left out and
