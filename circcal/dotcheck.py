@@ -13,7 +13,7 @@ conics, in the image as observed):
   :data:`AREA_RATIO`, each area taken over the area its dot is printed with (a board's markers, printed larger,
   are compared as the plain dots are: :meth:`circcal.board.Board.radii_mm`); a dot larger than that on a board
   that declares no markers is a marker the user did not declare (an orientation dot) and is kept, as the detector
-  keeps it (:mod:`circcal.detector.measure.trust`): only a smaller one is flagged there.
+  keeps it (:mod:`circcal.detector.measure.baddots`): only a smaller one is flagged there.
 
 Measured on every rendered fixture variant (clean to defocused, motion-blurred, cluttered) and the two real sets:
 the worst dot's fit residual is 8x its image's median and 0.16 px at most, neighbouring areas agree within 1.4x

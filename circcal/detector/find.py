@@ -13,7 +13,7 @@ another camera model.
    (:mod:`circcal.detector.locate.grid`); steps 1-3 over the scales and windows searched: :mod:`circcal.detector.locate.search`;
 4. sub-pixel edge points on each dot's boundary (half-level crossings along ellipse normals, corrected for edge
    curvature: :mod:`circcal.detector.measure.edges`) and a direct least-squares ellipse fit
-   (:mod:`circcal.detector.measure.ellipse`), for all dots at once (:func:`~circcal.detector.measure.dots.fit_dots`: one filtering
+   (:mod:`circcal.detector.measure.ellipsefit`), for all dots at once (:func:`~circcal.detector.measure.dots.fit_dots`: one filtering
    call for the crops around all dots, batched interpolation, stacked 3x3 solves);
 5. projective centre correction: each centre is the pole of the board's vanishing line w.r.t. its ellipse, the
    homography re-estimated from the corrected centres until stable (:mod:`circcal.detector.measure.centre`). With a camera
