@@ -30,6 +30,7 @@ PACKAGES: tuple[str, ...] = (
     "study",
     "commands",
     "detector",
+    "rig",
 )
 
 
