@@ -249,7 +249,10 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions)
 
     def fit(rest: list[int]) -> CalibrationResult:
         (k,) = set(range(len(obj))) - set(rest)
-        res = calibrate([obj[i] for i in rest], [img[i] for i in rest], size, options, initial=full.camera)
+        poses = (full.rvecs[rest], full.tvecs[rest])  # the full solve's: one view less moves them little
+        res = calibrate(
+            [obj[i] for i in rest], [img[i] for i in rest], size, options, initial=full.camera, start_poses=poses
+        )
         models[k] = res
         return res
 

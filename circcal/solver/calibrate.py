@@ -34,7 +34,7 @@ from circcal.solver.fisheye_start import fisheye_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.options import ASPECT_RATIO, CalibrationOptions
 from circcal.solver.outliers import reject_outliers
-from circcal.solver.problem import Problem, board_model
+from circcal.solver.problem import Problem, board_model, warp_box
 from circcal.solver.result import CalibrationResult
 from circcal.solver.zhang import homographies, poses_from_homographies, view_tilts_deg, zhang
 
@@ -107,6 +107,7 @@ def calibrate(
     options: CalibrationOptions | None = None,
     *,
     initial: Camera | None = None,
+    start_poses: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CalibrationResult:
     """Calibrate a camera from planar-board correspondences.
 
@@ -125,6 +126,10 @@ def calibrate(
     initial : Camera or None
         Start from this camera (like OpenCV's USE_INTRINSIC_GUESS) instead of Zhang's closed form; its lens model
         must be ``options.lens``.
+    start_poses : tuple of ndarray or None
+        ``(rvecs, tvecs)``, each (V, 3) rad / mm: start the views' poses here instead of from ``initial``'s
+        homographies (a refit of views a calibration already posed, e.g. leave-one-view-out: it skips V pose
+        estimates and starts the solve at its answer). Only with ``initial`` and without ``options.outlier_rule``.
 
     Returns
     -------
@@ -157,6 +162,8 @@ def calibrate(
     """
     if options is None:
         options = CalibrationOptions(lens=initial.lens if initial is not None else DEFAULT_LENS)
+    if start_poses is not None and (initial is None or options.outlier_rule is not None):
+        raise ValueError("start_poses need an initial camera and no outlier rule")
     if options.outlier_rule is not None:
         plain = options.replace(outlier_rule=None)
         return reject_outliers(
@@ -167,7 +174,7 @@ def calibrate(
             options.outlier_rule,
             initial,
         )
-    return _calibrate(object_points, image_points, image_size, options, initial)
+    return _calibrate(object_points, image_points, image_size, options, initial, start_poses)
 
 
 def _calibrate(
@@ -176,6 +183,7 @@ def _calibrate(
     image_size: tuple[int, int],
     options: CalibrationOptions,
     initial: Camera | None,
+    start_poses: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CalibrationResult:
     """One plain solve (:func:`calibrate` without outlier rejection)."""
     lens = options.lens
@@ -240,7 +248,10 @@ def _calibrate(
         if (initial.width, initial.height) != (w, h):
             raise ValueError(f"initial camera is {initial.width}x{initial.height} but image_size is {w}x{h}")
         intr = initial.intrinsics.copy()
-        rvecs, tvecs = initial_poses(obj, img, initial)
+        if start_poses is None:
+            rvecs, tvecs = initial_poses(obj, img, initial)
+        else:
+            rvecs, tvecs = (np.array(v, dtype=np.float64).reshape(len(obj), 3) for v in start_poses)
     if aspect is not None:
         intr[0] = aspect * intr[1]
 
@@ -253,7 +264,8 @@ def _calibrate(
             RuntimeWarning,
             stacklevel=3,
         )
-    prob = Problem(obj, img, intr, free, aspect, board, lens)
+    box = warp_box(obj) if options.board_warp else None
+    prob = Problem(obj, img, intr, free, aspect, board, lens, box)
     x0 = prob.pack(intr, rvecs, tvecs)
 
     max_iterations, solver = options.max_iterations, options.solver
@@ -261,7 +273,7 @@ def _calibrate(
     if initial is None and model.pinhole and not is_sane(prob, x, converged):
         # Strong distortion can defeat the distortion-free closed form: restart from Zhang with a radial estimate.
         intr, rvecs, tvecs = zhang_start(RESTART_DISTORTION_ROUNDS)
-        prob = Problem(obj, img, intr, free, aspect, board, lens)
+        prob = Problem(obj, img, intr, free, aspect, board, lens, box)
         x, n_iter2, converged, message = solve(prob, prob.pack(intr, rvecs, tvecs), max_iterations, solver)
         n_iter += n_iter2
     f, Xc = prob.residuals(x)
@@ -340,6 +352,8 @@ def _calibrate(
         std_flat = np.zeros(board.nominal.size)
         std_flat[board.free] = np.sqrt(np.maximum(sigma2 * np.diag(cov_global_unit)[prob.nf :], 0.0))
         board_std = std_flat.reshape(-1, 3)
+    warp = prob.warp(x)
+    warp_cov = None if warp is None else sigma2 * cov_global_unit[prob.nf + prob.nb :, prob.nf + prob.nb :]
 
     residuals = [-r for r in np.split(f.reshape(-1, 2), np.cumsum(prob.counts)[:-1])]
     errors, per_view_errors = error_stats_per_view(residuals)  # once per solve, every view in one pass
@@ -368,6 +382,9 @@ def _calibrate(
         board_points=board_points,
         board_std=board_std,
         board_gauge=None if board is None else board.gauge,
+        board_warp=warp,
+        board_warp_cov=warp_cov,
+        board_warp_box=box,
         covariance=state_covariance(prob, x, cov_global_unit, float(np.sqrt(sigma2))),
         object_points=obj,
         image_points=img,
