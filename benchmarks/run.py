@@ -1,6 +1,7 @@
 """`make bench`: run every benchmark module, write reports/bench.json and reports/bench.md.
 
-Speed targets live here, never in unit tests. Each module exposes ``run() -> dict``; a figure that is a dict with
+Speed targets live here, never in unit tests. ``python -m benchmarks.run NAME ...`` runs some modules and prints;
+``--update NAME ...`` also replaces their sections of the published files (each such section carries its ``run`` date). Each module exposes ``run() -> dict``; a figure that is a dict with
 ``median``/``min``/``max`` is an alternated timing (benchmarks/timing.py) and is printed as ``median [min-max]``. A
 benchmark that fails is reported with its traceback (and ``make bench`` exits 1), the others still run.
 
@@ -56,6 +57,9 @@ def main(argv: list[str]) -> int:
         os.execve(
             sys.executable, [sys.executable, "-m", "benchmarks.run", *argv], {**os.environ, **THREAD_ENV, **MALLOC_ENV}
         )
+    update = bool(argv) and argv[0] == "--update"
+    if update:
+        argv = argv[1:]
     names = argv or list(MODULES)
     results: dict = {
         "machine": {"python": sys.version.split()[0], "platform": platform.platform(), "cpus": os.cpu_count()},
@@ -80,10 +84,15 @@ def main(argv: list[str]) -> int:
         for k, v in results[name].items():
             if k != "traceback":
                 print(f"    {k}: {_fmt(v)}")
-    if argv:  # a partial run prints, it does not replace the published file
+    if argv and not update:  # a partial run prints, it does not replace the published file
         return 1 if failed else 0
     from circcal import atomic
 
+    if update:  # the named modules' sections replace theirs in the published file, each dated by its own run
+        published = json.loads((REPORTS / "bench.json").read_text())
+        for name in names:
+            published[name] = {**results[name], "run": results["started"]}
+        results, names = published, [m for m in MODULES if m in published]
     atomic.write_text(REPORTS / "bench.json", json.dumps(results, indent=1) + "\n")
     lines = [
         "# Benchmarks",
