@@ -69,6 +69,9 @@ class CalibrationOptions:
     refine_board : bool
         Also estimate the 3-D position of every board point (the object-releasing method, like
         ``cv2.calibrateCameraRO``); see :func:`circcal.solver.calibrate`.
+    board_warp : bool
+        Also estimate mrcal's 2-parameter board warp (``calobject_warp``: a parabolic sag along the board's x and y
+        axes, :func:`circcal.solver.problem.warp_basis`); not with ``refine_board`` (which frees every point).
     board_gauge : tuple of 3 int or None
         With ``refine_board``: the indices of the three board points (in order of first appearance across the
         views) that fix the board's frame and scale; None chooses them (see :func:`circcal.solver.calibrate`).
@@ -84,13 +87,14 @@ class CalibrationOptions:
     ------
     InputError
         One line naming the option: an unknown lens model, a hold the lens model does not have, fx or fy held
-        together with the aspect ratio, ``fixed`` not names, an unknown solver, a non-positive ``max_iterations``, a ``board_gauge`` that
+        together with the aspect ratio, ``fixed`` not names, ``board_warp`` with ``refine_board``, an unknown solver, a non-positive ``max_iterations``, a ``board_gauge`` that
         is not three point indices, an ``outlier_rule`` that is not an :class:`OutlierRule`.
     """
 
     lens: str = DEFAULT_LENS
     fixed: tuple[str, ...] = ()
     refine_board: bool = False
+    board_warp: bool = False
     board_gauge: tuple[int, int, int] | None = None
     solver: Solver = "schur"
     max_iterations: int = MAX_ITERATIONS
@@ -101,6 +105,13 @@ class CalibrationOptions:
         object.__setattr__(self, "fixed", _holds(self.fixed, self.lens, model.param_names))
         if not isinstance(self.refine_board, bool):
             raise InputError(f"refine_board must be True or False, got {self.refine_board!r}")
+        if not isinstance(self.board_warp, bool):
+            raise InputError(f"board_warp must be True or False, got {self.board_warp!r}")
+        if self.board_warp and self.refine_board:
+            raise InputError(
+                "board_warp and refine_board: the refined board frees every point's position, the warp is its "
+                "2-parameter special case; give one of them"
+            )
         if self.board_gauge is not None:
             g = self.board_gauge
             if (
@@ -214,7 +225,7 @@ class CalibrationOptions:
         Returns
         -------
         dict
-            ``lens``, ``fixed``, ``refine_board``, ``board_gauge``, ``solver``, ``max_iterations``, ``outlier_rule`` (the
+            ``lens``, ``fixed``, ``refine_board``, ``board_warp``, ``board_gauge``, ``solver``, ``max_iterations``, ``outlier_rule`` (the
             rule's numbers, or None).
         """
         r = self.outlier_rule
@@ -222,6 +233,7 @@ class CalibrationOptions:
             "lens": self.lens,
             "fixed": list(self.fixed),
             "refine_board": self.refine_board,
+            "board_warp": self.board_warp,
             "board_gauge": None if self.board_gauge is None else list(self.board_gauge),
             "solver": self.solver,
             "max_iterations": self.max_iterations,

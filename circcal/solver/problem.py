@@ -2,8 +2,9 @@
 parameters to intrinsics, board points and poses, and the residuals with their analytic Jacobian.
 
 Parameter vector: the free intrinsics (``nf``), then the free board coordinates (``nb``, only with board
-refinement: the object-releasing method of Strobl & Hirzinger 2011, as ``cv2.calibrateCameraRO``), then 6 pose
-parameters per view (rvec, tvec). The ``ng = nf + nb`` global parameters are shared by all views; each view's
+refinement: the object-releasing method of Strobl & Hirzinger 2011, as ``cv2.calibrateCameraRO``), then the board
+warp (``nw`` = 2, only with ``board_warp``: mrcal's ``calobject_warp``, :func:`warp_basis`), then 6 pose parameters
+per view (rvec, tvec). The ``ng = nf + nb + nw`` global parameters are shared by all views; each view's
 residuals depend only on them and its own pose (the sparsity :mod:`circcal.solver.lm` exploits). Residuals are
 ``projected - observed`` (px); the camera model is :mod:`circcal.model`'s. Everything is computed in chunks of
 whole views (:data:`EVALUATE_CHUNK` points): the solver's normal equations are summed chunk by chunk, so the
@@ -37,6 +38,8 @@ __all__ = [
     "MIN_VIEWS_PER_BOARD_POINT",
     "BOARD_KEY_DECIMALS",
     "NormalBlocks",
+    "warp_box",
+    "warp_basis",
 ]
 
 #: The blocks of ``J^T J`` and ``J^T f`` of :meth:`Problem.normal_equations`: ``(A, gi, B, D, gp)``.
@@ -132,6 +135,62 @@ def project_pixels(Xc: np.ndarray, p: np.ndarray, pinhole: bool) -> np.ndarray:
     return uv
 
 
+def warp_box(obj: Sequence[np.ndarray]) -> tuple[float, float, float, float]:
+    """The rectangle the board warp spans: the bounding box of every board point the views hold.
+
+    mrcal's lattice of the same observations (:func:`circcal.formats.mrcal_process.board_lattice`) starts at the
+    smallest x, y and ends at the largest, so the warp's edges are mrcal's.
+
+    Parameters
+    ----------
+    obj : sequence of ndarray
+        Per view (N_v, 3) board points, mm.
+
+    Returns
+    -------
+    tuple of float
+        (x0, x1, y0, y1) mm.
+
+    Raises
+    ------
+    CalibrationError
+        Board points that do not spread along both x and y (the warp would be undefined).
+    """
+    allp = np.concatenate([np.asarray(o, dtype=np.float64).reshape(-1, 3) for o in obj])
+    x0, y0 = (float(v) for v in allp[:, :2].min(axis=0))
+    x1, y1 = (float(v) for v in allp[:, :2].max(axis=0))
+    if not (x1 > x0 and y1 > y0):
+        raise CalibrationError(
+            f"board warp: the board points span x {x0:g}..{x1:g} mm, y {y0:g}..{y1:g} mm; the warp needs both"
+        )
+    return x0, x1, y0, y1
+
+
+def warp_basis(X: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray:
+    """How each board point's z moves with the board warp: mrcal's ``calobject_warp`` (``mrcal.ref_calibration_object``).
+
+    ``z = w_x * 4 xr (1 - xr) + w_y * 4 yr (1 - yr)`` with ``xr = (x - x0) / (x1 - x0)``, ``yr = (y - y0) / (y1 - y0)``:
+    two parabolas along the board's x and y axes, zero at the box's edges, ``w`` (mm, mrcal's units scaled) the
+    deflection at its centre.
+
+    Parameters
+    ----------
+    X : ndarray, shape (N, 3)
+        Nominal board points, mm.
+    box : tuple of float
+        (x0, x1, y0, y1) mm (:func:`warp_box`).
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        ``d z / d (w_x, w_y)`` (unitless).
+    """
+    x0, x1, y0, y1 = box
+    xr = (np.asarray(X, dtype=np.float64)[:, 0] - x0) / (x1 - x0)
+    yr = (np.asarray(X, dtype=np.float64)[:, 1] - y0) / (y1 - y0)
+    return np.column_stack([4.0 * xr * (1.0 - xr), 4.0 * yr * (1.0 - yr)])
+
+
 @dataclass
 class BoardModel:
     """Board points as unknowns (the object-releasing method of Strobl & Hirzinger 2011, ``cv2.calibrateCameraRO``).
@@ -214,7 +273,8 @@ class Problem:
     """Stacked observations and the free-parameter map for one least-squares solve.
 
     Parameter vector: the free intrinsics (``nf``), then the free board coordinates (``nb``, only with board
-    refinement), then 6 pose parameters per view; ``ng = nf + nb`` "global" parameters are shared by all views.
+    refinement), then the board warp (``nw`` = 2, only with ``warp``), then 6 pose parameters per view;
+    ``ng = nf + nb + nw`` "global" parameters are shared by all views.
 
     Parameters
     ----------
@@ -232,13 +292,17 @@ class Problem:
         Board points as unknowns (board refinement).
     lens : str
         The lens model's name.
+    warp : tuple of float or None
+        With a board warp: the (x0, x1, y0, y1) mm box it spans (:func:`warp_box`; the warp's form is
+        :func:`warp_basis`'s). Not with ``board``.
 
     Attributes
     ----------
     n_views : int
         V.
-    nf, nb, ng, n : int
-        Free intrinsics, free board coordinates, global parameters, all parameters (ng + 6 V).
+    nf, nb, nw, ng, n : int
+        Free intrinsics, free board coordinates, warp parameters (0 or 2), global parameters, all parameters
+        (ng + 6 V).
     X : ndarray, shape (N, 3)
         The stacked board points, mm.
     uv : ndarray, shape (N, 2)
@@ -257,6 +321,7 @@ class Problem:
         aspect: float | None,
         board: BoardModel | None = None,
         lens: str = "opencv5",
+        warp: tuple[float, float, float, float] | None = None,
     ) -> None:
         self.counts = np.array([len(o) for o in obj])
         #: every view holds the same number of points: per-view products are one batched product (no gathers)
@@ -288,7 +353,13 @@ class Problem:
             slot = np.full(board.nominal.size, -1)
             slot[board.free] = self.nf + np.arange(self.nb)
             self.board_cols = slot.reshape(-1, 3)[board.point_index]  # (N, 3)
-        self.ng = self.nf + self.nb
+        if board is not None and warp is not None:
+            raise ValueError("a refined board and a board warp cannot be estimated together")
+        self.warp_box = warp
+        #: (N, 2) d z / d warp of each stacked observation; None without a warp
+        self.warp_basis = None if warp is None else warp_basis(self.X, warp)
+        self.nw = 0 if warp is None else 2
+        self.ng = self.nf + self.nb + self.nw
         self.n = self.ng + 6 * self.n_views
         self.pinhole = lens_model(lens).pinhole
         self.chunks = chunks(self.counts, EVALUATE_CHUNK)
@@ -335,11 +406,30 @@ class Problem:
     def _board_points(self, board: BoardModel, x: np.ndarray) -> np.ndarray:
         """(P, 3) mm: ``board``'s points with its free coordinates taken from ``x``."""
         pts = board.nominal.copy().ravel()
-        pts[board.free] = x[self.nf : self.ng]
+        pts[board.free] = x[self.nf : self.nf + self.nb]
         return pts.reshape(-1, 3)
 
+    def warp(self, x: np.ndarray) -> np.ndarray | None:
+        """The board warp at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+            The parameter vector.
+
+        Returns
+        -------
+        ndarray, shape (2,), or None
+            (w_x, w_y) mm (:func:`warp_basis`); None without a warp.
+        """
+        if self.warp_basis is None:
+            return None
+        w: np.ndarray = x[self.nf + self.nb : self.ng].copy()
+        return w
+
     def pack(self, intr: np.ndarray, rvecs: np.ndarray, tvecs: np.ndarray) -> np.ndarray:
-        """The parameter vector of given intrinsics and poses (board coordinates at their nominal values).
+        """The parameter vector of given intrinsics and poses (board coordinates at their nominal values, a flat
+        board warp).
 
         Parameters
         ----------
@@ -356,7 +446,7 @@ class Problem:
         """
         xi = np.array([intr[k] for k in self.free])
         xb = self.board.nominal.ravel()[self.board.free] if self.board is not None else np.zeros(0)
-        return np.concatenate([xi, xb, np.column_stack([rvecs, tvecs]).ravel()])
+        return np.concatenate([xi, xb, np.zeros(self.nw), np.column_stack([rvecs, tvecs]).ravel()])
 
     def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The views' poses at ``x``.
@@ -393,6 +483,9 @@ class Problem:
         if key != self._frame_x:
             rv, tv = self.poses(x)
             X = self.X if self.board is None else self._board_points(self.board, x)[self.board.point_index]
+            if self.warp_basis is not None:
+                X = self.X.copy()
+                X[:, 2] += self.warp_basis @ x[self.nf + self.nb : self.ng]
             self._frame_x, self._frame_kept = key, (self.intrinsics(x), rv, rodrigues(rv), tv, X)
         return self._frame_kept
 
@@ -447,17 +540,20 @@ class Problem:
             Y, Xc[c.a : c.b] = self._camera_points(X, R, tv, c)
             uv, Ji, dP = project_camera_jacobian(Xc[c.a : c.b], p, self.lens)
             f[2 * c.a : 2 * c.b] = (uv - self.uv[c.a : c.b]).ravel()
-            if self.board is None:
+            if self.board is None and self.warp_basis is None:
                 Jg = Ji if self.T_is_identity else Ji @ self.T
             else:
                 Jg = np.empty((len(uv), 2, ng))
                 Jg[:, :, :nf] = Ji if self.T_is_identity else Ji @ self.T
                 # d uv / d X_board = (d uv / d Xc) R
                 Jb = self._times_view_matrix(dP, R, c)  # (n, 2, 3)
-                Jg[:, :, nf:] = 0.0
-                cols = self.board_cols[c.a : c.b]
-                rows, coords = np.nonzero(cols >= 0)
-                Jg[rows, :, cols[rows, coords]] = Jb[rows, :, coords]
+                if self.board is not None:
+                    Jg[:, :, nf:] = 0.0
+                    cols = self.board_cols[c.a : c.b]
+                    rows, coords = np.nonzero(cols >= 0)
+                    Jg[rows, :, cols[rows, coords]] = Jb[rows, :, coords]
+                else:  # the warp moves z only: d uv / d w = (d uv / d z) d z / d w
+                    Jg[:, :, nf:] = Jb[:, :, 2:3] * self.warp_basis[c.a : c.b, None, :]
             Jp = np.empty((len(uv), 2, 6))
             Jp[:, :, :3] = self._times_view_matrix(rotated_jacobian(dP, Y), Jl, c)
             Jp[:, :, 3:] = dP

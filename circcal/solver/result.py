@@ -11,6 +11,7 @@ import numpy as np
 from circcal.formats import model_json
 from circcal.model import Camera
 from circcal.solver.covariance import StateCovariance
+from circcal.solver.problem import warp_basis
 
 if TYPE_CHECKING:  # annotations only (outliers refers to this module the same way)
     from circcal.solver.outliers import Rejections
@@ -59,6 +60,14 @@ class CalibrationResult:
         Standard deviations, mm (0 for held coordinates).
     board_gauge : tuple of int or None
         The three points that fix the board frame.
+    board_warp : ndarray, shape (2,), or None
+        With ``CalibrationOptions(board_warp=True)``: mrcal's ``calobject_warp`` (w_x, w_y), mm: the board's sag at
+        the centre of :attr:`board_warp_box` along its x and y axes (:func:`circcal.solver.problem.warp_basis`);
+        None otherwise (as the next two).
+    board_warp_cov : ndarray, shape (2, 2), or None
+        Its covariance, mm^2 (``sigma_px^2 (J^T J)^-1``, poses marginalised).
+    board_warp_box : tuple of float or None
+        (x0, x1, y0, y1) mm: the rectangle the warp spans (the board points' bounding box).
     covariance : StateCovariance or None
         The first-order covariance of the whole state (intrinsics, board coordinates, every pose;
         :class:`circcal.solver.covariance.StateCovariance`), None when the information matrix is singular: projection
@@ -87,13 +96,23 @@ class CalibrationResult:
     board_points: np.ndarray | None = None
     board_std: np.ndarray | None = None
     board_gauge: tuple[int, int, int] | None = None
+    board_warp: np.ndarray | None = None
+    board_warp_cov: np.ndarray | None = None
+    board_warp_box: tuple[float, float, float, float] | None = None
     covariance: StateCovariance | None = None
     object_points: list[np.ndarray] | None = None
     image_points: list[np.ndarray] | None = None
     outliers: Rejections | None = None
 
+    @property
+    def board_warp_std(self) -> np.ndarray | None:
+        """(2,) mm: the board warp's standard deviations (None without a warp)."""
+        if self.board_warp_cov is None:
+            return None
+        return np.sqrt(np.maximum(np.diag(self.board_warp_cov), 0.0))
+
     def board_lookup(self, object_points: np.ndarray) -> np.ndarray:
-        """Nominal board points -> the refined ones (unchanged without board refinement).
+        """Nominal board points -> the refined ones, or the warped ones (unchanged with neither).
 
         Parameters
         ----------
@@ -111,6 +130,10 @@ class CalibrationResult:
             A point the calibration never saw (a caller's bug, not an input error).
         """
         o = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+        if self.board_warp is not None and self.board_warp_box is not None:
+            out = o.copy()
+            out[:, 2] += warp_basis(o, self.board_warp_box) @ self.board_warp
+            return out
         if self.board_points is None or self.board_nominal is None:  # set together, by board refinement
             return o.copy()
         index = {tuple(k): i for i, k in enumerate(np.round(self.board_nominal, 6).tolist())}
@@ -128,7 +151,8 @@ class CalibrationResult:
         dict
             ``std``, ``fixed``, ``parameter_order``, ``correlation`` (NaN -> null), ``errors`` (overall, convention in
             each key), ``sigma_px``, solver facts, one entry per view (name, pose, errors, the observations it
-            contributed and the points outlier rejection left out of it) and, with board refinement, the refined board.
+            contributed and the points outlier rejection left out of it) and, with board refinement, the refined board
+            (with a board warp, the warp).
         """
         views = []
         for i in range(len(self.rvecs)):
@@ -161,7 +185,18 @@ class CalibrationResult:
         }
 
     def _board_section(self) -> dict[str, Any]:
-        """``{"board_refinement": ...}`` of :meth:`model_sections` with board refinement, else empty."""
+        """``{"board_refinement": ...}`` of :meth:`model_sections` with board refinement, ``{"board_warp": ...}`` with
+        a warp, else empty."""
+        if self.board_warp is not None and self.board_warp_cov is not None and self.board_warp_box is not None:
+            return {
+                "board_warp": {
+                    "warp_mm": [float(v) for v in self.board_warp],
+                    "covariance_mm2": np.asarray(self.board_warp_cov, dtype=np.float64).tolist(),
+                    "box_mm": [float(v) for v in self.board_warp_box],
+                    "definition": "mrcal's calobject_warp in mm: z += w[0] 4 xr (1 - xr) + w[1] 4 yr (1 - yr), "
+                    "xr = (x - x0) / (x1 - x0), yr = (y - y0) / (y1 - y0) over box_mm [x0, x1, y0, y1]",
+                }
+            }
         if self.board_points is None:
             return {}
         if self.board_nominal is None or self.board_std is None or self.board_gauge is None:
