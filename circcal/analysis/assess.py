@@ -1,7 +1,7 @@
 """Everything that tells a user whether a calibration of their own photographs can be trusted, gathered for one
 :class:`circcal.pipeline.ImagesCalibration`: the projection-uncertainty map (:mod:`circcal.solver.uncertainty`),
 where the observations lie (:mod:`circcal.analysis.coverage`), what outlier rejection left out
-(:mod:`circcal.solver.outliers`) and, when asked, the cross-validation (:mod:`circcal.analysis.cross`). The
+(:mod:`circcal.solver.outliers`), whether the board is flat (:mod:`circcal.analysis.boardshape`) and, when asked, the cross-validation (:mod:`circcal.analysis.cross`). The
 console summary and the calibration report (:mod:`circcal.calreport`) are drawn from it.
 
 Errors name their convention (``rms_per_point_px`` OpenCV's, ``rms_per_coord_px`` mrcal's, ``mean_2d_px`` the
@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from circcal.analysis.boardshape import BoardShape, board_shape
 from circcal.analysis.compare import GRID_WIDTH, pixel_grid
 from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import CrossValidation, cross_validate_detections
@@ -140,6 +141,9 @@ class Assessment:
     remedy : Remedy or None
         What to do next (:mod:`circcal.analysis.remedy`): the candidate that makes the halves agree, or where more
         views are needed; None: nothing to remedy.
+    board_shape : BoardShape or None
+        Whether the board is flat, and which board model predicts held-out views better
+        (:mod:`circcal.analysis.boardshape`); None: not checked.
     result : CalibrationResult
         ``cal.result`` (property).
     """
@@ -152,6 +156,7 @@ class Assessment:
     timings: dict[str, float] = field(default_factory=dict)
     lens_fit: ModelFit | None = None
     remedy: Remedy | None = None
+    board_shape: BoardShape | None = None
 
     @property
     def result(self) -> Any:
@@ -159,7 +164,8 @@ class Assessment:
         return self.cal.result
 
     def verdict(self) -> list[str]:
-        """The verdict in three lines: the error in the three conventions, the cross-validation, the worst uncertainty.
+        """The verdict: the error in the three conventions, the cross-validation, the worst uncertainty and, when
+        checked, the board's shape (:attr:`board_shape`).
 
         Returns
         -------
@@ -196,6 +202,8 @@ class Assessment:
             if u is not None
             else "projection uncertainty: none (the information matrix is singular)"
         )
+        if self.board_shape is not None:
+            lines.append(self.board_shape.line())
         return lines
 
     def lines(self) -> list[str]:
@@ -209,13 +217,15 @@ class Assessment:
         return self.verdict() + self.next_lines() + self.details()
 
     def next_lines(self) -> list[str]:
-        """What to do next (the remedy's lines; empty when there is nothing to remedy).
+        """What to do next: the remedy's lines, then the board model the board-shape check recommends where it is not
+        the one fitted (empty when there is nothing to do).
 
         Returns
         -------
         list of str
         """
-        return [] if self.remedy is None else self.remedy.lines()
+        shape = None if self.board_shape is None else self.board_shape.recommendation()
+        return ([] if self.remedy is None else self.remedy.lines()) + ([shape] if shape else [])
 
     def details(self) -> list[str]:
         """The lens-model fit, the outliers, the coverage and the cross-validation's details, in lines.
@@ -279,7 +289,7 @@ class Assessment:
         -------
         dict
             ``verdict``, ``uncertainty``, ``coverage``, ``outliers``, ``cross_validation``, ``lens_fit``, ``remedy``,
-            ``timings_s``.
+            ``board_shape``, ``timings_s``.
         """
         return {
             "verdict": self.verdict(),
@@ -289,6 +299,7 @@ class Assessment:
             "cross_validation": None if self.crossval is None else self.crossval.to_dict(),
             "lens_fit": None if self.lens_fit is None else self.lens_fit.to_dict(),
             "remedy": None if self.remedy is None else self.remedy.to_dict(),
+            "board_shape": None if self.board_shape is None else self.board_shape.to_dict(),
             "timings_s": dict(self.timings),
         }
 
@@ -302,6 +313,7 @@ def assess(
     cross_validate: bool = False,
     split: str = "alternate",
     seed: int = 0,
+    check_board: bool = True,
 ) -> Assessment:
     """Assess ``cal`` (see the module).
 
@@ -316,6 +328,10 @@ def assess(
     cross_validate : bool
         Also cross-validate (:func:`circcal.analysis.cross.cross_validate_detections`, ``split`` and ``seed``) and,
         where it finds a problem, try the candidates on its halves (:func:`circcal.analysis.remedy.remedy`).
+    split, seed
+        How the cross-validation halves the views (``"alternate"`` or ``"random"`` with ``seed``).
+    check_board : bool
+        Also fit the other board model and weigh the two (:func:`circcal.analysis.boardshape.board_shape`).
 
     Returns
     -------
@@ -332,5 +348,7 @@ def assess(
     t2 = time.perf_counter()
     fix = remedy(cal, board, options, cv, uncertainty=unc, coverage=cov, distance=distance)
     t3 = time.perf_counter()
-    timings = {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1, "remedy_s": t3 - t2}
-    return Assessment(cal, board, unc, cov, cv, timings, model_fit(res), fix)
+    shape = board_shape(res, options) if check_board else None
+    t4 = time.perf_counter()
+    timings = {"uncertainty_s": t1 - t0, "cross_validation_s": t2 - t1, "remedy_s": t3 - t2, "board_shape_s": t4 - t3}
+    return Assessment(cal, board, unc, cov, cv, timings, model_fit(res), fix, shape)

@@ -8,6 +8,8 @@ on the same halves (:func:`circcal.analysis.cross.detections_fitter`):
 * a richer lens model (:data:`RICHER_LENS`: opencv5 -> rational -> thin-prism);
 * the board's shape estimated (``CalibrationOptions(refine_board=True)``, ``--refine-board``), on boards of at most
   :data:`REFINE_MAX_POINTS` points (the refined solve grows with the board's points);
+* the board warped (mrcal's 2-parameter sag, ``CalibrationOptions(board_warp=True)``, ``--board-warp``: as cheap as
+  a plain solve);
 * the views the leave-one-view-out flagged, left out of both halves (each half keeps at least the solver's minimum).
 
 A candidate *makes the halves agree* when their difference is within the cross-validation's bound over the share
@@ -436,11 +438,17 @@ def _candidates(
             out.append((f"--lens {richer}", ("--lens", richer), (), None, str(exc)))
     if not options.refine_board:
         n = board.rows * board.cols
-        o: CalibrationOptions | None = options.replace(refine_board=True)
+        o: CalibrationOptions | None = None
         why = ""
-        if n > REFINE_MAX_POINTS:
-            o, why = None, f"{n} board points: its solve takes minutes; run with --refine-board to try it"
+        if options.board_warp:  # the refined board replaces the warp: the command would hold both flags
+            why = "--board-warp is on: run without it and with --refine-board to try the refined board"
+        elif n > REFINE_MAX_POINTS:
+            why = f"{n} board points: its solve takes minutes; run with --refine-board to try it"
+        else:
+            o = options.replace(refine_board=True)
         out.append(("--refine-board", ("--refine-board",), (), o, why))
+        if not options.board_warp:
+            out.append(("--board-warp", ("--board-warp",), (), options.replace(board_warp=True), ""))
     if flagged:
         out.append(("without " + ", ".join(v.name for v in flagged), (), tuple(flagged), options, ""))
     return out
@@ -511,8 +519,12 @@ def _combine(
     cands = {c[0]: c for c in _candidates(board, options, cal.result.camera.lens, cv.flagged_views)}
     first, second = cands[lead.label], cands[other.label]
     o = first[3] if first[3] is not None else options
+    if {first[0], second[0]} == {"--refine-board", "--board-warp"}:  # two board models: not together
+        return None
     if second[1] == ("--refine-board",):
         o = o.replace(refine_board=True)
+    elif second[1] == ("--board-warp",):
+        o = o.replace(board_warp=True)
     elif second[1]:
         o = o.replace(lens=second[1][1])
     label = f"{lead.label} {other.label}"

@@ -330,8 +330,8 @@ def add_fix_arguments(p: argparse.ArgumentParser) -> None:
 
 def calibration_options(args: argparse.Namespace):
     """The one :class:`circcal.solver.options.CalibrationOptions` of a command's arguments: ``--lens``, the
-    ``--fix-*`` flags, ``--refine-board`` and the outlier rule (``--no-outlier-rejection``, ``--outlier-k``), each
-    read where the command has it. Built before any work, so that its errors come first.
+    ``--fix-*`` flags, ``--refine-board``, ``--board-warp`` and the outlier rule (``--no-outlier-rejection``,
+    ``--outlier-k``), each read where the command has it. Built before any work, so that its errors come first.
 
     Parameters
     ----------
@@ -345,7 +345,7 @@ def calibration_options(args: argparse.Namespace):
     ------
     InputError
         One line naming the flag: a hold the lens model does not have (``--fix-tangential`` with the fisheye),
-        ``--outlier-k`` with ``--no-outlier-rejection``.
+        ``--outlier-k`` with ``--no-outlier-rejection``, ``--board-warp`` with ``--refine-board``.
     """
     from circcal.solver.options import CalibrationOptions
     from circcal.solver.outliers import DEFAULT_K, OutlierRule
@@ -357,12 +357,18 @@ def calibration_options(args: argparse.Namespace):
             "--outlier-k sets the threshold of the outlier rejection that --no-outlier-rejection turns "
             "off: give one of them"
         )
+    if getattr(args, "board_warp", False) and getattr(args, "refine_board", False):
+        raise InputError(
+            "--board-warp and --refine-board: the refined board estimates every point, the warp is its "
+            "2-parameter special case; give one of them"
+        )
     flags = {f[2:].replace("-", "_"): bool(getattr(args, f[2:].replace("-", "_"), False)) for f in FIX_FLAGS}
     return CalibrationOptions.from_flags(
         **flags,
         spell=lambda name: "--" + name.replace("_", "-"),
         lens=lens if (lens := getattr(args, "lens", None)) not in (None, "auto") else "opencv5",
         refine_board=bool(getattr(args, "refine_board", False)),
+        board_warp=bool(getattr(args, "board_warp", False)),
         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K),
     )
 

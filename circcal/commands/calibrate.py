@@ -66,6 +66,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="also estimate the 3-D position of every board point (a printed board that is not flat or "
         "not printed to scale; like cv2.calibrateCameraRO); the shape goes into model.json",
     )
+    p.add_argument(
+        "--board-warp",
+        action="store_true",
+        help="also estimate mrcal's 2-parameter board warp (calobject_warp: a sag along the board's x and y, mm); "
+        "every calibration checks it and recommends it where the board is not flat and the warped board predicts "
+        "held-out views better; not with --refine-board",
+    )
     p.add_argument("--out", type=Path, default=Path("model.json"), help="output model file (default model.json)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
@@ -374,6 +381,10 @@ def run(args: argparse.Namespace) -> int:
             fix.command = recommended_command(
                 getattr(args, "argv", None), given, list(args.images), target.options, target.drop
             )
+        shape = assessment.board_shape
+        if shape is not None and shape.changes and getattr(args, "argv", None) is not None:
+            words = [w for w in args.argv if w not in shape.remove]  # the board model's flag, added or removed
+            shape.command = recommended_command(words, given, list(args.images), shape.add, ())
         print("\n".join(assessment.verdict() + assessment.next_lines()))  # the verdict first, then the numbers
         print(format_summary(cal))
         print("\n".join(assessment.details()))
