@@ -275,6 +275,105 @@ def board_from_args(grid: tuple[int, int], pitch_mm: float, diameter_mm: float |
     return Board(grid[0], grid[1], pitch_mm, diameter_mm, layout)
 
 
+#: The options a board description file replaces (``--board FILE``): option -> its argparse ``dest``.
+BOARD_FILE_REPLACES: dict[str, str] = {
+    "--grid": "grid",
+    "--pitch": "pitch",
+    "--diameter": "diameter",
+    "--asymmetric": "asymmetric",
+    "--markers": "markers",
+    "--marker-diameter": "marker_diameter",
+}
+BOARD_FILE_HELP = (
+    "board description file, YAML or JSON (circcal's rows/cols/layout/pitch_mm/diameter_mm/markers form, "
+    "ROS-Industrial's target.yaml, or Kalibr's target YAML with target_type: circlegrid): replaces --grid, "
+    "--pitch, --diameter, --asymmetric and --markers (marker dots anywhere on the grid)"
+)
+
+
+def add_board_file_argument(p: argparse.ArgumentParser) -> None:
+    """Add ``--board FILE`` (:data:`BOARD_FILE_HELP`; read by :func:`board_of_args`).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    """
+    p.add_argument("--board", type=Path, default=None, metavar="FILE", help=BOARD_FILE_HELP)
+
+
+def marker_args_board(args: argparse.Namespace, board):
+    """``board`` with the markers the parsed ``--markers`` / ``--marker-diameter`` ask for (none when absent).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    board : Board
+
+    Returns
+    -------
+    Board
+
+    Raises
+    ------
+    InputError
+        ``--marker-diameter`` without markers, or markers the board cannot have
+        (:func:`circcal.markers.with_markers`).
+    """
+    from circcal.markers import with_markers
+
+    markers = getattr(args, "markers", None) or "none"
+    if markers == "none":
+        if getattr(args, "marker_diameter", None) is not None:
+            raise InputError("--marker-diameter without --markers origin|pattern")
+        return board
+    return with_markers(board, markers, getattr(args, "marker_diameter", None))
+
+
+def board_of_args(args: argparse.Namespace, command: str, *, default_pitch_mm: float | None = None):
+    """The board a command's arguments describe: ``--board FILE``, or ``--grid`` (``auto`` resolved:
+    :func:`resolve_grid`), ``--pitch``, ``--diameter``, ``--asymmetric``, ``--markers``, ``--marker-diameter``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments; the grid options a command lacks count as not given. ``args.grid`` and
+        ``args.asymmetric`` are set in place by ``--grid auto``.
+    command : str
+        The command's name, for messages.
+    default_pitch_mm : float or None
+        The pitch when ``--grid`` comes without ``--pitch`` (mm); None: ``--pitch`` is required.
+
+    Returns
+    -------
+    Board
+
+    Raises
+    ------
+    InputError
+        One line: ``--board`` with any of :data:`BOARD_FILE_REPLACES` (naming both), neither ``--board`` nor
+        ``--grid``, ``--grid`` without a needed ``--pitch``, a bad board file (naming the file and the field), or a
+        board the options describe that the class refuses.
+    """
+    if getattr(args, "board", None) is not None:
+        given = [opt for opt, dest in BOARD_FILE_REPLACES.items() if getattr(args, dest, None) not in (None, False)]
+        if given:
+            raise InputError(
+                f"--board {args.board} and {given[0]} both given: the board file replaces "
+                f"{', '.join(BOARD_FILE_REPLACES)}; give one or the other"
+            )
+        from circcal.formats.boardfile import read_board_file
+
+        return read_board_file(args.board)
+    if getattr(args, "grid", None) is None:
+        raise InputError("give --grid ROWSxCOLS (with --pitch) or --board FILE")
+    pitch = args.pitch if getattr(args, "pitch", None) is not None else default_pitch_mm
+    if pitch is None:
+        raise InputError("--grid needs --pitch (e.g. --pitch 10mm), or give --board FILE")
+    resolve_grid(args, command)
+    board = board_from_args(args.grid, pitch, getattr(args, "diameter", None), bool(getattr(args, "asymmetric", False)))
+    return marker_args_board(args, board)
+
+
 #: The lens models of ``--lens`` (:data:`circcal.model.LENS_MODELS`' names, written out so that building the parser
 #: imports no numpy; tests/test_calibrate_lens.py checks they agree), each with what it is.
 LENS_CHOICES: dict[str, str] = {

@@ -1,5 +1,7 @@
-"""``circcal board --grid RxC --pitch P --diameter D [--asymmetric] [--markers origin|pattern] --out board.svg|pdf``:
-a circle-grid board true to scale for printing, with the geometry the calibrator needs printed in its margin.
+"""``circcal board --grid RxC --pitch P --diameter D [--asymmetric] [--markers origin|pattern] --out board.svg|pdf``
+(or ``--board FILE``): a circle-grid board true to scale for printing, with the geometry the calibrator needs printed
+in its margin, and beside it (same name, ``.yaml``) its board description file (:mod:`circcal.formats.boardfile`)
+for ``--board``; both are committed together.
 
 The scale is exact by construction: the figure is the page (its size in inches is the paper's size in mm / 25.4),
 one axes spans the whole figure without margins, and its data limits are the page in mm, so one data unit is one
@@ -17,7 +19,15 @@ import argparse
 import re
 from pathlib import Path
 
-from circcal.commands.args import DIAMETER_HELP, board_from_args, parse_grid, parse_length_mm, plain
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    add_board_file_argument,
+    board_of_args,
+    marker_args_board,
+    parse_grid,
+    parse_length_mm,
+    plain,
+)
 
 __all__ = ["PAPERS", "add_marker_arguments", "add_parser", "board_with_markers", "draw_board", "parse_paper", "run"]
 
@@ -55,7 +65,7 @@ def add_marker_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--markers",
         choices=("none", "origin", "pattern"),
-        default="none",
+        default=None,
         help="marker dots on the board: origin = ROS-Industrial's modified circle grid (one dot of twice "
         "the diameter at the bottom-left), pattern = circcal's (about one dot in four 1.5x larger, "
         "every 4x4 window unique: partial views are labelled); default none",
@@ -86,15 +96,7 @@ def board_with_markers(args: argparse.Namespace, board):
         ``--marker-diameter`` without markers, or markers the board cannot have
         (:func:`circcal.markers.with_markers`).
     """
-    from circcal.errors import InputError
-    from circcal.markers import with_markers
-
-    markers = getattr(args, "markers", "none") or "none"
-    if markers == "none":
-        if getattr(args, "marker_diameter", None) is not None:
-            raise InputError("--marker-diameter without --markers origin|pattern")
-        return board
-    return with_markers(board, markers, getattr(args, "marker_diameter", None))
+    return marker_args_board(args, board)
 
 
 def parse_paper(text: str) -> tuple[float, float]:
@@ -148,16 +150,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description=plain(__doc__ or ""),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--grid", type=parse_grid, required=True, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
+    p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")
     p.add_argument(
         "--pitch",
         type=parse_length_mm,
-        required=True,
         help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)",
     )
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
+    add_board_file_argument(p)
     p.add_argument(
         "--margin",
         type=parse_length_mm,
@@ -174,18 +176,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _wrapped(board, style: str, width_mm: float) -> list[str]:
+def _wrapped(board, style: str, width_mm: float, board_file: str | None = None) -> list[str]:
     """:func:`geometry_text` wrapped to ``width_mm``."""
     import textwrap
 
     out: list[str] = []
-    for line in geometry_text(board, style):
+    for line in geometry_text(board, style, board_file):
         out += textwrap.wrap(line, max(20, int(width_mm / CHAR_MM)), subsequent_indent="  ")
     return out
 
 
 def _layout(
-    board, paper: tuple[float, float], style: str
+    board, paper: tuple[float, float], style: str, board_file: str | None = None
 ) -> tuple[tuple[float, float], tuple[float, float], list[str]]:
     """((page width, height) mm, board origin (x, y) mm on the page, the text lines) with the board and the text
     band centred; the page is turned when only that orientation fits. Raises :class:`~circcal.errors.InputError`
@@ -195,7 +197,7 @@ def _layout(
     x0, y0, x1, y1 = board.extent_mm()
     bw, bh = x1 - x0, y1 - y0
     for page in (paper, paper[::-1]):
-        lines = _wrapped(board, style, page[0] - 2 * PAGE_MARGIN_MM)
+        lines = _wrapped(board, style, page[0] - 2 * PAGE_MARGIN_MM, board_file)
         band = LINE_MM * len(lines) + BAND_EXTRA_MM
         if bw + 2 * PAGE_MARGIN_MM <= page[0] and bh + band + 2 * PAGE_MARGIN_MM <= page[1]:
             ox = 0.5 * (page[0] - bw) - x0
@@ -208,14 +210,17 @@ def _layout(
     )
 
 
-def geometry_text(board, style: str) -> list[str]:
+def geometry_text(board, style: str, board_file: str | None = None) -> list[str]:
     """The lines printed under the board: what ``circcal calibrate`` needs to know, and how to print it.
 
     Parameters
     ----------
     board : Board
     style : str
-        The ``--markers`` style.
+        The ``--markers`` style (or where the markers came from).
+    board_file : str or None
+        The board description file written beside the print: the calibrate line gives ``--board`` with it (the
+        options otherwise; markers of no ``--markers`` style can only be given by the file).
 
     Returns
     -------
@@ -223,7 +228,9 @@ def geometry_text(board, style: str) -> list[str]:
     """
     grid = f"{board.rows}x{board.cols}"
     flags = (
-        f"--grid {grid} --pitch {board.pitch_mm:g}mm --diameter {board.diameter_mm:g}mm"
+        f"--board {board_file}"
+        if board_file is not None
+        else f"--grid {grid} --pitch {board.pitch_mm:g}mm --diameter {board.diameter_mm:g}mm"
         + (" --asymmetric" if board.layout == "asymmetric" else "")
         + (f" --markers {style} --marker-diameter {board.marker_diameter_mm:g}mm" if board.has_markers else "")
     )
@@ -241,7 +248,9 @@ def geometry_text(board, style: str) -> list[str]:
     return lines
 
 
-def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], style: str = "none") -> Path:
+def draw_board(
+    board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], style: str = "none", board_file: str | None = None
+) -> Path:
     """Write ``board`` true to scale (module docstring).
 
     Parameters
@@ -253,6 +262,8 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
         (width, height), mm.
     style : str
         The ``--markers`` style.
+    board_file : str or None
+        The board description file beside it (named in the printed calibrate line).
 
     Returns
     -------
@@ -273,7 +284,7 @@ def draw_board(board, path: Path, *, paper: tuple[float, float] = PAPERS["a4"], 
     fmt = path.suffix.lower().lstrip(".")
     if fmt not in ("svg", "pdf"):
         raise InputError(f"board output must be .svg or .pdf, got {path.name!r}")
-    (pw, ph), (ox, oy), lines = _layout(board, paper, style)
+    (pw, ph), (ox, oy), lines = _layout(board, paper, style, board_file)
     fig = Figure(figsize=(pw / MM_PER_INCH, ph / MM_PER_INCH))
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
     ax.set_xlim(0.0, pw)
@@ -316,18 +327,30 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad argument or input file (the CLI prints it and exits 2).
     """
+    import os
     from dataclasses import replace
 
     from circcal.errors import InputError
+    from circcal.formats.boardfile import board_file_text
     from circcal.outputs import Outputs
 
     if args.out.suffix.lower() not in (".svg", ".pdf"):
         raise InputError(f"--out {args.out}: the board is written as .svg or .pdf")
-    board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
+    if args.grid == "auto":
+        raise InputError("--grid auto finds the grid in images; give --grid ROWSxCOLS or --board FILE")
+    board = board_of_args(args, "board")
     if args.margin is not None:
         board = replace(board, margin_mm=args.margin)
-    with Outputs() as outputs:
-        draw_board(board, outputs.file(args.out, "--out"), paper=args.paper, style=args.markers)
+    style = args.markers or ("board file" if args.board is not None else "none")
+    described = args.out.with_suffix(".yaml")
+    # the description beside the print, unless that is the --board file itself (unchanged by --margin)
+    same = args.board is not None and os.path.realpath(described) == os.path.realpath(args.board)
+    if same and args.margin is not None:
+        raise InputError(f"--margin with --board {args.board}: the board file beside --out would change; edit it")
+    with Outputs(inputs=[args.board] if args.board is not None and not same else []) as outputs:
+        if not same:
+            outputs.file(described, "--out (its board description)").write_text(board_file_text(board))
+        draw_board(board, outputs.file(args.out, "--out"), paper=args.paper, style=style, board_file=described.name)
         outputs.commit()
-    print(f"wrote {args.out}: " + "; ".join(geometry_text(board, args.markers)[:2]))
+    print(f"wrote {args.out} and {described}: " + "; ".join(geometry_text(board, style, described.name)[:2]))
     return 0

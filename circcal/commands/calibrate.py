@@ -8,9 +8,10 @@ from pathlib import Path
 
 from circcal.commands.args import (
     DIAMETER_HELP,
+    add_board_file_argument,
     add_fix_arguments,
     add_lens_argument,
-    board_from_args,
+    board_of_args,
     calibration_options,
     expand_images,
     grid_hint,
@@ -19,9 +20,8 @@ from circcal.commands.args import (
     parse_length_mm,
     positive_float,
     positive_int,
-    resolve_grid,
 )
-from circcal.commands.board import add_marker_arguments, board_with_markers
+from circcal.commands.board import add_marker_arguments
 from circcal.pathnames import display_name
 
 
@@ -46,18 +46,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--grid",
         type=parse_grid,
-        required=True,
         help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4); auto: found from the images (the line used is printed)",
     )
     p.add_argument(
         "--pitch",
         type=parse_length_mm,
-        required=True,
         help="point spacing, e.g. 10mm (asymmetric: OpenCV's squareSize, half the in-row spacing)",
     )
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
     add_marker_arguments(p)
+    add_board_file_argument(p)
     add_lens_argument(p, auto=True)
     add_fix_arguments(p)
     p.add_argument(
@@ -338,10 +337,11 @@ def run(args: argparse.Namespace) -> int:
 
     given = list(args.images)
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
-    resolve_grid(args, "calibrate")
     options = calibration_options(args)  # the one options object: its errors come before any work
-    board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
-    with Outputs(inputs=args.images) as outputs:  # every output checked before the work, committed together
+    board = board_of_args(args, "calibrate")
+    with Outputs(
+        inputs=[*args.images, *([args.board] if args.board is not None else [])]
+    ) as outputs:  # every output checked before the work, committed together
         model_path = outputs.file(args.out, "--out")
         report_dir = None if args.report is None else outputs.folder(args.report, "--report", kind="report")
         fmt = detect_format(args.out)

@@ -21,17 +21,19 @@ from pathlib import Path
 
 from circcal.commands.args import (
     DIAMETER_HELP,
-    board_from_args,
+    add_board_file_argument,
+    board_of_args,
     expand_images,
     grid_hint,
     parse_grid,
     parse_length_mm,
     plain,
     positive_int,
-    resolve_grid,
 )
-from circcal.commands.board import add_marker_arguments, board_with_markers
+from circcal.commands.board import add_marker_arguments
 
+#: The pitch of ``--grid`` without ``--pitch`` (mm): detection needs the board's shape, not its scale.
+DEFAULT_PITCH_MM = 10.0
 #: The staged detections.json is rewritten at most this often (s): what an interruption keeps as partial results.
 SAVE_EVERY_S = 2.0
 
@@ -52,14 +54,15 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
     p.add_argument(
-        "--grid", required=True, type=parse_grid, help="RxC: R rows by C columns of points; auto: found from the images"
+        "--grid", type=parse_grid, help="RxC: R rows by C columns of points; auto: found from the images (or --board)"
     )
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
     p.add_argument(
-        "--pitch", type=parse_length_mm, default=10.0, help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)"
+        "--pitch", type=parse_length_mm, default=None, help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)"
     )
     p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
     add_marker_arguments(p)
+    add_board_file_argument(p)
     p.add_argument(
         "--model",
         type=Path,
@@ -130,9 +133,9 @@ def run(args: argparse.Namespace) -> int:
     from circcal.pathnames import display_name
 
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
-    resolve_grid(args, "detect")
-    board = board_with_markers(args, board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric))
+    board = board_of_args(args, "detect", default_pitch_mm=DEFAULT_PITCH_MM)
     inputs = list(args.images) + ([args.model] if args.model is not None else [])
+    inputs += [args.board] if args.board is not None else []
     with Outputs(inputs=inputs) as outputs:  # checked before the work, committed together at the end
         json_path = outputs.file(args.json_out, "--json")
         overlay_dir = None if args.overlay is None else outputs.folder(args.overlay, "--overlay", kind="overlays")

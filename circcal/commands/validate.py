@@ -12,7 +12,8 @@ from pathlib import Path
 from circcal.commands.args import (
     DIAMETER_HELP,
     LENS_CHOICES,
-    board_from_args,
+    add_board_file_argument,
+    board_of_args,
     calibration_options,
     expand_images,
     parse_grid,
@@ -47,6 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pitch", type=parse_length_mm, help="grid pitch, e.g. 10mm, with --images")
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid, with --images")
+    add_board_file_argument(p)
     p.add_argument(
         "--against",
         action="append",
@@ -192,12 +194,14 @@ def run(args: argparse.Namespace) -> int:
             args.images = expand_images(args.images, "--images")
             if args.scenario or args.fixtures:
                 raise InputError("give a scenario, --fixtures or --images, not several")
-            if args.grid is None or args.pitch is None:
-                raise InputError("--images needs --grid ROWSxCOLS and --pitch")
-            board = board_from_args(args.grid, args.pitch, args.diameter, args.asymmetric)
+            if args.board is None and (args.grid is None or args.pitch is None):
+                raise InputError("--images needs --grid ROWSxCOLS and --pitch, or --board FILE")
+            board = board_of_args(args, "validate")
             paths = sorted(args.images)
             source = {"images": [str(p) for p in paths]}
         else:
+            if args.board is not None:
+                raise InputError("--board describes the board of --images (a scenario or --fixtures brings its own)")
             if args.fixtures:
                 folder = args.fixtures
                 source = {"fixtures": str(folder)}

@@ -26,6 +26,10 @@ bound and the value checks all readers share). circcal's own model.json is read 
 refused by name); the foreign formats (OpenCV, ROS, mrcal, COLMAP) carry extra fields by custom, which are ignored.
 Writing is atomic (a temporary file in the same folder, then a rename), so a failed write leaves an earlier file
 as it was.
+
+Board description files (``--board FILE``: circcal's YAML/JSON form, ROS-Industrial's target YAML, Kalibr's
+circle-grid target YAML) are read by :func:`read_board_file` and written by :func:`board_file_text`
+(:mod:`~circcal.formats.boardfile`).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from typing import Any
 
 from circcal import atomic
 from circcal.errors import InputError, ModelFileError
+from circcal.formats.boardfile import board_file_text, read_board_file
 from circcal.formats.colmap import COLMAP_PIXEL_OFFSET, camera_from_colmap, camera_to_colmap
 from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_camera
 from circcal.formats.modeljson import MODEL_FORMAT, MODEL_SECTIONS, MODEL_VERSION, camera_from_json, model_json
@@ -66,6 +71,8 @@ __all__ = [
     "camera_from_colmap",
     "camera_to_ros_yaml",
     "camera_from_ros_yaml",
+    "read_board_file",
+    "board_file_text",
 ]
 
 FORMATS: tuple[str, ...] = ("json", "opencv", "mrcal", "colmap", "ros")
