@@ -1,0 +1,434 @@
+"""Calibrating a rig: images (or observations) of one board from 2..N cameras in, a :class:`RigCalibration` out.
+
+:func:`calibrate_rig` runs circcal's single-camera pipeline per camera (:func:`circcal.pipeline.calibrate_images`:
+detection, calibration, centre re-correction), starts the rig from those calibrations (:mod:`circcal.rig.start`),
+solves every camera's intrinsics, every camera's pose in the rig and one board pose per instant jointly
+(:mod:`circcal.rig.solve`), then re-corrects each camera's centres under its joint model and solves again until no
+centre moves more than ``tol_px``. :func:`calibrate_rig_points` is the same on given observations. Instants are
+matched by image file name across cameras (the same name = the same instant); a view seen by some cameras only, or
+partly, is used. Conventions: :mod:`circcal.rig.model`.
+
+Errors are reported per point as OpenCV does: the RMS of the 2-D reprojection error's norm (``rms_px``), px.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from circcal import detector as det_mod
+from circcal.board import Board
+from circcal.errors import CalibrationError, InputError
+from circcal.model import Camera
+from circcal.observations import MIN_VIEWS, check_image_size, check_observations
+from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
+from circcal.rig.model import RigModel
+from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
+from circcal.rig.solve import RigSolution, solve_rig
+from circcal.rig.start import BoardSymmetry, RigStart, board_symmetries, camera_starts, rig_start, spanning_tree
+from circcal.rotation import rodrigues
+from circcal.solver import CalibrationOptions
+from circcal.solver.options import ASPECT_RATIO
+
+__all__ = ["RigCalibration", "calibrate_rig", "calibrate_rig_points", "Views"]
+
+#: Per camera, per instant name: object points (N, 3) mm and image points (N, 2) px.
+Views = Mapping[str, Mapping[str, tuple[np.ndarray, np.ndarray]]]
+
+
+@dataclass
+class RigCalibration:
+    """Outcome of :func:`calibrate_rig` / :func:`calibrate_rig_points`.
+
+    Attributes
+    ----------
+    rig : RigModel
+        The cameras and their poses in the rig, with the covariance of ``rig.state_vector()`` and ``rig.rms_px``
+        (RMS over every camera's points of the 2-D reprojection error's norm, OpenCV's convention).
+    rms_px : dict of str to float
+        Per camera the RMS per point (2-D norm, OpenCV's convention), px.
+    instants : dict of str to list of str
+        Per camera the instants (image names) in the joint solve.
+    dropped : list of dict
+        Views left out: ``{"camera", "instant", "reason"}`` (an inconsistent view, an unresolved board symmetry).
+    relabelled : list of dict
+        Views whose points were relabelled by a board symmetry to agree with the other cameras at that instant:
+        ``{"camera", "instant", "symmetry"}``.
+    board_poses : dict of str to (ndarray (3,), ndarray (3,))
+        Per instant the board pose in the rig frame: ``X_0 = R(rvec) P + tvec`` (rad, mm).
+    residuals : dict of str to dict of str to ndarray
+        Per camera, per instant observed - projected (N, 2) px.
+    sigma_px : float
+        The per-coordinate noise estimate sqrt(SSR / (2N - n)) that scales the covariance, px.
+    iterations : int
+        Jacobian evaluations of the last joint solve.
+    converged : bool
+    start : RigStart
+        The start (pairwise estimates, spanning tree).
+    rounds : list of dict
+        Per joint solve ``{"round", "rms_px", "max_centre_shift_px"}`` (images only).
+    per_camera : dict of str to ImagesCalibration
+        Each camera's own calibration (images only).
+    """
+
+    rig: RigModel
+    rms_px: dict[str, float]
+    instants: dict[str, list[str]]
+    dropped: list[dict[str, str]]
+    relabelled: list[dict[str, str]]
+    board_poses: dict[str, tuple[np.ndarray, np.ndarray]]
+    residuals: dict[str, dict[str, np.ndarray]]
+    sigma_px: float
+    iterations: int
+    converged: bool
+    start: RigStart
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+    per_camera: dict[str, ImagesCalibration] = field(default_factory=dict)
+
+    def std(self) -> np.ndarray:
+        """Standard deviations of ``rig.state_vector()`` (intrinsics px / unitless, rvec rad, tvec mm).
+
+        Returns
+        -------
+        ndarray, shape (n_state,)
+            NaN where the covariance is not known.
+        """
+        if self.rig.covariance is None:
+            return np.full(len(self.rig.state_vector()), np.nan)
+        return np.sqrt(np.maximum(np.diag(self.rig.covariance), 0.0))
+
+
+def _per_camera_options(
+    names: Sequence[str], options: CalibrationOptions | Mapping[str, CalibrationOptions] | None
+) -> list[CalibrationOptions]:
+    """One checked CalibrationOptions per camera (InputError naming the camera and the option)."""
+    if options is None or isinstance(options, CalibrationOptions):
+        per = [options or CalibrationOptions()] * len(names)
+    else:
+        unknown = [k for k in options if k not in names]
+        if unknown:
+            raise InputError(f"options for unknown camera(s) {unknown}; the cameras are {list(names)}")
+        per = [options.get(n, CalibrationOptions()) for n in names]
+    for n, o in zip(names, per):
+        if not isinstance(o, CalibrationOptions):
+            raise InputError(f"camera {n!r}: options must be a CalibrationOptions, got {type(o).__name__}")
+        if o.refine_board:
+            raise InputError(f"camera {n!r}: refine_board is not supported in a rig calibration")
+        if o.outlier_rule is not None:
+            raise InputError(f"camera {n!r}: outlier_rule is not supported in a rig calibration yet")
+        if o.solver != "schur":
+            raise InputError(f"camera {n!r}: a rig is solved by the 'schur' solver only, got solver={o.solver!r}")
+    return per
+
+
+def _check_names(names: Sequence[str]) -> None:
+    if len(names) < 2:
+        raise InputError(f"a rig needs at least two cameras, got {len(names)}")
+    if len(set(names)) != len(names) or any(not isinstance(n, str) or not n for n in names):
+        raise InputError(f"rig camera names must be distinct non-empty strings, got {list(names)}")
+
+
+def calibrate_rig_points(
+    observations: Views,
+    image_sizes: Mapping[str, tuple[int, int]],
+    options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
+    *,
+    board: Board | None = None,
+) -> RigCalibration:
+    """Calibrate a rig from given observations.
+
+    Parameters
+    ----------
+    observations : mapping of str to mapping of str to (ndarray (N, 3), ndarray (N, 2))
+        Per camera (the first is the reference), per instant name its object points (mm, z = 0) and image points
+        (px, OpenCV's convention); views may be partial, and an instant may be seen by some cameras only.
+    image_sizes : mapping of str to (int, int)
+        Per camera (width, height) px.
+    options : CalibrationOptions, mapping of str to CalibrationOptions, or None
+        How each camera is modelled (lens model, held parameters); one for all or one per camera name (missing
+        ones: the defaults). ``refine_board``, ``outlier_rule`` and the scipy solver are refused.
+    board : Board or None
+        The board, to resolve its symmetry across cameras (:mod:`circcal.rig.start`); None: labellings are taken
+        as given.
+
+    Returns
+    -------
+    RigCalibration
+
+    Raises
+    ------
+    InputError
+        Fewer than two cameras, bad observations (named by camera and instant), a size missing, bad options.
+    CalibrationError
+        A camera's own calibration fails, a camera linked to the reference by no shared instant, a camera left
+        with fewer than 3 views, or a diverged joint solve.
+    """
+    names = list(observations)
+    _check_names(names)
+    opts = _per_camera_options(names, options)
+    missing = [n for n in names if n not in image_sizes]
+    if missing:
+        raise InputError(f"image_sizes has no size for camera(s) {missing}")
+    sizes = [check_image_size(image_sizes[n]) for n in names]
+    views: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
+    for n, size in zip(names, sizes):
+        keys = [str(k) for k in observations[n]]
+        try:
+            obj, img, _ = check_observations(
+                [observations[n][k][0] for k in keys], [observations[n][k][1] for k in keys], size
+            )
+        except InputError as exc:
+            raise InputError(f"camera {n!r} (instants {keys[:5]}...): {str(exc).splitlines()[0]}") from None
+        views.append(dict(zip(keys, zip(obj, img))))
+    cameras, poses = camera_starts(names, views, sizes, opts)
+    return _calibrate(names, views, opts, board, cameras, poses)[2]
+
+
+def _calibrate(
+    names: list[str],
+    views: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+    opts: list[CalibrationOptions],
+    board: Board | None,
+    cameras: list[Camera],
+    poses: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+) -> tuple[_Layout, RigSolution, RigCalibration]:
+    """The start and the joint solve from per-camera calibrations."""
+    start = rig_start(names, cameras, poses, views, board_symmetries(board))
+    layout = _Layout(names, views, start)
+    prob = layout.problem(views, cameras, opts)
+    x0 = prob.pack(
+        [c.intrinsics for c in cameras],
+        Rotation.from_matrix(start.rig_R).as_rotvec(),
+        start.rig_T,
+        Rotation.from_matrix(np.array([start.board_R[v] for v in layout.instants])).as_rotvec(),
+        np.array([start.board_t[v] for v in layout.instants]),
+    )
+    sol = solve_rig(prob, x0, max(o.max_iterations for o in opts))
+    return layout, sol, layout.result(prob, sol, cameras)
+
+
+class _Layout:
+    """Which views the joint solve uses (after the start's drops), with their labels, and the problem over them."""
+
+    def __init__(self, names: list[str], views: list[dict[str, tuple[np.ndarray, np.ndarray]]], start: RigStart):
+        self.names, self.start = names, start
+        gone = {(c, v) for c, v, _ in start.dropped}
+        self.kept = [[v for v in views[c] if (c, v) not in gone and (c, v) in start.labels] for c in range(len(names))]
+        for c, kept in enumerate(self.kept):
+            if len(kept) < MIN_VIEWS:
+                why = "; ".join(f"{v}: {r}" for cc, v, r in start.dropped if cc == c)
+                raise CalibrationError(
+                    f"camera {names[c]!r} keeps {len(kept)} view(s) for the rig, at least {MIN_VIEWS} are needed"
+                    + (f" (left out: {why})" if why else "")
+                )
+        # every camera must still be linked to the reference through kept shared instants
+        sets = [set(k) for k in self.kept]
+        spanning_tree(
+            names, {(a, b): len(sets[a] & sets[b]) for a in range(len(names)) for b in range(a + 1, len(names))}
+        )
+        self.instants = list(dict.fromkeys(v for k in self.kept for v in k))
+        self.index = {v: i for i, v in enumerate(self.instants)}
+
+    def label(self, c: int, v: str) -> BoardSymmetry:
+        return self.start.labels[(c, v)]
+
+    def problem(
+        self,
+        views: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+        cameras: list[Camera],
+        opts: list[CalibrationOptions],
+    ) -> RigProblem:
+        obs, free, maps = [], [], []
+        for c, cam in enumerate(cameras):
+            obs.append(
+                CameraObservations.stack(
+                    [(self.index[v], self.label(c, v).apply(views[c][v][0]), views[c][v][1]) for v in self.kept[c]]
+                )
+            )
+            aspect = cam.fx / cam.fy if ASPECT_RATIO in opts[c].fixed else None
+            f, m = free_intrinsics(cam.model.param_names, opts[c].fixed, aspect)
+            free.append(f)
+            maps.append(m)
+        self.order = [[v for v in sorted(self.kept[c], key=self.index.__getitem__)] for c in range(len(cameras))]
+        self.counts = [[len(views[c][v][0]) for v in self.order[c]] for c in range(len(cameras))]
+        return RigProblem(
+            obs, len(self.instants), [c.intrinsics for c in cameras], [c.lens for c in cameras], free, maps
+        )
+
+    def result(self, prob: RigProblem, sol: RigSolution, cameras: list[Camera]) -> RigCalibration:
+        if not sol.converged:
+            warnings.warn(
+                f"the rig solve did not converge ({sol.message}); the rig may be inaccurate",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        rv, tv = prob.rig_poses(sol.x)
+        cams = [
+            Camera.from_intrinsics(c.width, c.height, prob.intrinsics(sol.x, k), c.lens) for k, c in enumerate(cameras)
+        ]
+        res = -sol.residuals
+        rows = prob.camera_rows()
+        per_cam = {n: float(np.sqrt(np.mean(np.sum(res[r] ** 2, axis=1)))) for n, r in zip(self.names, rows)}
+        residuals: dict[str, dict[str, np.ndarray]] = {}
+        for c, (n, r) in enumerate(zip(self.names, rows)):
+            parts = np.split(res[r], np.cumsum(self.counts[c])[:-1])
+            residuals[n] = dict(zip(self.order[c], parts))
+        brv, btv = prob.board_poses(sol.x)
+        rig = RigModel(
+            self.names,
+            cams,
+            rv,
+            tv,
+            sol.covariance,
+            float(np.sqrt(np.mean(np.sum(res**2, axis=1)))),
+        )
+        return RigCalibration(
+            rig=rig,
+            rms_px=per_cam,
+            instants={n: list(self.order[c]) for c, n in enumerate(self.names)},
+            dropped=[{"camera": self.names[c], "instant": v, "reason": r} for c, v, r in self.start.dropped],
+            relabelled=[
+                {"camera": self.names[c], "instant": v, "symmetry": s.label}
+                for (c, v), s in self.start.labels.items()
+                if s.label != "rot0" and v in self.index and v in self.kept[c]
+            ],
+            board_poses={v: (brv[i].copy(), btv[i].copy()) for v, i in self.index.items()},
+            residuals=residuals,
+            sigma_px=sol.sigma_px,
+            iterations=sol.iterations,
+            converged=sol.converged,
+            start=self.start,
+        )
+
+
+def calibrate_rig(
+    images: Mapping[str, Sequence[str | Path]],
+    board: Board,
+    options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
+    *,
+    progress: bool | None = None,
+    jobs: int | None = None,
+    max_rounds: int = MAX_ROUNDS,
+    tol_px: float = 1e-4,
+) -> RigCalibration:
+    """Calibrate a rig from images: each camera through circcal's pipeline, then the joint solve with the detector's
+    re-correction loop per camera.
+
+    Parameters
+    ----------
+    images : mapping of str to sequence of path
+        Per camera (the first is the reference) its image files; the same file name in two cameras is the same
+        instant.
+    board : Board
+    options : CalibrationOptions, mapping of str to CalibrationOptions, or None
+        As :func:`calibrate_rig_points`.
+    progress : bool or None
+        Show the detector's progress bars.
+    jobs : int or None
+        Images detected at once (:func:`circcal.detector.detect_files`).
+    max_rounds, tol_px
+        The joint re-correction loop's limits: joint solves at most, and the largest centre shift (px) at which it
+        has settled.
+
+    Returns
+    -------
+    RigCalibration
+        With ``per_camera`` (each camera's own :class:`~circcal.pipeline.ImagesCalibration`, its images left out in
+        ``failed``) and ``rounds``.
+
+    Raises
+    ------
+    InputError
+        Fewer than two cameras, a camera without images, one file name twice in one camera, bad options.
+    CalibrationError
+        As :func:`calibrate_rig_points`, and (:class:`circcal.pipeline.TooFewImagesError`) a camera whose board is
+        found in fewer than 3 images (named).
+    """
+    names = list(images)
+    _check_names(names)
+    opts = _per_camera_options(names, options)
+    per_camera: dict[str, ImagesCalibration] = {}
+    for n, o in zip(names, opts):
+        paths = [str(p) for p in images[n]]
+        if not paths:
+            raise InputError(f"camera {n!r}: no images given")
+        seen: dict[str, str] = {}
+        for p in paths:
+            if Path(p).name in seen:
+                raise InputError(
+                    f"camera {n!r}: two images named {Path(p).name!r} ({seen[Path(p).name]}, {p}); the file name "
+                    f"names the instant"
+                )
+            seen[Path(p).name] = p
+        try:
+            per_camera[n] = calibrate_images(paths, board, o, progress=bool(progress), jobs=jobs)
+        except CalibrationError as exc:
+            raise CalibrationError(f"camera {n!r}: {str(exc).splitlines()[0]}") from exc
+    board_pts = board.object_points()
+    dets: list[dict[str, Any]] = []
+    centres: list[dict[str, np.ndarray]] = []
+    for n in names:
+        cal = per_camera[n]
+        dets.append({Path(cal.paths[i]).name: cal.detections[i] for i in cal.used})
+        centres.append({Path(cal.paths[i]).name: c for i, c in zip(cal.used, cal.centres)})
+
+    def views_of(cs: list[dict[str, np.ndarray]]) -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
+        out = []
+        for per in cs:
+            vs = {}
+            for v, c in per.items():
+                ok = np.all(np.isfinite(c), axis=1)
+                vs[v] = (board_pts[ok], c[ok])
+            out.append(vs)
+        return out
+
+    cameras = [per_camera[n].result.camera for n in names]
+    poses = [
+        {
+            Path(cal.paths[i]).name: (rodrigues(rv), tv.copy())
+            for i, rv, tv in zip(cal.used, cal.result.rvecs, cal.result.tvecs)
+        }
+        for cal in per_camera.values()
+    ]
+    layout, sol, result = _calibrate(names, views_of(centres), opts, board, cameras, poses)
+    max_it = max(o.max_iterations for o in opts)
+    rounds: list[dict[str, Any]] = []
+    rounds.append({"round": 0, "rms_px": result.rig.rms_px, "max_centre_shift_px": float("nan")})
+    for r in range(1, max_rounds):
+        shift = 0.0
+        new_centres = []
+        for c in range(len(names)):
+            cam = result.rig.cameras[c]
+            per: dict[str, np.ndarray] = {}
+            for v in layout.kept[c]:
+                old = centres[c][v]
+                new = np.asarray(det_mod.recorrect(dets[c][v], board, cam), dtype=np.float64)
+                new = np.where(np.isfinite(old) & np.isfinite(new), new, old)  # the same points every round
+                shift = max(shift, float(np.nanmax(np.linalg.norm(new - old, axis=1))))
+                per[v] = new
+            new_centres.append({**centres[c], **per})
+        views = views_of(new_centres)
+        prob = layout.problem(views, list(result.rig.cameras), opts)
+        try:
+            sol = solve_rig(prob, sol.x, max_it)
+        except CalibrationError as exc:
+            warnings.warn(
+                f"rig centre re-correction stopped after round {r - 1}, whose rig is kept: {exc}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            break
+        centres = new_centres
+        result = layout.result(prob, sol, cameras)
+        rounds.append({"round": r, "rms_px": result.rig.rms_px, "max_centre_shift_px": shift})
+        if shift < tol_px:
+            break
+    result.rounds = rounds
+    result.per_camera = per_camera
+    return result

@@ -1,0 +1,439 @@
+"""One least-squares problem for a rig: every camera's observations of one board at shared instants, the map from the
+free parameters to intrinsics, camera poses in the rig and board poses, and the residuals with their analytic
+Jacobian.
+
+Parameter vector (conventions: :mod:`circcal.rig.model`): the global parameters first -- every camera's free
+intrinsics (camera 0's, then camera 1's, ...; each camera its own lens model and image size), then the pose in the rig
+of every camera but the reference (``rvec, tvec``: ``X_c = R(rvec) X_0 + tvec``, rad and mm) -- then one board pose
+per instant (``rvec, tvec``: ``X_0 = R(rvec) P + tvec``). The board poses are the per-view locals of
+:mod:`circcal.solver.lm`: each observation's residual depends only on the global parameters of its own camera and on
+its own instant's pose, so :func:`circcal.solver.lm.levenberg_marquardt` solves each damped step by eliminating the
+6x6 board-pose blocks (Schur complement), exactly as for one camera. Residuals are ``projected - observed`` (px),
+stacked camera by camera; the camera model is :mod:`circcal.model`'s (:func:`~circcal.model.project_camera_jacobian`,
+one implementation for every lens).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from circcal.model import lens_model, project_camera_jacobian, theta_max
+from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
+from circcal.solver.problem import NormalBlocks, project_pixels
+
+__all__ = ["CameraObservations", "RigProblem", "free_intrinsics"]
+
+
+@dataclass(frozen=True)
+class CameraObservations:
+    """One camera's observations, stacked over the instants it saw, sorted by instant.
+
+    Attributes
+    ----------
+    X : ndarray, shape (N, 3)
+        Board points, mm (z = 0).
+    uv : ndarray, shape (N, 2)
+        Observed pixels.
+    instant : ndarray of int, shape (N,)
+        The instant (index into the problem's instants) of each point, non-decreasing.
+    """
+
+    X: np.ndarray
+    uv: np.ndarray
+    instant: np.ndarray
+
+    @classmethod
+    def stack(cls, views: Sequence[tuple[int, np.ndarray, np.ndarray]]) -> CameraObservations:
+        """Stack ``(instant, object points (n, 3), image points (n, 2))`` views.
+
+        Parameters
+        ----------
+        views : sequence of (int, ndarray, ndarray)
+            One entry per instant the camera saw (at most one per instant).
+
+        Returns
+        -------
+        CameraObservations
+        """
+        views = sorted(views, key=lambda v: v[0])
+        if not views:
+            return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, dtype=np.int64))
+        return cls(
+            np.concatenate([np.asarray(o, dtype=np.float64).reshape(-1, 3) for _, o, _ in views]),
+            np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for _, _, p in views]),
+            np.concatenate([np.full(len(o), i, dtype=np.int64) for i, o, _ in views]),
+        )
+
+
+def free_intrinsics(
+    param_names: Sequence[str], fixed: Sequence[str], aspect: float | None
+) -> tuple[list[int], np.ndarray]:
+    """The free intrinsics of one camera and the map from them to its intrinsics.
+
+    Parameters
+    ----------
+    param_names : sequence of str
+        The lens model's parameter names (fx, fy, cx, cy, then its coefficients).
+    fixed : sequence of str
+        Held parameter names (``CalibrationOptions.fixed``; ``"aspect_ratio"`` holds fx / fy).
+    aspect : float or None
+        fx / fy when the aspect ratio is held.
+
+    Returns
+    -------
+    free : list of int
+        Indices of the free intrinsics.
+    T : ndarray, shape (len(param_names), len(free))
+        d intrinsics / d free intrinsics (with a held aspect ratio, fx's row carries ``aspect`` in fy's column).
+    """
+    free = [k for k, n in enumerate(param_names) if n not in fixed and not (aspect is not None and k == 0)]
+    T = np.zeros((len(param_names), len(free)))
+    for j, k in enumerate(free):
+        T[k, j] = 1.0
+        if aspect is not None and k == 1:
+            T[0, j] = aspect
+    return free, T
+
+
+class RigProblem:
+    """The joint problem of a rig (see the module for the parameter layout).
+
+    Parameters
+    ----------
+    observations : sequence of CameraObservations
+        One per camera, camera 0 the reference.
+    n_instants : int
+        V; every instant must be seen by at least one camera.
+    intrinsics : sequence of ndarray
+        Per camera (4 + n_dist,) intrinsics; held ones keep these values.
+    lenses : sequence of str
+        Per camera lens model name.
+    free : sequence of list of int
+        Per camera indices of its free intrinsics (:func:`free_intrinsics`).
+    maps : sequence of ndarray
+        Per camera (4 + n_dist, n_free) d intrinsics / d free intrinsics (:func:`free_intrinsics`).
+
+    Attributes
+    ----------
+    n_cameras, n_views : int
+        C and V (the board poses are the solver's per-view locals).
+    ng, n : int
+        Global parameters (free intrinsics + 6 (C - 1)) and all parameters (ng + 6 V).
+    intr_cols : list of ndarray
+        Per camera the columns of its free intrinsics.
+    pose_cols : list of ndarray
+        Per camera the 6 columns of its pose in the rig (empty for camera 0).
+    """
+
+    def __init__(
+        self,
+        observations: Sequence[CameraObservations],
+        n_instants: int,
+        intrinsics: Sequence[np.ndarray],
+        lenses: Sequence[str],
+        free: Sequence[list[int]],
+        maps: Sequence[np.ndarray],
+    ) -> None:
+        self.obs = list(observations)
+        self.n_cameras = len(self.obs)
+        self.n_views = int(n_instants)
+        self.lenses = list(lenses)
+        self.pinhole = [lens_model(le).pinhole for le in self.lenses]
+        self.maps = [np.asarray(m, dtype=np.float64) for m in maps]
+        self.base = []
+        for p, m in zip(intrinsics, self.maps):
+            b = np.asarray(p, dtype=np.float64).copy()
+            b[np.any(m != 0, axis=1)] = 0.0  # the free ones (and fx under a held aspect) come from x
+            self.base.append(b)
+        self.free = [list(f) for f in free]
+        nf = [len(f) for f in self.free]
+        starts = np.concatenate([[0], np.cumsum(nf)])
+        self.nf = int(starts[-1])
+        self.intr_cols = [np.arange(starts[c], starts[c + 1]) for c in range(self.n_cameras)]
+        self.pose_cols = [np.zeros(0, dtype=np.int64)] + [
+            self.nf + 6 * (c - 1) + np.arange(6) for c in range(1, self.n_cameras)
+        ]
+        self.ng = self.nf + 6 * (self.n_cameras - 1)
+        self.n = self.ng + 6 * self.n_views
+        self.n_points = sum(len(o.X) for o in self.obs)
+        # per camera: the instants it saw and where each one's rows start (rows are sorted by instant)
+        self._segments = []
+        for o in self.obs:
+            if len(o.instant):
+                starts_c = np.flatnonzero(np.r_[True, np.diff(o.instant) != 0])
+                self._segments.append((o.instant[starts_c], starts_c))
+            else:
+                self._segments.append((np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)))
+        self._kept: dict[str, tuple[bytes, object]] = {}
+
+    # --- the parameter vector -------------------------------------------------------------------------------------
+
+    def intrinsics(self, x: np.ndarray, c: int) -> np.ndarray:
+        """Camera ``c``'s intrinsics at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+        c : int
+
+        Returns
+        -------
+        ndarray, shape (4 + n_dist,)
+            fx, fy, cx, cy (px), then the coefficients.
+        """
+        p: np.ndarray = self.base[c] + self.maps[c] @ x[self.intr_cols[c]]
+        return p
+
+    def rig_poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every camera's pose in the rig at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        rvecs, tvecs : ndarray, shape (C, 3)
+            ``X_c = R(rvecs[c]) X_0 + tvecs[c]`` (rad, mm); row 0 zero.
+        """
+        P = np.zeros((self.n_cameras, 6))
+        P[1:] = x[self.nf : self.ng].reshape(-1, 6)
+        return P[:, :3].copy(), P[:, 3:].copy()
+
+    def board_poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every instant's board pose at ``x``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        rvecs, tvecs : ndarray, shape (V, 3)
+            ``X_0 = R(rvecs[v]) P + tvecs[v]`` (rad, mm).
+        """
+        P = x[self.ng :].reshape(-1, 6)
+        return P[:, :3].copy(), P[:, 3:].copy()
+
+    def pack(
+        self,
+        intrinsics: Sequence[np.ndarray],
+        rig_rvecs: np.ndarray,
+        rig_tvecs: np.ndarray,
+        board_rvecs: np.ndarray,
+        board_tvecs: np.ndarray,
+    ) -> np.ndarray:
+        """The parameter vector of given intrinsics and poses.
+
+        Parameters
+        ----------
+        intrinsics : sequence of ndarray
+            Per camera (4 + n_dist,) (only the free ones are taken).
+        rig_rvecs, rig_tvecs : ndarray, shape (C, 3)
+            Cameras' poses in the rig (row 0 ignored), rad and mm.
+        board_rvecs, board_tvecs : ndarray, shape (V, 3)
+            Board poses in the rig frame, rad and mm.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        xi = [np.asarray(p, dtype=np.float64)[f] for p, f in zip(intrinsics, self.free)]
+        rig = np.column_stack([np.asarray(rig_rvecs), np.asarray(rig_tvecs)])[1:].ravel()
+        board = np.column_stack([np.asarray(board_rvecs), np.asarray(board_tvecs)]).ravel()
+        return np.concatenate([*xi, rig, board]).astype(np.float64)
+
+    def camera_rows(self) -> list[slice]:
+        """The rows of each camera's points among the stacked points (residual pairs ``2 a : 2 b``).
+
+        Returns
+        -------
+        list of slice
+            Per camera, into the (N,) stacked points.
+        """
+        ends = np.cumsum([len(o.X) for o in self.obs])
+        return [slice(int(e - len(o.X)), int(e)) for e, o in zip(ends, self.obs)]
+
+    # --- evaluation -----------------------------------------------------------------------------------------------
+
+    def _points(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Camera ``c``'s points at ``x``: board points rotated into the rig (Y = R_v P), then in the rig
+        (X0 = Y + t_v), rotated into the camera (Z = R_c X0), and in the camera (Xc = Z + T_c); all (N_c, 3) mm."""
+        o = self.obs[c]
+        rv, tv = self.board_poses(x)
+        R = rodrigues(rv)[o.instant]
+        Y = np.einsum("nij,nj->ni", R, o.X)
+        X0 = Y + tv[o.instant]
+        rc, tc = self.rig_poses(x)
+        Z = X0 @ rodrigues(rc[c]).T
+        return Y, X0, Z, Z + tc[c]
+
+    def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals without the Jacobian (a trial step's cost).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        f : ndarray, shape (2N,)
+            Projected - observed, px, camera by camera.
+        Xc : ndarray, shape (N, 3)
+            Each point in its own camera's frame, mm.
+        """
+        key = x.tobytes()
+        kept = self._kept.get("residuals")
+        if kept is not None and kept[0] == key:
+            return kept[1]  # type: ignore[return-value]
+        f, Xc = np.empty(2 * self.n_points), np.empty((self.n_points, 3))
+        for c, rows in enumerate(self.camera_rows()):
+            if rows.stop == rows.start:
+                continue
+            Xc[rows] = self._points(x, c)[3]
+            uv = project_pixels(Xc[rows], self.intrinsics(x, c), self.pinhole[c])
+            f[2 * rows.start : 2 * rows.stop] = (uv - self.obs[c].uv).ravel()
+        self._kept["residuals"] = (key, (f, Xc))
+        return f, Xc
+
+    def jacobian(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Camera ``c``'s residuals and Jacobian rows.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+        c : int
+
+        Returns
+        -------
+        f : ndarray, shape (N_c, 2)
+            Projected - observed, px.
+        Xc : ndarray, shape (N_c, 3)
+            mm.
+        J_global : ndarray, shape (N_c, 2, k)
+            With respect to the camera's global columns (:meth:`global_cols`): its free intrinsics, then its pose in
+            the rig (rvec, tvec; none for camera 0).
+        J_board : ndarray, shape (N_c, 2, 6)
+            With respect to each point's own instant's board pose (rvec, tvec).
+        """
+        o = self.obs[c]
+        Y, X0, Z, Xc = self._points(x, c)
+        rc = self.rig_poses(x)[0][c]
+        Rc = rodrigues(rc)
+        uv, Ji, dP = project_camera_jacobian(Xc, self.intrinsics(x, c), self.lenses[c])
+        k_i = len(self.free[c])
+        k = k_i + (6 if c > 0 else 0)
+        Jg = np.empty((len(Xc), 2, k))
+        Jg[:, :, :k_i] = Ji @ self.maps[c]
+        if c > 0:
+            Jg[:, :, k_i : k_i + 3] = rotated_jacobian(dP, Z) @ left_jacobian(rc)
+            Jg[:, :, k_i + 3 :] = dP
+        dPR = dP @ Rc  # d uv / d X0
+        rv = self.board_poses(x)[0]
+        Jb = np.empty((len(Xc), 2, 6))
+        Jb[:, :, :3] = np.einsum("nrj,njk->nrk", rotated_jacobian(dPR, Y), left_jacobian(rv)[o.instant])
+        Jb[:, :, 3:] = dPR
+        return uv - o.uv, Xc, Jg, Jb
+
+    def global_cols(self, c: int) -> np.ndarray:
+        """Camera ``c``'s columns among the global parameters.
+
+        Parameters
+        ----------
+        c : int
+
+        Returns
+        -------
+        ndarray of int
+            Its free intrinsics' columns, then its pose's 6 (none for camera 0).
+        """
+        return np.concatenate([self.intr_cols[c], self.pose_cols[c]]).astype(np.int64)
+
+    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, NormalBlocks]:
+        """The residuals and the blocks of ``J^T J`` and ``J^T f`` at ``x`` (the interface of
+        :meth:`circcal.solver.problem.Problem.normal_equations`, board poses as the per-view blocks).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        f : ndarray, shape (2N,)
+            Projected - observed, px.
+        blocks : tuple (A, gi, B, D, gp)
+            A (ng, ng), gi (ng,), B (V, ng, 6), D (V, 6, 6), gp (V, 6).
+        """
+        key = x.tobytes()
+        kept = self._kept.get("normal")
+        if kept is not None and kept[0] == key:
+            return kept[1]  # type: ignore[return-value]
+        ng, V = self.ng, self.n_views
+        f, Xc = np.empty(2 * self.n_points), np.empty((self.n_points, 3))
+        A, gi = np.zeros((ng, ng)), np.zeros(ng)
+        B, D, gp = np.zeros((V, ng, 6)), np.zeros((V, 6, 6)), np.zeros((V, 6))
+        for c, rows in enumerate(self.camera_rows()):
+            if rows.stop == rows.start:
+                continue
+            fc, Xc[rows], Jg, Jb = self.jacobian(x, c)
+            f[2 * rows.start : 2 * rows.stop] = fc.ravel()
+            cols = self.global_cols(c)
+            Jg2 = Jg.reshape(-1, len(cols))
+            A[np.ix_(cols, cols)] += Jg2.T @ Jg2
+            gi[cols] += Jg2.T @ fc.ravel()
+            inst, starts = self._segments[c]
+            B[np.ix_(inst, cols, np.arange(6))] += np.add.reduceat(np.einsum("nrk,nrl->nkl", Jg, Jb), starts, axis=0)
+            D[inst] += np.add.reduceat(np.einsum("nrk,nrl->nkl", Jb, Jb), starts, axis=0)
+            gp[inst] += np.add.reduceat(np.einsum("nrk,nr->nk", Jb, fc), starts, axis=0)
+        out = (f, (A, gi, B, D, gp))
+        self._kept["normal"] = (key, out)
+        self._kept["residuals"] = (key, (f, Xc))
+        return out
+
+    def dense_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """The whole (2N, n) Jacobian (tests and small problems only).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        ndarray, shape (2N, n)
+        """
+        J = np.zeros((2 * self.n_points, self.n))
+        for c, rows in enumerate(self.camera_rows()):
+            if rows.stop == rows.start:
+                continue
+            _, _, Jg, Jb = self.jacobian(x, c)
+            r = np.arange(2 * rows.start, 2 * rows.stop)
+            J[np.ix_(r, self.global_cols(c))] = Jg.reshape(-1, Jg.shape[2])
+            cols = self.ng + 6 * np.repeat(self.obs[c].instant, 2)[:, None] + np.arange(6)
+            J[r[:, None], cols] = Jb.reshape(-1, 6)
+        return J
+
+    def outside(self, x: np.ndarray) -> list[tuple[int, int]]:
+        """Points a camera cannot see at ``x``: behind a pinhole camera, beyond a fisheye's one-to-one field.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+
+        Returns
+        -------
+        list of (int, int)
+            ``(camera, instant)`` pairs with such points, sorted.
+        """
+        Xc = self.residuals(x)[1]
+        bad: set[tuple[int, int]] = set()
+        for c, rows in enumerate(self.camera_rows()):
+            P = Xc[rows]
+            if self.pinhole[c]:
+                out = P[:, 2] <= 0
+            else:
+                out = np.arctan2(np.hypot(P[:, 0], P[:, 1]), P[:, 2]) > theta_max(self.intrinsics(x, c)[4:])
+            bad |= {(c, int(v)) for v in np.unique(self.obs[c].instant[out])}
+        return sorted(bad)
