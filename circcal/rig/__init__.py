@@ -4,6 +4,49 @@ Conventions: :mod:`circcal.rig.model` (camera 0 the reference, ``X_i = R_i X_0 +
 """
 
 from circcal.rig.calibrate import RigCalibration, calibrate_rig, calibrate_rig_points
+from circcal.rig.files import (
+    essential_fundamental,
+    kalibr_camchain_text,
+    mrcal_cameramodel_texts,
+    opencv_stereo_from_text,
+    opencv_stereo_text,
+    read_kalibr_camchain,
+    read_mrcal_cameramodels,
+    read_opencv_stereo,
+    read_ros_pair,
+    ros_camera_info_pair,
+)
 from circcal.rig.model import RigModel, relative_pose
+from circcal.rig.rectify import (
+    Rectification,
+    rectification_maps,
+    rectified_overlay,
+    rectify_pair,
+    write_rectified_overlay,
+)
+from circcal.rig.triangulate import Triangulated, triangulate
 
-__all__ = ["RigCalibration", "calibrate_rig", "calibrate_rig_points", "RigModel", "relative_pose"]
+__all__ = [
+    "RigCalibration",
+    "calibrate_rig",
+    "calibrate_rig_points",
+    "RigModel",
+    "relative_pose",
+    "Rectification",
+    "rectify_pair",
+    "rectification_maps",
+    "rectified_overlay",
+    "write_rectified_overlay",
+    "essential_fundamental",
+    "opencv_stereo_text",
+    "opencv_stereo_from_text",
+    "read_opencv_stereo",
+    "ros_camera_info_pair",
+    "read_ros_pair",
+    "mrcal_cameramodel_texts",
+    "read_mrcal_cameramodels",
+    "kalibr_camchain_text",
+    "read_kalibr_camchain",
+    "Triangulated",
+    "triangulate",
+]
