@@ -100,7 +100,8 @@ class RigCalibration:
             NaN where the covariance is not known.
         """
         if self.rig.covariance is None:
-            return np.full(len(self.rig.state_vector()), np.nan)
+            n = sum(len(c.intrinsics) for c in self.rig.cameras) + 6 * (self.rig.n_cameras - 1)
+            return np.full(n, np.nan)
         return np.sqrt(np.maximum(np.diag(self.rig.covariance), 0.0))
 
 

@@ -1,0 +1,194 @@
+"""The joint rig solve on projected observations with exact truth: Jacobian, recovery within the stated sigmas, the
+covariance against Monte-Carlo, a chain of three cameras, a disconnected camera, the board's symmetry across cameras
+and agreement with cv2.stereoCalibrate."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from circcal.errors import CalibrationError
+from circcal.fixtures.rig import rig_observations, rig_scenario
+from circcal.model import param_names
+from circcal.rig import calibrate_rig_points
+from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
+from circcal.rig.solve import solve_rig
+from circcal.rig.start import board_symmetries
+from circcal.solver import CalibrationOptions
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def _state(rig) -> np.ndarray:
+    """RigModel.state_vector's order (every camera's intrinsics, then every pose but the reference's)."""
+    return np.concatenate(
+        [c.intrinsics for c in rig.cameras] + [np.r_[rig.rvecs[i], rig.tvecs[i]] for i in range(1, rig.n_cameras)]
+    )
+
+
+def _solve(name: str, noise: float, seed: int, board: bool = True, obs=None):
+    sc = rig_scenario(name)
+    obs = rig_observations(sc, noise, seed) if obs is None else obs
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    return sc, calibrate_rig_points(obs, sizes, opts, board=sc.board if board else None)
+
+
+def _truth_problem(sc, obs, fixed: bool = False):
+    """The RigProblem of ``obs`` and the true parameter vector."""
+    index = {v: i for i, v in enumerate(sc.instants)}
+    cams = sc.rig.cameras
+    problem_obs, free, maps = [], [], []
+    for n, cam in zip(sc.rig.names, cams):
+        problem_obs.append(CameraObservations.stack([(index[v], o, p) for v, (o, p) in obs[n].items()]))
+        f, m = free_intrinsics(param_names(cam.lens), param_names(cam.lens) if fixed else (), None)
+        free.append(f)
+        maps.append(m)
+    prob = RigProblem(problem_obs, len(sc.instants), [c.intrinsics for c in cams], [c.lens for c in cams], free, maps)
+    x = prob.pack([c.intrinsics for c in cams], sc.rig.rvecs, sc.rig.tvecs, sc.board_rvecs, sc.board_tvecs)
+    return prob, x
+
+
+def test_jacobian_matches_finite_differences():
+    sc = rig_scenario("fisheye")
+    obs = rig_observations(sc, 0.3, 0)
+    obs = {n: dict(list(per.items())[:4]) for n, per in obs.items()}
+    prob, x = _truth_problem(sc, obs)
+    x = x + np.random.default_rng(1).normal(0, 1e-3, x.shape) * np.maximum(np.abs(x), 1)
+    J = prob.dense_jacobian(x)
+    cols = [k for k in range(prob.n) if np.any(J[:, k])]
+    assert len(cols) > prob.ng  # the instants seen in these views
+    for k in cols:
+        h = 1e-6 * max(1.0, abs(x[k]))
+        xp, xm = x.copy(), x.copy()
+        xp[k] += h
+        xm[k] -= h
+        num = (prob.residuals(xp)[0] - prob.residuals(xm)[0]) / (2 * h)
+        assert np.allclose(J[:, k], num, rtol=1e-5, atol=1e-4 * np.abs(J[:, k]).max()), k
+    f, (A, gi, B, D, gp) = prob.normal_equations(x)
+    assert np.allclose(A, J[:, : prob.ng].T @ J[:, : prob.ng])
+    assert np.allclose(gp.ravel(), J[:, prob.ng :].T @ f)
+
+
+@pytest.mark.parametrize("name", ["two", "fisheye"])
+def test_rig_recovered_within_stated_sigmas(name):
+    sc, res = _solve(name, 0.1, 7)
+    assert res.converged and not res.dropped
+    for n in sc.rig.names:
+        assert res.rms_px[n] == pytest.approx(0.1 * np.sqrt(2), rel=0.1)
+    std = res.std()
+    assert np.all(np.isfinite(std)) and np.all(std > 0)
+    z = (_state(res.rig) - _state(sc.rig)) / std
+    # fx, fy, cx, cy of every camera and the pose (the rational model's coefficients are far from linear along the
+    # nearly degenerate direction that trades its numerator for its denominator: their sigmas are first-order only)
+    n0 = len(sc.rig.cameras[0].intrinsics)
+    rows = [0, 1, 2, 3, n0, n0 + 1, n0 + 2, n0 + 3, *range(len(z) - 6, len(z))]
+    assert np.max(np.abs(z[rows])) < 4.5, z
+    # the relative pose in deg / mm
+    R, T = res.rig.pair(0, 1)
+    Rt, Tt = sc.rig.pair(0, 1)
+    sig_rot_deg = np.degrees(np.linalg.norm(std[-6:-3]))
+    assert _angle_deg(R @ Rt.T) < 4 * sig_rot_deg < 0.5
+    assert np.linalg.norm(T - Tt) < 4 * np.linalg.norm(std[-3:]) < 3.0
+    # every instant each camera saw is used; views seen by one camera only too
+    assert res.instants[sc.rig.names[0]] != res.instants[sc.rig.names[1]] or name == "fisheye"
+
+
+def test_covariance_matches_monte_carlo():
+    sc = rig_scenario("fisheye")
+    noise, n = 0.2, 30
+    sols, stated = [], []
+    rng = np.random.default_rng(3)
+    for _ in range(n):
+        obs = rig_observations(sc, noise, int(rng.integers(1 << 31)))
+        prob, x = _truth_problem(sc, obs)
+        sol = solve_rig(prob, x, 100)
+        assert sol.converged
+        sols.append(sol.x[: prob.ng])
+        stated.append(np.sqrt(np.diag(sol.covariance)))
+    n0, n1 = (len(c.intrinsics) for c in sc.rig.cameras)
+    rows = [0, 1, 2, 3, n0, n0 + 1, n0 + 2, n0 + 3, *range(n0 + n1, n0 + n1 + 6)]
+    empirical = np.std(np.array(sols)[:, rows], axis=0, ddof=1)  # every parameter free: state rows = columns
+    ratio = np.mean(stated, axis=0)[rows] / empirical
+    assert 0.8 < np.median(ratio) < 1.25, ratio
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_three_camera_chain():
+    sc, res = _solve("chain", 0.1, 2)
+    assert res.start.tree == [(0, 1), (1, 2)]  # c shares instants with b only
+    assert not set(res.instants["a"]) & set(res.instants["c"])
+    std = res.std()
+    z = (_state(res.rig) - _state(sc.rig)) / std
+    assert np.max(np.abs(z)) < 4.5
+    R, T = res.rig.pair(0, 2)
+    Rt, Tt = sc.rig.pair(0, 2)
+    assert _angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 3.0
+
+
+def test_disconnected_camera_refused_in_words():
+    sc = rig_scenario("chain")
+    obs = rig_observations(sc, 0.1, 2)
+    # b no longer sees the instants it shares with c
+    obs["b"] = {v: p for v, p in obs["b"].items() if v not in obs["c"]}
+    with pytest.raises(CalibrationError, match=r"camera\(s\) 'c' share no instant .* camera\(s\) 'a', 'b'"):
+        _solve("chain", 0.1, 2, obs=obs)
+
+
+def test_board_symmetry_flip_resolved():
+    sc = rig_scenario("two")
+    obs = rig_observations(sc, 0.1, 5)
+    rot180 = next(s for s in board_symmetries(sc.board) if s.label == "rot180")
+    flipped = [v for v in list(obs["right"])[1:8:3] if v in obs["left"]]
+    assert len(flipped) >= 2
+    for v in flipped:  # the other camera labelled the same board turned 180 deg (findCirclesGrid's ambiguity)
+        o, p = obs["right"][v]
+        obs["right"][v] = (rot180.apply(o), p)
+    _, res = _solve("two", 0.1, 5, obs=obs)
+    assert sorted(r["instant"] for r in res.relabelled) == sorted(flipped)
+    assert {r["camera"] for r in res.relabelled} <= {"left", "right"} and not res.dropped
+    R, T = res.rig.pair(0, 1)
+    Rt, Tt = sc.rig.pair(0, 1)
+    assert _angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 2.0
+    assert max(res.rms_px.values()) < 0.2
+    # without the board's symmetries the flipped views cannot agree: they are dropped as inconsistent, in words
+    _, plain = _solve("two", 0.1, 5, board=False, obs=obs)
+    assert sorted(d["instant"] for d in plain.dropped) == sorted(flipped)
+    assert all("inconsistent with the rig" in d["reason"] for d in plain.dropped)
+
+
+def test_agrees_with_cv2_stereo_calibrate():
+    sc = rig_scenario("two")
+    obs = rig_observations(sc, 0.1, 9)
+    # stereoCalibrate needs the same points in both cameras at every instant
+    both = {}
+    for v in obs["left"]:
+        if v in obs["right"] and len(obs["left"][v][0]) == len(obs["right"][v][0]) == sc.board.n_points:
+            both[v] = v
+    obs = {n: {v: obs[n][v] for v in both} for n in obs}
+    _, res = _solve("two", 0.1, 9, obs=obs)
+    left, right = res.rig.cameras
+    objs = [obs["left"][v][0].astype(np.float32) for v in both]
+    left_px = [obs["left"][v][1].astype(np.float32) for v in both]
+    right_px = [obs["right"][v][1].astype(np.float32) for v in both]
+    flags = cv2.CALIB_FIX_INTRINSIC | cv2.CALIB_RATIONAL_MODEL
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    out = cv2.stereoCalibrate(
+        objs,
+        left_px,
+        right_px,
+        left.K,
+        np.r_[left.dist, np.zeros(3)],
+        right.K,
+        right.dist,
+        (left.width, left.height),
+        flags=flags,
+        criteria=crit,
+    )
+    R_cv, T_cv = out[5], out[6].ravel()
+    R, T = res.rig.pair(0, 1)
+    assert _angle_deg(R @ R_cv.T) < 1e-4
+    assert np.linalg.norm(T - T_cv) < 1e-3
