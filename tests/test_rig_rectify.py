@@ -98,12 +98,11 @@ def test_fisheye_pair_is_opencv_fisheye() -> None:
 
 
 def test_vertical_pair() -> None:
-    rig = _rig(LEFT, RIGHT, ([0.01, 0.02, -0.01], [2.0, -110.0, 4.0]))
-    for rect in (rectify_pair(rig), rectify_pair(_rig(LEFT, SMALL, ([0.01, 0.02, -0.01], [2.0, -110.0, 4.0])))):
-        assert rect.vertical
-        _check_rectifies(
-            rig if rect.method != "circcal" else _rig(LEFT, SMALL, ([0.01, 0.02, -0.01], [2.0, -110.0, 4.0])), rect
-        )
+    pose = ([0.01, 0.02, -0.01], [2.0, -110.0, 4.0])
+    for rig, method in ((_rig(LEFT, RIGHT, pose), "cv2.stereoRectify"), (_rig(LEFT, SMALL, pose), "circcal")):
+        rect = rectify_pair(rig)
+        assert rect.vertical and rect.method == method
+        _check_rectifies(rig, rect)
 
 
 @pytest.mark.parametrize("b", [RIGHT, SMALL, FISH])
