@@ -164,7 +164,7 @@ class RigModel:
         ndarray, shape (sum(n_intrinsics) + 6 (n_cameras - 1),)
             The order of ``covariance``'s rows.
         """
-        parts = [c.intrinsics() for c in self.cameras]
+        parts = [c.intrinsics for c in self.cameras]
         parts += [np.concatenate([self.rvecs[i], self.tvecs[i]]) for i in range(1, self.n_cameras)]
         return np.concatenate(parts)
 

@@ -197,15 +197,10 @@ def _use_calibration(rig: RigModel, calibration: bool | None) -> bool:
         return False
     if rig.covariance is None:
         raise InputError("calibration=True, but the rig has no covariance to propagate")
-    n = _state_size(rig)
+    n = len(rig.state_vector())
     if np.shape(rig.covariance) != (n, n):
         raise InputError(f"the rig's covariance must be {n} x {n} (its state vector), got {np.shape(rig.covariance)}")
     return True
-
-
-def _state_size(rig: RigModel) -> int:
-    """The length of :meth:`RigModel.state_vector`: every camera's intrinsics, then 6 per non-reference camera."""
-    return sum(len(c.intrinsics) for c in rig.cameras) + 6 * (rig.n_cameras - 1)
 
 
 def _nearest_to_rays(
@@ -277,7 +272,7 @@ def _calibration_jacobian(
     """(N, 3, P) ``dX / dtheta = -H^-1 sum_k J_k^T d pi_k / d theta`` over the rig's state vector."""
     sizes = [len(c.intrinsics) for c in rig.cameras]
     starts = np.concatenate([[0], np.cumsum(sizes)])
-    n_state = _state_size(rig)
+    n_state = len(rig.state_vector())
     n = len(X)
     JtD = np.zeros((n, 3, n_state))
     for pos, k in enumerate(idx):
