@@ -97,9 +97,11 @@ def read_board_file(path: str | Path) -> Board:
     p = Path(path)
     text = read_text(p, "board file", max_bytes=MAX_MODEL_FILE_BYTES)
     try:
-        if text.lstrip().startswith(("{", "[")):
-            data = parse_json(text, **JSON_LIMITS)
-        else:
+        try:
+            data = parse_json(text, **JSON_LIMITS) if text.lstrip().startswith(("{", "[")) else None
+        except InputError:  # not JSON: YAML's flow style ({rows: 8, ...}, as the detector's hint writes it)
+            data = None
+        if data is None:
             check_nesting(text)
             data = load_yaml(text)
         return board_from_data(data)

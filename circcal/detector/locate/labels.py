@@ -14,7 +14,17 @@ and shift that lays the patch on board points; :func:`label_patch` decides:
   ``CxR`` board);
 * none, because markers disagree: a different marker layout, or markers misread;
 * several that no board symmetry relates: the patch could be several parts of the board (a partial view of a board
-  without markers, or one whose visible markers do not tell): rejected, never guessed.
+  without markers, or one whose visible markers do not tell): rejected, never guessed -- unless the board's edge
+  is seen (below).
+
+The board's edge: lattice positions next to the patch that lie well inside the image and hold no dot (``empty``)
+are off the board, unless a dot there is hidden. A placement that puts such positions on board points contradicts
+them; on a marker board, where several placements fit the markers, the one with at most :data:`EDGE_TOLERANCE`
+contradictions is taken when every other has at least :data:`EDGE_MARGIN` more (a whole side of the patch lands
+on board points). So a view holding no marker, or a single marker that several placements share, is labelled from
+the board edges in view (a board with one marker dot in a corner, seen with that corner out of frame: the two
+sides in view fix the shift, the marker's absence the rotation). Boards without markers do not use it: there a
+straight occluder along a row would be taken for the board's edge with nothing to contradict it.
 
 The orientation rule of :mod:`circcal.detector.locate.grid` picks among placements related by a board symmetry (an
 unmarked board seen whole); with markers there is one placement and every point keeps its ID across views.
@@ -26,9 +36,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from circcal.board import Board, Placement, placements
+from circcal.board import LATTICE_ROTATIONS, Board, Placement, placements
 
-__all__ = ["Labelling", "ASYMMETRIC_FROM_PATCH", "board_frame", "label_patch", "seed_score_needed", "patch_grid_text"]
+__all__ = [
+    "Labelling",
+    "ASYMMETRIC_FROM_PATCH",
+    "EDGE_TOLERANCE",
+    "EDGE_MARGIN",
+    "board_frame",
+    "label_patch",
+    "seed_score_needed",
+    "patch_grid_text",
+]
+
+EDGE_TOLERANCE = 1
+"""A placement chosen from the board's edges may put at most this many empty positions on board points (a dot
+hidden by a speck of glare or a shadow next to the patch)."""
+EDGE_MARGIN = 3
+"""... and every other placement must put at least this many more there (a side of the patch, three dots long at
+the least: a partial view spans three rows and columns)."""
 
 ASYMMETRIC_FROM_PATCH = np.array([[1, 1], [-1, 1]], np.int64)
 """Patch coordinates -> board lattice coordinates of an asymmetric grid: ``u`` (the patch's first step, a
@@ -149,7 +175,14 @@ def _classes(board: Board, fits: list[Placement]) -> list[list[Placement]]:
     return groups
 
 
-def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *, closed: bool = False) -> Labelling:
+def label_patch(
+    board: Board,
+    ab: np.ndarray,
+    flags: np.ndarray | None = None,
+    *,
+    closed: bool = False,
+    empty: np.ndarray | None = None,
+) -> Labelling:
     """Label a patch with coordinates ``ab`` on ``board`` (module docstring).
 
     The ``points`` of a labelled patch follow one labelling; for an unmarked board seen whole that is one of the
@@ -167,6 +200,9 @@ def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *
     closed : bool, optional
         Every lattice position around the patch lies in the image and holds no dot (so a complete patch smaller than
         the board is a whole, smaller board rather than a partial view).
+    empty : numpy.ndarray or None, optional
+        (E, 2) int patch coordinates of positions next to the patch that lie well inside the image and hold no dot:
+        the board's edge where it is in view (module docstring; used on marker boards only).
 
     Returns
     -------
@@ -213,6 +249,8 @@ def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *
         )
     classes = _classes(board, fits)
     complete = K == board.n_points
+    if len(classes) > 1 and board.has_markers and empty is not None and len(empty):
+        classes = _edge_decided(board, classes, board_frame(board, empty))
     if len(classes) > 1:
         if closed and K == _nodes_in_box(board, xy):
             return Labelling(
@@ -236,6 +274,24 @@ def label_patch(board: Board, ab: np.ndarray, flags: np.ndarray | None = None, *
         )
     p = classes[0][0]
     return Labelling("labelled", "", p.points.copy(), complete, (rows, cols), 1)
+
+
+def _edge_decided(board: Board, classes: list[list[Placement]], empty_xy: np.ndarray) -> list[list[Placement]]:
+    """The one class of placements the board's edges in view single out (module docstring), or ``classes``."""
+    nodes = {tuple(q) for q in board.lattice_coords().tolist()}
+    counts = []
+    for group in classes:
+        best = None
+        for p in group:
+            on = empty_xy @ LATTICE_ROTATIONS[p.quarter].T + np.asarray(p.shift)
+            n = sum(tuple(q) in nodes for q in on.tolist())
+            best = n if best is None else min(best, n)
+        counts.append(best)
+    order = np.argsort(counts, kind="stable")
+    first, second = counts[order[0]], counts[order[1]]
+    if first <= EDGE_TOLERANCE and second >= first + EDGE_MARGIN:
+        return [classes[int(order[0])]]
+    return classes
 
 
 def _nodes_in_box(board: Board, xy: np.ndarray) -> int:

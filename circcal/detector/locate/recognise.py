@@ -12,6 +12,8 @@ board), in words.
 3. keeps the patch that is the whole board (several: the largest, the others named in ``notes``), else the largest
    part of the board that is labelled unambiguously (a partial view), else says why not: the board has more dots
    than ``--grid``, the transposed grid fits, the markers disagree, or which part of the board is seen is ambiguous.
+   On a marker board the board's edges in view help decide (:func:`empty_positions`); on a board given without
+   markers, dots much larger than the rest are named with the ``--board`` file that would use them (:func:`big_dots`).
 
 Pixels: OpenCV's convention.
 """
@@ -34,7 +36,18 @@ from circcal.detector.locate.smooth import local_residual
 from circcal.detector.locate.undistorted import inside_image, undistorted_candidates
 from circcal.model import Camera
 
-__all__ = ["Recognition", "recognise", "telling", "order_grid", "marker_flags", "MIN_PARTIAL_POINTS", "cell_areas"]
+__all__ = [
+    "Recognition",
+    "recognise",
+    "telling",
+    "order_grid",
+    "marker_flags",
+    "MIN_PARTIAL_POINTS",
+    "cell_areas",
+    "empty_positions",
+    "big_dots",
+    "big_dot_words",
+]
 
 MAX_LABELLED = 4
 """Patches labelled per segmentation, largest first: the board, a second board, a printed logo and one more; the
@@ -205,7 +218,13 @@ def _regular(board: Board, lat: Lattice, points: np.ndarray, area: np.ndarray) -
 
 
 def _trimmed(
-    board: Board, lat: Lattice, pts: np.ndarray, area: np.ndarray, cut: np.ndarray, lab: Labelling
+    board: Board,
+    lat: Lattice,
+    pts: np.ndarray,
+    area: np.ndarray,
+    cut: np.ndarray,
+    lab: Labelling,
+    inside: Callable[[np.ndarray], np.ndarray],
 ) -> tuple[Lattice, Labelling]:
     """Patch ``lat`` and its labelling ``lab`` ("larger"), or the patch less its outer rows and columns that are not
     real dots of the board, where that is labelled as the board or part of it. An outer line (in patch
@@ -241,8 +260,54 @@ def _trimmed(
     misses.update({(int(a), int(b)): pts[i] for (a, b), i in zip(ab[~keep].tolist(), lat.index[~keep])})
     sub = Lattice(lat.index[keep], ab[keep], misses, lat.seed_score)
     flags = marker_flags(board, sub, pts, area, cut) if board.has_markers else None
-    sub_lab = label_patch(board, sub.ab, flags, closed=_closed(sub))
+    sub_lab = label_patch(board, sub.ab, flags, closed=_closed(sub), empty=empty_positions(sub, pts, inside))
     return (sub, sub_lab) if sub_lab.status == "labelled" else (lat, lab)
+
+
+def empty_positions(lat: Lattice, points: np.ndarray, inside: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The patch's misses (positions next to it looked at and holding no dot) that lie at least a local lattice step
+    inside the image: there a dot of the board would have been whole and found, so the board ends there (or a dot
+    is hidden). A miss nearer the border may be a dot cut by it.
+
+    Parameters
+    ----------
+    lat : Lattice
+        The patch.
+    points : numpy.ndarray
+        (M, 2) float candidate centres, px (``lat.index`` points into it).
+    inside : callable
+        (K, 2) px -> (K,) bool: which positions lie in the image.
+
+    Returns
+    -------
+    numpy.ndarray
+        (E, 2) int patch coordinates.
+    """
+    if not lat.misses:
+        return np.zeros((0, 2), np.int64)
+    pos = {tuple(q): points[i] for q, i in zip(lat.ab.tolist(), lat.index)}
+    keys, tests = [], []
+    for (a, b), xy in lat.misses.items():
+        near = [pos[q] for q in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if q in pos]
+        if not near:
+            continue
+        step = max(float(np.linalg.norm(np.asarray(xy) - q)) for q in near)
+        keys.append((a, b))
+        tests.append(np.asarray(xy) + step * np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], np.float64))
+    if not keys:
+        return np.zeros((0, 2), np.int64)
+    ok = inside(np.concatenate(tests)).reshape(len(keys), 5).all(axis=1)
+    return np.asarray(keys, np.int64)[ok].reshape(-1, 2)
+
+
+def _image_test(image_size: tuple[int, int]) -> Callable[[np.ndarray], np.ndarray]:
+    """Which pixel positions (K, 2) lie in an image of ``image_size`` (W, H)."""
+    W, H = image_size
+
+    def test(xy: np.ndarray) -> np.ndarray:
+        return (xy[:, 0] >= 0.0) & (xy[:, 0] <= W - 1) & (xy[:, 1] >= 0.0) & (xy[:, 1] <= H - 1)
+
+    return test
 
 
 def _closed(lat: Lattice) -> bool:
@@ -363,7 +428,7 @@ def _recognise(
         if idx is not None:
             o = orient(board, pix[idx], idx)
             if o is not None:
-                return Recognition(o, True, cut=np.zeros(N, bool))
+                return Recognition(o, True, cut=np.zeros(N, bool), notes=_big_dot_notes(board, o, area, cut))
     patches = find_lattices(
         pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board), deadline=deadline, inside=inside
     )
@@ -381,13 +446,15 @@ def _recognise(
             message=f"not recognised among {M} candidate dots (no regular lattice of dots)",
         )
     labelled: list[tuple[Lattice, Labelling]] = []
+    in_image = inside if inside is not None else _image_test(image_size)
     for lat in patches[:MAX_LABELLED]:
         if deadline is not None:
             deadline.check()
         flags = marker_flags(board, lat, pts, area, cut) if board.has_markers else None
-        lab = label_patch(board, lat.ab, flags, closed=_closed(lat))
+        empty = empty_positions(lat, pts, in_image) if board.has_markers else None
+        lab = label_patch(board, lat.ab, flags, closed=_closed(lat), empty=empty)
         if lab.status == "larger":  # a blob or texture beside the board is not a row of the board
-            lat, lab = _trimmed(board, lat, pts, area, cut, lab)
+            lat, lab = _trimmed(board, lat, pts, area, cut, lab, in_image)
         labelled.append((lat, lab))
     whole = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and lab.complete]
     part = [
@@ -423,6 +490,10 @@ def _recognise(
             f"(a partial view needs {MIN_PARTIAL_POINTS}, over {MIN_PARTIAL_LINES} rows and "
             "columns)"
         )
+        if not board.has_markers and lab.status in ("ambiguous", "labelled"):
+            big, ratio = big_dots(lat.ab, area[lat.index], cut[lat.index])
+            if len(big):
+                msg += "; " + big_dot_words(board, len(big), ratio)
         return Recognition(
             None,
             code=code,
@@ -447,7 +518,103 @@ def _recognise(
                 patches=len(patches),
             )
         cut_pts = np.where(order >= 0, cut[np.maximum(order, 0)], False)
+        notes += _big_dot_notes(board, order, area, cut)
     return Recognition(order, lab.complete, cut=cut_pts, notes=notes, patches=len(patches))
+
+
+BIG_DOT_AREA = 1.8
+"""On a board given without markers, a dot whose area is this many times the median of its lattice neighbours' (and
+of the view's dots: none of them cut by the image border) is named as a likely marker: perspective and blur
+change neighbouring dots' areas by tens of percent; markers are printed 1.5-2x the diameter (2.25-4x the area)."""
+BIG_DOT_MAX_SHARE = 0.25
+"""... when such dots are at most this share of the view's (more is a board of mixed dots, not a few markers)."""
+
+
+def big_dots(coords: np.ndarray, area: np.ndarray, cut: np.ndarray) -> tuple[np.ndarray, float]:
+    """The dots much larger than the rest (:data:`BIG_DOT_AREA`), by their lattice neighbours.
+
+    Parameters
+    ----------
+    coords : numpy.ndarray
+        (K, 2) int lattice coordinates of the dots (patch or board (row, col)).
+    area : numpy.ndarray
+        (K,) float their areas, px^2.
+    cut : numpy.ndarray
+        (K,) bool, cut by the image border (never counted).
+
+    Returns
+    -------
+    big : numpy.ndarray
+        (B,) int positions into ``coords`` (none when more than :data:`BIG_DOT_MAX_SHARE` of the dots qualify).
+    ratio : float
+        Their median area over their neighbours' median (NaN for none).
+    """
+    pos = {tuple(q): k for k, q in enumerate(np.asarray(coords).tolist())}
+    ok = ~np.asarray(cut, bool) & np.isfinite(area) & (area > 0)
+    if np.sum(ok) < 4:
+        return np.zeros(0, np.int64), float("nan")
+    typical = float(np.median(area[ok]))
+    ratio = np.full(len(area), np.nan)
+    for k, (a, b) in enumerate(np.asarray(coords).tolist()):
+        nb = [pos[q] for q in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if q in pos and ok[pos[q]]]
+        if ok[k] and nb:
+            ratio[k] = area[k] / float(np.median(area[nb]))
+    big = np.flatnonzero(ok & (ratio > BIG_DOT_AREA) & (area > BIG_DOT_AREA * typical))
+    if len(big) == 0 or len(big) > BIG_DOT_MAX_SHARE * np.sum(ok):
+        return np.zeros(0, np.int64), float("nan")
+    return big, float(np.median(ratio[big]))
+
+
+def big_dot_words(board: Board, n: int, ratio: float, where: list[tuple[int, int]] | None = None) -> str:
+    """What a board given without markers should be told of the ``n`` dots much larger than the rest: that they
+    are, and the ``--board`` description that would use them as markers.
+
+    Parameters
+    ----------
+    board : Board
+        The board given (no markers).
+    n : int
+        How many big dots.
+    ratio : float
+        Their area over their neighbours'.
+    where : list of (int, int) or None
+        Their (row, col) on the board where the view is labelled; None: not known.
+
+    Returns
+    -------
+    str
+        One sentence, with a one-line board file (YAML flow style) to save and give as ``--board FILE``.
+    """
+    d = board.diameter_mm * float(np.sqrt(ratio))
+    spec = (
+        f"rows: {board.rows}, cols: {board.cols}, layout: {board.layout}, pitch_mm: {board.pitch_mm:g}, "
+        f"diameter_mm: {board.diameter_mm:g}, markers: ["
+    )
+    dots = "dot" if n == 1 else "dots"
+    if where:
+        spec += ", ".join(f"{{row: {r}, col: {c}, diameter_mm: {d:.3g}}}" for r, c in where) + "]"
+        at = ", ".join(f"(row {r}, col {c})" for r, c in where)
+        return (
+            f"{n} {dots} much larger than the rest ({ratio:.1f}x the area) at {at}: markers? a board file "
+            f"holding {{{spec}}} given as --board FILE labels partial views too"
+        )
+    spec += f"{{row: R, col: C, diameter_mm: {d:.3g}}}]"
+    return (
+        f"{n} {dots} much larger than the rest ({ratio:.1f}x the area) in view: markers? describe them in a board "
+        f"file, {{{spec}}} with their rows and columns, and give --board FILE: partial views are then labelled"
+    )
+
+
+def _big_dot_notes(board: Board, order: np.ndarray, area: np.ndarray, cut: np.ndarray) -> list[str]:
+    """The note naming a labelled view's big dots (:func:`big_dots`) on a board given without markers."""
+    if board.has_markers:
+        return []
+    seen = np.flatnonzero(order >= 0)
+    rc = np.column_stack(np.divmod(seen, board.cols))
+    big, ratio = big_dots(rc, area[order[seen]], cut[order[seen]])
+    if len(big) == 0:
+        return []
+    return [big_dot_words(board, len(big), ratio, [(int(r), int(c)) for r, c in rc[big]])]
 
 
 def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts: np.ndarray, whole: bool) -> list[str]:
