@@ -94,6 +94,7 @@ def test_a_warped_board_is_detected_and_its_warp_is_within_its_sigmas(low_tilt):
     assert shape.held_out.warped_px < 0.8 * shape.held_out.flat_px
     assert shape.recommended == "warped" and shape.add == ("--board-warp",) and shape.remove == ()
     assert "NOT flat" in shape.line() and shape.recommendation().startswith("recommended: the warped board")
+    assert shape.notable
     warped = calibrate(obj, img, SIZE, CalibrationOptions(board_warp=True))
     assert max(within_sigmas(warped).values()) <= 3.0
     assert np.allclose(warped.board_warp, shape.warp_mm, atol=1e-6)  # the check's warp is the warped solve's
@@ -110,7 +111,8 @@ def test_a_flat_board_reports_flat_and_changes_nothing():
     assert shape.recommended == "flat" and not shape.changes and shape.recommendation() is None
     assert all(abs(s) < 1.0 for _, s in shape.shift.values()), shape.shift
     assert cal.result.board_warp is None  # the calibration itself is the flat one
-    assert any(line.startswith("board shape: flat within the data's noise") for line in cal.verdict)
+    assert not any(line.startswith("board shape") for line in cal.verdict)  # the verdict is unchanged
+    assert any(line.startswith("board shape: flat within the data's noise") for line in cal.lines())
     assert not any("--board-warp" in line for line in cal.assessment.next_lines())
     assert cal.assessment.to_dict()["board_shape"]["flat"] is True
 

@@ -164,8 +164,10 @@ class Assessment:
         return self.cal.result
 
     def verdict(self) -> list[str]:
-        """The verdict: the error in the three conventions, the cross-validation, the worst uncertainty and, when
-        checked, the board's shape (:attr:`board_shape`).
+        """The verdict: the error in the three conventions, the cross-validation, the worst uncertainty and, where the
+        board-shape check (:attr:`board_shape`) finds something to say, the board's shape: a board that is not flat,
+        a fitted warp that is not needed, a refined board's shift from the flat board's solution (a flat board is
+        reported among the :meth:`details`).
 
         Returns
         -------
@@ -202,7 +204,7 @@ class Assessment:
             if u is not None
             else "projection uncertainty: none (the information matrix is singular)"
         )
-        if self.board_shape is not None:
+        if self.board_shape is not None and self.board_shape.notable:
             lines.append(self.board_shape.line())
         return lines
 
@@ -228,13 +230,16 @@ class Assessment:
         return ([] if self.remedy is None else self.remedy.lines()) + ([shape] if shape else [])
 
     def details(self) -> list[str]:
-        """The lens-model fit, the outliers, the coverage and the cross-validation's details, in lines.
+        """The board's shape where the verdict does not carry it (a flat board), the lens-model fit, the outliers, the
+        coverage and the cross-validation's details, in lines.
 
         Returns
         -------
         list of str
         """
         out: list[str] = []
+        if self.board_shape is not None and not self.board_shape.notable:
+            out.append(self.board_shape.line())
         if self.lens_fit is not None:
             out.append(self.lens_fit.message())
         rej = self.result.outliers

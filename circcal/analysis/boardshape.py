@@ -159,6 +159,13 @@ class BoardShape:
     seconds: float = 0.0
 
     @property
+    def notable(self) -> bool:
+        """Whether the verdict carries this check: the recommended board model is not the one fitted, the board is
+        not flat, or the board was refined (its shift from the flat board's solution); a flat board that was fitted
+        flat, or a check that could not run, is a detail."""
+        return self.changes or self.flat is False or (self.fitted == "refined" and bool(self.shift))
+
+    @property
     def changes(self) -> bool:
         """Whether the recommended board model is not the one the calibration fitted."""
         return bool(self.add or self.remove)

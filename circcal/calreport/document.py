@@ -187,9 +187,10 @@ def _backdrop(path: str) -> np.ndarray | None:
 def headline(assessment: Any, n_images: int) -> dict[str, str]:
     """The verdict a user acts on: how the calibration looks and the next step.
 
-    "bad": the lens model does not fit, or the two halves of a cross-validation disagree; "check": nothing wrong was
-    found but something is unverified or thin (no cross-validation, views that disagree, regions of the image
-    without observations, half the images unusable); "good": cross-validated, the lens model fits, every ninth of
+    "bad": the lens model does not fit, or the two halves of a cross-validation disagree; "check": the board-shape
+    check recommends the other board model (:mod:`circcal.analysis.boardshape`: the board is not flat, or a fitted
+    warp is not needed), or nothing wrong was found but something is unverified or thin (no cross-validation, views
+    that disagree, regions of the image without observations, half the images unusable); "good": cross-validated, the lens model fits, every ninth of
     the image observed.
 
     Parameters
@@ -225,6 +226,15 @@ def headline(assessment: Any, n_images: int) -> dict[str, str]:
             if fix is not None
             else "look at the views flagged below (leave them out, or re-shoot them) and at the coverage; a lens "
             "model that cannot follow the lens disagrees too",
+        }
+    shape = getattr(assessment, "board_shape", None)  # whether the board is flat (circcal.analysis.boardshape)
+    if shape is not None and shape.changes:
+        return {
+            "level": "check",
+            "text": "the board is not flat: the flat board's intrinsics are biased"
+            if shape.recommended == "warped"
+            else "the board is flat within the data's noise: the fitted warp is not needed",
+            "next": display_name(shape.recommendation().removeprefix("recommended: ")),
         }
     if cv is None or cv.status != "ok":
         return {
@@ -459,6 +469,9 @@ def report_context(assessment: Any, folder: Path) -> dict[str, Any]:
         else {"factor": _fmt(mrcal_factor, 3), "n": 2 * int(resid.size // 2), "dof": _dof(res)},
         "crossval": cvd,
         "remedy": [display_name(line) for line in assessment.remedy.lines()] if assessment.remedy else None,
+        "board_shape": None
+        if getattr(assessment, "board_shape", None) is None
+        else display_name(assessment.board_shape.line()),
         "failed": failed,
         "n_images": len(cal.paths),
         "figures": figs,
