@@ -106,7 +106,7 @@ def test_a_warped_board_is_detected_and_its_warp_is_within_its_sigmas(low_tilt):
 def test_a_flat_board_reports_flat_and_changes_nothing():
     obj, img = observations(None, low_tilt=True, seed=3)
     cal = calibrate_and_assess(None, BOARD, observations=(obj, img), image_size=SIZE)
-    shape = cal.assessment.board_shape
+    shape = cal.board_shape
     assert shape is not None and shape.flat is True and shape.chi2 <= FLAT_CHI2
     assert shape.recommended == "flat" and not shape.changes and shape.recommendation() is None
     assert all(abs(s) < 1.0 for _, s in shape.shift.values()), shape.shift

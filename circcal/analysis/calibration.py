@@ -1,8 +1,8 @@
 """One calibration with its verdict: what ``circcal.calibrate`` (the public API) and ``circcal calibrate`` (the CLI)
 return. Images go through the detect -> calibrate -> re-correct pipeline (:func:`circcal.pipeline.calibrate_images`);
 observations straight to the solver (:func:`circcal.solver.calibrate`); either way the result is assessed
-(:func:`circcal.analysis.assess.assess`: outliers, projection uncertainty, lens-model fit, coverage and, when asked,
-cross-validation)."""
+(:func:`circcal.analysis.assess.assess`: outliers, projection uncertainty, lens-model fit, coverage, the board's
+shape (:mod:`circcal.analysis.boardshape`) and, when asked, cross-validation)."""
 
 from __future__ import annotations
 
@@ -63,6 +63,13 @@ class Calibration:
         """The projection uncertainty over the image (:class:`circcal.analysis.assess.UncertaintyMap`; 1-sigma,
         worst direction, px), or None where it cannot be computed."""
         return self.assessment.uncertainty
+
+    @property
+    def board_shape(self) -> Any:
+        """Whether the board is flat and which board model predicts held-out views better
+        (:class:`circcal.analysis.boardshape.BoardShape`: the warp with its sigma, the flatness test, the intrinsics'
+        shift in stated sigmas, the recommended model), or None where it was not checked."""
+        return self.assessment.board_shape
 
     @property
     def verdict(self) -> list[str]:
