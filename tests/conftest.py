@@ -10,6 +10,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 REALDATA = SHARED / "data" / "realdata"
+MULTIVIEW = SHARED / "data" / "multiview"
 
 
 @pytest.fixture(scope="session")
@@ -17,6 +18,14 @@ def realdata() -> Path:
     if not REALDATA.is_dir():
         pytest.skip(f"real data not found at {REALDATA} (expected ../shared beside the repository)")
     return REALDATA
+
+
+@pytest.fixture(scope="session")
+def multiview() -> Path:
+    """OpenCV's real multi-camera test observations (../shared/data/multiview, its README)."""
+    if not MULTIVIEW.is_dir():
+        pytest.skip(f"multiview data not found at {MULTIVIEW} (expected ../shared beside the repository)")
+    return MULTIVIEW
 
 
 def skip_unless_available(cal) -> None:

@@ -7,8 +7,8 @@ Protocol: one JSON object on stdin, one JSON object on stdout; exit status 0 on 
 
 ``python mrcal_worker.py --probe`` prints ``{"version": ..., "api": ...}`` and exits.
 
-A request with ``"command": "export"`` or ``"command": "uncertainty"`` runs :func:`export` or :func:`uncertainty`
-(see there); without ``"command"`` it is a calibration (below).
+A request with ``"command": "export"``, ``"uncertainty"`` or ``"rig"`` runs :func:`export`, :func:`uncertainty` or
+:func:`rig` (a rig of N cameras; see there); without ``"command"`` it is a calibration (below).
 
 Request::
 
@@ -380,7 +380,140 @@ def uncertainty(req: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-COMMANDS = {"export": export, "uncertainty": uncertainty}
+def rig(req: dict[str, Any]) -> dict[str, Any]:
+    """A rig's calibration by mrcal: N stationary cameras, one board per frame (``"command": "rig"``).
+
+    Request: ``width_n``, ``height_n``, ``spacing`` (as a calibration's); ``observations`` (Nobs, H, W, 3) with
+    ``indices_frame_camera`` (Nobs, 2) [frame, camera], sorted by frame then camera; ``imagersizes`` (Ncam, 2);
+    ``focal_estimate``; ``lensmodel`` (one for every camera: mrcal's optimize takes one); ``modes``; for ``fair``
+    the seed ``seed_intrinsics`` (Ncam, n), ``seed_extrinsics`` (Ncam - 1, 6) rt_fromref and ``seed_frames``
+    (Nframes, 6) rt_toref (the caller's start; mrcal's stereographic seed where absent).
+
+    Parameters
+    ----------
+    req : dict
+
+    Returns
+    -------
+    dict
+        ``version``, ``api``, ``results``: per mode ``intrinsics`` (Ncam, n), ``extrinsics_rt_fromref`` (Ncam - 1, 6;
+        ``x_cam = R x_ref + t``, camera 0 the reference), ``frames_rt_toref``, ``rms_per_coord_px``, ``n_outliers``,
+        ``calobject_warp``.
+    """
+    import mrcal
+    import numpy as np
+
+    api = _api(mrcal)
+    k_ext, k_frames = _names(api)
+    version, vsrc = _version(mrcal)
+    W, H = int(req["width_n"]), int(req["height_n"])
+    spacing = float(req["spacing"])
+    obs0 = np.ascontiguousarray(np.asarray(req["observations"], dtype=np.float64).reshape(-1, H, W, 3))
+    ifc = np.ascontiguousarray(np.asarray(req["indices_frame_camera"], dtype=np.int32).reshape(-1, 2))
+    imagersizes = np.ascontiguousarray(np.asarray(req["imagersizes"], dtype=np.int32).reshape(-1, 2))
+    ncam = len(imagersizes)
+    ifce = np.ascontiguousarray(np.column_stack([ifc, ifc[:, 1] - 1]).astype(np.int32))
+    lensmodel = str(req.get("lensmodel", "LENSMODEL_OPENCV5"))
+    n_intr = int(mrcal.lensmodel_num_params(lensmodel))
+    common = dict(
+        points=None,
+        indices_frame_camintrinsics_camextrinsics=ifce,
+        observations_point=None,
+        indices_point_camintrinsics_camextrinsics=None,
+        imagersizes=imagersizes,
+        calibration_object_spacing=spacing,
+        verbose=False,
+    )
+
+    def mrcal_seed() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        obs = obs0.copy()
+        intr, ext, frames = (
+            np.ascontiguousarray(a, dtype=np.float64)
+            for a in mrcal.seed_stereographic(
+                imagersizes=imagersizes,
+                focal_estimate=float(req["focal_estimate"]),
+                indices_frame_camera=ifc,
+                observations=obs,
+                object_spacing=spacing,
+            )
+        )
+        for core in (False, True):
+            inputs = dict(
+                common,
+                observations_board=obs,
+                intrinsics=intr,
+                lensmodel="LENSMODEL_STEREOGRAPHIC",
+                do_optimize_intrinsics_core=core,
+                do_optimize_intrinsics_distortions=False,
+                do_optimize_calobject_warp=False,
+                calobject_warp=None,
+                do_apply_outlier_rejection=False,
+                do_apply_regularization=False,
+            )
+            inputs[k_ext], inputs[k_frames] = ext, frames
+            mrcal.optimize(**inputs)
+        rng = np.random.default_rng(0)
+        intr = np.concatenate([intr, (rng.random((ncam, n_intr - 4)) - 0.5) * 2e-6], axis=1)
+        return intr, ext, frames
+
+    results: list[dict[str, Any]] = []
+    for mode in req["modes"]:
+        if mode == "fair" and req.get("seed_intrinsics") is not None:
+            intr = np.asarray(req["seed_intrinsics"], dtype=np.float64).reshape(ncam, n_intr).copy()
+            ext = np.asarray(req["seed_extrinsics"], dtype=np.float64).reshape(ncam - 1, 6).copy()
+            fr = np.asarray(req["seed_frames"], dtype=np.float64).reshape(-1, 6).copy()
+        else:
+            intr, ext, fr = (np.ascontiguousarray(a) for a in mrcal_seed())
+        obs = obs0.copy()
+        base = dict(
+            common,
+            observations_board=obs,
+            intrinsics=intr,
+            lensmodel=lensmodel,
+            do_optimize_intrinsics_core=True,
+            do_optimize_intrinsics_distortions=True,
+            do_optimize_extrinsics=True,
+            do_optimize_frames=True,
+        )
+        base[k_ext], base[k_frames] = ext, fr
+        default = mode == "default"
+        if mode not in ("fair", "default"):
+            raise ValueError(f"unknown mode {mode!r}")
+        mrcal.optimize(
+            **dict(
+                base,
+                calobject_warp=None,
+                do_optimize_calobject_warp=False,
+                do_apply_regularization=True,
+                do_apply_outlier_rejection=default,
+            )
+        )
+        warp = np.zeros(2, dtype=np.float64) if default else None
+        stats = mrcal.optimize(
+            **dict(
+                base,
+                calobject_warp=warp,
+                do_optimize_calobject_warp=default,
+                do_apply_regularization=default,
+                do_apply_outlier_rejection=default,
+            )
+        )
+        results.append(
+            {
+                "mode": mode,
+                "lensmodel": lensmodel,
+                "intrinsics": intr.tolist(),
+                "extrinsics_rt_fromref": ext.tolist(),
+                "frames_rt_toref": fr.tolist(),
+                "rms_per_coord_px": float(stats["rms_reproj_error__pixels"]),
+                "n_outliers": int(stats.get("Noutliers_board", stats.get("Noutliers", 0))),
+                "calobject_warp": None if warp is None else warp.tolist(),
+            }
+        )
+    return {"version": version, "version_source": vsrc, "api": api, "results": results}
+
+
+COMMANDS = {"export": export, "uncertainty": uncertainty, "rig": rig}
 
 
 def main(argv: list[str]) -> int:

@@ -30,7 +30,7 @@ from circcal.metrics import error_stats_per_view
 from circcal.model import DEFAULT_LENS, Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
 from circcal.solver.covariance import state_covariance
-from circcal.solver.fisheye_start import fisheye_start, poses_from_rays
+from circcal.solver.fisheye_start import fisheye_start, pinhole_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.options import ASPECT_RATIO, CalibrationOptions
 from circcal.solver.outliers import reject_outliers
@@ -218,13 +218,20 @@ def _calibrate(
             except DegenerateViewsError as e:
                 # a wide lens (rational, thin prism) can defeat the distortion-free closed form where no view is
                 # flat: start from the equidistant lens instead, its radial profile atan(r) / r in the rational
-                # model's Pade form (1 + 4/15 r^2) / (1 + 3/5 r^2)
+                # model's Pade form (1 + 4/15 r^2) / (1 + 3/5 r^2). Otherwise, where at least 3 views are tilted,
+                # distortion and noise on nearly flat views defeated it (OpenCV's real multiview rigs): start from
+                # the pinhole whose focal length reprojects the views best; the solve's covariance then says
+                # whether the focal length is determined.
                 if model.n_dist < 8 or e.views:
-                    raise
+                    if not e.views or len(obj) - len(e.views) < 3:
+                        raise
+                    c, rvecs, tvecs = pinhole_start(
+                        obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect
+                    )
             else:
                 c, rvecs, tvecs = z.camera, z.rvecs, z.tvecs
                 start[4:6] = c.dist[0], c.dist[1]
-            if c is None:
+            if c is None:  # the wide lens's start (above)
                 c, rvecs, tvecs = fisheye_start(
                     obj, img, (w, h), principal_point=centre if fix_principal_point else None, aspect_ratio=aspect
                 )
