@@ -238,3 +238,34 @@ def test_the_mrcal_export_sends_the_fitted_warp_in_metres(monkeypatch):
     assert ce.document_views({**doc, "board_warp": {"warp_mm": [1.0, 2.0]}})["board_warp"].tolist() == [1.0, 2.0]
     with pytest.raises(InputError, match="board_warp"):
         ce.document_views({**doc, "board_warp": {"warp_mm": "sag"}})
+
+
+def test_the_exported_cameramodel_carries_the_warp_into_mrcal():
+    """The real worker writes the fitted warp into the .cameramodel's optimisation inputs, and mrcal reads it back
+    (metres, mrcal's calobject_warp); its own residuals at circcal's solution match circcal's (the same model)."""
+    import json
+    import subprocess
+
+    from circcal.formats import cameramodel_export as ce
+    from circcal.formats.mrcal_process import mrcal_python
+
+    python, why, _ = mrcal_python()
+    if python is None:
+        pytest.skip(why)
+    obj, img = observations(WARP, low_tilt=False, seed=7)
+    res = calibrate(obj, img, SIZE, CalibrationOptions(board_warp=True))
+    text, info = ce.cameramodel_text(res.camera, ce.result_views(res))
+    assert info["optimization_inputs"], info
+    script = (
+        "import sys, json, io, mrcal, numpy as np\n"
+        "m = mrcal.cameramodel(io.StringIO(sys.stdin.read()))\n"
+        "o = m.optimization_inputs()\n"
+        "x = mrcal.optimizer_callback(**o)[1]\n"
+        "n = int(np.sum(o['observations_board'][..., 2] > 0))\n"
+        "print(json.dumps({'warp': o['calobject_warp'].tolist(), 'rms': float(np.sqrt(np.sum(x[: 2 * o['observations_board'][..., 0].size] ** 2) / (2 * n)))}))\n"
+    )
+    out = subprocess.run([python, "-c", script], input=text, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-800:]
+    got = json.loads(out.stdout)
+    assert np.allclose(got["warp"], res.board_warp * 1e-3, rtol=1e-9, atol=1e-15)
+    assert got["rms"] == pytest.approx(res.errors["rms_per_coord_px"], rel=1e-3)

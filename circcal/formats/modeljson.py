@@ -7,7 +7,7 @@
          # dist in circcal.model.LENS_MODELS[lens].dist_names order; "lens" absent = "opencv5" ([k1, k2, p1, p2, k3])
      ... sections (MODEL_SECTIONS, each optional): "std", "fixed", "parameter_order", "correlation", "errors",
          "sigma_px", "n_params", "n_iterations", "converged", "views", "board_refinement", "board",
-         "failed_images", "recorrection_rounds"}
+         "failed_images", "recorrection_rounds", "board_warp"}
 
 Errors keys name their convention (``rms_per_point_px`` = OpenCV's RMS, ``rms_per_coord_px`` = mrcal's,
 ``mean_2d_px`` = the paper's). Non-finite numbers are written as ``null`` (JSON has no NaN).
@@ -53,6 +53,7 @@ MODEL_SECTIONS: tuple[str, ...] = (
     "board",
     "failed_images",
     "recorrection_rounds",
+    "board_warp",
 )
 
 

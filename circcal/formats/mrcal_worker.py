@@ -243,8 +243,9 @@ def solve(req: dict[str, Any]) -> dict[str, Any]:
 def _export_inputs(req: dict[str, Any], api: str) -> dict[str, Any]:
     """mrcal.optimize() inputs at a given solution (no optimisation run): ``req["lensmodel"]`` (default
     LENSMODEL_OPENCV5; OPENCV4 when k3 is held at 0), the board lattice observations, the frames (lengths in the
-    caller's unit: the export sends metres), a flat board warp (zeros(2), held), and the fair-mode switches (no warp
-    solved, no regularisation, no outlier rejection: circcal's estimator, whose optimum this is)."""
+    caller's unit: the export sends metres), the board warp (``req["calobject_warp"]``, metres, marked as estimated;
+    else a flat board held: zeros(2)), and the fair-mode switches (no regularisation, no outlier rejection:
+    circcal's estimator, whose optimum this is)."""
     import numpy as np
 
     k_ext, k_frames = _names(api)
@@ -265,14 +266,16 @@ def _export_inputs(req: dict[str, Any], api: str) -> dict[str, Any]:
         indices_point_camintrinsics_camextrinsics=None,
         imagersizes=np.array([req["imagersize"]], dtype=np.int32),
         calibration_object_spacing=float(req["spacing"]),
-        # a flat board, given as an array: mrcal's tools that re-solve with the warp freed (mrcal-convert-lensmodel)
-        # need one to seed it ("calobject_warp MUST be given as an array"); held here, so it changes nothing
-        calobject_warp=np.zeros(2, dtype=np.float64),
+        # the caller's fitted warp (metres), else a flat board, given as an array either way: mrcal's tools that
+        # re-solve with the warp freed (mrcal-convert-lensmodel) need one to seed it ("calobject_warp MUST be given
+        # as an array")
+        calobject_warp=np.asarray(req.get("calobject_warp") or (0.0, 0.0), dtype=np.float64),
         do_optimize_intrinsics_core=True,
         do_optimize_intrinsics_distortions=True,
         do_optimize_extrinsics=True,
         do_optimize_frames=True,
-        do_optimize_calobject_warp=False,
+        # an estimated warp is part of the state mrcal's uncertainty propagates (as circcal's covariance has it)
+        do_optimize_calobject_warp=req.get("calobject_warp") is not None,
         do_apply_outlier_rejection=False,
         do_apply_regularization=False,
         verbose=False,

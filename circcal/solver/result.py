@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from circcal.formats import model_json
-from circcal.formats.modeljson import MODEL_SECTIONS
 from circcal.model import Camera
 from circcal.solver.covariance import StateCovariance
 from circcal.solver.problem import warp_basis
@@ -188,13 +187,7 @@ class CalibrationResult:
     def _board_section(self) -> dict[str, Any]:
         """``{"board_refinement": ...}`` of :meth:`model_sections` with board refinement, ``{"board_warp": ...}`` with
         a warp, else empty."""
-        warp_known = "board_warp" in MODEL_SECTIONS  # model.json's sections are listed there (formats.modeljson)
-        if (
-            warp_known
-            and self.board_warp is not None
-            and self.board_warp_cov is not None
-            and self.board_warp_box is not None
-        ):
+        if self.board_warp is not None and self.board_warp_cov is not None and self.board_warp_box is not None:
             return {
                 "board_warp": {
                     "warp_mm": [float(v) for v in self.board_warp],
