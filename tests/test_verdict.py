@@ -92,6 +92,19 @@ def test_an_opencv5_fit_of_a_rational_lens_recommends_the_rational_model(tmp_pat
         (["d", "--lens", "opencv5", "--out", "m.json"], ("--lens", "rational"), (), "d --out m.json --lens rational"),
         (["d", "--lens=opencv5"], ("--lens", "rational"), (), "d --lens rational"),
         (["d", "--refine-board"], ("--refine-board",), (), "d --refine-board"),
+        # a flag and an option with its value together, either already given
+        (
+            ["d", "--board-warp", "--lens", "opencv5"],
+            ("--board-warp", "--lens", "rational"),
+            (),
+            "d --board-warp --lens rational",
+        ),
+        (
+            ["d", "--lens", "opencv5", "--board-warp"],
+            ("--lens", "rational", "--board-warp"),
+            (),
+            "d --lens rational --board-warp",
+        ),
         (["d", "--out", "my model.json"], (), ("b.png",), "d/a.png d/c.png --out 'my model.json'"),
     ],
 )

@@ -175,16 +175,22 @@ def recommended_command(
     if argv is None:
         return None
     words = list(argv)
-    if options:
-        opt, i = options[0], 0
+    groups: list[list[str]] = []  # each option with its values: ("--board-warp", "--lens", "rational") is two
+    for w in options:
+        if w.startswith("--") or not groups:
+            groups.append([w])
+        else:
+            groups[-1].append(w)
+    for opt, *values in groups:
+        i = 0
         while i < len(words):
-            if words[i] == opt and len(options) > 1:
-                del words[i : i + 2]
-            elif words[i] == opt or words[i].startswith(opt + "="):
+            if words[i] == opt:
+                del words[i : i + 1 + len(values)]
+            elif words[i].startswith(opt + "="):
                 del words[i]
             else:
                 i += 1
-        words += list(options)
+        words += [opt, *values]
     if drop:
         left = list(given)
         kept = []
