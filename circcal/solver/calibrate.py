@@ -29,12 +29,13 @@ from circcal.errors import CalibrationError, DegenerateViewsError, InputError
 from circcal.metrics import error_stats_per_view
 from circcal.model import DEFAULT_LENS, Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
+from circcal.solver.boardpoints import board_model, warp_box
 from circcal.solver.covariance import state_covariance
 from circcal.solver.fisheye_start import fisheye_start, pinhole_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.options import ASPECT_RATIO, CalibrationOptions
 from circcal.solver.outliers import reject_outliers
-from circcal.solver.problem import Problem, board_model, warp_box
+from circcal.solver.problem import Problem
 from circcal.solver.result import CalibrationResult
 from circcal.solver.zhang import homographies, poses_from_homographies, view_tilts_deg, zhang
 

@@ -10,8 +10,8 @@ import numpy as np
 
 from circcal.formats import model_json
 from circcal.model import Camera
+from circcal.solver.boardpoints import warp_basis
 from circcal.solver.covariance import StateCovariance
-from circcal.solver.problem import warp_basis
 
 if TYPE_CHECKING:  # annotations only (outliers refers to this module the same way)
     from circcal.solver.outliers import Rejections
