@@ -51,6 +51,7 @@ __all__ = [
     "MAX_FOLDS",
     "MIN_TRAIN_VIEWS",
     "SHIFT_PARAMS",
+    "TRADE_OFF",
     "WARP_OPTION",
 ]
 
@@ -58,6 +59,9 @@ __all__ = [
 FLAT_LEVEL = 1e-3
 #: The chi-square (2 dof) above which the board is not flat: ``-2 ln(FLAT_LEVEL)`` = 13.8.
 FLAT_CHI2 = -2.0 * math.log(FLAT_LEVEL)
+#: A refined board whose solve states a parameter's sigma this many times the flat board's says that the shape and
+#: that parameter trade off (nearly fronto-parallel views let a bowed board stand in for a longer focal length).
+TRADE_OFF = 3.0
 #: Held-out folds at most (each costs two solves).
 MAX_FOLDS = 4
 #: Views every fold's training set keeps at least (fewer: no held-out comparison).
@@ -142,6 +146,11 @@ class BoardShape:
         Why something was not measured; empty otherwise.
     seconds : float
         What the check cost, s.
+    inflation : dict of str to float
+        For a refined board: per intrinsic of :data:`SHIFT_PARAMS`, its stated sigma with the board refined over
+        its sigma with the board flat, both per unit of pixel noise (the information each solve's geometry gives):
+        how much of the focal length's (or principal point's) information the
+        board's shape takes (:data:`TRADE_OFF` and above: shape and that parameter trade off).
     """
 
     fitted: str
@@ -157,6 +166,7 @@ class BoardShape:
     command: str | None = None
     note: str = ""
     seconds: float = 0.0
+    inflation: dict[str, float] = field(default_factory=dict)
 
     @property
     def notable(self) -> bool:
@@ -175,6 +185,17 @@ class BoardShape:
         items = sorted(self.shift.items(), key=lambda kv: -abs(kv[1][1]))
         return ", ".join(f"{n} {d:+.3g} px ({abs(s):.1f} sigma)" for n, (d, s) in items)
 
+    def _trade_off_text(self) -> str:
+        """The refined board's conditioning in words (empty where no parameter's sigma grew by TRADE_OFF)."""
+        worst = {n: k for n, k in self.inflation.items() if k >= TRADE_OFF}
+        if not worst:
+            return ""
+        items = ", ".join(f"{n} x{k:.1f}" for n, k in sorted(worst.items(), key=lambda kv: -kv[1]))
+        return (
+            f"; refining the board multiplies their stated sigmas ({items}): the board's shape and these "
+            f"parameters trade off in these views (tilted views, at several distances, separate them)"
+        )
+
     def line(self) -> str:
         """The verdict's line about the board's shape.
 
@@ -189,7 +210,7 @@ class BoardShape:
                 return f"board shape: refined (every point estimated); the flat board's solution: {self.note}"
             return (
                 f"board shape: refined (every point estimated); against the flat board's solution the intrinsics "
-                f"differ by {self._shift_text()} (in this calibration's stated sigmas)"
+                f"differ by {self._shift_text()} (in this calibration's stated sigmas)" + self._trade_off_text()
             )
         if self.warp_mm is None or self.warp_std_mm is None or self.chi2 is None:
             return f"board shape: not checked ({self.note})"
@@ -261,6 +282,7 @@ class BoardShape:
             "command": self.command,
             "note": self.note,
             "seconds": self.seconds,
+            "sigma_inflation": dict(self.inflation),
         }
 
 
@@ -423,7 +445,16 @@ def board_shape(result: CalibrationResult, options: CalibrationOptions, *, held_
         )
     shift = _shift(result, other)
     if fitted == "refined":
-        return BoardShape(fitted, shift=shift, recommended=fitted, seconds=time.perf_counter() - t0)
+        # per unit of noise (each sigma over its solve's sigma_px): the flat board's residuals on a bowed board are
+        # larger, which scales its sigmas up and would hide the conditioning
+        inflation = {
+            n: float((result.std[n] / result.sigma_px) / (other.std[n] / other.sigma_px))
+            for n in shift
+            if n in other.std and np.isfinite(other.std[n]) and other.std[n] > 0 and other.sigma_px > 0
+        }
+        return BoardShape(
+            fitted, shift=shift, recommended=fitted, seconds=time.perf_counter() - t0, inflation=inflation
+        )
     flat_r, warp_r = (result, other) if fitted == "flat" else (other, result)
     chi2 = warp_chi2(warp_r)
     std = warp_r.board_warp_std
