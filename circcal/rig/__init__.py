@@ -1,4 +1,5 @@
-"""Rigs of 2..N cameras seeing one board: the rig model, its joint solve, stereo outputs and triangulation.
+"""Rigs of 2..N cameras seeing one board: the rig model, its joint solve, its verdict, stereo outputs and
+triangulation.
 
 Conventions: :mod:`circcal.rig.model` (camera 0 the reference, ``X_i = R_i X_0 + T_i``, mm).
 """
@@ -25,6 +26,7 @@ from circcal.rig.rectify import (
     write_rectified_overlay,
 )
 from circcal.rig.triangulate import Triangulated, triangulate
+from circcal.rig.verdict import RigCrossValidation, RigVerdict, cross_validate_rig, rig_verdict
 
 __all__ = [
     "RigCalibration",
@@ -49,4 +51,8 @@ __all__ = [
     "read_kalibr_camchain",
     "Triangulated",
     "triangulate",
+    "RigCrossValidation",
+    "RigVerdict",
+    "cross_validate_rig",
+    "rig_verdict",
 ]

@@ -75,6 +75,10 @@ class RigCalibration:
         Per joint solve ``{"round", "rms_px", "max_centre_shift_px"}`` (images only).
     per_camera : dict of str to ImagesCalibration
         Each camera's own calibration (images only).
+    observations : dict of str to dict of str to (ndarray (N, 3), ndarray (N, 2))
+        Per camera, per instant the views of the last joint solve: object points (mm, relabelled by the board
+        symmetry found) and image points (px, the final re-corrected centres): what
+        :func:`calibrate_rig_points` takes to recalibrate a subset of the instants (``board=None``).
     """
 
     rig: RigModel
@@ -90,6 +94,7 @@ class RigCalibration:
     start: RigStart
     rounds: list[dict[str, Any]] = field(default_factory=list)
     per_camera: dict[str, ImagesCalibration] = field(default_factory=dict)
+    observations: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
 
     def std(self) -> np.ndarray:
         """Standard deviations of ``rig.state_vector()`` (intrinsics px / unitless, rvec rad, tvec mm).
@@ -141,6 +146,7 @@ def calibrate_rig_points(
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
     board: Board | None = None,
+    initial: RigCalibration | None = None,
 ) -> RigCalibration:
     """Calibrate a rig from given observations.
 
@@ -157,6 +163,10 @@ def calibrate_rig_points(
     board : Board or None
         The board, to resolve its symmetry across cameras (:mod:`circcal.rig.start`); None: labellings are taken
         as given.
+    initial : RigCalibration or None
+        A calibration of the same cameras (the same lens models) whose instants include every one given: the joint
+        solve starts from its cameras and board poses instead of each camera calibrated alone (a subset of the
+        instants, e.g. the halves of :func:`circcal.rig.verdict.cross_validate_rig`, too few for a camera alone).
 
     Returns
     -------
@@ -165,7 +175,8 @@ def calibrate_rig_points(
     Raises
     ------
     InputError
-        Fewer than two cameras, bad observations (named by camera and instant), a size missing, bad options.
+        Fewer than two cameras, bad observations (named by camera and instant), a size missing, bad options, an
+        ``initial`` of other cameras or without an instant given.
     CalibrationError
         A camera's own calibration fails, a camera linked to the reference by no shared instant, a camera left
         with fewer than 3 views, or a diverged joint solve.
@@ -187,8 +198,38 @@ def calibrate_rig_points(
         except InputError as exc:
             raise InputError(f"camera {n!r} (instants {keys[:5]}...): {str(exc).splitlines()[0]}") from None
         views.append(dict(zip(keys, zip(obj, img))))
-    cameras, poses = camera_starts(names, views, sizes, opts)
+    if initial is None:
+        cameras, poses = camera_starts(names, views, sizes, opts)
+    else:
+        cameras, poses = _initial_starts(initial, names, views, opts)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
+
+
+def _initial_starts(
+    initial: RigCalibration,
+    names: list[str],
+    views: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+    opts: list[CalibrationOptions],
+) -> tuple[list[Camera], list[dict[str, tuple[np.ndarray, np.ndarray]]]]:
+    """The cameras and per-camera board poses of ``initial`` (:func:`camera_starts`' form) for ``views``."""
+    rig = initial.rig
+    if list(rig.names) != names or any(c.lens != o.lens for c, o in zip(rig.cameras, opts)):
+        raise InputError(
+            f"initial: a rig of cameras {list(rig.names)} ({', '.join(c.lens for c in rig.cameras)}), not of "
+            f"{names} ({', '.join(o.lens for o in opts)})"
+        )
+    poses = []
+    for c, vs in enumerate(views):
+        Rc, Tc = rig.pose(c)
+        missing = [v for v in vs if v not in initial.board_poses]
+        if missing:
+            raise InputError(f"initial: no board pose of instant(s) {missing[:5]} of camera {names[c]!r}")
+        per = {}
+        for v in vs:
+            rv, tv = initial.board_poses[v]
+            per[v] = (Rc @ rodrigues(rv), Rc @ tv + Tc)
+        poses.append(per)
+    return list(rig.cameras), poses
 
 
 def _calibrate(
@@ -246,11 +287,13 @@ class _Layout:
         opts: list[CalibrationOptions],
     ) -> RigProblem:
         obs, free, maps = [], [], []
+        self.observed = {
+            n: {v: (self.label(c, v).apply(views[c][v][0]), views[c][v][1]) for v in self.kept[c]}
+            for c, n in enumerate(self.names)
+        }
         for c, cam in enumerate(cameras):
             obs.append(
-                CameraObservations.stack(
-                    [(self.index[v], self.label(c, v).apply(views[c][v][0]), views[c][v][1]) for v in self.kept[c]]
-                )
+                CameraObservations.stack([(self.index[v], *self.observed[self.names[c]][v]) for v in self.kept[c]])
             )
             aspect = cam.fx / cam.fy if ASPECT_RATIO in opts[c].fixed else None
             f, m = free_intrinsics(cam.model.param_names, opts[c].fixed, aspect)
@@ -305,6 +348,7 @@ class _Layout:
             iterations=sol.iterations,
             converged=sol.converged,
             start=self.start,
+            observations=self.observed,
         )
 
 

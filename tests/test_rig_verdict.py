@@ -1,0 +1,221 @@
+"""The rig's verdict (circcal.rig.verdict): cross-validation on two halves of the instants, outlier views, coverage.
+
+On the rig scenario "two" (a 640x480 opencv5 camera and a 512x384 rational one) projected through the true rig with
+Gaussian pixel noise: the clean rig is consistent; a lens model too simple, a rig that moved between the halves, a
+half of one camera's images shifted, and one noisy view are each named."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from circcal.analysis.compare import pixel_grid
+from circcal.analysis.diff import model_diff
+from circcal.fixtures.rig import rig_observations, rig_scenario
+from circcal.model import Camera
+from circcal.rig import RigModel, calibrate_rig_points
+from circcal.rig.verdict import (
+    POSE_LIMIT,
+    camera_coverage,
+    cross_validate_rig,
+    pose_check,
+    rig_verdict,
+    rotation_free_stdev,
+    shared_coverage,
+    split_instants,
+    view_outliers,
+)
+from circcal.solver import CalibrationOptions
+
+NOISE_PX = 0.02
+OPTIONS = {"left": CalibrationOptions(), "right": CalibrationOptions(lens="rational")}
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return rig_scenario("two")
+
+
+def _sizes(sc):
+    return {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+
+
+def _halves(obs):
+    return split_instants({n: list(per) for n, per in obs.items()})
+
+
+@pytest.fixture(scope="module")
+def clean(scenario):
+    obs = rig_observations(scenario, NOISE_PX, seed=2)
+    cal = calibrate_rig_points(obs, _sizes(scenario), OPTIONS)
+    return cal, rig_verdict(cal, OPTIONS)
+
+
+def test_split_instants_halves_every_camera():
+    inst = {"a": [f"{k:02d}" for k in range(12)], "b": [f"{k:02d}" for k in range(3, 12)], "c": ["00", "05", "07"]}
+    h0, h1 = split_instants(inst)
+    assert not set(h0) & set(h1) and set(h0) | set(h1) == set(inst["a"])
+    for per in inst.values():
+        assert abs(len(set(per) & set(h0)) - len(set(per) & set(h1))) <= 1, per
+    assert h0 == sorted(h0) and h1 == sorted(h1)
+
+
+def test_clean_rig_is_consistent(clean):
+    cal, v = clean
+    assert v.verdict == "consistent", v.lines()
+    assert v.cross.status == "ok" and v.cross.verdict == "consistent"
+    assert set(v.cross.projections) == {"left", "right"} and [p.camera for p in v.cross.poses] == ["right"]
+    assert all(d.consistent for d in v.cross.projections.values())
+    assert v.cross.poses[0].mahalanobis < POSE_LIMIT
+    assert not v.outliers
+    assert v.lines()[0].startswith("verdict: consistent")
+    # the halves are disjoint, each calibrated on its own instants only
+    h0, h1 = v.cross.halves
+    assert not set(h0) & set(h1) and set(h0) | set(h1) == set(cal.board_poses)
+    for half, r in zip((h0, h1), v.cross.rigs):
+        assert set(r.board_poses) == set(half)
+    d = v.to_dict()
+    assert d["verdict"] == "consistent" and d["cross_validation"]["poses"][0]["camera"] == "right"
+
+
+def test_lens_model_too_simple_is_a_model_problem(scenario):
+    """The rational camera fitted as opencv5 with k2 and k3 held: the halves' projections of that camera disagree."""
+    opts = {"left": CalibrationOptions(), "right": CalibrationOptions.from_flags(fix_k2=True, fix_k3=True)}
+    cal = calibrate_rig_points(rig_observations(scenario, NOISE_PX, seed=2), _sizes(scenario), opts)
+    v = rig_verdict(cal, opts)
+    assert v.verdict == "model-or-data-problem"
+    assert not v.cross.projections["right"].consistent
+    text = "\n".join(v.lines())
+    assert "camera right: the halves' projections differ" in text and "lens model too simple" in text
+
+
+def test_a_rig_that_moved_between_the_halves_is_named(scenario):
+    """The right camera turned by 0.3 deg for the instants of the second half: its pose disagrees."""
+    obs = rig_observations(scenario, NOISE_PX, seed=3)
+    _, h1 = _halves(obs)
+    rv = scenario.rig.rvecs.copy()
+    rv[1] += [0.0, np.radians(0.3), 0.0]
+    moved = dataclasses.replace(
+        scenario, rig=RigModel(scenario.rig.names, scenario.rig.cameras, rv, scenario.rig.tvecs)
+    )
+    other = rig_observations(moved, NOISE_PX, seed=3)
+    for v in h1:
+        if v in obs["right"] and v in other["right"]:
+            obs["right"][v] = other["right"][v]
+    cal = calibrate_rig_points(obs, _sizes(scenario), OPTIONS)
+    verdict = rig_verdict(cal, OPTIONS)
+    assert verdict.verdict == "model-or-data-problem"
+    (pose,) = verdict.cross.poses
+    assert not pose.consistent and pose.mahalanobis > 1.5 * POSE_LIMIT and 0.2 < pose.rotation_deg < 0.45
+    assert "the cameras moved against each other" in "\n".join(verdict.lines())
+
+
+def test_a_zoomed_half_is_a_data_problem(scenario):
+    """The right camera's points of one half scaled by 0.5% about its principal point (the zoom or focus changed
+    during the capture): the halves' projections of that camera disagree."""
+    obs = rig_observations(scenario, NOISE_PX, seed=3)
+    _, h1 = _halves(obs)
+    cam = scenario.rig.cameras[1]
+    c = np.array([cam.cx, cam.cy])
+    for v in h1:
+        if v in obs["right"]:
+            P, q = obs["right"][v]
+            obs["right"][v] = (P, c + 1.005 * (q - c))
+    cal = calibrate_rig_points(obs, _sizes(scenario), OPTIONS)
+    v = rig_verdict(cal, OPTIONS)
+    assert v.verdict == "model-or-data-problem" and v.cross.verdict == "model-or-data-problem"
+    assert not v.cross.projections["right"].consistent
+    assert any(p.startswith("camera right:") for p in v.cross.problems())
+
+
+def test_a_noisy_view_is_an_outlier_named(scenario):
+    obs = rig_observations(scenario, NOISE_PX, seed=5)
+    bad = sorted(obs["right"])[3]
+    P, q = obs["right"][bad]
+    obs["right"][bad] = (P, q + np.random.default_rng(1).normal(0.0, 20 * NOISE_PX, q.shape))
+    cal = calibrate_rig_points(obs, _sizes(scenario), OPTIONS)
+    outliers = view_outliers(cal)
+    assert [(o.camera, o.instant) for o in outliers] == [("right", bad)]
+    assert outliers[0].ratio > 3
+    v = rig_verdict(cal, OPTIONS, cross_validate=False)
+    assert v.verdict == "model-or-data-problem" and v.cross is None
+    assert f"right {bad}: RMS per point" in "\n".join(v.lines())
+
+
+def test_too_few_instants_and_skipped(scenario, clean):
+    obs = rig_observations(scenario, NOISE_PX, seed=6)
+    keep = sorted(set(obs["left"]) & set(obs["right"]))[:5]
+    few = {n: {v: per[v] for v in keep} for n, per in obs.items()}
+    simple = CalibrationOptions()  # (the rational model is not determined by 5 views of the right camera alone)
+    cal = calibrate_rig_points(few, _sizes(scenario), simple)
+    cv = cross_validate_rig(cal, simple)
+    assert cv.status == "too-few-instants" and cv.verdict is None and "5 instants" in cv.message
+    v = rig_verdict(cal, simple)
+    assert v.verdict == "not-checked" and v.lines()[0].startswith("verdict: not cross-validated: not done")
+    skipped = rig_verdict(clean[0], OPTIONS, cross_validate=False)
+    assert skipped.verdict == "not-checked" and "--no-cross-validate" in skipped.lines()[0]
+
+
+@pytest.mark.parametrize("lens", ["opencv5", "rational", "fisheye"])
+def test_rotation_free_stdev_is_the_spread_of_model_diff(lens):
+    """Intrinsics drawn from a covariance: the RMS of model_diff's difference (the implied rotation fitted) per
+    pixel lies between the predicted worst-direction sigma and sqrt(2) times it (the 2-D norm of two directions)."""
+    cams = {c.lens: c for name in ("two", "fisheye") for c in rig_scenario(name).rig.cameras}
+    cam = cams[lens]
+    rng = np.random.default_rng(0)
+    p = len(cam.intrinsics)
+    A = rng.normal(size=(p, p))
+    scale = np.r_[[0.5] * 4, [1e-3] * (p - 4)]
+    cov = (A @ A.T / p) * np.outer(scale, scale)
+    uv = pixel_grid(cam, 24)
+    sd = rotation_free_stdev(cam, cov, uv)
+    d2 = []
+    for _ in range(150):
+        theta = cam.intrinsics + rng.multivariate_normal(np.zeros(p), cov)
+        d2.append(model_diff(cam, Camera.from_intrinsics(cam.width, cam.height, theta, cam.lens), gridn_width=24).diff)
+    ratio = np.sqrt(np.mean(np.square(d2), axis=0)).ravel() / sd
+    assert np.isfinite(ratio).all()
+    assert 0.85 < np.median(ratio) < 1.35 and ratio.min() > 0.75 and ratio.max() < 1.6, (ratio.min(), ratio.max())
+
+
+def test_pose_check_is_the_mahalanobis_distance(clean):
+    cal, _ = clean
+    rig = cal.rig
+    same = pose_check(rig, rig, 1)
+    assert same.mahalanobis == 0 and same.rotation_deg == 0 and same.consistent
+    n = len(rig.state_vector())
+    i = n - 3  # tz of camera 1
+    t = rig.tvecs.copy()
+    t[1, 2] += 3 * np.sqrt(rig.covariance[i, i])
+    moved = RigModel(rig.names, rig.cameras, rig.rvecs, t, rig.covariance, rig.rms_px)
+    chk = pose_check(rig, moved, 1)
+    # both rigs hold the same covariance: the difference is weighed by twice it (rvec mapped by the left Jacobian)
+    expected = np.sqrt(np.linalg.inv(2 * _pose_cov(rig))[5, 5]) * 3 * np.sqrt(rig.covariance[i, i])
+    assert chk.mahalanobis == pytest.approx(expected, rel=1e-6)
+    assert chk.translation_mm == pytest.approx(3 * np.sqrt(rig.covariance[i, i]))
+
+
+def _pose_cov(rig):
+    from circcal.rotation import left_jacobian
+
+    n = len(rig.state_vector())
+    C = rig.covariance[n - 6 :, n - 6 :]
+    D = np.eye(6)
+    D[:3, :3] = left_jacobian(rig.rvecs[1])
+    return D @ C @ D.T
+
+
+def test_coverage_per_camera_and_of_the_shared_field(clean):
+    cal, _ = clean
+    own = camera_coverage(cal)
+    a, b = shared_coverage(cal)
+    assert set(own) == {"left", "right"}
+    assert (own["left"].width, own["left"].height) == (640, 480) and (b.width, b.height) == (512, 384)
+    # the shared field is part of each camera's own: never more cells, and strictly fewer points here (instants and
+    # points one camera sees alone)
+    assert (a.counts <= own["left"].counts).all() and a.counts.sum() < own["left"].counts.sum()
+    assert (b.counts <= own["right"].counts).all() and b.counts.sum() < own["right"].counts.sum()
+    # both cameras saw the same board points at the shared instants: as many in each image
+    assert a.counts.sum() == b.counts.sum() > 0
