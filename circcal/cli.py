@@ -29,6 +29,8 @@ COMMANDS = (
     "board",
     "detect",
     "calibrate",
+    "calibrate-rig",
+    "triangulate",
     "convert",
     "diff",
     "validate",
@@ -36,6 +38,8 @@ COMMANDS = (
     "report",
     "study",
 )
+#: Subcommands whose module in :mod:`circcal.commands` is not named as they are.
+MODULES = {"calibrate-rig": "rig"}
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -77,7 +81,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in (only,) if only in COMMANDS else COMMANDS:
-        importlib.import_module(f"circcal.commands.{name}").add_parser(sub)
+        importlib.import_module(f"circcal.commands.{MODULES.get(name, name)}").add_parser(sub)
     return parser
 
 

@@ -1,0 +1,459 @@
+"""``circcal calibrate-rig --camera left=L/ --camera right='R/*.png' --grid RxC --pitch P --out rig.json``: a rig of
+2..N cameras calibrated in one joint solve (:func:`circcal.rig.calibrate_rig`), its verdict
+(:mod:`circcal.rig.verdict`) and its files (:mod:`circcal.rig.files`)."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import math
+import re
+from pathlib import Path
+
+from circcal.commands.args import (
+    DIAMETER_HELP,
+    IMAGE_SUFFIXES,
+    LENS_CHOICES,
+    add_board_file_argument,
+    add_fix_arguments,
+    board_of_args,
+    calibration_options,
+    parse_grid,
+    parse_length_mm,
+    positive_int,
+)
+from circcal.commands.board import add_marker_arguments
+from circcal.errors import InputError
+from circcal.pathnames import display_name
+
+#: A camera's name: it names files in --ros and --cameramodels folders.
+CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
+#: --out by extension.
+OUT_FORMATS = {".json": "json", ".yaml": "opencv", ".yml": "opencv"}
+
+
+def _camera(text: str) -> tuple[str, str]:
+    """``NAME=IMAGES`` -> (name, images) (an argparse type)."""
+    name, eq, images = str(text).partition("=")
+    if not eq or not images:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME=IMAGES (a folder or a quoted glob, e.g. left=shots/left or 'right=shots/right/*.png'), "
+            f"got {text!r}"
+        )
+    if not CAMERA_NAME.fullmatch(name):
+        raise argparse.ArgumentTypeError(
+            f"camera name {name!r} must be letters, digits, '_', '.', '+' or '-' (it names files), starting with a "
+            f"letter or digit"
+        )
+    return name, images
+
+
+def _lens(text: str) -> tuple[str | None, str]:
+    """``[NAME=]MODEL`` -> (name or None, model) (an argparse type)."""
+    name, eq, model = str(text).rpartition("=")
+    if model not in LENS_CHOICES:
+        raise argparse.ArgumentTypeError(
+            f"unknown lens model {model!r} in {text!r}; expected [NAME=]MODEL with MODEL one of "
+            f"{', '.join(LENS_CHOICES)}"
+        )
+    if eq and not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=MODEL or MODEL, got {text!r}")
+    return (name or None), model
+
+
+def _alpha(text: str) -> float:
+    """OpenCV's free scaling: negative (its default) or within [0, 1] (an argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value > 1.0:
+        raise argparse.ArgumentTypeError(f"must be negative (OpenCV's default) or within 0..1, got {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``circcal calibrate-rig`` subcommand, its arguments and its ``func`` (:func:`run`) to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The command line's subparsers.
+    """
+    p = sub.add_parser(
+        "calibrate-rig",
+        help="calibrate a rig of 2..N cameras seeing one circle grid (stereo included)",
+        description="Calibrate every camera (detection, calibration, centre re-correction), then solve every "
+        "camera's intrinsics, every camera's pose in the rig (the first --camera is the reference: X_cam = R X_ref "
+        "+ T, mm) and one board pose per instant jointly, re-correcting the centres under the joint model until "
+        "they settle. Images of different cameras are matched by file name: the same name is the same instant; "
+        "an instant seen by some cameras only, or partly, is used. Then the verdict: two halves of the instants "
+        "calibrated apart and compared against their stated uncertainty, outlier views per camera, coverage.",
+    )
+    p.add_argument(
+        "--camera",
+        action="append",
+        type=_camera,
+        required=True,
+        metavar="NAME=IMAGES",
+        help="a camera and its images: a folder (its images, sorted) or a glob in quotes ('left/*.png'); give one "
+        "--camera per camera, the reference first",
+    )
+    p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 8x11 (asymmetric: 11x4); auto: found")
+    p.add_argument("--pitch", type=parse_length_mm, help="point spacing, e.g. 15mm (the unit of T)")
+    p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
+    p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
+    add_marker_arguments(p)
+    add_board_file_argument(p)
+    p.add_argument(
+        "--lens",
+        action="append",
+        type=_lens,
+        default=[],
+        metavar="[NAME=]MODEL",
+        help="lens model of camera NAME, or of every camera not named: "
+        + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
+        + " (default opencv5)",
+    )
+    add_fix_arguments(p)
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="rig.json (circcal's rig model: every camera, its pose, the instants used, the covariance) or rig.yaml "
+        "(OpenCV's stereo file of the first two cameras: M1 D1 M2 D2 R T E F R1 R2 P1 P2 Q, X_2 = R X_1 + T, T in "
+        "the pitch's unit)",
+    )
+    p.add_argument("--ros", type=Path, help="folder: a ROS camera_info YAML pair of the first two cameras (metres)")
+    p.add_argument("--cameramodels", type=Path, help="folder: one mrcal .cameramodel per camera, with extrinsics")
+    p.add_argument("--kalibr", type=Path, help="Kalibr camchain YAML (radtan needs --fix-k3, or a fisheye)")
+    p.add_argument("--rectified", type=Path, help="folder: the rectified pair of each instant the first two share")
+    p.add_argument("--alpha", type=_alpha, default=-1.0, help="rectification free scaling (OpenCV's alpha; default -1)")
+    p.add_argument(
+        "--no-cross-validate",
+        dest="cross_validate",
+        action="store_false",
+        help="skip the cross-validation on two halves of the instants (done by default with >= 6 instants)",
+    )
+    p.add_argument("--jobs", type=positive_int, default=None, help="images detected at once (default: one per CPU)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _images_of(name: str, spec: str) -> list[Path]:
+    """A camera's image files: a folder's images, or a glob's files, sorted; InputError naming --camera."""
+    option = f"--camera {name}={spec}"
+    path = Path(spec)
+    if path.is_dir():  # expand_images' rule, without its line on stderr: the summary says how many were found
+        found = sorted(f for f in path.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+        if not found:
+            raise InputError(
+                f"{option}: folder {display_name(path)} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)"
+            )
+        return found
+    if glob.has_magic(spec):
+        found = sorted(Path(f) for f in glob.glob(spec) if Path(f).is_file())
+        if not found:
+            raise InputError(f"{option}: the pattern matches no file")
+        return found
+    if path.is_file():
+        return [path]
+    raise InputError(f"{option}: no such folder or file (give a folder, or a glob in quotes such as 'left/*.png')")
+
+
+def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
+    """Every --camera's images, checked: two cameras at least, names distinct, images named once per camera, every
+    camera linked to the reference by shared image names."""
+    images: dict[str, list[Path]] = {}
+    for name, spec in args.camera:
+        if name in images:
+            raise InputError(f"--camera {name}: camera {name!r} given twice; give each camera once")
+        images[name] = _images_of(name, spec)
+    if len(images) < 2:
+        raise InputError(f"--camera: a rig needs at least two cameras, got {len(images)}")
+    names: dict[str, set[str]] = {}
+    for name, paths in images.items():
+        seen: dict[str, Path] = {}
+        for f in paths:
+            if f.name in seen:
+                raise InputError(
+                    f"--camera {name}: two images named {display_name(f.name)!r} ({display_name(seen[f.name])}, "
+                    f"{display_name(f)}); the file name names the instant"
+                )
+            seen[f.name] = f
+        names[name] = set(seen)
+    linked, todo = {next(iter(images))}, [next(iter(images))]
+    while todo:
+        a = todo.pop()
+        for b in names:
+            if b not in linked and names[a] & names[b]:
+                linked.add(b)
+                todo.append(b)
+    alone = [n for n in images if n not in linked]
+    if alone:
+        raise InputError(
+            f"--camera {alone[0]}: its images share no file name with the reference {next(iter(images))!r} or a "
+            f"camera linked to it; the same file name names the same instant in every camera"
+        )
+    return images
+
+
+def _options(args: argparse.Namespace, names: list[str]) -> dict:
+    """One CalibrationOptions per camera: its --lens (or the one for all), the --fix-* flags."""
+    lens_of: dict[str | None, str] = {}
+    for name, model in args.lens:
+        if name is not None and name not in names:
+            raise InputError(f"--lens {name}={model}: no camera {name!r} (cameras: {', '.join(names)})")
+        if name in lens_of:
+            raise InputError(f"--lens {name or model}: given twice" + (f" for camera {name!r}" if name else ""))
+        lens_of[name] = model
+    out = {}
+    for name in names:
+        lens = lens_of.get(name, lens_of.get(None, "opencv5"))
+        try:
+            out[name] = calibration_options(argparse.Namespace(**{**vars(args), "lens": lens}))
+        except InputError as exc:
+            raise InputError(f"camera {name!r} (lens {lens}): {exc}") from None
+    return out
+
+
+def _check_formats(args: argparse.Namespace, names: list[str], options: dict) -> str:
+    """--out's format, and every file format's limits checked against the cameras' lens models before the work."""
+    fmt = OUT_FORMATS.get(args.out.suffix.lower())
+    if fmt is None:
+        raise InputError(
+            f"--out {display_name(args.out)}: unknown extension {args.out.suffix!r}; give rig.json (circcal's rig "
+            f"model) or rig.yaml (OpenCV's stereo file of the first two cameras)"
+        )
+    if args.ros is not None:
+        bad = [n for n in names[:2] if options[n].lens == "thin-prism"]
+        if bad:
+            raise InputError(f"--ros: camera {bad[0]!r} is thin-prism; ROS camera_info has no such distortion model")
+    if args.cameramodels is not None:
+        from circcal.formats.mrcal import MRCAL_UNSUPPORTED
+
+        bad = [n for n in names if options[n].lens in MRCAL_UNSUPPORTED]
+        if bad:
+            raise InputError(
+                f"--cameramodels: camera {bad[0]!r} is {options[bad[0]].lens}: "
+                f"{MRCAL_UNSUPPORTED[options[bad[0]].lens]}"
+            )
+    if args.kalibr is not None:
+        for n in names:
+            o = options[n]
+            if o.lens in ("rational", "thin-prism") or (o.lens == "opencv5" and not args.fix_k3):
+                raise InputError(
+                    f"--kalibr: camera {n!r} ({o.lens}{'' if o.lens != 'opencv5' else ' with k3 free'}): Kalibr's "
+                    f"radtan model holds k1, k2, p1, p2 only; give --fix-k3 with opencv5 (or a fisheye)"
+                )
+    return fmt
+
+
+def run(args: argparse.Namespace) -> int:
+    """Calibrate the rig of the arguments, print its verdict and numbers, write its files.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments :func:`add_parser`'s parser parsed.
+
+    Returns
+    -------
+    int
+        The exit status: 0; 1 when no rig could be made (said on stderr).
+
+    Raises
+    ------
+    InputError
+        A bad argument or input file (the CLI prints it and exits 2).
+    """
+    import sys
+
+    from circcal.outputs import Outputs
+    from circcal.rig import calibrate_rig
+    from circcal.rig.verdict import rig_verdict
+    from circcal.solver import CalibrationError
+
+    images = _cameras(args)
+    names = list(images)
+    options = _options(args, names)
+    fmt = _check_formats(args, names, options)
+    args.images = [f for paths in images.values() for f in paths]  # --grid auto looks at every camera's images
+    board = board_of_args(args, "calibrate-rig")
+    inputs = [*args.images, *([args.board] if args.board is not None else [])]
+    with Outputs(inputs=inputs) as outputs:  # every output checked before the work, committed together
+        out = outputs.file(args.out, "--out")
+        ros = None if args.ros is None else outputs.folder(args.ros, "--ros", kind="rig-ros")
+        models = (
+            None
+            if args.cameramodels is None
+            else outputs.folder(args.cameramodels, "--cameramodels", kind="rig-cameramodels")
+        )
+        kalibr = None if args.kalibr is None else outputs.file(args.kalibr, "--kalibr")
+        rectified = (
+            None if args.rectified is None else outputs.folder(args.rectified, "--rectified", kind="rig-rectified")
+        )
+        try:
+            cal = calibrate_rig(images, board, options, progress=not args.no_progress, jobs=args.jobs)
+        except CalibrationError as exc:
+            print(f"circcal calibrate-rig: no rig: {exc}", file=sys.stderr)
+            return 1
+        verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
+        print("\n".join(verdict.lines()))
+        print("\n".join(summary_lines(cal, images)))
+        if verdict.cross is not None:
+            print("\n".join(verdict.cross.lines()))
+        _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images, args.alpha)
+        outputs.commit()
+    written = [(args.out, "OpenCV stereo YAML of " + " and ".join(names[:2]) if fmt == "opencv" else "circcal rig")]
+    written += [
+        (p, what)
+        for p, what in (
+            (args.ros, "ROS camera_info pair"),
+            (args.cameramodels, "mrcal .cameramodels"),
+            (args.kalibr, "Kalibr camchain"),
+            (args.rectified, "rectified pairs"),
+        )
+        if p is not None
+    ]
+    for p, what in written:
+        print(f"wrote {display_name(p)} ({what})")
+    return 0
+
+
+def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images, alpha) -> None:
+    """Every output into its staging place."""
+    from circcal import atomic
+    from circcal.jsonio import dumps
+    from circcal.rig import (
+        kalibr_camchain_text,
+        mrcal_cameramodel_texts,
+        opencv_stereo_text,
+        rectify_pair,
+        ros_camera_info_pair,
+        write_rectified_overlay,
+    )
+
+    rig = cal.rig
+    if fmt == "opencv":
+        atomic.write_text(out, opencv_stereo_text(rig, 0, 1, alpha))
+    else:
+        doc = rig.to_dict()
+        doc.update(
+            instants=cal.instants,
+            rms_px_per_camera=cal.rms_px,
+            sigma_px=cal.sigma_px,
+            dropped=cal.dropped,
+            relabelled=cal.relabelled,
+            board=board.to_dict(),
+            verdict=verdict.to_dict(),
+        )
+        atomic.write_text(out, dumps(doc, indent=1) + "\n")
+    rect = rectify_pair(rig, 0, 1, alpha) if ros is not None or rectified is not None else None
+    if ros is not None:
+        for name, text in zip(rig.names[:2], ros_camera_info_pair(rig, 0, 1, rect=rect)):
+            atomic.write_text(ros / f"{name}.yaml", text)
+    if models is not None:
+        for name, text in mrcal_cameramodel_texts(rig).items():
+            atomic.write_text(models / f"{name}.cameramodel", text)
+    if kalibr is not None:
+        atomic.write_text(kalibr, kalibr_camchain_text(rig))
+    if rectified is not None:
+        a, b = ({p.name: p for p in images[n]} for n in rig.names[:2])
+        for v in sorted(set(a) & set(b)):
+            write_rectified_overlay(rectified / f"{Path(v).stem}.png", rig, a[v], b[v], rect)
+
+
+def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
+    """The numbers of a rig calibration: per camera its images, RMS, intrinsics and pose with their sigmas, what was
+    left out; then the coverage of each camera and of the field the first two share.
+
+    Parameters
+    ----------
+    cal : circcal.rig.RigCalibration
+    images : dict of str to list of Path
+        Per camera the images given.
+
+    Returns
+    -------
+    list of str
+    """
+    import numpy as np
+
+    from circcal.rig.verdict import camera_coverage, shared_coverage
+
+    rig = cal.rig
+    std = cal.std()
+    n_intr = [len(c.intrinsics) for c in rig.cameras]
+    offsets = np.concatenate([[0], np.cumsum(n_intr)])
+    lines = [
+        f"rig of {rig.n_cameras} cameras, {len(cal.board_poses)} instants: RMS per point (2-D norm), OpenCV's "
+        f"convention, {rig.rms_px:.4f} px over every camera; noise estimate sigma {cal.sigma_px:.4f} px per "
+        f"coordinate; {cal.iterations} iterations{'' if cal.converged else ' (NOT converged)'}"
+    ]
+    if cal.rounds:
+        lines.append(
+            "re-correction rounds: "
+            + ", ".join(
+                f"{r['round']}: RMS/pt {r['rms_px']:.4f} px"
+                + ("" if r["round"] == 0 else f", centres moved <= {r['max_centre_shift_px']:.2g} px")
+                for r in cal.rounds
+            )
+        )
+    for k, (name, cam) in enumerate(zip(rig.names, rig.cameras)):
+        lines.append(
+            f"camera {name}{' (reference)' if k == 0 else ''}: {cam.width}x{cam.height}, {cam.model.description}; "
+            f"{len(images[name])} images found, {len(cal.instants[name])} views used; RMS per point (2-D norm), "
+            f"OpenCV's convention, {cal.rms_px[name]:.4f} px"
+        )
+        lines.append(f"  {'parameter':>9}  {'value':>14}  {'+- 1 sigma':>12}")
+        s = std[offsets[k] : offsets[k + 1]]
+        for pname, v, sv in zip(cam.model.param_names, cam.intrinsics, s):
+            lines.append(f"  {pname:>9}  {v:14.6f}  {sv:12.6f}{'  (held)' if sv == 0 else ''}")
+        if k > 0:
+            lines.append("  " + _pose_text(rig, k, std[offsets[-1] + 6 * (k - 1) : offsets[-1] + 6 * k]))
+        per = cal.per_camera.get(name)
+        for r in getattr(per, "failed", []) or []:
+            lines.append(f"  image left out: {display_name(Path(r.path).name)}: {r.reason}")
+        for d in cal.dropped:
+            if d["camera"] == name:
+                lines.append(f"  view dropped from the rig: {display_name(d['instant'])}: {d['reason']}")
+        relabelled = [display_name(r["instant"]) for r in cal.relabelled if r["camera"] == name]
+        if relabelled:
+            lines.append(
+                f"  views relabelled by the board's symmetry to agree with the others: {', '.join(relabelled)}"
+            )
+    lines.append("coverage (each ninth of the image needs an observed point, else the lens model is extrapolated):")
+    for name, cov in camera_coverage(cal).items():
+        lines.append(f"  {name}: {100 * cov.covered_share:.0f}% of the map's cells hold a point")
+        lines += [f"    {w}" for w in cov.warnings]
+    a, b = shared_coverage(cal, 0, 1)
+    lines.append(
+        f"  the field {rig.names[0]} and {rig.names[1]} share (board points both saw at one instant): "
+        f"{100 * a.covered_share:.0f}% of {rig.names[0]}'s map cells, {100 * b.covered_share:.0f}% of "
+        f"{rig.names[1]}'s"
+    )
+    lines += [f"    in {rig.names[0]}: {w}" for w in a.warnings] + [f"    in {rig.names[1]}: {w}" for w in b.warnings]
+    return lines
+
+
+def _pose_text(rig, k: int, s) -> str:
+    """Camera k's pose in the rig with its sigmas (s: the standard deviations of rvec, tvec)."""
+    import numpy as np
+
+    rv, tv = rig.rvecs[k], rig.tvecs[k]
+    cov = rig.covariance
+    angle, base = float(np.linalg.norm(rv)), float(np.linalg.norm(tv))
+    sa = sb = float("nan")
+    if cov is not None:
+        n = sum(len(c.intrinsics) for c in rig.cameras) + 6 * (k - 1)
+        C = np.asarray(cov)[n : n + 6, n : n + 6]
+        g = rv / angle if angle > 0 else np.full(3, 3**-0.5)
+        sa = float(np.sqrt(max(g @ C[:3, :3] @ g, 0.0)))
+        u = tv / base if base > 0 else np.zeros(3)
+        sb = float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0)))
+    T = ", ".join(f"{t:.3f} +- {e:.3f}" for t, e in zip(tv, s[3:]))
+    return (
+        f"pose in the rig (X_{rig.names[k]} = R X_{rig.names[0]} + T): rotation {np.degrees(angle):.4f} +- "
+        f"{np.degrees(sa):.4f} deg, baseline {base:.3f} +- {sb:.3f} mm; T = ({T}) mm"
+    )

@@ -1,0 +1,288 @@
+"""``circcal calibrate-rig`` and ``circcal triangulate`` end to end on the rendered rig fixture "two" (a 640x480
+opencv5 camera and a 512x384 rational one; instants seen by one camera only): the files written read back (OpenCV's
+FileStorage for the stereo YAML) with the rig within bounds of the truth, every bad argument is one line and exit 2
+with nothing written, and points projected through the true rig are triangulated within their stated sigmas."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from circcal.cli import main
+from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
+from circcal.model import project
+from circcal.rig import RigModel, read_opencv_stereo
+from circcal.rotation import rodrigues
+
+GRID = ["--grid", "8x11", "--pitch", "15mm"]
+
+
+def _run(argv: list[str]) -> int:
+    """main's exit status, argparse's refusals (SystemExit) included."""
+    try:
+        return main(argv)
+    except SystemExit as exc:
+        return int(exc.code)
+
+
+def _angle_deg(R):
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+@pytest.fixture(scope="module")
+def fixture_dir():
+    return rig_fixture_dir("two")
+
+
+@pytest.fixture(scope="module")
+def run_json(fixture_dir, tmp_path_factory):
+    """calibrate-rig with a folder and a glob, the lens per camera, every output but Kalibr's."""
+    out = tmp_path_factory.mktemp("rig")
+    argv = [
+        "calibrate-rig",
+        "--camera",
+        f"left={fixture_dir / 'left'}",
+        "--camera",
+        f"right={fixture_dir / 'right'}/*.png",
+        "--lens",
+        "right=rational",
+        *GRID,
+        "--out",
+        str(out / "rig.json"),
+        "--ros",
+        str(out / "ros"),
+        "--cameramodels",
+        str(out / "models"),
+        "--rectified",
+        str(out / "rect"),
+        "--jobs",
+        "1",
+        "--no-progress",
+    ]
+    return out, argv
+
+
+def test_calibrate_rig_json_end_to_end(run_json, capsys):
+    out, argv = run_json
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    assert lines[0] == (
+        "verdict: consistent: two halves of the instants give the same rig within its stated uncertainty, and no "
+        "view is an outlier"
+    )
+    assert "RMS per point (2-D norm), OpenCV's convention" in text
+    assert "camera right: 512x384" in text and "14 images found, 14 views used" in text
+    assert "pose in the rig (X_right = R X_left + T): rotation" in text and "baseline" in text
+    assert "the field left and right share" in text and "cross-validation (two halves" in text
+    doc = json.loads((out / "rig.json").read_text())
+    rig = RigModel.from_dict(doc)
+    truth = rig_scenario("two").rig
+    R, T = rig.pair(0, 1)
+    Rt, Tt = truth.pair(0, 1)
+    assert _angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T - Tt) < 0.2
+    assert rig.covariance is not None and rig.covariance.shape == (len(rig.state_vector()),) * 2
+    assert set(doc["instants"]) == {"left", "right"} and len(doc["instants"]["right"]) == 14
+    assert set(doc["instants"]["left"]) ^ set(doc["instants"]["right"])  # instants seen by one camera only
+    assert doc["verdict"]["verdict"] == "consistent" and set(doc["rms_px_per_camera"]) == {"left", "right"}
+    # the other outputs: a ROS pair, one .cameramodel per camera, a rectified pair per shared instant
+    assert sorted(p.name for p in (out / "ros").glob("*.yaml")) == ["left.yaml", "right.yaml"]
+    assert sorted(p.name for p in (out / "models").glob("*.cameramodel")) == ["left.cameramodel", "right.cameramodel"]
+    left = {p.name for p in (Path(argv[2].split("=", 1)[1])).glob("*.png")}
+    right = {p.name for p in Path(argv[4].split("=", 1)[1]).parent.glob("*.png")}
+    assert sorted(p.name for p in (out / "rect").glob("*.png")) == sorted(left & right)
+    img = cv2.imread(str(next((out / "rect").glob("*.png"))))
+    assert img is not None and img.shape[1] == 2 * 640
+
+
+def test_calibrate_rig_yaml_reads_back_in_opencv(fixture_dir, tmp_path, capsys):
+    out = tmp_path / "stereo.yaml"
+    argv = ["calibrate-rig", "--camera", f"left={fixture_dir / 'left'}", "--camera", f"right={fixture_dir / 'right'}"]
+    argv += ["--lens", "right=rational", *GRID, "--out", str(out), "--no-cross-validate", "--jobs", "1"]
+    assert main([*argv, "--no-progress"]) == 0
+    assert capsys.readouterr().out.startswith("verdict: not cross-validated: skipped (--no-cross-validate)")
+    fs = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    try:
+        M1, D1, M2, D2 = (fs.getNode(k).mat() for k in ("M1", "D1", "M2", "D2"))
+        R, T, P2, Q = (fs.getNode(k).mat() for k in ("R", "T", "P2", "Q"))
+    finally:
+        fs.release()
+    truth = rig_scenario("two").rig
+    Rt, Tt = truth.pair(0, 1)
+    assert _angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T.ravel() - Tt) < 0.2
+    assert M1.shape == M2.shape == (3, 3) and D1.size == 5 and D2.size == 8
+    assert abs(M1[0, 0] - truth.cameras[0].fx) < 0.5 and abs(M2[0, 0] - truth.cameras[1].fx) < 0.5
+    assert P2.shape == (3, 4) and Q.shape == (4, 4)
+    rig = read_opencv_stereo(out)
+    assert rig.names == ("left", "right") and np.allclose(rig.pair(0, 1)[1], T.ravel())
+
+
+def _images(root: Path, names: list[str]) -> Path:
+    root.mkdir(parents=True, exist_ok=True)
+    for n in names:
+        (root / n).write_bytes(b"")  # never read: every argument is checked before any image is
+    return root
+
+
+BAD = {
+    "no '='": (["--camera", "left"], "expected NAME=IMAGES"),
+    "bad name": (["--camera", "a/b=L", "--camera", "right=R"], "camera name 'a/b'"),
+    "named twice": (["--camera", "left=L", "--camera", "left=R"], "camera 'left' given twice"),
+    "one camera": (["--camera", "left=L"], "at least two cameras, got 1"),
+    "empty folder": (["--camera", "left=L", "--camera", "right=E"], "holds no image file"),
+    "glob matches nothing": (["--camera", "left=L", "--camera", "right=R/*.jpg"], "the pattern matches no file"),
+    "no such folder": (["--camera", "left=L", "--camera", "right=nowhere"], "no such folder or file"),
+    "no shared name": (["--camera", "left=L", "--camera", "right=S"], "share no file name"),
+    "two images one name": (["--camera", "left=L", "--camera", "right=L*/a.png"], "two images named 'a.png'"),
+    "unknown lens": (["--camera", "left=L", "--camera", "right=R", "--lens", "right=pinhole"], "unknown lens model"),
+    "lens of no camera": (["--camera", "left=L", "--camera", "right=R", "--lens", "up=rational"], "no camera 'up'"),
+    "lens twice": (["--camera", "left=L", "--camera", "right=R", "--lens", "fisheye", "--lens", "rational"], "twice"),
+    "hold not in lens": (
+        ["--camera", "left=L", "--camera", "right=R", "--lens", "right=fisheye", "--fix-tangential"],
+        "camera 'right' (lens fisheye): --fix-tangential",
+    ),
+    "out extension": (["--camera", "left=L", "--camera", "right=R", "--out", "OUT/rig.txt"], "unknown extension"),
+    "fisheye cameramodels": (
+        ["--camera", "left=L", "--camera", "right=R", "--lens", "right=fisheye", "--cameramodels", "OUT/m"],
+        "--cameramodels: camera 'right' is fisheye",
+    ),
+    "kalibr k3": (["--camera", "left=L", "--camera", "right=R", "--kalibr", "OUT/k.yaml"], "--fix-k3"),
+    "alpha": (["--camera", "left=L", "--camera", "right=R", "--alpha", "2"], "--alpha"),
+    "no grid": (["--camera", "left=L", "--camera", "right=R", "--no-grid"], "give --grid ROWSxCOLS"),
+    "board and grid": (["--camera", "left=L", "--camera", "right=R", "--board", "B.yaml"], "--board"),
+    "output is an input": (
+        ["--camera", "left=L", "--camera", "right=R", "--board", "B.json", "--out", "B.json", "--no-grid"],
+        "it is one of the inputs",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_arguments_are_one_line_and_write_nothing(case, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _images(tmp_path / "L", ["a.png", "b.png", "c.png"])
+    _images(tmp_path / "L2", ["a.png"])
+    _images(tmp_path / "R", ["a.png", "b.png", "d.png"])
+    _images(tmp_path / "S", ["x.png", "y.png"])
+    (tmp_path / "B.json").write_text('{"rows": 8, "cols": 11, "layout": "symmetric", "pitch_mm": 15}')
+    (tmp_path / "E").mkdir()
+    (tmp_path / "OUT").mkdir()
+    (tmp_path / "B.yaml").write_text("rows: 8\ncols: 11\nlayout: symmetric\npitch_mm: 15\n")
+    words, expected = BAD[case]
+    grid = [] if "--no-grid" in words else GRID
+    words = [w for w in words if w != "--no-grid"]
+    if "--out" not in words:
+        words += ["--out", "OUT/rig.json"]
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    code = _run(["calibrate-rig", *words, *grid, "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert expected in err, err
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before  # nothing written, no staging left
+
+
+def _true_pixels(instant: int):
+    """Board points of one instant in the rig frame (mm) and their exact pixels in each camera of the true rig."""
+    sc = rig_scenario("two")
+    X0 = sc.board.object_points() @ rodrigues(sc.board_rvecs[instant]).T + sc.board_tvecs[instant]
+    px = {}
+    for c, name in enumerate(sc.rig.names):
+        R, T = sc.rig.pose(c)
+        px[name] = project(X0 @ R.T + T, np.zeros(3), np.zeros(3), sc.rig.cameras[c])
+    return sc, X0, px
+
+
+def _write_points(tmp_path: Path, px: dict) -> list[str]:
+    """left as CSV with a header and ids (one point unseen), right as JSON."""
+    left = tmp_path / "left.csv"
+    with left.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["id", "u", "v"])
+        for k, (u, v) in enumerate(px["left"]):
+            w.writerow([f"p{k}", "" if k == 0 else repr(float(u)), "" if k == 0 else repr(float(v))])
+    right = tmp_path / "right.json"
+    right.write_text(json.dumps({"points": px["right"].tolist()}))
+    return ["--points", f"left={left}", "--points", f"right={right}"]
+
+
+def test_triangulate_true_points_within_their_sigmas(tmp_path, capsys):
+    """The true rig (with a pixel noise given): noisy pixels of the true points come back within their sigmas."""
+    sc, X0, px = _true_pixels(4)
+    rng = np.random.default_rng(0)
+    sigma = 0.1
+    noisy = {n: p + rng.normal(0.0, sigma, p.shape) for n, p in px.items()}
+    rig_file = tmp_path / "true_rig.json"
+    rig_file.write_text(json.dumps(sc.rig.to_dict()))
+    out = tmp_path / "points.json"
+    argv = ["triangulate", "--rig", str(rig_file), *_write_points(tmp_path, noisy), "--pixel-sigma", str(sigma)]
+    assert main([*argv, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "in the frame of left (the reference camera), mm" in text and "p0 (seen by 1 camera(s): no point)" in text
+    doc = json.loads(out.read_text())
+    rows = doc["points"]
+    assert len(rows) == len(X0) and rows[0]["x_mm"] is None and rows[1]["id"] == "p1"
+    X = np.array([[r["x_mm"], r["y_mm"], r["z_mm"]] for r in rows[1:]])
+    S = np.array([[r["sigma_x_mm"], r["sigma_y_mm"], r["sigma_z_mm"]] for r in rows[1:]])
+    z = (X - X0[1:]) / S
+    assert np.all(np.abs(z) < 4.5) and 0.6 < np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
+    assert all(r["sigma_largest_mm"] >= max(r["sigma_x_mm"], r["sigma_y_mm"], r["sigma_z_mm"]) for r in rows[1:])
+
+
+def test_triangulate_through_the_calibrated_rig(run_json, tmp_path, capsys):
+    """Exact pixels of the true points through calibrate-rig's rig.json (its covariance included): every point
+    within 3 of its largest sigma (the calibration's error is common to all points); the CSV output reads back."""
+    out, argv = run_json
+    if not (out / "rig.json").exists():
+        assert main(argv) == 0
+        capsys.readouterr()
+    _, X0, px = _true_pixels(4)
+    pts = tmp_path / "p.csv"
+    assert main(["triangulate", "--rig", str(out / "rig.json"), *_write_points(tmp_path, px), "--out", str(pts)]) == 0
+    assert "and the calibration's covariance" in capsys.readouterr().out
+    rows = list(csv.DictReader(pts.open()))
+    assert rows[0]["x_mm"] == "" and len(rows) == len(X0)
+    X = np.array([[float(r[k]) for k in ("x_mm", "y_mm", "z_mm")] for r in rows[1:]])
+    largest = np.array([float(r["sigma_largest_mm"]) for r in rows[1:]])
+    assert np.all(np.linalg.norm(X - X0[1:], axis=1) < 3 * largest)
+
+
+def test_triangulate_bad_arguments(run_json, tmp_path, capsys):
+    sc, _, px = _true_pixels(4)
+    rig_file = tmp_path / "rig.json"
+    rig_file.write_text(json.dumps(sc.rig.to_dict()))  # no covariance, no rms_px
+    pts = _write_points(tmp_path, px)
+    short = tmp_path / "short.csv"
+    short.write_text("1,2\n3,4\n")
+    bad_value = tmp_path / "bad.csv"
+    bad_value.write_text("u,v\n1,2\n3,x\n")
+    cases = [
+        (["--rig", str(rig_file), *pts], "states no pixel noise (no rms_px): give --pixel-sigma"),
+        (["--rig", str(rig_file), pts[0], pts[1], "--pixel-sigma", "1"], "at least two cameras, got 1"),
+        (["--rig", str(rig_file), *pts, "--points", f"up={short}", "--pixel-sigma", "1"], "no camera 'up'"),
+        (["--rig", str(rig_file), pts[0], pts[1], "--points", f"right={short}", "--pixel-sigma", "1"], "different"),
+        (["--rig", str(rig_file), pts[0], pts[1], "--points", f"right={bad_value}", "--pixel-sigma", "1"], "line 3"),
+        (["--rig", str(tmp_path / "nope.json"), *pts, "--pixel-sigma", "1"], "no such file"),
+        (["--rig", str(short), *pts, "--pixel-sigma", "1"], "unknown extension"),
+        (["--rig", str(rig_file), *pts, "--pixel-sigma", "1", "--out", str(tmp_path / "p.txt")], "unknown extension"),
+        (["--rig", str(rig_file), *pts, "--pixel-sigma", "0"], "--pixel-sigma"),
+    ]
+    before = sorted(tmp_path.iterdir())
+    for words, expected in cases:
+        code = _run(["triangulate", *words])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1 and expected in err, (words, err)
+    assert sorted(tmp_path.iterdir()) == before
+
+
+def test_help_names_the_formats(capsys):
+    for command in ("calibrate-rig", "triangulate"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+    out = capsys.readouterr().out
+    assert "NAME=IMAGES" in out and "X_2 = R X_1 + T" in out and "'u,v' or 'id,u,v'" in out
