@@ -16,9 +16,10 @@ A candidate *makes the halves agree* when their difference is within the cross-v
 of the image it needs (:data:`circcal.analysis.diff.CONSISTENT_SHARE`). Agreement alone can be bought with
 uncertainty (a model with more parameters states more), so each candidate is also scored by what a user sees on new
 views: each half's model predicting the other half's views, poses fitted and intrinsics held (RMS per coordinate).
-The model change that predicts best (by more than :data:`LEAD_MARGIN` better than no change) leads: it is
-recommended when its halves agree, else it is tried with each other candidate (the refined board, the disagreeing
-views left out) and the combination that agrees and predicts best is recommended. Where no model change predicts
+Where a model change predicts better than no change (by more than :data:`LEAD_MARGIN`), each lens change is also
+tried with each board model (a wide lens and a sagging print are wrong at once), and the one that predicts best (the
+lead), if its halves do not agree alone, with each other candidate; of the trials that agree, the one that predicts
+best is recommended, or one of fewer changes predicting within :data:`LEAD_MARGIN` of it. Where no model change predicts
 better, the candidate that agrees and predicts better than no change is. Where none agrees, or the halves agree but views
 disagree or regions hold no observations, the remedy names the regions of the image (the thirds where the halves
 disagree, the empty ones, the projection uncertainty's worst), the parameters the halves differ in by more than
@@ -395,13 +396,20 @@ def remedy(
         lead = _lead(trials, base)
         if lead is None:  # no model change predicts better: the views are the question
             best = _choose(trials, base)
-        elif lead.consistent:
-            best = lead
-        else:  # the model change that predicts best, with each other candidate
-            tried = [_combine(cal, board, options, cv, lead, t, distance) for t in trials if t is not lead]
-            combos = [t for t in tried if t is not None]
+        else:
+            # a lens and a board model can each be wrong at once (a wide lens on a sagging print): each lens change
+            # with each board model, and the lead with each other candidate where it does not agree alone
+            pairs = [(a, b) for a in trials for b in trials if _lens(a) and _board(b)]
+            if not lead.consistent:
+                pairs += [(lead, t) for t in trials if t is not lead]
+            combos: list[Trial] = []
+            for a, b in pairs:
+                t = _combine(cal, board, options, cv, a, b, distance)
+                if t is not None and all(set(t.options) != set(c.options) for c in combos):
+                    combos.append(t)
             trials += combos
-            best = _choose(combos, base)  # none agrees: the lead alone is recommended, one change at a time
+            # the simplest change among those that agree and predict within LEAD_MARGIN of the best
+            best = _choose(trials if lead.consistent else combos, base)
         if best is not None or (lead is not None and lead.consistent):
             lead = None
     needs = [] if best is not None else _needs(cv if ok else None, uncertainty, coverage, w, h, lead)
@@ -410,9 +418,24 @@ def remedy(
 
 def _choose(trials: list[Trial], base: float) -> Trial | None:
     """The trial that makes the halves agree and predicts the other half best, better than no change (``base``, px);
-    None: none does. A model that agrees only because its uncertainty grew predicts worse, and is not chosen."""
+    None: none does. A model that agrees only because its uncertainty grew predicts worse, and is not chosen. Of
+    those within :data:`LEAD_MARGIN` of the best prediction, the one of fewest changes (one change before two)."""
     agree = [t for t in trials if t.consistent and t.predict_px is not None and not t.predict_px >= base]
-    return min(agree, key=lambda t: (float(t.predict_px or 0.0), trials.index(t))) if agree else None
+    if not agree:
+        return None
+    top = min(float(t.predict_px or 0.0) for t in agree)
+    near = [t for t in agree if float(t.predict_px or 0.0) <= (1.0 + LEAD_MARGIN) * top]
+    return min(near, key=lambda t: (len(t.options) + len(t.drop), float(t.predict_px or 0.0), trials.index(t)))
+
+
+def _lens(t: Trial) -> bool:
+    """A lens-model change alone."""
+    return t.options[:1] == ("--lens",) and len(t.options) == 2 and not t.drop
+
+
+def _board(t: Trial) -> bool:
+    """A board-model change alone."""
+    return t.options in (("--refine-board",), ("--board-warp",)) and not t.drop
 
 
 def _lead(trials: list[Trial], base: float) -> Trial | None:
