@@ -32,6 +32,7 @@ MODULES = (
     "bench_validate",
     "bench_study",
     "bench_trust",
+    "bench_refine_board",
 )
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
