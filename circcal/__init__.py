@@ -21,6 +21,10 @@ name                      what it is
 :func:`save_model`        a camera to any of those formats (by extension), atomically
 :func:`validate`          calibrate images with circcal and the reference calibrators and compare
 :func:`diff`              the projection difference between two cameras (implied rotation fitted)
+:func:`read_board`        a board described in a file (circcal's YAML/JSON, ROS-Industrial's, Kalibr's)
+:class:`RigModel`         a rig: every camera's intrinsics and pose in it (camera 0 the reference, mm)
+:func:`calibrate_rig`     each camera's image files -> :class:`~circcal.rig.RigCalibration` (one joint solve)
+:func:`triangulate`       pixels seen by two or more cameras of a rig -> 3-D points with their covariance
 ========================  =================================================================================
 
 Example
@@ -54,6 +58,10 @@ _API: dict[str, tuple[str, str]] = {
     "save_model": ("circcal.formats", "write_camera"),
     "validate": ("circcal.validators.validate", "run_validation"),
     "diff": ("circcal.analysis.diff", "model_diff"),
+    "read_board": ("circcal.formats.boardfile", "read_board_file"),
+    "RigModel": ("circcal.rig.model", "RigModel"),
+    "calibrate_rig": ("circcal.rig.calibrate", "calibrate_rig"),
+    "triangulate": ("circcal.rig.triangulate", "triangulate"),
 }
 
 __all__ = ["__version__", *_API]
