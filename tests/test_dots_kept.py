@@ -66,6 +66,29 @@ def test_a_textured_low_contrast_plate_keeps_its_dots():
     assert kept >= 0.98 * total
 
 
+def test_a_matte_card_keeps_its_dots_and_each_within_two_hundredths():
+    # issue 33's "no dot biased beyond 0.02 px kept, >= 98 % kept" at a matte card's texture under a black print:
+    # grain 0.5 % of the white over 1 px, mottling 3 % over 60 px (reports/dots-kept.md: measured 0.012-0.016 px at
+    # worst; the error grows with the grain over the print's contrast, ~8 px per unit of grain at 1 px here, and no
+    # rule can tell which dot carries it: the table there)
+    cam = Camera(1920, 1080, 1400.0, 1400.0, 959.5, 539.5)
+    board = Board(14, 16, 4.0, 2.0)
+    kept = total = 0
+    worst = 0.0
+    for k, (r, t) in enumerate(sample_poses(cam, board, 2, seed=3, max_tilt_deg=40, fill=(0.5, 0.75))):
+        gain = texture_gain(cam.height, cam.width, 300 + k, low=0.03, grain=0.005, grain_sigma_px=1.0)
+        img, truth = textured_view(cam, board, r, t, gain, white=0.75, dark=0.1)
+        img = cv2.GaussianBlur(img, (0, 0), 0.8) + np.random.default_rng(k).normal(0.0, 0.003, img.shape)
+        d = detect(to_uint(img, 8), board, cam)
+        assert d.found, d.reason
+        seen = np.all(np.isfinite(d.centres), axis=1)
+        kept += int(seen.sum())
+        total += board.n_points
+        worst = max(worst, float(np.linalg.norm(d.centres[seen] - truth[seen], axis=1).max()))
+    assert kept >= 0.98 * total
+    assert worst <= 0.02
+
+
 def test_an_occluder_on_a_textured_plate_is_still_caught():
     cam, board, img, truth = next(_textured_views(1, 5))
     f = img.astype(np.float64)
