@@ -49,9 +49,12 @@ def test_rendered_rig_recovered(rendered):
             return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
 
         # the 0.01 px is met by the rational camera (14 views); the opencv5 one, 11 whole views of a small
-        # board in 8 bits, reaches ~0.012 px, as it does alone: the joint solve must not be worse than the camera alone
+        # board in 8 bits, reaches 0.0156 px (alone: 0.0170): the joint solve must not be worse than the camera alone.
+        # Bound 0.02 px (was 0.015 at 0.012 measured): since the bad-dot rules follow a wide lens (cb75498) the
+        # rational camera keeps 9 thin dots at the edge of view 015 (each within 0.020 px of its truth), which the
+        # joint solve shares with camera 0 through the board poses
         alone = res.per_camera[sc.rig.names[c]].result.camera
-        assert rms(cam) < 0.015 and rms(cam) < 1.05 * rms(alone), (c, rms(cam), rms(alone))
+        assert rms(cam) < 0.02 and rms(cam) < 1.05 * rms(alone), (c, rms(cam), rms(alone))
 
 
 def test_rendered_rig_json_round_trip(rendered):
