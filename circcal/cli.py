@@ -34,12 +34,13 @@ COMMANDS = (
     "convert",
     "diff",
     "validate",
+    "validate-rig",
     "conformance",
     "report",
     "study",
 )
 #: Subcommands whose module in :mod:`circcal.commands` is not named as they are.
-MODULES = {"calibrate-rig": "rig"}
+MODULES = {"calibrate-rig": "rig", "validate-rig": "validate_rig"}
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -8,6 +8,8 @@ Installed with circcal (``pip install -e .``), it adds::
     --conformance-full       the whole matrix (default: the fast slice; the slow marker is registered here)
     --allow-unavailable      a --calibrator whose available() says no is skipped, not failed
     --bias-t T               |t| bound of the bias test per parameter across cases (default 3.023)
+    --rig-calibrator SPEC    rig calibrator under test in the rig cases (circcal.conformance.test_rig_conformance):
+                             MODULE:ATTR or FILE.py:ATTR, fn(views, image_sizes[, lenses=, board=]) -> RigModel
 
 The suite's test is installed as :mod:`circcal.conformance` (``python -m pytest --pyargs circcal.conformance
 --calibrator X`` from any folder). A calibrator declares the model it fits with the attributes ``lens`` and ``fixes``
@@ -54,8 +56,8 @@ from circcal.validators.conformance_fixtures import (
     conformance_record,
     conformance_run,
 )
+from circcal.validators.plugin_options import pytest_addoption as _conformance_options
 from circcal.validators.plugin_options import (
-    pytest_addoption,
     pytest_configure,
     pytest_report_header,
     user_calibrators,
@@ -73,7 +75,49 @@ __all__ = [
     "conformance_calibrator",
     "conformance_record",
     "conformance_run",
+    "rig_calibrator",
 ]
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    """pytest hook: the conformance options (:mod:`circcal.validators.plugin_options`) and ``--rig-calibrator``.
+
+    Parameters
+    ----------
+    parser : pytest.Parser
+    """
+    _conformance_options(parser)
+    parser.getgroup("circcal").addoption(
+        "--rig-calibrator",
+        default=None,
+        metavar="MODULE:ATTR",
+        help="rig calibrator under test in circcal.conformance's rig cases: fn(views, image_sizes[, lenses=, "
+        "board=]) -> circcal.rig.RigModel (circcal.validators.rig_validate.RigCalibrator); MODULE may be a path to "
+        "a .py file (default: circcal's rig solve)",
+    )
+
+
+@pytest.fixture(scope="session")
+def rig_calibrator(pytestconfig: pytest.Config):
+    """The ``--rig-calibrator`` callable, or None for circcal's own rig solve.
+
+    Parameters
+    ----------
+    pytestconfig : pytest.Config
+
+    Returns
+    -------
+    callable or None
+    """
+    from circcal.validators.rig_validate import load_rig_calibrator
+
+    spec = pytestconfig.getoption("rig_calibrator", default=None)
+    if not spec:
+        return None
+    try:
+        return load_rig_calibrator(spec)
+    except ValueError as exc:
+        raise pytest.UsageError(str(exc)) from None
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

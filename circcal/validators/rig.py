@@ -33,7 +33,7 @@ import numpy as np
 
 from circcal.errors import InputError
 from circcal.formats.mrcal_process import LENSMODELS, UnsupportedLayout, board_lattice, mrcal_python, run_worker
-from circcal.model import Camera, project_camera, unproject
+from circcal.model import Camera, param_names, project_camera, unproject
 from circcal.rig.model import RigModel
 from circcal.rotation import rodrigues
 from circcal.solver.holdout import fit_pose
@@ -132,8 +132,14 @@ def opencv_stereo(views: RigViews, cameras: Sequence[Camera], mode: str = "fix-i
     names, by_inst = _by_instant(views)
     c0, c1 = cameras[0], cameras[1]
     fisheye = {c0.lens, c1.lens} == {"fisheye"}
-    if not fisheye and ("fisheye" in (c0.lens, c1.lens) or c0.lens != c1.lens):
+    if "fisheye" in (c0.lens, c1.lens) and not fisheye:
         return RigReference(name, "unavailable", notes=[f"OpenCV's stereo takes one lens family: {c0.lens}, {c1.lens}"])
+    if c0.lens != c1.lens and mode != "fix-intrinsic":
+        return RigReference(
+            name,
+            "unavailable",
+            notes=[f"stereoCalibrate fits one distortion model for both cameras: {c0.lens}, {c1.lens}"],
+        )
     obj, p0, p1, used = [], [], [], []
     for inst, per_cam in by_inst.items():
         if 0 in per_cam and 1 in per_cam:
@@ -151,14 +157,20 @@ def opencv_stereo(views: RigViews, cameras: Sequence[Camera], mode: str = "fix-i
     try:
         if fisheye:
             out = cv2.fisheye.stereoCalibrate(
-                obj, p0, p1, c0.K, c0.dist.reshape(4, 1), c1.K, c1.dist.reshape(4, 1), (c0.width, c0.height),
+                obj, p0, p1, c0.K.copy(), c0.dist.reshape(4, 1).copy(), c1.K.copy(), c1.dist.reshape(4, 1).copy(),
+                (c0.width, c0.height),
                 flags=flag | cv2.fisheye.CALIB_FIX_SKEW, criteria=crit,
             )  # fmt: skip
             rms, K0, d0, K1, d1, R, T = out[:7]
         else:
+            # both cameras' coefficients at one length (zeros appended): OpenCV projects with every coefficient given
+            # (a held camera keeps its own model); the copies keep OpenCV's in-place writes off the callers' cameras
+            n = max(len(c0.dist), len(c1.dist))
+            lens = c0.lens if len(c0.dist) >= len(c1.dist) else c1.lens
+            d0_in, d1_in = (np.concatenate([c.dist, np.zeros(n - len(c.dist))]) for c in (c0, c1))
             rms, K0, d0, K1, d1, R, T, _, _ = cv2.stereoCalibrate(
-                obj, p0, p1, c0.K, c0.dist, c1.K, c1.dist, (c0.width, c0.height),
-                flags=flag | _flags(c0.lens), criteria=crit,
+                obj, p0, p1, c0.K.copy(), d0_in, c1.K.copy(), d1_in, (c0.width, c0.height),
+                flags=flag | _flags(lens), criteria=crit,
             )  # fmt: skip
     except cv2.error as exc:
         return RigReference(name, "failed", notes=notes + [f"OpenCV: {str(exc).strip().splitlines()[-1]}"])
@@ -174,7 +186,9 @@ def _camera_like(c: Camera, K: np.ndarray, d: np.ndarray) -> Camera:
     return Camera.from_intrinsics(c.width, c.height, p, c.lens)
 
 
-def opencv_multiview(views: RigViews, sizes: Sequence[tuple[int, int]], lens: str = "opencv5") -> RigReference:
+def opencv_multiview(
+    views: RigViews, sizes: Sequence[tuple[int, int]], lens: str | Sequence[str] = "opencv5"
+) -> RigReference:
     """``cv2.calibrateMultiviewExtended`` (OpenCV 5) over every camera, pinhole lens models only.
 
     Parameters
@@ -183,19 +197,25 @@ def opencv_multiview(views: RigViews, sizes: Sequence[tuple[int, int]], lens: st
         Whole-board views are used; a camera's partial view of an instant is dropped (module docstring).
     sizes : sequence of (int, int)
         Each camera's (width, height) px.
-    lens : {"opencv5", "rational", "thin-prism"}
+    lens : {"opencv5", "rational", "thin-prism"} or sequence of them
+        One for every camera, or one per camera (``flagsForIntrinsics`` per camera).
 
     Returns
     -------
     RigReference
-        ``unavailable`` where this OpenCV has no calibrateMultiviewExtended or for the fisheye.
+        ``unavailable`` where this OpenCV has no calibrateMultiviewExtended or for the fisheye (OpenCV 5.0 from
+        Python raises in ``arithm_op`` given a camera with ``isFisheye = 1``, measured on the ``fisheye`` rig).
     """
     cv2 = _cv2()
     name = "opencv-multiview"
+    lenses = [lens] * len(sizes) if isinstance(lens, str) else list(lens)
     if not hasattr(cv2, "calibrateMultiviewExtended"):
         return RigReference(name, "unavailable", notes=[f"OpenCV {cv2.__version__} has no calibrateMultiview"])
-    if lens not in ("opencv5", "rational", "thin-prism"):
-        return RigReference(name, "unavailable", notes=[f"lens {lens}: run here with pinhole models only"])
+    bad = sorted({le for le in lenses if le not in ("opencv5", "rational", "thin-prism")})
+    if bad:
+        return RigReference(
+            name, "unavailable", notes=[f"lens {', '.join(bad)}: OpenCV 5.0's calibrateMultiview raises on a fisheye"]
+        )
     names, by_inst = _by_instant(views)
     ncam = len(sizes)
     full = max(len(o) for per in by_inst.values() for o, _ in per.values())
@@ -225,7 +245,7 @@ def opencv_multiview(views: RigViews, sizes: Sequence[tuple[int, int]], lens: st
     try:
         out = cv2.calibrateMultiviewExtended(
             obj, img, [tuple(int(v) for v in s) for s in sizes], mask, np.zeros(ncam, np.uint8), None, None, None,
-            None, flagsForIntrinsics=np.array([_flags(lens)] * ncam),
+            None, flagsForIntrinsics=np.array([_flags(le) for le in lenses]),
         )  # fmt: skip
     except cv2.error as exc:
         return RigReference(name, "failed", notes=notes + [f"OpenCV: {str(exc).strip().splitlines()[-1]}"])
@@ -234,8 +254,13 @@ def opencv_multiview(views: RigViews, sizes: Sequence[tuple[int, int]], lens: st
         Camera.from_intrinsics(
             sizes[c][0],
             sizes[c][1],
-            np.concatenate([[Ks[c][0, 0], Ks[c][1, 1], Ks[c][0, 2], Ks[c][1, 2]], np.ravel(ds[c])]),
-            lens,
+            np.concatenate(
+                [
+                    [Ks[c][0, 0], Ks[c][1, 1], Ks[c][0, 2], Ks[c][1, 2]],
+                    np.ravel(ds[c])[: len(param_names(lenses[c])) - 4],
+                ]
+            ),
+            lenses[c],
         )
         for c in range(ncam)
     ]

@@ -1,0 +1,690 @@
+"""Cross-validation of rigs: circcal's rig against OpenCV's ``stereoCalibrate`` / ``calibrateMultiview`` and mrcal's
+N-camera solve (:mod:`circcal.validators.rig`) and against the truth of the rig fixtures (:mod:`circcal.fixtures.rig`),
+and the conformance check of anyone's rig calibrator (:class:`RigCalibrator`).
+
+Modes (per reference):
+
+* ``fair``: the reference fits circcal's observations as circcal's joint solve used them (each view labelled by the
+  board symmetry circcal resolved, dropped views left out; OpenCV's float32); ``stereoCalibrate`` with
+  ``CALIB_FIX_INTRINSIC`` holds circcal's intrinsics, mrcal starts from circcal's rig. It is compared with circcal's
+  solver re-run on exactly what the reference fitted (the same cameras, instants and points, the same holds, started
+  from circcal's rig): the same estimator on the same data, gated by :data:`FAIR_BOUNDS`.
+* ``default``: the reference on the raw observations with its own start (``stereoCalibrate`` on intrinsics from
+  ``cv2.calibrateCamera`` per camera; ``calibrateMultiview`` and mrcal their own seeds; mrcal its warp,
+  regularisation and outlier rejection): what its users get. A different estimator, so printed, not gated.
+
+circcal's rig is checked against the truth in its stated sigmas (:data:`RIG_TRUTH_SIGMAS`). Conventions:
+:mod:`circcal.rig.model` (camera 0 the reference, ``X_i = R_i X_0 + T_i``, mm).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from statistics import NormalDist
+from typing import Any, Protocol
+
+import numpy as np
+
+from circcal.board import Board
+from circcal.errors import CalibrationError, InputError
+from circcal.fixtures.rig import (
+    RIG_SCENARIOS,
+    RIG_VARIANTS,
+    RigScenario,
+    is_rendered,
+    rig_fixture_dir,
+    rig_scenario,
+    rig_variant_observations,
+)
+from circcal.rig import RigModel, calibrate_rig, calibrate_rig_points
+from circcal.rig.calibrate import RigCalibration, Views
+from circcal.solver import CalibrationOptions
+from circcal.validators.rig import RigAgreement, compare_rigs, mrcal_rig, opencv_multiview, opencv_stereo
+from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, shared_pair, whole_views
+
+__all__ = [
+    "RigCalibrator",
+    "AgreementBound",
+    "FAIR_BOUNDS",
+    "RIG_TRUTH_SIGMAS",
+    "REFERENCES",
+    "circcal_rig",
+    "call_calibrator",
+    "truth_z",
+    "RigRow",
+    "RigValidation",
+    "run_rig_validation",
+    "format_rig_table",
+    "RigCase",
+    "rig_cases",
+    "run_rig_case",
+    "load_rig_calibrator",
+]
+
+REFERENCES = ("opencv-stereo", "opencv-multiview", "mrcal")
+
+
+class RigCalibrator(Protocol):
+    """A rig calibrator under test: ``fn(views, image_sizes[, lenses=..., board=...]) -> RigModel``.
+
+    ``views``: :data:`circcal.rig.calibrate.Views` (per camera, the first the reference, per instant name: object
+    points (N, 3) mm, z = 0, and image points (N, 2) px, OpenCV's convention; partial views and instants seen by
+    some cameras only included). ``image_sizes``: per camera (width, height) px. Given only when the callable takes a
+    parameter of that name (or ``**kwargs``): ``lenses``, per camera the true camera's lens model name (the model to
+    fit), and ``board``, the :class:`circcal.board.Board` (to resolve a symmetric grid's labelling across cameras).
+    It returns a :class:`circcal.rig.RigModel` naming the cameras alike, camera 0 the reference; a ``covariance`` of
+    ``state_vector()``, when given, supplies the sigmas the truth is checked in (else circcal's on the same views).
+    """
+
+    def __call__(self, views: Views, image_sizes: Mapping[str, tuple[int, int]], **kwargs: Any) -> RigModel: ...
+
+
+@dataclass(frozen=True)
+class AgreementBound:
+    """A reference's largest difference to circcal's solve on the same inputs, per camera.
+
+    Attributes
+    ----------
+    rotation_deg, position_mm, projection_px : float
+        :class:`circcal.validators.rig.RigAgreement`'s rotation, position and median projection difference (the
+        largest, in the image corners where no board was seen, is printed, not gated: models extrapolate there).
+    reason : str
+        The measured values the bound is set from, and why.
+    """
+
+    rotation_deg: float
+    position_mm: float
+    projection_px: float
+    reason: str
+
+    def holds(self, a: RigAgreement) -> bool:
+        """Whether an agreement is within the bound on every camera.
+
+        Parameters
+        ----------
+        a : RigAgreement
+
+        Returns
+        -------
+        bool
+        """
+        return bool(
+            np.all(a.rotation_deg <= self.rotation_deg)
+            and np.all(a.position_mm <= self.position_mm)
+            and np.all(np.nan_to_num(a.projection_px, nan=np.inf) <= self.projection_px)
+        )
+
+
+#: Fair mode: the reference vs circcal's solver on exactly the reference's inputs. Measured over the observation
+#: variants of the three rig scenarios (noise 0.02-0.5 px, flip) at seeds 0-2 (36 runs; tests/test_rig_validate.py
+#: checks seed 0); each bound 5x the largest measured value. None: printed, not gated (the reason says why).
+FAIR_BOUNDS: dict[str, AgreementBound | None] = {
+    "opencv-stereo (fix-intrinsic)": AgreementBound(
+        1.2e-5,
+        1e-4,
+        1e-6,
+        "measured <= 2.4e-6 deg, 1.9e-5 mm (two / flip); the intrinsics are held: 1e-13 px. OpenCV's LM on float32 "
+        "inputs stops (eps 1e-12 on its relative step) a few 1e-6 deg from the minimum: the issue's 1e-6 deg is "
+        "not met by OpenCV's own termination",
+    ),
+    "opencv-stereo (intrinsic-guess)": AgreementBound(
+        3e-3,
+        7e-3,
+        7e-2,
+        "measured <= 6.5e-4 deg, 1.4e-3 mm, 0.014 px (chain / very-noisy): every intrinsic free, OpenCV's LM stops "
+        "on the flat valley of the distortion coefficients before circcal's does",
+    ),
+    "opencv-multiview": None,
+    "mrcal-rig (fair)": AgreementBound(
+        2e-5,
+        5e-5,
+        1.5e-4,
+        "measured <= 3.4e-6 deg, 8.4e-6 mm, 3e-5 px (chain / low-noise): mrcal's stopping criteria, as "
+        "SOLVER_MRCAL_PX for one camera",
+    ),
+}
+#: Why calibrateMultiview is not gated: on the same whole views it stops short of the minimum, by up to 0.88 deg,
+#: 25 mm and 7.8 px (chain / very-noisy; 0.07 deg, 0.12 mm on two / noise; on OpenCV's own 3-camera data 0.08 deg,
+#: 1.3 mm, its RMS 0.18303 above circcal's 0.182): a bound would test OpenCV's termination, not the agreement.
+MULTIVIEW_NOT_GATED = "calibrateMultiview stops short of the minimum (up to 0.88 deg, 25 mm measured): printed only"
+
+#: circcal's rig against the truth: |estimate - truth| of fx, fy, cx, cy of every camera and the rvec, tvec of every
+#: camera's pose, in stated sigmas. Bonferroni over the rig conformance matrix's observation cases (3 scenarios x 4
+#: variants: 208 parameters) at 1% family-wise, two-sided.
+RIG_TRUTH_SIGMAS = round(NormalDist().inv_cdf(1 - 0.01 / (2 * 208)), 2)
+
+
+def circcal_rig(
+    views: Views,
+    image_sizes: Mapping[str, tuple[int, int]],
+    *,
+    lenses: Mapping[str, str] | None = None,
+    board: Board | None = None,
+) -> RigModel:
+    """circcal's rig solve as a :class:`RigCalibrator` (the conformance suite's default).
+
+    Parameters
+    ----------
+    views : Views
+    image_sizes : mapping of str to (int, int)
+    lenses : mapping of str to str or None
+        Per camera lens model (default opencv5).
+    board : Board or None
+
+    Returns
+    -------
+    RigModel
+        With its covariance.
+    """
+    opts = {n: CalibrationOptions(lens=(lenses or {}).get(n, "opencv5")) for n in views}
+    return calibrate_rig_points(views, image_sizes, opts, board=board).rig
+
+
+def call_calibrator(
+    cal: Callable[..., Any],
+    views: Views,
+    image_sizes: Mapping[str, tuple[int, int]],
+    lenses: Mapping[str, str],
+    board: Board,
+) -> RigModel:
+    """Call a :class:`RigCalibrator` with the keywords it takes.
+
+    Parameters
+    ----------
+    cal : RigCalibrator
+    views : Views
+    image_sizes : mapping of str to (int, int)
+    lenses : mapping of str to str
+    board : Board
+
+    Returns
+    -------
+    RigModel
+
+    Raises
+    ------
+    TypeError
+        It returned something else than a RigModel of the views' cameras.
+    """
+    try:
+        params = inspect.signature(cal).parameters
+    except (TypeError, ValueError):
+        params = {}
+    var_kw = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    kw = {k: v for k, v in (("lenses", lenses), ("board", board)) if var_kw or k in params}
+    rig = cal(views, image_sizes, **kw)
+    if not isinstance(rig, RigModel):
+        raise TypeError(f"the rig calibrator returned {type(rig).__name__}; expected circcal.rig.RigModel")
+    if list(rig.names) != list(views):
+        raise TypeError(f"the rig calibrator returned cameras {list(rig.names)}; expected {list(views)}")
+    return rig
+
+
+def _truth_indices(rig: RigModel) -> list[tuple[str, int]]:
+    """(label, index into state_vector) of fx, fy, cx, cy per camera and rvec, tvec per camera but the reference."""
+    out, k = [], 0
+    for n, c in zip(rig.names, rig.cameras):
+        out += [(f"{n}.{p}", k + j) for j, p in enumerate(("fx", "fy", "cx", "cy"))]
+        k += len(c.intrinsics)
+    for n in rig.names[1:]:
+        out += [(f"{n}.{p}", k + j) for j, p in enumerate(("rx", "ry", "rz", "tx", "ty", "tz"))]
+        k += 6
+    return out
+
+
+def truth_z(rig: RigModel, truth: RigModel, covariance: np.ndarray | None = None) -> dict[str, float]:
+    """|rig - truth| in stated sigmas of fx, fy, cx, cy of every camera and every pose's rvec and tvec.
+
+    Parameters
+    ----------
+    rig, truth : RigModel
+        Of the same cameras and lens models.
+    covariance : ndarray or None
+        Of ``rig.state_vector()``; None: ``rig.covariance``.
+
+    Returns
+    -------
+    dict of str to float
+        ``camera.parameter`` -> |z|; empty without a covariance of the right shape.
+    """
+    cov = rig.covariance if covariance is None else covariance
+    x, t = rig.state_vector(), truth.state_vector()
+    if cov is None or x.shape != t.shape or np.shape(cov) != (len(x),) * 2:
+        return {}
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return {k: float(abs(x[i] - t[i]) / sd[i]) if sd[i] > 0 else float("inf") for k, i in _truth_indices(rig)}
+
+
+@dataclass
+class RigRow:
+    """One reference in one mode.
+
+    Attributes
+    ----------
+    reference, mode : str
+    status : {"ok", "unavailable", "failed"}
+    why : str
+        Why unavailable or failed; empty when ok.
+    rig : RigModel or None
+    rms : str
+        Its own RMS with its convention named.
+    vs_circcal : RigAgreement or None
+        Fair: against circcal's solve on the same inputs; default: against circcal's rig.
+    vs_truth : RigAgreement or None
+    bound : AgreementBound or None
+        Fair mode's gate; None: not gated (default mode).
+    notes : list of str
+    """
+
+    reference: str
+    mode: str
+    status: str
+    why: str = ""
+    rig: RigModel | None = None
+    rms: str = ""
+    vs_circcal: RigAgreement | None = None
+    vs_truth: RigAgreement | None = None
+    bound: AgreementBound | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool | None:
+        """True / False where gated and compared; None otherwise."""
+        if self.bound is None or self.vs_circcal is None:
+            return None
+        return self.bound.holds(self.vs_circcal)
+
+
+@dataclass
+class RigValidation:
+    """One rig validation run.
+
+    Attributes
+    ----------
+    scenario, variant : str
+    truth : RigModel
+    circcal : RigCalibration
+    truth_z : dict of str to float
+        circcal's parameters against the truth in its stated sigmas (:func:`truth_z`).
+    vs_truth : RigAgreement
+        circcal's rig against the truth.
+    rows : list of RigRow
+    """
+
+    scenario: str
+    variant: str
+    truth: RigModel
+    circcal: RigCalibration
+    truth_z: dict[str, float]
+    vs_truth: RigAgreement
+    rows: list[RigRow]
+
+    @property
+    def failures(self) -> list[str]:
+        """Every failed gate, in words (empty: passed).
+
+        Returns
+        -------
+        list of str
+        """
+        out = []
+        worst = max(self.truth_z.items(), key=lambda kv: kv[1], default=None)
+        if worst is None:
+            out.append("circcal's rig has no covariance: the truth check could not run")
+        elif worst[1] > RIG_TRUTH_SIGMAS:
+            out.append(f"circcal's {worst[0]} is {worst[1]:.2f} stated sigmas from the truth (> {RIG_TRUTH_SIGMAS})")
+        for r in self.rows:
+            if r.passed is False:
+                out.append(f"{r.reference} beyond its fair bound of circcal's solve on the same inputs")
+            if r.status == "failed" and r.mode == "fair":
+                out.append(f"{r.reference} failed: {r.why}")
+        return out
+
+
+def _sizes(sc: RigScenario) -> dict[str, tuple[int, int]]:
+    return {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+
+
+def _circcal(sc: RigScenario, variant: str, seed: int) -> tuple[RigCalibration, dict[str, dict[str, tuple]]]:
+    """circcal's rig calibration of a scenario variant and the raw views it calibrated."""
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    if not is_rendered(variant):
+        views, _ = rig_variant_observations(sc, variant, seed)
+        return calibrate_rig_points(views, _sizes(sc), opts, board=sc.board), views
+    folder = rig_fixture_dir(sc.name, variant)
+    images = {n: sorted((Path(folder) / n).glob("*.png")) for n in sc.rig.names}
+    rc = calibrate_rig(images, sc.board, opts, progress=False)
+    P = sc.board.object_points()
+    views = {}
+    for n in sc.rig.names:
+        cal = rc.per_camera[n]
+        views[n] = {}
+        for i, c in zip(cal.used, cal.centres):
+            ok = np.all(np.isfinite(c), axis=1)
+            views[n][Path(cal.paths[i]).name] = (P[ok], np.asarray(c, dtype=np.float64)[ok])
+    return rc, views
+
+
+def _row(ref, reference: str, mode: str, truth: RigModel, base: RigModel | None, bound=None) -> RigRow:
+    row = RigRow(reference, mode, ref.status, "" if ref.status == "ok" else "; ".join(ref.notes), ref.rig)
+    row.notes = list(ref.notes)
+    if ref.rig is None:
+        return row
+    conv = next((x.split(":", 1)[1].strip() for x in ref.notes if x.startswith("rms:")), "")
+    row.rms = f"{ref.rms_px:.4f} px ({conv})"
+    sub = RigModel(truth.names[: ref.rig.n_cameras], truth.cameras[: ref.rig.n_cameras],
+                   truth.rvecs[: ref.rig.n_cameras], truth.tvecs[: ref.rig.n_cameras])  # fmt: skip
+    row.vs_truth = compare_rigs(ref.rig, sub)
+    if base is not None:
+        row.vs_circcal = compare_rigs(ref.rig, base)
+        row.bound = bound
+    return row
+
+
+def _sub(rig: RigModel, n: int) -> RigModel:
+    return RigModel(rig.names[:n], rig.cameras[:n], rig.rvecs[:n], rig.tvecs[:n])
+
+
+def _opencv_own_cameras(views: Views, sizes: Mapping[str, tuple[int, int]], lenses: Sequence[str]) -> list | str:
+    """Each of the first two cameras calibrated by ``cv2.calibrateCamera`` on its own views, or why not."""
+    import cv2
+
+    from circcal.validators.rig import _camera_like, _flags
+
+    out = []
+    for n, lens in list(zip(views, lenses))[:2]:
+        if lens == "fisheye":
+            return "the default pipeline here calibrates pinhole cameras only (cv2.calibrateCamera)"
+        per = list(views[n].values())
+        obj = [np.asarray(o, np.float32) for o, _ in per]
+        img = [np.asarray(p, np.float32) for _, p in per]
+        try:
+            _, K, d, _, _ = cv2.calibrateCamera(obj, img, sizes[n], None, None, flags=_flags(lens))
+        except cv2.error as exc:
+            return f"cv2.calibrateCamera of {n}: {str(exc).strip().splitlines()[-1]}"
+        from circcal.model import Camera
+
+        out.append(_camera_like(Camera(*sizes[n], 1.0, 1.0, 0.0, 0.0, lens=lens), K, d))
+    return out
+
+
+def run_rig_validation(
+    scenario: str,
+    variant: str | None = None,
+    against: Sequence[str] = REFERENCES,
+    modes: Sequence[str] = ("fair", "default"),
+    seed: int = 0,
+) -> RigValidation:
+    """circcal's rig of a rig scenario variant against the truth and each reference in each mode.
+
+    Parameters
+    ----------
+    scenario : str
+        A :data:`circcal.fixtures.rig.RIG_SCENARIOS` name.
+    variant : str or None
+        A :data:`circcal.fixtures.rig.RIG_VARIANTS` name; None the default.
+    against : sequence of str
+        :data:`REFERENCES` names.
+    modes : sequence of {"fair", "default"}
+    seed : int
+        Seed of the observation noise.
+
+    Returns
+    -------
+    RigValidation
+
+    Raises
+    ------
+    InputError
+        An unknown scenario, variant, reference or mode.
+    CalibrationError
+        circcal's rig calibration fails.
+    """
+    bad = [a for a in against if a not in REFERENCES]
+    if bad:
+        raise InputError(f"--against {bad[0]!r}: expected one of {', '.join(REFERENCES)} or all")
+    badm = [m for m in modes if m not in ("fair", "default")]
+    if badm:
+        raise InputError(f"--mode {badm[0]!r}: expected fair or default")
+    sc = rig_scenario(scenario)
+    variant = variant or next(iter(RIG_VARIANTS))
+    rc, raw = _circcal(sc, variant, seed)
+    rig, truth = rc.rig, sc.rig
+    lenses = [c.lens for c in truth.cameras]
+    sizes = _sizes(sc)
+    fair = float32_views(labelled_views(rc, raw, sc.board))
+    rows: list[RigRow] = []
+    for ref in against:
+        for mode in modes:
+            rows += _reference_rows(ref, mode, rc, raw, fair, sizes, lenses, truth)
+    return RigValidation(sc.name, variant, truth, rc, truth_z(rig, truth), compare_rigs(rig, truth), rows)
+
+
+def _reference_rows(ref, mode, rc, raw, fair, sizes, lenses, truth) -> list[RigRow]:
+    rig = rc.rig
+    size_list = [sizes[n] for n in rig.names]
+    rows = []
+    if ref == "opencv-stereo":
+        for how in ("fix-intrinsic", "intrinsic-guess"):
+            name = f"opencv-stereo ({how})"
+            if mode == "fair":
+                r = opencv_stereo(fair, rig.cameras[:2], how)
+                base = None
+                if r.status == "ok":
+                    base = resolve(shared_pair(fair), rig, rc.board_poses, hold=how == "fix-intrinsic")
+                rows.append(_row(r, name, mode, truth, base, FAIR_BOUNDS[name]))
+            else:
+                own = _opencv_own_cameras(raw, sizes, lenses)
+                if isinstance(own, str):
+                    rows.append(RigRow(name, mode, "unavailable", own))
+                    continue
+                r = opencv_stereo(float32_views(raw), own, how)
+                rows.append(_row(r, name, mode, truth, _sub(rig, 2)))
+    elif ref == "opencv-multiview":
+        if mode == "default":  # it takes no start: its default is the raw views, labelled as they came
+            row = _row(opencv_multiview(float32_views(raw), size_list, lenses), "opencv-multiview", mode, truth, rig)
+            rows.append(row)
+            return rows
+        r = opencv_multiview(fair, size_list, lenses)
+        base = resolve(whole_views(fair), rig, rc.board_poses, hold=False) if r.status == "ok" else None
+        row = _row(r, "opencv-multiview", mode, truth, base, FAIR_BOUNDS["opencv-multiview"])
+        row.notes.append(MULTIVIEW_NOT_GATED)
+        rows.append(row)
+    else:
+        name = f"mrcal-rig ({mode})"
+        if len(set(lenses)) > 1:
+            rows.append(RigRow(name, mode, "unavailable", f"mrcal's solve takes one lens model: {', '.join(lenses)}"))
+            return rows
+        if mode == "fair":
+            r = mrcal_rig(fair, size_list, lenses[0], "fair", seed=rig)
+            base = resolve(fair, rig, rc.board_poses, hold=False) if r.status == "ok" else None
+            rows.append(_row(r, name, mode, truth, base, FAIR_BOUNDS[name]))
+        else:
+            r = mrcal_rig(raw, size_list, lenses[0], "default")
+            rows.append(_row(r, name, mode, truth, rig))
+    return rows
+
+
+def _g(x: float) -> str:
+    return "-" if x is None or not np.isfinite(x) else f"{x:.3g}"
+
+
+def format_rig_table(v: RigValidation) -> str:
+    """The validation as a table: per row and camera the rotation (deg), position (mm) and median / largest projection
+    difference (px) to circcal (fair: its solve on the same inputs) and to the truth, and each tool's own RMS.
+
+    Parameters
+    ----------
+    v : RigValidation
+
+    Returns
+    -------
+    str
+    """
+    rc = v.circcal
+    worst = max(v.truth_z.values(), default=float("nan"))
+    lines = [
+        f"rig {v.scenario} / {v.variant}: cameras {', '.join(v.truth.names)}; circcal RMS {rc.rig.rms_px:.4f} px "
+        f"(per point, 2-D norm, OpenCV's convention); truth: worst {worst:.2f} stated sigmas (bound {RIG_TRUTH_SIGMAS})",
+        f"{'reference':<32}{'mode':<9}{'camera':<9}{'rot deg':>10}{'pos mm':>10}{'proj px':>10}{'max px':>10}"
+        f"{'truth deg':>11}{'truth mm':>10}{'truth px':>10}  gate",
+    ]
+
+    def cam_lines(label: str, mode: str, names, a: RigAgreement | None, t: RigAgreement, gate: str) -> list[str]:
+        out = []
+        for k, n in enumerate(names):
+            c = (
+                [_g(a.rotation_deg[k]), _g(a.position_mm[k]), _g(a.projection_px[k]), _g(a.projection_max_px[k])]
+                if a is not None
+                else ["-"] * 4
+            )
+            out.append(
+                f"{label if k == 0 else '':<32}{mode if k == 0 else '':<9}{n:<9}{c[0]:>10}{c[1]:>10}{c[2]:>10}"
+                f"{c[3]:>10}{_g(t.rotation_deg[k]):>11}{_g(t.position_mm[k]):>10}{_g(t.projection_px[k]):>10}  "
+                f"{gate if k == 0 else ''}"
+            )
+        return out
+
+    truth_ok = bool(v.truth_z) and worst <= RIG_TRUTH_SIGMAS
+    lines += cam_lines("circcal", "-", v.truth.names, None, v.vs_truth, "truth " + ("ok" if truth_ok else "FAILED"))
+    for r in v.rows:
+        if r.status != "ok" or r.vs_truth is None:
+            lines.append(f"{r.reference:<32}{r.mode:<9}{r.status}: {r.why}")
+            continue
+        gate = {True: "ok", False: "FAILED", None: "not gated"}[r.passed]
+        lines += cam_lines(r.reference, r.mode, r.rig.names, r.vs_circcal, r.vs_truth, gate)
+        lines.append(f"{'':<41}RMS {r.rms}; " + "; ".join(x for x in r.notes if not x.startswith("rms:")))
+    lines.append(
+        "rot / pos / proj: against circcal's solve on the reference's own inputs (fair) or circcal's rig (default); "
+        "proj = median (max) projection difference of the intrinsics over a 10x10 grid of the image"
+    )
+    for f in v.failures:
+        lines.append(f"FAILED: {f}")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class RigCase:
+    """One rig conformance case.
+
+    Attributes
+    ----------
+    scenario, variant : str
+    slow : bool
+        Rendered (outside the fast slice).
+    """
+
+    scenario: str
+    variant: str
+    slow: bool
+
+    @property
+    def id(self) -> str:
+        """``<scenario>-<variant>``."""
+        return f"{self.scenario}-{self.variant}"
+
+
+def rig_cases() -> list[RigCase]:
+    """Every rig scenario x variant (rendered ones slow; only the ``rendered-noise`` one of them per scenario).
+
+    Returns
+    -------
+    list of RigCase
+    """
+    return [
+        RigCase(s, v, is_rendered(v))
+        for s in RIG_SCENARIOS
+        for v in RIG_VARIANTS
+        if not is_rendered(v) or v == "rendered-noise"
+    ]
+
+
+def run_rig_case(case: RigCase, calibrator: Callable[..., Any] | None = None, seed: int = 0) -> list[str]:
+    """A rig calibrator on one case, checked against the truth.
+
+    The calibrator gets the case's views (rendered cases: circcal's detections of the images) and must reach the
+    truth within :data:`RIG_TRUTH_SIGMAS` on every fx, fy, cx, cy and pose parameter, in its own stated sigmas when
+    it returns a covariance (of circcal's ``state_vector`` layout), else in circcal's on the same views.
+
+    Parameters
+    ----------
+    case : RigCase
+    calibrator : RigCalibrator or None
+        None: :func:`circcal_rig`.
+    seed : int
+
+    Returns
+    -------
+    list of str
+        The failures in words; empty: passed.
+    """
+    sc = rig_scenario(case.scenario)
+    rc, views = _circcal(sc, case.variant, seed)
+    if calibrator is None:
+        rig = rc.rig
+    else:
+        lenses = {n: c.lens for n, c in zip(sc.rig.names, sc.rig.cameras)}
+        try:
+            rig = call_calibrator(calibrator, views, _sizes(sc), lenses, sc.board)
+        except (CalibrationError, InputError) as exc:
+            return [f"the calibrator failed: {type(exc).__name__}: {exc}"]
+    if [c.lens for c in rig.cameras] != [c.lens for c in sc.rig.cameras]:
+        return [f"lens models {[c.lens for c in rig.cameras]}, the truth's {[c.lens for c in sc.rig.cameras]}"]
+    z = truth_z(rig, sc.rig)
+    if not z:
+        z = truth_z(rig, sc.rig, rc.rig.covariance)
+    if not z:
+        return ["no covariance to check the truth in"]
+    k, worst = max(z.items(), key=lambda kv: kv[1])
+    if worst > RIG_TRUTH_SIGMAS:
+        return [f"{k} is {worst:.2f} stated sigmas from the truth (bound {RIG_TRUTH_SIGMAS})"]
+    return []
+
+
+def load_rig_calibrator(spec: str) -> Callable[..., Any]:
+    """The rig calibrator named by a ``--rig-calibrator`` spec: ``MODULE:ATTR`` or ``PATH.py:ATTR``.
+
+    Parameters
+    ----------
+    spec : str
+
+    Returns
+    -------
+    RigCalibrator
+        A callable (a class or zero-argument factory is not called: the attribute itself must be the callable).
+
+    Raises
+    ------
+    ValueError
+        A bad spec, a missing file or attribute, an import error, or an attribute that is not callable.
+    """
+    import importlib
+    import importlib.util
+    import sys
+
+    where, sep, attr = spec.rpartition(":")
+    if not sep or not where or not attr:
+        raise ValueError(f"--rig-calibrator {spec!r}: expected package.module:function or path/to/file.py:function")
+    try:
+        if where.endswith(".py") or "/" in where:
+            path = Path(where).resolve()
+            if not path.is_file():
+                raise ValueError(f"--rig-calibrator {spec!r}: no such file {where}")
+            name = f"_circcal_rig_user_{path.stem}"
+            mspec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(mspec)  # type: ignore[arg-type]
+            sys.modules[name] = module
+            mspec.loader.exec_module(module)  # type: ignore[union-attr]
+        else:
+            module = importlib.import_module(where)
+    except ValueError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- any error of the user's module, reported in one line
+        raise ValueError(f"--rig-calibrator {spec!r}: cannot import {where!r}: {type(exc).__name__}: {exc}") from exc
+    fn = getattr(module, attr, None)
+    if fn is None or not callable(fn):
+        raise ValueError(f"--rig-calibrator {spec!r}: {where} has no callable {attr!r}")
+    return fn
