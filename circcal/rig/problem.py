@@ -381,7 +381,7 @@ class RigProblem:
             fc, Xc[rows], Jg, Jb = self.jacobian(x, c)
             f[2 * rows.start : 2 * rows.stop] = fc.ravel()
             cols = self.global_cols(c)
-            Jg2 = Jg.reshape(-1, len(cols))
+            Jg2 = Jg.reshape(Jg.shape[0] * Jg.shape[1], len(cols))  # (also with no free column)
             A[np.ix_(cols, cols)] += Jg2.T @ Jg2
             gi[cols] += Jg2.T @ fc.ravel()
             inst, starts = self._segments[c]
