@@ -33,6 +33,7 @@ MODULES = (
     "bench_study",
     "bench_trust",
     "bench_refine_board",
+    "bench_lens_auto",
 )
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 

@@ -138,3 +138,26 @@ def test_a_wide_lens_on_a_sagging_print_gets_both_changes_recommended(tmp_path, 
     assert cli.main(["diff", str(tmp_path / "b.json"), str(folder / "truth.json")]) == 0
     diff = next(line for line in capsys.readouterr().out.splitlines() if "difference: RMS" in line)
     assert float(diff.split("RMS ")[1].split(" px")[0]) < 0.02, diff
+
+
+def test_the_board_shape_waits_for_the_lens():
+    """A lens the model cannot follow reads as a warped board (the fisheye fitted with opencv5: warp chi-square 35,
+    "NOT flat"): while the lens is in question the board-shape check recommends nothing but deciding after it."""
+    from types import SimpleNamespace
+
+    from circcal.analysis.assess import Assessment
+
+    shape = SimpleNamespace(recommendation=lambda: "recommended: the warped board (--board-warp): ...")
+    lens_ok, lens_bad = SimpleNamespace(fits=True), SimpleNamespace(fits=False)
+    lens_change = SimpleNamespace(target=lambda: SimpleNamespace(options=("--lens", "rational")), lines=lambda: [])
+    none = SimpleNamespace(target=lambda: None, lines=lambda: [])
+
+    def nxt(lens_fit, remedy):
+        a = Assessment.__new__(Assessment)
+        a.board_shape, a.lens_fit, a.remedy = shape, lens_fit, remedy
+        return a.next_lines()
+
+    assert nxt(lens_ok, none) == ["recommended: the warped board (--board-warp): ..."]
+    for lens_fit, remedy in ((lens_bad, none), (lens_ok, lens_change)):
+        (line,) = nxt(lens_fit, remedy)
+        assert line.startswith("board shape: decide after the lens model"), line

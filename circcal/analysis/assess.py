@@ -227,7 +227,25 @@ class Assessment:
         list of str
         """
         shape = None if self.board_shape is None else self.board_shape.recommendation()
+        if shape and self.lens_in_question():
+            shape = (
+                "board shape: decide after the lens model (a lens the model cannot follow reads as a warped board): "
+                "the recommended run's own board-shape check says whether the board is flat"
+            )
         return ([] if self.remedy is None else self.remedy.lines()) + ([shape] if shape else [])
+
+    def lens_in_question(self) -> bool:
+        """Whether the lens model is in doubt: its residuals show a radial pattern, or the remedy recommends another
+        lens. The board-shape check fits the board to this lens, so its recommendation waits for the lens.
+
+        Returns
+        -------
+        bool
+        """
+        if self.lens_fit is not None and not self.lens_fit.fits:
+            return True
+        target = None if self.remedy is None else self.remedy.target()
+        return target is not None and "--lens" in target.options
 
     def details(self) -> list[str]:
         """The board's shape where the verdict does not carry it (a flat board), the lens-model fit, the outliers, the

@@ -228,7 +228,7 @@ def headline(assessment: Any, n_images: int) -> dict[str, str]:
             "model that cannot follow the lens disagrees too",
         }
     shape = getattr(assessment, "board_shape", None)  # whether the board is flat (circcal.analysis.boardshape)
-    if shape is not None and shape.changes:
+    if shape is not None and shape.changes and not assessment.lens_in_question():
         return {
             "level": "check",
             "text": "the board is not flat: the flat board's intrinsics are biased"
