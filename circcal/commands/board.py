@@ -10,7 +10,8 @@ in pt) and PDF (page size in pt) carry the physical size. A 100 mm scale bar is 
 printer that scales ("fit to page") shows on it. Dots are circles of the board's diameters around the object
 points (OpenCV's order, markers larger), on a white board of the board's margin; the board is centred on the page.
 
-Also here: the marker options every command shares (:func:`add_marker_arguments`, :func:`board_with_markers`).
+Also here: the marker options every command shares (:func:`add_marker_arguments`; the board they describe:
+:func:`circcal.commands.args.marker_args_board`).
 """
 
 from __future__ import annotations
@@ -23,13 +24,12 @@ from circcal.commands.args import (
     DIAMETER_HELP,
     add_board_file_argument,
     board_of_args,
-    marker_args_board,
     parse_grid,
     parse_length_mm,
     plain,
 )
 
-__all__ = ["PAPERS", "add_marker_arguments", "add_parser", "board_with_markers", "draw_board", "parse_paper", "run"]
+__all__ = ["PAPERS", "add_marker_arguments", "add_parser", "draw_board", "parse_paper", "run"]
 
 MM_PER_INCH = 25.4
 PAPERS: dict[str, tuple[float, float]] = {
@@ -76,27 +76,6 @@ def add_marker_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="marker dot diameter (default: 2x the dots' for origin, 1.5x for pattern)",
     )
-
-
-def board_with_markers(args: argparse.Namespace, board):
-    """``board`` with the markers the parsed ``--markers`` / ``--marker-diameter`` ask for.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-    board : Board
-
-    Returns
-    -------
-    Board
-
-    Raises
-    ------
-    InputError
-        ``--marker-diameter`` without markers, or markers the board cannot have
-        (:func:`circcal.markers.with_markers`).
-    """
-    return marker_args_board(args, board)
 
 
 def parse_paper(text: str) -> tuple[float, float]:

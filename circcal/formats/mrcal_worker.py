@@ -90,6 +90,48 @@ def _names(api: str) -> tuple[str, str]:
     return ("rt_cam_ref", "rt_ref_frame") if api == "2.5" else ("extrinsics_rt_fromref", "frames_rt_toref")
 
 
+def _stereographic_seed(
+    mrcal: ModuleType,
+    common: dict[str, Any],
+    obs: Any,
+    indices_frame_camera: Any,
+    focal: float,
+    names: tuple[str, str],
+    frames: Any,
+) -> tuple[Any, Any, Any]:
+    """mrcal's seed of N cameras (as ``mrcal-calibrate-cameras``): ``seed_stereographic``, then the stereographic
+    lens solved for the geometry alone and then with its core. ``frames``: the board poses to start from instead of
+    mrcal's (None: mrcal's). Returns (intrinsics (Ncam, 4), extrinsics (Ncam - 1, 6), frames (Nframes, 6))."""
+    import numpy as np
+
+    seeded = mrcal.seed_stereographic(
+        imagersizes=common["imagersizes"],
+        focal_estimate=focal,
+        indices_frame_camera=indices_frame_camera,
+        observations=obs,
+        object_spacing=common["calibration_object_spacing"],
+    )
+    intr, ext, fr = (np.ascontiguousarray(a, dtype=np.float64) for a in seeded)
+    if frames is not None:
+        fr = frames
+    for core in (False, True):
+        inputs = dict(
+            common,
+            observations_board=obs,
+            intrinsics=intr,
+            lensmodel="LENSMODEL_STEREOGRAPHIC",
+            do_optimize_intrinsics_core=core,
+            do_optimize_intrinsics_distortions=False,
+            do_optimize_calobject_warp=False,
+            calobject_warp=None,
+            do_apply_outlier_rejection=False,
+            do_apply_regularization=False,
+        )
+        inputs[names[0]], inputs[names[1]] = ext, fr
+        mrcal.optimize(**inputs)
+    return intr, ext, fr
+
+
 def solve(req: dict[str, Any]) -> dict[str, Any]:
     """A calibration by mrcal, in each of the request's modes (module docstring: Request, Reply, Modes).
 
@@ -133,33 +175,12 @@ def solve(req: dict[str, Any]) -> dict[str, Any]:
     def seed(frames_given: Any) -> tuple[np.ndarray, np.ndarray]:
         """(intrinsics (1, n_intr), frames (Nframes, 6)): stereographic, geometry only, then + core (as
         mrcal-calibrate-cameras does), from mrcal's own pose seed or ``frames_given``."""
-        obs = obs0.copy()
-        seeded = mrcal.seed_stereographic(
-            imagersizes=imagersizes,
-            focal_estimate=float(req["focal_estimate"]),
-            indices_frame_camera=indices_frame_camera,
-            observations=obs,
-            object_spacing=spacing,
-        )
-        intrinsics, extrinsics, frames = [np.ascontiguousarray(a, dtype=np.float64) for a in seeded]
+        given = None
         if frames_given is not None:
-            frames = np.ascontiguousarray(np.asarray(frames_given, dtype=np.float64).reshape(nf, 6))
-        for core in (False, True):
-            inputs = dict(
-                common,
-                observations_board=obs,
-                intrinsics=intrinsics,
-                lensmodel="LENSMODEL_STEREOGRAPHIC",
-                do_optimize_intrinsics_core=core,
-                do_optimize_intrinsics_distortions=False,
-                do_optimize_calobject_warp=False,
-                calobject_warp=None,
-                do_apply_outlier_rejection=False,
-                do_apply_regularization=False,
-            )
-            inputs[k_ext] = extrinsics
-            inputs[k_frames] = frames
-            mrcal.optimize(**inputs)
+            given = np.ascontiguousarray(np.asarray(frames_given, dtype=np.float64).reshape(nf, 6))
+        intrinsics, _, frames = _stereographic_seed(
+            mrcal, common, obs0.copy(), indices_frame_camera, float(req["focal_estimate"]), (k_ext, k_frames), given
+        )
         if req.get("seed_intrinsics") is not None:
             seed_intr = np.asarray(req["seed_intrinsics"], dtype=np.float64).reshape(1, n_intr)
         else:
@@ -429,32 +450,9 @@ def rig(req: dict[str, Any]) -> dict[str, Any]:
     )
 
     def mrcal_seed() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        obs = obs0.copy()
-        intr, ext, frames = (
-            np.ascontiguousarray(a, dtype=np.float64)
-            for a in mrcal.seed_stereographic(
-                imagersizes=imagersizes,
-                focal_estimate=float(req["focal_estimate"]),
-                indices_frame_camera=ifc,
-                observations=obs,
-                object_spacing=spacing,
-            )
+        intr, ext, frames = _stereographic_seed(
+            mrcal, common, obs0.copy(), ifc, float(req["focal_estimate"]), (k_ext, k_frames), None
         )
-        for core in (False, True):
-            inputs = dict(
-                common,
-                observations_board=obs,
-                intrinsics=intr,
-                lensmodel="LENSMODEL_STEREOGRAPHIC",
-                do_optimize_intrinsics_core=core,
-                do_optimize_intrinsics_distortions=False,
-                do_optimize_calobject_warp=False,
-                calobject_warp=None,
-                do_apply_outlier_rejection=False,
-                do_apply_regularization=False,
-            )
-            inputs[k_ext], inputs[k_frames] = ext, frames
-            mrcal.optimize(**inputs)
         rng = np.random.default_rng(0)
         intr = np.concatenate([intr, (rng.random((ncam, n_intr - 4)) - 0.5) * 2e-6], axis=1)
         return intr, ext, frames
