@@ -380,6 +380,7 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     """
     import numpy as np
 
+    from circcal.rig.uncertainty import projection_uncertainty
     from circcal.rig.verdict import camera_coverage, shared_coverage
 
     rig = cal.rig
@@ -423,6 +424,7 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
             lines.append(
                 f"  views relabelled by the board's symmetry to agree with the others: {', '.join(relabelled)}"
             )
+    lines += [u.text() for u in projection_uncertainty(rig)]
     lines.append("coverage (each ninth of the image needs an observed point, else the lens model is extrapolated):")
     for name, cov in camera_coverage(cal).items():
         lines.append(f"  {name}: {100 * cov.covered_share:.0f}% of the map's cells hold a point")
