@@ -334,6 +334,13 @@ def _calibrate(
     f_idx = 1 if aspect is not None else 0
     unit_rel = float(np.sqrt(cov9_unit[f_idx, f_idx]) / p[f_idx]) if cov9_unit is not None else float("inf")
     if cov9_unit is None or not np.isfinite(unit_rel) or unit_rel > MAX_UNIT_REL_STD_F:
+        trade = _undetermined_coefficients(Sn, prob, names)
+        if trade:  # the singular direction lies in the lens model's coefficients, not in the focal length
+            raise CalibrationError(
+                f"the {lens} lens model's {', '.join(trade)} are not determined by these {len(obj)} views (they "
+                f"trade off against each other; condition number {cond:.3g}): fit a model with fewer coefficients "
+                f"(--lens opencv5, or --lens auto), or add views that reach the image's corners and edges"
+            )
         tilts = view_tilts_deg(rv)
         flat = [int(i) for i in np.flatnonzero(tilts < FLAT_VIEW_TILT_DEG)]
         listing = ", ".join(f"{i} ({tilts[i]:.1f} deg)" for i in flat) or f"none below {FLAT_VIEW_TILT_DEG:g} deg"
@@ -397,3 +404,16 @@ def _calibrate(
         object_points=obj,
         image_points=img,
     )
+
+
+def _undetermined_coefficients(Sn: np.ndarray, prob: Problem, names: tuple[str, ...]) -> list[str]:
+    """The distortion coefficients that carry the information matrix's weakest direction (normalised, free
+    intrinsics), where they carry at least 90 % of it; empty where the focal length or the principal point is in
+    it (then the views, not the lens model, are the question)."""
+    ev, vec = np.linalg.eigh(Sn[: prob.nf, : prob.nf])
+    weakest = vec[:, 0] ** 2  # unit norm: each free intrinsic's share
+    free_names = [names[int(np.flatnonzero(prob.T[:, j])[-1])] for j in range(prob.nf)]
+    dist_share = sum(w for n, w in zip(free_names, weakest) if n not in ("fx", "fy", "cx", "cy"))
+    if dist_share < 0.9:
+        return []
+    return [n for n, w in zip(free_names, weakest) if n not in ("fx", "fy", "cx", "cy") and w >= 0.05]
