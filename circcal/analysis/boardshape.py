@@ -393,7 +393,7 @@ def _held_out(
                 except InputError:  # no pose for this view under a model: left out of both
                     break
             if len(errs) == 2:
-                c = 2 * errs["flat"]["n_points"]
+                c = 2 * int(errs["flat"]["n_points"])
                 for key in sq:
                     sq[key] += errs[key]["rms_per_coord_px"] ** 2 * c
                 n += c

@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from circcal.board import MAX_GRID_SIDE, MAX_LENGTH_MM, MIN_LENGTH_MM, Board
+from circcal.board import MAX_GRID_SIDE, MAX_LENGTH_MM, MIN_LENGTH_MM, Board, Layout
 from circcal.errors import InputError
 from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_nesting, integer, load_yaml, number, show
 from circcal.jsonio import parse_json, read_text
@@ -174,7 +174,7 @@ def _diameter_default(pitch_mm: float, layout: str) -> float:
     return 0.5 * pitch_mm * (math.sqrt(2.0) if layout == "asymmetric" else 1.0)
 
 
-def _circcal(data: dict) -> Board:
+def _circcal(data: dict[str, Any]) -> Board:
     """circcal's form."""
     unknown = [k for k in data if k not in BOARD_KEYS]
     if unknown:
@@ -243,7 +243,7 @@ def _markers(entries: Any, rows: int, cols: int) -> tuple[tuple[int, ...], float
     return tuple(seen), (diameters[0] if diameters else 0.0)
 
 
-def _kalibr(data: dict) -> Board:
+def _kalibr(data: dict[str, Any]) -> Board:
     """Kalibr's target YAML (module docstring)."""
     kind = data["target_type"]
     if kind != "circlegrid":
@@ -257,14 +257,14 @@ def _kalibr(data: dict) -> Board:
     asym = data.get("asymmetricGrid", False)
     if not isinstance(asym, bool):
         raise InputError(f"asymmetricGrid must be true or false, got {_kind(asym)}")
-    layout = "asymmetric" if asym else "symmetric"
+    layout: Layout = "asymmetric" if asym else "symmetric"
     pitch = _length_mm(data["spacingMeters"], "spacingMeters", MM_PER_M, "m")
     return Board(rows, cols, pitch, _diameter_default(pitch, layout), layout)
 
 
-def _rosi_targets(data: dict) -> Board:
+def _rosi_targets(data: dict[str, Any]) -> Board:
     """ROS-Industrial's ``industrial_extrinsic_cal`` targets file: its one circle-grid target."""
-    found: list[tuple[str, dict]] = []
+    found: list[tuple[str, dict[str, Any]]] = []
     for group in ("static_targets", "moving_targets"):
         targets = data.get(group)
         if targets is None:

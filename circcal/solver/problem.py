@@ -424,7 +424,7 @@ class Problem:
                         cols = self.board_cols[c.a : c.b]
                         rows, coords = np.nonzero(cols >= 0)
                         Jg[rows, :, cols[rows, coords]] = Jb[rows, :, coords]
-                    else:  # the warp moves z only: d uv / d w = (d uv / d z) d z / d w
+                    elif self.warp_basis is not None:  # the warp moves z only: d uv / d w = (d uv / d z) d z / d w
                         Jg[:, :, nf:] = Jb[:, :, 2:3] * self.warp_basis[c.a : c.b, None, :]
             Jp = np.empty((len(uv), 2, 6))
             Jp[:, :, :3] = self._times_view_matrix(rotated_jacobian(dP, Y), Jl, c)
