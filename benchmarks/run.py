@@ -34,6 +34,7 @@ MODULES = (
     "bench_trust",
     "bench_refine_board",
     "bench_lens_auto",
+    "bench_rig",
 )
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
