@@ -60,6 +60,8 @@ def run_json(fixture_dir, tmp_path_factory):
         str(out / "models"),
         "--rectified",
         str(out / "rect"),
+        "--report",
+        str(out / "report"),
         "--jobs",
         "1",
         "--no-progress",
@@ -98,6 +100,25 @@ def test_calibrate_rig_json_end_to_end(run_json, capsys):
     assert sorted(p.name for p in (out / "rect").glob("*.png")) == sorted(left & right)
     img = cv2.imread(str(next((out / "rect").glob("*.png"))))
     assert img is not None and img.shape[1] == 2 * 640
+
+
+def test_the_rig_report_holds_the_verdict_the_numbers_and_the_figures(run_json, capsys):
+    """--report: report.html (self-contained: its figures as data URIs) and index.md carry the console's verdict and
+    per-camera numbers, the rig in 3-D and a rectified pair."""
+    import cv2
+
+    out, argv = run_json
+    if not (out / "report" / "report.html").exists():
+        assert _run(argv) == 0
+    capsys.readouterr()
+    page = (out / "report" / "report.html").read_text()
+    md = (out / "report" / "index.md").read_text()
+    assert page.count("data:image/png;base64,") == 2 and "src='geometry.png'" not in page
+    for text in (md, page):
+        assert "verdict: " in text and "camera left (reference)" in text and "projection uncertainty" in text
+    for name in ("geometry.png", "rectified.png"):
+        img = cv2.imread(str(out / "report" / name))
+        assert img is not None and img.shape[0] > 100 and f"]({name})" in md
 
 
 def test_calibrate_rig_yaml_reads_back_in_opencv(fixture_dir, tmp_path, capsys):

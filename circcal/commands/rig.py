@@ -130,6 +130,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rectified", type=Path, help="folder: the rectified pair of each instant the first two share")
     p.add_argument("--alpha", type=_alpha, default=-1.0, help="rectification free scaling (OpenCV's alpha; default -1)")
     p.add_argument(
+        "--report",
+        type=Path,
+        help="folder: a self-contained HTML + Markdown report (verdict, per-camera numbers, the rig in 3-D, a "
+        "rectified pair)",
+    )
+    p.add_argument(
         "--no-cross-validate",
         dest="cross_validate",
         action="store_false",
@@ -293,17 +299,20 @@ def run(args: argparse.Namespace) -> int:
         rectified = (
             None if args.rectified is None else outputs.folder(args.rectified, "--rectified", kind="rig-rectified")
         )
+        report = None if args.report is None else outputs.folder(args.report, "--report", kind="rig-report")
         try:
             cal = calibrate_rig(images, board, options, progress=not args.no_progress, jobs=args.jobs)
         except CalibrationError as exc:
             print(f"circcal calibrate-rig: no rig: {exc}", file=sys.stderr)
             return 1
         verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
-        print("\n".join(verdict.lines()))
-        print("\n".join(summary_lines(cal, images)))
-        if verdict.cross is not None:
-            print("\n".join(verdict.cross.lines()))
+        lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
+        print("\n".join(lines))
         _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images, args.alpha)
+        if report is not None:
+            from circcal.calreport.rig import write_rig_report
+
+            write_rig_report(report, cal, board, lines, images)
         outputs.commit()
     written = [(args.out, "OpenCV stereo YAML of " + " and ".join(names[:2]) if fmt == "opencv" else "circcal rig")]
     written += [
@@ -313,6 +322,7 @@ def run(args: argparse.Namespace) -> int:
             (args.cameramodels, "mrcal .cameramodels"),
             (args.kalibr, "Kalibr camchain"),
             (args.rectified, "rectified pairs"),
+            (args.report, "report: report.html, index.md"),
         )
         if p is not None
     ]
