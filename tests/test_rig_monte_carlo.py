@@ -1,0 +1,119 @@
+"""Are the rig's stated sigmas honest? >= 100 re-solves of a rig (``calibrate_rig_points``: each camera's own start,
+the pairwise start, the joint solve) on projected observations with Gaussian pixel noise, one seed per draw; the
+stated sigma of every camera's fx, fy, cx, cy and of camera 1's pose in the rig (rvec components, rad; T, mm),
+as the RMS over the draws of ``RigCalibration.std()``, against the spread (standard deviation) of the estimates.
+Issue 37's bar: each ratio within 0.8-1.25x. ``make study`` (marker ``slow``); the table is printed (``-s``).
+
+The scenario is ``fisheye`` (a 640x480 pinhole opencv5 camera and a fisheye) at 0.1 px: on ``two`` the rational
+camera's own calibration (the start of every rig solve) is refused on some draws (its k1, k2, k4, k5 trade off:
+4 of 40 draws at 0.1 px, 1 of 40 at 0.02 px), so a study there measures only the draws that happen to
+succeed. ``two`` is measured at 0.02 px as well, with the draws that fail counted and left out (14 of 100):
+its pinhole camera, the rational camera's principal point and the rig pose are honest, while the rational
+camera's stated fx and fy sigmas are not (they vary 8x between draws, RMS 1.8x the spread, most draws well under
+it: first order is not enough along the direction where its focal length trades with the rational coefficients).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from circcal.errors import CalibrationError
+from circcal.fixtures.rig import rig_observations, rig_scenario
+from circcal.rig import calibrate_rig_points
+from circcal.solver import CalibrationOptions
+
+pytestmark = pytest.mark.slow
+
+DRAWS = 100
+LOW, HIGH = 0.8, 1.25
+#: The ``two`` rig's rational camera's focal lengths (see the module and the xfail below).
+RATIONAL_FOCAL = ("right.fx", "right.fy")
+
+
+def _rows(sc) -> tuple[list[int], list[str]]:
+    """The state rows compared (fx, fy, cx, cy of every camera, then camera 1's rvec and tvec) and their labels."""
+    rows, labels, start = [], [], 0
+    for name, cam in zip(sc.rig.names, sc.rig.cameras):
+        rows += [start, start + 1, start + 2, start + 3]
+        labels += [f"{name}.{p}" for p in ("fx", "fy", "cx", "cy")]
+        start += len(cam.intrinsics)
+    rows += list(range(start, start + 6))
+    labels += [f"{sc.rig.names[1]}.{p}" for p in ("rx", "ry", "rz", "tx", "ty", "tz")]
+    return rows, labels
+
+
+def _study(name: str, noise_px: float, draws: int = DRAWS):
+    """(labels, stated (K,), spread (K,), failed draws, estimates (D, K), truth (K,)) over ``draws`` seeds."""
+    sc = rig_scenario(name)
+    rows, labels = _rows(sc)
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    est, std, failed = [], [], []
+    for seed in range(draws):
+        obs = rig_observations(sc, noise_px, 1000 + seed)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a camera's own start that hit its limit
+                res = calibrate_rig_points(obs, sizes, opts, board=sc.board)
+        except CalibrationError as exc:
+            failed.append((seed, str(exc).splitlines()[0]))
+            continue
+        s = res.std()[rows]
+        if not res.converged:
+            failed.append((seed, "the joint solve did not converge"))
+            continue
+        if not np.all(np.isfinite(s)):
+            failed.append((seed, "no covariance: the information matrix is singular"))
+            continue
+        est.append(res.rig.state_vector()[rows])
+        std.append(s)
+    est_a, std_a = np.array(est), np.array(std)
+    stated = np.sqrt(np.mean(std_a**2, axis=0))
+    spread = np.std(est_a, axis=0, ddof=1)
+    print(f"\n{name} rig, {noise_px} px, {len(est)} of {draws} draws ({len(failed)} failed)")
+    print(f"{'parameter':12s} {'stated':>10s} {'spread':>10s} {'ratio':>6s}")
+    for lab, a, b in zip(labels, stated, spread):
+        print(f"{lab:12s} {a:10.3e} {b:10.3e} {a / b:6.3f}")
+    return labels, stated, spread, failed, est_a, sc.rig.state_vector()[rows]
+
+
+def test_rig_sigmas_honest_over_monte_carlo():
+    labels, stated, spread, failed, est, truth = _study("fisheye", 0.1)
+    assert not failed and len(est) >= 100
+    ratio = stated / spread
+    bad = {lab: round(float(r), 3) for lab, r in zip(labels, ratio) if not LOW <= r <= HIGH}
+    assert not bad, bad
+    # and the estimates centre on the truth: the mean within 4 standard errors
+    z = (est.mean(axis=0) - truth) / (spread / np.sqrt(len(est)))
+    assert np.all(np.abs(z) < 4), dict(zip(labels, np.round(z, 2)))
+
+
+@pytest.fixture(scope="module")
+def two_study():
+    return _study("two", 0.02)
+
+
+def test_two_rig_sigmas_over_monte_carlo(two_study):
+    labels, stated, spread, failed, est, _ = two_study
+    # measured 14 of 100 lost, each said: the rational camera's own calibration refused (4), the joint solve not
+    # converged or its information matrix singular (10) -- never a wrong rig without a word
+    assert len(failed) <= 0.15 * DRAWS, failed
+    assert all(why.startswith(("camera 'right'", "the joint solve", "no covariance")) for _, why in failed), failed
+    ratio = dict(zip(labels, stated / spread))
+    honest = {k: round(float(r), 3) for k, r in ratio.items() if k not in RATIONAL_FOCAL}
+    assert all(LOW <= r <= HIGH for r in honest.values()), honest
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured on `two` at 0.02 px: the rational camera's stated fx, fy sigma varies 8x between draws "
+    "(5-95%: 0.06-0.50 px; spread 0.14 px): RMS 1.8x the spread, most draws well under it; first order is not "
+    "enough along the direction where its focal length trades with k1..k6",
+)
+def test_two_rig_rational_focal_sigma_honest(two_study):
+    labels, stated, spread, *_ = two_study
+    ratio = dict(zip(labels, stated / spread))
+    assert all(LOW <= ratio[k] <= HIGH for k in RATIONAL_FOCAL), ratio
