@@ -18,7 +18,8 @@ Alternated A B A B in one process, BLAS and OpenCV at one thread (:func:`benchma
 median of the per-round ratios with their spread. Both solutions are compared (rotation deg, translation mm, RMS) to
 show they reach one minimum. Growth: the same rig with 10, 20, 40 and 80 shared instants (board poses drawn by the
 ``two`` scenario's generator, ``circcal.fixtures.rig._board_poses``, with more poses; the scenario has no instant
-count of its own), both tools timed the same way, and the slope of log(time) on log(instants) fitted to the medians and to the minima (1 = linear; called linear up to
+count of its own), both tools timed the same way, and the slope of log(time) on log(instants) fitted to the
+medians and to the minima (1 = linear; called linear up to
 :data:`LINEAR_SLOPE`: the iteration count is constant, the remainder is load on a shared machine).
 """
 
@@ -179,7 +180,7 @@ def run() -> dict:
     slope = out["circcal_loglog_slope"]
     out["verdict"] = (
         f"joint solve {r:.2f}x stereoCalibrate (bar {RATIO_BAR:g}x): {'met' if r <= RATIO_BAR else 'NOT met'}; "
-        f"time ~ instants^{slope:.2f} ({'linear' if slope <= LINEAR_SLOPE else 'NOT linear'}; stereoCalibrate ~ instants^"
-        f"{out['opencv_loglog_slope']:.2f})"
+        f"time ~ instants^{slope:.2f} ({'linear' if slope <= LINEAR_SLOPE else 'NOT linear'}; "
+        f"stereoCalibrate ~ instants^{out['opencv_loglog_slope']:.2f})"
     )
     return out
