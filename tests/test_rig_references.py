@@ -35,8 +35,13 @@ T_GT = {
 def _views(multiview) -> dict:
     names = ("cam_0", "cam_1", "cam_3")
     P = BOARD.object_points()
+    # frames 0..95, as OpenCV's test reads them (cam_1 also holds a frame_96 the test ignores)
     return {
-        n: {f: (P, uv) for f, uv in read_multiview_points(multiview / "3cams-one-line" / f"{n}.json", 88).items()}
+        n: {
+            f: (P, uv)
+            for f, uv in read_multiview_points(multiview / "3cams-one-line" / f"{n}.json", 88).items()
+            if int(f.split("_")[1]) < 96
+        }
         for n in names
     }
 
