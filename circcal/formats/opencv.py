@@ -11,7 +11,7 @@ format's extras: ignored."""
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,7 +22,14 @@ from circcal.model import Camera
 if TYPE_CHECKING:  # annotations only: cv2 is imported where a file is read or written
     import cv2
 
-__all__ = ["opencv_yaml_text", "camera_from_opencv_yaml", "camera_from_K_dist", "OPENCV_DIST_SIZES", "pinhole_lens_of"]
+__all__ = [
+    "opencv_yaml_text",
+    "open_filestorage",
+    "camera_from_opencv_yaml",
+    "camera_from_K_dist",
+    "OPENCV_DIST_SIZES",
+    "pinhole_lens_of",
+]
 
 #: Lengths of OpenCV's distortion vector: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (+ k4 k5 k6), 12 (+ s1..s4), 14 (+ tau x, y).
 OPENCV_DIST_SIZES = (0, 4, 5, 8, 12, 14)
@@ -61,6 +68,46 @@ def opencv_yaml_text(camera: Camera, *, xml: bool = False) -> str:
     return fs.releaseAndGetString()
 
 
+def open_filestorage(text: str) -> Any:
+    """An OpenCV FileStorage text opened for reading, after the checks every reader of one applies: nesting depth,
+    XML document types and entities (:func:`~circcal.formats.limits.check_nesting`), OpenCV's own parse, and no key
+    repeated at the top level.
+
+    Parameters
+    ----------
+    text : str
+        YAML or XML, as OpenCV writes it.
+
+    Returns
+    -------
+    cv2.FileStorage
+        Open for reading (the caller releases it).
+
+    Raises
+    ------
+    ModelFileError
+        Not a FileStorage text OpenCV can parse, too deeply nested, or a top-level key repeated.
+    """
+    import cv2
+
+    check_nesting(text)
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding wraps the parser's error in a SystemError
+        cause = exc if isinstance(exc, cv2.error) else exc.__cause__
+        if not isinstance(cause, cv2.error):
+            raise
+        raise ModelFileError(f"not an OpenCV FileStorage file ({str(cause).strip().splitlines()[-1][:300]})") from None
+    if not fs.isOpened():
+        raise ModelFileError("not an OpenCV FileStorage file")
+    try:
+        _fs_unique_keys(fs.root(), "the top level")
+    except ModelFileError:
+        fs.release()
+        raise
+    return fs
+
+
 def camera_from_opencv_yaml(text: str) -> Camera:
     """Camera from an OpenCV FileStorage text (YAML or XML).
 
@@ -84,20 +131,8 @@ def camera_from_opencv_yaml(text: str) -> Camera:
     ------
     ModelFileError
     """
-    import cv2
-
-    check_nesting(text)
+    fs = open_filestorage(text)
     try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding wraps the parser's error in a SystemError
-        cause = exc if isinstance(exc, cv2.error) else exc.__cause__
-        if not isinstance(cause, cv2.error):
-            raise
-        raise ModelFileError(f"not an OpenCV FileStorage file ({str(cause).strip().splitlines()[-1][:300]})") from None
-    if not fs.isOpened():
-        raise ModelFileError("not an OpenCV FileStorage file")
-    try:
-        _fs_unique_keys(fs.root(), "the top level")
         K = _fs_matrix(fs.getNode("camera_matrix"), "camera_matrix", max_size=9)
         if K.shape != (3, 3):
             raise ModelFileError(f"camera_matrix must be 3x3, got {K.shape[0]}x{K.shape[1]}")

@@ -42,7 +42,6 @@ from circcal.errors import InputError, ModelFileError
 from circcal.formats import camera_from_cameramodel, camera_from_K_dist, camera_from_ros_yaml, camera_to_ros_yaml
 from circcal.formats.limits import (
     MAX_MODEL_FILE_BYTES,
-    check_nesting,
     integer,
     load_yaml,
     matrix,
@@ -50,6 +49,7 @@ from circcal.formats.limits import (
     show,
 )
 from circcal.formats.mrcal import MRCAL_LENSMODELS, MRCAL_UNSUPPORTED, parse_cameramodel
+from circcal.formats.opencv import open_filestorage
 from circcal.jsonio import read_text
 from circcal.rig.model import RigModel, relative_pose
 from circcal.rig.rectify import Rectification, rectify_pair
@@ -224,18 +224,7 @@ def opencv_stereo_from_text(text: str) -> RigModel:
         A missing node or image size, a matrix of the wrong shape, a value that is not finite, an R that is not a
         rotation, or a camera :func:`circcal.formats.camera_from_K_dist` refuses.
     """
-    import cv2
-
-    check_nesting(text)
-    try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding wraps the parser's error in a SystemError
-        cause = exc if isinstance(exc, cv2.error) else exc.__cause__
-        if not isinstance(cause, cv2.error):
-            raise
-        raise ModelFileError(f"not an OpenCV FileStorage file ({str(cause).strip().splitlines()[-1][:300]})") from None
-    if not fs.isOpened():
-        raise ModelFileError("not an OpenCV FileStorage file")
+    fs = open_filestorage(text)
     try:
         cams, names = [], []
         for n in (1, 2):
