@@ -16,9 +16,9 @@ A candidate *makes the halves agree* when their difference is within the cross-v
 of the image it needs (:data:`circcal.analysis.diff.CONSISTENT_SHARE`). Agreement alone can be bought with
 uncertainty (a model with more parameters states more), so each candidate is also scored by what a user sees on new
 views: each half's model predicting the other half's views, poses fitted and intrinsics held (RMS per coordinate).
-Where a model change predicts better than no change (by more than :data:`LEAD_MARGIN`), each lens change is also
-tried with each board model (a wide lens and a sagging print are wrong at once), and the one that predicts best (the
-lead), if its halves do not agree alone, with each other candidate; of the trials that agree, the one that predicts
+Where a model change predicts better than no change (by more than :data:`LEAD_MARGIN`), each lens change that does
+is also tried with each board model that does (a wide lens and a sagging print are wrong at once), and the one that
+predicts best (the lead), if its halves do not agree alone, with each other candidate; of the trials that agree, the one that predicts
 best is recommended, or one of fewer changes predicting within :data:`LEAD_MARGIN` of it. Where no model change predicts
 better, the candidate that agrees and predicts better than no change is. Where none agrees, or the halves agree but views
 disagree or regions hold no observations, the remedy names the regions of the image (the thirds where the halves
@@ -397,9 +397,11 @@ def remedy(
         if lead is None:  # no model change predicts better: the views are the question
             best = _choose(trials, base)
         else:
-            # a lens and a board model can each be wrong at once (a wide lens on a sagging print): each lens change
-            # with each board model, and the lead with each other candidate where it does not agree alone
-            pairs = [(a, b) for a in trials for b in trials if _lens(a) and _board(b)]
+            # a lens and a board model can each be wrong at once (a wide lens on a sagging print): where a lens change
+            # and a board model each predict better on their own, each such lens change with each such board
+            # model; and the lead with each other candidate where it does not agree alone
+            helps = [t for t in trials if _improves(t, base)]
+            pairs = [(a, b) for a in helps for b in helps if _lens(a) and _board(b)]
             if not lead.consistent:
                 pairs += [(lead, t) for t in trials if t is not lead]
             combos: list[Trial] = []
@@ -426,6 +428,11 @@ def _choose(trials: list[Trial], base: float) -> Trial | None:
     top = min(float(t.predict_px or 0.0) for t in agree)
     near = [t for t in agree if float(t.predict_px or 0.0) <= (1.0 + LEAD_MARGIN) * top]
     return min(near, key=lambda t: (len(t.options) + len(t.drop), float(t.predict_px or 0.0), trials.index(t)))
+
+
+def _improves(t: Trial, base: float) -> bool:
+    """The trial predicts the other half better than no change by more than :data:`LEAD_MARGIN`."""
+    return t.predict_px is not None and bool(np.isfinite(t.predict_px)) and t.predict_px < (1.0 - LEAD_MARGIN) * base
 
 
 def _lens(t: Trial) -> bool:
