@@ -322,3 +322,22 @@ def test_fuzz_study_writes_its_counts(tmp_path):
     assert all(r["peak_mb"] < MAX_PEAK_RSS_MB for r in large), [(r["kind"], r["peak_mb"]) for r in large]
     assert files["bugs"] == [], files["bugs"]
     assert set(files["rcs"]) <= {0, 1, 2}
+
+
+@pytest.mark.parametrize(
+    "kind, seed, board, invert",
+    [
+        # a staggered lattice on a card: its diagonals make a square lattice whose part spans a 7x7 board; the
+        # board's unseen corners lie off the card in 3 separate gaps (the fuzz study's one false grid before)
+        ("lattice", 202091, Board(7, 7, 10.0, 5.0), True),
+        # a 45x45 lattice of thin dots, of which only a scattered subset passes the candidate size: a 26-dot patch
+        # with holes that fits one placement of the 4x11 board (found once thin dots were measured at their edge)
+        ("big-lattice", 100028, Board(11, 4, 10.0, 7.0, "asymmetric"), False),
+    ],
+)
+def test_a_lattice_of_another_shape_is_not_a_partial_board(kind, seed, board, invert):
+    img = fuzz_image(kind, seed, board)
+    if invert:
+        img = img.max() - img
+    d = detect(img, board)
+    assert not d.found and "separate gaps inside the image" in d.reason, d.reason

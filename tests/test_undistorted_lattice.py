@@ -141,10 +141,15 @@ def test_fisheye_recognition_leaves_out_candidates_beyond_90_degrees_and_keeps_t
 def test_a_bent_board_refused_on_its_pixels_is_found_with_the_model(view):
     rvec, tvec = (np.asarray(v, float) for v in view)
     img = to_uint(render_view(BARREL, BOARD, rvec, tvec))
-    assert not detect(img, BOARD).found
+    truth = project(BOARD.object_points(), rvec, tvec, BARREL)
+    plain = detect(img, BOARD)
+    if plain.found:  # views 2 and 4 since the candidate test measures thin dots at their edge: labelled right
+        # (their centres, corrected without the lens, are up to 1.3 px off; a wrong label is a whole step off)
+        e, _ = labelled_errors(BOARD, plain.centres, truth)
+        step = np.min(np.linalg.norm(truth[:, None] - truth[None], axis=-1) + np.eye(len(truth)) * 1e9)
+        assert np.all(e[np.isfinite(e)] < 0.25 * step)
     d = detect(img, BOARD, BARREL)
     assert d.found, d.reason
-    truth = project(BOARD.object_points(), rvec, tvec, BARREL)
     seen = np.all(np.isfinite(d.centres), axis=1)
     assert seen.sum() >= 8  # (the measuring leaves out some of the most distorted dots)
     assert np.max(np.linalg.norm(d.centres[seen] - truth[seen], axis=1)) < 0.05  # labels right, centres exact

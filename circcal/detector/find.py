@@ -42,7 +42,7 @@ from circcal.detector.measure.dots import EDGE_SIGMA, fit_dots
 from circcal.detector.measure.ellipse import conic_from_params_batch, conic_params_batch
 from circcal.detector.measure.ellipsefit import FIT_ERRORS, fit_ellipses_direct
 from circcal.detector.measure.smoothing import SmoothedImage
-from circcal.detector.measure.trust import ABSENT_MAX_SHARE, absent_dots, check_grid
+from circcal.detector.measure.trust import ABSENT_MAX_SHARE, MAX_GAPS, absent_dots, check_grid, unseen_gaps
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
@@ -222,6 +222,26 @@ def _detect(
             gray,
             camera,
         )
+        gaps = unseen_gaps(
+            board,
+            lab,
+            np.array([cands[rec.order[k]].centre for k in lab]),
+            np.array([np.sqrt(cands[rec.order[k]].axes[0] * cands[rec.order[k]].axes[1]) for k in lab]),
+            gray.shape,
+            camera,
+            skip=absent,
+        )
+        if gaps > MAX_GAPS:
+            return Detection(
+                False,
+                None,
+                f"grid {board.rows}x{board.cols} not recognised: a lattice of {int(seen.sum())} dots fits part of "
+                f"the board, but the board's dots it does not see lie in {gaps} separate gaps inside the image (a "
+                "dot lattice of another shape? a board cut by the image border or hidden from one side leaves one)",
+                Reason.GRID_NOT_RECOGNISED,
+                image_size=(W, H),
+                notes=list(rec.notes),
+            )
         if len(absent) > ABSENT_MAX_SHARE * len(lab):
             return Detection(
                 False,

@@ -22,7 +22,13 @@ MIN_CIRCULARITY = 0.45
 ratio 2 (a dot at 60 deg tilt) ~0.75, of ratio 1:3.8 (75 deg) ~0.5: dots seen up to ~75 deg are kept, lines,
 letters and merged blobs are not."""
 MIN_INERTIA = 0.08
-"""Minor / major second moment (``(b/a)^2``) of a kept blob: axis ratios down to ~1:3.5 (tilts to ~75 deg)."""
+"""Minor / major second moment (``(b/a)^2``) of a kept blob's edge: axis ratios down to ~1:3.5 (tilts to ~75 deg).
+The pixel contour's own ratio is smaller for a thin blob (:data:`CONTOUR_INSET_PX`): dots 73-79 deg off a fisheye's
+axis, 1:3 and ~5 px across the minor axis at full resolution, measured 0.06-0.077 on the half-scale contour and were
+lost (issue 33)."""
+CONTOUR_INSET_PX = 0.5
+"""A blob's pixel contour runs through the centres of its boundary pixels, this far inside its edge (px at the
+mask's scale): the inertia test and :func:`_upscale` measure the edge's ellipse, semi-axes this much longer."""
 MIN_CONVEXITY = 0.8
 """Blob area / convex-hull area: a dot is convex; two touching blobs or a dot cut by a shadow is not."""
 MIN_CONTOUR_POINTS = 5
@@ -94,14 +100,14 @@ def find_candidates(
 ) -> list[Candidate]:
     """Dark blobs of ``mask`` that look like imaged dots.
 
-    Outer contours only (a dot is a filled component); kept when ``min_area <= area <= max_area`` (px^2),
-    circularity ``4 pi S / P^2 >= min_circularity``, inertia ratio (minor/major second moment, ``(b/a)^2``)
-    ``>= min_inertia``, convexity ``S / hull area >= min_convexity``. A blob that touches the image border is
-    kept with ``cut=True`` (a dot cut by the border: never measured, but it shows where the board goes on).
-    Contours too short to enclose ``min_area`` (a closed pixel contour of P points encloses at most
-    ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them. The others are
-    measured in one compiled pass (:func:`_contour_measures`: OpenCV's moments, perimeter, hull area and box to the
-    bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view).
+    Outer contours only (a dot is a filled component); kept when ``min_area <= area <= max_area`` (px^2), circularity
+    ``4 pi S / P^2 >= min_circularity``, inertia ratio (minor/major second moment, ``(b/a)^2``, of the blob's edge: the
+    contour's semi-axes plus :data:`CONTOUR_INSET_PX`) ``>= min_inertia``, convexity ``S / hull area >= min_convexity``.
+    A blob that touches the image border is kept with ``cut=True`` (a dot cut by the border: never measured, but it
+    shows where the board goes on). Contours too short to enclose ``min_area`` (a closed pixel contour of P points
+    encloses at most ``P^2 / (4 pi)``) are passed over before any moment is computed: a noise image has 10^5 of them.
+    The others are measured in one compiled pass (:func:`_contour_measures`: OpenCV's moments, perimeter, hull area and
+    box to the bit, without ~5 OpenCV calls per contour from Python: 1.3 against 0.5 ms per 1080p paper view).
 
     Parameters
     ----------
@@ -167,9 +173,10 @@ def find_candidates(
 @njit(cache=True, nogil=True)
 def _blob_tests(meas, min_area, max_area, min_circularity, min_inertia, min_convexity, W, H, out):
     """The tests of :func:`find_candidates` on each blob's measures ``meas`` (C, 12) (:func:`_contour_measures`),
-    writing into ``out`` (C, 7) a kept blob's centre ``cx, cy``, semi-axes ``a, b``, angle, area and whether it
-    touches the border of the ``W`` x ``H`` mask (1.0), NaN rows for the others: the moments' tests first (area,
-    inertia ratio), then those of the whole contour (circularity ``4 pi S / P^2``, convexity ``S / hull area``).
+    writing into ``out`` (C, 7) a kept blob's centre ``cx, cy``, semi-axes ``a, b`` (the contour's), angle, area
+    and whether it touches the border of the ``W`` x ``H`` mask (1.0), NaN rows for the others: the moments' tests
+    first (area, inertia ratio of the edge's semi-axes ``a, b`` + :data:`CONTOUR_INSET_PX`), then those of the whole
+    contour (circularity ``4 pi S / P^2``, convexity ``S / hull area``).
     The arithmetic of the Python expressions it replaced, in their order, but for squares as products (Python's
     ``x ** 2`` calls libm's pow, which rounds a few squares one ulp off: starting ellipses move by ~1e-15 px, the
     centres by < 1e-13 px on 2 of 617 views)."""
@@ -191,7 +198,12 @@ def _blob_tests(meas, min_area, max_area, min_circularity, min_inertia, min_conv
         tr = mu20 + mu02
         disc = math.sqrt(max(0.0, (mu20 - mu02) ** 2 + 4 * mu11**2))
         l1, l2 = 0.5 * (tr + disc), 0.5 * (tr - disc)  # principal second moments; a = 2 sqrt(l1) for an ellipse
-        if l1 <= 0 or l2 / l1 < min_inertia:
+        if l1 <= 0:
+            continue
+        # the ratio of the blob's edge, half a pixel outside the contour (through its boundary pixels' centres): the
+        # contour's own ratio thins a blob a few pixels across (a 1:3 blob 4 px across: 0.074 for the edge's 0.111)
+        ea, eb = 2.0 * math.sqrt(l1) + CONTOUR_INSET_PX, 2.0 * math.sqrt(max(l2, 0.0)) + CONTOUR_INSET_PX
+        if (eb * eb) / (ea * ea) < min_inertia:
             continue
         if 4.0 * math.pi * S / (P * P) < min_circularity:
             continue
@@ -214,7 +226,7 @@ def _upscale(
     starting ellipse is as close to the edge as one found at full resolution."""
     if scale == 1:
         return centre, axes, area
-    off = 0.5 * (scale - 1)
+    off = CONTOUR_INSET_PX * (scale - 1)
     return centre * scale + off, (axes[0] * scale + off, axes[1] * scale + off), area * scale**2
 
 

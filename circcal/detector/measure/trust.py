@@ -27,7 +27,7 @@ from circcal.detector.measure.ellipse import conic_params_batch
 from circcal.detector.measure.robust import median
 from circcal.model import Camera, distort_pixels, undistort_pixels
 
-__all__ = ["ABSENT_MAX_SHARE", "absent_dots", "check_grid", "local_steps"]
+__all__ = ["ABSENT_MAX_SHARE", "MAX_GAPS", "absent_dots", "unseen_gaps", "check_grid", "local_steps"]
 
 MAX_LATTICE_RESIDUAL = 0.06
 """The RMS residual of the lattice fit (below) is at most this share of the local lattice step: <= 0.01 on renders
@@ -52,6 +52,9 @@ ones lie on bare board (:func:`absent_dots`): a lattice of another layout leaves
 labels (a staggered 5x5 lattice read as part of a 7x7 board: 24 for 25). Fewer (one dot in 20 labelled, two in 40)
 are dots washed out by glare or missing from the print: the view is kept and they are named among the dots left
 out."""
+MAX_GAPS = 1
+"""A partial labelling of an unmarked board is refused when more than this many separate gaps of unseen board dots
+reach the board's edge inside the image (:func:`unseen_gaps`)."""
 DIAMETER_FACTOR = 2.5
 """The dots' diameter measured against the lattice (median dot area over cell area, as a diameter over the pitch)
 lies within this factor of the board's stated diameter either way: the default diameter is half the dot spacing,
@@ -294,6 +297,105 @@ def _undistorted_residual(board: Board, points: np.ndarray, centres: np.ndarray,
     return float(np.sqrt(np.mean(np.sum(res**2, axis=1)))) / step
 
 
+def _unseen_in_image(
+    board: Board,
+    points: np.ndarray,
+    centres: np.ndarray,
+    radii: np.ndarray,
+    shape: tuple[int, ...],
+    camera: Camera | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The board points a partial labelling does not see, where the labelled ones' homography puts them, and which
+    lie inside the image by two dot radii: ``(missing (U,), positions (U, 2) px, inside (U,) bool)``; None where
+    there is nothing to predict (fewer than 4 labelled points, none missing, no homography)."""
+    H_img, W_img = shape[:2]
+    missing = np.setdiff1d(np.arange(board.n_points), points)
+    if len(points) < 4 or len(missing) == 0:
+        return None
+    obj = board.object_points()[:, :2]
+    at = centres if camera is None else undistort_pixels(centres, camera)
+    ok = np.all(np.isfinite(at), axis=1)
+    if np.sum(ok) < 4:
+        return None
+    Hm, _ = cv2.findHomography(obj[points][ok], at[ok], 0)
+    if Hm is None or not np.all(np.isfinite(Hm)):
+        return None
+    q = cv2.perspectiveTransform(obj[missing].reshape(-1, 1, 2), Hm).reshape(-1, 2)
+    if camera is not None:
+        # in the image only where in front of the camera (the labelled dots' side of the vanishing line) and where
+        # the lens images the undistorted position (inside_image: the round trip through the model holds)
+        w = Hm[2] @ np.vstack([obj[missing].T, np.ones(len(missing))])
+        w_seen = Hm[2] @ np.vstack([obj[points][ok].T, np.ones(int(np.sum(ok)))])
+        front = np.sign(w) == np.sign(np.median(w_seen))
+        q = np.where((front & inside_image(camera)(q))[:, None], distort_pixels(q, camera), np.nan)
+    pad = 2.0 * float(np.median(radii))
+    with np.errstate(invalid="ignore"):
+        inside = (q[:, 0] >= pad) & (q[:, 1] >= pad) & (q[:, 0] <= W_img - 1 - pad) & (q[:, 1] <= H_img - 1 - pad)
+    return missing, q, inside
+
+
+def unseen_gaps(
+    board: Board,
+    points: np.ndarray,
+    centres: np.ndarray,
+    radii: np.ndarray,
+    shape: tuple[int, ...],
+    camera: Camera | None = None,
+    skip: np.ndarray | None = None,
+) -> int:
+    """How many separate gaps of a partial labelling reach the board's edge inside the image.
+
+    A board seen in part is cut by the image border (its unseen dots lie outside the image) or hidden by something
+    in front of it: its unseen dots inside the image then form one region that reaches the board's edge (an
+    occluder coming in from one side). A dot lattice of another shape whose part fits the board (a staggered lattice
+    on a card, whose diagonals make a square lattice spanning the board) leaves unseen board dots inside the image
+    in several separate places around the lattice, where the card ends.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+    points : numpy.ndarray
+        (K,) int labelled board points.
+    centres : numpy.ndarray
+        (K, 2) float their rough centres, px.
+    radii : numpy.ndarray
+        (K,) float their rough radii, px.
+    shape : tuple of int
+        The image's (H, W).
+    camera : Camera or None, optional
+        The lens model, where given.
+    skip : numpy.ndarray or None, optional
+        Board points not counted (dots found absent from bare board: :func:`absent_dots`).
+
+    Returns
+    -------
+    int
+        Connected groups (neighbours on the board's lattice) of unseen board points inside the image, each with a
+        point on the board's outer rows or columns; 0 where nothing can be predicted.
+    """
+    predicted = _unseen_in_image(board, points, centres, radii, shape, camera)
+    if predicted is None:
+        return 0
+    missing, _, inside = predicted
+    gap = missing[inside]
+    if skip is not None and len(skip):
+        gap = np.setdiff1d(gap, skip)
+    if len(gap) == 0:
+        return 0
+    L = board.lattice_coords()[gap].astype(np.float64)
+    near = np.linalg.norm(L[:, None] - L[None], axis=-1) <= 2.0 + 1e-9  # lattice neighbours, either layout
+    label = np.arange(len(gap))
+    for _ in range(len(gap)):  # propagate the smallest index through each group (small: at most the board's dots)
+        new = np.where(near, label[None, :], len(gap)).min(axis=1)
+        if np.array_equal(new, label):
+            break
+        label = new
+    i, j = np.divmod(gap, board.cols)
+    edge = (i == 0) | (i == board.rows - 1) | (j == 0) | (j == board.cols - 1)
+    return len(set(label[edge].tolist()))
+
+
 def absent_dots(
     board: Board,
     points: np.ndarray,
@@ -332,32 +434,14 @@ def absent_dots(
         (A,) int64 the absent board points (empty when none, or when the image cannot tell: no homography, no
         board point predicted inside the image, no white between labelled neighbours).
     """
-    N = board.n_points
-    H_img, W_img = gray.shape
-    missing = np.setdiff1d(np.arange(N), points)
-    if len(points) < 4 or len(missing) == 0:
+    predicted = _unseen_in_image(board, points, centres, radii, gray.shape, camera)
+    if predicted is None:
         return np.zeros(0, np.int64)
-    obj = board.object_points()[:, :2]
-    at = centres if camera is None else undistort_pixels(centres, camera)
-    ok = np.all(np.isfinite(at), axis=1)
-    if np.sum(ok) < 4:
-        return np.zeros(0, np.int64)
-    Hm, _ = cv2.findHomography(obj[points][ok], at[ok], 0)
-    if Hm is None or not np.all(np.isfinite(Hm)):
-        return np.zeros(0, np.int64)
-    q = cv2.perspectiveTransform(obj[missing].reshape(-1, 1, 2), Hm).reshape(-1, 2)
-    if camera is not None:
-        # in the image only where in front of the camera (the labelled dots' side of the vanishing line) and where
-        # the lens images the undistorted position (inside_image: the round trip through the model holds)
-        w = Hm[2] @ np.vstack([obj[missing].T, np.ones(len(missing))])
-        w_seen = Hm[2] @ np.vstack([obj[points][ok].T, np.ones(int(np.sum(ok)))])
-        front = np.sign(w) == np.sign(np.median(w_seen))
-        q = np.where((front & inside_image(camera)(q))[:, None], distort_pixels(q, camera), np.nan)
-    r = float(np.median(radii))
-    pad = 2.0 * r
-    inside = (q[:, 0] >= pad) & (q[:, 1] >= pad) & (q[:, 0] <= W_img - 1 - pad) & (q[:, 1] <= H_img - 1 - pad)
+    missing, q, inside = predicted
     if not np.any(inside):
         return np.zeros(0, np.int64)
+    obj = board.object_points()[:, :2]
+    r = float(np.median(radii))
     g = np.asarray(gray)
     if g.dtype not in (np.uint8, np.uint16, np.float32):
         g = g.astype(np.float32)
