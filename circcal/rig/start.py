@@ -20,13 +20,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from circcal.board import Board
-from circcal.errors import CalibrationError
-from circcal.model import Camera, project
+from circcal.errors import CalibrationError, InputError
+from circcal.model import DEFAULT_LENS, Camera, lens_model, project
 from circcal.rotation import rodrigues
 from circcal.solver import CalibrationOptions, calibrate
 
@@ -281,13 +282,40 @@ def camera_starts(
     cameras, poses = [], []
     for name, vs, size, opt in zip(names, views, image_sizes, options):
         keys = list(vs)
+        obj, img = [vs[k][0] for k in keys], [vs[k][1] for k in keys]
         try:
-            res = calibrate([vs[k][0] for k in keys], [vs[k][1] for k in keys], size, opt)
+            res = calibrate(obj, img, size, opt)
+            camera = res.camera
         except CalibrationError as exc:
-            raise CalibrationError(f"camera {name!r}: {str(exc).splitlines()[0]}") from exc
-        cameras.append(res.camera)
+            # a rich pinhole model its own views cannot determine (its coefficients trade off) may be determined by
+            # the rig, whose other cameras fix the board poses: start it from the 5-coefficient model, extra terms 0
+            start = _simpler_start(obj, img, size, opt)
+            if start is None:
+                raise CalibrationError(f"camera {name!r}: {str(exc).splitlines()[0]}") from exc
+            res, camera = start
+        cameras.append(camera)
         poses.append({k: (rodrigues(r), t.copy()) for k, r, t in zip(keys, res.rvecs, res.tvecs)})
     return cameras, poses
+
+
+def _simpler_start(
+    obj: Sequence[np.ndarray], img: Sequence[np.ndarray], size: tuple[int, int], opt: CalibrationOptions
+) -> tuple[Any, Camera] | None:
+    """A camera of ``opt``'s rich pinhole model (rational, thin prism) started from its views' opencv5 calibration,
+    the extra coefficients 0, with that calibration's result (its poses); None for other models or where that fails
+    too or cannot hold the same parameters."""
+    model = lens_model(opt.lens)
+    if not model.pinhole or model.n_dist <= 5:
+        return None
+    try:
+        res = calibrate(obj, img, size, opt.replace(lens=DEFAULT_LENS))
+    except (CalibrationError, InputError):
+        return None
+    p = np.zeros(4 + model.n_dist)
+    names = model.param_names
+    for k, n in enumerate(res.camera.model.param_names):
+        p[names.index(n)] = res.camera.intrinsics[k]
+    return res, Camera.from_intrinsics(size[0], size[1], p, opt.lens)
 
 
 @dataclass
