@@ -56,6 +56,7 @@ def _scenario(n_poses: int | None = None):
 def _shared(scenario, limit: int | None = None) -> tuple[list[str], dict]:
     """(instants, views): the points both cameras saw at each instant both saw, rounded to float32."""
     from circcal.fixtures.rig import rig_observations
+    from circcal.validators.rig import shared_points
 
     obs = rig_observations(scenario, NOISE_PX, 0)
     a, b = scenario.rig.names
@@ -63,15 +64,12 @@ def _shared(scenario, limit: int | None = None) -> tuple[list[str], dict]:
     for v in scenario.instants:
         if v not in obs[a] or v not in obs[b]:
             continue
-        (oa, pa), (ob, pb) = obs[a][v], obs[b][v]
-        ka = {tuple(p): k for k, p in enumerate(oa)}
-        pairs = [(ka[tuple(p)], k) for k, p in enumerate(ob) if tuple(p) in ka]
-        if len(pairs) < 12:
+        o, pa, pb = shared_points(obs[a][v], obs[b][v])
+        if len(o) < 12:
             continue
-        ia, ib = np.array(pairs).T
-        o = oa[ia].astype(np.float32).astype(np.float64)
-        views[a][v] = (o, pa[ia].astype(np.float32).astype(np.float64))
-        views[b][v] = (o, pb[ib].astype(np.float32).astype(np.float64))
+        o = o.astype(np.float32).astype(np.float64)
+        views[a][v] = (o, pa.astype(np.float32).astype(np.float64))
+        views[b][v] = (o, pb.astype(np.float32).astype(np.float64))
         if limit is not None and len(views[a]) == limit:
             break
     return list(views[a]), views

@@ -34,6 +34,7 @@ import numpy as np
 from circcal.errors import InputError
 from circcal.formats.mrcal_process import LENSMODELS, UnsupportedLayout, board_lattice, mrcal_python, run_worker
 from circcal.model import Camera, param_names, project_camera, unproject
+from circcal.observations import BOARD_KEY_DECIMALS
 from circcal.rig.model import RigModel
 from circcal.rotation import rodrigues
 from circcal.solver.holdout import fit_pose
@@ -46,6 +47,7 @@ __all__ = [
     "opencv_multiview",
     "mrcal_rig",
     "compare_rigs",
+    "shared_points",
 ]
 
 #: ``{camera name: {instant: (object points (N, 3) mm, image points (N, 2) px)}}``
@@ -100,10 +102,26 @@ def _flags(lens: str) -> int:
     }[lens]
 
 
-def _shared_points(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, ...]:
-    """The board points two cameras saw at one instant: (object (n, 3), image in a (n, 2), image in b (n, 2))."""
-    ka = {tuple(np.round(p, 6)): k for k, p in enumerate(np.asarray(a[0]))}
-    pairs = [(ka[key], k) for k, p in enumerate(np.asarray(b[0])) if (key := tuple(np.round(p, 6))) in ka]
+def shared_points(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The board points two cameras saw at one instant (matched by their board coordinates).
+
+    Parameters
+    ----------
+    a, b : tuple of ndarray
+        Each camera's view: object points (N, 3) mm, image points (N, 2) px.
+
+    Returns
+    -------
+    object : ndarray, shape (n, 3)
+        The shared board points, in ``a``'s order, mm.
+    image_a, image_b : ndarray, shape (n, 2)
+        Their pixels in each camera.
+    """
+    ka = {tuple(p): k for k, p in enumerate(np.round(np.asarray(a[0]), BOARD_KEY_DECIMALS).tolist())}
+    kb = np.round(np.asarray(b[0]), BOARD_KEY_DECIMALS).tolist()
+    pairs = [(ka[q], k) for k, p in enumerate(kb) if (q := tuple(p)) in ka]
     ia = np.array([p[0] for p in pairs], dtype=int)
     ib = np.array([p[1] for p in pairs], dtype=int)
     return np.asarray(a[0])[ia], np.asarray(a[1])[ia], np.asarray(b[1])[ib]
@@ -143,7 +161,7 @@ def opencv_stereo(views: RigViews, cameras: Sequence[Camera], mode: str = "fix-i
     obj, p0, p1, used = [], [], [], []
     for inst, per_cam in by_inst.items():
         if 0 in per_cam and 1 in per_cam:
-            o, a, b = _shared_points(per_cam[0], per_cam[1])
+            o, a, b = shared_points(per_cam[0], per_cam[1])
             if len(o) >= 6:
                 obj.append(o.astype(np.float32).reshape(-1, 1, 3))
                 p0.append(a.astype(np.float32).reshape(-1, 1, 2))
@@ -229,13 +247,13 @@ def opencv_multiview(
             board = next(iter(whole.values()))[0] if board is None else board
     if board is None:
         return RigReference(name, "failed", notes=["no whole-board view"])
-    order = {tuple(np.round(p, 6)): k for k, p in enumerate(board)}
+    order = {tuple(np.round(p, BOARD_KEY_DECIMALS)): k for k, p in enumerate(board)}
     obj = [(board / 1000.0).astype(np.float32) for _ in instants]
     img = [[np.full((full, 2), -1, np.float32) for _ in instants] for _ in range(ncam)]
     mask = np.zeros((ncam, len(instants)), np.uint8)
     for f, (_, whole) in enumerate(instants):
         for c, (o, p) in whole.items():
-            idx = [order[tuple(np.round(q, 6))] for q in o]
+            idx = [order[tuple(np.round(q, BOARD_KEY_DECIMALS))] for q in o]
             img[c][f][idx] = p
             mask[c, f] = 1
     notes = [

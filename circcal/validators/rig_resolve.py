@@ -19,6 +19,7 @@ from circcal.rig.solve import solve_rig
 from circcal.rig.start import board_symmetries
 from circcal.rotation import rodrigues
 from circcal.solver.holdout import fit_pose
+from circcal.validators.rig import shared_points
 
 __all__ = ["labelled_views", "float32_views", "shared_pair", "whole_views", "resolve"]
 
@@ -86,12 +87,9 @@ def shared_pair(views: Views) -> dict[str, dict[str, tuple]]:
     for v in views[a]:
         if v not in views[b]:
             continue
-        ka = {tuple(np.round(p, 6)): k for k, p in enumerate(views[a][v][0])}
-        pairs = [(ka[q], k) for k, p in enumerate(views[b][v][0]) if (q := tuple(np.round(p, 6))) in ka]
-        if len(pairs) >= 6:
-            ia, ib = (np.array(x) for x in zip(*pairs))
-            out[a][v] = (views[a][v][0][ia], views[a][v][1][ia])
-            out[b][v] = (views[b][v][0][ib], views[b][v][1][ib])
+        o, pa, pb = shared_points(views[a][v], views[b][v])
+        if len(o) >= 6:
+            out[a][v], out[b][v] = (o, pa), (o, pb)
     return out
 
 
