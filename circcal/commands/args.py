@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from circcal.errors import InputError
+from circcal.pathnames import display_name
 
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 
@@ -476,7 +477,7 @@ def calibration_options(args: argparse.Namespace):
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm", ".webp", ".jp2", ".exr")
 
 
-def expand_images(paths: list[Path], option: str = "images") -> list[Path]:
+def expand_images(paths: list[Path], option: str = "images", *, announce: bool = True) -> list[Path]:
     """Image paths with every folder among them replaced by its image files, sorted by name.
 
     Parameters
@@ -485,6 +486,8 @@ def expand_images(paths: list[Path], option: str = "images") -> list[Path]:
         Files and folders as given on the command line.
     option : str
         How messages name the argument.
+    announce : bool
+        Say on stderr how many images each folder gave (False where the caller's summary says it).
 
     Returns
     -------
@@ -501,8 +504,11 @@ def expand_images(paths: list[Path], option: str = "images") -> list[Path]:
         if p.is_dir():
             found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
             if not found:
-                raise InputError(f"{option}: folder {p} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)")
-            print(f"{p}: {len(found)} images", file=sys.stderr)
+                raise InputError(
+                    f"{option}: folder {display_name(p)} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)"
+                )
+            if announce:
+                print(f"{display_name(p)}: {len(found)} images", file=sys.stderr)
             out += found
         else:
             out.append(p)

@@ -12,12 +12,12 @@ from pathlib import Path
 
 from circcal.commands.args import (
     DIAMETER_HELP,
-    IMAGE_SUFFIXES,
     LENS_CHOICES,
     add_board_file_argument,
     add_fix_arguments,
     board_of_args,
     calibration_options,
+    expand_images,
     parse_grid,
     parse_length_mm,
     positive_int,
@@ -150,13 +150,8 @@ def _images_of(name: str, spec: str) -> list[Path]:
     """A camera's image files: a folder's images, or a glob's files, sorted; InputError naming --camera."""
     option = f"--camera {name}={spec}"
     path = Path(spec)
-    if path.is_dir():  # expand_images' rule, without its line on stderr: the summary says how many were found
-        found = sorted(f for f in path.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
-        if not found:
-            raise InputError(
-                f"{option}: folder {display_name(path)} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)"
-            )
-        return found
+    if path.is_dir():  # the summary says how many were found
+        return expand_images([path], option, announce=False)
     if glob.has_magic(spec):
         found = sorted(Path(f) for f in glob.glob(spec) if Path(f).is_file())
         if not found:
