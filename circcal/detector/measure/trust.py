@@ -383,15 +383,13 @@ def unseen_gaps(
         gap = np.setdiff1d(gap, skip)
     if len(gap) == 0:
         return 0
-    L = board.lattice_coords()[gap].astype(np.float64)
-    near = np.linalg.norm(L[:, None] - L[None], axis=-1) <= 2.0 + 1e-9  # lattice neighbours, either layout
-    label = np.arange(len(gap))
-    for _ in range(len(gap)):  # propagate the smallest index through each group (small: at most the board's dots)
-        new = np.where(near, label[None, :], len(gap)).min(axis=1)
-        if np.array_equal(new, label):
-            break
-        label = new
+    # groups: 8-connected on the board's (row, column) grid (either layout's lattice neighbours are among them);
+    # linear in the board's size (a 1000 x 1000 board's gaps included)
     i, j = np.divmod(gap, board.cols)
+    grid = np.zeros((board.rows, board.cols), np.uint8)
+    grid[i, j] = 1
+    _, labels = cv2.connectedComponents(grid, connectivity=8)
+    label = labels[i, j]
     edge = (i == 0) | (i == board.rows - 1) | (j == 0) | (j == board.cols - 1)
     return len(set(label[edge].tolist()))
 
