@@ -99,3 +99,15 @@ def test_no_model_names_the_lens_option_to_try(tmp_path, capsys, monkeypatch):
         ]
     )
     assert code == 1 and "--lens auto" in capsys.readouterr().err
+
+
+def test_a_wrong_grid_is_named_not_the_lens(tmp_path, capsys):
+    """No model because --grid is not the board's: the message gives the images' grid, not a lens to try."""
+    from circcal.cli import main
+
+    truth = load_truth(fixture_dir("small-noisy", progress=False))
+    argv = ["calibrate", *[str(v.image) for v in truth.views[:4]], "--grid", "6x8", "--pitch", "10mm"]
+    code = main([*argv, "--out", str(tmp_path / "m.json"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 1 and "--grid 7x9" in err and "--lens auto" not in err, err
+    assert not (tmp_path / "m.json").exists()

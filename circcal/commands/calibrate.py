@@ -375,9 +375,15 @@ def run(args: argparse.Namespace) -> int:
                 jobs=args.jobs,
             )
         except CalibrationError as exc:
-            hint = "" if args.lens == "auto" else f" (fitted with --lens {args.lens}; a wide lens: try --lens auto)"
+            # the images' own grid first: a --grid that is not the board's is the likelier cause than the lens
+            flag = grid_hint(list(args.images), board)
+            hint = (
+                ""
+                if args.lens == "auto" or flag
+                else f" (fitted with --lens {args.lens}; a wide lens: try --lens auto)"
+            )
             print(f"circcal calibrate: no model: {exc}{hint}", file=sys.stderr)
-            if flag := grid_hint(list(args.images), board):
+            if flag:
                 print(f"circcal calibrate: {flag}", file=sys.stderr)
             return 1
         cal, assessment = calibration.images, calibration.assessment
