@@ -182,3 +182,19 @@ def test_board_command_writes_the_description_beside_the_print(tmp_path, capsys)
     before = f.read_text()
     assert main(["board", "--board", str(f), "--paper", "a3", "--out", str(tmp_path / "board.pdf")]) == 0
     assert f.read_text() == before and (tmp_path / "board.pdf").is_file()
+
+
+def test_the_description_beside_the_print_never_replaces_a_users_file(tmp_path, capsys):
+    """target.yaml beside --out target.svg is written by circcal, not named by the user: where a file circcal did not
+    write stands there, nothing is written and the message says why; circcal's own earlier description is replaced."""
+    out = tmp_path / "target.svg"
+    mine = tmp_path / "target.yaml"
+    mine.write_text("my notes\n")
+    args = ["board", "--grid", "6x8", "--pitch", "15mm", "--diameter", "6mm", "--out", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "would replace a file circcal did not write" in err and str(mine) in err and "\n" not in err.strip()
+    assert mine.read_text() == "my notes\n" and not out.exists()
+    mine.unlink()
+    assert main(args) == 0 and read_board_file(mine).rows == 6
+    assert main([*args[:2], "7x8", *args[3:]]) == 0 and read_board_file(mine).rows == 7  # its own: replaced

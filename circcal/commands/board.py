@@ -312,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
     from circcal.errors import InputError
     from circcal.formats.boardfile import board_file_text
     from circcal.outputs import Outputs
+    from circcal.pathnames import display_name
 
     if args.out.suffix.lower() not in (".svg", ".pdf"):
         raise InputError(f"--out {args.out}: the board is written as .svg or .pdf")
@@ -326,6 +327,11 @@ def run(args: argparse.Namespace) -> int:
     same = args.board is not None and os.path.realpath(described) == os.path.realpath(args.board)
     if same and args.margin is not None:
         raise InputError(f"--margin with --board {args.board}: the board file beside --out would change; edit it")
+    if not same and described.exists() and not _written_by_circcal(described):
+        raise InputError(
+            f"--out {display_name(args.out)}: its board description {display_name(described)} would replace a file "
+            f"circcal did not write; move that file, or give --out another name"
+        )
     with Outputs(inputs=[args.board] if args.board is not None and not same else []) as outputs:
         if not same:
             outputs.file(described, "--out (its board description)").write_text(board_file_text(board))
@@ -333,3 +339,15 @@ def run(args: argparse.Namespace) -> int:
         outputs.commit()
     print(f"wrote {args.out} and {described}: " + "; ".join(geometry_text(board, style, described.name)[:2]))
     return 0
+
+
+def _written_by_circcal(path: Path) -> bool:
+    """Whether ``path`` begins with the line every board description circcal writes begins with (a file that is not
+    one, or not readable as text, is the user's)."""
+    from circcal.formats.boardfile import HEADER
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.readline().rstrip("\r\n") == HEADER
+    except (OSError, UnicodeDecodeError):
+        return False

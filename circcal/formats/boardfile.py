@@ -56,7 +56,10 @@ from circcal.formats.limits import JSON_LIMITS, MAX_MODEL_FILE_BYTES, check_nest
 from circcal.jsonio import parse_json, read_text
 from circcal.markers import ORIGIN_MARKER_SCALE, with_markers
 
-__all__ = ["BOARD_KEYS", "MARKER_KEYS", "read_board_file", "board_from_data", "board_file_text"]
+__all__ = ["BOARD_KEYS", "MARKER_KEYS", "HEADER", "read_board_file", "board_from_data", "board_file_text"]
+
+#: The first line of every board description circcal writes (how a command knows a file beside a print is its own).
+HEADER = "# circcal board description (--board FILE): lengths in mm; point (row, col) is OpenCV's point row*cols+col"
 
 #: The keys of circcal's form (:func:`board_from_data`).
 BOARD_KEYS: tuple[str, ...] = ("rows", "cols", "layout", "pitch_mm", "diameter_mm", "margin_mm", "markers")
@@ -395,7 +398,7 @@ def board_file_text(board: Board) -> str:
     if board.layout == "checkerboard":
         raise InputError("a board description file describes circle grids, not a checkerboard")
     lines = [
-        "# circcal board description (--board FILE): lengths in mm; point (row, col) is OpenCV's point row*cols+col",
+        HEADER,
         f"rows: {board.rows}",
         f"cols: {board.cols}",
         f"layout: {board.layout}",
