@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -95,6 +96,46 @@ def _terminate(signum: int, frame: object) -> None:
     raise Terminated(signum)
 
 
+class _Stdout:
+    """sys.stdout for one command: once its reader has gone (``circcal calibrate ... | head``), further output is
+    dropped instead of ending the command before its outputs are committed (the model is still written; the exit
+    status is the command's). Everything else is the wrapped stream's."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self._gone = False
+
+    def _closed_reader(self) -> None:
+        self._gone = True
+        try:  # the interpreter's last flush at exit must not fail either
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):  # no descriptor (a captured stream): dropping suffices
+            pass
+
+    def write(self, text: str) -> int:
+        if self._gone:
+            return len(text)
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._closed_reader()
+            return len(text)
+
+    def flush(self) -> None:
+        if self._gone:
+            return
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed_reader()
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one ``circcal`` command.
 
@@ -128,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"circcal {args.command}: warning: {message}", file=sys.stderr)
 
     warnings.showwarning = show_warning
+    old_stdout = sys.stdout
+    sys.stdout = _Stdout(old_stdout)
     try:
         return int(args.func(args) or 0)
     except (KeyboardInterrupt, Terminated) as exc:
@@ -146,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return EXIT_INTERNAL_ERROR
     finally:
+        sys.stdout = old_stdout
         warnings.showwarning = old_show
         if main_thread:
             signal.signal(signal.SIGTERM, old_sigterm)

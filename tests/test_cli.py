@@ -482,3 +482,27 @@ def test_overlays_of_images_sharing_a_name_do_not_overwrite_each_other(tmp_path)
         "x_0001_detect.png",
         "y_detect.png",
     ]
+
+
+def test_a_reader_that_goes_away_does_not_cost_the_model(tmp_path):
+    """``circcal calibrate ... | head -1``: the console's reader closes early; the command still commits its model
+    and exits as it would have (it exited 2 with "Broken pipe" before the model was written)."""
+    import subprocess
+    import sys
+
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.fixtures.truth import load_truth
+
+    truth = load_truth(fixture_dir("small-noisy", progress=False))
+    out = tmp_path / "m.json"
+    args = [str(v.image) for v in truth.views[:6]] + ["--grid", "7x9", "--pitch", "10mm", "--no-progress"]
+    code = "import sys; from circcal.cli import main; sys.exit(main(sys.argv[1:]))"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "calibrate", *args, "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # the reader is gone before the first line
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err.decode()
+    assert out.is_file() and b"Broken pipe" not in err
