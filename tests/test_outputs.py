@@ -26,6 +26,9 @@ def _png(path: Path) -> Path:
 @pytest.fixture
 def no_work(monkeypatch):
     """Detection and calibration fail the test if reached: the refusal must come first."""
+    # imported before anything is patched: a module first imported under the patch would keep the patched function
+    # for good (analysis.calibration binds calibrate_images at import; monkeypatch would then "restore" the patch)
+    import circcal.analysis.calibration as calibration
     import circcal.detector.files as files
     import circcal.pipeline as pipeline
 
@@ -33,8 +36,6 @@ def no_work(monkeypatch):
         raise AssertionError("the work started before the outputs were checked")
 
     monkeypatch.setattr(pipeline, "calibrate_images", reached)
-    import circcal.analysis.calibration as calibration
-
     monkeypatch.setattr(calibration, "calibrate_images", reached)
     monkeypatch.setattr(files, "detect_files", reached)
     import circcal.detector as det
