@@ -159,14 +159,14 @@ class RigProblem:
         self.ng = self.nf + 6 * (self.n_cameras - 1)
         self.n = self.ng + 6 * self.n_views
         self.n_points = sum(len(o.X) for o in self.obs)
-        # per camera: the instants it saw and where each one's rows start (rows are sorted by instant)
-        self._segments = []
+        # per camera: the instants it saw and where each one's residual rows start and end (rows sorted by instant)
+        self._instants = []
         for o in self.obs:
-            if len(o.instant):
-                starts_c = np.flatnonzero(np.r_[True, np.diff(o.instant) != 0])
-                self._segments.append((o.instant[starts_c], starts_c))
-            else:
-                self._segments.append((np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)))
+            inst, first = np.unique(o.instant, return_index=True)
+            self._instants.append((inst, 2 * np.r_[first, len(o.instant)]))
+        self._rows = [
+            np.empty((len(o.X), 2, len(m) + (6 if c else 0) + 7)) for c, (o, m) in enumerate(zip(self.obs, self.maps))
+        ]
         self._kept: dict[str, tuple[bytes, object]] = {}
 
     # --- the parameter vector -------------------------------------------------------------------------------------
@@ -259,16 +259,27 @@ class RigProblem:
 
     # --- evaluation -----------------------------------------------------------------------------------------------
 
+    def _frames(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every instant's board rotation (V, 3, 3) and translation (V, 3), every camera's rotation (C, 3, 3) and
+        translation (C, 3) in the rig at ``x`` (kept for the last ``x``: each camera's points use them)."""
+        key = x.tobytes()
+        kept = self._kept.get("frames")
+        if kept is not None and kept[0] == key:
+            return kept[1]  # type: ignore[return-value]
+        rv, tv = self.board_poses(x)
+        rc, tc = self.rig_poses(x)
+        out = (rodrigues(rv), tv, rodrigues(rc), tc)
+        self._kept["frames"] = (key, out)
+        return out
+
     def _points(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Camera ``c``'s points at ``x``: board points rotated into the rig (Y = R_v P), then in the rig
         (X0 = Y + t_v), rotated into the camera (Z = R_c X0), and in the camera (Xc = Z + T_c); all (N_c, 3) mm."""
         o = self.obs[c]
-        rv, tv = self.board_poses(x)
-        R = rodrigues(rv)[o.instant]
-        Y = np.einsum("nij,nj->ni", R, o.X)
-        X0 = Y + tv[o.instant]
-        rc, tc = self.rig_poses(x)
-        Z = X0 @ rodrigues(rc[c]).T
+        Rb, tb, Rc, tc = self._frames(x)
+        Y = np.einsum("nij,nj->ni", Rb[o.instant], o.X)
+        X0 = Y + tb[o.instant]
+        Z = X0 @ Rc[c].T
         return Y, X0, Z, Z + tc[c]
 
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,6 +310,43 @@ class RigProblem:
         self._kept["residuals"] = (key, (f, Xc))
         return f, Xc
 
+    def _derivatives(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Camera ``c``'s points and, per residual, its row ``[M_global | M_board | f]`` before the parameter maps
+        (:meth:`_maps`): the derivatives with respect to all its intrinsics, a left perturbation of its rotation in
+        the rig and its translation (none for camera 0) -- ``g`` columns -- then a left perturbation of the point's
+        board rotation and its board translation (6), then the residual (projected - observed, px).
+
+        Returns ``Xc`` (N_c, 3) mm, the rows (N_c, 2, g + 7; overwritten by the next call) and ``g``."""
+        o = self.obs[c]
+        Y, X0, Z, Xc = self._points(x, c)
+        uv, Ji, dP = project_camera_jacobian(Xc, self.intrinsics(x, c), self.lenses[c])
+        p = Ji.shape[2]
+        g = p + (6 if c else 0)
+        W = self._rows[c]  # reused: a fresh array of this size each evaluation costs its page faults again
+        W[:, :, :p] = Ji
+        if c:
+            rotated_jacobian(dP, Z, out=W[:, :, p : p + 3])
+            W[:, :, p + 3 : g] = dP
+        dPR = (dP.reshape(-1, 3) @ self._frames(x)[2][c]).reshape(dP.shape)  # d uv / d X0
+        rotated_jacobian(dPR, Y, out=W[:, :, g : g + 3])
+        W[:, :, g + 3 : g + 6] = dPR
+        np.subtract(uv, o.uv, out=W[:, :, -1])
+        return Xc, W, g
+
+    def _maps(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
+        """The maps from :meth:`_derivatives`' columns to the parameters': camera ``c``'s global one (p [+ 6], k) --
+        its intrinsics' map, its rotation's left Jacobian -- and every instant's board one (V, 6, 6)."""
+        p, k_i = self.maps[c].shape
+        Tg = np.zeros((p + (6 if c else 0), k_i + (6 if c else 0)))
+        Tg[:p, :k_i] = self.maps[c]
+        if c:
+            Tg[p : p + 3, k_i : k_i + 3] = left_jacobian(self.rig_poses(x)[0][c])
+            Tg[p + 3 :, k_i + 3 :] = np.eye(3)
+        Tb = np.zeros((self.n_views, 6, 6))
+        Tb[:, :3, :3] = left_jacobian(self.board_poses(x)[0])
+        Tb[:, 3:, 3:] = np.eye(3)
+        return Tg, Tb
+
     def jacobian(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Camera ``c``'s residuals and Jacobian rows.
 
@@ -319,24 +367,9 @@ class RigProblem:
         J_board : ndarray, shape (N_c, 2, 6)
             With respect to each point's own instant's board pose (rvec, tvec).
         """
-        o = self.obs[c]
-        Y, X0, Z, Xc = self._points(x, c)
-        rc = self.rig_poses(x)[0][c]
-        Rc = rodrigues(rc)
-        uv, Ji, dP = project_camera_jacobian(Xc, self.intrinsics(x, c), self.lenses[c])
-        k_i = len(self.free[c])
-        k = k_i + (6 if c > 0 else 0)
-        Jg = np.empty((len(Xc), 2, k))
-        Jg[:, :, :k_i] = Ji @ self.maps[c]
-        if c > 0:
-            Jg[:, :, k_i : k_i + 3] = rotated_jacobian(dP, Z) @ left_jacobian(rc)
-            Jg[:, :, k_i + 3 :] = dP
-        dPR = dP @ Rc  # d uv / d X0
-        rv = self.board_poses(x)[0]
-        Jb = np.empty((len(Xc), 2, 6))
-        Jb[:, :, :3] = np.einsum("nrj,njk->nrk", rotated_jacobian(dPR, Y), left_jacobian(rv)[o.instant])
-        Jb[:, :, 3:] = dPR
-        return uv - o.uv, Xc, Jg, Jb
+        Xc, W, g = self._derivatives(x, c)
+        Tg, Tb = self._maps(x, c)
+        return W[:, :, -1].copy(), Xc, W[:, :, :g] @ Tg, W[:, :, g : g + 6] @ Tb[self.obs[c].instant]
 
     def global_cols(self, c: int) -> np.ndarray:
         """Camera ``c``'s columns among the global parameters.
@@ -355,6 +388,10 @@ class RigProblem:
     def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, NormalBlocks]:
         """The residuals and the blocks of ``J^T J`` and ``J^T f`` at ``x`` (the interface of
         :meth:`circcal.solver.problem.Problem.normal_equations`, board poses as the per-view blocks).
+
+        Each camera's rows ``[M_global | M_board | f]`` (:meth:`_derivatives`) are multiplied out per instant (its
+        rows are contiguous: one Gram matrix each); the parameter maps (:meth:`_maps`) are applied to those small
+        blocks, not to every point.
 
         Parameters
         ----------
@@ -378,16 +415,21 @@ class RigProblem:
         for c, rows in enumerate(self.camera_rows()):
             if rows.stop == rows.start:
                 continue
-            fc, Xc[rows], Jg, Jb = self.jacobian(x, c)
-            f[2 * rows.start : 2 * rows.stop] = fc.ravel()
+            Xc[rows], W, g = self._derivatives(x, c)
+            f[2 * rows.start : 2 * rows.stop] = W[:, :, -1].ravel()
+            Tg, Tb = self._maps(x, c)
+            inst, bounds = self._instants[c]
+            W2 = W.reshape(-1, g + 7)
+            G = np.stack([W2[a:b].T @ W2[a:b] for a, b in zip(bounds[:-1], bounds[1:])])  # (S, g + 7, g + 7)
             cols = self.global_cols(c)
-            Jg2 = Jg.reshape(Jg.shape[0] * Jg.shape[1], len(cols))  # (also with no free column)
-            A[np.ix_(cols, cols)] += Jg2.T @ Jg2
-            gi[cols] += Jg2.T @ fc.ravel()
-            inst, starts = self._segments[c]
-            B[np.ix_(inst, cols, np.arange(6))] += np.add.reduceat(np.einsum("nrk,nrl->nkl", Jg, Jb), starts, axis=0)
-            D[inst] += np.add.reduceat(np.einsum("nrk,nrl->nkl", Jb, Jb), starts, axis=0)
-            gp[inst] += np.add.reduceat(np.einsum("nrk,nr->nk", Jb, fc), starts, axis=0)
+            Gg = G[:, :g].sum(axis=0)
+            A[np.ix_(cols, cols)] += Tg.T @ Gg[:, :g] @ Tg
+            gi[cols] += Tg.T @ Gg[:, -1]
+            Tbi = Tb[inst]
+            TbiT = np.transpose(Tbi, (0, 2, 1))
+            B[np.ix_(inst, cols, np.arange(6))] += (Tg.T @ G[:, :g, g : g + 6]) @ Tbi
+            D[inst] += TbiT @ G[:, g : g + 6, g : g + 6] @ Tbi
+            gp[inst] += (TbiT @ G[:, g : g + 6, -1:])[:, :, 0]
         out = (f, (A, gi, B, D, gp))
         self._kept["normal"] = (key, out)
         self._kept["residuals"] = (key, (f, Xc))

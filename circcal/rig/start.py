@@ -22,6 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -455,13 +456,12 @@ def rig_start(
                 if c == anchor:
                     continue
                 obj, img = views[c][v]
-                rv = Rotation.from_matrix(rig_R[c] @ R0).as_rotvec()
+                rv = cv2.Rodrigues(rig_R[c] @ R0)[0].ravel()
                 tv = rig_R[c] @ t0 + rig_T[c]
-                err = []
-                for s in symmetries:
-                    uv = project(s.apply(obj), rv, tv, cameras[c])
-                    e = np.sqrt(np.mean(np.sum((uv - img) ** 2, axis=1)))
-                    err.append(e if np.isfinite(e) else np.inf)
+                # every labelling projected at once: (S, N, 2)
+                uv = project(np.concatenate([s.apply(obj) for s in symmetries]), rv, tv, cameras[c])
+                rms = np.sqrt(np.mean(np.sum((uv.reshape(len(symmetries), -1, 2) - img) ** 2, axis=2), axis=1))
+                err = np.where(np.isfinite(rms), rms, np.inf)
                 order = np.argsort(err)
                 second = err[order[1]] if len(err) > 1 else np.inf
                 fits[c] = (symmetries[order[0]], float(err[order[0]]), float(second))
