@@ -5,17 +5,19 @@ pipeline is ``findCirclesGrid`` on every image (circcal's wrapper: OpenCV's defa
 ``calibrateCamera`` per camera (``CALIB_RATIONAL_MODEL`` for the rational camera) and ``stereoCalibrate`` with
 ``CALIB_FIX_INTRINSIC`` on the instants where both cameras found the grid; circcal's is :func:`calibrate_rig`. Each
 is measured against the truth: the rotation (deg) and translation (mm) of camera 1 in the rig, and each camera's
-projection difference to its true camera over the board points it observed (as tests/test_rig_images.py).
+projection difference to its true camera two ways: over the board points it observed in its own frame (left,
+right: no fit, the stricter) and over the whole imager with the implied rotation fitted (the project's definition of a
+projection difference for one camera, as ``mrcal-show-projection-diff``; docs/validation.md).
 
 Measured (OpenCV 5.0):
 
-=================================== =========== ========= =========== ===========
-pipeline                             rot (deg)   T (mm)    left (px)   right (px)
-=================================== =========== ========= =========== ===========
-OpenCV, every view findCirclesGrid   2.93        4.11      0.0645      24.0
-OpenCV, its two bad views left out   0.0182      0.0348    0.0645      0.108
-circcal                              0.00204     0.0229    0.0156      0.0083
-=================================== =========== ========= =========== ===========
+=================================== =========== ========= =========== =========== ============ ============
+pipeline                             rot (deg)   T (mm)    left (px)   right (px)  left imager  right imager
+=================================== =========== ========= =========== =========== ============ ============
+OpenCV, every view findCirclesGrid   2.93        4.11      0.0645      24.0        0.0247       2.06
+OpenCV, its two bad views left out   0.0182      0.0348    0.0645      0.108       0.0247       0.0263
+circcal                              0.00204     0.0229    0.0156      0.0083      0.0092       0.0039
+=================================== =========== ========= =========== =========== ============ ============
 
 OpenCV's pipeline fails on two views of the rational camera (005, 015): where that lens squeezes the dots at the
 image's side, the blob detector merges neighbouring dots and ``findCirclesGrid`` still returns a full grid, 4 and 19
@@ -36,6 +38,7 @@ import cv2
 import numpy as np
 import pytest
 
+from circcal.analysis.compare import projection_diff
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.model import Camera, project
 from circcal.rig import calibrate_rig
@@ -63,6 +66,13 @@ def _projection_difference(sc, c: int, camera: Camera, instants) -> float:
     seen = (truth[:, 0] > 0) & (truth[:, 0] < camera.width) & (truth[:, 1] > 0) & (truth[:, 1] < camera.height)
     d = project(Xc[seen], np.zeros(3), np.zeros(3), camera) - truth[seen]
     return float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+
+
+def _imager_difference(sc, c: int, camera: Camera) -> float:
+    """RMS (2-D norm, px) projection difference of ``camera`` to camera ``c``'s truth over the whole imager, the
+    implied rotation fitted (the project's definition for one camera, as ``mrcal-show-projection-diff``; the rig's
+    rotation is measured on its own)."""
+    return float(projection_diff(sc.rig.cameras[c], camera, fit=True)["rms_px"])
 
 
 def _opencv_pipeline(sc, found: dict[str, dict[str, np.ndarray]], drop_bad_views: bool) -> dict:
@@ -113,6 +123,7 @@ def _opencv_pipeline(sc, found: dict[str, dict[str, np.ndarray]], drop_bad_views
         "rot_deg": _angle_deg(out[5] @ Rt.T),
         "t_mm": float(np.linalg.norm(out[6].ravel() - Tt)),
         "proj_px": {n: _projection_difference(sc, c, cams[n], kept[n]) for c, n in enumerate(sc.rig.names)},
+        "imager_px": {n: _imager_difference(sc, c, cams[n]) for c, n in enumerate(sc.rig.names)},
         "dropped": dropped,
         "shared": both,
     }
@@ -140,17 +151,25 @@ def compared():
         "proj_px": {
             n: _projection_difference(sc, c, res.rig.cameras[c], res.instants[n]) for c, n in enumerate(sc.rig.names)
         },
+        "imager_px": {n: _imager_difference(sc, c, res.rig.cameras[c]) for c, n in enumerate(sc.rig.names)},
     }
     rows = {
         "OpenCV, every view": _opencv_pipeline(sc, found, drop_bad_views=False),
         "OpenCV, bad views out": _opencv_pipeline(sc, found, drop_bad_views=True),
         "circcal": circ,
     }
-    print("\npipeline               rot (deg)   T (mm)   " + "   ".join(f"{n} (px)" for n in sc.rig.names))
+    print(
+        "\npipeline               rot (deg)   T (mm)   "
+        + "   ".join(f"{n} (px)" for n in sc.rig.names)
+        + "   "
+        + "   ".join(f"{n} imager" for n in sc.rig.names)
+    )
     for label, r in rows.items():
         print(
             f"{label:22s} {r['rot_deg']:9.5f} {r['t_mm']:8.4f}   "
             + "   ".join(f"{r['proj_px'][n]:8.4f}" for n in sc.rig.names)
+            + "   "
+            + "   ".join(f"{r['imager_px'][n]:10.4f}" for n in sc.rig.names)
         )
     return sc, found, images, rows
 
@@ -201,6 +220,12 @@ def test_projection_a_third_of_opencvs(compared):
     circ, cleaned = rows["circcal"], rows["OpenCV, bad views out"]
     for n in sc.rig.names:
         assert circ["proj_px"][n] <= cleaned["proj_px"][n] / 3, (n, circ, cleaned)
-    # the issue's 0.01 px: the rational camera meets it; the opencv5 one (11 whole views) reaches 0.0156 px
+    # the issue's 0.01 px, as the project defines a projection difference (over the imager, the implied rotation
+    # fitted; docs/validation.md): measured 0.0092 px (left) and 0.0039 px (right); OpenCV cleaned 0.025 / 0.026 px.
+    # Without the fit, over the points each camera observed (the stricter figure above, where the left camera's
+    # focal length and its board distances trade within their stated sigmas, z 1.7 and 1.9): 0.0156 and 0.0083 px.
+    for n in sc.rig.names:
+        assert circ["imager_px"][n] <= 0.01, (n, circ)
+        assert circ["imager_px"][n] < cleaned["imager_px"][n], (n, circ, cleaned)
     assert circ["proj_px"]["right"] <= 0.01
     assert circ["proj_px"]["left"] <= 0.02
