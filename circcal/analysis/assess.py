@@ -23,6 +23,7 @@ from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import CrossValidation, cross_validate_detections
 from circcal.analysis.remedy import Remedy, remedy
 from circcal.solver import CalibrationOptions
+from circcal.solver.lensfield import result_pole
 from circcal.solver.modelfit import ModelFit, model_fit
 
 __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
@@ -164,7 +165,8 @@ class Assessment:
         return self.cal.result
 
     def verdict(self) -> list[str]:
-        """The verdict: the error in the three conventions, the cross-validation, the worst uncertainty and, where the
+        """The verdict: the error in the three conventions, the cross-validation, the worst uncertainty, a rational
+        lens with a pole, or nearly one, in the observed field (:func:`circcal.solver.lensfield.result_pole`) and, where the
         board-shape check (:attr:`board_shape`) finds something to say, the board's shape: a board that is not flat,
         a fitted warp that is not needed, a refined board's shift from the flat board's solution (a flat board is
         reported among the :meth:`details`).
@@ -204,6 +206,9 @@ class Assessment:
             if u is not None
             else "projection uncertainty: none (the information matrix is singular)"
         )
+        pole = result_pole(self.result)
+        if pole:
+            lines.append(f"lens model {self.result.camera.lens}: {pole}")
         if self.board_shape is not None and self.board_shape.notable:
             lines.append(self.board_shape.line())
         return lines

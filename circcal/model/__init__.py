@@ -31,7 +31,14 @@ from typing import Any
 import numpy as np
 
 from circcal.errors import InputError
-from circcal.model.brown import _distort_jacobian_into, check_dist, distort, distort_jacobian, undistort
+from circcal.model.brown import (
+    _distort_jacobian_into,
+    check_dist,
+    denominator_minimum,
+    distort,
+    distort_jacobian,
+    undistort,
+)
 from circcal.model.fisheye import _check as check_fisheye
 from circcal.model.fisheye import _fisheye, fisheye_distort, fisheye_distort_jacobian, fisheye_rays, theta_max
 from circcal.rotation import left_jacobian, rodrigues, rotated_jacobian
@@ -50,6 +57,7 @@ __all__ = [
     "distort",
     "distort_jacobian",
     "undistort",
+    "denominator_minimum",
     "theta_max",
     "project",
     "project_jacobian",

@@ -23,7 +23,7 @@ from typing import Literal, overload
 
 import numpy as np
 
-__all__ = ["N_COEFFS", "check_dist", "distort", "distort_jacobian", "undistort"]
+__all__ = ["N_COEFFS", "check_dist", "distort", "distort_jacobian", "undistort", "denominator_minimum"]
 
 #: The distortion-vector lengths this module implements (OpenCV's 5, 8 and 12; not its 4 or the tilted 14).
 N_COEFFS = (5, 8, 12)
@@ -31,6 +31,10 @@ N_COEFFS = (5, 8, 12)
 #: A Newton step of :func:`undistort` that does not lower a point's residual is halved, at most this many times
 #: before the point is declared beyond the lens's fold (NaN).
 _MAX_STEP_HALVINGS = 40
+#: A point whose Newton step, however halved, no longer lowers its residual has reached the rounding floor of
+#: evaluating the distortion (large rational coefficients, |k| ~ 10-100, put it above ``tol``: 1-3e-15): it is
+#: converged when that residual is within this multiple of ``tol`` (1e-12 normalised: ~1e-9 px at f = 1000 px).
+_ROUNDING_FLOOR_FACTOR = 1e3
 
 
 def check_dist(dist: np.ndarray) -> np.ndarray:
@@ -55,6 +59,54 @@ def check_dist(dist: np.ndarray) -> np.ndarray:
     if d.size not in N_COEFFS:
         raise ValueError(f"a pinhole distortion vector holds 5, 8 or 12 coefficients (OpenCV's order), got {d.size}")
     return d
+
+
+def denominator_minimum(dist: np.ndarray, r_max: float) -> tuple[float, float]:
+    """The smallest value of the rational model's denominator ``1 + k4 r^2 + k5 r^4 + k6 r^6`` out to ``r_max``.
+
+    A lens's denominator stays near its value on the axis (1). A fit whose k1..k6 trade off (numerator and
+    denominator nearly cancelling) can take it to zero (a pole) or close to it inside the field: there projection is
+    nearly singular and :func:`undistort` may find no inverse or another root.
+
+    Parameters
+    ----------
+    dist : array_like
+        5, 8 or 12 coefficients in OpenCV's order.
+    r_max : float
+        The largest ideal normalised radius ``|(x, y)| / z`` of interest (the observed field's).
+
+    Returns
+    -------
+    value : float
+        The minimum (1.0 for 5 coefficients); <= 0 where the denominator vanishes within ``r_max``.
+    r : float
+        The radius where it is reached; where the denominator first vanishes when it does.
+
+    Raises
+    ------
+    ValueError
+        ``dist`` of another length.
+
+    Examples
+    --------
+    >>> [round(v, 12) for v in denominator_minimum([0.1, 0, 0, 0, 0, -4.0, 0, 0], 0.4)]  # 1 - 4 r^2
+    [0.36, 0.4]
+    """
+    d = check_dist(dist)
+    if d.size < 8:
+        return 1.0, 0.0
+    k4, k5, k6 = d[5:8]
+    s_max = float(r_max) ** 2
+    crit = np.roots([3.0 * k6, 2.0 * k5, k4])  # d den / d s = 0, in s = r^2
+    crit = crit[np.abs(crit.imag) <= 1e-12 * np.maximum(1.0, np.abs(crit))].real
+    s = np.concatenate([[0.0, s_max], crit[(crit > 0) & (crit < s_max)]])
+    den = 1.0 + s * (k4 + s * (k5 + s * k6))
+    k = int(np.argmin(den))
+    if den[k] > 0:
+        return float(den[k]), float(np.sqrt(s[k]))
+    zeros = np.roots([k6, k5, k4, 1.0])
+    zeros = zeros[np.abs(zeros.imag) <= 1e-12 * np.maximum(1.0, np.abs(zeros))].real
+    return float(den[k]), float(np.sqrt(np.min(zeros[(zeros > 0) & (zeros <= s_max)], initial=s[k])))
 
 
 @overload
@@ -255,7 +307,8 @@ def undistort(
 ) -> np.ndarray:
     """Invert :func:`distort` by a vectorised, damped Newton iteration.
 
-    A step that does not reduce a point's residual is halved (guards strong barrel distortion). Points where the
+    A step that does not reduce a point's residual is halved (guards strong barrel distortion). A point no step
+    improves is converged at its rounding floor when within :data:`_ROUNDING_FLOOR_FACTOR` of ``tol``. Points where the
     model folds over (no unique inverse, far outside a sensible field of view: the radial factor not positive, or the
     map orientation-reversing) come back as NaN rather than a wrong value.
 
@@ -297,14 +350,15 @@ def undistort(
     fx, fy, _, _, a, b, e, c, *_ = _brown(x, y, d, True)
     rx, ry = fx - tx, fy - ty
     err = np.maximum(np.abs(rx), np.abs(ry))
+    floor = np.zeros(err.shape, dtype=bool)  # the last full step did not lower the residual: rounding level
     for _ in range(max_iter):
-        done = err <= thr
+        done = (err <= thr) | (floor & (err <= _ROUNDING_FLOOR_FACTOR * thr))
         if done.any():
             out[idx[done], 0] = x[done]
             out[idx[done], 1] = y[done]
             keep = ~done
-            idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err)
+            idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err, floor = (
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err, floor)
             )
         if idx.size == 0:
             break
@@ -322,12 +376,13 @@ def undistort(
             if not worse.any():
                 break
             lam = np.where(worse, 0.5 * lam, lam)
+        floor = nerr >= err  # no step, however short, lowered it
         x, y, a, b, e, c, rx, ry, err = nx, ny, na, nb, ne, nc, nrx, nry, nerr
         if worse.any():  # no descent even after every halving: no inverse here (the model folds over)
             out[idx[worse]] = np.nan
             keep = ~worse
-            idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err = (
-                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err)
+            idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err, floor = (
+                v[keep] for v in (idx, tx, ty, x, y, thr, a, b, e, c, rx, ry, err, floor)
             )
     if idx.size:
         out[idx] = np.nan

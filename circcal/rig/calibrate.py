@@ -34,9 +34,10 @@ from circcal.rig.solve import RigSolution, solve_rig
 from circcal.rig.start import BoardSymmetry, RigStart, board_symmetries, camera_starts, rig_start, spanning_tree
 from circcal.rotation import rodrigues
 from circcal.solver import CalibrationOptions
+from circcal.solver.lensfield import pole_in_field
 from circcal.solver.options import ASPECT_RATIO
 
-__all__ = ["RigCalibration", "calibrate_rig", "calibrate_rig_points", "Views"]
+__all__ = ["RigCalibration", "calibrate_rig", "calibrate_rig_points", "lens_poles", "Views"]
 
 #: Per camera, per instant name: object points (N, 3) mm and image points (N, 2) px.
 Views = Mapping[str, Mapping[str, tuple[np.ndarray, np.ndarray]]]
@@ -203,6 +204,32 @@ def calibrate_rig_points(
     else:
         cameras, poses = _initial_starts(initial, names, views, opts)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
+
+
+def lens_poles(result: RigCalibration) -> dict[str, str]:
+    """Per camera whose fitted rational lens has a pole, or nearly one, in the field its views observed, what to tell
+    the user (:func:`circcal.solver.lensfield.pole_in_field`).
+
+    Parameters
+    ----------
+    result : RigCalibration
+
+    Returns
+    -------
+    dict of str to str
+        Camera name -> the sentence; empty when every lens is a lens over its observed field.
+    """
+    out = {}
+    for c, n in enumerate(result.rig.names):
+        Rc, Tc = result.rig.pose(c)
+        Xc = [
+            (obj @ rodrigues(result.board_poses[v][0]).T + result.board_poses[v][1]) @ Rc.T + Tc
+            for v, (obj, _) in result.observations[n].items()
+        ]
+        why = pole_in_field(result.rig.cameras[c], np.concatenate(Xc)) if Xc else None
+        if why:
+            out[n] = why
+    return out
 
 
 def _initial_starts(

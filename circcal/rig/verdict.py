@@ -41,7 +41,7 @@ from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff,
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
 from circcal.observations import MIN_VIEWS
-from circcal.rig.calibrate import RigCalibration, calibrate_rig_points
+from circcal.rig.calibrate import RigCalibration, calibrate_rig_points, lens_poles
 from circcal.rig.model import RigModel
 from circcal.rotation import left_jacobian, skew
 from circcal.solver import CalibrationOptions
@@ -560,11 +560,15 @@ class RigVerdict:
     cross : RigCrossValidation or None
         None when skipped.
     outliers : list of ViewOutlier
+    lens_poles : dict of str to str
+        Per camera whose fitted rational lens has a pole, or nearly one, in its observed field, what to tell the user
+        (:func:`circcal.rig.calibrate.lens_poles`).
     """
 
     verdict: str
     cross: RigCrossValidation | None
     outliers: list[ViewOutlier]
+    lens_poles: dict[str, str] = field(default_factory=dict)
 
     def lines(self) -> list[str]:
         """The verdict first, then what to do.
@@ -605,6 +609,7 @@ class RigVerdict:
                 "  what to do: look at these images (blur, a board partly hidden, a wrong detection) and leave them "
                 "out of that camera's images"
             )
+        out += [f"  camera {n!r}: {why}" for n, why in self.lens_poles.items()]
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -613,12 +618,13 @@ class RigVerdict:
         Returns
         -------
         dict
-            ``verdict``, ``cross_validation`` (or None), ``outliers``.
+            ``verdict``, ``cross_validation`` (or None), ``outliers``, ``lens_poles``.
         """
         return {
             "verdict": self.verdict,
             "cross_validation": None if self.cross is None else self.cross.to_dict(),
             "outliers": [dict(o.__dict__) for o in self.outliers],
+            "lens_poles": dict(self.lens_poles),
         }
 
 
@@ -628,7 +634,8 @@ def rig_verdict(
     *,
     cross_validate: bool = True,
 ) -> RigVerdict:
-    """The verdict on a rig calibration: cross-validation (:func:`cross_validate_rig`) and outlier views.
+    """The verdict on a rig calibration: cross-validation (:func:`cross_validate_rig`), outlier views and any lens
+    with a pole in its observed field (:func:`circcal.rig.calibrate.lens_poles`).
 
     Parameters
     ----------
@@ -655,4 +662,4 @@ def rig_verdict(
         verdict = "consistent"
     else:
         verdict = "not-checked"
-    return RigVerdict(verdict, cross, outliers)
+    return RigVerdict(verdict, cross, outliers, lens_poles(cal))
