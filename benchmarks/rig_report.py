@@ -348,6 +348,7 @@ def triangulation() -> tuple[list[str], dict]:
     """
     from circcal.fixtures.rig import rig_observations, rig_scenario
     from circcal.rig import calibrate_rig_points, triangulate
+    from circcal.rig.calibrate import lens_poles
     from circcal.solver import CalibrationOptions
 
     s = rig_scenario("two")
@@ -392,7 +393,7 @@ def triangulation() -> tuple[list[str], dict]:
     pix_cv = _spread_ratio(cvpts, tri.covariance_pixels)
     # the whole chain: the rig re-solved from fresh observation noise, fresh pixel noise each draw
     t0 = time.perf_counter()
-    whole, unconverged, failed = [], 0, []
+    whole, unconverged, failed, named = [], 0, [], []
     for k in range(RESOLVES):
         with warnings.catch_warnings():  # counted below: a re-solve that stops at its iteration limit
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -402,12 +403,14 @@ def triangulation() -> tuple[list[str], dict]:
                 failed.append(f"seed {1000 + k}: {str(exc).splitlines()[0]}")
                 continue
         unconverged += not rc.converged
+        named.append(bool(lens_poles(rc)))  # what the rig verdict says of a lens with a pole in its field
         d = [u + rng.normal(0.0, NOISE_PX, u.shape) for u in true_uv]
         whole.append(triangulate(rc.rig, dict(zip(names, d)), pixel_sigma=NOISE_PX, calibration=False).points)
     t_whole = time.perf_counter() - t0
     ok = np.isfinite(np.array(whole)).all(axis=2)  # (re-solve, point)
     finite = ok.all(axis=0)  # points every re-solve triangulated
     rigs_nan = int(np.sum(~ok.all(axis=1)))
+    nan_named = int(np.sum(~ok.all(axis=1) & np.array(named)))
     whole_r = _spread_ratio(np.array(whole)[:, finite], tri.covariance[finite])
     bias = float(np.median(np.linalg.norm(np.mean(whole, axis=0)[finite] - X[finite], axis=1) / sig[finite]))
 
@@ -463,8 +466,10 @@ def triangulation() -> tuple[list[str], dict]:
         f"as a user gets it); {len(failed)} raised{': ' + '; '.join(failed) if failed else ''}; "
         f"{rigs_nan} of the re-solved rigs left some of these points untriangulated ({int(np.sum(~finite))} of the "
         f"{len(X)} points in all, left out of the ratios): `circcal.model.unproject` returns NaN for their pixels in "
-        "the rational camera, whose coefficients the views leave nearly free (k1..k6 trade off), although the "
-        "pixels lie within the board points that camera observed.",
+        "the rational camera, whose coefficients the views leave nearly free (k1..k6 trade off); "
+        f"{nan_named} of those {rigs_nan} rigs are named by the rig verdict (`circcal.rig.calibrate.lens_poles`: the "
+        f"fitted denominator vanishes, or nearly, inside the observed field), as are {sum(named) - nan_named} more "
+        "whose near pole leaves every point triangulated.",
         "",
     ]
     return lines, {"error_mm": err, "pixels": pix, "pixels_opencv": pix_cv, "whole": whole_r}
