@@ -147,3 +147,27 @@ def test_splits_are_disjoint_and_seeded():
     assert split_views(13, "random", 4) != r1
     with pytest.raises(ValueError):
         split_views(13, "halves")
+
+
+def test_the_checks_own_fits_speak_through_the_check():
+    # halves held to 3 Jacobian evaluations stop short and warn; their words belong to the check (named by whose fit
+    # it was), not to the console as if the user's calibration had not converged
+    import warnings
+
+    from circcal.board import Board
+    from circcal.fixtures.poses import off_axis_observations
+    from circcal.model import Camera
+    from circcal.solver import calibrate
+
+    cam = Camera(640, 480, 560.0, 561.0, 320.5, 240.5, [-0.1, 0.05, 0.0, 0.0, 0.0])
+    obj, img = off_axis_observations(cam, Board(7, 9, 10.0, 4.0), 12, 3, 25.0)
+    full = calibrate(obj, img, (640, 480))
+    assert full.converged
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _, cv = cross_validate_observations(obj, img, (640, 480), CalibrationOptions(max_iterations=3), full=full)
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    whose = ("the half of 6 views (view 0, view 2", "the half of 6 views (view 1, view 3", "the fit without view ")
+    assert cv.notes and all(n.startswith(whose) for n in cv.notes), cv.notes
+    assert any("did not converge" in n for n in cv.notes)
+    assert "notes" in cv.to_dict() and cv.to_dict()["notes"] == cv.notes

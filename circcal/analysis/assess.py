@@ -296,6 +296,8 @@ class Assessment:
             )
         if self.crossval is not None and self.crossval.status == "ok":
             out += self.crossval.lines()
+        elif self.crossval is not None:
+            out += [f"cross-validation: (the check's own fits) {n}" for n in self.crossval.notes]
         return out
 
     def cal_view_names(self) -> list[str]:

@@ -23,6 +23,7 @@ needed (3 per half, the solver's minimum); with fewer the cross-validation says 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -159,6 +160,9 @@ class CrossValidation:
         One per view.
     distance_mm : float or None
         None: infinity.
+    notes : list of str
+        What the halves' and the leave-one-out refits' own calibrations warned of (non-convergence, a re-correction
+        stopped), each once, named by whose fit it was: the check's own trials, not the calibration above.
     flagged_views : list of ViewCheck
         The views flagged (property).
     """
@@ -173,6 +177,7 @@ class CrossValidation:
     verdict: str | None = None
     views: list[ViewCheck] = field(default_factory=list)
     distance_mm: float | None = None
+    notes: list[str] = field(default_factory=list)
 
     @property
     def flagged_views(self) -> list[ViewCheck]:
@@ -189,6 +194,7 @@ class CrossValidation:
         out = [f"cross-validation ({self.split} halves): {self.message}"]
         for v in self.flagged_views:
             out.append(f"  view {v.name} disagrees with the rest: {v.why}")
+        out += [f"  (the check's own fits) {n}" for n in self.notes]
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -198,7 +204,7 @@ class CrossValidation:
         -------
         dict
             ``status``, ``message``, ``split``, ``seed``, ``halves``, ``verdict``, ``distance_mm``, ``diff``
-            (:meth:`ModelDiff.summary`), ``half_models`` (camera and errors), ``views``.
+            (:meth:`ModelDiff.summary`), ``half_models`` (camera and errors), ``views``, ``notes``.
         """
         return {
             "status": self.status,
@@ -211,6 +217,7 @@ class CrossValidation:
             "diff": None if self.diff is None else self.diff.summary(),
             "half_models": [{"camera": m.camera.to_dict(), "errors": dict(m.errors)} for m in self.models],
             "views": [v.to_dict() for v in self.views],
+            "notes": list(self.notes),
         }
 
 
@@ -242,18 +249,20 @@ def _verdict(d: ModelDiff, views: list[ViewCheck]) -> tuple[str, str]:
     )
 
 
-def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions) -> list[ViewCheck]:
+def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions, notes: list[str]) -> list[ViewCheck]:
     obj, img = full.object_points, full.image_points
     size = (full.camera.width, full.camera.height)
     models: dict[int, Any] = {}
 
-    def fit(rest: list[int]) -> CalibrationResult:
-        (k,) = set(range(len(obj))) - set(rest)
+    def refit(rest: list[int]) -> CalibrationResult:
         poses = (full.rvecs[rest], full.tvecs[rest])  # the full solve's: one view less moves them little
-        res = calibrate(
+        return calibrate(
             [obj[i] for i in rest], [img[i] for i in rest], size, options, initial=full.camera, start_poses=poses
         )
-        models[k] = res
+
+    def fit(rest: list[int]) -> CalibrationResult:
+        (k,) = set(range(len(obj))) - set(rest)
+        models[k] = res = _recorded(notes, f"the fit without {names[k]}", refit, rest)
         return res
 
     def held_out(k: int, res: CalibrationResult) -> tuple[np.ndarray, np.ndarray, Camera]:
@@ -316,6 +325,27 @@ def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float |
     )
 
 
+def _recorded(notes: list[str], who: str, fit: Callable[[list[int]], Any], views: list[int]) -> Any:
+    """``fit(views)``, its RuntimeWarnings kept in ``notes`` as ``"who: message"`` (each once) instead of shown: a
+    check's trial fits speak through the check (other warnings pass on)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        try:
+            return fit(views)
+        finally:
+            for w in caught:
+                if not issubclass(w.category, RuntimeWarning):
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+                elif (line := f"{who}: {w.message}") not in notes:
+                    notes.append(line)
+
+
+def _who(names: Sequence[str], views: Sequence[int]) -> str:
+    """A half named by its views (the first few)."""
+    shown = ", ".join(names[i] for i in views[:4])
+    return f"the half of {len(views)} views ({shown}{', ...' if len(views) > 4 else ''})"
+
+
 def cross_validate(
     full: Any,
     fit_half: Callable[[list[int]], Any],
@@ -362,9 +392,10 @@ def cross_validate(
         )
     halves = split_views(n, split, seed)
     models = []
+    notes: list[str] = []
     for h in halves:
         try:
-            models.append(fit_half(h))
+            models.append(_recorded(notes, _who(names, h), fit_half, h))
         except InputError as exc:
             return CrossValidation(
                 "failed",
@@ -373,6 +404,7 @@ def cross_validate(
                 seed,
                 halves,
                 distance_mm=distance,
+                notes=notes,
             )
     a, b = models
     if a.covariance is None or b.covariance is None:
@@ -384,11 +416,12 @@ def cross_validate(
             halves,
             models,
             distance_mm=distance,
+            notes=notes,
         )
     d = halves_diff(a, b, distance=distance)
-    views = _leave_one_out(full, names, options.replace(outlier_rule=None))
+    views = _leave_one_out(full, names, options.replace(outlier_rule=None), notes)
     verdict, message = _verdict(d, views)
-    return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance)
+    return CrossValidation("ok", message, split, seed, halves, models, d, verdict, views, distance, notes)
 
 
 def cross_validate_observations(
