@@ -24,11 +24,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
-from circcal.model import DEFAULT_LENS, Camera, lens_model, project
+from circcal.model import DEFAULT_LENS, Camera, lens_model, project_camera
 from circcal.rotation import rodrigues
 from circcal.solver import CalibrationOptions, calibrate
 
@@ -179,7 +178,7 @@ def _rotation_median(Rs: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """A robust mean rotation: component-wise medians of the tangent vectors about the running estimate."""
     R = seed
     for _ in range(20):
-        w = Rotation.from_matrix(Rs @ R.T).as_rotvec()
+        w = np.array([cv2.Rodrigues(m)[0].ravel() for m in Rs @ R.T])
         d = np.median(w, axis=0)
         R = rodrigues(d) @ R
         if np.linalg.norm(d) < 1e-12:
@@ -444,29 +443,40 @@ def rig_start(
     board_R: dict[str, np.ndarray] = {}
     board_t: dict[str, np.ndarray] = {}
     instants = list(dict.fromkeys(v for p in poses for v in p))
-    trials = {}  # instant -> (anchor, {camera: (best symmetry, best px, second px)})
+    # every instant's board pose from each camera that saw it (the anchor), and through it every other camera's
+    # projection of its own view under each labelling of the board: one projection per camera for all of them
+    starts: dict[str, list[tuple[int, tuple[np.ndarray, np.ndarray]]]] = {}
+    chunks: list[list[np.ndarray]] = [[] for _ in range(n)]
+    jobs: list[list[tuple[str, int, int]]] = [[] for _ in range(n)]  # (instant, anchor, points) per camera
     for v in instants:
         seen = [c for c in range(n) if v in poses[c]]
-        options = []
+        starts[v] = []
         for anchor in seen:
             Ra, ta = poses[anchor][v]
             R0, t0 = rig_R[anchor].T @ Ra, rig_R[anchor].T @ (ta - rig_T[anchor])
-            fits = {}
+            starts[v].append((anchor, (R0, t0)))
             for c in seen:
-                if c == anchor:
-                    continue
-                obj, img = views[c][v]
-                rv = cv2.Rodrigues(rig_R[c] @ R0)[0].ravel()
-                tv = rig_R[c] @ t0 + rig_T[c]
-                # every labelling projected at once: (S, N, 2)
-                uv = project(np.concatenate([s.apply(obj) for s in symmetries]), rv, tv, cameras[c])
-                rms = np.sqrt(np.mean(np.sum((uv.reshape(len(symmetries), -1, 2) - img) ** 2, axis=2), axis=1))
-                err = np.where(np.isfinite(rms), rms, np.inf)
-                order = np.argsort(err)
-                second = err[order[1]] if len(err) > 1 else np.inf
-                fits[c] = (symmetries[order[0]], float(err[order[0]]), float(second))
-            options.append((anchor, (R0, t0), fits))
-        trials[v] = options
+                if c != anchor:
+                    obj = views[c][v][0]
+                    P = np.concatenate([s.apply(obj) for s in symmetries])
+                    chunks[c].append(P @ (rig_R[c] @ R0).T + (rig_R[c] @ t0 + rig_T[c]))
+                    jobs[c].append((v, anchor, len(obj)))
+    found: dict[tuple[str, int], dict[int, tuple[BoardSymmetry, float, float]]] = {}
+    for c in range(n):
+        if not jobs[c]:
+            continue
+        uv_all = project_camera(np.concatenate(chunks[c]), cameras[c])  # NaN behind a pinhole camera
+        at = 0
+        for v, anchor, m in jobs[c]:
+            uv = uv_all[at : at + len(symmetries) * m].reshape(len(symmetries), m, 2)
+            at += len(symmetries) * m
+            rms = np.sqrt(np.mean(np.sum((uv - views[c][v][1]) ** 2, axis=2), axis=1))
+            err = np.where(np.isfinite(rms), rms, np.inf)
+            order = np.argsort(err)
+            second = err[order[1]] if len(err) > 1 else np.inf
+            found.setdefault((v, anchor), {})[c] = (symmetries[order[0]], float(err[order[0]]), float(second))
+    # instant -> [(anchor, its board pose, {camera: (best symmetry, best px, second px)})]
+    trials = {v: [(anchor, pose, found.get((v, anchor), {})) for anchor, pose in starts[v]] for v in instants}
     best_fits = [f[1] for opts in trials.values() for _, _, fits in opts for f in fits.values()]
     limit = max(INCONSISTENT_PX, INCONSISTENT_SCALE * float(np.median(best_fits))) if best_fits else np.inf
     dropped: list[tuple[int, str, str]] = []
