@@ -155,6 +155,8 @@ BAD = {
     "bad name": (["--camera", "a/b=L", "--camera", "right=R"], "camera name 'a/b'"),
     "named twice": (["--camera", "left=L", "--camera", "left=R"], "camera 'left' given twice"),
     "one camera": (["--camera", "left=L"], "at least two cameras, got 1"),
+    "one folder twice": (["--camera", "left=L", "--camera", "right=L"], "is also given to camera 'left'"),
+    "a file in two cameras": (["--camera", "left=L", "--camera", "right=L/a.png"], "the same folder given twice?"),
     "empty folder": (["--camera", "left=L", "--camera", "right=E"], "holds no image file"),
     "glob matches nothing": (["--camera", "left=L", "--camera", "right=R/*.jpg"], "the pattern matches no file"),
     "no such folder": (["--camera", "left=L", "--camera", "right=nowhere"], "no such folder or file"),

@@ -163,8 +163,8 @@ def _images_of(name: str, spec: str) -> list[Path]:
 
 
 def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
-    """Every --camera's images, checked: two cameras at least, names distinct, images named once per camera, every
-    camera linked to the reference by shared image names."""
+    """Every --camera's images, checked: two cameras at least, names distinct, images named once per camera, no file
+    given to two cameras, every camera linked to the reference by shared image names."""
     images: dict[str, list[Path]] = {}
     for name, spec in args.camera:
         if name in images:
@@ -183,6 +183,15 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
                 )
             seen[f.name] = f
         names[name] = set(seen)
+    owner: dict[Path, str] = {}
+    for name, paths in images.items():
+        for f in paths:
+            other = owner.setdefault(f.resolve(), name)
+            if other != name:
+                raise InputError(
+                    f"--camera {name}: {display_name(f)} is also given to camera {other!r}; each camera's "
+                    f"images are its own (the same folder given twice?)"
+                )
     linked, todo = {next(iter(images))}, [next(iter(images))]
     while todo:
         a = todo.pop()
