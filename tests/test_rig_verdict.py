@@ -219,3 +219,21 @@ def test_coverage_per_camera_and_of_the_shared_field(clean):
     assert (b.counts <= own["right"].counts).all() and b.counts.sum() < own["right"].counts.sum()
     # both cameras saw the same board points at the shared instants: as many in each image
     assert a.counts.sum() == b.counts.sum() > 0
+
+
+def test_the_halves_own_warnings_are_the_checks_notes(scenario):
+    # halves held to 2 Jacobian evaluations stop short: their words are notes of the check, named by the half, and
+    # nothing reaches the console as if the user's rig had not converged
+    import warnings
+
+    obs = rig_observations(scenario, NOISE_PX, seed=4)
+    cal = calibrate_rig_points(obs, _sizes(scenario), OPTIONS)
+    short = {n: dataclasses.replace(o, max_iterations=2) for n, o in OPTIONS.items()}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cv = cross_validate_rig(cal, short)
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert cv.notes and all(n.startswith("the half of ") for n in cv.notes), cv.notes
+    assert any("did not converge" in n for n in cv.notes)
+    assert cv.to_dict()["notes"] == cv.notes
+    assert any(line.startswith("  (the check's own fits) the half of ") for line in cv.lines())

@@ -45,6 +45,7 @@ __all__ = [
     "cross_validate_detections",
     "detections_fitter",
     "halves_diff",
+    "noting_warnings",
     "MIN_VIEWS",
     "HELDOUT_RATIO",
     "INFLUENCE_SIGMAS",
@@ -262,7 +263,7 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions,
 
     def fit(rest: list[int]) -> CalibrationResult:
         (k,) = set(range(len(obj))) - set(rest)
-        models[k] = res = _recorded(notes, f"the fit without {names[k]}", refit, rest)
+        models[k] = res = noting_warnings(notes, f"the fit without {names[k]}", refit, rest)
         return res
 
     def held_out(k: int, res: CalibrationResult) -> tuple[np.ndarray, np.ndarray, Camera]:
@@ -325,9 +326,26 @@ def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float |
     )
 
 
-def _recorded(notes: list[str], who: str, fit: Callable[[list[int]], Any], views: list[int]) -> Any:
-    """``fit(views)``, its RuntimeWarnings kept in ``notes`` as ``"who: message"`` (each once) instead of shown: a
-    check's trial fits speak through the check (other warnings pass on)."""
+def noting_warnings(notes: list[str], who: str, fit: Callable[[Any], Any], views: Any) -> Any:
+    """``fit(views)`` with its RuntimeWarnings kept in ``notes`` instead of shown: a check's trial fits speak through
+    the check (other warnings pass on).
+
+    Parameters
+    ----------
+    notes : list of str
+        Appended to: ``"who: message"``, each once.
+    who : str
+        Whose fit it is, in words (e.g. the half of 7 views (...)).
+    fit : callable
+        The fit.
+    views : object
+        Its argument.
+
+    Returns
+    -------
+    object
+        What ``fit`` returns (its exceptions pass on).
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         try:
@@ -395,7 +413,7 @@ def cross_validate(
     notes: list[str] = []
     for h in halves:
         try:
-            models.append(_recorded(notes, _who(names, h), fit_half, h))
+            models.append(noting_warnings(notes, _who(names, h), fit_half, h))
         except InputError as exc:
             return CrossValidation(
                 "failed",

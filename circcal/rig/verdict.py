@@ -37,6 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from circcal.analysis.coverage import Coverage, coverage
+from circcal.analysis.cross import noting_warnings
 from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
@@ -380,6 +381,9 @@ class RigCrossValidation:
         Per camera but the reference.
     verdict : str or None
         ``"consistent"`` or ``"model-or-data-problem"`` (None unless ok).
+    notes : list of str
+        What the halves' own calibrations warned of (each once, named by the half): the check's trials, not the
+        rig above.
     """
 
     status: str
@@ -389,6 +393,7 @@ class RigCrossValidation:
     projections: dict[str, ModelDiff] = field(default_factory=dict)
     poses: list[PoseCheck] = field(default_factory=list)
     verdict: str | None = None
+    notes: list[str] = field(default_factory=list)
 
     def problems(self) -> list[str]:
         """One sentence per camera projection or pose the halves disagree on.
@@ -425,6 +430,7 @@ class RigCrossValidation:
                 f"{100 * (d.share_within or 0):.1f}% of the image"
             )
         out += [f"  {p.text()}" for p in self.poses]
+        out += [f"  (the check's own fits) {n}" for n in self.notes]
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -434,7 +440,7 @@ class RigCrossValidation:
         -------
         dict
             ``status``, ``message``, ``verdict``, ``halves``, ``projections`` (per camera
-            :meth:`ModelDiff.summary`), ``poses``.
+            :meth:`ModelDiff.summary`), ``poses``, ``notes``.
         """
         return {
             "status": self.status,
@@ -443,6 +449,7 @@ class RigCrossValidation:
             "halves": [list(h) for h in self.halves],
             "projections": {n: d.summary() for n, d in self.projections.items()},
             "poses": [dict(p.__dict__) for p in self.poses],
+            "notes": list(self.notes),
         }
 
 
@@ -485,18 +492,25 @@ def cross_validate_rig(
         )
     halves = split_instants(instants)
     sizes = {n: (c.width, c.height) for n, c in zip(rig.names, rig.cameras)}
-    rigs = []
-    for h in halves:
-        keep = set(h)
+    rigs, said = [], []
+
+    def fit(keep: set[str]) -> RigCalibration:
         obs = {n: {v: cal.observations[n][v] for v in instants[n] if v in keep} for n in rig.names}
+        return calibrate_rig_points(obs, sizes, options, initial=cal)
+
+    for h in halves:
+        who = f"the half of {len(h)} instants ({', '.join(h[:4])}{', ...' if len(h) > 4 else ''})"
         try:
-            rigs.append(calibrate_rig_points(obs, sizes, options, initial=cal))
+            rigs.append(noting_warnings(said, who, fit, set(h)))
         except InputError as exc:  # CalibrationError included: too few views of a camera, a disconnected one
             return RigCrossValidation(
-                "failed", f"not done: the half {h[:6]}{'...' if len(h) > 6 else ''} gives no rig ({exc})", halves
+                "failed",
+                f"not done: the half {h[:6]}{'...' if len(h) > 6 else ''} gives no rig ({exc})",
+                halves,
+                notes=said,
             )
     if rig.covariance is None and any(r.rig.covariance is None for r in rigs):
-        return RigCrossValidation("failed", "not done: the information matrix is singular", halves, rigs)
+        return RigCrossValidation("failed", "not done: the information matrix is singular", halves, rigs, notes=said)
     covs, notes = [], []
     for k, r in enumerate(rigs):
         if r.rig.covariance is not None:
@@ -524,7 +538,7 @@ def cross_validate_rig(
             uncertainty_b=lambda uv, c=cb, s=sb: rotation_free_stdev(c, s, uv),
         )
     poses = [pose_check(a, b, k) for k in range(1, rig.n_cameras)]
-    cv = RigCrossValidation("ok", "", halves, rigs, projections, poses)
+    cv = RigCrossValidation("ok", "", halves, rigs, projections, poses, notes=said)
     bad = cv.problems()
     if bad:
         cv.verdict = "model-or-data-problem"
@@ -586,6 +600,8 @@ class RigVerdict:
         elif self.verdict == "not-checked":
             why = "skipped (--no-cross-validate)" if self.cross is None else self.cross.message
             out.append(f"verdict: not cross-validated: {why}; no view is an outlier")
+            if self.cross is not None:
+                out += [f"  (the check's own fits) {n}" for n in self.cross.notes]
         else:
             out.append("verdict: a model or data problem")
         if self.cross is not None and self.cross.verdict == "model-or-data-problem":
