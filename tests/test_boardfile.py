@@ -15,6 +15,18 @@ from circcal.commands.board import geometry_text
 from circcal.errors import InputError
 from circcal.formats.boardfile import board_file_text, read_board_file
 
+BOOFCV = """# Serialized boofcv.alg.fiducial.calib.ConfigCalibrationTarget
+BoofCV.GIT_SHA: a9ab9041d1703a9c09c31999043382e870554729
+boofcv.alg.fiducial.calib.ConfigCalibrationTarget:
+  grid:
+    numRows: 8
+    shapeDistance: 2.5
+    shapeSize: 1.5
+    numCols: 10
+  type: CIRCLE_GRID
+BoofCV.Version: 0.39-SNAPSHOT
+"""
+
 CIRCCAL = """rows: 8
 cols: 11
 layout: symmetric        # or asymmetric
@@ -96,6 +108,11 @@ def test_json_and_yaml_read_alike_and_the_written_text_round_trips(tmp_path):
             "spacing is missing",
         ),
         ("target_finder: {type: CharucoGridTargetFinder, rows: 5, cols: 7}\n", "ModifiedCircleGridTargetFinder only"),
+        (BOOFCV.replace("CIRCLE_GRID", "CIRCLE_HEXAGONAL"), "hexagonal grid (rows spacing * sin 60 apart)"),
+        (BOOFCV.replace("CIRCLE_GRID", "CHESSBOARD"), "type 'CHESSBOARD': BoofCV's circle grids only"),
+        (BOOFCV.replace("    numCols: 10\n", ""), "ConfigCalibrationTarget.grid.numCols is missing"),
+        (BOOFCV.replace("shapeDistance: 2.5", "shapeDistance: -1"), "grid.shapeDistance must be a finite number"),
+        (BOOFCV.replace("shapeSize: 1.5", "shapeSize: 3"), "ConfigCalibrationTarget.grid"),
     ],
 )
 def test_a_bad_field_is_refused_in_one_line_naming_the_file_and_the_field(tmp_path, text, words):
@@ -109,6 +126,13 @@ def test_a_bad_field_is_refused_in_one_line_naming_the_file_and_the_field(tmp_pa
 def test_missing_or_oversized_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         read_board_file(tmp_path / "nope.yaml")
+
+
+def test_boofcv_target_config_read_with_its_unit_stated(tmp_path):
+    # the file BoofCV writes for its circle-grid target (../shared/data/realdata/boofcv_sony_hx5v_circle_regular_10x8)
+    with pytest.warns(RuntimeWarning, match="BoofCV's target file states no unit: its lengths are read as mm"):
+        b = read_board_file(write(tmp_path, BOOFCV))
+    assert (b.rows, b.cols, b.layout, b.pitch_mm, b.diameter_mm, b.markers) == (8, 10, "symmetric", 2.5, 1.5, ())
 
 
 def test_kalibr_circlegrid_in_metres(tmp_path):

@@ -287,7 +287,8 @@ BOARD_FILE_REPLACES: dict[str, str] = {
 }
 BOARD_FILE_HELP = (
     "board description file, YAML or JSON (circcal's rows/cols/layout/pitch_mm/diameter_mm/markers form, "
-    "ROS-Industrial's target.yaml, or Kalibr's target YAML with target_type: circlegrid): replaces --grid, "
+    "ROS-Industrial's target.yaml, Kalibr's target YAML with target_type: circlegrid, or BoofCV's target config "
+    "with type: CIRCLE_GRID): replaces --grid, "
     "--pitch, --diameter, --asymmetric and --markers (marker dots anywhere on the grid)"
 )
 

@@ -1,6 +1,6 @@
-"""Board description files (``--board FILE``): circcal's own YAML/JSON form, ROS-Industrial's target YAML and
-Kalibr's circle-grid target YAML, read into one :class:`circcal.board.Board`; :func:`board_file_text` writes
-circcal's form (``circcal board`` writes it beside the printable target).
+"""Board description files (``--board FILE``): circcal's own YAML/JSON form, ROS-Industrial's target YAML,
+Kalibr's circle-grid target YAML and BoofCV's calibration-target YAML, read into one :class:`circcal.board.Board`;
+:func:`board_file_text` writes circcal's form (``circcal board`` writes it beside the printable target).
 
 circcal's form (YAML, or the same keys as JSON; unknown keys are refused by name; lengths in mm)::
 
@@ -34,6 +34,12 @@ Foreign forms, read as their tools define them:
   point (r, c) at ``((2c + r % 2) s, r s)``), ``asymmetricGrid`` (bool). Kalibr states no dot diameter: half the
   nearest-dot spacing. (Kalibr's symmetric points are ``(s r, s c)``, the transpose of OpenCV's frame; the dots and
   their order are the same, so the camera calibrated is the same.)
+* **BoofCV** (``boofcv.alg.fiducial.calib.ConfigCalibrationTarget:`` with ``type: CIRCLE_GRID``, as BoofCV serialises
+  its target config): ``grid.numRows`` (rows), ``grid.numCols`` (points per row), ``grid.shapeDistance`` (the
+  centres' spacing) and ``grid.shapeSize`` (the dot diameter), in **no stated unit** (BoofCV's are "consistent
+  units"): read as mm, and the reader warns that poses and distances come out in the file's unit (the intrinsics do
+  not depend on it). BoofCV's ``CIRCLE_HEXAGONAL`` grid (rows ``d sin 60`` apart, an equilateral lattice) is not
+  OpenCV's asymmetric grid (rows ``s`` apart) and is refused by name.
 
 The file's size, nesting, integer digits, repeated keys and YAML anchors/aliases are bounded as for camera files
 (:mod:`circcal.formats.limits`, :mod:`circcal.jsonio`). Every refusal is one :class:`~circcal.errors.InputError`
@@ -43,6 +49,7 @@ line naming the file and the field.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -67,6 +74,8 @@ BOARD_KEYS: tuple[str, ...] = ("rows", "cols", "layout", "pitch_mm", "diameter_m
 MARKER_KEYS: tuple[str, ...] = ("row", "col", "diameter_mm")
 #: Millimetres per metre (ROS-Industrial's and Kalibr's lengths are metres).
 MM_PER_M = 1000.0
+#: The top-level key of BoofCV's serialised calibration-target config.
+BOOFCV_TARGET = "boofcv.alg.fiducial.calib.ConfigCalibrationTarget"
 #: ROS-Industrial's target types: 0 chessboard, 1 circle grid, 2 modified circle grid (one big origin dot).
 ROSI_CIRCLE_GRID = 1
 ROSI_MODIFIED_CIRCLE_GRID = 2
@@ -148,6 +157,8 @@ def board_from_data(data: Any) -> Board:
         return _rosi_targets(data)
     if "target_finder" in data:
         return _rosi_finder(data["target_finder"])
+    if BOOFCV_TARGET in data:
+        return _boofcv(data[BOOFCV_TARGET])
     return _circcal(data)
 
 
@@ -183,7 +194,7 @@ def _circcal(data: dict[str, Any]) -> Board:
     if unknown:
         raise InputError(
             f"unknown field {show(unknown[0])}: a board description holds {', '.join(BOARD_KEYS)} "
-            "(or is ROS-Industrial's target YAML, or Kalibr's with target_type: circlegrid)"
+            "(or is ROS-Industrial's target YAML, Kalibr's with target_type: circlegrid, or BoofCV's target config)"
         )
     for key in ("rows", "cols", "pitch_mm"):
         if key not in data:
@@ -263,6 +274,41 @@ def _kalibr(data: dict[str, Any]) -> Board:
     layout: Layout = "asymmetric" if asym else "symmetric"
     pitch = _length_mm(data["spacingMeters"], "spacingMeters", MM_PER_M, "m")
     return Board(rows, cols, pitch, _diameter_default(pitch, layout), layout)
+
+
+def _boofcv(target: Any) -> Board:
+    """BoofCV's calibration-target YAML (module docstring)."""
+    at = BOOFCV_TARGET
+    if not isinstance(target, dict):
+        raise InputError(f"{at} must be a mapping (type, grid), got {_kind(target)}")
+    kind = target.get("type")
+    if kind == "CIRCLE_HEXAGONAL":
+        raise InputError(
+            f"{at}.type CIRCLE_HEXAGONAL: BoofCV's hexagonal grid (rows spacing * sin 60 apart) is not a layout "
+            f"circcal has (a symmetric grid, or OpenCV's asymmetric one with rows spacing apart)"
+        )
+    if kind != "CIRCLE_GRID":
+        raise InputError(f"{at}.type {show(kind)}: BoofCV's circle grids only (type: CIRCLE_GRID); circcal finds dots")
+    grid = target.get("grid")
+    if not isinstance(grid, dict):
+        raise InputError(f"{at}.grid must be a mapping (numRows, numCols, shapeSize, shapeDistance)")
+    for key in ("numRows", "numCols", "shapeDistance"):
+        if key not in grid:
+            raise InputError(f"{at}.grid.{key} is missing (BoofCV's circle-grid target)")
+    rows, cols = _side(grid["numRows"], f"{at}.grid.numRows"), _side(grid["numCols"], f"{at}.grid.numCols")
+    pitch = _length_mm(grid["shapeDistance"], f"{at}.grid.shapeDistance", 1.0, "(no unit, read as mm)")
+    diameter = (
+        _length_mm(grid["shapeSize"], f"{at}.grid.shapeSize", 1.0, "(no unit, read as mm)")
+        if "shapeSize" in grid
+        else _diameter_default(pitch, "symmetric")
+    )
+    warnings.warn(
+        f"BoofCV's target file states no unit: its lengths are read as mm (spacing {_num(pitch)}, dots "
+        f"{_num(diameter)}); poses and distances come out in the file's unit, the intrinsics do not depend on it",
+        RuntimeWarning,
+        stacklevel=2,
+    )
+    return _named(lambda: Board(rows, cols, pitch, diameter, "symmetric"), f"{at}.grid")
 
 
 def _rosi_targets(data: dict[str, Any]) -> Board:
