@@ -136,3 +136,27 @@ def test_the_command_prints_the_table_and_passes(capsys):
     out = capsys.readouterr().out
     assert rc == 0 and "verdict: passed" in out and "opencv-stereo (fix-intrinsic)   fair" in out
     assert "per point, 2-D norm, OpenCV's convention" in out
+
+
+def test_where_stereo_calibrate_stops_apart_circcals_rig_is_the_lower_minimum():
+    # fair mode, intrinsics held at circcal's: on `two` / noise OpenCV lands on circcal's rig (0 deg, 1.7e-7 mm); on
+    # `two` / flip it stops 2.4e-6 deg, 1.9e-5 mm away -- the 1e-6 deg is not met there -- and its rig costs
+    # more on the very points both solved (RMS 0.139208400821456 against circcal's 0.139208400817591, each instant's
+    # board pose re-fitted over both cameras): OpenCV's termination, not another minimum
+    from benchmarks.rig_report import refit_rms
+    from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, shared_pair
+
+    sc = rig_scenario("two")
+    raw, _ = rig_variant_observations(sc, "flip", 0)
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    rc = calibrate_rig_points(raw, sizes, opts, board=sc.board)
+    fair = float32_views(labelled_views(rc, raw, sc.board))
+    cv = opencv_stereo(fair, rc.rig.cameras[:2], "fix-intrinsic")
+    ours = resolve(shared_pair(fair), rc.rig, rc.board_poses, hold=True)
+    (R, T), (Ro, To) = ours.pair(0, 1), cv.rig.pair(0, 1)
+    apart_deg = np.degrees(np.arccos(np.clip((np.trace(R @ Ro.T) - 1) / 2, -1, 1)))
+    assert apart_deg > 1e-6 and np.linalg.norm(T - To) > 1e-5  # the case where they stop apart
+    points = shared_pair(fair)
+    ours_rms, cv_rms = refit_rms(ours, points)[0], refit_rms(cv.rig, points)[0]
+    assert ours_rms < cv_rms < ours_rms * (1 + 1e-9), (ours_rms, cv_rms)
