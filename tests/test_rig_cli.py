@@ -246,7 +246,7 @@ def test_triangulate_true_points_within_their_sigmas(tmp_path, capsys):
     argv = ["triangulate", "--rig", str(rig_file), *_write_points(tmp_path, noisy), "--pixel-sigma", str(sigma)]
     assert main([*argv, "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "in the frame of left (the reference camera), mm" in text and "p0 (seen by 1 camera(s): no point)" in text
+    assert "in the frame of left (the reference camera), mm" in text and "p0 (given by 1 camera(s): no point)" in text
     doc = json.loads(out.read_text())
     rows = doc["points"]
     assert len(rows) == len(X0) and rows[0]["x_mm"] is None and rows[1]["id"] == "p1"
@@ -309,3 +309,16 @@ def test_help_names_the_formats(capsys):
             main([command, "--help"])
     out = capsys.readouterr().out
     assert "NAME=IMAGES" in out and "X_2 = R X_1 + T" in out and "'u,v' or 'id,u,v'" in out
+
+
+def test_a_pixel_a_camera_cannot_unproject_is_said_so(tmp_path, capsys):
+    # p1's left pixel far beyond where the left lens folds over (opencv5 with k3 < 0): given by both cameras, no point
+    sc, _, px = _true_pixels(3)
+    px["left"][1] = (-3000.0, -3000.0)
+    rig_file = tmp_path / "true_rig.json"
+    rig_file.write_text(json.dumps(sc.rig.to_dict()))
+    argv = ["triangulate", "--rig", str(rig_file), *_write_points(tmp_path, px), "--pixel-sigma", "0.1"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "p1 (given by 2 camera(s); 1 of them cannot unproject its pixel (beyond its lens's one-to-one field" in text
+    assert "p0 (given by 1 camera(s): no point)" in text

@@ -279,12 +279,20 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{'point':>8} {'x':>11} {'y':>11} {'z':>11} {'sx':>8} {'sy':>8} {'sz':>8} {'largest':>8} {'rms px':>7} cams"
         )
-        for r in rows:
+        for k, r in enumerate(rows):
             vals = [
-                r[k] for k in ("x_mm", "y_mm", "z_mm", "sigma_x_mm", "sigma_y_mm", "sigma_z_mm", "sigma_largest_mm")
+                r[key] for key in ("x_mm", "y_mm", "z_mm", "sigma_x_mm", "sigma_y_mm", "sigma_z_mm", "sigma_largest_mm")
             ]
             if r["x_mm"] is None:
-                print(f"{r['id']:>8} (seen by {r['n_cameras']} camera(s): no point)")
+                given = [n for n in tri.cameras if np.isfinite(pixels[n][k]).all()]
+                lost = len(given) - r["n_cameras"]
+                why = (
+                    f"; {lost} of them cannot unproject its pixel (beyond its lens's one-to-one field, or at a pole "
+                    f"of its fitted rational lens: see the rig's verdict)"
+                    if lost
+                    else ""
+                )
+                print(f"{r['id']:>8} (given by {len(given)} camera(s){why}: no point)")
                 continue
             print(
                 f"{r['id']:>8} {vals[0]:11.3f} {vals[1]:11.3f} {vals[2]:11.3f} {vals[3]:8.3f} {vals[4]:8.3f} "
