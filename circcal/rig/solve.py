@@ -19,6 +19,7 @@ import numpy as np
 
 from circcal.errors import CalibrationError
 from circcal.rig.problem import RigProblem
+from circcal.solver.covariance import normalised_information
 from circcal.solver.lm import levenberg_marquardt, schur_complement
 
 if TYPE_CHECKING:  # annotations only
@@ -132,11 +133,8 @@ def state_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.ndarr
         S = schur_complement(A, B, D)[0]
     except np.linalg.LinAlgError:
         return None
-    S = 0.5 * (S + S.T)
-    scale = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    Sn = S / np.outer(scale, scale)
-    ev = np.linalg.eigvalsh(Sn)
-    if not (ev[0] > 0 and ev[-1] / ev[0] <= MAX_INFORMATION_CONDITION):
+    Sn, scale, cond = normalised_information(S)
+    if not cond <= MAX_INFORMATION_CONDITION:
         return None
     cov_free = sigma2 * np.linalg.inv(Sn) / np.outer(scale, scale)
     sizes = [len(b) for b in prob.base]

@@ -30,7 +30,7 @@ from circcal.metrics import error_stats_per_view
 from circcal.model import DEFAULT_LENS, Camera, lens_model, pixel_to_normalized, theta_max, undistort, unproject
 from circcal.observations import check_observations
 from circcal.solver.boardpoints import board_model, warp_box
-from circcal.solver.covariance import state_covariance
+from circcal.solver.covariance import normalised_information, state_covariance
 from circcal.solver.fisheye_start import fisheye_start, pinhole_start, poses_from_rays
 from circcal.solver.lm import global_information, is_sane, solve
 from circcal.solver.options import ASPECT_RATIO, CalibrationOptions
@@ -320,13 +320,9 @@ def _calibrate(
     sigma2 = ssr / dof
 
     # Uncertainty of the intrinsics (and board points), poses marginalised.
-    S = global_information(prob, x)
-    scale = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    Sn = S / np.outer(scale, scale)
-    ev = np.linalg.eigvalsh(Sn)
-    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+    Sn, scale, cond = normalised_information(global_information(prob, x))
     if not np.isfinite(cond) or cond > MAX_INFORMATION_CONDITION:
-        cov_global_unit = np.full(S.shape, np.inf)
+        cov_global_unit = np.full(Sn.shape, np.inf)
     else:
         cov_global_unit = np.linalg.inv(Sn) / np.outer(scale, scale)
     cov_free_unit = cov_global_unit[: prob.nf, : prob.nf]
@@ -410,7 +406,10 @@ def _undetermined_coefficients(Sn: np.ndarray, prob: Problem, names: tuple[str, 
     """The distortion coefficients that carry the information matrix's weakest direction (normalised, free
     intrinsics), where they carry at least 90 % of it; empty where the focal length or the principal point is in
     it (then the views, not the lens model, are the question)."""
-    ev, vec = np.linalg.eigh(Sn[: prob.nf, : prob.nf])
+    block = Sn[: prob.nf, : prob.nf]
+    if not np.all(np.isfinite(block)):  # no direction to name: the views, not the lens model, are the question
+        return []
+    ev, vec = np.linalg.eigh(block)
     weakest = vec[:, 0] ** 2  # unit norm: each free intrinsic's share
     free_names = [names[int(np.flatnonzero(prob.T[:, j])[-1])] for j in range(prob.nf)]
     dist_share = sum(w for n, w in zip(free_names, weakest) if n not in ("fx", "fy", "cx", "cy"))

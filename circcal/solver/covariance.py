@@ -26,7 +26,39 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["StateCovariance", "state_covariance"]
+
+def normalised_information(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """An information matrix scaled to a unit diagonal, and how well it is conditioned.
+
+    Parameters
+    ----------
+    S : ndarray, shape (k, k)
+        The information on the global parameters (the Schur complement of the pose blocks in ``J^T J``).
+
+    Returns
+    -------
+    Sn : ndarray, shape (k, k)
+        ``S / outer(scale, scale)``, symmetrised.
+    scale : ndarray, shape (k,)
+        ``sqrt(diag(S))``, floored at 1e-150.
+    condition : float
+        Of ``Sn``; inf where it is not positive definite: a diagonal entry not positive, a value not finite (board
+        poses whose own blocks are near singular make such a complement), or no eigenvalues found.
+    """
+    S = 0.5 * (S + S.T)
+    d = np.diag(S)
+    scale = np.sqrt(np.maximum(d, 1e-300))
+    Sn = S / np.outer(scale, scale)
+    if not (np.all(d > 0) and np.all(np.isfinite(Sn))):
+        return Sn, scale, float("inf")
+    try:
+        ev = np.linalg.eigvalsh(Sn)
+    except np.linalg.LinAlgError:
+        return Sn, scale, float("inf")
+    return Sn, scale, float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+
+
+__all__ = ["StateCovariance", "state_covariance", "normalised_information"]
 
 
 @dataclass(frozen=True)
