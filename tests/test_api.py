@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import circcal
+from circcal.errors import InputError
 
 
 @pytest.mark.parametrize("name", sorted(circcal._API))
@@ -52,8 +53,10 @@ def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
     assert len(run.residuals) == len(run.images.used) == len(paths) and not run.images.failed
     # from observations: the same model to the solver's precision
     obs = run.images.observations(truth.board)
-    again = circcal.calibrate(None, truth.board, observations=obs, image_size=(cam.width, cam.height))
+    again = circcal.calibrate(observations=obs, board=truth.board, image_size=(cam.width, cam.height))
     assert np.allclose(again.camera.intrinsics, cam.intrinsics, rtol=1e-9, atol=1e-9) and again.verdict
+    with pytest.raises(InputError, match=r"give board= \(a circcal.Board"):
+        circcal.calibrate(observations=obs, image_size=(cam.width, cam.height))
     import cv2
 
     d = circcal.detect(cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED), truth.board)

@@ -89,8 +89,8 @@ class Calibration:
 
 
 def calibrate(
-    images: Sequence[str | Path] | None,
-    board: Any,
+    images: Sequence[str | Path] | None = None,
+    board: Any = None,
     options: CalibrationOptions = CalibrationOptions(),
     *,
     observations: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
@@ -108,9 +108,9 @@ def calibrate(
     Parameters
     ----------
     images : sequence of str or Path, or None
-        Image files (None with ``observations``).
+        Image files (None, the default, with ``observations``).
     board : circcal.board.Board
-        The board the images show.
+        The board the images show (required; a keyword with ``observations``).
     options : CalibrationOptions
         Lens model, held parameters, outlier rule, board refinement.
     observations : (object_points, image_points) or None
@@ -139,7 +139,7 @@ def calibrate(
     Raises
     ------
     InputError
-        Neither or both of images and observations; observations without ``image_size``.
+        Neither or both of images and observations; no board; observations without ``image_size``.
     CalibrationError
         No trustworthy model (too few views, degenerate poses, no convergence): the message says why.
 
@@ -151,6 +151,8 @@ def calibrate(
     """
     if (images is None) == (observations is None):
         raise InputError("give images or observations (object_points, image_points), one of them")
+    if board is None:
+        raise InputError("give board= (a circcal.Board: the board the views show)")
     if images is not None:
         run = calibrate_images(
             images, board, options, progress=progress, jobs=jobs, image_size=image_size, lens_candidates=lens_candidates
