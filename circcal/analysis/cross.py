@@ -26,7 +26,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -35,6 +35,10 @@ from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
 from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
+
+#: The argument and the result of a fit :func:`noting_warnings` runs.
+_A = TypeVar("_A")
+_R = TypeVar("_R")
 
 __all__ = [
     "CrossValidation",
@@ -326,7 +330,7 @@ def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float |
     )
 
 
-def noting_warnings(notes: list[str], who: str, fit: Callable[[Any], Any], views: Any) -> Any:
+def noting_warnings(notes: list[str], who: str, fit: Callable[[_A], _R], views: _A) -> _R:
     """``fit(views)`` with its RuntimeWarnings kept in ``notes`` instead of shown: a check's trial fits speak through
     the check (other warnings pass on).
 
