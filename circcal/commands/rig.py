@@ -86,7 +86,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Calibrate every camera (detection, calibration, centre re-correction), then solve every "
         "camera's intrinsics, every camera's pose in the rig (the first --camera is the reference: X_cam = R X_ref "
         "+ T, mm) and one board pose per instant jointly, re-correcting the centres under the joint model until "
-        "they settle. Images of different cameras are matched by file name: the same name is the same instant; "
+        "they settle. Images of different cameras are matched by file name: the same name is the same instant "
+        "(where no name is shared, the same name after each camera's own prefix: left01.png, right01.png); "
         "an instant seen by some cameras only, or partly, is used. Then the verdict: two halves of the instants "
         "calibrated apart and compared against their stated uncertainty, outlier views per camera, coverage.",
     )
@@ -163,8 +164,11 @@ def _images_of(name: str, spec: str) -> list[Path]:
 
 
 def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
-    """Every --camera's images, checked: two cameras at least, names distinct, images named once per camera, no file
-    given to two cameras, every camera linked to the reference by shared image names."""
+    """Every --camera's images, checked: two cameras at least, names distinct, no file given to two cameras, images
+    named once per camera, every camera linked to the reference by shared instants (:mod:`circcal.rig.instants`: the
+    file names, or the names after each camera's prefix, said in a line)."""
+    from circcal.rig.instants import camera_prefixes, instant_of, unlinked
+
     images: dict[str, list[Path]] = {}
     for name, spec in args.camera:
         if name in images:
@@ -172,17 +176,19 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
         images[name] = _images_of(name, spec)
     if len(images) < 2:
         raise InputError(f"--camera: a rig needs at least two cameras, got {len(images)}")
-    names: dict[str, set[str]] = {}
+    prefix = camera_prefixes(images)
+    instants: dict[str, set[str]] = {}
     for name, paths in images.items():
         seen: dict[str, Path] = {}
         for f in paths:
-            if f.name in seen:
+            v = instant_of(f, prefix[name])
+            if v in seen:
                 raise InputError(
-                    f"--camera {name}: two images named {display_name(f.name)!r} ({display_name(seen[f.name])}, "
+                    f"--camera {name}: two images named {display_name(f.name)!r} ({display_name(seen[v])}, "
                     f"{display_name(f)}); the file name names the instant"
                 )
-            seen[f.name] = f
-        names[name] = set(seen)
+            seen[v] = f
+        instants[name] = set(seen)
     owner: dict[Path, str] = {}
     for name, paths in images.items():
         for f in paths:
@@ -192,18 +198,20 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
                     f"--camera {name}: {display_name(f)} is also given to camera {other!r}; each camera's "
                     f"images are its own (the same folder given twice?)"
                 )
-    linked, todo = {next(iter(images))}, [next(iter(images))]
-    while todo:
-        a = todo.pop()
-        for b in names:
-            if b not in linked and names[a] & names[b]:
-                linked.add(b)
-                todo.append(b)
-    alone = [n for n in images if n not in linked]
+    alone = unlinked(instants)
     if alone:
         raise InputError(
             f"--camera {alone[0]}: its images share no file name with the reference {next(iter(images))!r} or a "
-            f"camera linked to it; the same file name names the same instant in every camera"
+            f"camera linked to it; the same file name names the same instant in every camera (or the same name "
+            f"after each camera's own prefix: left01.png, right01.png)"
+        )
+    if any(prefix.values()):
+        ref = next(iter(images))
+        first = images[ref][0]
+        print(
+            "instants: no file name is shared, so each camera's own prefix is left out of its names ("
+            + ", ".join(f"{n}: {display_name(p)!r}" for n, p in prefix.items())
+            + f"; {display_name(first.name)} is instant {display_name(instant_of(first, prefix[ref]))!r})"
         )
     return images
 

@@ -28,6 +28,7 @@ from circcal.errors import CalibrationError, InputError
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
+from circcal.rig.instants import camera_prefixes, instant_of
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
 from circcal.rig.solve import RigSolution, solve_rig
@@ -396,7 +397,8 @@ def calibrate_rig(
     ----------
     images : mapping of str to sequence of path
         Per camera (the first is the reference) its image files; the same file name in two cameras is the same
-        instant.
+        instant (where no file name links the cameras, the same name after each camera's prefix: ``left01.png``,
+        ``right01.png``; :mod:`circcal.rig.instants`). Instants are named so in the result.
     board : Board
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         As :func:`calibrate_rig_points`.
@@ -425,6 +427,7 @@ def calibrate_rig(
     names = list(images)
     _check_names(names)
     opts = _per_camera_options(names, options)
+    prefix = camera_prefixes(images)
     per_camera: dict[str, ImagesCalibration] = {}
     for n, o in zip(names, opts):
         paths = [str(p) for p in images[n]]
@@ -432,12 +435,12 @@ def calibrate_rig(
             raise InputError(f"camera {n!r}: no images given")
         seen: dict[str, str] = {}
         for p in paths:
-            if Path(p).name in seen:
+            v = instant_of(p, prefix[n])
+            if v in seen:
                 raise InputError(
-                    f"camera {n!r}: two images named {Path(p).name!r} ({seen[Path(p).name]}, {p}); the file name "
-                    f"names the instant"
+                    f"camera {n!r}: two images named {Path(p).name!r} ({seen[v]}, {p}); the file name names the instant"
                 )
-            seen[Path(p).name] = p
+            seen[v] = p
         try:
             per_camera[n] = calibrate_images(paths, board, o, progress=bool(progress), jobs=jobs)
         except CalibrationError as exc:
@@ -447,8 +450,8 @@ def calibrate_rig(
     centres: list[dict[str, np.ndarray]] = []
     for n in names:
         cal = per_camera[n]
-        dets.append({Path(cal.paths[i]).name: cal.detections[i] for i in cal.used})
-        centres.append({Path(cal.paths[i]).name: c for i, c in zip(cal.used, cal.centres)})
+        dets.append({instant_of(cal.paths[i], prefix[n]): cal.detections[i] for i in cal.used})
+        centres.append({instant_of(cal.paths[i], prefix[n]): c for i, c in zip(cal.used, cal.centres)})
 
     def views_of(cs: list[dict[str, np.ndarray]]) -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
         out = []
@@ -463,10 +466,10 @@ def calibrate_rig(
     cameras = [per_camera[n].result.camera for n in names]
     poses = [
         {
-            Path(cal.paths[i]).name: (rodrigues(rv), tv.copy())
+            instant_of(cal.paths[i], prefix[n]): (rodrigues(rv), tv.copy())
             for i, rv, tv in zip(cal.used, cal.result.rvecs, cal.result.tvecs)
         }
-        for cal in per_camera.values()
+        for n, cal in per_camera.items()
     ]
     layout, sol, result = _calibrate(names, views_of(centres), opts, board, cameras, poses)
     max_it = max(o.max_iterations for o in opts)
