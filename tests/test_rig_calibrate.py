@@ -222,3 +222,33 @@ def test_a_camera_its_own_views_cannot_determine_starts_from_a_simpler_model():
     assert cal.converged and cal.rig.covariance is not None and np.all(np.isfinite(cal.rig.covariance))
     a = compare_rigs(cal.rig, sc.rig)
     assert a.rotation_deg[1] < 0.1 and a.position_mm[1] < 1.0
+
+
+def test_a_view_the_start_puts_behind_every_camera_is_dropped_in_words():
+    # both cameras' own board poses of one shared instant turned to face away (the board behind each camera): from
+    # either anchor the other camera sees it behind itself -- no finite fit under any labelling. The view is dropped
+    # naming that (it used to read "land inf px"), and the rest keep the limit of the finite fits.
+    from circcal.rig.start import rig_start
+
+    sc = rig_scenario("two")
+    obs = rig_observations(sc, 0.1, 0)
+    names = list(sc.rig.names)
+    poses = []
+    for c in range(2):
+        Rc, Tc = sc.rig.pose(c)
+        per = {}
+        for v, rv, tv in zip(sc.instants, sc.board_rvecs, sc.board_tvecs):
+            if v in obs[names[c]]:
+                per[v] = (Rc @ cv2.Rodrigues(rv)[0], Rc @ tv + Tc)
+        poses.append(per)
+    shared = [v for v in poses[0] if v in poses[1]]
+    bad = shared[3]
+    for c in range(2):
+        R, t = poses[c][bad]
+        poses[c][bad] = (R, -t)  # the board behind the camera
+    views = [obs[n] for n in names]
+    start = rig_start(names, list(sc.rig.cameras), poses, views, board_symmetries(sc.board))
+    assert len(start.dropped) == 1
+    c, v, why = start.dropped[0]
+    assert v == bad and "fall behind the camera or outside its lens's field" in why
+    assert (1 - c, bad) in start.labels  # the anchor keeps its own view

@@ -477,8 +477,9 @@ def rig_start(
             found.setdefault((v, anchor), {})[c] = (symmetries[order[0]], float(err[order[0]]), float(second))
     # instant -> [(anchor, its board pose, {camera: (best symmetry, best px, second px)})]
     trials = {v: [(anchor, pose, found.get((v, anchor), {})) for anchor, pose in starts[v]] for v in instants}
-    best_fits = [f[1] for opts in trials.values() for _, _, fits in opts for f in fits.values()]
-    limit = max(INCONSISTENT_PX, INCONSISTENT_SCALE * float(np.median(best_fits))) if best_fits else np.inf
+    # the typical agreement, of the fits that put the board in front of the camera
+    best_fits = [f[1] for opts in trials.values() for _, _, fits in opts for f in fits.values() if np.isfinite(f[1])]
+    limit = max(INCONSISTENT_PX, INCONSISTENT_SCALE * float(np.median(best_fits))) if best_fits else INCONSISTENT_PX
     dropped: list[tuple[int, str, str]] = []
     for v, options in trials.items():
         # the anchor that the most other views agree with, then the closest agreement
@@ -494,8 +495,13 @@ def rig_start(
                     (
                         c,
                         v,
-                        f"inconsistent with the rig's start: its board points land {best:.3g} px from the "
-                        f"observed ones at best (limit {limit:.3g} px)",
+                        (
+                            f"inconsistent with the rig's start: its board points land {best:.3g} px from the "
+                            f"observed ones at best (limit {limit:.3g} px)"
+                            if np.isfinite(best)
+                            else "inconsistent with the rig's start: under every labelling some of its board points "
+                            "fall behind the camera or outside its lens's field"
+                        ),
                     )
                 )
             elif second < AMBIGUITY_RATIO * best:
