@@ -208,6 +208,9 @@ def test_headline_levels():
     h = headline(a(ok_cv, fits, NS(warnings=["nothing in the top-left corner"])), 10)
     assert h["level"] == "check" and "top-left" in h["next"]
     assert headline(a(ok_cv, fits), 30)["level"] == "check"  # 10 of 30 images
+    poled = NS(crossval=ok_cv, lens_fit=fits, coverage=cov, result=res, lens_pole=lambda: "vanishes 20.0 deg off")
+    h = headline(poled, 10)
+    assert h["level"] == "check" and "--lens opencv5" in h["next"] and "denominator vanishes" in h["text"]
 
 
 def test_text_problems_finds_clipped_and_overlapping_text():

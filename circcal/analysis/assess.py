@@ -206,12 +206,23 @@ class Assessment:
             if u is not None
             else "projection uncertainty: none (the information matrix is singular)"
         )
-        pole = result_pole(self.result)
+        pole = self.lens_pole()
         if pole:
             lines.append(f"lens model {self.result.camera.lens}: {pole}")
         if self.board_shape is not None and self.board_shape.notable:
             lines.append(self.board_shape.line())
         return lines
+
+    def lens_pole(self) -> str | None:
+        """What to tell the user of a rational lens whose denominator vanishes, or nearly, inside the observed field
+        (:func:`circcal.solver.lensfield.result_pole`).
+
+        Returns
+        -------
+        str or None
+            None where the lens is a lens over the field its views observed.
+        """
+        return result_pole(self.result)
 
     def lines(self) -> list[str]:
         """The console summary of what the calibration summary does not already say: the verdict, what to do next

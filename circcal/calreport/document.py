@@ -187,7 +187,8 @@ def _backdrop(path: str) -> np.ndarray | None:
 def headline(assessment: Any, n_images: int) -> dict[str, str]:
     """The verdict a user acts on: how the calibration looks and the next step.
 
-    "bad": the lens model does not fit, or the two halves of a cross-validation disagree; "check": the board-shape
+    "bad": the lens model does not fit, or the two halves of a cross-validation disagree; "check": a rational lens
+    with a pole, or nearly one, in the observed field (:mod:`circcal.solver.lensfield`), the board-shape
     check recommends the other board model (:mod:`circcal.analysis.boardshape`: the board is not flat, or a fitted
     warp is not needed), or nothing wrong was found but something is unverified or thin (no cross-validation, views
     that disagree, regions of the image without observations, half the images unusable); "good": cross-validated, the lens model fits, every ninth of
@@ -226,6 +227,14 @@ def headline(assessment: Any, n_images: int) -> dict[str, str]:
             if fix is not None
             else "look at the views flagged below (leave them out, or re-shoot them) and at the coverage; a lens "
             "model that cannot follow the lens disagrees too",
+        }
+    pole = assessment.lens_pole() if hasattr(assessment, "lens_pole") else None
+    if pole:
+        return {
+            "level": "check",
+            "text": "the rational lens's denominator vanishes, or nearly, inside the observed field: its k1..k6 are "
+            "not determined by these views",
+            "next": "recalibrate with --lens opencv5, or add views that fill the image's corners",
         }
     shape = getattr(assessment, "board_shape", None)  # whether the board is flat (circcal.analysis.boardshape)
     if shape is not None and shape.changes and not assessment.lens_in_question():
