@@ -263,3 +263,18 @@ def test_an_information_matrix_that_is_not_positive_definite_has_an_infinite_con
     assert np.allclose(np.diag(Sn), 1.0) and np.allclose(scale, [2.0, 3.0]) and 1.0 < cond < 2.0
     for bad in (np.array([[4.0, 1.0], [1.0, -9.0]]), np.array([[4.0, np.nan], [np.nan, 9.0]]), np.zeros((2, 2))):
         assert normalised_information(bad)[2] == np.inf
+
+
+def test_a_cameras_start_says_it_is_a_start(scenario):
+    # the right camera's own calibration (the rig's start) held to 3 Jacobian evaluations stops short: its warning
+    # names it as the start; the joint solve (the cameras' largest limit, 200) converges and says nothing
+    import warnings
+
+    obs = rig_observations(scenario, NOISE_PX, seed=2)
+    opts = {**OPTIONS, "right": dataclasses.replace(OPTIONS["right"], max_iterations=3)}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = calibrate_rig_points(obs, _sizes(scenario), opts)
+    said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert cal.converged and any("iteration limit 3 reached" in s for s in said), said
+    assert all(s.startswith("the start of camera 'right' (calibrated alone, before the joint solve): ") for s in said)

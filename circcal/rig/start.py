@@ -18,6 +18,7 @@ fits (:data:`INCONSISTENT_PX`), is dropped with the reason, never guessed.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from circcal.analysis.cross import noting_warnings
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
 from circcal.model import DEFAULT_LENS, Camera, lens_model, project_camera
@@ -283,8 +285,10 @@ def camera_starts(
     for name, vs, size, opt in zip(names, views, image_sizes, options):
         keys = list(vs)
         obj, img = [vs[k][0] for k in keys], [vs[k][1] for k in keys]
+        said: list[str] = []
         try:
-            res = calibrate(obj, img, size, opt)
+            who = f"the start of camera {name!r} (calibrated alone, before the joint solve)"
+            res = noting_warnings(said, who, lambda args: calibrate(*args), (obj, img, size, opt))
             camera = res.camera
         except CalibrationError as exc:
             # a rich pinhole model its own views cannot determine (its coefficients trade off) may be determined by
@@ -293,6 +297,8 @@ def camera_starts(
             if start is None:
                 raise CalibrationError(f"camera {name!r}: {str(exc).splitlines()[0]}") from exc
             res, camera = start
+        for line in said:  # a start's own troubles, named as such (the joint solve says its own)
+            warnings.warn(line, RuntimeWarning, stacklevel=3)
         cameras.append(camera)
         poses.append({k: (rodrigues(r), t.copy()) for k, r, t in zip(keys, res.rvecs, res.tvecs)})
     return cameras, poses
