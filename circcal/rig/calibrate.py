@@ -222,11 +222,10 @@ def lens_poles(result: RigCalibration) -> dict[str, str]:
     """
     out = {}
     for c, n in enumerate(result.rig.names):
-        Rc, Tc = result.rig.pose(c)
-        Xc = [
-            (obj @ rodrigues(result.board_poses[v][0]).T + result.board_poses[v][1]) @ Rc.T + Tc
-            for v, (obj, _) in result.observations[n].items()
-        ]
+        Xc = []
+        for v, (obj, _) in result.observations[n].items():
+            R, t = _board_in_camera(result.rig, result.board_poses[v], c)
+            Xc.append(obj @ R.T + t)
         why = pole_in_field(result.rig.cameras[c], np.concatenate(Xc)) if Xc else None
         if why:
             out[n] = why
@@ -248,16 +247,18 @@ def _initial_starts(
         )
     poses = []
     for c, vs in enumerate(views):
-        Rc, Tc = rig.pose(c)
         missing = [v for v in vs if v not in initial.board_poses]
         if missing:
             raise InputError(f"initial: no board pose of instant(s) {missing[:5]} of camera {names[c]!r}")
-        per = {}
-        for v in vs:
-            rv, tv = initial.board_poses[v]
-            per[v] = (Rc @ rodrigues(rv), Rc @ tv + Tc)
-        poses.append(per)
+        poses.append({v: _board_in_camera(rig, initial.board_poses[v], c) for v in vs})
     return list(rig.cameras), poses
+
+
+def _board_in_camera(rig: RigModel, board_pose: tuple[np.ndarray, np.ndarray], c: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera ``c``'s board pose ``(R, t)`` (``X_c = R P + t``, mm) from an instant's board pose in the rig frame
+    (``rvec, tvec``: ``X_0 = R(rvec) P + tvec``) and the camera's pose in the rig."""
+    Rc, Tc = rig.pose(c)
+    return Rc @ rodrigues(board_pose[0]), Rc @ board_pose[1] + Tc
 
 
 def _calibrate(
