@@ -144,7 +144,8 @@ def test_where_stereo_calibrate_stops_apart_circcals_rig_is_the_lower_minimum():
     # more on the very points both solved (RMS 0.139208400821456 against circcal's 0.139208400817591, each instant's
     # board pose re-fitted over both cameras): OpenCV's termination, not another minimum
     from benchmarks.rig_report import refit_rms
-    from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, shared_pair
+    from circcal.validators.rig import shared_pair
+    from circcal.validators.rig_resolve import float32_views, labelled_views, resolve
 
     sc = rig_scenario("two")
     raw, _ = rig_variant_observations(sc, "flip", 0)

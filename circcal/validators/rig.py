@@ -48,6 +48,7 @@ __all__ = [
     "mrcal_rig",
     "compare_rigs",
     "shared_points",
+    "shared_pair",
 ]
 
 #: ``{camera name: {instant: (object points (N, 3) mm, image points (N, 2) px)}}``
@@ -127,6 +128,29 @@ def shared_points(
     return np.asarray(a[0])[ia], np.asarray(a[1])[ia], np.asarray(b[1])[ib]
 
 
+def shared_pair(views: RigViews) -> dict[str, dict[str, tuple]]:
+    """Cameras 0 and 1 at the instants both saw (>= 6 shared points), their shared points only (stereoCalibrate's).
+
+    Parameters
+    ----------
+    views : RigViews
+
+    Returns
+    -------
+    dict of str to dict of str to (ndarray, ndarray)
+        The first two cameras only.
+    """
+    a, b = list(views)[:2]
+    out: dict[str, dict[str, tuple]] = {a: {}, b: {}}
+    for v in views[a]:
+        if v not in views[b]:
+            continue
+        o, pa, pb = shared_points(views[a][v], views[b][v])
+        if len(o) >= 6:
+            out[a][v], out[b][v] = (o, pa), (o, pb)
+    return out
+
+
 def opencv_stereo(views: RigViews, cameras: Sequence[Camera], mode: str = "fix-intrinsic") -> RigReference:
     """``cv2.stereoCalibrate`` of cameras 0 and 1 (``cv2.fisheye.stereoCalibrate`` for two fisheyes).
 
@@ -158,15 +182,12 @@ def opencv_stereo(views: RigViews, cameras: Sequence[Camera], mode: str = "fix-i
             "unavailable",
             notes=[f"stereoCalibrate fits one distortion model for both cameras: {c0.lens}, {c1.lens}"],
         )
-    obj, p0, p1, used = [], [], [], []
-    for inst, per_cam in by_inst.items():
-        if 0 in per_cam and 1 in per_cam:
-            o, a, b = shared_points(per_cam[0], per_cam[1])
-            if len(o) >= 6:
-                obj.append(o.astype(np.float32).reshape(-1, 1, 3))
-                p0.append(a.astype(np.float32).reshape(-1, 1, 2))
-                p1.append(b.astype(np.float32).reshape(-1, 1, 2))
-                used.append(inst)
+    pair = shared_pair(views)
+    a, b = names[:2]
+    used = list(pair[a])
+    obj = [pair[a][v][0].astype(np.float32).reshape(-1, 1, 3) for v in used]
+    p0 = [pair[a][v][1].astype(np.float32).reshape(-1, 1, 2) for v in used]
+    p1 = [pair[b][v][1].astype(np.float32).reshape(-1, 1, 2) for v in used]
     notes = [f"{len(used)} instants seen by both cameras (of {len(by_inst)})", "T in mm, X_1 = R X_0 + T"]
     if len(used) < 3:
         return RigReference(name, "failed", notes=notes + ["fewer than 3 shared instants"])

@@ -1,7 +1,7 @@
 """circcal's rig solver re-run on exactly what a reference rig calibrator fitted (:mod:`circcal.validators.rig_validate`'s
-fair mode): the views as circcal's joint solve labelled them, OpenCV's float32 rounding, ``stereoCalibrate``'s shared
-points of a pair, ``calibrateMultiview``'s whole views, and the joint solve on them from circcal's rig (every
-intrinsic held, or none). Conventions: :mod:`circcal.rig.model`.
+fair mode): the views as circcal's joint solve labelled them, OpenCV's float32 rounding, ``calibrateMultiview``'s
+whole views (``stereoCalibrate``'s shared points of a pair: :func:`circcal.validators.rig.shared_pair`, which the
+adapter itself uses), and the joint solve on them from circcal's rig (every intrinsic held, or none). Conventions: :mod:`circcal.rig.model`.
 """
 
 from __future__ import annotations
@@ -19,9 +19,8 @@ from circcal.rig.solve import solve_rig
 from circcal.rig.start import board_symmetries
 from circcal.rotation import rodrigues
 from circcal.solver.holdout import fit_pose
-from circcal.validators.rig import shared_points
 
-__all__ = ["labelled_views", "float32_views", "shared_pair", "whole_views", "resolve"]
+__all__ = ["labelled_views", "float32_views", "whole_views", "resolve"]
 
 
 def labelled_views(rc: RigCalibration, views: Views, board: Board) -> dict[str, dict[str, tuple]]:
@@ -68,29 +67,6 @@ def float32_views(views: Views) -> dict[str, dict[str, tuple]]:
         n: {v: tuple(np.asarray(a, np.float32).astype(np.float64) for a in ov) for v, ov in per.items()}
         for n, per in views.items()
     }
-
-
-def shared_pair(views: Views) -> dict[str, dict[str, tuple]]:
-    """Cameras 0 and 1 at the instants both saw (>= 6 shared points), their shared points only (stereoCalibrate's).
-
-    Parameters
-    ----------
-    views : Views
-
-    Returns
-    -------
-    dict of str to dict of str to (ndarray, ndarray)
-        The first two cameras only.
-    """
-    a, b = list(views)[:2]
-    out: dict[str, dict[str, tuple]] = {a: {}, b: {}}
-    for v in views[a]:
-        if v not in views[b]:
-            continue
-        o, pa, pb = shared_points(views[a][v], views[b][v])
-        if len(o) >= 6:
-            out[a][v], out[b][v] = (o, pa), (o, pb)
-    return out
 
 
 def whole_views(views: Views) -> dict[str, dict[str, tuple]]:

@@ -42,8 +42,15 @@ from circcal.fixtures.rig import (
 from circcal.rig import RigModel, calibrate_rig, calibrate_rig_points
 from circcal.rig.calibrate import RigCalibration, Views
 from circcal.solver import CalibrationOptions
-from circcal.validators.rig import RigAgreement, compare_rigs, mrcal_rig, opencv_multiview, opencv_stereo
-from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, shared_pair, whole_views
+from circcal.validators.rig import (
+    RigAgreement,
+    compare_rigs,
+    mrcal_rig,
+    opencv_multiview,
+    opencv_stereo,
+    shared_pair,
+)
+from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, whole_views
 
 __all__ = [
     "RigCalibrator",
