@@ -50,6 +50,7 @@ __all__ = [
     "detections_fitter",
     "halves_diff",
     "noting_warnings",
+    "half_named",
     "MIN_VIEWS",
     "HELDOUT_RATIO",
     "INFLUENCE_SIGMAS",
@@ -362,10 +363,23 @@ def noting_warnings(notes: list[str], who: str, fit: Callable[[_A], _R], views: 
                     notes.append(line)
 
 
-def _who(names: Sequence[str], views: Sequence[int]) -> str:
-    """A half named by its views (the first few)."""
-    shown = ", ".join(names[i] for i in views[:4])
-    return f"the half of {len(views)} views ({shown}{', ...' if len(views) > 4 else ''})"
+def half_named(members: Sequence[str], unit: str) -> str:
+    """A cross-validation's half in words, by its first members (its fits' notes say whose they are).
+
+    Parameters
+    ----------
+    members : sequence of str
+        The half's views or instants, by name.
+    unit : str
+        What they are ("views", "instants").
+
+    Returns
+    -------
+    str
+        E.g. ``the half of 7 views (a.png, b.png, c.png, d.png, ...)``.
+    """
+    shown = ", ".join(members[:4])
+    return f"the half of {len(members)} {unit} ({shown}{', ...' if len(members) > 4 else ''})"
 
 
 def cross_validate(
@@ -417,7 +431,7 @@ def cross_validate(
     notes: list[str] = []
     for h in halves:
         try:
-            models.append(noting_warnings(notes, _who(names, h), fit_half, h))
+            models.append(noting_warnings(notes, half_named([names[i] for i in h], "views"), fit_half, h))
         except InputError as exc:
             return CrossValidation(
                 "failed",

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from circcal.analysis.coverage import Coverage, coverage
-from circcal.analysis.cross import noting_warnings
+from circcal.analysis.cross import half_named, noting_warnings
 from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
@@ -499,7 +499,7 @@ def cross_validate_rig(
         return calibrate_rig_points(obs, sizes, options, initial=cal)
 
     for h in halves:
-        who = f"the half of {len(h)} instants ({', '.join(h[:4])}{', ...' if len(h) > 4 else ''})"
+        who = half_named(h, "instants")
         try:
             rigs.append(noting_warnings(said, who, fit, set(h)))
         except InputError as exc:  # CalibrationError included: too few views of a camera, a disconnected one
