@@ -322,3 +322,14 @@ def test_a_pixel_a_camera_cannot_unproject_is_said_so(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "p1 (given by 2 camera(s); 1 of them cannot unproject its pixel (beyond its lens's one-to-one field" in text
     assert "p0 (given by 1 camera(s): no point)" in text
+
+
+def test_a_grid_that_is_not_the_boards_names_the_images_grid(fixture_dir, tmp_path, capsys):
+    # --grid 7x11 on the 8x11 board: no rig, and the grid the images show, as calibrate says it; nothing written
+    argv = ["calibrate-rig", "--camera", f"left={fixture_dir / 'left'}", "--camera", f"right={fixture_dir / 'right'}"]
+    argv += ["--grid", "7x11", "--pitch", "15mm", "--lens", "right=rational", "--out", str(tmp_path / "rig.json")]
+    assert main([*argv, "--jobs", "1", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "no rig: camera 'left': the board was found in 0 of" in err
+    assert "circcal calibrate-rig: the images show --grid 8x11 (or give --grid auto)" in err
+    assert list(tmp_path.iterdir()) == []

@@ -18,6 +18,7 @@ from circcal.commands.args import (
     board_of_args,
     calibration_options,
     expand_images,
+    grid_hint,
     parse_grid,
     parse_length_mm,
     positive_int,
@@ -316,6 +317,9 @@ def run(args: argparse.Namespace) -> int:
             cal = calibrate_rig(images, board, options, progress=not args.no_progress, jobs=args.jobs)
         except CalibrationError as exc:
             print(f"circcal calibrate-rig: no rig: {exc}", file=sys.stderr)
+            flag = grid_hint(list(args.images), board)  # a --grid that is not the board's, as for calibrate
+            if flag:
+                print(f"circcal calibrate-rig: {flag}", file=sys.stderr)
             return 1
         verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
         lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
