@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.timing import alternate, pinned, ratio, summary
+from circcal.rotation import rotation_angle_deg
 
 #: Issue 37's bar: the joint solve at most this fraction of stereoCalibrate's time.
 RATIO_BAR = 0.7
@@ -130,9 +131,8 @@ def _agreement(pair: _Pair) -> dict:
     """How far the two solutions are apart (they should reach one minimum)."""
     (Rc, Tc), rms_c, iters = pair.result["circcal"]
     (Ro, To), rms_o = pair.result["opencv"]
-    cosang = np.clip((np.trace(Rc.T @ Ro) - 1.0) / 2.0, -1.0, 1.0)
     return {
-        "rotation_apart_deg": float(np.degrees(np.arccos(cosang))),
+        "rotation_apart_deg": float(rotation_angle_deg(Rc.T @ Ro)),
         "translation_apart_mm": float(np.linalg.norm(Tc - To)),
         "circcal_rms_px": rms_c,
         "opencv_rms_px": rms_o,

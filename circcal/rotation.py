@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rodrigues", "skew", "left_jacobian", "rotated_jacobian", "fit_rotation"]
+__all__ = ["rodrigues", "skew", "rotation_angle_deg", "left_jacobian", "rotated_jacobian", "fit_rotation"]
 
 #: Below this squared angle (rad^2) the closed forms switch to their Taylor series (the division by t^2 loses
 #: precision there; the series terms kept are exact to double precision).
@@ -70,6 +70,33 @@ def rodrigues(rvec: np.ndarray) -> np.ndarray:
     kx = skew(r)
     eye = np.broadcast_to(np.eye(3), kx.shape)
     return eye + a * kx + b * (kx @ kx)
+
+
+def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation angles of matrices, precise at every angle.
+
+    ``arccos((trace - 1) / 2)`` cannot tell angles below ~1e-6 deg from zero in double precision (1 - cos t is
+    t^2 / 2); the angle here is ``atan2(|axial vector|, (trace - 1) / 2)``, exact to rounding near 0 and near 180 deg.
+
+    Parameters
+    ----------
+    R : ndarray, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        deg, in [0, 180].
+
+    Examples
+    --------
+    >>> float(rotation_angle_deg(rodrigues(np.radians([0.0, 1e-9, 0.0]))))  # doctest: +ELLIPSIS
+    1e-09...
+    """
+    m = np.asarray(R, dtype=np.float64)
+    axial = np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], axis=-1)
+    cos2 = np.trace(m, axis1=-2, axis2=-1) - 1.0  # 2 cos t
+    return np.degrees(np.arctan2(np.linalg.norm(axial, axis=-1), cos2))
 
 
 def left_jacobian(rvec: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from circcal.fixtures.scenarios import SCENARIOS
 from circcal.model import Camera, distort, distort_jacobian, distort_pixels, project, undistort, undistort_pixels
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 
 #: the scenarios' pinhole cameras (cv2.projectPoints' models; the fisheye ones are tested against cv2.fisheye below)
 CAMERAS = {name: s.camera for name, s in SCENARIOS.items() if s.camera.model.pinhole}
@@ -127,6 +127,17 @@ def test_rodrigues_matches_opencv_including_tiny_angles():
     rng = np.random.default_rng(2)
     for r in list(rng.normal(0, 1.0, (20, 3))) + [np.zeros(3), np.array([1e-12, -2e-12, 0.0])]:
         assert np.max(np.abs(rodrigues(r) - cv2.Rodrigues(r)[0])) < 1e-14
+
+
+def test_rotation_angle_is_precise_from_zero_to_a_half_turn():
+    # arccos((trace - 1) / 2), its old form, reads every angle below ~1.2e-6 deg as 0 (and 1e-6 deg as 1.2e-6):
+    # too coarse for the rig's fair bounds of 1e-6 deg
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(7, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    for deg in (1e-10, 1e-7, 1e-6, 3e-6, 0.5, 90.0, 179.0, 179.9999999):
+        got = rotation_angle_deg(rodrigues(axes * np.radians(deg)))
+        assert got.shape == (7,) and np.allclose(got, deg, rtol=1e-8, atol=0), (deg, got)
 
 
 def test_camera_block_round_trip_and_errors():

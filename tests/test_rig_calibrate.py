@@ -15,11 +15,8 @@ from circcal.rig import calibrate_rig_points
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
 from circcal.rig.solve import solve_rig
 from circcal.rig.start import board_symmetries
+from circcal.rotation import rotation_angle_deg
 from circcal.solver import CalibrationOptions
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _state(rig) -> np.ndarray:
@@ -91,7 +88,7 @@ def test_rig_recovered_within_stated_sigmas(name):
     R, T = res.rig.pair(0, 1)
     Rt, Tt = sc.rig.pair(0, 1)
     sig_rot_deg = np.degrees(np.linalg.norm(std[-6:-3]))
-    assert _angle_deg(R @ Rt.T) < 4 * sig_rot_deg < 0.5
+    assert rotation_angle_deg(R @ Rt.T) < 4 * sig_rot_deg < 0.5
     assert np.linalg.norm(T - Tt) < 4 * np.linalg.norm(std[-3:]) < 3.0
     # every instant each camera saw is used; views seen by one camera only too
     assert res.instants[sc.rig.names[0]] != res.instants[sc.rig.names[1]] or name == "fisheye"
@@ -126,7 +123,7 @@ def test_three_camera_chain():
     assert np.max(np.abs(z)) < 4.5
     R, T = res.rig.pair(0, 2)
     Rt, Tt = sc.rig.pair(0, 2)
-    assert _angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 3.0
+    assert rotation_angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 3.0
 
 
 def test_disconnected_camera_refused_in_words():
@@ -152,7 +149,7 @@ def test_board_symmetry_flip_resolved():
     assert {r["camera"] for r in res.relabelled} <= {"left", "right"} and not res.dropped
     R, T = res.rig.pair(0, 1)
     Rt, Tt = sc.rig.pair(0, 1)
-    assert _angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 2.0
+    assert rotation_angle_deg(R @ Rt.T) < 0.2 and np.linalg.norm(T - Tt) < 2.0
     assert max(res.rms_px.values()) < 0.2
     # without the board's symmetries the flipped views cannot agree: they are dropped as inconsistent, in words
     _, plain = _solve("two", 0.1, 5, board=False, obs=obs)
@@ -190,7 +187,7 @@ def test_agrees_with_cv2_stereo_calibrate():
     )
     R_cv, T_cv = out[5], out[6].ravel()
     R, T = res.rig.pair(0, 1)
-    assert _angle_deg(R @ R_cv.T) < 1e-4
+    assert rotation_angle_deg(R @ R_cv.T) < 1e-4
     assert np.linalg.norm(T - T_cv) < 1e-3
 
 

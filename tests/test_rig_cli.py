@@ -17,7 +17,7 @@ from circcal.cli import main
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.model import project
 from circcal.rig import RigModel, read_opencv_stereo
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 
 GRID = ["--grid", "8x11", "--pitch", "15mm"]
 
@@ -28,10 +28,6 @@ def _run(argv: list[str]) -> int:
         return main(argv)
     except SystemExit as exc:
         return int(exc.code)
-
-
-def _angle_deg(R):
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +83,7 @@ def test_calibrate_rig_json_end_to_end(run_json, capsys):
     truth = rig_scenario("two").rig
     R, T = rig.pair(0, 1)
     Rt, Tt = truth.pair(0, 1)
-    assert _angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T - Tt) < 0.2
+    assert rotation_angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T - Tt) < 0.2
     assert rig.covariance is not None and rig.covariance.shape == (len(rig.state_vector()),) * 2
     assert set(doc["instants"]) == {"left", "right"} and len(doc["instants"]["right"]) == 14
     assert set(doc["instants"]["left"]) ^ set(doc["instants"]["right"])  # instants seen by one camera only
@@ -135,7 +131,7 @@ def test_calibrate_rig_yaml_reads_back_in_opencv(fixture_dir, tmp_path, capsys):
         fs.release()
     truth = rig_scenario("two").rig
     Rt, Tt = truth.pair(0, 1)
-    assert _angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T.ravel() - Tt) < 0.2
+    assert rotation_angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T.ravel() - Tt) < 0.2
     assert M1.shape == M2.shape == (3, 3) and D1.size == 5 and D2.size == 8
     assert abs(M1[0, 0] - truth.cameras[0].fx) < 0.5 and abs(M2[0, 0] - truth.cameras[1].fx) < 0.5
     assert P2.shape == (3, 4) and Q.shape == (4, 4)

@@ -10,7 +10,7 @@ import pytest
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.model import project
 from circcal.rig import calibrate_rig
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 from circcal.solver import CalibrationOptions
 
 
@@ -30,7 +30,7 @@ def test_rendered_rig_recovered(rendered):
     assert not res.dropped and res.rounds[-1]["max_centre_shift_px"] < 1e-4
     R, T = res.rig.pair(0, 1)
     Rt, Tt = sc.rig.pair(0, 1)
-    rot_err_deg = np.degrees(np.arccos(np.clip((np.trace(R @ Rt.T) - 1) / 2, -1, 1)))
+    rot_err_deg = rotation_angle_deg(R @ Rt.T)
     assert rot_err_deg < 0.02
     assert np.linalg.norm(T - Tt) < 0.2
     for n in sc.rig.names:

@@ -42,17 +42,13 @@ from circcal.analysis.compare import projection_diff
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.model import Camera, project
 from circcal.rig import calibrate_rig
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 from circcal.solver import CalibrationOptions
 from circcal.validators.opencv import find_circles_grid
 
 CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 500, 1e-16)
 #: OpenCV's usual clean-up: a view whose per-view RMS exceeds this multiple of the camera's median is left out.
 VIEW_RMS_RATIO = 3.0
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _projection_difference(sc, c: int, camera: Camera, instants) -> float:
@@ -120,7 +116,7 @@ def _opencv_pipeline(sc, found: dict[str, dict[str, np.ndarray]], drop_bad_views
     )
     Rt, Tt = sc.rig.pair(0, 1)
     return {
-        "rot_deg": _angle_deg(out[5] @ Rt.T),
+        "rot_deg": float(rotation_angle_deg(out[5] @ Rt.T)),
         "t_mm": float(np.linalg.norm(out[6].ravel() - Tt)),
         "proj_px": {n: _projection_difference(sc, c, cams[n], kept[n]) for c, n in enumerate(sc.rig.names)},
         "imager_px": {n: _imager_difference(sc, c, cams[n]) for c, n in enumerate(sc.rig.names)},
@@ -146,7 +142,7 @@ def compared():
     R, T = res.rig.pair(0, 1)
     Rt, Tt = sc.rig.pair(0, 1)
     circ = {
-        "rot_deg": _angle_deg(R @ Rt.T),
+        "rot_deg": rotation_angle_deg(R @ Rt.T),
         "t_mm": float(np.linalg.norm(T - Tt)),
         "proj_px": {
             n: _projection_difference(sc, c, res.rig.cameras[c], res.instants[n]) for c, n in enumerate(sc.rig.names)

@@ -21,7 +21,7 @@ import numpy as np
 from circcal.analysis.compare import GRID_WIDTH, pixel_grid, projection_diff
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera, unproject
-from circcal.rotation import fit_rotation
+from circcal.rotation import fit_rotation, rotation_angle_deg
 
 __all__ = ["ModelDiff", "model_diff", "CONSISTENT_RATIO", "CONSISTENT_SHARE", "region_names"]
 
@@ -137,7 +137,7 @@ class ModelDiff:
             )
         }
         out["where"] = [{"region": r, "share_exceeding": s} for r, s in self.where]
-        out["implied_rotation_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(self.R) - 1) / 2, -1, 1))))
+        out["implied_rotation_deg"] = float(rotation_angle_deg(self.R))
         if self.ratio is not None:
             r = self.ratio[np.isfinite(self.ratio)]
             out["ratio_median"] = float(np.median(r)) if r.size else float("nan")

@@ -30,7 +30,7 @@ from circcal.analysis.cross import noting_warnings
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
 from circcal.model import DEFAULT_LENS, Camera, lens_model, project_camera
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 from circcal.solver import CalibrationOptions, calibrate
 
 __all__ = [
@@ -171,11 +171,6 @@ class PairEstimate:
     outliers: tuple[str, ...]
 
 
-def _angle_deg(R: np.ndarray) -> np.ndarray:
-    """Rotation angles (deg) of matrices (..., 3, 3)."""
-    return np.degrees(np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)))
-
-
 def _rotation_median(Rs: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """A robust mean rotation: component-wise medians of the tangent vectors about the running estimate."""
     R = seed
@@ -221,7 +216,7 @@ def pair_estimate(
             Rb, tb = s.pose(*poses_b[v])
             cands.append((v, Rb @ Ra.T, Ra, ta, Rb, tb))
     Rc = np.array([c[1] for c in cands])
-    ang = _angle_deg(Rc[:, None] @ np.transpose(Rc, (0, 2, 1))[None])
+    ang = rotation_angle_deg(Rc[:, None] @ np.transpose(Rc, (0, 2, 1))[None])
     inst = np.array([shared.index(c[0]) for c in cands])
     near = ang < CLUSTER_DEG
     support = np.array([len(set(inst[near[i]].tolist())) for i in range(len(cands))])
@@ -240,7 +235,7 @@ def pair_estimate(
         return np.array([cands[i][5] - R @ cands[i][3] for i in ids])
 
     T = np.median(translations(R, members), axis=0)
-    d_rot = _angle_deg(Rc[members] @ R.T)
+    d_rot = rotation_angle_deg(Rc[members] @ R.T)
     d_tr = np.linalg.norm(translations(R, members) - T, axis=1)
     keep = (d_rot <= max(OUTLIER_FLOOR_DEG, OUTLIER_SCALE * np.median(d_rot))) & (
         d_tr <= max(OUTLIER_FLOOR_REL * dist, OUTLIER_SCALE * np.median(d_tr))

@@ -36,7 +36,7 @@ from circcal.formats.mrcal_process import LENSMODELS, UnsupportedLayout, board_l
 from circcal.model import Camera, param_names, project_camera, unproject
 from circcal.observations import BOARD_KEY_DECIMALS
 from circcal.rig.model import RigModel
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_angle_deg
 from circcal.solver.holdout import fit_pose
 
 __all__ = [
@@ -455,8 +455,7 @@ def compare_rigs(a: RigModel, b: RigModel) -> RigAgreement:
     for c in range(a.n_cameras):
         Ra, Ta = a.pose(c)
         Rb, Tb = b.pose(c)
-        cosang = np.clip((np.trace(Ra.T @ Rb) - 1.0) / 2.0, -1.0, 1.0)
-        rot.append(float(np.degrees(np.arccos(cosang))))
+        rot.append(float(rotation_angle_deg(Ra.T @ Rb)))
         pos.append(float(np.linalg.norm(Ra.T @ Ta - Rb.T @ Tb)))
         ca, cb = a.cameras[c], b.cameras[c]
         u, v = np.meshgrid(np.linspace(0, ca.width - 1, 10), np.linspace(0, ca.height - 1, 10))
