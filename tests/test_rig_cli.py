@@ -157,7 +157,7 @@ BAD = {
     "glob matches nothing": (["--camera", "left=L", "--camera", "right=R/*.jpg"], "the pattern matches no file"),
     "no such folder": (["--camera", "left=L", "--camera", "right=nowhere"], "no such folder or file"),
     "no shared name": (["--camera", "left=L", "--camera", "right=S"], "share no file name"),
-    "two images one name": (["--camera", "left=L", "--camera", "right=L*/a.png"], "two images named 'a.png'"),
+    "two images one name": (["--camera", "left=L", "--camera", "right=L*/a.png"], "two images of instant 'a.png'"),
     "unknown lens": (["--camera", "left=L", "--camera", "right=R", "--lens", "right=pinhole"], "unknown lens model"),
     "lens of no camera": (["--camera", "left=L", "--camera", "right=R", "--lens", "up=rational"], "no camera 'up'"),
     "lens twice": (["--camera", "left=L", "--camera", "right=R", "--lens", "fisheye", "--lens", "rational"], "twice"),

@@ -1,5 +1,6 @@
 """Which images of a rig show the same instant (circcal/rig/instants.py): the same file name, or, where no name is
-shared, the same name after each camera's own prefix (OpenCV's stereo sample: left01.jpg, right01.jpg)."""
+shared, the same name between each camera's own prefix and suffix (OpenCV's stereo sample: left01.jpg,
+right01.jpg; 0001_cam0.png, 0001_cam1.png; 0001.png, 0001.jpg)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from circcal.commands.rig import _cameras
 from circcal.errors import InputError
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.rig import calibrate_rig
-from circcal.rig.instants import camera_prefixes, instant_of, unlinked
+from circcal.rig.instants import PLAIN, camera_affixes, instant_of, unlinked
 from circcal.rotation import rotation_angle_deg
 from circcal.solver import CalibrationOptions
 
@@ -25,28 +26,39 @@ def _names(prefix: str, numbers) -> list[str]:
 
 def test_plain_names_come_first():
     # shared names link the cameras: nothing is stripped, even where every name has a prefix
-    assert camera_prefixes({"a": _names("img", range(1, 6)), "b": _names("img", range(3, 9))}) == {"a": "", "b": ""}
+    assert camera_affixes({"a": _names("img", range(1, 6)), "b": _names("img", range(3, 9))}) == {
+        "a": PLAIN,
+        "b": PLAIN,
+    }
 
 
 @pytest.mark.parametrize(
-    ("left", "right", "expected"),
+    ("left", "right", "expected", "shared"),
     [
-        (_names("left", range(1, 13)), _names("right", range(1, 13)), ("left", "right")),
-        (_names("left", range(1, 13)), _names("right", range(1, 10)), ("left", "right")),  # 01..09: "right0" cut
-        ([f"cam0_{k:04d}.png" for k in range(5)], [f"cam1_{k:04d}.png" for k in range(5)], ("cam0_", "cam1_")),
+        (_names("left", range(1, 13)), _names("right", range(1, 13)), (("left", ".png"), ("right", ".png")), 12),
+        # 01..09: "right0" is cut back to "right"; 10, 20: their shared "0" is a digit, not part of the suffix
+        (_names("left", (1, 10, 20)), _names("right", range(1, 10)), (("left", ".png"), ("right", ".png")), 1),
+        ([f"cam0_{k:04d}.png" for k in range(5)], [f"cam1_{k:04d}.png" for k in range(5)],
+         (("cam0_", ".png"), ("cam1_", ".png")), 5),
+        ([f"{k:04d}_left.png" for k in range(5)], [f"{k:04d}_right.png" for k in range(5)],
+         (("", "_left.png"), ("", "_right.png")), 5),
+        ([f"{k:04d}.png" for k in range(5)], [f"{k:04d}.jpg" for k in range(3, 9)], (("", ".png"), ("", ".jpg")), 2),
+        # zero padding differs: digits are read as numbers
+        ([f"frame{k}.png" for k in range(1, 12)], [f"img{k:03d}.tif" for k in range(1, 12)],
+         (("frame", ".png"), ("img", ".tif")), 11),
     ],
-)
-def test_each_cameras_prefix_before_the_digits_is_left_out(left, right, expected):
-    prefix = camera_prefixes({"l": left, "r": right})
-    assert (prefix["l"], prefix["r"]) == expected
-    keys = [{instant_of(p, prefix[c]) for p in ps} for c, ps in (("l", left), ("r", right))]
-    assert keys[1] <= keys[0] and all(not k.startswith(("left", "right", "cam")) for k in keys[0])
+)  # fmt: skip
+def test_each_cameras_prefix_and_suffix_around_the_digits_are_left_out(left, right, expected, shared):
+    affix = camera_affixes({"l": left, "r": right})
+    assert (affix["l"], affix["r"]) == expected
+    keys = [{instant_of(p, affix[c]) for p in ps} for c, ps in (("l", left), ("r", right))]
+    assert all(k.isdigit() for k in keys[0] | keys[1]) and len(keys[0] & keys[1]) == shared
 
 
 def test_no_prefix_rule_where_it_would_not_link_either():
     # different numbers in each camera: neither rule links them, the names stay as they are (the command refuses)
-    prefix = camera_prefixes({"l": _names("left", range(1, 5)), "r": _names("right", range(20, 25))})
-    assert prefix == {"l": "", "r": ""}
+    affix = camera_affixes({"l": _names("left", range(1, 5)), "r": _names("right", range(20, 25))})
+    assert affix == {"l": PLAIN, "r": PLAIN}
     assert unlinked({"l": {"a", "b"}, "r": {"b"}, "s": {"z"}}) == ["s"]
     assert unlinked({"l": {"a"}, "r": {"b"}, "s": {"a", "b"}}) == []  # r reaches l through s
 
@@ -61,12 +73,14 @@ def test_the_command_says_when_it_matched_by_prefix(tmp_path, capsys):
     images = _cameras(_namespace(tmp_path, "left*.png", "right*.png"))
     assert [p.name for p in images["right"]] == _names("right", range(1, 4))
     out = capsys.readouterr().out
-    assert "each camera's own prefix is left out of its names (left: 'left', right: 'right'" in out
-    assert "left01.png is instant '01.png'" in out
+    assert "own prefix and suffix are left out of its names (left: 'left*.png', right: 'right*.png'" in out
+    assert "left01.png is instant '1'" in out
     for name in _names("right", range(7, 9)):  # other numbers: no rule links them
         (tmp_path / "other").mkdir(exist_ok=True)
         (tmp_path / "other" / name).write_bytes(b"")
-    with pytest.raises(InputError, match=r"or the same name after each camera's own prefix: left01.png, right01.png"):
+    with pytest.raises(
+        InputError, match=r"or the same name between each camera's own prefix and suffix: left01.png, right01.png"
+    ):
         _cameras(_namespace(tmp_path, "left*.png", "other/right*.png"))
 
 
@@ -85,7 +99,7 @@ def test_a_rig_of_prefixed_names_calibrates_as_one_of_plain_names(tmp_path):
     with warnings.catch_warnings():  # eight views leave the rational camera's coefficients a long valley to walk
         warnings.simplefilter("ignore", RuntimeWarning)
         res = calibrate_rig(images, sc.board, opts, jobs=1)
-    assert res.instants["left"] == res.instants["right"] == [f"{k:02d}.png" for k in range(1, 9)]
+    assert res.instants["left"] == res.instants["right"] == [str(k) for k in range(1, 9)]
     R, T = res.rig.pair(0, 1)
     Rt, Tt = sc.rig.pair(0, 1)
     assert rotation_angle_deg(R @ Rt.T) < 0.02  # measured 0.004 deg

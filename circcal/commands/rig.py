@@ -88,7 +88,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "camera's intrinsics, every camera's pose in the rig (the first --camera is the reference: X_cam = R X_ref "
         "+ T, mm) and one board pose per instant jointly, re-correcting the centres under the joint model until "
         "they settle. Images of different cameras are matched by file name: the same name is the same instant "
-        "(where no name is shared, the same name after each camera's own prefix: left01.png, right01.png); "
+        "(where no name is shared, the same name between each camera's own prefix and suffix: left01.png and "
+        "right01.png, 0001_cam0.png and 0001_cam1.png); "
         "an instant seen by some cameras only, or partly, is used. Then the verdict: two halves of the instants "
         "calibrated apart and compared against their stated uncertainty, outlier views per camera, coverage.",
     )
@@ -167,8 +168,8 @@ def _images_of(name: str, spec: str) -> list[Path]:
 def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
     """Every --camera's images, checked: two cameras at least, names distinct, no file given to two cameras, images
     named once per camera, every camera linked to the reference by shared instants (:mod:`circcal.rig.instants`: the
-    file names, or the names after each camera's prefix, said in a line)."""
-    from circcal.rig.instants import camera_prefixes, instant_of, unlinked
+    file names, or the names between each camera's prefix and suffix, said in a line)."""
+    from circcal.rig.instants import PLAIN, camera_affixes, instant_of, unlinked
 
     images: dict[str, list[Path]] = {}
     for name, spec in args.camera:
@@ -177,15 +178,15 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
         images[name] = _images_of(name, spec)
     if len(images) < 2:
         raise InputError(f"--camera: a rig needs at least two cameras, got {len(images)}")
-    prefix = camera_prefixes(images)
+    affix = camera_affixes(images)
     instants: dict[str, set[str]] = {}
     for name, paths in images.items():
         seen: dict[str, Path] = {}
         for f in paths:
-            v = instant_of(f, prefix[name])
+            v = instant_of(f, affix[name])
             if v in seen:
                 raise InputError(
-                    f"--camera {name}: two images named {display_name(f.name)!r} ({display_name(seen[v])}, "
+                    f"--camera {name}: two images of instant {display_name(v)!r} ({display_name(seen[v])}, "
                     f"{display_name(f)}); the file name names the instant"
                 )
             seen[v] = f
@@ -204,15 +205,15 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
         raise InputError(
             f"--camera {alone[0]}: its images share no file name with the reference {next(iter(images))!r} or a "
             f"camera linked to it; the same file name names the same instant in every camera (or the same name "
-            f"after each camera's own prefix: left01.png, right01.png)"
+            f"between each camera's own prefix and suffix: left01.png, right01.png)"
         )
-    if any(prefix.values()):
+    if any(a != PLAIN for a in affix.values()):
         ref = next(iter(images))
         first = images[ref][0]
         print(
-            "instants: no file name is shared, so each camera's own prefix is left out of its names ("
-            + ", ".join(f"{n}: {display_name(p)!r}" for n, p in prefix.items())
-            + f"; {display_name(first.name)} is instant {display_name(instant_of(first, prefix[ref]))!r})"
+            "instants: no file name is shared, so each camera's own prefix and suffix are left out of its names ("
+            + ", ".join(f"{n}: {display_name(p + '*' + s)!r}" for n, (p, s) in affix.items())
+            + f"; {display_name(first.name)} is instant {display_name(instant_of(first, affix[ref]))!r})"
         )
     return images
 

@@ -1,10 +1,13 @@
-"""Which images of a rig's cameras show the same instant: the same file name, or the same name after each camera's own
-prefix (``left01.png`` and ``right01.png``, as OpenCV's stereo sample names them).
+"""Which images of a rig's cameras show the same instant: the same file name, or the same name between each camera's
+own prefix and suffix (``left01.png`` and ``right01.png``, as OpenCV's stereo sample names them; ``0001_cam0.png``
+and ``0001_cam1.png``; ``0001.png`` and ``0001.jpg``).
 
 The plain rule comes first: where the file names already link every camera to the reference (a chain of shared
-names), they name the instants. Only where they do not is each camera's prefix removed -- the text before the digits
-that all of its file names begin with (``left`` of ``left01.png .. left12.png``; ``cam0_`` of ``cam0_0001.png``) --
-and used when the remainders link every camera. A camera whose names have no such prefix keeps its names.
+names), they name the instants. Only where they do not is each camera's affix removed -- the text before the digits
+that all of its file names begin with (``left`` of ``left01.png .. left12.png``; ``cam0_`` of ``cam0_0001.png``)
+and the text after the digits that they all end with (``.png``, ``_left.png``) -- and used when the remainders link
+every camera. A remainder of digits alone is read as its number (``left1.png`` and ``right001.png`` are one instant).
+A camera whose names have no affix keeps its names.
 """
 
 from __future__ import annotations
@@ -13,29 +16,43 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-__all__ = ["camera_prefixes", "instant_of", "unlinked"]
+__all__ = ["Affix", "PLAIN", "camera_affixes", "instant_of", "unlinked"]
+
+#: A camera's (prefix, suffix) around the part of its file names that names the instant.
+Affix = tuple[str, str]
+#: The plain rule: the whole file name names the instant.
+PLAIN: Affix = ("", "")
 
 
-def instant_of(path: str | Path, prefix: str = "") -> str:
-    """The instant an image shows: its file name without its camera's prefix.
+def instant_of(path: str | Path, affix: Affix = PLAIN) -> str:
+    """The instant an image shows: its file name without its camera's affix.
 
     Parameters
     ----------
     path : str or Path
         An image file.
-    prefix : str
-        Its camera's prefix (:func:`camera_prefixes`; "" for the plain rule).
+    affix : (str, str)
+        Its camera's prefix and suffix (:func:`camera_affixes`; :data:`PLAIN` for the plain rule).
 
     Returns
     -------
     str
+        The whole file name (plain rule); else the part between the affixes, a number without its leading zeros
+        where it is digits alone.
 
     Examples
     --------
-    >>> instant_of("calib/left07.png", "left")
-    '07.png'
+    >>> instant_of("calib/left07.png", ("left", ".png"))
+    '7'
+    >>> instant_of("calib/left07.png")
+    'left07.png'
     """
-    return Path(path).name[len(prefix) :]
+    name = Path(path).name
+    if affix == PLAIN:
+        return name
+    prefix, suffix = affix
+    middle = name[len(prefix) : len(name) - len(suffix)]
+    return str(int(middle)) if middle.isdigit() and middle.isascii() else middle
 
 
 def unlinked(instants: Mapping[str, set[str]]) -> list[str]:
@@ -64,14 +81,18 @@ def unlinked(instants: Mapping[str, set[str]]) -> list[str]:
     return [n for n in names if n not in linked]
 
 
-def _prefix(names: Sequence[str]) -> str:
-    """The text before the digits all ``names`` begin with ("" where there is none, or where it is a whole name)."""
-    common = os.path.commonprefix(list(names)).rstrip("0123456789")
-    return "" if any(len(n) <= len(common) for n in names) else common
+def _affix(names: Sequence[str]) -> Affix:
+    """The text before the digits and the text after them that all ``names`` share (each "" where there is none, or
+    where the two would leave a name empty)."""
+    prefix = os.path.commonprefix(list(names)).rstrip("0123456789")
+    suffix = os.path.commonprefix([n[::-1] for n in names])[::-1].lstrip("0123456789")
+    if any(len(n) <= len(prefix) + len(suffix) for n in names):
+        return PLAIN
+    return prefix, suffix
 
 
-def camera_prefixes(images: Mapping[str, Sequence[str | Path]]) -> dict[str, str]:
-    """Each camera's prefix to remove from its file names to name its instants (module docstring).
+def camera_affixes(images: Mapping[str, Sequence[str | Path]]) -> dict[str, Affix]:
+    """Each camera's prefix and suffix to remove from its file names to name its instants (module docstring).
 
     Parameters
     ----------
@@ -80,20 +101,21 @@ def camera_prefixes(images: Mapping[str, Sequence[str | Path]]) -> dict[str, str
 
     Returns
     -------
-    dict of str to str
-        Every camera's prefix: all "" where the plain file names link the cameras, or where the prefixes would not.
+    dict of str to (str, str)
+        Every camera's affix: all :data:`PLAIN` where the plain file names link the cameras, or where the affixes
+        would not.
 
     Examples
     --------
-    >>> camera_prefixes({"l": ["left01.png", "left02.png"], "r": ["right01.png", "right02.png"]})
-    {'l': 'left', 'r': 'right'}
-    >>> camera_prefixes({"l": ["a/01.png"], "r": ["b/01.png"]})
-    {'l': '', 'r': ''}
+    >>> camera_affixes({"l": ["left01.png", "left02.png"], "r": ["right01.png", "right02.png"]})
+    {'l': ('left', '.png'), 'r': ('right', '.png')}
+    >>> camera_affixes({"l": ["a/01.png"], "r": ["b/01.png"]})
+    {'l': ('', ''), 'r': ('', '')}
     """
     plain = {n: {instant_of(p) for p in ps} for n, ps in images.items()}
-    none = {n: "" for n in images}
+    none = {n: PLAIN for n in images}
     if not unlinked(plain):
         return none
-    prefixes = {n: _prefix([Path(p).name for p in ps]) if ps else "" for n, ps in images.items()}
-    stripped = {n: {instant_of(p, prefixes[n]) for p in ps} for n, ps in images.items()}
-    return none if unlinked(stripped) or not any(prefixes.values()) else prefixes
+    affixes = {n: _affix([Path(p).name for p in ps]) if len(ps) > 1 else PLAIN for n, ps in images.items()}
+    stripped = {n: {instant_of(p, affixes[n]) for p in ps} for n, ps in images.items()}
+    return none if unlinked(stripped) or all(a == PLAIN for a in affixes.values()) else affixes
