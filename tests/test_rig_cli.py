@@ -157,7 +157,8 @@ BAD = {
     "glob matches nothing": (["--camera", "left=L", "--camera", "right=R/*.jpg"], "the pattern matches no file"),
     "no such folder": (["--camera", "left=L", "--camera", "right=nowhere"], "no such folder or file"),
     "no shared name": (["--camera", "left=L", "--camera", "right=S"], "share no file name"),
-    "two images one name": (["--camera", "left=L", "--camera", "right=L*/a.png"], "two images of instant 'a.png'"),
+    # right1.png and right01.png: one instant once each camera's prefix and suffix are left out
+    "two images one instant": (["--camera", "left=P/left*", "--camera", "right=P/right*"], "two images of instant '1'"),
     "unknown lens": (["--camera", "left=L", "--camera", "right=R", "--lens", "right=pinhole"], "unknown lens model"),
     "lens of no camera": (["--camera", "left=L", "--camera", "right=R", "--lens", "up=rational"], "no camera 'up'"),
     "lens twice": (["--camera", "left=L", "--camera", "right=R", "--lens", "fisheye", "--lens", "rational"], "twice"),
@@ -188,6 +189,7 @@ def test_bad_arguments_are_one_line_and_write_nothing(case, tmp_path, monkeypatc
     _images(tmp_path / "L2", ["a.png"])
     _images(tmp_path / "R", ["a.png", "b.png", "d.png"])
     _images(tmp_path / "S", ["x.png", "y.png"])
+    _images(tmp_path / "P", ["left1.png", "left2.png", "right1.png", "right01.png", "right2.png"])
     (tmp_path / "B.json").write_text('{"rows": 8, "cols": 11, "layout": "symmetric", "pitch_mm": 15}')
     (tmp_path / "E").mkdir()
     (tmp_path / "OUT").mkdir()

@@ -15,7 +15,7 @@ from circcal.commands.rig import _cameras
 from circcal.errors import InputError
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.rig import calibrate_rig
-from circcal.rig.instants import PLAIN, camera_affixes, instant_of, unlinked
+from circcal.rig.instants import PLAIN, camera_affixes, instant_of, rig_instants, unlinked
 from circcal.rotation import rotation_angle_deg
 from circcal.solver import CalibrationOptions
 
@@ -61,6 +61,26 @@ def test_no_prefix_rule_where_it_would_not_link_either():
     assert affix == {"l": PLAIN, "r": PLAIN}
     assert unlinked({"l": {"a", "b"}, "r": {"b"}, "s": {"z"}}) == ["s"]
     assert unlinked({"l": {"a"}, "r": {"b"}, "s": {"a", "b"}}) == []  # r reaches l through s
+
+
+def test_a_folder_per_instant_names_the_instants(tmp_path):
+    # shots/0001/left.png, shots/0001/right.png, ...: the file names repeat, the folders name the instants
+    for k in range(1, 5):
+        (tmp_path / f"{k:04d}").mkdir()
+        for cam in ("left", "right"):
+            (tmp_path / f"{k:04d}" / f"{cam}.png").write_bytes(b"")  # never read: the arguments are checked first
+    found = rig_instants({c: sorted(tmp_path.glob(f"*/{c}.png")) for c in ("left", "right")})
+    assert found.names["left"][0] == "0001/left.png" and found.affixes["left"] == ("", "/left.png")
+    assert list(found.of["left"].values()) == list(found.of["right"].values()) == ["1", "2", "3", "4"]
+    images = _cameras(_namespace(tmp_path, "*/left.png", "*/right.png"))
+    assert [p.parent.name for p in images["right"]] == ["0001", "0002", "0003", "0004"]
+    # one folder per camera with the same file names in sessions below it: the sessions keep them apart
+    for cam in ("L", "R"):
+        for sess in ("a", "b"):
+            (tmp_path / cam / sess).mkdir(parents=True)
+            (tmp_path / cam / sess / "01.png").write_bytes(b"")
+    found = rig_instants({c: sorted((tmp_path / c).glob("*/*.png")) for c in ("L", "R")})
+    assert not found.by_affix and set(found.of["L"].values()) == set(found.of["R"].values()) == {"a/01.png", "b/01.png"}
 
 
 def _namespace(tmp_path, left: str, right: str) -> argparse.Namespace:

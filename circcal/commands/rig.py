@@ -89,7 +89,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "+ T, mm) and one board pose per instant jointly, re-correcting the centres under the joint model until "
         "they settle. Images of different cameras are matched by file name: the same name is the same instant "
         "(where no name is shared, the same name between each camera's own prefix and suffix: left01.png and "
-        "right01.png, 0001_cam0.png and 0001_cam1.png); "
+        "right01.png, 0001_cam0.png and 0001_cam1.png, 0001/left.png and 0001/right.png); "
         "an instant seen by some cameras only, or partly, is used. Then the verdict: two halves of the instants "
         "calibrated apart and compared against their stated uncertainty, outlier views per camera, coverage.",
     )
@@ -169,7 +169,7 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
     """Every --camera's images, checked: two cameras at least, names distinct, no file given to two cameras, images
     named once per camera, every camera linked to the reference by shared instants (:mod:`circcal.rig.instants`: the
     file names, or the names between each camera's prefix and suffix, said in a line)."""
-    from circcal.rig.instants import PLAIN, camera_affixes, instant_of, unlinked
+    from circcal.rig.instants import rig_instants, unlinked
 
     images: dict[str, list[Path]] = {}
     for name, spec in args.camera:
@@ -178,12 +178,12 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
         images[name] = _images_of(name, spec)
     if len(images) < 2:
         raise InputError(f"--camera: a rig needs at least two cameras, got {len(images)}")
-    affix = camera_affixes(images)
+    found = rig_instants(images)
     instants: dict[str, set[str]] = {}
     for name, paths in images.items():
         seen: dict[str, Path] = {}
         for f in paths:
-            v = instant_of(f, affix[name])
+            v = found.of[name][str(f)]
             if v in seen:
                 raise InputError(
                     f"--camera {name}: two images of instant {display_name(v)!r} ({display_name(seen[v])}, "
@@ -207,13 +207,13 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
             f"camera linked to it; the same file name names the same instant in every camera (or the same name "
             f"between each camera's own prefix and suffix: left01.png, right01.png)"
         )
-    if any(a != PLAIN for a in affix.values()):
+    if found.by_affix:
         ref = next(iter(images))
         first = images[ref][0]
         print(
             "instants: no file name is shared, so each camera's own prefix and suffix are left out of its names ("
-            + ", ".join(f"{n}: {display_name(p + '*' + s)!r}" for n, (p, s) in affix.items())
-            + f"; {display_name(first.name)} is instant {display_name(instant_of(first, affix[ref]))!r})"
+            + ", ".join(f"{n}: {display_name(p + '*' + s)!r}" for n, (p, s) in found.affixes.items())
+            + f"; {display_name(found.names[ref][0])} is instant {display_name(found.of[ref][str(first)])!r})"
         )
     return images
 

@@ -28,7 +28,7 @@ from circcal.errors import CalibrationError, InputError
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
-from circcal.rig.instants import camera_affixes, instant_of
+from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
 from circcal.rig.solve import RigSolution, solve_rig
@@ -428,7 +428,7 @@ def calibrate_rig(
     names = list(images)
     _check_names(names)
     opts = _per_camera_options(names, options)
-    affix = camera_affixes(images)
+    instant = rig_instants(images).of
     per_camera: dict[str, ImagesCalibration] = {}
     for n, o in zip(names, opts):
         paths = [str(p) for p in images[n]]
@@ -436,7 +436,7 @@ def calibrate_rig(
             raise InputError(f"camera {n!r}: no images given")
         seen: dict[str, str] = {}
         for p in paths:
-            v = instant_of(p, affix[n])
+            v = instant[n][p]
             if v in seen:
                 raise InputError(
                     f"camera {n!r}: two images of instant {v!r} ({seen[v]}, {p}); the file name names the instant"
@@ -451,8 +451,8 @@ def calibrate_rig(
     centres: list[dict[str, np.ndarray]] = []
     for n in names:
         cal = per_camera[n]
-        dets.append({instant_of(cal.paths[i], affix[n]): cal.detections[i] for i in cal.used})
-        centres.append({instant_of(cal.paths[i], affix[n]): c for i, c in zip(cal.used, cal.centres)})
+        dets.append({instant[n][cal.paths[i]]: cal.detections[i] for i in cal.used})
+        centres.append({instant[n][cal.paths[i]]: c for i, c in zip(cal.used, cal.centres)})
 
     def views_of(cs: list[dict[str, np.ndarray]]) -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
         out = []
@@ -467,7 +467,7 @@ def calibrate_rig(
     cameras = [per_camera[n].result.camera for n in names]
     poses = [
         {
-            instant_of(cal.paths[i], affix[n]): (rodrigues(rv), tv.copy())
+            instant[n][cal.paths[i]]: (rodrigues(rv), tv.copy())
             for i, rv, tv in zip(cal.used, cal.result.rvecs, cal.result.tvecs)
         }
         for n, cal in per_camera.items()

@@ -8,15 +8,20 @@ that all of its file names begin with (``left`` of ``left01.png .. left12.png``;
 and the text after the digits that they all end with (``.png``, ``_left.png``) -- and used when the remainders link
 every camera. A remainder of digits alone is read as its number (``left1.png`` and ``right001.png`` are one instant).
 A camera whose names have no affix keeps its names.
+
+A name is the image's path below the folder that holds all of its camera's images: the file name where they share
+one folder, ``0001/left.png`` where each instant has its own folder (``0001/left.png``, ``0001/right.png``: the
+affix rule then leaves ``/left.png`` out).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Affix", "PLAIN", "camera_affixes", "instant_of", "unlinked"]
+__all__ = ["Affix", "PLAIN", "RigInstants", "rig_instants", "camera_affixes", "instant_of", "unlinked"]
 
 #: A camera's (prefix, suffix) around the part of its file names that names the instant.
 Affix = tuple[str, str]
@@ -24,30 +29,29 @@ Affix = tuple[str, str]
 PLAIN: Affix = ("", "")
 
 
-def instant_of(path: str | Path, affix: Affix = PLAIN) -> str:
-    """The instant an image shows: its file name without its camera's affix.
+def instant_of(name: str, affix: Affix = PLAIN) -> str:
+    """The instant an image shows: its name (:func:`camera_names`) without its camera's affix.
 
     Parameters
     ----------
-    path : str or Path
-        An image file.
+    name : str
+        An image's name among its camera's images.
     affix : (str, str)
         Its camera's prefix and suffix (:func:`camera_affixes`; :data:`PLAIN` for the plain rule).
 
     Returns
     -------
     str
-        The whole file name (plain rule); else the part between the affixes, a number without its leading zeros
-        where it is digits alone.
+        The whole name (plain rule); else the part between the affixes, a number without its leading zeros where it
+        is digits alone.
 
     Examples
     --------
-    >>> instant_of("calib/left07.png", ("left", ".png"))
+    >>> instant_of("left07.png", ("left", ".png"))
     '7'
-    >>> instant_of("calib/left07.png")
+    >>> instant_of("left07.png")
     'left07.png'
     """
-    name = Path(path).name
     if affix == PLAIN:
         return name
     prefix, suffix = affix
@@ -91,31 +95,104 @@ def _affix(names: Sequence[str]) -> Affix:
     return prefix, suffix
 
 
-def camera_affixes(images: Mapping[str, Sequence[str | Path]]) -> dict[str, Affix]:
-    """Each camera's prefix and suffix to remove from its file names to name its instants (module docstring).
+def camera_names(paths: Sequence[str | Path]) -> list[str]:
+    """Each image's name among its camera's images: its path below the folder that holds them all (``/``-separated).
 
     Parameters
     ----------
-    images : mapping of str to sequence of path
-        Per camera (the reference first) its image files.
+    paths : sequence of str or Path
+        One camera's image files.
+
+    Returns
+    -------
+    list of str
+        In ``paths``' order: the file names where one folder holds them all.
+
+    Examples
+    --------
+    >>> camera_names(["shots/0001/left.png", "shots/0002/left.png"])
+    ['0001/left.png', '0002/left.png']
+    """
+    if not paths:
+        return []
+    full = [os.path.abspath(p) for p in paths]
+    base = os.path.commonpath([os.path.dirname(p) for p in full])
+    return [Path(os.path.relpath(p, base)).as_posix() for p in full]
+
+
+def camera_affixes(names: Mapping[str, Sequence[str]]) -> dict[str, Affix]:
+    """Each camera's prefix and suffix to remove from its images' names to name its instants (module docstring).
+
+    Parameters
+    ----------
+    names : mapping of str to sequence of str
+        Per camera (the reference first) its images' names (:func:`camera_names`).
 
     Returns
     -------
     dict of str to (str, str)
-        Every camera's affix: all :data:`PLAIN` where the plain file names link the cameras, or where the affixes
-        would not.
+        Every camera's affix: all :data:`PLAIN` where the plain names link the cameras, or where the affixes would
+        not.
 
     Examples
     --------
     >>> camera_affixes({"l": ["left01.png", "left02.png"], "r": ["right01.png", "right02.png"]})
     {'l': ('left', '.png'), 'r': ('right', '.png')}
-    >>> camera_affixes({"l": ["a/01.png"], "r": ["b/01.png"]})
+    >>> camera_affixes({"l": ["01.png"], "r": ["01.png"]})
     {'l': ('', ''), 'r': ('', '')}
     """
-    plain = {n: {instant_of(p) for p in ps} for n, ps in images.items()}
-    none = {n: PLAIN for n in images}
+    plain = {n: set(ns) for n, ns in names.items()}
+    none = {n: PLAIN for n in names}
     if not unlinked(plain):
         return none
-    affixes = {n: _affix([Path(p).name for p in ps]) if len(ps) > 1 else PLAIN for n, ps in images.items()}
-    stripped = {n: {instant_of(p, affixes[n]) for p in ps} for n, ps in images.items()}
+    affixes = {n: _affix(ns) if len(ns) > 1 else PLAIN for n, ns in names.items()}
+    stripped = {n: {instant_of(m, affixes[n]) for m in ns} for n, ns in names.items()}
     return none if unlinked(stripped) or all(a == PLAIN for a in affixes.values()) else affixes
+
+
+@dataclass(frozen=True)
+class RigInstants:
+    """Which instant each camera's images show.
+
+    Attributes
+    ----------
+    of : dict of str to dict of str to str
+        Per camera, per image path (as given, ``str``) its instant.
+    names : dict of str to list of str
+        Per camera its images' names (:func:`camera_names`), in the order given.
+    affixes : dict of str to (str, str)
+        Per camera the affix left out of its names; all :data:`PLAIN` under the plain rule.
+    """
+
+    of: dict[str, dict[str, str]]
+    names: dict[str, list[str]]
+    affixes: dict[str, Affix]
+
+    @property
+    def by_affix(self) -> bool:
+        """Whether the affix rule named the instants (the plain names did not link the cameras)."""
+        return any(a != PLAIN for a in self.affixes.values())
+
+
+def rig_instants(images: Mapping[str, Sequence[str | Path]]) -> RigInstants:
+    """The instant of every image of every camera (module docstring).
+
+    Parameters
+    ----------
+    images : mapping of str to sequence of str or Path
+        Per camera (the reference first) its image files.
+
+    Returns
+    -------
+    RigInstants
+        Two images of one camera may share an instant: the caller refuses that, naming both.
+
+    Examples
+    --------
+    >>> rig_instants({"l": ["a/left1.png", "a/left2.png"], "r": ["a/right1.png", "a/right2.png"]}).of["r"]
+    {'a/right1.png': '1', 'a/right2.png': '2'}
+    """
+    names = {n: camera_names(ps) for n, ps in images.items()}
+    affixes = camera_affixes(names)
+    of = {n: {str(p): instant_of(m, affixes[n]) for p, m in zip(ps, names[n])} for n, ps in images.items()}
+    return RigInstants(of, names, affixes)
