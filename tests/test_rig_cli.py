@@ -253,6 +253,27 @@ def test_triangulate_true_points_within_their_sigmas(tmp_path, capsys):
     z = (X - X0[1:]) / S
     assert np.all(np.abs(z) < 4.5) and 0.6 < np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
     assert all(r["sigma_largest_mm"] >= max(r["sigma_x_mm"], r["sigma_y_mm"], r["sigma_z_mm"]) for r in rows[1:])
+    assert "behind a camera" not in text and all(r["behind"] == "" for r in rows)
+
+
+def test_triangulate_names_points_behind_the_cameras(tmp_path, capsys):
+    """right's rows reversed (a file of another point order): the points whose rays then cross behind the cameras
+    are named in one line and in the output's 'behind' field."""
+    sc, _, px = _true_pixels(4)
+    px["right"] = px["right"][::-1]
+    rig_file = tmp_path / "true_rig.json"
+    rig_file.write_text(json.dumps(sc.rig.to_dict()))
+    out = tmp_path / "points.json"
+    argv = ["triangulate", "--rig", str(rig_file), *_write_points(tmp_path, px), "--pixel-sigma", "0.1"]
+    assert main([*argv, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    rows = json.loads(out.read_text())["points"]
+    flagged = [r["id"] for r in rows if r["behind"]]
+    assert flagged and f"{len(flagged)} point(s) behind a camera that sees them: {flagged[0]} (behind " in text
+    assert all(r["z_mm"] < 0 for r in rows if r["behind"] == "left;right")
+    # rays that meet nowhere (Gauss-Newton runs off to infinity; it raised LinAlgError before): no point, said why
+    assert "(given by 2 camera(s); their rays meet at no finite point in front of them" in text
+    assert any(r["x_mm"] is None for r in rows)
 
 
 def test_triangulate_through_the_calibrated_rig(run_json, tmp_path, capsys):

@@ -92,7 +92,7 @@ def test_exact_pixels_give_the_points(cams: list[Camera]) -> None:
     t = triangulate(rig, _observe(rig, P), pixel_sigma=0.1)
     assert np.abs(t.points - P).max() < 1e-8
     assert np.nanmax(t.rms_px) < 1e-8
-    assert (t.n_views == len(cams)).all()
+    assert (t.n_views == len(cams)).all() and not t.behind.any()
     assert not t.calibration_included
     assert np.allclose(t.covariance, t.covariance_pixels)
 
@@ -168,6 +168,19 @@ def test_unseen_points_and_views() -> None:
     assert np.abs(np.delete(t.points, 2, axis=0) - np.delete(P, 2, axis=0)).max() < 1e-8
     # fewer views, more uncertainty
     assert np.trace(t.covariance[1]) > np.trace(triangulate(rig, _observe(rig, P), pixel_sigma=0.1).covariance[1])
+
+
+def test_pixels_that_show_no_one_point_are_named_behind_the_cameras() -> None:
+    # the rows of one camera's file swapped: right's pixels of two points far apart on the left and right of the
+    # field; its rays then cross left's behind both cameras (the baseline runs along x)
+    rig = _rig([PINHOLE, RATIONAL])
+    P = np.array([[-240.0, 0.0, 800.0], [240.0, 0.0, 800.0], [0.0, 50.0, 1000.0]])
+    obs = _observe(rig, P)
+    obs["right"] = obs["right"][[1, 0, 2]]
+    t = triangulate(rig, obs, pixel_sigma=0.1)
+    assert t.behind.shape == (3, 2)
+    assert t.behind[0].all() and not t.behind[2].any() and np.abs(t.points[2] - P[2]).max() < 1e-8
+    assert t.points[0, 2] < 0  # it is kept (named, not dropped): its position is where the rays cross
 
 
 def test_default_sigma_from_rms_and_refusals() -> None:

@@ -187,7 +187,7 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
             if v in seen:
                 raise InputError(
                     f"--camera {name}: two images of instant {display_name(v)!r} ({display_name(seen[v])}, "
-                    f"{display_name(f)}); the file name names the instant"
+                    f"{display_name(f)}); the file name (or its folder) names the instant"
                 )
             seen[v] = f
         instants[name] = set(seen)

@@ -290,13 +290,26 @@ def run(args: argparse.Namespace) -> int:
                     f"; {lost} of them cannot unproject its pixel (beyond its lens's one-to-one field, or at a pole "
                     f"of its fitted rational lens: see the rig's verdict)"
                     if lost
-                    else ""
+                    else (
+                        "; their rays meet at no finite point in front of them (check which row is which point)"
+                        if r["n_cameras"] >= 2
+                        else ""
+                    )
                 )
                 print(f"{r['id']:>8} (given by {len(given)} camera(s){why}: no point)")
                 continue
             print(
                 f"{r['id']:>8} {vals[0]:11.3f} {vals[1]:11.3f} {vals[2]:11.3f} {vals[3]:8.3f} {vals[4]:8.3f} "
                 f"{vals[5]:8.3f} {vals[6]:8.3f} {r['rms_px']:7.3f} {r['n_cameras']}"
+            )
+        flagged = [r for r in rows if r["behind"]]
+        if flagged:
+            print(
+                f"{len(flagged)} point(s) behind a camera that sees them: "
+                + "; ".join(f"{r['id']} (behind {r['behind'].replace(';', ', ')})" for r in flagged[:10])
+                + ("; ..." if len(flagged) > 10 else "")
+                + ": their pixels do not show one point (check which row is which point in each file); their "
+                "positions mean nothing"
             )
         if out is not None:
             _write(out, fmt, rows, rig, tri)
@@ -306,7 +319,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _rows(ids: list[str], tri) -> list[dict]:
-    """One dict per point: id, x/y/z mm, their sigmas, the largest sigma, rms_px, n_cameras (None where no point)."""
+    """One dict per point: id, x/y/z mm, their sigmas, the largest sigma, rms_px (None where no point), n_cameras,
+    behind (the cameras it lies behind, ';'-separated; "" for none)."""
     import numpy as np
 
     largest = np.sqrt(np.maximum(np.linalg.eigvalsh(np.nan_to_num(tri.covariance))[:, -1], 0.0))
@@ -318,6 +332,7 @@ def _rows(ids: list[str], tri) -> list[dict]:
         keys = ("x_mm", "y_mm", "z_mm", "sigma_x_mm", "sigma_y_mm", "sigma_z_mm", "sigma_largest_mm", "rms_px")
         r.update({key: (float(v) if ok else None) for key, v in zip(keys, vals)})
         r["n_cameras"] = int(tri.n_views[k])
+        r["behind"] = ";".join(n for n, b in zip(tri.cameras, tri.behind[k]) if b)
         rows.append(r)
     return rows
 

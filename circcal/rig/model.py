@@ -8,7 +8,8 @@ Conventions (written once; ARCHITECTURE.md and docs/rigs.md point here)
   mrcal's ``extrinsics_rt_fromref``. Camera 0's pose is the identity.
 * ``T`` is in the board's unit, mm (the pitch's unit); the OpenCV stereo YAML writes ``T`` in the pitch's unit too.
 * A board pose per instant ``(rvec, tvec)`` maps board points into the rig frame: ``X_0 = R(rvec) P + tvec``.
-* Instants are matched across cameras by image file name (the same name = the same instant).
+* Instants are matched across cameras by image file name (the same name = the same instant;
+  :mod:`circcal.rig.instants`).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ the fisheye beyond 90 deg included) and put in the rig frame (camera ``k``'s cen
 ``R_k^T ray``). The start is the least-squares point nearest to the rays (the midpoint of two); it is refined by
 Gauss-Newton to the point of least reprojection error in px over every camera that sees it (the maximum-likelihood
 triangulation for isotropic Gaussian pixel noise). Pixels given as NaN are unseen; a point seen by fewer than two
-cameras (or whose rays are parallel) is NaN.
+cameras (or whose rays are parallel, or meet nowhere: Gauss-Newton runs off to infinity) is NaN. A point that lands behind a camera that sees it (against the direction
+of its pixel's ray: pixels that do not show one point) is kept and named in ``behind``.
 
 The covariance (mrcal's definition, doc/triangulation.org: both noise sources, to first order)
 ----------------------------------------------------------------------------------------------
@@ -47,6 +48,9 @@ _STEP_TOL = 1e-13
 _MAX_ITERATIONS = 30
 #: Rays closer to parallel than this (the smallest eigenvalue of sum(I - d d^T), ~ the angle^2) give no point.
 _MIN_RAY_SPREAD = 1e-14
+#: A point whose reprojection normal matrix is conditioned worse than this has no position (its rays meet only at
+#: infinity or on a camera's plane: Gauss-Newton ran off).
+_MAX_CONDITION = 1e14
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,9 @@ class Triangulated:
         How many cameras see each point.
     cameras : tuple of str
         The cameras whose pixels were given.
+    behind : ndarray of bool, shape (N, K)
+        Per point, per camera of ``cameras``: the point lies behind it, against its pixel's ray (the pixels given for
+        the point do not show one point; its position means nothing).
     """
 
     points: np.ndarray
@@ -84,6 +91,7 @@ class Triangulated:
     rms_px: np.ndarray
     n_views: np.ndarray
     cameras: tuple[str, ...]
+    behind: np.ndarray
 
     @property
     def std_mm(self) -> np.ndarray:
@@ -163,6 +171,10 @@ def triangulate(
             if np.all(np.abs(step) <= _STEP_TOL * scale[:, None]):
                 break
         H, _, Js, res = _normal_equations(X, uvs, cams, Rs, Ts, seen)
+        finite = np.isfinite(H).all(axis=(1, 2)) & np.isfinite(X).all(axis=1)
+        H = np.where(finite[:, None, None], H, np.eye(3))
+        ok &= finite & (np.linalg.cond(H) < _MAX_CONDITION)
+        seen &= ok
     Hinv = np.linalg.inv(np.where(ok[:, None, None], H, np.eye(3)))
     cov_px = sigma**2 * Hinv
     cov_cal = np.zeros_like(cov_px)
@@ -171,11 +183,14 @@ def triangulate(
         cov_cal = np.einsum("nip,pq,njq->nij", B, np.asarray(rig.covariance, dtype=np.float64), B)
     sq = np.sum(np.stack([np.where(seen[k][:, None], r**2, 0.0) for k, r in enumerate(res)]), axis=(0, 2))
     rms = np.sqrt(sq / np.maximum(n_views, 1))
+    # in front of a camera: the point in its frame has a positive component along the pixel's ray
+    along = np.stack([np.sum((X @ R.T + T) * np.nan_to_num(r), axis=1) for R, T, r in zip(Rs, Ts, rays)], axis=1)
+    behind = seen.T & (along <= 0.0)
     bad = ~ok
     for a in (X, rms, cov_px, cov_cal):
         a[bad] = np.nan
     return Triangulated(
-        X, cov_px + cov_cal, cov_px, cov_cal, use_cal, sigma, rms, n_views, tuple(rig.names[k] for k in idx)
+        X, cov_px + cov_cal, cov_px, cov_cal, use_cal, sigma, rms, n_views, tuple(rig.names[k] for k in idx), behind
     )
 
 
