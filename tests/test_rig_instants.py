@@ -81,6 +81,9 @@ def test_a_folder_per_instant_names_the_instants(tmp_path):
             (tmp_path / cam / sess / "01.png").write_bytes(b"")
     found = rig_instants({c: sorted((tmp_path / c).glob("*/*.png")) for c in ("L", "R")})
     assert not found.by_affix and set(found.of["L"].values()) == set(found.of["R"].values()) == {"a/01.png", "b/01.png"}
+    # one camera flat, the other's images spread over folders: the paths link nothing, the file names do
+    found = rig_instants({"l": ["L/001.png", "L/002.png"], "r": ["R/x/001.png", "R/y/002.png"]})
+    assert list(found.of["r"].values()) == ["001.png", "002.png"] and not found.by_affix
 
 
 def _namespace(tmp_path, left: str, right: str) -> argparse.Namespace:

@@ -11,7 +11,8 @@ A camera whose names have no affix keeps its names.
 
 A name is the image's path below the folder that holds all of its camera's images: the file name where they share
 one folder, ``0001/left.png`` where each instant has its own folder (``0001/left.png``, ``0001/right.png``: the
-affix rule then leaves ``/left.png`` out).
+affix rule then leaves ``/left.png`` out). Where those paths link no rig, each rule is tried again on the file names
+alone (one camera's images in one folder, another's spread over several).
 """
 
 from __future__ import annotations
@@ -192,7 +193,19 @@ def rig_instants(images: Mapping[str, Sequence[str | Path]]) -> RigInstants:
     >>> rig_instants({"l": ["a/left1.png", "a/left2.png"], "r": ["a/right1.png", "a/right2.png"]}).of["r"]
     {'a/right1.png': '1', 'a/right2.png': '2'}
     """
-    names = {n: camera_names(ps) for n, ps in images.items()}
-    affixes = camera_affixes(names)
-    of = {n: {str(p): instant_of(m, affixes[n]) for p, m in zip(ps, names[n])} for n, ps in images.items()}
-    return RigInstants(of, names, affixes)
+    relative = {n: camera_names(ps) for n, ps in images.items()}
+    files = {n: [Path(p).name for p in ps] for n, ps in images.items()}
+
+    def named(names: dict[str, list[str]], affixes: dict[str, Affix]) -> RigInstants:
+        of = {n: {str(p): instant_of(m, affixes[n]) for p, m in zip(ps, names[n])} for n, ps in images.items()}
+        return RigInstants(of, names, affixes)
+
+    plain = {n: PLAIN for n in images}
+    for names in (relative, files):  # the plain rule: the paths below the cameras' folders, else the file names
+        if not unlinked({n: set(ns) for n, ns in names.items()}):
+            return named(names, plain)
+    for names in (relative, files):  # the affix rule, in the same order
+        affixes = camera_affixes(names)
+        if any(a != PLAIN for a in affixes.values()):
+            return named(names, affixes)
+    return named(relative, plain)  # nothing links the cameras: the caller refuses
