@@ -85,6 +85,7 @@ def check_observations(
     image_size: object,
     *,
     min_views: int = MIN_VIEWS,
+    view_names: Sequence[str] | None = None,
 ) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
     """Check and normalise observations.
 
@@ -101,6 +102,8 @@ def check_observations(
     image_size : object
         (width, height), px (:func:`check_image_size`).
     min_views : int
+    view_names : sequence of str, optional
+        Each view's name for the messages (a rig's instants); default its index (``view 3``).
 
     Returns
     -------
@@ -124,6 +127,10 @@ def check_observations(
             f"got {len(object_points)} object-point sets but {len(image_points)} image-point "
             f"sets; expected one of each per view"
         )
+
+    def label(v: int) -> str:
+        return f"view {v}" if view_names is None else f"view {view_names[v]!r}"
+
     obj, img = [], []
     for v, (o, p) in enumerate(zip(object_points, image_points)):
         o = np.asarray(o, dtype=np.float64)
@@ -135,16 +142,16 @@ def check_observations(
         if o.ndim == 2 and o.shape[1] == 2:
             o = np.concatenate([o, np.zeros((len(o), 1))], axis=1)
         if o.ndim != 2 or o.shape[1] != 3:
-            raise CalibrationError(f"view {v}: object points must be (N, 3) mm, got shape {o.shape}")
+            raise CalibrationError(f"{label(v)}: object points must be (N, 3) mm, got shape {o.shape}")
         if p.ndim != 2 or p.shape[1] != 2:
-            raise CalibrationError(f"view {v}: image points must be (N, 2) px, got shape {p.shape}")
+            raise CalibrationError(f"{label(v)}: image points must be (N, 2) px, got shape {p.shape}")
         if len(o) != len(p):
-            raise CalibrationError(f"view {v}: {len(o)} object points but {len(p)} image points")
+            raise CalibrationError(f"{label(v)}: {len(o)} object points but {len(p)} image points")
         obj.append(o)
         img.append(p)
     if not _all_valid(obj, img, w, h):  # one vectorised pass; the per-view rules only to name what is wrong
         for v, (o, p) in enumerate(zip(obj, img)):
-            _check_view(v, o, p, w, h)
+            _check_view(label(v), o, p, w, h)
     if len(obj) < min_views:
         raise CalibrationError(
             f"{len(obj)} usable view(s); calibration needs at least {min_views} views of the "
@@ -167,32 +174,32 @@ def _all_valid(obj: list[np.ndarray], img: list[np.ndarray], w: int, h: int) -> 
     return bool(np.all(np.abs(obj_all[:, 2]) <= PLANAR_TOL * np.repeat(scale, counts)))
 
 
-def _check_view(v: int, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:
-    """The value rules for view ``v`` (``o`` (N, 3) mm, ``p`` (N, 2) px): raises naming what is wrong."""
+def _check_view(label: str, o: np.ndarray, p: np.ndarray, w: int, h: int) -> None:
+    """The value rules for the view named ``label`` (``o`` (N, 3) mm, ``p`` (N, 2) px): raises naming what is wrong."""
     bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
     if bad.size:
         raise CalibrationError(
-            f"view {v}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
+            f"{label}: {bad.size} image point(s) are NaN/inf (non-finite; indices {bad[:10].tolist()}"
             f"{'...' if bad.size > 10 else ''}); pass only the detected points with their object points"
         )
     if not np.all(np.isfinite(o)):
-        raise CalibrationError(f"view {v}: object points contain NaN/inf (non-finite)")
+        raise CalibrationError(f"{label}: object points contain NaN/inf (non-finite)")
     if len(o) < MIN_POINTS_PER_VIEW:
         raise CalibrationError(
-            f"view {v}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
+            f"{label}: {len(o)} points; a view needs at least {MIN_POINTS_PER_VIEW} (a pose "
             f"has 6 parameters and the homography 8). Remove the view or detect more points"
         )
     out = np.flatnonzero((p[:, 0] < -0.5) | (p[:, 0] > w - 0.5) | (p[:, 1] < -0.5) | (p[:, 1] > h - 0.5))
     if out.size:
         raise CalibrationError(
-            f"view {v}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
+            f"{label}: {out.size} image point(s) lie outside the {w}x{h} image (first: index {out[0]} at "
             f"({p[out[0], 0]:.1f}, {p[out[0], 1]:.1f}) px; pixel centres run 0..{w - 1} x 0..{h - 1}): wrong "
             f"image_size or a bad detection"
         )
     scale = max(1.0, float(np.max(np.abs(o[:, :2]))))
     if np.max(np.abs(o[:, 2])) > PLANAR_TOL * scale:
         raise CalibrationError(
-            f"view {v}: object points must lie on the board plane z = 0 (a planar target), "
+            f"{label}: object points must lie on the board plane z = 0 (a planar target), "
             f"got |z| up to {np.max(np.abs(o[:, 2])):.3g} mm"
         )
 

@@ -4,11 +4,13 @@ and agreement with cv2.stereoCalibrate."""
 
 from __future__ import annotations
 
+import re
+
 import cv2
 import numpy as np
 import pytest
 
-from circcal.errors import CalibrationError
+from circcal.errors import CalibrationError, InputError
 from circcal.fixtures.rig import rig_observations, rig_scenario
 from circcal.model import param_names
 from circcal.rig import calibrate_rig_points
@@ -133,6 +135,30 @@ def test_disconnected_camera_refused_in_words():
     obs["b"] = {v: p for v, p in obs["b"].items() if v not in obs["c"]}
     with pytest.raises(CalibrationError, match=r"camera\(s\) 'c' share no instant .* camera\(s\) 'a', 'b'"):
         _solve("chain", 0.1, 2, obs=obs)
+
+
+@pytest.mark.parametrize(
+    ("spoil", "words"),
+    [
+        (
+            lambda o, p: (o, np.where(np.arange(len(p))[:, None] == 3, np.nan, p)),
+            "view '{v}': 1 image point(s) are NaN",
+        ),
+        (lambda o, p: (o, p[:-1]), "view '{v}': {n} object points but {m} image points"),
+        (lambda o, p: (o, np.zeros_like(p) + 100.0), "view(s) ['{v}']: their image (or board) points are collinear"),
+    ],
+    ids=["nan", "lengths", "coincident"],
+)
+def test_bad_observations_are_refused_naming_the_camera_and_instant(spoil, words):
+    sc = rig_scenario("two")
+    obs = rig_observations(sc, 0.1, 0)
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    v = sorted(obs["right"])[2]
+    o, p = obs["right"][v]
+    obs["right"][v] = spoil(o, p)
+    expected = "camera 'right': " + words.format(v=v, n=len(o), m=len(p) - 1)
+    with pytest.raises(InputError, match=re.escape(expected)):
+        calibrate_rig_points(obs, sizes, CalibrationOptions(), board=sc.board)
 
 
 def test_board_symmetry_flip_resolved():

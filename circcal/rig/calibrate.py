@@ -37,6 +37,7 @@ from circcal.rotation import rodrigues
 from circcal.solver import CalibrationOptions
 from circcal.solver.lensfield import pole_in_field
 from circcal.solver.options import ASPECT_RATIO
+from circcal.solver.zhang import homographies
 
 __all__ = ["RigCalibration", "calibrate_rig", "calibrate_rig_points", "lens_poles", "Views"]
 
@@ -195,16 +196,35 @@ def calibrate_rig_points(
         keys = [str(k) for k in observations[n]]
         try:
             obj, img, _ = check_observations(
-                [observations[n][k][0] for k in keys], [observations[n][k][1] for k in keys], size
+                [observations[n][k][0] for k in keys], [observations[n][k][1] for k in keys], size, view_names=keys
             )
         except InputError as exc:
-            raise InputError(f"camera {n!r} (instants {keys[:5]}...): {str(exc).splitlines()[0]}") from None
+            raise InputError(f"camera {n!r}: {str(exc).splitlines()[0]}") from None
+        _refuse_degenerate(n, keys, obj, img)
         views.append(dict(zip(keys, zip(obj, img))))
     if initial is None:
         cameras, poses = camera_starts(names, views, sizes, opts)
     else:
         cameras, poses = _initial_starts(initial, names, views, opts)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
+
+
+def _refuse_degenerate(name: str, keys: list[str], obj: list[np.ndarray], img: list[np.ndarray]) -> None:
+    """Refuse camera ``name``'s views whose points fit no plane homography (collinear or coincident), named by
+    instant (the single-camera solver names them by index)."""
+    try:
+        homographies([o[:, :2] for o in obj], img)
+    except CalibrationError:
+        bad = []
+        for k, o, p in zip(keys, obj, img):
+            try:
+                homographies([o[:, :2]], [p])
+            except CalibrationError:
+                bad.append(k)
+        raise InputError(
+            f"camera {name!r}: view(s) {bad[:10]}{'...' if len(bad) > 10 else ''}: their image (or board) points are "
+            f"collinear or coincident (no plane homography fits them); remove them or fix their points"
+        ) from None
 
 
 def lens_poles(result: RigCalibration) -> dict[str, str]:

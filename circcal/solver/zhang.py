@@ -89,7 +89,8 @@ def _similarity_normalisers(pts: np.ndarray) -> np.ndarray:
 
 
 def _homographies_same_size(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Normalised DLT for V views of N points each: ``src``, ``dst`` (V, N, 2) -> (V, 3, 3) (unnormalised scale)."""
+    """Normalised DLT for V views of N points each: ``src``, ``dst`` (V, N, 2) -> (V, 3, 3) (unnormalised scale; NaN
+    for a view whose points are collinear or coincident)."""
     Ts, Td = _similarity_normalisers(src), _similarity_normalisers(dst)
     a = np.einsum("vij,vnj->vni", Ts[:, :2, :2], src) + Ts[:, None, :2, 2]
     b = np.einsum("vij,vnj->vni", Td[:, :2, :2], dst) + Td[:, None, :2, 2]
@@ -104,9 +105,9 @@ def _homographies_same_size(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     A[:, :, 1, 6:8] = -b[:, :, 1:2] * a
     A[:, :, 1, 8] = -b[:, :, 1]
     _, sv, Vt = np.linalg.svd(A.reshape(V, 2 * n, 9), full_matrices=False)
-    if np.any(sv[:, -2] <= 1e-12 * sv[:, 0]):
-        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
-    return np.linalg.solve(Td, Vt[:, -1].reshape(V, 3, 3) @ Ts)
+    H = np.linalg.solve(Td, Vt[:, -1].reshape(V, 3, 3) @ Ts)
+    H[~(sv[:, -2] > 1e-12 * sv[:, 0])] = np.nan
+    return H
 
 
 def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndarray]) -> np.ndarray:
@@ -143,8 +144,12 @@ def homographies(object_xy: Sequence[np.ndarray], image_points: Sequence[np.ndar
         step = max(1, HOMOGRAPHY_CHUNK // int(n))
         for idx in (same[i : i + step] for i in range(0, len(same), step)):
             H[idx] = _homographies_same_size(np.stack([src[i] for i in idx]), np.stack([dst[i] for i in idx]))
-    if not np.all(np.isfinite(H)):
-        raise CalibrationError("could not fit a plane homography: the points are collinear or coincident")
+    bad = np.flatnonzero(~np.isfinite(H).all(axis=(1, 2)))
+    if bad.size:
+        raise CalibrationError(
+            f"could not fit a plane homography to view(s) {bad[:10].tolist()}{'...' if bad.size > 10 else ''}: "
+            f"their points are collinear or coincident"
+        )
     H /= np.linalg.norm(H, axis=(1, 2))[:, None, None]
     H[H[:, 2, 2] < 0] *= -1.0
     return H
