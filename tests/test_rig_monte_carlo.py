@@ -1,17 +1,24 @@
 """Are the rig's stated sigmas honest? >= 100 re-solves of a rig (``calibrate_rig_points``: each camera's own start,
 the pairwise start, the joint solve) on projected observations with Gaussian pixel noise, one seed per draw; the
-stated sigma of every camera's fx, fy, cx, cy and of camera 1's pose in the rig (rvec components, rad; T, mm),
-as the RMS over the draws of ``RigCalibration.std()``, against the spread (standard deviation) of the estimates.
-Issue 37's bar: each ratio within 0.8-1.25x. ``make study`` (marker ``slow``); the table is printed (``-s``).
+stated sigma of every camera's fx, fy, cx, cy and of camera 1's pose in the rig (rvec components, rad; T, mm)
+against the estimates' errors. Issue 37's bar: each ratio within 0.8-1.25x, measured two ways. ``make study`` (marker ``slow``); the table is
+printed (``-s``).
+
+* pooled: the RMS over the draws of ``RigCalibration.std()`` against the spread (standard deviation) of the
+  estimates -- one number for the study, dominated by the draws that state the largest sigmas;
+* per draw: each draw's error from the truth in units of its own stated sigma, ``z = (estimate - truth) / sigma``;
+  its stated sigma is honest when ``z`` has unit spread (the ratio printed is ``1 / std(z)``). This is what one
+  user with one calibration relies on; where the stated sigma is the same in every draw the two agree.
 
 The scenarios are ``fisheye`` (a 640x480 pinhole opencv5 camera and a fisheye) at 0.1 px and ``mixed`` (the same
 with its pinhole camera at 800x600: two sizes, two lens models, partial views in one camera): on ``two`` the rational
 camera's own calibration (the start of every rig solve) is refused on some draws (its k1, k2, k4, k5 trade off:
 4 of 40 draws at 0.1 px, 1 of 40 at 0.02 px), so a study there measures only the draws that happen to
-succeed. ``two`` is measured at 0.02 px as well, with the draws that fail counted and left out (14 of 100):
-its pinhole camera, the rational camera's principal point and the rig pose are honest, while the rational
-camera's stated fx and fy sigmas are not (they vary 8x between draws, RMS 1.8x the spread, most draws well under
-it: first order is not enough along the direction where its focal length trades with the rational coefficients).
+succeed. ``two`` is measured at 0.02 px as well, with the draws that fail counted and left out (11-14 of 100):
+its pinhole camera, the rational camera's principal point and the rig pose are honest both ways; the rational
+camera's fx and fy are honest per draw (1 / std(z) 0.96) but not pooled (1.8x): their stated sigma differs between
+draws (0.059-0.071 px in three draws of four; above 0.1 px in 10 of 89, up to 1.9 px, where the rational
+coefficients land on a flatter stretch of their valley), and the pooled RMS is those few draws'.
 """
 
 from __future__ import annotations
@@ -49,8 +56,8 @@ def _rows(sc) -> tuple[list[int], list[str]]:
 
 
 def _study(scenario: str | RigScenario, noise_px: float, draws: int = DRAWS):
-    """(labels, stated (K,), spread (K,), failed draws, estimates (D, K), truth (K,)) over ``draws`` seeds of a
-    scenario (by name, or given)."""
+    """(labels, stated (K,), spread (K,), failed draws, estimates (D, K), truth (K,), per-draw ratio 1 / std(z) (K,))
+    over ``draws`` seeds of a scenario (by name, or given)."""
     sc = rig_scenario(scenario) if isinstance(scenario, str) else scenario
     name = sc.name
     rows, labels = _rows(sc)
@@ -76,21 +83,27 @@ def _study(scenario: str | RigScenario, noise_px: float, draws: int = DRAWS):
         est.append(res.rig.state_vector()[rows])
         std.append(s)
     est_a, std_a = np.array(est), np.array(std)
+    truth = sc.rig.state_vector()[rows]
     stated = np.sqrt(np.mean(std_a**2, axis=0))
     spread = np.std(est_a, axis=0, ddof=1)
+    per_draw = 1.0 / np.std((est_a - truth) / std_a, axis=0, ddof=1)
     print(f"\n{name} rig, {noise_px} px, {len(est)} of {draws} draws ({len(failed)} failed)")
-    print(f"{'parameter':12s} {'stated':>10s} {'spread':>10s} {'ratio':>6s}")
-    for lab, a, b in zip(labels, stated, spread):
-        print(f"{lab:12s} {a:10.3e} {b:10.3e} {a / b:6.3f}")
-    return labels, stated, spread, failed, est_a, sc.rig.state_vector()[rows]
+    print(f"{'parameter':12s} {'stated':>10s} {'spread':>10s} {'pooled':>7s} {'per draw':>8s}")
+    for lab, a, b, c in zip(labels, stated, spread, per_draw):
+        print(f"{lab:12s} {a:10.3e} {b:10.3e} {a / b:7.3f} {c:8.3f}")
+    return labels, stated, spread, failed, est_a, truth, per_draw
+
+
+def _outside(labels: list[str], ratio: np.ndarray) -> dict[str, float]:
+    """The parameters whose ratio is outside LOW..HIGH."""
+    return {lab: round(float(r), 3) for lab, r in zip(labels, ratio) if not LOW <= r <= HIGH}
 
 
 def test_rig_sigmas_honest_over_monte_carlo():
-    labels, stated, spread, failed, est, truth = _study("fisheye", 0.1)
+    labels, stated, spread, failed, est, truth, per_draw = _study("fisheye", 0.1)
     assert not failed and len(est) >= 100
-    ratio = stated / spread
-    bad = {lab: round(float(r), 3) for lab, r in zip(labels, ratio) if not LOW <= r <= HIGH}
-    assert not bad, bad
+    assert not _outside(labels, stated / spread), _outside(labels, stated / spread)
+    assert not _outside(labels, per_draw), _outside(labels, per_draw)
     # and the estimates centre on the truth: the mean within 4 standard errors
     z = (est.mean(axis=0) - truth) / (spread / np.sqrt(len(est)))
     assert np.all(np.abs(z) < 4), dict(zip(labels, np.round(z, 2)))
@@ -112,10 +125,10 @@ def test_sizes_lenses_and_partial_views_together_sigmas_honest():
     sizes = {(c.width, c.height) for c in sc.rig.cameras}
     partial = sum(bool(np.isnan(uv).any()) for uv in sc.truth_points()["pinhole"].values())
     assert len(sizes) == 2 and {c.lens for c in sc.rig.cameras} == {"opencv5", "fisheye"} and partial >= 5
-    labels, stated, spread, failed, est, truth = _study(sc, 0.1)
+    labels, stated, spread, failed, est, truth, per_draw = _study(sc, 0.1)
     assert not failed and len(est) >= 100
-    bad = {lab: round(float(r), 3) for lab, r in zip(labels, stated / spread) if not LOW <= r <= HIGH}
-    assert not bad, bad
+    assert not _outside(labels, stated / spread), _outside(labels, stated / spread)
+    assert not _outside(labels, per_draw), _outside(labels, per_draw)
     z = (est.mean(axis=0) - truth) / (spread / np.sqrt(len(est)))
     assert np.all(np.abs(z) < 4), dict(zip(labels, np.round(z, 2)))
 
@@ -126,23 +139,24 @@ def two_study():
 
 
 def test_two_rig_sigmas_over_monte_carlo(two_study):
-    labels, stated, spread, failed, est, _ = two_study
-    # measured 14 of 100 lost, each said: the rational camera's own calibration refused (4), the joint solve not
+    labels, stated, spread, failed, est, _, per_draw = two_study
+    # measured 11-14 of 100 lost, each said: the rational camera's own calibration refused (4), the joint solve not
     # converged or its information matrix singular (10) -- never a wrong rig without a word
     assert len(failed) <= 0.15 * DRAWS, failed
     assert all(why.startswith(("camera 'right'", "the joint solve", "no covariance")) for _, why in failed), failed
-    ratio = dict(zip(labels, stated / spread))
-    honest = {k: round(float(r), 3) for k, r in ratio.items() if k not in RATIONAL_FOCAL}
-    assert all(LOW <= r <= HIGH for r in honest.values()), honest
+    pooled = _outside(labels, stated / spread)
+    assert set(pooled) <= set(RATIONAL_FOCAL), pooled  # those two: the strict xfail below
+    # per draw every parameter, the rational camera's focal lengths included (measured 2026-12-05 over 89 draws:
+    # 0.92-1.14; right.fx 0.96, right.fy 0.96)
+    assert not _outside(labels, per_draw), _outside(labels, per_draw)
 
 
 @pytest.mark.xfail(
     strict=True,
-    reason="measured on `two` at 0.02 px: the rational camera's stated fx, fy sigma varies 8x between draws "
-    "(5-95%: 0.06-0.50 px; spread 0.14 px): RMS 1.8x the spread, most draws well under it; first order is not "
-    "enough along the direction where its focal length trades with k1..k6. Split by the verdict's lens-field "
-    "check (2026-12-05, 89 draws): the 27 fits with a (near) pole in the field state fx 0.061 px against their "
-    "spread 0.065 (0.94x), the other 62 state 0.30 against 0.16 (1.9x, conservative)",
+    reason="pooled, measured on `two` at 0.02 px (89 draws): the rational camera's stated fx sigma is 0.059-0.071 "
+    "px in three draws of four and above 0.1 px in 10 (up to 1.9 px; spread 0.14 px), so its RMS over the "
+    "draws is 1.8x the spread; per draw it is honest (errors in units of their own sigma: spread 1.05, "
+    "test_two_rig_sigmas_over_monte_carlo): the low-sigma half's errors 1.16 sigmas RMS, the high half's 0.87",
 )
 def test_two_rig_rational_focal_sigma_honest(two_study):
     labels, stated, spread, *_ = two_study
