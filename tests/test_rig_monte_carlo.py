@@ -1,8 +1,8 @@
 """Are the rig's stated sigmas honest? >= 100 re-solves of a rig (``calibrate_rig_points``: each camera's own start,
 the pairwise start, the joint solve) on projected observations with Gaussian pixel noise, one seed per draw; the
 stated sigma of every camera's fx, fy, cx, cy and of camera 1's pose in the rig (rvec components, rad; T, mm)
-against the estimates' errors. Issue 37's bar: each ratio within 0.8-1.25x, measured two ways. ``make study`` (marker ``slow``); the table is
-printed (``-s``).
+against the estimates' errors. Issue 37's bar: each ratio within 0.8-1.25x, measured two ways. ``make study``
+(marker ``slow``); the table is printed (``-s``).
 
 * pooled: the RMS over the draws of ``RigCalibration.std()`` against the spread (standard deviation) of the
   estimates -- one number for the study, dominated by the draws that state the largest sigmas;

@@ -140,8 +140,8 @@ def test_the_command_prints_the_table_and_passes(capsys):
 
 
 def test_where_stereo_calibrate_stops_apart_circcals_rig_is_the_lower_minimum():
-    # fair mode, intrinsics held at circcal's: on `two` / noise OpenCV lands on circcal's rig (2.2e-8 deg, 1.6e-7 mm); on
-    # `two` / flip it stops 2.5e-6 deg, 1.9e-5 mm away -- the 1e-6 deg is not met there -- and its rig costs
+    # fair mode, intrinsics held at circcal's: on `two` / noise OpenCV lands on circcal's rig (2.2e-8 deg, 1.6e-7 mm);
+    # on `two` / flip it stops 2.5e-6 deg, 1.9e-5 mm away -- the 1e-6 deg is not met there -- and its rig costs
     # more on the very points both solved (RMS 0.139208400821456 against circcal's 0.139208400817591, each instant's
     # board pose re-fitted over both cameras): OpenCV's termination, not another minimum
     from benchmarks.rig_report import refit_rms

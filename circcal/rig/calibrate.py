@@ -5,8 +5,8 @@ detection, calibration, centre re-correction), starts the rig from those calibra
 solves every camera's intrinsics, every camera's pose in the rig and one board pose per instant jointly
 (:mod:`circcal.rig.solve`), then re-corrects each camera's centres under its joint model and solves again until no
 centre moves more than ``tol_px``. :func:`calibrate_rig_points` is the same on given observations. Instants are
-matched by image file name across cameras (the same name = the same instant; :mod:`circcal.rig.instants`); a view seen by some cameras only, or
-partly, is used. Conventions: :mod:`circcal.rig.model`.
+matched by image file name across cameras (the same name = the same instant; :mod:`circcal.rig.instants`); a view
+seen by some cameras only, or partly, is used. Conventions: :mod:`circcal.rig.model`.
 
 Errors are reported per point as OpenCV does: the RMS of the 2-D reprojection error's norm (``rms_px``), px.
 """
@@ -419,7 +419,8 @@ def calibrate_rig(
     images : mapping of str to sequence of path
         Per camera (the first is the reference) its image files; the same file name in two cameras is the same
         instant (where no file name links the cameras, the same name between each camera's prefix and suffix:
-        ``left01.png``, ``right01.png``; ``0001/left.png``, ``0001/right.png``; :mod:`circcal.rig.instants`). Instants are named so in the result.
+        ``left01.png``, ``right01.png``; ``0001/left.png``, ``0001/right.png``; :mod:`circcal.rig.instants`).
+        Instants are named so in the result.
     board : Board
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         As :func:`calibrate_rig_points`.
@@ -459,7 +460,8 @@ def calibrate_rig(
             v = instant[n][p]
             if v in seen:
                 raise InputError(
-                    f"camera {n!r}: two images of instant {v!r} ({seen[v]}, {p}); the file name (or its folder) names the instant"
+                    f"camera {n!r}: two images of instant {v!r} ({seen[v]}, {p}); the file name (or its folder) "
+                    f"names the instant"
                 )
             seen[v] = p
         try:

@@ -8,8 +8,9 @@ the fisheye beyond 90 deg included) and put in the rig frame (camera ``k``'s cen
 ``R_k^T ray``). The start is the least-squares point nearest to the rays (the midpoint of two); it is refined by
 Gauss-Newton to the point of least reprojection error in px over every camera that sees it (the maximum-likelihood
 triangulation for isotropic Gaussian pixel noise). Pixels given as NaN are unseen; a point seen by fewer than two
-cameras (or whose rays are parallel, or meet nowhere: Gauss-Newton runs off to infinity) is NaN. A point that lands behind a camera that sees it (against the direction
-of its pixel's ray: pixels that do not show one point) is kept and named in ``behind``.
+cameras (or whose rays are parallel, or meet nowhere: Gauss-Newton runs off to infinity) is NaN. A point that lands
+behind a camera that sees it (against the direction of its pixel's ray: pixels that do not show one point) is kept
+and named in ``behind``.
 
 The covariance (mrcal's definition, doc/triangulation.org: both noise sources, to first order)
 ----------------------------------------------------------------------------------------------
