@@ -117,7 +117,8 @@ def test_a_rig_of_prefixed_names_calibrates_as_one_of_plain_names(tmp_path):
     for k, name in enumerate(both[:8], start=1):
         shutil.copy(folder / "left" / name, tmp_path / f"left{k:02d}.png")
         shutil.copy(folder / "right" / name, tmp_path / f"right{k:02d}.png")
-    images = {"left": sorted(tmp_path.glob("left*.png")), "right": sorted(tmp_path.glob("right*.png"))}
+    # right's images as a generator (Path.glob, read once): the instants and the calibration both see them
+    images = {"left": sorted(tmp_path.glob("left*.png")), "right": tmp_path.glob("right*.png")}
     opts = {"left": CalibrationOptions(), "right": CalibrationOptions(lens="rational")}
     with warnings.catch_warnings():  # eight views leave the rational camera's coefficients a long valley to walk
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -14,7 +14,7 @@ Errors are reported per point as OpenCV does: the RMS of the 2-D reprojection er
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -402,7 +402,7 @@ class _Layout:
 
 
 def calibrate_rig(
-    images: Mapping[str, Sequence[str | Path]],
+    images: Mapping[str, Iterable[str | Path]],
     board: Board,
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
@@ -416,11 +416,11 @@ def calibrate_rig(
 
     Parameters
     ----------
-    images : mapping of str to sequence of path
-        Per camera (the first is the reference) its image files; the same file name in two cameras is the same
-        instant (where no file name links the cameras, the same name between each camera's prefix and suffix:
-        ``left01.png``, ``right01.png``; ``0001/left.png``, ``0001/right.png``; :mod:`circcal.rig.instants`).
-        Instants are named so in the result.
+    images : mapping of str to iterable of path
+        Per camera (the first is the reference) its image files (a list, or a generator such as ``Path.glob``); the
+        same file name in two cameras is the same instant (where no file name links the cameras, the same name
+        between each camera's prefix and suffix: ``left01.png``, ``right01.png``; ``0001/left.png``,
+        ``0001/right.png``; :mod:`circcal.rig.instants`). Instants are named so in the result.
     board : Board
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         As :func:`calibrate_rig_points`.
@@ -446,6 +446,7 @@ def calibrate_rig(
         As :func:`calibrate_rig_points`, and (:class:`circcal.pipeline.TooFewImagesError`) a camera whose board is
         found in fewer than 3 images (named).
     """
+    images = {n: list(ps) for n, ps in images.items()}  # a generator (Path.glob) is read once
     names = list(images)
     _check_names(names)
     opts = _per_camera_options(names, options)
