@@ -13,7 +13,7 @@ import os
 import stat
 import warnings
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -24,6 +24,7 @@ from circcal import detector as det_mod
 from circcal.detector import Detection, Reason, Rejection
 from circcal.errors import CalibrationError, InputError
 from circcal.formats import model_json
+from circcal.imagefiles import image_list
 from circcal.observations import MIN_VIEWS
 from circcal.pathnames import display_name, path_to_json
 from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
@@ -288,7 +289,7 @@ def _sha256(path: str) -> str:
 
 
 def calibrate_images(
-    paths: Sequence[str | Path],
+    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     board,
     options: CalibrationOptions = CalibrationOptions(),
     *,
@@ -306,8 +307,8 @@ def calibrate_images(
 
     Parameters
     ----------
-    paths : sequence of str or Path
-        The image files.
+    paths : str, Path, or iterable of them
+        The image files; a folder stands for its images (:func:`circcal.imagefiles.image_list`).
     board : circcal.board.Board
     options : CalibrationOptions
         How every solve is made (:class:`circcal.solver.options.CalibrationOptions`). ``options.lens``: the lens
@@ -347,7 +348,7 @@ def calibrate_images(
     CalibrationError
         The solve fails (see :func:`circcal.solver.calibrate`).
     """
-    paths = [str(p) for p in paths]
+    paths = image_list(paths)
     if not paths:
         raise InputError("no images given")
     first = duplicates_of(paths)

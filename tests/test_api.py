@@ -65,3 +65,25 @@ def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
     back = circcal.load_model(tmp_path / "cam.yaml")
     assert np.allclose(back.intrinsics, cam.intrinsics, rtol=1e-12, atol=1e-9)
     assert circcal.diff(cam, back).rms_px < 1e-6
+
+
+def test_a_folder_stands_for_its_images_and_a_non_path_is_refused(tmp_path):
+    # circcal.calibrate("photos", board) iterated the string's characters as file names, and a Path raised TypeError
+    from circcal.fixtures.cache import fixture_dir
+    from circcal.imagefiles import image_list
+
+    folder = fixture_dir("small-noisy")
+    pngs = sorted(str(p) for p in folder.glob("*.png"))
+    assert image_list(folder) == image_list(str(folder)) == pngs and len(pngs) >= 3
+    assert image_list([folder, pngs[0]]) == [*pngs, pngs[0]]  # a folder in a list too, in its place
+    assert image_list(p for p in pngs[:2]) == pngs[:2]  # a generator, read once
+    (tmp_path / "notes.txt").write_text("no images here")
+    with pytest.raises(InputError, match=r"images: folder .* holds no image file"):
+        image_list(tmp_path)
+    with pytest.raises(InputError, match=r"images: expected a folder, an image file or a list of them, got 3"):
+        image_list(3)  # type: ignore[arg-type]
+    board = circcal.Board(8, 11, 15.0, 7.5)
+    with pytest.raises(InputError, match=r"holds no image file"):
+        circcal.calibrate(tmp_path, board)  # refused before any work
+    with pytest.raises(InputError, match=r"camera 'right': folder .* holds no image file"):
+        circcal.calibrate_rig({"left": folder, "right": tmp_path}, board)

@@ -6,9 +6,9 @@ shape (:mod:`circcal.analysis.boardshape`) and, when asked, cross-validation).""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import os
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -89,7 +89,7 @@ class Calibration:
 
 
 def calibrate(
-    images: Sequence[str | Path] | None = None,
+    images: str | os.PathLike[str] | Iterable[str | os.PathLike[str]] | None = None,
     board: Any = None,
     options: CalibrationOptions = CalibrationOptions(),
     *,
@@ -107,8 +107,9 @@ def calibrate(
 
     Parameters
     ----------
-    images : sequence of str or Path, or None
-        Image files (None, the default, with ``observations``).
+    images : str, Path, iterable of them, or None
+        Image files, or a folder standing for its images (:func:`circcal.imagefiles.image_list`); None, the
+        default, with ``observations``.
     board : circcal.board.Board
         The board the images show (required; a keyword with ``observations``).
     options : CalibrationOptions

@@ -6,11 +6,9 @@ from __future__ import annotations
 import argparse
 import math
 import re
-import sys
 from pathlib import Path
 
 from circcal.errors import InputError
-from circcal.pathnames import display_name
 
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 
@@ -472,48 +470,6 @@ def calibration_options(args: argparse.Namespace):
         board_warp=bool(getattr(args, "board_warp", False)),
         outlier_rule=None if no_rejection else OutlierRule(k=k or DEFAULT_K),
     )
-
-
-#: Image files a folder given as an input expands to (by extension, case-insensitive).
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm", ".webp", ".jp2", ".exr")
-
-
-def expand_images(paths: list[Path], option: str = "images", *, announce: bool = True) -> list[Path]:
-    """Image paths with every folder among them replaced by its image files, sorted by name.
-
-    Parameters
-    ----------
-    paths : list of Path
-        Files and folders as given on the command line.
-    option : str
-        How messages name the argument.
-    announce : bool
-        Say on stderr how many images each folder gave (False where the caller's summary says it).
-
-    Returns
-    -------
-    list of Path
-        The files given, in order, each folder's images (:data:`IMAGE_SUFFIXES`, not recursive) in its place.
-
-    Raises
-    ------
-    InputError
-        A folder that holds no image file.
-    """
-    out: list[Path] = []
-    for p in paths:
-        if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
-            if not found:
-                raise InputError(
-                    f"{option}: folder {display_name(p)} holds no image file ({', '.join(IMAGE_SUFFIXES[:4])}, ...)"
-                )
-            if announce:
-                print(f"{display_name(p)}: {len(found)} images", file=sys.stderr)
-            out += found
-        else:
-            out.append(p)
-    return out
 
 
 def plain(text: str) -> str:

@@ -13,7 +13,6 @@ from circcal.commands.args import (
     add_lens_argument,
     board_of_args,
     calibration_options,
-    expand_images,
     grid_hint,
     nonnegative_int,
     parse_grid,
@@ -22,6 +21,7 @@ from circcal.commands.args import (
     positive_int,
 )
 from circcal.commands.board import add_marker_arguments
+from circcal.imagefiles import expand_images
 from circcal.pathnames import display_name
 
 

@@ -23,7 +23,6 @@ from circcal.commands.args import (
     DIAMETER_HELP,
     add_board_file_argument,
     board_of_args,
-    expand_images,
     grid_hint,
     parse_grid,
     parse_length_mm,
@@ -31,6 +30,7 @@ from circcal.commands.args import (
     positive_int,
 )
 from circcal.commands.board import add_marker_arguments
+from circcal.imagefiles import expand_images
 
 #: The pitch of ``--grid`` without ``--pitch`` (mm): detection needs the board's shape, not its scale.
 DEFAULT_PITCH_MM = 10.0

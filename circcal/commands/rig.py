@@ -17,7 +17,6 @@ from circcal.commands.args import (
     add_fix_arguments,
     board_of_args,
     calibration_options,
-    expand_images,
     grid_hint,
     parse_grid,
     parse_length_mm,
@@ -25,6 +24,7 @@ from circcal.commands.args import (
 )
 from circcal.commands.board import add_marker_arguments
 from circcal.errors import InputError
+from circcal.imagefiles import expand_images
 from circcal.pathnames import display_name
 
 #: A camera's name: it names files in --ros and --cameramodels folders.

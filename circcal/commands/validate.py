@@ -15,12 +15,12 @@ from circcal.commands.args import (
     add_board_file_argument,
     board_of_args,
     calibration_options,
-    expand_images,
     parse_grid,
     parse_length_mm,
     positive_float,
 )
 from circcal.errors import InputError
+from circcal.imagefiles import expand_images
 from circcal.validators.bounds import SOLVER_MRCAL_PX, SOLVER_PX, TRUTH_SIGMAS
 
 

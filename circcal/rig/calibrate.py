@@ -13,10 +13,10 @@ Errors are reported per point as OpenCV does: the RMS of the 2-D reprojection er
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from circcal import detector as det_mod
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
+from circcal.imagefiles import image_list
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
@@ -402,7 +403,7 @@ class _Layout:
 
 
 def calibrate_rig(
-    images: Mapping[str, Iterable[str | Path]],
+    images: Mapping[str, str | os.PathLike[str] | Iterable[str | os.PathLike[str]]],
     board: Board,
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
@@ -416,11 +417,12 @@ def calibrate_rig(
 
     Parameters
     ----------
-    images : mapping of str to iterable of path
-        Per camera (the first is the reference) its image files (a list, or a generator such as ``Path.glob``); the
-        same file name in two cameras is the same instant (where no file name links the cameras, the same name
-        between each camera's prefix and suffix: ``left01.png``, ``right01.png``; ``0001/left.png``,
-        ``0001/right.png``; :mod:`circcal.rig.instants`). Instants are named so in the result.
+    images : mapping of str to path or iterable of paths
+        Per camera (the first is the reference) its image files: a list, a generator such as ``Path.glob``, or a
+        folder standing for its images (:func:`circcal.imagefiles.image_list`). The same file name in two cameras is
+        the same instant (where no file name links the cameras, the same name between each camera's prefix and
+        suffix: ``left01.png``, ``right01.png``; ``0001/left.png``, ``0001/right.png``; :mod:`circcal.rig.instants`).
+        Instants are named so in the result.
     board : Board
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         As :func:`calibrate_rig_points`.
@@ -446,7 +448,7 @@ def calibrate_rig(
         As :func:`calibrate_rig_points`, and (:class:`circcal.pipeline.TooFewImagesError`) a camera whose board is
         found in fewer than 3 images (named).
     """
-    images = {n: list(ps) for n, ps in images.items()}  # a generator (Path.glob) is read once
+    images = {n: image_list(ps, f"camera {n!r}") for n, ps in images.items()}  # a generator is read once here
     names = list(images)
     _check_names(names)
     opts = _per_camera_options(names, options)
