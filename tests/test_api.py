@@ -87,3 +87,5 @@ def test_a_folder_stands_for_its_images_and_a_non_path_is_refused(tmp_path):
         circcal.calibrate(tmp_path, board)  # refused before any work
     with pytest.raises(InputError, match=r"camera 'right': folder .* holds no image file"):
         circcal.calibrate_rig({"left": folder, "right": tmp_path}, board)
+    with pytest.raises(InputError, match=r"paths: a list of image files, one detection each, got the single path"):
+        circcal.detect_files(str(folder), board)

@@ -12,7 +12,7 @@ from circcal.board import Board
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.find import camera_size_mismatch, detect
 from circcal.detector.image import ImageTooLargeError, read_image_messages
-from circcal.errors import ImageError
+from circcal.errors import ImageError, InputError
 from circcal.model import Camera
 from circcal.progress import progress_bar
 
@@ -61,6 +61,8 @@ def detect_files(
 
     Raises
     ------
+    InputError
+        ``paths`` one path rather than a list of them (a folder: :func:`circcal.imagefiles.image_list` first).
     ValueError
         ``jobs < 1``.
 
@@ -72,6 +74,12 @@ def detect_files(
     [True, False]
     """
     from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    if isinstance(paths, (str, os.PathLike)):  # a string would be read as one file name per character
+        raise InputError(
+            f"paths: a list of image files, one detection each, got the single path {str(paths)!r:.80} (a folder: "
+            f"circcal.imagefiles.image_list(folder))"
+        )
 
     paths = [Path(p) for p in paths]
     jobs = min(MAX_DEFAULT_JOBS, os.cpu_count() or 1) if jobs is None else int(jobs)
