@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -23,6 +24,7 @@ from circcal.analysis.compare import GRID_WIDTH, param_diff, projection_diff
 from circcal.board import Board
 from circcal.errors import InputError
 from circcal.formatting import fmt_number
+from circcal.imagefiles import image_list
 from circcal.jsonio import jsonable
 from circcal.model import DEFAULT_LENS, Camera, param_names
 from circcal.solver import CalibrationOptions
@@ -208,7 +210,7 @@ ObservationSource = Literal["circcal", "own"]
 
 
 def run_validation(
-    paths: Sequence[str | Path],
+    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     board: Board,
     options: CalibrationOptions | None = None,
     *,
@@ -233,8 +235,8 @@ def run_validation(
 
     Parameters
     ----------
-    paths : sequence of str or Path
-        Image files.
+    paths : str, Path, or iterable of them
+        Image files, or a folder standing for its images (:func:`circcal.imagefiles.image_list`).
     board : circcal.board.Board
         The calibration target.
     options : CalibrationOptions, optional
@@ -291,7 +293,7 @@ def run_validation(
     for n in names:
         if n not in registry.names():
             raise InputError(f"unknown reference calibrator {n!r}; known: {', '.join(registry.names())}, all")
-    paths = [str(p) for p in paths]
+    paths = image_list(paths)
     if options is None:
         options = CalibrationOptions(lens=truth.lens if truth is not None else DEFAULT_LENS)
     lens = options.lens
