@@ -65,6 +65,7 @@ def test_calibrate_detect_save_and_load_through_the_api(tmp_path):
     back = circcal.load_model(tmp_path / "cam.yaml")
     assert np.allclose(back.intrinsics, cam.intrinsics, rtol=1e-12, atol=1e-9)
     assert circcal.diff(cam, back).rms_px < 1e-6
+    assert circcal.diff(tmp_path / "cam.yaml", str(tmp_path / "cam.yaml")).rms_px < 1e-9  # model files as well
 
 
 def test_a_folder_stands_for_its_images_and_a_non_path_is_refused(tmp_path):

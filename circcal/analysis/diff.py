@@ -12,6 +12,7 @@ distance per grid pixel (px); pixels follow OpenCV's convention; distances are m
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,6 +21,7 @@ import numpy as np
 
 from circcal.analysis.compare import GRID_WIDTH, pixel_grid, projection_diff
 from circcal.errors import InputError
+from circcal.formats import read_camera
 from circcal.model import Camera, project_camera, unproject
 from circcal.rotation import fit_rotation, rotation_angle_deg
 
@@ -152,8 +154,8 @@ def _points(uv: np.ndarray, cam: Camera, distance: float | None) -> np.ndarray:
 
 
 def model_diff(
-    a: Camera,
-    b: Camera,
+    a: Camera | str | os.PathLike[str],
+    b: Camera | str | os.PathLike[str],
     *,
     distance: float | None = None,
     focus_radius_px: float | None = None,
@@ -165,7 +167,8 @@ def model_diff(
 
     Parameters
     ----------
-    a, b : Camera
+    a, b : Camera, or str or path
+        The cameras, or model files any format :func:`circcal.formats.read_camera` reads.
     distance : float or None
         mm along each ray (None: infinity).
     focus_radius_px : float or None
@@ -184,8 +187,9 @@ def model_diff(
     Raises
     ------
     InputError
-        Models of different image sizes, or a ``distance`` that is not a positive number.
+        Models of different image sizes, or a ``distance`` that is not a positive number; an unreadable model file.
     """
+    a, b = (read_camera(os.fspath(m)) if isinstance(m, (str, os.PathLike)) else m for m in (a, b))
     if (a.width, a.height) != (b.width, b.height):
         raise InputError(
             f"the models have different image sizes ({a.width}x{a.height} and {b.width}x{b.height}): "
