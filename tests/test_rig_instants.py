@@ -84,6 +84,9 @@ def test_a_folder_per_instant_names_the_instants(tmp_path):
     # one camera flat, the other's images spread over folders: the paths link nothing, the file names do
     found = rig_instants({"l": ["L/001.png", "L/002.png"], "r": ["R/x/001.png", "R/y/002.png"]})
     assert list(found.of["r"].values()) == ["001.png", "002.png"] and not found.by_affix
+    # two of one camera's images that show one instant under the rule that links the rig: refused, both named
+    with pytest.raises(InputError, match=r"camera 'r': two images of instant '001.png' \(R/x/001.png, R/y/001.png\)"):
+        rig_instants({"l": ["L/001.png", "L/002.png"], "r": ["R/x/001.png", "R/y/001.png"]})
 
 
 def _namespace(tmp_path, left: str, right: str) -> argparse.Namespace:

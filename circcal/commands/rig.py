@@ -178,19 +178,8 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
         images[name] = _images_of(name, spec)
     if len(images) < 2:
         raise InputError(f"--camera: a rig needs at least two cameras, got {len(images)}")
-    found = rig_instants(images)
-    instants: dict[str, set[str]] = {}
-    for name, paths in images.items():
-        seen: dict[str, Path] = {}
-        for f in paths:
-            v = found.of[name][str(f)]
-            if v in seen:
-                raise InputError(
-                    f"--camera {name}: two images of instant {display_name(v)!r} ({display_name(seen[v])}, "
-                    f"{display_name(f)}); the file name (or its folder) names the instant"
-                )
-            seen[v] = f
-        instants[name] = set(seen)
+    found = rig_instants(images, lambda n: f"--camera {n}")  # refuses two images of one instant
+    instants = {name: set(per.values()) for name, per in found.of.items()}
     owner: dict[Path, str] = {}
     for name, paths in images.items():
         for f in paths:

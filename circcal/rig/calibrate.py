@@ -452,21 +452,12 @@ def calibrate_rig(
     names = list(images)
     _check_names(names)
     opts = _per_camera_options(names, options)
-    instant = rig_instants(images).of
+    instant = rig_instants(images).of  # refuses two images of one instant, naming both
     per_camera: dict[str, ImagesCalibration] = {}
     for n, o in zip(names, opts):
-        paths = [str(p) for p in images[n]]
+        paths = images[n]
         if not paths:
             raise InputError(f"camera {n!r}: no images given")
-        seen: dict[str, str] = {}
-        for p in paths:
-            v = instant[n][p]
-            if v in seen:
-                raise InputError(
-                    f"camera {n!r}: two images of instant {v!r} ({seen[v]}, {p}); the file name (or its folder) "
-                    f"names the instant"
-                )
-            seen[v] = p
         try:
             per_camera[n] = calibrate_images(paths, board, o, progress=bool(progress), jobs=jobs)
         except CalibrationError as exc:

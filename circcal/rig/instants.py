@@ -18,9 +18,12 @@ alone (one camera's images in one folder, another's spread over several).
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+from circcal.errors import InputError
+from circcal.pathnames import display_name
 
 __all__ = ["Affix", "PLAIN", "RigInstants", "rig_instants", "camera_affixes", "instant_of", "unlinked"]
 
@@ -175,18 +178,26 @@ class RigInstants:
         return any(a != PLAIN for a in self.affixes.values())
 
 
-def rig_instants(images: Mapping[str, Sequence[str | Path]]) -> RigInstants:
+def rig_instants(
+    images: Mapping[str, Sequence[str | Path]], label: Callable[[str], str] = lambda n: f"camera {n!r}"
+) -> RigInstants:
     """The instant of every image of every camera (module docstring).
 
     Parameters
     ----------
     images : mapping of str to sequence of str or Path
         Per camera (the reference first) its image files.
+    label : callable
+        How a message names a camera (the command: ``--camera NAME``).
 
     Returns
     -------
     RigInstants
-        Two images of one camera may share an instant: the caller refuses that, naming both.
+
+    Raises
+    ------
+    InputError
+        Two images of one camera that show one instant (both named).
 
     Examples
     --------
@@ -197,7 +208,18 @@ def rig_instants(images: Mapping[str, Sequence[str | Path]]) -> RigInstants:
     files = {n: [Path(p).name for p in ps] for n, ps in images.items()}
 
     def named(names: dict[str, list[str]], affixes: dict[str, Affix]) -> RigInstants:
-        of = {n: {str(p): instant_of(m, affixes[n]) for p, m in zip(ps, names[n])} for n, ps in images.items()}
+        of: dict[str, dict[str, str]] = {}
+        for n, ps in images.items():
+            seen: dict[str, str] = {}
+            for p, m in zip(ps, names[n]):
+                v = instant_of(m, affixes[n])
+                if v in seen:
+                    raise InputError(
+                        f"{label(n)}: two images of instant {display_name(v)!r} ({display_name(seen[v])}, "
+                        f"{display_name(p)}); the file name (or its folder) names the instant"
+                    )
+                seen[v] = str(p)
+            of[n] = {p: v for v, p in seen.items()}
         return RigInstants(of, names, affixes)
 
     plain = {n: PLAIN for n in images}
