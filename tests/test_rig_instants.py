@@ -131,3 +131,26 @@ def test_a_rig_of_prefixed_names_calibrates_as_one_of_plain_names(tmp_path):
     Rt, Tt = sc.rig.pair(0, 1)
     assert rotation_angle_deg(R @ Rt.T) < 0.02  # measured 0.004 deg
     assert np.linalg.norm(T - Tt) < 0.1  # measured 0.025 mm
+    assert res.images["right"]["3"] == str(tmp_path / "right03.png")  # each instant's image, for the outputs
+
+
+def test_a_folder_per_instant_gets_its_rectified_pairs_and_report(tmp_path, capsys):
+    # the outputs took each instant's pair by file name: with shots/<instant>/left.png they wrote no rectified
+    # pair (and the report no rectified.png) while saying "wrote"
+    from circcal.cli import main
+
+    folder = rig_fixture_dir("two")
+    both = sorted(
+        {p.name for p in (folder / "left").glob("*.png")} & {p.name for p in (folder / "right").glob("*.png")}
+    )
+    for name in both[:8]:
+        (tmp_path / "shots" / name[:-4]).mkdir(parents=True)
+        for cam in ("left", "right"):
+            shutil.copy(folder / cam / name, tmp_path / "shots" / name[:-4] / f"{cam}.png")
+    argv = ["calibrate-rig", "--camera", f"left={tmp_path}/shots/*/left.png", "--camera"]
+    argv += [f"right={tmp_path}/shots/*/right.png", "--lens", "right=opencv5", "--grid", "8x11", "--pitch", "15mm"]
+    argv += ["--out", str(tmp_path / "rig.json"), "--rectified", str(tmp_path / "rect"), "--report"]
+    assert main([*argv, str(tmp_path / "rep"), "--no-progress", "--no-cross-validate"]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "rect").glob("*.png")) == sorted(f"{int(n[:-4])}.png" for n in both[:8])
+    assert (tmp_path / "rep" / "rectified.png").is_file()

@@ -85,7 +85,6 @@ def write_rig_report(
     cal: Any,
     board: Any,
     lines: Sequence[str],
-    images: dict[str, list[Path]],
 ) -> Path:
     """Write the report into ``folder``, an existing empty folder (the command's staging folder).
 
@@ -98,8 +97,6 @@ def write_rig_report(
     board : circcal.board.Board
     lines : sequence of str
         The console's lines (verdict, numbers, cross-validation), in order.
-    images : dict of str to list of Path
-        Per camera its images (the rectified pair is taken from them).
 
     Returns
     -------
@@ -119,10 +116,12 @@ def write_rig_report(
     figures = [("geometry.png", "The rig's geometry", save_png(fig_rig_geometry(cal, board), folder / "geometry.png"))]
     rig = cal.rig
     a, b = rig.names[0], rig.names[1]
-    by_name = {n: {p.name: p for p in images.get(n, [])} for n in (a, b)}
-    shared = [i for i in cal.instants[a] if i in cal.instants[b] and i in by_name[a] and i in by_name[b]]
+    files = {n: cal.images.get(n, {}) for n in (a, b)}
+    shared = [i for i in cal.instants[a] if i in cal.instants[b] and i in files[a] and i in files[b]]
     if shared:
-        path = write_rectified_overlay(folder / "rectified.png", rig, by_name[a][shared[0]], by_name[b][shared[0]])
+        path = write_rectified_overlay(
+            folder / "rectified.png", rig, Path(files[a][shared[0]]), Path(files[b][shared[0]])
+        )
         figures.append(
             (
                 "rectified.png",

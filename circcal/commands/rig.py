@@ -24,7 +24,7 @@ from circcal.commands.args import (
 )
 from circcal.commands.board import add_marker_arguments
 from circcal.errors import InputError
-from circcal.imagefiles import expand_images
+from circcal.imagefiles import IMAGE_SUFFIXES, expand_images
 from circcal.pathnames import display_name
 
 #: A camera's name: it names files in --ros and --cameramodels folders.
@@ -314,11 +314,11 @@ def run(args: argparse.Namespace) -> int:
         verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
         lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
         print("\n".join(lines))
-        _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images, args.alpha)
+        _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, args.alpha)
         if report is not None:
             from circcal.calreport.rig import write_rig_report
 
-            write_rig_report(report, cal, board, lines, images)
+            write_rig_report(report, cal, board, lines)
         outputs.commit()
     written = [(args.out, "OpenCV stereo YAML of " + " and ".join(names[:2]) if fmt == "opencv" else "circcal rig")]
     written += [
@@ -337,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images, alpha) -> None:
+def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, alpha) -> None:
     """Every output into its staging place."""
     from circcal import atomic
     from circcal.jsonio import dumps
@@ -375,9 +375,15 @@ def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, images
     if kalibr is not None:
         atomic.write_text(kalibr, kalibr_camchain_text(rig))
     if rectified is not None:
-        a, b = ({p.name: p for p in images[n]} for n in rig.names[:2])
+        a, b = (cal.images[n] for n in rig.names[:2])
         for v in sorted(set(a) & set(b)):
-            write_rectified_overlay(rectified / f"{Path(v).stem}.png", rig, a[v], b[v], rect)
+            write_rectified_overlay(rectified / f"{_file_stem(v)}.png", rig, Path(a[v]), Path(b[v]), rect)
+
+
+def _file_stem(instant: str) -> str:
+    """A file name for an instant's output: its name without an image extension, a folder's ``/`` as ``_``."""
+    flat = instant.replace("/", "_")
+    return Path(flat).stem if Path(flat).suffix.lower() in IMAGE_SUFFIXES else flat
 
 
 def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
@@ -431,7 +437,7 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
             lines.append("  " + _pose_text(rig, k, std[offsets[-1] + 6 * (k - 1) : offsets[-1] + 6 * k]))
         per = cal.per_camera.get(name)
         for r in getattr(per, "failed", []) or []:
-            lines.append(f"  image left out: {display_name(Path(r.path).name)}: {r.reason}")
+            lines.append(f"  image left out: {display_name(r.path)}: {r.reason}")
         for d in cal.dropped:
             if d["camera"] == name:
                 lines.append(f"  view dropped from the rig: {display_name(d['instant'])}: {d['reason']}")

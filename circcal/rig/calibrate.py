@@ -79,6 +79,8 @@ class RigCalibration:
         Per joint solve ``{"round", "rms_px", "max_centre_shift_px"}`` (images only).
     per_camera : dict of str to ImagesCalibration
         Each camera's own calibration (images only).
+    images : dict of str to dict of str to str
+        Per camera, per instant its image file (images only; :mod:`circcal.rig.instants` named the instants).
     observations : dict of str to dict of str to (ndarray (N, 3), ndarray (N, 2))
         Per camera, per instant the views of the last joint solve: object points (mm, relabelled by the board
         symmetry found) and image points (px, the final re-corrected centres): what
@@ -98,6 +100,7 @@ class RigCalibration:
     start: RigStart
     rounds: list[dict[str, Any]] = field(default_factory=list)
     per_camera: dict[str, ImagesCalibration] = field(default_factory=dict)
+    images: dict[str, dict[str, str]] = field(default_factory=dict)
     observations: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
 
     def std(self) -> np.ndarray:
@@ -523,4 +526,5 @@ def calibrate_rig(
             break
     result.rounds = rounds
     result.per_camera = per_camera
+    result.images = {n: {v: p for p, v in instant[n].items()} for n in names}
     return result
