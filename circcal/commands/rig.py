@@ -130,7 +130,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ros", type=Path, help="folder: a ROS camera_info YAML pair of the first two cameras (metres)")
     p.add_argument("--cameramodels", type=Path, help="folder: one mrcal .cameramodel per camera, with extrinsics")
     p.add_argument("--kalibr", type=Path, help="Kalibr camchain YAML (radtan needs --fix-k3, or a fisheye)")
-    p.add_argument("--rectified", type=Path, help="folder: the rectified pair of each instant the first two share")
+    p.add_argument(
+        "--rectified",
+        type=Path,
+        help="folder: the rectified pair of each instant the first two cameras share (their views used)",
+    )
     p.add_argument("--alpha", type=_alpha, default=-1.0, help="rectification free scaling (OpenCV's alpha; default -1)")
     p.add_argument(
         "--report",
@@ -375,9 +379,11 @@ def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, alpha)
     if kalibr is not None:
         atomic.write_text(kalibr, kalibr_camchain_text(rig))
     if rectified is not None:
-        a, b = (cal.images[n] for n in rig.names[:2])
-        for v in sorted(set(a) & set(b)):
-            write_rectified_overlay(rectified / f"{_file_stem(v)}.png", rig, Path(a[v]), Path(b[v]), rect)
+        a, b = rig.names[:2]
+        for v in sorted(set(cal.instants[a]) & set(cal.instants[b])):  # the views the rig used: readable images
+            write_rectified_overlay(
+                rectified / f"{_file_stem(v)}.png", rig, Path(cal.images[a][v]), Path(cal.images[b][v]), rect
+            )
 
 
 def _file_stem(instant: str) -> str:
