@@ -160,6 +160,28 @@ def test_fit_pose_on_a_non_planar_board():
     assert np.max(np.abs(project(truth, rv, tv, CAM) - uv)) <= 1e-8
 
 
+def test_pose_start_is_exact_on_a_flat_board_and_fit_pose_refines_it():
+    """pose_start (IPPE) on noise-free points of a flat board: exact through circcal's rays (the fisheye), within
+    OpenCV's undistortion's own convergence for an OpenCV lens (its fixed iteration count: ~1e-3 px here); fit_pose
+    then lands on the pose to rounding, on a flat board and on a bent one (the IPPE start sees it flattened)."""
+    from circcal.model import Camera
+    from circcal.solver import pose_start
+
+    fisheye = Camera(640, 480, 260.0, 260.5, 322.0, 241.0, [0.02, -0.01, 0.004, -0.001], "fisheye")
+    flat = BOARD.object_points()
+    for cam, px in ((CAM, 2e-3), (fisheye, 1e-11)):
+        for r, t in sample_poses(cam, BOARD, 3, 1):
+            uv = project(flat, r, t, cam)
+            assert np.max(np.abs(project(flat, *pose_start(flat, uv, cam), cam) - uv)) <= px, cam.lens
+            rv, tv = fit_pose(flat, uv, cam)
+            assert np.allclose(rv, r, rtol=0, atol=1e-12) and np.allclose(tv, t, rtol=0, atol=1e-9), cam.lens
+    bent = warped_board(bend_mm=3.0)
+    r, t = sample_poses(CAM, BOARD, 3, 1)[2]
+    uv = project(bent, r, t, CAM)
+    start = np.max(np.abs(project(bent, *pose_start(bent, uv, CAM), CAM) - uv))
+    assert start > 0.05 and np.max(np.abs(project(bent, *fit_pose(bent, uv, CAM), CAM) - uv)) <= 1e-8
+
+
 def test_model_json_carries_the_board():
     obj, img = observations(warped_board(), n=6)
     res = calibrate(obj, img, (CAM.width, CAM.height), CalibrationOptions(refine_board=True))

@@ -4,7 +4,7 @@ the covariance of the result (:mod:`circcal.solver.calibrate`), made as :class:`
 
 from circcal.errors import CalibrationError, DegenerateViewsError
 from circcal.solver.calibrate import CalibrationResult, calibrate
-from circcal.solver.holdout import fit_pose, holdout_errors, leave_one_out, prediction_error
+from circcal.solver.holdout import fit_pose, holdout_errors, leave_one_out, pose_start, prediction_error
 from circcal.solver.options import CalibrationOptions
 
 __all__ = [
@@ -16,5 +16,6 @@ __all__ = [
     "fit_pose",
     "holdout_errors",
     "leave_one_out",
+    "pose_start",
     "prediction_error",
 ]

@@ -21,14 +21,69 @@ from circcal.solver.calibrate import calibrate
 from circcal.solver.options import CalibrationOptions
 from circcal.solver.result import CalibrationResult
 
-__all__ = ["fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
+__all__ = ["pose_start", "fit_pose", "prediction_error", "leave_one_out", "holdout_errors"]
+
+
+def pose_start(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """A board pose close to the best one for one view with ``camera`` held fixed, in closed form.
+
+    IPPE (``cv2.SOLVEPNP_IPPE``) on the points flattened onto z = 0: through OpenCV's undistortion for OpenCV's lens
+    models, through the points' rays (:func:`circcal.model.unproject`, in front of the camera) for a lens OpenCV's pose
+    solvers cannot hold (the fisheye). For noise-free points of a flat board exact through the rays, and within
+    OpenCV's undistortion's fixed iteration count through it (~1e-3 px on a -0.2 k1 lens); a start for a
+    least-squares pose (:func:`fit_pose`) or a joint solve.
+
+    Parameters
+    ----------
+    object_points : ndarray
+        (N, 3) mm on the board (z = 0, or the near-planar points of a refined board).
+    image_points : ndarray
+        (N, 2) px.
+    camera : Camera
+
+    Returns
+    -------
+    rvec : ndarray
+        (3,) rad.
+    tvec : ndarray
+        (3,) mm.
+
+    Raises
+    ------
+    CalibrationError
+        No pose is found (fewer than 4 points in front of a fisheye, or solvePnP fails).
+
+    Example
+    -------
+    >>> rvec, tvec = pose_start(obj, img, camera)  # doctest: +SKIP
+    """
+    import cv2
+
+    flat = np.array(object_points, dtype=np.float64).reshape(-1, 3)
+    flat[:, 2] = 0.0
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 2)
+    if camera.model.pinhole:
+        ok, rvec, tvec = cv2.solvePnP(flat[:, None], img[:, None], camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    else:
+        from circcal.model import unproject
+
+        rays = unproject(img, camera)
+        front = np.all(np.isfinite(rays), axis=1) & (rays[:, 2] > 1e-6)
+        if front.sum() < 4:
+            raise CalibrationError("no board pose fits this view with the given camera (too few points in front of it)")
+        norm = rays[front, :2] / rays[front, 2:3]
+        ok, rvec, tvec = cv2.solvePnP(flat[front, None], norm[:, None], np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
+    return rvec.reshape(3), tvec.reshape(3)
 
 
 def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """The board pose that best explains one view with ``camera`` held fixed.
 
-    IPPE start from the points flattened onto z = 0, then Levenberg-Marquardt refinement with the actual points to
-    convergence.
+    :func:`pose_start`, then Levenberg-Marquardt refinement with the actual points to convergence (OpenCV's
+    ``solvePnPRefineLM`` for OpenCV's lens models; scipy's least squares on :func:`circcal.model.project`'s pixel
+    residuals for the fisheye).
 
     Parameters
     ----------
@@ -52,49 +107,24 @@ def fit_pose(object_points: np.ndarray, image_points: np.ndarray, camera: Camera
     """
     import cv2
 
-    o = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
-    p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
-    flat = o.copy()
-    flat[:, :, 2] = 0.0
-    if not camera.model.pinhole:  # OpenCV's pose solvers hold no fisheye: circcal's own model, through its rays
-        return _fit_pose_rays(o.reshape(-1, 3), p.reshape(-1, 2), camera)
-    ok, rvec, tvec = cv2.solvePnP(flat, p, camera.K, camera.dist, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
+    o = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 3)
+    p = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 2)
+    rvec, tvec = pose_start(o, p, camera)
+    if not camera.model.pinhole:
+        from scipy.optimize import least_squares
+
+        def residuals(x: np.ndarray) -> np.ndarray:
+            r: np.ndarray = (project(o, x[:3], x[3:], camera) - p).ravel()
+            return r
+
+        fit = least_squares(residuals, np.concatenate([rvec, tvec]), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        return fit.x[:3], fit.x[3:]
+    # (3, 1) vectors: solvePnPRefineLM leaves a (3,) start nearly where it was
     rvec, tvec = cv2.solvePnPRefineLM(
-        o, p, camera.K, camera.dist, rvec, tvec, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
-    )
+        o[:, None], p[:, None], camera.K, camera.dist, rvec.reshape(3, 1), tvec.reshape(3, 1),
+        (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15),
+    )  # fmt: skip
     return rvec.reshape(3), tvec.reshape(3)
-
-
-def _fit_pose_rays(obj: np.ndarray, img: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`fit_pose` for a lens OpenCV's pose solvers cannot hold (the fisheye): the IPPE start from the points'
-    rays (:func:`circcal.model.unproject`, in front of the camera), then the pixel residuals of
-    :func:`circcal.model.project` minimised over the 6 pose parameters (scipy's least squares)."""
-    import cv2
-    from scipy.optimize import least_squares
-
-    from circcal.model import unproject
-
-    rays = unproject(img, camera)
-    front = np.all(np.isfinite(rays), axis=1) & (rays[:, 2] > 1e-6)
-    if front.sum() < 4:
-        raise CalibrationError("no board pose fits this view with the given camera (too few points in front of it)")
-    norm = rays[front, :2] / rays[front, 2:3]
-    flat = obj[front].copy()
-    flat[:, 2] = 0.0
-    ok, rvec, tvec = cv2.solvePnP(
-        flat.reshape(-1, 1, 3), norm.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
-    )
-    if not ok:
-        raise CalibrationError("no board pose fits this view with the given camera (solvePnP failed)")
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        r: np.ndarray = (project(obj, x[:3], x[3:], camera) - img).ravel()
-        return r
-
-    fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    return fit.x[:3], fit.x[3:]
 
 
 def prediction_error(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> dict[str, float]:
