@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from circcal.fixtures.scenarios import SCENARIOS
 from circcal.model import Camera, distort, distort_jacobian, distort_pixels, project, undistort, undistort_pixels
-from circcal.rotation import rodrigues, rotation_angle_deg
+from circcal.rotation import rodrigues, rotation_angle_deg, rotation_log
 
 #: the scenarios' pinhole cameras (cv2.projectPoints' models; the fisheye ones are tested against cv2.fisheye below)
 CAMERAS = {name: s.camera for name, s in SCENARIOS.items() if s.camera.model.pinhole}
@@ -138,6 +138,20 @@ def test_rotation_angle_is_precise_from_zero_to_a_half_turn():
     for deg in (1e-10, 1e-7, 1e-6, 3e-6, 0.5, 90.0, 179.0, 179.9999999):
         got = rotation_angle_deg(rodrigues(axes * np.radians(deg)))
         assert got.shape == (7,) and np.allclose(got, deg, rtol=1e-8, atol=0), (deg, got)
+
+
+def test_rotation_log_inverts_rodrigues_at_every_angle():
+    rng = np.random.default_rng(4)
+    axes = rng.normal(size=(7, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    for deg in (0.0, 1e-10, 1e-6, 0.5, 90.0, 169.0, 171.0, 179.9999):  # from 170: the symmetric part's axis
+        r = axes * np.radians(deg)
+        got = rotation_log(rodrigues(r))
+        assert got.shape == (7, 3) and np.allclose(got, r, rtol=0, atol=1e-15 + 1e-13 * np.radians(deg)), (deg, got)
+    # at a half turn +-axis are one rotation: the matrix comes back
+    R = rodrigues(axes * np.pi)
+    assert np.max(np.abs(rodrigues(rotation_log(R)) - R)) < 1e-14
+    assert rotation_log(np.broadcast_to(np.eye(3), (2, 4, 3, 3))).shape == (2, 4, 3)
 
 
 def test_camera_block_round_trip_and_errors():

@@ -23,15 +23,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 
 from circcal.analysis.cross import noting_warnings
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
 from circcal.model import DEFAULT_LENS, Camera, lens_model, project_camera
-from circcal.rotation import rodrigues, rotation_angle_deg
-from circcal.solver import CalibrationOptions, calibrate
+from circcal.rotation import rodrigues, rotation_angle_deg, rotation_log
+from circcal.solver import CalibrationOptions, calibrate, pose_start
 
 __all__ = [
     "BoardSymmetry",
@@ -39,6 +38,7 @@ __all__ = [
     "RigStart",
     "board_symmetries",
     "camera_starts",
+    "given_camera_starts",
     "pair_estimate",
     "rig_start",
     "spanning_tree",
@@ -175,7 +175,7 @@ def _rotation_median(Rs: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """A robust mean rotation: component-wise medians of the tangent vectors about the running estimate."""
     R = seed
     for _ in range(20):
-        w = np.array([cv2.Rodrigues(m)[0].ravel() for m in Rs @ R.T])
+        w = rotation_log(Rs @ R.T)
         d = np.median(w, axis=0)
         R = rodrigues(d) @ R
         if np.linalg.norm(d) < 1e-12:
@@ -297,6 +297,46 @@ def camera_starts(
         cameras.append(camera)
         poses.append({k: (rodrigues(r), t.copy()) for k, r, t in zip(keys, res.rvecs, res.tvecs)})
     return cameras, poses
+
+
+def given_camera_starts(
+    names: Sequence[str], cameras: Sequence[Camera], views: Sequence[Mapping[str, tuple[np.ndarray, np.ndarray]]]
+) -> tuple[list[Camera], list[dict[str, tuple[np.ndarray, np.ndarray]]]]:
+    """:func:`camera_starts`' form for given intrinsics: each view's board pose in closed form
+    (:func:`circcal.solver.pose_start`, IPPE); the joint solve refines them with everything else.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Camera names (for the errors).
+    cameras : sequence of Camera
+        Each camera's intrinsics.
+    views : sequence of mapping of str to (ndarray (N, 3), ndarray (N, 2))
+        Per camera, per instant its observations (object points mm, image points px).
+
+    Returns
+    -------
+    cameras : list of Camera
+        ``cameras``.
+    poses : list of dict of str to (ndarray (3, 3), ndarray (3,))
+        Per camera, per instant its board -> camera pose (mm).
+
+    Raises
+    ------
+    CalibrationError
+        A view no pose fits with its camera (named by camera and instant).
+    """
+    poses: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
+    for name, cam, vs in zip(names, cameras, views):
+        rt = []
+        for v, (obj, img) in vs.items():
+            try:
+                rt.append(pose_start(obj, img, cam))
+            except CalibrationError as exc:
+                raise CalibrationError(f"camera {name!r}, instant {v!r}: {exc}") from None
+        Rs = rodrigues(np.array([r for r, _ in rt]).reshape(-1, 3))
+        poses.append({v: (R, t) for v, R, (_, t) in zip(vs, Rs, rt)})
+    return list(cameras), poses
 
 
 def _simpler_start(
@@ -448,6 +488,7 @@ def rig_start(
     # projection of its own view under each labelling of the board: one projection per camera for all of them
     starts: dict[str, list[tuple[int, tuple[np.ndarray, np.ndarray]]]] = {}
     chunks: list[list[np.ndarray]] = [[] for _ in range(n)]
+    observed: list[list[np.ndarray]] = [[] for _ in range(n)]  # the observed points, once per labelling
     jobs: list[list[tuple[str, int, int]]] = [[] for _ in range(n)]  # (instant, anchor, points) per camera
     for v in instants:
         seen = [c for c in range(n) if v in poses[c]]
@@ -461,21 +502,22 @@ def rig_start(
                     obj = views[c][v][0]
                     P = np.concatenate([s.apply(obj) for s in symmetries])
                     chunks[c].append(P @ (rig_R[c] @ R0).T + (rig_R[c] @ t0 + rig_T[c]))
+                    observed[c].append(np.tile(views[c][v][1], (len(symmetries), 1)))
                     jobs[c].append((v, anchor, len(obj)))
     found: dict[tuple[str, int], dict[int, tuple[BoardSymmetry, float, float]]] = {}
     for c in range(n):
         if not jobs[c]:
             continue
         uv_all = project_camera(np.concatenate(chunks[c]), cameras[c])  # NaN behind a pinhole camera
-        at = 0
-        for v, anchor, m in jobs[c]:
-            uv = uv_all[at : at + len(symmetries) * m].reshape(len(symmetries), m, 2)
-            at += len(symmetries) * m
-            rms = np.sqrt(np.mean(np.sum((uv - views[c][v][1]) ** 2, axis=2), axis=1))
-            err = np.where(np.isfinite(rms), rms, np.inf)
-            order = np.argsort(err)
-            second = err[order[1]] if len(err) > 1 else np.inf
-            found.setdefault((v, anchor), {})[c] = (symmetries[order[0]], float(err[order[0]]), float(second))
+        # every (job, labelling)'s RMS px in one pass: its points' squared errors summed by segment
+        d2 = np.sum((uv_all - np.concatenate(observed[c])) ** 2, axis=1)
+        counts = np.repeat([m for _, _, m in jobs[c]], len(symmetries))
+        rms = np.sqrt(np.add.reduceat(d2, np.r_[0, np.cumsum(counts)[:-1]]) / counts)
+        err = np.where(np.isfinite(rms), rms, np.inf).reshape(len(jobs[c]), len(symmetries))
+        order = np.argsort(err, axis=1)
+        for (v, anchor, _), e, o in zip(jobs[c], err.tolist(), order.tolist()):
+            second = e[o[1]] if len(o) > 1 else np.inf
+            found.setdefault((v, anchor), {})[c] = (symmetries[o[0]], e[o[0]], second)
     # instant -> [(anchor, its board pose, {camera: (best symmetry, best px, second px)})]
     trials = {v: [(anchor, pose, found.get((v, anchor), {})) for anchor, pose in starts[v]] for v in instants}
     # the typical agreement, of the fits that put the board in front of the camera
