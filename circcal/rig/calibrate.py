@@ -33,7 +33,15 @@ from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
 from circcal.rig.solve import RigSolution, solve_rig
-from circcal.rig.start import BoardSymmetry, RigStart, board_symmetries, camera_starts, rig_start, spanning_tree
+from circcal.rig.start import (
+    BoardSymmetry,
+    RigStart,
+    board_symmetries,
+    camera_starts,
+    given_camera_starts,
+    rig_start,
+    spanning_tree,
+)
 from circcal.rotation import rodrigues
 from circcal.solver import CalibrationOptions
 from circcal.solver.lensfield import pole_in_field
@@ -153,7 +161,7 @@ def calibrate_rig_points(
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
     board: Board | None = None,
-    initial: RigCalibration | None = None,
+    initial: RigCalibration | Mapping[str, Camera] | None = None,
 ) -> RigCalibration:
     """Calibrate a rig from given observations.
 
@@ -170,10 +178,13 @@ def calibrate_rig_points(
     board : Board or None
         The board, to resolve its symmetry across cameras (:mod:`circcal.rig.start`); None: labellings are taken
         as given.
-    initial : RigCalibration or None
-        A calibration of the same cameras (the same lens models) whose instants include every one given: the joint
-        solve starts from its cameras and board poses instead of each camera calibrated alone (a subset of the
+    initial : RigCalibration, mapping of str to Camera, or None
+        Where the joint solve starts instead of each camera calibrated alone. A calibration of the same cameras (the
+        same lens models) whose instants include every one given: its cameras and board poses (a subset of the
         instants, e.g. the halves of :func:`circcal.rig.verdict.cross_validate_rig`, too few for a camera alone).
+        Or each camera's intrinsics by name (of its image size and lens model; e.g. from its own calibration on more
+        views): every view's board pose from :func:`circcal.solver.pose_start`, the intrinsics refined with the rig
+        as ``cv2.stereoCalibrate`` does with ``CALIB_USE_INTRINSIC_GUESS`` (``options``' ``fixed`` holds them).
 
     Returns
     -------
@@ -183,7 +194,7 @@ def calibrate_rig_points(
     ------
     InputError
         Fewer than two cameras, bad observations (named by camera and instant), a size missing, bad options, an
-        ``initial`` of other cameras or without an instant given.
+        ``initial`` of other cameras (names, lens models, image sizes) or without an instant given.
     CalibrationError
         A camera's own calibration fails, a camera linked to the reference by no shared instant, a camera left
         with fewer than 3 views, or a diverged joint solve.
@@ -208,8 +219,10 @@ def calibrate_rig_points(
         views.append(dict(zip(keys, zip(obj, img))))
     if initial is None:
         cameras, poses = camera_starts(names, views, sizes, opts)
-    else:
+    elif isinstance(initial, RigCalibration):
         cameras, poses = _initial_starts(initial, names, views, opts)
+    else:
+        cameras, poses = given_camera_starts(names, _given_cameras(initial, names, sizes, opts), views)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
 
 
@@ -276,6 +289,28 @@ def _initial_starts(
             raise InputError(f"initial: no board pose of instant(s) {missing[:5]} of camera {names[c]!r}")
         poses.append({v: _board_in_camera(rig, initial.board_poses[v], c) for v in vs})
     return list(rig.cameras), poses
+
+
+def _given_cameras(
+    initial: Any, names: list[str], sizes: list[tuple[int, int]], opts: list[CalibrationOptions]
+) -> list[Camera]:
+    """The cameras of an ``initial`` mapping camera name -> Camera, checked against the rig (one line naming what
+    differs)."""
+    if not isinstance(initial, Mapping):
+        raise InputError(f"initial must be a RigCalibration or a mapping of camera name to Camera, got {initial!r}")
+    if sorted(map(str, initial)) != sorted(names):
+        raise InputError(f"initial: cameras {sorted(map(str, initial))}, the observations' are {sorted(names)}")
+    cams = []
+    for n, size, o in zip(names, sizes, opts):
+        cam = initial[n]
+        if not isinstance(cam, Camera):
+            raise InputError(f"initial: camera {n!r} must be a Camera, got {type(cam).__name__}")
+        if (cam.width, cam.height) != tuple(size):
+            raise InputError(f"initial: camera {n!r} is {cam.width}x{cam.height}, its images {size[0]}x{size[1]}")
+        if cam.lens != o.lens:
+            raise InputError(f"initial: camera {n!r} has lens {cam.lens!r}, its options lens={o.lens!r}")
+        cams.append(cam)
+    return cams
 
 
 def _board_in_camera(rig: RigModel, board_pose: tuple[np.ndarray, np.ndarray], c: int) -> tuple[np.ndarray, np.ndarray]:
