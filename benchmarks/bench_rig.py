@@ -6,11 +6,13 @@ with 0.1 px of Gaussian noise. Both tools get the same observations: per instant
 both saw, rounded to float32 (what ``stereoCalibrate`` takes; circcal gets the same numbers as float64), and the same
 start: each camera's intrinsics from a single-camera calibration of its own views (circcal's, not timed).
 
-* ``circcal``: what follows the intrinsics inside :func:`circcal.rig.calibrate_rig_points`: each view's board pose
-  by PnP with the start intrinsics held (``circcal.solver.holdout.fit_pose``, as ``stereoCalibrate`` does its own),
-  the rig's start from them (pairwise consensus, spanning tree) and the joint Levenberg-Marquardt solve with its
-  covariance (``circcal.rig.calibrate._calibrate``: the public function also calibrates each camera alone first
-  and takes no given intrinsics as a start; ``calibrate_rig_points_s`` times it whole, beside).
+* ``circcal``: what :func:`circcal.rig.calibrate_rig_points` does with the intrinsics given (``initial=`` a camera
+  per name) after checking its input: each view's board pose in closed form with the intrinsics held
+  (:func:`circcal.rig.start.given_camera_starts`: IPPE, as ``stereoCalibrate`` solves its own by PnP), the rig's
+  start from them (pairwise consensus, spanning tree) and the joint Levenberg-Marquardt solve with its covariance
+  (``circcal.rig.calibrate._calibrate``). Timed beside: the public call itself with its input checks
+  (``given_intrinsics_s``), and without given intrinsics (``calibrate_rig_points_s``: each camera calibrated alone
+  first).
 * ``opencv``: ``cv2.stereoCalibrate(..., CALIB_USE_INTRINSIC_GUESS)`` from the same intrinsics, OpenCV's default
   termination criteria, one thread.
 
@@ -98,18 +100,17 @@ class _Pair:
 
     def circcal(self) -> None:
         from circcal.rig.calibrate import _calibrate
-        from circcal.rotation import rodrigues
-        from circcal.solver.holdout import fit_pose
+        from circcal.rig.start import given_camera_starts
 
         vs = [self.views[n] for n in self.names]
-        poses = []
-        for cam, per in zip(self.cameras, vs):
-            poses.append({})
-            for v, (o, p) in per.items():
-                rv, tv = fit_pose(o, p, cam)
-                poses[-1][v] = (rodrigues(rv), tv)
-        _, sol, rc = _calibrate(self.names, vs, self.opts, None, list(self.cameras), poses)
+        cameras, poses = given_camera_starts(self.names, self.cameras, vs)
+        _, sol, rc = _calibrate(self.names, vs, self.opts, None, cameras, poses)
         self.result["circcal"] = (rc.rig.pose(1), rc.rig.rms_px, sol.iterations)
+
+    def given(self) -> None:
+        from circcal.rig import calibrate_rig_points
+
+        calibrate_rig_points(self.views, dict(zip(self.names, self.sizes)), initial=dict(zip(self.names, self.cameras)))
 
     def opencv(self) -> None:
         import cv2
@@ -146,11 +147,13 @@ def run() -> dict:
     out["instants"] = len(pair.instants)
     out["points"] = int(sum(len(o) for o in pair.obj))
     with pinned(1) as threads:
-        t = alternate({"circcal": pair.circcal, "opencv": pair.opencv, "whole": pair.whole})
+        t = alternate({"circcal": pair.circcal, "opencv": pair.opencv, "given": pair.given, "whole": pair.whole})
     out["threads"] = threads
     out["circcal_joint_s"] = summary(t["circcal"])
     out["opencv_stereo_s"] = summary(t["opencv"])
     out["circcal_to_opencv_time"] = ratio(t["circcal"], t["opencv"])
+    out["given_intrinsics_s"] = summary(t["given"])
+    out["given_intrinsics_to_opencv_time"] = ratio(t["given"], t["opencv"])
     out["calibrate_rig_points_s"] = summary(t["whole"])
     out["calibrate_rig_points_to_opencv_time"] = ratio(t["whole"], t["opencv"])
     out.update(_agreement(pair))

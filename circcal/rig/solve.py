@@ -85,7 +85,7 @@ def solve_rig(prob: RigProblem, x0: np.ndarray, max_iterations: int) -> RigSolut
     m = 2 * prob.n_points
     if m <= prob.n:
         raise CalibrationError(f"{m} residuals for {prob.n} parameters: add instants or points")
-    x, iterations, converged, message = levenberg_marquardt(cast("Problem", prob), x0, max_iterations)
+    x, iterations, converged, message = levenberg_marquardt(cast("Problem", prob), x0, max_iterations, near=True)
     f = prob.residuals(x)[0]
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
         raise CalibrationError("the rig solve diverged (non-finite parameters or residuals)")

@@ -170,7 +170,9 @@ def quadratic_form(A: np.ndarray, B: np.ndarray, D: np.ndarray, di: np.ndarray, 
     return float(di @ A @ di + 2.0 * np.einsum("a,vab,vb->", di, B, dp) + np.einsum("va,vab,vb->", dp, D, dp))
 
 
-def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int, bool, str]:
+def levenberg_marquardt(
+    prob: Problem, x0: np.ndarray, max_iterations: int, near: bool = False
+) -> tuple[np.ndarray, int, bool, str]:
     """Levenberg-Marquardt on ``prob`` with exact Schur-complement solves of the damped normal equations.
 
     Each iteration forms ``J^T J`` blockwise, damps its diagonal (Marquardt: ``lambda * diag(J^T J)``, scale invariant
@@ -190,6 +192,9 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
         (n,) start.
     max_iterations : int
         Jacobian evaluations at most.
+    near : bool
+        ``x0`` is near the minimum (its first steps are taken): every trial from the first is evaluated with its
+        Jacobian, as after :data:`ACCEPTED_RUN` steps taken.
 
     Returns
     -------
@@ -203,13 +208,13 @@ def levenberg_marquardt(prob: Problem, x0: np.ndarray, max_iterations: int) -> t
     """
     ng = prob.ng
     x = x0.copy()
-    f = prob.residuals(x)[0]
+    f = (prob.normal_equations(x) if near else prob.residuals(x))[0]  # near: the first iteration's pass
     cost = float(f @ f)
     lam = LAMBDA_START
     it = 0
     done = stalled = False
     last_trusted = np.inf
-    run = 0  # trial steps taken in a row
+    run = ACCEPTED_RUN if near else 0  # trial steps taken in a row
     last_step: np.ndarray | None = None  # the last step taken (before any extension), scaled by sqrt(diag J^T J)
     while it < max_iterations and not (done or stalled):
         it += 1
