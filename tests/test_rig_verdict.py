@@ -240,13 +240,15 @@ def test_the_halves_own_warnings_are_the_checks_notes(scenario):
 
 
 def test_a_half_whose_board_poses_are_barely_determined_gives_a_verdict_not_a_crash(scenario):
-    # `two` at 0.5 px with 30 % of every view's points dropped at random: in one half some board poses' own blocks
-    # are near singular (condition ~5e14), their Schur complement has negative diagonal entries, and eigvalsh on its
-    # scaled form did not converge (LinAlgError out of rig_verdict). Such a half has no covariance of its own.
-    rng = np.random.default_rng(71)
+    # `two` at 0.5 px with 40 % of every view's points dropped at random: in one half some board poses' own blocks
+    # are near singular, their Schur complement has negative diagonal entries, and eigvalsh on its scaled form did
+    # not converge (LinAlgError out of rig_verdict). Such a half has no covariance of its own. (Found with seed 71 at
+    # 30 %; since the rig solve starts less damped from its near start, that half reaches a lower minimum, RMS
+    # 0.68350 against 0.68413, whose information is regular: seed 60 at 40 % is such a half today.)
+    rng = np.random.default_rng(60)
     views, _ = rig_variant_observations(scenario, "very-noisy", 1)
     thinned = {
-        c: {v: (o[m], p[m]) for v, (o, p) in per.items() for m in [rng.random(len(o)) > 0.3]}
+        c: {v: (o[m], p[m]) for v, (o, p) in per.items() for m in [rng.random(len(o)) > 0.4]}
         for c, per in views.items()
     }
     cal = calibrate_rig_points(thinned, _sizes(scenario), OPTIONS)
@@ -278,3 +280,4 @@ def test_a_cameras_start_says_it_is_a_start(scenario):
     said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
     assert cal.converged and any("iteration limit 3 reached" in s for s in said), said
     assert all(s.startswith("the start of camera 'right' (calibrated alone, before the joint solve): ") for s in said)
+

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from circcal import detector as det_mod
 from circcal.board import Board
@@ -42,7 +41,7 @@ from circcal.rig.start import (
     rig_start,
     spanning_tree,
 )
-from circcal.rotation import rodrigues
+from circcal.rotation import rodrigues, rotation_log
 from circcal.solver import CalibrationOptions
 from circcal.solver.lensfield import pole_in_field
 from circcal.solver.options import ASPECT_RATIO
@@ -334,9 +333,9 @@ def _calibrate(
     prob = layout.problem(views, cameras, opts)
     x0 = prob.pack(
         [c.intrinsics for c in cameras],
-        Rotation.from_matrix(start.rig_R).as_rotvec(),
+        rotation_log(start.rig_R),
         start.rig_T,
-        Rotation.from_matrix(np.array([start.board_R[v] for v in layout.instants])).as_rotvec(),
+        rotation_log(np.array([start.board_R[v] for v in layout.instants])),
         np.array([start.board_t[v] for v in layout.instants]),
     )
     sol = solve_rig(prob, x0, max(o.max_iterations for o in opts))

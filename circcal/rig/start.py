@@ -171,14 +171,19 @@ class PairEstimate:
     outliers: tuple[str, ...]
 
 
+#: The robust mean rotation's last step, rad (6e-8 deg: far below what a start needs).
+MEDIAN_TOL_RAD = 1e-9
+
+
 def _rotation_median(Rs: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """A robust mean rotation: component-wise medians of the tangent vectors about the running estimate."""
+    """A robust mean rotation: component-wise medians of the tangent vectors about the running estimate, to
+    :data:`MEDIAN_TOL_RAD` (a start: the joint solve refines it)."""
     R = seed
     for _ in range(20):
         w = rotation_log(Rs @ R.T)
         d = np.median(w, axis=0)
         R = rodrigues(d) @ R
-        if np.linalg.norm(d) < 1e-12:
+        if np.linalg.norm(d) < MEDIAN_TOL_RAD:
             break
     return R
 
