@@ -281,3 +281,37 @@ def test_a_cameras_start_says_it_is_a_start(scenario):
     assert cal.converged and any("iteration limit 3 reached" in s for s in said), said
     assert all(s.startswith("the start of camera 'right' (calibrated alone, before the joint solve): ") for s in said)
 
+
+def test_the_same_images_for_two_cameras_are_named_and_a_data_problem(scenario):
+    """One camera's observations given again as a second camera (a wrong folder on the command line): the rig solves
+    to a baseline of ~0 within its noise; the verdict says the same images were given twice, and what to do."""
+    obs = rig_observations(scenario, NOISE_PX, seed=2)
+    twice = {"left": obs["left"], "again": {v: (o.copy(), p.copy()) for v, (o, p) in obs["left"].items()}}
+    size = _sizes(scenario)["left"]
+    cal = calibrate_rig_points(twice, {"left": size, "again": size})
+    assert np.linalg.norm(cal.rig.pair(0, 1)[1]) < 0.01  # mm, of a board ~400 mm away
+    v = rig_verdict(cal, cross_validate=False)
+    assert v.verdict == "model-or-data-problem" and len(v.coincident) == 1
+    c = v.coincident[0]
+    assert (c.a, c.b, c.same_points) == ("left", "again", True) and 300 < c.distance_mm < 600
+    text = "\n".join(v.lines())
+    assert "cameras 'left' and 'again' sit at one point" in text and "the same images were given for both" in text
+    assert v.to_dict()["coincident"][0]["same_points"] is True
+
+
+def test_cameras_sharing_one_centre_by_design_are_noted_not_condemned(scenario, clean):
+    """A beam-splitter pair (one centre, other intrinsics, turned 2 deg): noted with what it means, the verdict as
+    the checks find it; a rig with a baseline (the clean `two`) has no such note."""
+    from circcal.fixtures.rig import RigScenario
+
+    left = scenario.rig.cameras[0]
+    other = Camera(640, 480, 600.0, 601.0, 318.0, 242.0, [-0.05, 0.02, 0.0, 0.0, 0.0])
+    rig = RigModel(["left", "split"], [left, other], [np.zeros(3), np.radians([0.0, 2.0, 0.0])], [np.zeros(3)] * 2)
+    sc = RigScenario("split", rig, scenario.board, scenario.instants, scenario.board_rvecs, scenario.board_tvecs)
+    obs = rig_observations(sc, NOISE_PX, seed=3)
+    cal = calibrate_rig_points(obs, {"left": (640, 480), "split": (640, 480)})
+    v = rig_verdict(cal)
+    assert len(v.coincident) == 1 and not v.coincident[0].same_points
+    assert v.verdict == "consistent", v.lines()
+    assert any("a beam splitter" in line for line in v.lines())
+    assert not clean[1].coincident

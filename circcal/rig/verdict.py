@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from circcal.analysis.coverage import Coverage, coverage
 from circcal.analysis.cross import half_named, noting_warnings
@@ -43,8 +42,9 @@ from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
 from circcal.observations import MIN_VIEWS
 from circcal.rig.calibrate import RigCalibration, calibrate_rig_points, lens_poles
+from circcal.rig.coincident import CoincidentCameras, coincident_cameras
 from circcal.rig.model import RigModel
-from circcal.rotation import left_jacobian, skew
+from circcal.rotation import left_jacobian, rotation_log, skew
 from circcal.solver import CalibrationOptions
 
 __all__ = [
@@ -235,7 +235,7 @@ def pose_check(a: RigModel, b: RigModel, k: int) -> PoseCheck:
         raise InputError("pose check: both rigs need their covariance")
     Ra, ta = a.pose(k)
     Rb, tb = b.pose(k)
-    delta = np.concatenate([Rotation.from_matrix(Rb @ Ra.T).as_rotvec(), tb - ta])
+    delta = np.concatenate([rotation_log(Rb @ Ra.T), tb - ta])
     C = _pose_covariance(a, k) + _pose_covariance(b, k)
     try:
         m2 = float(delta @ np.linalg.solve(C, delta))
@@ -577,12 +577,16 @@ class RigVerdict:
     lens_poles : dict of str to str
         Per camera whose fitted rational lens has a pole, or nearly one, in its observed field, what to tell the user
         (:func:`circcal.rig.calibrate.lens_poles`).
+    coincident : list of CoincidentCameras
+        Cameras at one point (:func:`coincident_cameras`); those given the same images make the verdict a data
+        problem.
     """
 
     verdict: str
     cross: RigCrossValidation | None
     outliers: list[ViewOutlier]
     lens_poles: dict[str, str] = field(default_factory=dict)
+    coincident: list[CoincidentCameras] = field(default_factory=list)
 
     def lines(self) -> list[str]:
         """The verdict first, then what to do.
@@ -626,6 +630,7 @@ class RigVerdict:
                 "out of that camera's images"
             )
         out += [f"  camera {n!r}: {why}" for n, why in self.lens_poles.items()]
+        out += [f"  {line}" for c in self.coincident for line in c.lines()]
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -634,13 +639,14 @@ class RigVerdict:
         Returns
         -------
         dict
-            ``verdict``, ``cross_validation`` (or None), ``outliers``, ``lens_poles``.
+            ``verdict``, ``cross_validation`` (or None), ``outliers``, ``lens_poles``, ``coincident``.
         """
         return {
             "verdict": self.verdict,
             "cross_validation": None if self.cross is None else self.cross.to_dict(),
             "outliers": [dict(o.__dict__) for o in self.outliers],
             "lens_poles": dict(self.lens_poles),
+            "coincident": [dict(c.__dict__) for c in self.coincident],
         }
 
 
@@ -650,8 +656,9 @@ def rig_verdict(
     *,
     cross_validate: bool = True,
 ) -> RigVerdict:
-    """The verdict on a rig calibration: cross-validation (:func:`cross_validate_rig`), outlier views and any lens
-    with a pole in its observed field (:func:`circcal.rig.calibrate.lens_poles`).
+    """The verdict on a rig calibration: cross-validation (:func:`cross_validate_rig`), outlier views, any lens
+    with a pole in its observed field (:func:`circcal.rig.calibrate.lens_poles`) and cameras at one point
+    (:func:`coincident_cameras`).
 
     Parameters
     ----------
@@ -672,10 +679,15 @@ def rig_verdict(
     """
     cross = cross_validate_rig(cal, options) if cross_validate else None
     outliers = view_outliers(cal)
-    if outliers or (cross is not None and cross.verdict == "model-or-data-problem"):
+    coincident = coincident_cameras(cal)
+    if (
+        outliers
+        or any(c.same_points for c in coincident)
+        or (cross is not None and cross.verdict == "model-or-data-problem")
+    ):
         verdict = "model-or-data-problem"
     elif cross is not None and cross.verdict == "consistent":
         verdict = "consistent"
     else:
         verdict = "not-checked"
-    return RigVerdict(verdict, cross, outliers, lens_poles(cal))
+    return RigVerdict(verdict, cross, outliers, lens_poles(cal), coincident)
