@@ -304,6 +304,25 @@ def test_given_intrinsics_reach_the_same_rig(name):
     assert got.rig.rms_px == pytest.approx(res.rig.rms_px, rel=1e-12)
 
 
+def test_given_intrinsics_from_model_files(tmp_path):
+    """The cameras as model files of any format circcal reads (model.json, OpenCV's YAML): the same rig as from the
+    Camera objects."""
+    from circcal.formats import write_camera
+
+    sc = rig_scenario("chain")
+    obs = rig_observations(sc, 0.1, 5)
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    files = {}
+    for k, (n, c) in enumerate(zip(sc.rig.names, sc.rig.cameras)):
+        files[n] = tmp_path / (f"{n}.json" if k % 2 else f"{n}.yaml")
+        write_camera(files[n], c)
+    by_file = calibrate_rig_points(obs, sizes, initial={n: str(p) for n, p in files.items()})
+    by_camera = calibrate_rig_points(obs, sizes, initial=dict(zip(sc.rig.names, sc.rig.cameras)))
+    for a, b in zip(by_file.rig.cameras, by_camera.rig.cameras):
+        assert np.allclose(a.intrinsics, b.intrinsics, rtol=1e-9, atol=1e-12)
+    assert by_file.rig.rms_px == pytest.approx(by_camera.rig.rms_px, rel=1e-12)
+
+
 def test_given_intrinsics_of_another_rig_are_refused_in_one_line():
     sc = rig_scenario("two")
     obs = rig_observations(sc, 0.1, 5)
@@ -313,7 +332,8 @@ def test_given_intrinsics_of_another_rig_are_refused_in_one_line():
     for initial, words in [
         ({a: cb, b: ca}, f"camera '{a}' is 512x384, its images 640x480"),
         ({a: ca}, f"initial: cameras \\['{a}'\\], the observations' are"),
-        ({a: ca, b: "right.json"}, f"camera '{b}' must be a Camera, got str"),
+        ({a: ca, b: 3}, f"camera '{b}' must be a Camera or a model file, got int"),
+        ({a: ca, b: "no/such/right.json"}, "no/such/right.json"),
         ([ca, cb], "initial must be a RigCalibration or a mapping of camera name to Camera"),
     ]:
         with pytest.raises(InputError, match=words):

@@ -24,6 +24,7 @@ import numpy as np
 from circcal import detector as det_mod
 from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
+from circcal.formats import read_camera
 from circcal.imagefiles import image_list
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
@@ -160,7 +161,7 @@ def calibrate_rig_points(
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
     board: Board | None = None,
-    initial: RigCalibration | Mapping[str, Camera] | None = None,
+    initial: RigCalibration | Mapping[str, Camera | str | os.PathLike[str]] | None = None,
 ) -> RigCalibration:
     """Calibrate a rig from given observations.
 
@@ -182,8 +183,9 @@ def calibrate_rig_points(
         same lens models) whose instants include every one given: its cameras and board poses (a subset of the
         instants, e.g. the halves of :func:`circcal.rig.verdict.cross_validate_rig`, too few for a camera alone).
         Or each camera's intrinsics by name (of its image size and lens model; e.g. from its own calibration on more
-        views): every view's board pose from :func:`circcal.solver.pose_start`, the intrinsics refined with the rig
-        as ``cv2.stereoCalibrate`` does with ``CALIB_USE_INTRINSIC_GUESS`` (``options``' ``fixed`` holds them).
+        views), a Camera or a model file (any format :func:`circcal.formats.read_camera` reads): every view's board
+        pose from :func:`circcal.solver.pose_start`, the intrinsics refined with the rig as ``cv2.stereoCalibrate``
+        does with ``CALIB_USE_INTRINSIC_GUESS`` (``options``' ``fixed`` holds them).
 
     Returns
     -------
@@ -293,8 +295,8 @@ def _initial_starts(
 def _given_cameras(
     initial: Any, names: list[str], sizes: list[tuple[int, int]], opts: list[CalibrationOptions]
 ) -> list[Camera]:
-    """The cameras of an ``initial`` mapping camera name -> Camera, checked against the rig (one line naming what
-    differs)."""
+    """The cameras of an ``initial`` mapping camera name -> Camera or model file, checked against the rig (one line
+    naming what differs)."""
     if not isinstance(initial, Mapping):
         raise InputError(f"initial must be a RigCalibration or a mapping of camera name to Camera, got {initial!r}")
     if sorted(map(str, initial)) != sorted(names):
@@ -302,8 +304,10 @@ def _given_cameras(
     cams = []
     for n, size, o in zip(names, sizes, opts):
         cam = initial[n]
+        if isinstance(cam, (str, os.PathLike)):
+            cam = read_camera(os.fspath(cam))  # a model file names itself in its errors
         if not isinstance(cam, Camera):
-            raise InputError(f"initial: camera {n!r} must be a Camera, got {type(cam).__name__}")
+            raise InputError(f"initial: camera {n!r} must be a Camera or a model file, got {type(cam).__name__}")
         if (cam.width, cam.height) != tuple(size):
             raise InputError(f"initial: camera {n!r} is {cam.width}x{cam.height}, its images {size[0]}x{size[1]}")
         if cam.lens != o.lens:
