@@ -352,3 +352,21 @@ def test_a_grid_that_is_not_the_boards_names_the_images_grid(fixture_dir, tmp_pa
     assert "no rig: camera 'left': the board was found in 0 of" in err
     assert "circcal calibrate-rig: the images show --grid 8x11 (or give --grid auto)" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_one_cameras_images_given_for_both_is_named_with_what_to_do(fixture_dir, tmp_path, capsys):
+    # one folder twice is refused before any work ("the same folder given twice?"); a copy of it as the other
+    # camera's (a wrong folder copied) solves to a zero baseline: the verdict says the same images were given for
+    # both cameras (each camera re-corrects its own centres: equal to rounding, 3e-13 px)
+    import shutil
+
+    shutil.copytree(fixture_dir / "left", tmp_path / "copy")
+    argv = ["calibrate-rig", "--camera", f"left={fixture_dir / 'left'}", "--camera", f"right={tmp_path / 'copy'}"]
+    argv += [*GRID, "--out", str(tmp_path / "rig.json"), "--no-cross-validate", "--jobs", "1", "--no-progress"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("verdict: a model or data problem"), out[:300]
+    assert "cameras 'left' and 'right' sit at one point" in out and "the same images were given for both" in out
+    assert "what to do: give each camera its own images" in out
+    doc = json.loads((tmp_path / "rig.json").read_text())
+    assert doc["verdict"]["coincident"][0]["same_points"] is True

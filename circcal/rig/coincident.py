@@ -14,11 +14,14 @@ import numpy as np
 
 from circcal.rig.calibrate import RigCalibration
 
-__all__ = ["COINCIDENT_SHARE", "CoincidentCameras", "coincident_cameras"]
+__all__ = ["COINCIDENT_SHARE", "SAME_POINT_PX", "CoincidentCameras", "coincident_cameras"]
 
 #: Two cameras whose centres are closer than this share of the board's median distance sit at one point: rays from
 #: both meet a board point at under 0.06 deg, and no depth can be triangulated from them.
 COINCIDENT_SHARE = 1e-3
+#: Image points this close (px) are the same point: one image's centres, re-corrected in each camera's own loop,
+#: differ by rounding (3e-13 px measured); two cameras never see every point of every instant this close.
+SAME_POINT_PX = 1e-6
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,8 @@ class CoincidentCameras:
     distance_mm : float
         The board's median distance from the reference camera, mm.
     same_points : bool
-        Both saw the very same image points at every instant they share: the same images given twice.
+        Both saw the same image points (within :data:`SAME_POINT_PX`) at every instant they share: the same images
+        given twice.
     """
 
     a: str
@@ -93,6 +97,9 @@ def coincident_cameras(cal: RigCalibration, share: float = COINCIDENT_SHARE) -> 
                 continue
             a, b = cal.observations.get(rig.names[i], {}), cal.observations.get(rig.names[j], {})
             shared = [v for v in a if v in b]
-            same = bool(shared) and all(np.array_equal(a[v][1], b[v][1]) for v in shared)
+            same = bool(shared) and all(
+                a[v][1].shape == b[v][1].shape and np.allclose(a[v][1], b[v][1], rtol=0, atol=SAME_POINT_PX)
+                for v in shared
+            )
             out.append(CoincidentCameras(rig.names[i], rig.names[j], baseline, distance, same))
     return out
