@@ -53,8 +53,8 @@ def pose_start(object_points: np.ndarray, image_points: np.ndarray, camera: Came
     CalibrationError
         No pose is found (fewer than 4 points in front of a fisheye, or solvePnP fails).
 
-    Example
-    -------
+    Examples
+    --------
     >>> rvec, tvec = pose_start(obj, img, camera)  # doctest: +SKIP
     """
     import cv2
