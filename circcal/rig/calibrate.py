@@ -178,7 +178,7 @@ def calibrate_rig_points(
     board : Board or None
         The board, to resolve its symmetry across cameras (:mod:`circcal.rig.start`); None: labellings are taken
         as given.
-    initial : RigCalibration, mapping of str to Camera, or None
+    initial : RigCalibration, mapping of str to Camera or path, or None
         Where the joint solve starts instead of each camera calibrated alone. A calibration of the same cameras (the
         same lens models) whose instants include every one given: its cameras and board poses (a subset of the
         instants, e.g. the halves of :func:`circcal.rig.verdict.cross_validate_rig`, too few for a camera alone).
@@ -298,7 +298,9 @@ def _given_cameras(
     """The cameras of an ``initial`` mapping camera name -> Camera or model file, checked against the rig (one line
     naming what differs)."""
     if not isinstance(initial, Mapping):
-        raise InputError(f"initial must be a RigCalibration or a mapping of camera name to Camera, got {initial!r}")
+        raise InputError(
+            f"initial must be a RigCalibration or a mapping of camera name to Camera or model file, got {initial!r}"
+        )
     if sorted(map(str, initial)) != sorted(names):
         raise InputError(f"initial: cameras {sorted(map(str, initial))}, the observations' are {sorted(names)}")
     cams = []

@@ -32,7 +32,7 @@ __all__ = [
 #: the minimum, so the first steps are nearly Gauss-Newton's (22 -> 11-13 evaluations on 14 views).
 LAMBDA_START = 1e-4
 #: lambda at a start near the minimum (``near``: the rig's), its first steps nearly Gauss-Newton's: measured on the
-#: rendered rigs (3 noise levels each) and the real 3-camera data, the same minima (1e-9 deg) in 0-2 fewer
+#: rendered rigs (3 noise levels each) and the real 3-camera data, the same minima (1e-9 deg) in 1-3 fewer
 #: evaluations than from LAMBDA_START (bench_rig's 16 instants: 6, not 8). 1e-8 sent the `two` rig's rational
 #: camera down its coefficients' valley at 0.3 px noise (not converged in 200), 1e-7 cost it 60 evaluations, not 42.
 #: A first step rejected goes on from LAMBDA_START at once.
