@@ -315,3 +315,48 @@ def test_cameras_sharing_one_centre_by_design_are_noted_not_condemned(scenario, 
     assert v.verdict == "consistent", v.lines()
     assert any("a beam splitter" in line for line in v.lines())
     assert not clean[1].coincident
+
+
+def test_a_rig_without_covariance_names_what_its_views_leave_free():
+    """A three-camera rig whose middle 1280x960 camera is fitted with the rational model its views cannot determine
+    (numerator and denominator trade off; from a sweep of random rigs, not the fixtures): no covariance, the verdict a
+    model problem naming that camera's coefficients and what to do; the rig itself stays within its truth."""
+    from circcal.fixtures.rig import RigScenario, _board_poses
+
+    cams = [
+        Camera(800, 600, 768.03, 766.66, 405.22, 297.87, [-0.19, 0.0815, 4.9e-4, -1.6e-4, -0.0067]),
+        Camera(
+            1280, 960, 1149.41, 1149.41, 639.0, 482.23, [-0.0268, 0.05, 1e-4, -2e-4, 0.0, -0.0434, 0, 0], "rational"
+        ),
+        Camera(1280, 960, 1043.89, 1045.52, 643.71, 480.44, [0.0102, 0.0136, 3.9e-4, 1.03e-3, 0.0194]),
+    ]
+    rvecs = [[0, 0, 0], [-0.0301, -0.0159, 0.0013], [0.0216, -0.1278, 0.0021]]
+    tvecs = [[0, 0, 0], [-80.37, 0.85, -1.70], [-160.74, 2.61, -11.30]]
+    rig = RigModel(["c0", "c1", "c2"], cams, rvecs, tvecs)
+    rv, tv = _board_poses(20, 213, (350.0, 650.0), 100.0, 40.0)
+    tv[:, 0] += 80.37
+    board = rig_scenario("two").board
+    sc = RigScenario("rational-free", rig, board, tuple(f"{k:03d}" for k in range(20)), rv, tv)
+    obs = rig_observations(sc, 0.36, 438)
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(rig.names, cams)}
+    with pytest.warns(RuntimeWarning):
+        cal = calibrate_rig_points(obs, {n: (c.width, c.height) for n, c in zip(rig.names, cams)}, opts, board=board)
+    assert cal.rig.covariance is None and np.all(np.isnan(cal.std()))
+    assert cal.undetermined and {c for c, _ in cal.undetermined} == {"c1"}
+    assert {p for _, p in cal.undetermined} <= {"k1", "k2", "k3", "k4", "k5", "k6"}
+    for c in (1, 2):
+        assert np.linalg.norm(cal.rig.pose(c)[1] - rig.pose(c)[1]) < 1.0  # mm
+    v = rig_verdict(cal, opts, cross_validate=False)
+    assert v.verdict == "model-or-data-problem" and v.undetermined == cal.undetermined
+    text = "\n".join(v.lines())
+    assert "no stated uncertainty: the rig's information matrix is singular" in text and "of camera 'c1' free" in text
+    assert "what to do: camera(s) c1: fit a lens model with fewer coefficients (--lens c1=opencv5)" in text
+    assert v.to_dict()["undetermined"] == [list(u) for u in cal.undetermined]
+    # a rig with its covariance says nothing of the kind
+    sc2 = rig_scenario("two")
+    ok = calibrate_rig_points(rig_observations(sc2, NOISE_PX, seed=2), _sizes(sc2), OPTIONS)
+    assert (
+        ok.rig.covariance is not None
+        and ok.undetermined == []
+        and rig_verdict(ok, OPTIONS, cross_validate=False).undetermined is None
+    )

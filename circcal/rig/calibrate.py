@@ -93,6 +93,9 @@ class RigCalibration:
         Per camera, per instant the views of the last joint solve: object points (mm, relabelled by the board
         symmetry found) and image points (px, the final re-corrected centres): what
         :func:`calibrate_rig_points` takes to recalibrate a subset of the instants (``board=None``).
+    undetermined : list of (str, str)
+        Where the rig has no covariance (its information is singular): the (camera, parameter) pairs that carry the
+        weakest direction (:func:`circcal.rig.solve.weakest_direction`), e.g. ``("right", "k4")``.
     """
 
     rig: RigModel
@@ -110,6 +113,7 @@ class RigCalibration:
     per_camera: dict[str, ImagesCalibration] = field(default_factory=dict)
     images: dict[str, dict[str, str]] = field(default_factory=dict)
     observations: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    undetermined: list[tuple[str, str]] = field(default_factory=list)
 
     def std(self) -> np.ndarray:
         """Standard deviations of ``rig.state_vector()`` (intrinsics px / unitless, rvec rad, tvec mm).
@@ -442,6 +446,7 @@ class _Layout:
             converged=sol.converged,
             start=self.start,
             observations=self.observed,
+            undetermined=[(self.names[k], p) for k, p in sol.undetermined],
         )
 
 

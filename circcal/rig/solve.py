@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from circcal.errors import CalibrationError
+from circcal.model import lens_model
 from circcal.rig.problem import RigProblem
 from circcal.solver.covariance import normalised_information
 from circcal.solver.lm import levenberg_marquardt, schur_complement
@@ -25,7 +26,14 @@ from circcal.solver.lm import levenberg_marquardt, schur_complement
 if TYPE_CHECKING:  # annotations only
     from circcal.solver.problem import Problem
 
-__all__ = ["RigSolution", "solve_rig", "MAX_INFORMATION_CONDITION"]
+__all__ = [
+    "RigSolution",
+    "solve_rig",
+    "state_covariance",
+    "weakest_direction",
+    "MAX_INFORMATION_CONDITION",
+    "WEAKEST_SHARE",
+]
 
 #: The global information matrix (normalised to a unit diagonal) is taken as singular beyond this condition number,
 #: as for one camera (:data:`circcal.solver.calibrate.MAX_INFORMATION_CONDITION`).
@@ -50,6 +58,9 @@ class RigSolution:
     iterations : int
     converged : bool
     message : str
+    undetermined : tuple of (int, str)
+        Where ``covariance`` is None: the parameters that carry the information's weakest direction
+        (:func:`weakest_direction`), e.g. ``(1, "k4")``; empty otherwise.
     """
 
     x: np.ndarray
@@ -59,6 +70,7 @@ class RigSolution:
     iterations: int
     converged: bool
     message: str
+    undetermined: tuple[tuple[int, str], ...] = ()
 
 
 def solve_rig(prob: RigProblem, x0: np.ndarray, max_iterations: int) -> RigSolution:
@@ -100,15 +112,56 @@ def solve_rig(prob: RigProblem, x0: np.ndarray, max_iterations: int) -> RigSolut
             + ", ".join(f"({c}, {v})" for c, v in bad[:10])
         )
     sigma2 = float(f @ f) / (m - prob.n)
+    covariance = state_covariance(prob, x, sigma2)
     return RigSolution(
         x=x,
         residuals=f.reshape(-1, 2),
         sigma_px=float(np.sqrt(sigma2)),
-        covariance=state_covariance(prob, x, sigma2),
+        covariance=covariance,
         iterations=int(iterations),
         converged=bool(converged),
         message=message,
+        undetermined=() if covariance is not None else tuple(weakest_direction(prob, x)),
     )
+
+
+#: A parameter carrying at least this share of the weakest direction (unit vector, squared components) is named.
+WEAKEST_SHARE = 0.05
+
+
+def weakest_direction(prob: RigProblem, x: np.ndarray) -> list[tuple[int, str]]:
+    """The global parameters that carry the weakest direction of the rig's information (board poses marginalised,
+    normalised to a unit diagonal): what the views leave undetermined when the information is singular.
+
+    Parameters
+    ----------
+    prob : RigProblem
+    x : ndarray, shape (n,)
+
+    Returns
+    -------
+    list of (int, str)
+        (camera index, the lens model's parameter name or ``rvec``/``tvec`` of its pose in the rig) for each share
+        of at least :data:`WEAKEST_SHARE`, largest first; empty where the information has no finite eigenvector.
+    """
+    A, _, B, D, _ = prob.normal_equations(x)[1]
+    try:
+        Sn = normalised_information(schur_complement(A, B, D)[0])[0]
+        vec = np.linalg.eigh(0.5 * (Sn + Sn.T))[1][:, 0]
+    except np.linalg.LinAlgError:
+        return []
+    if not np.all(np.isfinite(vec)):
+        return []
+    labels: list[tuple[int, str]] = [(0, "")] * prob.ng
+    for c in range(prob.n_cameras):
+        names = lens_model(prob.lenses[c]).param_names
+        for j, col in enumerate(prob.intr_cols[c]):
+            labels[int(col)] = (c, names[int(np.flatnonzero(prob.maps[c][:, j])[-1])])
+        for j, col in enumerate(prob.pose_cols[c]):
+            labels[int(col)] = (c, "rvec" if j < 3 else "tvec")
+    share = vec**2
+    order = np.argsort(-share)
+    return [labels[i] for i in order if share[i] >= WEAKEST_SHARE]
 
 
 def state_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.ndarray | None:

@@ -44,6 +44,7 @@ from circcal.observations import MIN_VIEWS
 from circcal.rig.calibrate import RigCalibration, calibrate_rig_points, lens_poles
 from circcal.rig.coincident import CoincidentCameras, coincident_cameras
 from circcal.rig.model import RigModel
+from circcal.rig.undetermined import undetermined_lines
 from circcal.rotation import left_jacobian, rotation_log, skew
 from circcal.solver import CalibrationOptions
 
@@ -580,6 +581,9 @@ class RigVerdict:
     coincident : list of CoincidentCameras
         Cameras at one point (:func:`coincident_cameras`); those given the same images make the verdict a data
         problem.
+    undetermined : list of (str, str)
+        Where the rig has no covariance (its information is singular, a model problem): the (camera, parameter)
+        pairs of the weakest direction (:attr:`circcal.rig.calibrate.RigCalibration.undetermined`).
     """
 
     verdict: str
@@ -587,6 +591,7 @@ class RigVerdict:
     outliers: list[ViewOutlier]
     lens_poles: dict[str, str] = field(default_factory=dict)
     coincident: list[CoincidentCameras] = field(default_factory=list)
+    undetermined: list[tuple[str, str]] | None = None
 
     def lines(self) -> list[str]:
         """The verdict first, then what to do.
@@ -631,6 +636,8 @@ class RigVerdict:
             )
         out += [f"  camera {n!r}: {why}" for n, why in self.lens_poles.items()]
         out += [f"  {line}" for c in self.coincident for line in c.lines()]
+        if self.undetermined is not None:
+            out += [f"  {line}" for line in undetermined_lines(self.undetermined)]
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -639,7 +646,8 @@ class RigVerdict:
         Returns
         -------
         dict
-            ``verdict``, ``cross_validation`` (or None), ``outliers``, ``lens_poles``, ``coincident``.
+            ``verdict``, ``cross_validation`` (or None), ``outliers``, ``lens_poles``, ``coincident``,
+            ``undetermined`` (None where the rig has its covariance).
         """
         return {
             "verdict": self.verdict,
@@ -647,6 +655,7 @@ class RigVerdict:
             "outliers": [dict(o.__dict__) for o in self.outliers],
             "lens_poles": dict(self.lens_poles),
             "coincident": [dict(c.__dict__) for c in self.coincident],
+            "undetermined": None if self.undetermined is None else [list(u) for u in self.undetermined],
         }
 
 
@@ -680,14 +689,12 @@ def rig_verdict(
     cross = cross_validate_rig(cal, options) if cross_validate else None
     outliers = view_outliers(cal)
     coincident = coincident_cameras(cal)
-    if (
-        outliers
-        or any(c.same_points for c in coincident)
-        or (cross is not None and cross.verdict == "model-or-data-problem")
-    ):
+    undetermined = list(cal.undetermined) if cal.rig.covariance is None else None
+    problem = bool(outliers) or undetermined is not None or any(c.same_points for c in coincident)
+    if problem or (cross is not None and cross.verdict == "model-or-data-problem"):
         verdict = "model-or-data-problem"
     elif cross is not None and cross.verdict == "consistent":
         verdict = "consistent"
     else:
         verdict = "not-checked"
-    return RigVerdict(verdict, cross, outliers, lens_poles(cal), coincident)
+    return RigVerdict(verdict, cross, outliers, lens_poles(cal), coincident, undetermined)
