@@ -72,3 +72,31 @@ def test_the_installed_suite_runs_a_rig_calibrator_file(tmp_path):
         cwd=tmp_path, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert bad.returncode != 0 and "has no callable 'nothere'" in bad.stdout + bad.stderr
+
+
+def test_a_calibrator_in_another_convention_is_told_which():
+    """R, T inverted (each camera's pose in the reference frame) or T in metres: the failure says so, and circcal's
+    convention; the same calibrator in circcal's convention passes (above), a biased one gets no such hint."""
+    import cv2
+
+    def converted(invert: bool, scale: float):
+        def cal(views, image_sizes, lenses, board):
+            r = circcal_rig(views, image_sizes, lenses=lenses, board=board)
+            rv, tv = r.rvecs.copy(), r.tvecs.copy()
+            for c in range(1, r.n_cameras):
+                R, T = r.pose(c)
+                if invert:
+                    R, T = R.T, -R.T @ T
+                rv[c], tv[c] = cv2.Rodrigues(R)[0].ravel(), T * scale
+            return RigModel(r.names, r.cameras, rv, tv)
+
+        return cal
+
+    for invert, scale, words in [
+        (True, 1.0, "read with R, T inverted (each camera's pose in the reference camera's frame, X_0 = R X_i + T)"),
+        (False, 1e-3, "read with T in m:"),
+        (True, 1e-3, "R, T inverted (each camera's pose in the reference camera's frame, X_0 = R X_i + T) and T in m"),
+    ]:
+        out = run_rig_case(CASE, converted(invert, scale))
+        assert len(out) == 2 and "stated sigmas from the truth" in out[0], out
+        assert words in out[1] and "circcal's convention is X_i = R_i X_0 + T_i with T in mm" in out[1], out

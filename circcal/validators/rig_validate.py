@@ -50,6 +50,7 @@ from circcal.validators.rig import (
     opencv_stereo,
     shared_pair,
 )
+from circcal.validators.rig_conventions import convention_hint
 from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, whole_views
 
 __all__ = [
@@ -641,15 +642,14 @@ def run_rig_case(case: RigCase, calibrator: Callable[..., Any] | None = None, se
             return [f"the calibrator failed: {type(exc).__name__}: {exc}"]
     if [c.lens for c in rig.cameras] != [c.lens for c in sc.rig.cameras]:
         return [f"lens models {[c.lens for c in rig.cameras]}, the truth's {[c.lens for c in sc.rig.cameras]}"]
-    z = truth_z(rig, sc.rig)
-    if not z:
-        z = truth_z(rig, sc.rig, rc.rig.covariance)
+    z = truth_z(rig, sc.rig) or truth_z(rig, sc.rig, rc.rig.covariance)
     if not z:
         return ["no covariance to check the truth in"]
     k, worst = max(z.items(), key=lambda kv: kv[1])
-    if worst > RIG_TRUTH_SIGMAS:
-        return [f"{k} is {worst:.2f} stated sigmas from the truth (bound {RIG_TRUTH_SIGMAS})"]
-    return []
+    if worst <= RIG_TRUTH_SIGMAS:
+        return []
+    hint = convention_hint(rig, sc.rig)  # a calibrator's R, T inverted or T in metres, said so
+    return [f"{k} is {worst:.2f} stated sigmas from the truth (bound {RIG_TRUTH_SIGMAS})"] + ([hint] if hint else [])
 
 
 def load_rig_calibrator(spec: str) -> Callable[..., Any]:
