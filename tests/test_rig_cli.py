@@ -362,11 +362,20 @@ def test_one_cameras_images_given_for_both_is_named_with_what_to_do(fixture_dir,
 
     shutil.copytree(fixture_dir / "left", tmp_path / "copy")
     argv = ["calibrate-rig", "--camera", f"left={fixture_dir / 'left'}", "--camera", f"right={tmp_path / 'copy'}"]
-    argv += [*GRID, "--out", str(tmp_path / "rig.json"), "--no-cross-validate", "--jobs", "1", "--no-progress"]
-    assert main(argv) == 0
+    argv += [*GRID, "--no-cross-validate", "--jobs", "1", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "rig.json"), "--report", str(tmp_path / "report")]) == 0
     out = capsys.readouterr().out
     assert out.startswith("verdict: a model or data problem"), out[:300]
     assert "cameras 'left' and 'right' sit at one point" in out and "the same images were given for both" in out
     assert "what to do: give each camera its own images" in out
     doc = json.loads((tmp_path / "rig.json").read_text())
     assert doc["verdict"]["coincident"][0]["same_points"] is True
+    # the report has no rectified view (there is no epipolar geometry to rectify by)
+    assert not (tmp_path / "report" / "rectified.png").exists() and (tmp_path / "report" / "geometry.png").exists()
+    # outputs that need the rectification are refused, and nothing of the run is written
+    stereo = tmp_path / "stereo"
+    stereo.mkdir()
+    assert main([*argv, "--out", str(stereo / "rig.yaml"), "--rectified", str(stereo / "rect")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("circcal calibrate-rig: no stereo rectification: cameras 'left'")
+    assert "nothing written (--out .yaml, --rectified need it" in err[0] and list(stereo.iterdir()) == []

@@ -108,6 +108,7 @@ def write_rig_report(
     ValueError
         ``folder`` is not an existing, empty folder (a bug in the caller).
     """
+    from circcal.rig.coincident import coincident_cameras
     from circcal.rig.rectify import write_rectified_overlay
 
     folder = Path(folder)
@@ -118,7 +119,7 @@ def write_rig_report(
     a, b = rig.names[0], rig.names[1]
     files = {n: cal.images.get(n, {}) for n in (a, b)}
     shared = [i for i in cal.instants[a] if i in cal.instants[b] and i in files[a] and i in files[b]]
-    if shared:
+    if shared and not any((c.a, c.b) == (a, b) for c in coincident_cameras(cal)):  # at one point: no rectification
         path = write_rectified_overlay(
             folder / "rectified.png", rig, Path(files[a][shared[0]]), Path(files[b][shared[0]])
         )

@@ -318,6 +318,16 @@ def run(args: argparse.Namespace) -> int:
         verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
         lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
         print("\n".join(lines))
+        # the first two cameras at one point have no epipolar geometry: their rectification would be noise
+        at_one_point = [c for c in verdict.coincident if (c.a, c.b) == (names[0], names[1])]
+        stereo = [f for f, on in (("--out .yaml", fmt == "opencv"), ("--ros", ros), ("--rectified", rectified)) if on]
+        if at_one_point and stereo:
+            print(
+                f"circcal calibrate-rig: no stereo rectification: {at_one_point[0].lines()[0]}; nothing written "
+                f"({', '.join(stereo)} need it: give --out RIG.json, without --ros and --rectified, for this rig)",
+                file=sys.stderr,
+            )
+            return 1
         _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, args.alpha)
         if report is not None:
             from circcal.calreport.rig import write_rig_report
