@@ -378,6 +378,18 @@ def test_progress_bar_hidden_does_not_import_tqdm_and_shown_draws():
     assert "detect" in r.stderr and "3/3" in r.stderr
 
 
+def test_python_dash_m_circcal_is_the_command():
+    """``python -m circcal`` runs the command (an environment whose scripts folder is not on the PATH): its help, and
+    a refusal's one line and exit status 2."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "circcal", "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "calibrate-rig" in r.stdout, r.stderr
+    r = subprocess.run([sys.executable, "-m", "circcal", "nosuch"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "nosuch" in r.stderr
+
+
 def test_a_dropped_dot_is_named_without_a_position(realdata, tmp_path, capsys):
     # the detector drops 11 dots of one real 10x8 view (a shadow's edge touches them): the outlier list names them,
     # and says no "(nan, nan) px" for the centre they never had
