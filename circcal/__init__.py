@@ -24,6 +24,8 @@ name                      what it is
 :func:`read_board`        a board described in a file (circcal's YAML/JSON, ROS-Industrial's, Kalibr's)
 :class:`RigModel`         a rig: every camera's intrinsics and pose in it (camera 0 the reference, mm)
 :func:`calibrate_rig`     each camera's image files -> :class:`~circcal.rig.RigCalibration` (one joint solve)
+:func:`calibrate_rig_points`  each camera's observations -> a RigCalibration (``initial=`` given intrinsics)
+:func:`rig_verdict`       the verdict on a rig: cross-validation, outlier views, cameras at one point, what to do
 :func:`triangulate`       pixels seen by two or more cameras of a rig -> 3-D points with their covariance
 ========================  =================================================================================
 
@@ -61,6 +63,8 @@ _API: dict[str, tuple[str, str]] = {
     "read_board": ("circcal.formats.boardfile", "read_board_file"),
     "RigModel": ("circcal.rig.model", "RigModel"),
     "calibrate_rig": ("circcal.rig.calibrate", "calibrate_rig"),
+    "calibrate_rig_points": ("circcal.rig.calibrate", "calibrate_rig_points"),
+    "rig_verdict": ("circcal.rig.verdict", "rig_verdict"),
     "triangulate": ("circcal.rig.triangulate", "triangulate"),
 }
 
