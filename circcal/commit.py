@@ -9,20 +9,25 @@ from __future__ import annotations
 import ctypes
 import errno
 import glob
+import hashlib
 import json
 import os
 import shutil
 import signal
 import threading
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MARKER", "iter_staging", "recover"]
+__all__ = ["MARKER", "RECORD", "iter_staging", "recover", "sha256_file", "written_by_circcal"]
 
 MARKER = ".circcal-output.json"
 """The manifest circcal writes into every folder output: its kind and every file it wrote with its SHA-256."""
+RECORD = ".circcal.files.json"
+"""Beside circcal's file outputs, one per folder: the name and SHA-256 of every file circcal wrote there, so that a
+later run may replace those (unchanged since) and nothing else."""
 _STAGE = ".circcal-"
 """Staging places, old folders and journals carry this in their (hidden) names."""
 _JOURNAL_PREFIX = ".circcal-commit-"
@@ -36,6 +41,74 @@ def _read_marker(folder: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) and isinstance(doc.get("files"), dict) else None
 
 
+def sha256_file(path: Path) -> str:
+    """The SHA-256 of a file's bytes, hex.
+
+    Parameters
+    ----------
+    path : Path
+
+    Returns
+    -------
+    str
+    """
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _read_record(folder: Path) -> dict[str, str]:
+    try:
+        doc = json.loads((folder / RECORD).read_text())
+    except (OSError, ValueError):
+        return {}
+    files = doc.get("files") if isinstance(doc, dict) else None
+    return {k: v for k, v in files.items() if isinstance(v, str)} if isinstance(files, dict) else {}
+
+
+def written_by_circcal(path: Path) -> bool:
+    """Whether ``path`` is a file circcal wrote, unchanged since (its folder's :data:`RECORD` lists it).
+
+    Parameters
+    ----------
+    path : Path
+        A regular file (symlinks followed by the caller).
+
+    Returns
+    -------
+    bool
+    """
+    recorded = _read_record(path.parent).get(path.name)
+    return recorded is not None and recorded == sha256_file(path)
+
+
+def _record(written: list[tuple[Path, str]]) -> None:
+    """Add ``(file, SHA-256)`` to each file's folder's :data:`RECORD` (entries whose file is gone dropped), written
+    through a staging name and a rename. Best effort: a record that cannot be written is warned about (the file then
+    counts as the user's, never replaced: the safe side); two runs recording in one folder at one instant may
+    lose one's entry (the same)."""
+    for folder in dict.fromkeys(f.parent for f, _ in written):
+        doc = {k: v for k, v in _read_record(folder).items() if (folder / k).is_file()}
+        doc.update({f.name: h for f, h in written if f.parent == folder})
+        tmp = folder / f".{RECORD}{_STAGE}{os.getpid()}-{os.urandom(4).hex()}"
+        try:
+            with open(tmp, "w") as fh:
+                fh.write(json.dumps({"circcal": "files", "files": doc}, indent=1, sort_keys=True) + "\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, folder / RECORD)
+        except OSError as exc:
+            _unlink(tmp)
+            warnings.warn(
+                f"{folder / RECORD}: not written ({exc.strerror or exc}); a later run will not replace "
+                "the files circcal wrote there",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
 @dataclass
 class _Output:
     shown: Path  # as the user gave it
@@ -44,6 +117,7 @@ class _Output:
     kind: str | None  # None: a file; else the folder's kind
     staging: Path = field(default=Path())
     old: Path | None = None
+    sha256: str = ""  # a file's, once staged in full
 
 
 def _remove_stale(parent: Path, name: str) -> None:
@@ -129,7 +203,12 @@ class _signals_held:
 def _write_journals(outputs: list[_Output], commit_id: str) -> list[Path]:
     """The commit's steps, written (and synced) beside every output: any of them lets :func:`recover` finish."""
     steps = [
-        {"final": os.fsencode(o.final).hex(), "staging": os.fsencode(o.staging).hex(), "folder": o.kind}
+        {
+            "final": os.fsencode(o.final).hex(),
+            "staging": os.fsencode(o.staging).hex(),
+            "folder": o.kind,
+            "sha256": o.sha256,
+        }
         for o in outputs
     ]
     text = json.dumps({"commit": commit_id, "steps": steps}) + "\n"
@@ -215,17 +294,21 @@ def recover(folder: Path) -> list[Path]:
                     Path(os.fsdecode(bytes.fromhex(s["final"]))),
                     Path(os.fsdecode(bytes.fromhex(s["staging"]))),
                     s["folder"],
+                    str(s.get("sha256", "")),
                 )
                 for s in doc["steps"]
             ]
         except (OSError, ValueError, KeyError, TypeError):
             continue  # not one of ours, or unreadable: left alone
-        for final, staging, kind in steps:
+        written = []
+        for final, staging, kind, sha in steps:
             if kind is None:
                 if staging.is_file():
                     final.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(staging, final)
                     done.append(final)
+                if sha and final.is_file() and sha256_file(final) == sha:
+                    written.append((final, sha))
                 continue
             old = final.with_name(f".{final.name}{_STAGE}old-{commit_id}")
             if _marker_commit(final) == commit_id:  # in place: only the earlier folder may be left
@@ -240,7 +323,9 @@ def recover(folder: Path) -> list[Path]:
                 os.replace(staging, final)
                 shutil.rmtree(old, ignore_errors=True)
                 done.append(final)
-        for d in {s.parent for _, s, _ in steps}:
+        if written:
+            _record(written)
+        for d in {s.parent for _, s, _, _ in steps}:
             _unlink(d / j.name)
         _unlink(j)
     return done

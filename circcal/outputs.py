@@ -2,8 +2,10 @@
 
 Rules (every ``circcal`` command that writes follows them):
 
-- An output never deletes or replaces anything circcal did not create. A file output may replace an earlier file;
-  it may not be one of the command's inputs, a folder, a device, a fifo or a socket. A symlink is written through
+- An output never deletes or replaces anything circcal did not create. A file output may replace a file circcal
+  wrote, unchanged since (its folder's :data:`~circcal.commit.RECORD` lists every file circcal wrote there with its
+  SHA-256), or an empty file; not any other file, nor one of the command's inputs, a folder, a device, a fifo or a
+  socket. A symlink is written through
   (its target is replaced, the link stays). A folder output (``--report DIR``, ``--overlay DIR``) is new, empty, or
   an earlier circcal folder of the same kind, recognised by the manifest :data:`~circcal.commit.MARKER` that lists every file
   circcal wrote there with its SHA-256: a folder holding anything else, or a file changed since, is refused. A folder
@@ -29,7 +31,6 @@ Example
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -47,11 +48,14 @@ from circcal.commit import (
     _fsync_tree,
     _Output,
     _read_marker,
+    _record,
     _remove_stale,
     _signals_held,
     _unlink,
     _write_journals,
     recover,
+    sha256_file,
+    written_by_circcal,
 )
 from circcal.errors import InputError
 from circcal.pathnames import display_name
@@ -132,14 +136,6 @@ def _kind_of(mode: int) -> str | None:
     return "not a regular file"
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def folder_manifest(folder: Path) -> dict[str, str]:
     """Every file under ``folder``, the marker left out.
 
@@ -169,7 +165,7 @@ def folder_manifest(folder: Path) -> dict[str, str]:
             p = Path(root) / name
             rel = p.relative_to(folder).as_posix()
             if rel != MARKER:
-                out[rel] = _sha256(p)
+                out[rel] = sha256_file(p)
     return out
 
 
@@ -313,6 +309,15 @@ class Outputs:
                         pass
                 if not os.access(final, os.W_OK):
                     raise InputError(f"{option} {_display(path)}: not writable (permission denied)")
+                try:
+                    theirs = final.stat().st_size > 0 and not written_by_circcal(final)
+                except OSError as exc:
+                    raise InputError(f"{option} {_display(path)}: {exc.strerror or exc}") from None
+                if theirs:
+                    raise InputError(
+                        f"{option} {_display(path)}: a file circcal did not write (or one changed since) is there; "
+                        "choose another name, or move it away first"
+                    )
         if kind is not None:
             cwd = Path(os.path.realpath(os.getcwd()))
             if final == cwd or final in cwd.parents or final == Path(final.anchor):
@@ -419,6 +424,7 @@ class Outputs:
                     _fsync_tree(out.staging)
                 else:
                     _fsync_file(out.staging)
+                    out.sha256 = sha256_file(out.staging)
                     if out.final.exists():  # a new file gets the mode of the one it replaces
                         os.chmod(out.staging, out.final.stat().st_mode & 0o7777)
                     else:
@@ -426,6 +432,7 @@ class Outputs:
             journals = _write_journals(self._outputs, commit_id)
             _apply(self._outputs, commit_id)
             self.committed = True
+            _record([(o.final, o.sha256) for o in self._outputs if o.kind is None])
             for j in journals:
                 _unlink(j)
             for out in self._outputs:

@@ -72,3 +72,17 @@ def pytest_collection_modifyitems(config, items):
     """Longest modules first (:data:`LONG_MODULES`); each module's tests stay together and in their order."""
     rank = {m: k for k, m in enumerate(LONG_MODULES)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))  # stable: the rest keep their order
+
+
+@pytest.fixture
+def earlier_output():
+    """Write a file as an earlier circcal run would have (committed and recorded: a later run may replace it; a
+    file the user wrote is never replaced, circcal.outputs)."""
+    from circcal.outputs import Outputs
+
+    def write(path: Path, text: str) -> None:
+        with Outputs() as out:
+            out.file(path, "--out").write_text(text)
+            out.commit()
+
+    return write

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from circcal import cli
+from circcal.commit import RECORD
 from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, InputError
 
 
@@ -127,7 +128,7 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
     assert "nothing can be made" in capsys.readouterr().err
     out = tmp_path / "ok.yaml"
     assert main(["convert", str(model), str(out)]) == 0 and out.is_file()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "ok.yaml"]  # no probe file left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD, "model.json", "ok.yaml"]  # no probe file left
 
 
 @pytest.mark.parametrize(
@@ -161,7 +162,7 @@ def test_an_output_no_one_can_write_is_refused_before_the_work(tmp_path, capsys)
         ('{"camera": ', "not valid JSON"),
     ],
 )
-def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, capsys, content, field):
+def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, capsys, content, field, earlier_output):
     """NaN, inf, booleans, null, non-integer sizes and distortion of the wrong length never pass into another file;
     the message names the file and the field; an earlier output is left as it was."""
     from circcal.cli import main
@@ -169,14 +170,14 @@ def test_convert_refuses_bad_camera_values_and_names_file_and_field(tmp_path, ca
     src = tmp_path / "bad.json"
     src.write_text(content)
     out = tmp_path / "camera.yaml"
-    out.write_text("previous content\n")
+    earlier_output(out, "previous content\n")
     assert main(["convert", str(src), str(out)]) == 2
     err = capsys.readouterr().err
     assert str(src) in err and field in err
     assert out.read_text() == "previous content\n"
 
 
-def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatch, capsys):
+def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatch, capsys, earlier_output):
     """A bug (or an interruption) at the third image leaves the earlier detections.json as it was and keeps the
     first two results beside it, in detections.partial-1.json, marked incomplete; the bug keeps its traceback
     (exit 70)."""
@@ -202,7 +203,7 @@ def test_detect_keeps_what_is_done_when_a_later_image_fails(tmp_path, monkeypatc
     monkeypatch.setattr(files, "detect", flaky)
     monkeypatch.setattr(detect_cmd, "SAVE_EVERY_S", 0.0)
     out = tmp_path / "detections.json"
-    out.write_text("earlier\n")
+    earlier_output(out, "earlier\n")
     b = truth.board
     code = main(
         [
@@ -313,7 +314,7 @@ def signal_number(name: str) -> int:
     return int(getattr(signal, name))
 
 
-def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
+def test_a_failed_write_leaves_the_previous_file_intact(tmp_path, earlier_output):
     """A write that fails half way (disk full, quota: here a 4 KiB file-size limit, as `ulimit -f 4`) leaves the
     previous output as it was and no temporary file behind; the error is one line (exit 2)."""
     import json
@@ -329,7 +330,7 @@ def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
     }
     big.write_text(json.dumps(doc))
     out = tmp_path / "previous.json"
-    out.write_text('{"previous": true}\n')
+    earlier_output(out, '{"previous": true}\n')
 
     def limit():
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write then fails with EFBIG instead of a kill
@@ -345,7 +346,7 @@ def test_a_failed_write_leaves_the_previous_file_intact(tmp_path):
     assert run.returncode == 2, run.stderr
     assert "File too large" in run.stderr and "Traceback" not in run.stderr
     assert out.read_text() == '{"previous": true}\n'
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "previous.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD, "model.json", "previous.json"]
 
 
 def test_warnings_are_one_readable_line(monkeypatch, capsys):

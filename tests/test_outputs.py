@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from circcal.commit import MARKER, recover
+from circcal.commit import MARKER, RECORD, recover, sha256_file
 from circcal.errors import InputError
 from circcal.outputs import Outputs, check_folder_output
 
@@ -143,12 +143,59 @@ def test_a_symlinked_output_is_written_through(tmp_path, capsys):
     )
     target = tmp_path / "real" / "cam.yaml"
     target.parent.mkdir()
-    target.write_text("old\n")
+    target.write_text("")  # an empty file may be replaced (a script's mktemp); a user's file may not (below)
     link = tmp_path / "cam.yaml"
     link.symlink_to(target)
     code, err = _cli(["convert", src, link], capsys)
     assert code == 0, err
     assert link.is_symlink() and "opencv-matrix" in target.read_text()
+    # recorded beside the target: the next run may replace it
+    assert json.loads((target.parent / RECORD).read_text())["files"] == {"cam.yaml": sha256_file(target)}
+    code, err = _cli(["convert", src, link], capsys)
+    assert code == 0, err
+
+
+def test_a_file_output_replaces_only_what_circcal_wrote_unchanged(tmp_path, capsys):
+    from circcal.formats import write_camera
+    from circcal.model import Camera
+
+    src = tmp_path / "in.json"
+    cam = {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "dist": [0.0] * 5}
+    write_camera(src, Camera.from_dict(cam))
+    mine = tmp_path / "notes.yaml"
+    mine.write_bytes(b"my own notes\n")
+    code, err = _cli(["convert", src, mine], capsys)
+    assert code == 2 and err.count("\n") == 1 and "circcal did not write" in err and "notes.yaml" in err
+    assert mine.read_bytes() == b"my own notes\n" and not (tmp_path / RECORD).exists()
+    out = tmp_path / "cam.yaml"
+    assert _cli(["convert", src, out], capsys)[0] == 0
+    first = out.read_bytes()
+    assert _cli(["convert", src, out], capsys)[0] == 0  # circcal's own, unchanged: replaced
+    assert out.read_bytes() == first
+    out.write_bytes(first + b"# my edit\n")  # changed since: the user's now
+    code, err = _cli(["convert", src, out], capsys)
+    assert code == 2 and "changed since" in err and out.read_bytes().endswith(b"# my edit\n")
+    # a record that lists another file's hash, or no record at all, protects the same way
+    (tmp_path / RECORD).unlink()
+    out.write_bytes(first)
+    assert _cli(["convert", src, out], capsys)[0] == 2 and out.read_bytes() == first
+
+
+def test_a_killed_commit_is_recorded_by_recover(tmp_path, monkeypatch):
+    import circcal.outputs as outputs_mod
+
+    def killed(outputs, commit_id):  # the process dies after the journal, before any rename (no clean-up runs)
+        raise SystemExit("killed")
+
+    monkeypatch.setattr(outputs_mod, "_apply", killed)
+    out = Outputs()
+    out.file(tmp_path / "m.json", "--out").write_text("one")
+    with pytest.raises(SystemExit):
+        out.commit()
+    monkeypatch.undo()
+    assert not (tmp_path / "m.json").exists()
+    assert recover(tmp_path) == [tmp_path / "m.json"]
+    assert json.loads((tmp_path / RECORD).read_text())["files"] == {"m.json": sha256_file(tmp_path / "m.json")}
 
 
 def test_a_symlink_to_an_input_is_refused(tmp_path, capsys, no_work):
@@ -197,7 +244,7 @@ def test_commit_replaces_an_earlier_circcal_folder_and_file(tmp_path):
         assert (tmp_path / "m.json").read_text() == text
         assert (tmp_path / "rep" / "figures" / "a.png").read_text() == text
         assert json.loads((tmp_path / "rep" / MARKER).read_text())["circcal"] == "report"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "rep"]  # nothing staged is left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD, "m.json", "rep"]  # nothing staged is left
 
 
 def test_a_circcal_folder_changed_by_the_user_is_not_replaced(tmp_path):
@@ -217,13 +264,15 @@ def test_a_circcal_folder_changed_by_the_user_is_not_replaced(tmp_path):
 
 
 def test_a_failure_before_the_commit_leaves_everything_as_it_was(tmp_path):
-    (tmp_path / "m.json").write_text("old")
+    with Outputs() as out:  # an earlier run's
+        out.file(tmp_path / "m.json", "--out").write_text("old")
+        out.commit()
     with pytest.raises(RuntimeError):
         with Outputs() as out:
             out.file(tmp_path / "m.json", "--out").write_text("new")
             out.folder(tmp_path / "rep", "--report", kind="report")
             raise RuntimeError("a bug in the work")
-    assert (tmp_path / "m.json").read_text() == "old" and sorted(os.listdir(tmp_path)) == ["m.json"]
+    assert (tmp_path / "m.json").read_text() == "old" and sorted(os.listdir(tmp_path)) == [RECORD, "m.json"]
 
 
 def test_outputs_that_overlap_are_refused(tmp_path):
@@ -272,8 +321,9 @@ def test_a_commit_killed_between_renames_is_finished_by_the_next_run(tmp_path, m
     assert model in ("old", "new") and report in ("old", "new", None)
     recover(tmp_path)
     assert (tmp_path / "m.json").read_text() == "new" and (tmp_path / "rep" / "i.html").read_text() == "new"
-    leftovers = [p.name for p in tmp_path.iterdir() if p.name not in ("m.json", "rep")]
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name not in ("m.json", "rep", RECORD)]
     assert leftovers == [], leftovers
+    assert json.loads((tmp_path / RECORD).read_text())["files"] == {"m.json": sha256_file(tmp_path / "m.json")}
 
 
 def test_a_dead_runs_staging_is_removed_and_a_live_ones_kept(tmp_path):

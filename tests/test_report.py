@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from circcal.commit import RECORD
 from circcal.report import QUICK, compute, config, figures, prose, realdata_prose, render, write_report
 from circcal.report.capture import study_warnings
 from circcal.report.document import TITLE, document
@@ -295,7 +296,7 @@ def test_failed_write_leaves_previous_report(quick, tmp_path, monkeypatch):
     after = {p.name: p.read_bytes() for p in first.iterdir()}
     assert after == before
     assert (tmp_path / "README.md").read_text() == readme
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "latest"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD, "README.md", "latest"]
 
 
 def test_deterministic(quick, tmp_path):
