@@ -72,6 +72,27 @@ def test_jacobian_matches_finite_differences():
     assert np.allclose(gp.ravel(), J[:, prob.ng :].T @ f)
 
 
+def test_weighted_observations_scale_residuals_and_jacobian_by_the_root_of_their_weights():
+    sc = rig_scenario("two")
+    obs = rig_observations(sc, 0.3, 0)
+    obs = {n: dict(list(per.items())[:3]) for n, per in obs.items()}
+    prob, x = _truth_problem(sc, obs)
+    rng = np.random.default_rng(2)
+    w = [rng.uniform(0.1, 2.0, len(o.X)) for o in prob.obs]
+    weighted = RigProblem(
+        [CameraObservations(o.X, o.uv, o.instant, wc) for o, wc in zip(prob.obs, w)],
+        prob.n_views, prob.base, prob.lenses, prob.free, prob.maps,
+    )  # fmt: skip
+    root = np.repeat(np.sqrt(np.concatenate(w)), 2)
+    x = x + rng.normal(0, 1e-4, x.shape) * np.maximum(np.abs(x), 1)
+    assert np.allclose(weighted.residuals(x)[0], root * prob.residuals(x)[0], rtol=1e-13, atol=0)
+    assert np.allclose(weighted.dense_jacobian(x), root[:, None] * prob.dense_jacobian(x), rtol=1e-13, atol=0)
+    f, (A, gi, B, D, gp) = weighted.normal_equations(x)
+    J = weighted.dense_jacobian(x)
+    assert np.allclose(A, J[:, : prob.ng].T @ J[:, : prob.ng]) and np.allclose(gi, J[:, : prob.ng].T @ f)
+    assert np.allclose(gp.ravel(), J[:, prob.ng :].T @ f)
+
+
 @pytest.mark.parametrize("name", ["two", "fisheye"])
 def test_rig_recovered_within_stated_sigmas(name):
     sc, res = _solve(name, 0.1, 7)

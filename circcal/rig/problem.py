@@ -8,8 +8,8 @@ of every camera but the reference (``rvec, tvec``: ``X_c = R(rvec) X_0 + tvec``,
 per instant (``rvec, tvec``: ``X_0 = R(rvec) P + tvec``). The board poses are the per-view locals of
 :mod:`circcal.solver.lm`: each observation's residual depends only on the global parameters of its own camera and on
 its own instant's pose, so :func:`circcal.solver.lm.levenberg_marquardt` solves each damped step by eliminating the
-6x6 board-pose blocks (Schur complement), exactly as for one camera. Residuals are ``projected - observed`` (px),
-stacked camera by camera; the camera model is :mod:`circcal.model`'s (:func:`~circcal.model.project_camera_jacobian`,
+6x6 board-pose blocks (Schur complement), exactly as for one camera. Residuals are ``projected - observed`` (px;
+times ``sqrt(w)`` where the observations carry weights), stacked camera by camera; the camera model is :mod:`circcal.model`'s (:func:`~circcal.model.project_camera_jacobian`,
 one implementation for every lens).
 """
 
@@ -39,11 +39,15 @@ class CameraObservations:
         Observed pixels.
     instant : ndarray of int, shape (N,)
         The instant (index into the problem's instants) of each point, non-decreasing.
+    weights : ndarray, shape (N,), or None
+        Each point's weight on its squared reprojection error (both its residuals scaled by ``sqrt(w)``: the
+        residuals, Jacobian and covariance are then the weighted problem's); None: 1 (least squares).
     """
 
     X: np.ndarray
     uv: np.ndarray
     instant: np.ndarray
+    weights: np.ndarray | None = None
 
     @classmethod
     def stack(cls, views: Sequence[tuple[int, np.ndarray, np.ndarray]]) -> CameraObservations:
@@ -306,7 +310,9 @@ class RigProblem:
                 continue
             Xc[rows] = self._points(x, c)[3]
             uv = project_pixels(Xc[rows], self.intrinsics(x, c), self.pinhole[c])
-            f[2 * rows.start : 2 * rows.stop] = (uv - self.obs[c].uv).ravel()
+            w = self.obs[c].weights
+            r = uv - self.obs[c].uv if w is None else (uv - self.obs[c].uv) * np.sqrt(w)[:, None]
+            f[2 * rows.start : 2 * rows.stop] = r.ravel()
         self._kept["residuals"] = (key, (f, Xc))
         return f, Xc
 
@@ -331,6 +337,8 @@ class RigProblem:
         rotated_jacobian(dPR, Y, out=W[:, :, g : g + 3])
         W[:, :, g + 3 : g + 6] = dPR
         np.subtract(uv, o.uv, out=W[:, :, -1])
+        if o.weights is not None:
+            W *= np.sqrt(o.weights)[:, None, None]
         return Xc, W, g
 
     def _maps(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
