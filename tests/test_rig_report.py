@@ -1,7 +1,8 @@
 """benchmarks/rig_report.py's claims on OpenCV's real three-camera data (reports/rigs.md), beyond
 tests/test_rig_references.py: the RMS recomputed the same way for every rig (board poses re-fitted, the rig held)
-reproduces circcal's own and OpenCV's own, and mrcal started from OpenCV's rig moves to circcal's: OpenCV's
-calibrateMultiview stops short of the minimum that circcal reaches."""
+reproduces circcal's own and OpenCV's own, and mrcal started from OpenCV's rig moves to circcal's: the least-squares
+minimum of the whole rig is circcal's, calibrateMultiview's another estimator's (each camera's intrinsics from its own
+calibration, held in its joint solve)."""
 
 from __future__ import annotations
 

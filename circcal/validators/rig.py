@@ -45,6 +45,8 @@ __all__ = [
     "RigAgreement",
     "opencv_stereo",
     "opencv_multiview",
+    "multiview_weights",
+    "MULTIVIEW_ROBUST_SCALE_PX2",
     "mrcal_rig",
     "compare_rigs",
     "shared_points",
@@ -225,10 +227,39 @@ def _camera_like(c: Camera, K: np.ndarray, d: np.ndarray) -> Camera:
     return Camera.from_intrinsics(c.width, c.height, p, c.lens)
 
 
+#: ``calibrateMultiview``'s robust scale (``RBS_FNC_SCALE`` in ``modules/calib/src/multiview_calibration.cpp``):
+#: each point weighted by ``exp(-e^2 / 30)`` in its joint solve, ``e`` its reprojection error in px.
+MULTIVIEW_ROBUST_SCALE_PX2 = 30.0
+
+
+def multiview_weights(e2: np.ndarray) -> np.ndarray:
+    """``calibrateMultiview``'s per-point weights (``RobustExpFunction``), from the squared reprojection errors.
+
+    Parameters
+    ----------
+    e2 : ndarray, shape (N,)
+        Squared reprojection errors, px^2.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``exp(-e2 / 30)``: 0.9987 at 0.2 px, 0.967 at 1 px, 0.43 at 5 px.
+    """
+    return np.exp(-np.asarray(e2, dtype=np.float64) / MULTIVIEW_ROBUST_SCALE_PX2)
+
+
 def opencv_multiview(
-    views: RigViews, sizes: Sequence[tuple[int, int]], lens: str | Sequence[str] = "opencv5"
+    views: RigViews,
+    sizes: Sequence[tuple[int, int]],
+    lens: str | Sequence[str] = "opencv5",
+    cameras: Sequence[Camera] | None = None,
 ) -> RigReference:
     """``cv2.calibrateMultiviewExtended`` (OpenCV 5) over every camera, pinhole lens models only.
+
+    Its estimator (``modules/calib/src/multiview_calibration.cpp``): each camera's intrinsics from
+    ``cv2.calibrateCamera`` on its own views (or given, with ``CALIB_USE_INTRINSIC_GUESS``), then held while one
+    Levenberg-Marquardt solve refines the camera poses and board poses, every point weighted by ``exp(-e^2 / 30)``
+    (``e`` its reprojection error, px). The intrinsics are not refined with the rig.
 
     Parameters
     ----------
@@ -238,6 +269,9 @@ def opencv_multiview(
         Each camera's (width, height) px.
     lens : {"opencv5", "rational", "thin-prism"} or sequence of them
         One for every camera, or one per camera (``flagsForIntrinsics`` per camera).
+    cameras : sequence of Camera or None
+        Every camera's intrinsics, held (``CALIB_USE_INTRINSIC_GUESS``; their lens models are used); None: OpenCV
+        calibrates each camera on its own views.
 
     Returns
     -------
@@ -248,6 +282,8 @@ def opencv_multiview(
     cv2 = _cv2()
     name = "opencv-multiview"
     lenses = [lens] * len(sizes) if isinstance(lens, str) else list(lens)
+    if cameras is not None:
+        lenses = [c.lens for c in cameras]
     if not hasattr(cv2, "calibrateMultiviewExtended"):
         return RigReference(name, "unavailable", notes=[f"OpenCV {cv2.__version__} has no calibrateMultiview"])
     bad = sorted({le for le in lenses if le not in ("opencv5", "rational", "thin-prism")})
@@ -281,10 +317,15 @@ def opencv_multiview(
         f"{len(instants)} instants, {partial} partial views dropped (OpenCV 5.0 diverges on them)",
         "board in metres (millimetres raise 'Pattern points are collinear!'); T converted to mm",
     ]
+    Ks_in, ds_in, flags = None, None, 0
+    if cameras is not None:
+        Ks_in, ds_in = [c.K.copy() for c in cameras], [c.dist.reshape(1, -1).copy() for c in cameras]
+        flags = cv2.CALIB_USE_INTRINSIC_GUESS
+        notes.append("intrinsics given and held (CALIB_USE_INTRINSIC_GUESS)")
     try:
         out = cv2.calibrateMultiviewExtended(
-            obj, img, [tuple(int(v) for v in s) for s in sizes], mask, np.zeros(ncam, np.uint8), None, None, None,
-            None, flagsForIntrinsics=np.array([_flags(le) for le in lenses]),
+            obj, img, [tuple(int(v) for v in s) for s in sizes], mask, np.zeros(ncam, np.uint8), Ks_in, ds_in, None,
+            None, flagsForIntrinsics=np.array([_flags(le) for le in lenses]), flags=flags,
         )  # fmt: skip
     except cv2.error as exc:
         return RigReference(name, "failed", notes=notes + [f"OpenCV: {str(exc).strip().splitlines()[-1]}"])
