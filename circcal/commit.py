@@ -90,6 +90,7 @@ def _record(written: list[tuple[Path, str]]) -> None:
     counts as the user's, never replaced: the safe side); two runs recording in one folder at one instant may
     lose one's entry (the same)."""
     for folder in dict.fromkeys(f.parent for f, _ in written):
+        _remove_stale(folder, RECORD)  # a killed run's half-written record
         doc = {k: v for k, v in _read_record(folder).items() if (folder / k).is_file()}
         doc.update({f.name: h for f, h in written if f.parent == folder})
         tmp = folder / f".{RECORD}{_STAGE}{os.getpid()}-{os.urandom(4).hex()}"

@@ -336,3 +336,14 @@ def test_a_dead_runs_staging_is_removed_and_a_live_ones_kept(tmp_path):
         out.file(tmp_path / "m.json", "--out").write_text("new")
         out.commit()
     assert not dead.exists() and live.exists()
+
+
+def test_a_killed_runs_half_written_record_is_removed_by_the_next_record(tmp_path):
+    dead = 2**22 + 12345  # above pid_max's default: no live process has it
+    stale = tmp_path / f".{RECORD}.circcal-{dead}-0a0b0c0d"
+    stale.write_text('{"circcal": "fi')
+    with Outputs() as out:
+        out.file(tmp_path / "m.json", "--out").write_text("one")
+        out.commit()
+    assert not stale.exists()
+    assert json.loads((tmp_path / RECORD).read_text())["files"] == {"m.json": sha256_file(tmp_path / "m.json")}
