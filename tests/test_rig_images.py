@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from circcal.errors import InputError
 from circcal.fixtures.rig import rig_fixture_dir, rig_scenario
 from circcal.model import project
 from circcal.rig import calibrate_rig
@@ -63,3 +64,19 @@ def test_rendered_rig_json_round_trip(rendered):
     assert d["format"] == "circcal-rig" and len(d["cameras"]) == 2
     assert np.allclose(d["cameras"][1]["tvec"], res.rig.tvecs[1])
     assert res.rig.covariance is not None and np.all(np.isfinite(res.rig.covariance))
+
+
+def test_one_cameras_given_intrinsics_are_held_the_others_solved(rendered):
+    """calibrate_rig(initial=) with one camera of the two: the rational camera held at its truth (every parameter
+    fixed, CALIB_FIX_INTRINSIC), the pinhole one refined with the rig; the rig no farther from the truth than the
+    default run's bounds, the pinhole camera's intrinsics moved from its own calibration's start."""
+    sc, images, default = rendered
+    right = sc.rig.cameras[1]
+    opts = {"left": CalibrationOptions(), "right": CalibrationOptions(lens="rational", fixed=right.model.param_names)}
+    res = calibrate_rig(images, sc.board, opts, jobs=1, initial={"right": right})
+    assert np.array_equal(res.rig.cameras[1].intrinsics, right.intrinsics)
+    assert not np.array_equal(res.rig.cameras[0].intrinsics, res.per_camera["left"].result.camera.intrinsics)
+    (R, T), (Rt, Tt) = res.rig.pair(0, 1), sc.rig.pair(0, 1)
+    assert rotation_angle_deg(R @ Rt.T) < 0.02 and np.linalg.norm(T - Tt) < 0.2
+    with pytest.raises(InputError, match="initial: cameras"):
+        calibrate_rig(images, sc.board, opts, jobs=1, initial={"middle": right})

@@ -8,6 +8,7 @@ import argparse
 import glob
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 from circcal.commands.args import (
@@ -60,6 +61,14 @@ def _lens(text: str) -> tuple[str | None, str]:
     if eq and not name:
         raise argparse.ArgumentTypeError(f"expected NAME=MODEL or MODEL, got {text!r}")
     return (name or None), model
+
+
+def _intrinsics(text: str) -> tuple[str, str]:
+    """``NAME=MODEL_FILE`` -> (name, file) (an argparse type)."""
+    name, eq, path = str(text).partition("=")
+    if not eq or not name or not path:
+        raise argparse.ArgumentTypeError(f"expected NAME=MODEL_FILE (e.g. left=left.yaml), got {text!r}")
+    return name, path
 
 
 def _alpha(text: str) -> float:
@@ -119,6 +128,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         + " (default opencv5)",
     )
     add_fix_arguments(p)
+    p.add_argument(
+        "--intrinsics",
+        action="append",
+        type=_intrinsics,
+        default=[],
+        metavar="NAME=MODEL_FILE",
+        help="camera NAME's intrinsics from a model file (any format convert reads; its lens model is the camera's), "
+        "held: only the poses are solved for it, as OpenCV's CALIB_FIX_INTRINSIC",
+    )
     p.add_argument(
         "--out",
         type=Path,
@@ -230,6 +248,47 @@ def _options(args: argparse.Namespace, names: list[str]) -> dict:
     return out
 
 
+def _header_size(path: Path) -> tuple[int, int] | None:
+    """An image file's (width, height) from its header (Pillow, nothing decoded); None where it cannot tell."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return int(im.size[0]), int(im.size[1])
+    except Exception:  # noqa: BLE001 - any file Pillow cannot read: the pipeline's decoder decides later
+        return None
+
+
+def _given_intrinsics(args: argparse.Namespace, names: list[str], options: dict, images: dict) -> dict:
+    """The cameras of --intrinsics (read before the work, errors naming the file; each checked against its camera's
+    first image's size), each camera's options set to the file's lens model with every intrinsic held."""
+    from circcal.formats import read_camera
+    from circcal.model import param_names
+
+    named_lens = {n for n, _ in args.lens if n is not None}
+    given = {}
+    for name, path in args.intrinsics:
+        if name not in names:
+            raise InputError(f"--intrinsics {name}={path}: no camera {name!r} (cameras: {', '.join(names)})")
+        if name in given:
+            raise InputError(f"--intrinsics {name}: given twice")
+        cam = read_camera(path)
+        size = _header_size(images[name][0]) if images[name] else None
+        if size is not None and size != (cam.width, cam.height):
+            raise InputError(
+                f"--intrinsics {name}={path}: a {cam.width}x{cam.height} camera, camera {name}'s images are "
+                f"{size[0]}x{size[1]} ({display_name(images[name][0])})"
+            )
+        if name in named_lens and options[name].lens != cam.lens:
+            raise InputError(
+                f"--intrinsics {name}={path}: its lens model is {cam.lens}, --lens {name}={options[name].lens}"
+            )
+        lens = replace(options[name], lens=cam.lens, fixed=())  # the file's model, then every parameter of it held
+        options[name] = replace(lens, fixed=param_names(cam.lens))
+        given[name] = cam
+    return given
+
+
 def _check_formats(args: argparse.Namespace, names: list[str], options: dict) -> str:
     """--out's format, and every file format's limits checked against the cameras' lens models before the work."""
     fmt = OUT_FORMATS.get(args.out.suffix.lower())
@@ -290,10 +349,11 @@ def run(args: argparse.Namespace) -> int:
     images = _cameras(args)
     names = list(images)
     options = _options(args, names)
+    given = _given_intrinsics(args, names, options, images)
     fmt = _check_formats(args, names, options)
     args.images = [f for paths in images.values() for f in paths]  # --grid auto looks at every camera's images
     board = board_of_args(args, "calibrate-rig")
-    inputs = [*args.images, *([args.board] if args.board is not None else [])]
+    inputs = [*args.images, *([args.board] if args.board is not None else []), *(p for _, p in args.intrinsics)]
     with Outputs(inputs=inputs) as outputs:  # every output checked before the work, committed together
         out = outputs.file(args.out, "--out")
         ros = None if args.ros is None else outputs.folder(args.ros, "--ros", kind="rig-ros")
@@ -308,7 +368,9 @@ def run(args: argparse.Namespace) -> int:
         )
         report = None if args.report is None else outputs.folder(args.report, "--report", kind="rig-report")
         try:
-            cal = calibrate_rig(images, board, options, progress=not args.no_progress, jobs=args.jobs)
+            cal = calibrate_rig(
+                images, board, options, progress=not args.no_progress, jobs=args.jobs, initial=given or None
+            )
         except CalibrationError as exc:
             print(f"circcal calibrate-rig: no rig: {exc}", file=sys.stderr)
             flag = grid_hint(list(args.images), board)  # a --grid that is not the board's, as for calibrate

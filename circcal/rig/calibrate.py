@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -227,7 +227,8 @@ def calibrate_rig_points(
     elif isinstance(initial, RigCalibration):
         cameras, poses = _initial_starts(initial, names, views, opts)
     else:
-        cameras, poses = given_camera_starts(names, _given_cameras(initial, names, sizes, opts), views)
+        given = _given_cameras(initial, names, sizes, opts)
+        cameras, poses = given_camera_starts(names, [given[n] for n in names], views)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
 
 
@@ -296,19 +297,27 @@ def _initial_starts(
     return list(rig.cameras), poses
 
 
-def _given_cameras(
-    initial: Any, names: list[str], sizes: list[tuple[int, int]], opts: list[CalibrationOptions]
-) -> list[Camera]:
-    """The cameras of an ``initial`` mapping camera name -> Camera or model file, checked against the rig (one line
-    naming what differs)."""
+def _check_initial_names(initial: Any, names: list[str], every: bool) -> None:
+    """Refuse an ``initial`` that is no mapping, or names other cameras (``every``: not all of them)."""
     if not isinstance(initial, Mapping):
         raise InputError(
             f"initial must be a RigCalibration or a mapping of camera name to Camera or model file, got {initial!r}"
         )
-    if sorted(map(str, initial)) != sorted(names):
-        raise InputError(f"initial: cameras {sorted(map(str, initial))}, the observations' are {sorted(names)}")
-    cams = []
+    given = sorted(map(str, initial))
+    if (every and given != sorted(names)) or not set(given) <= set(names):
+        raise InputError(f"initial: cameras {given}, the observations' are {sorted(names)}")
+
+
+def _given_cameras(
+    initial: Any, names: list[str], sizes: list[tuple[int, int]], opts: list[CalibrationOptions], every: bool = True
+) -> dict[str, Camera]:
+    """The cameras of an ``initial`` mapping camera name -> Camera or model file (``every``: one per camera; else
+    some of them), checked against the rig (one line naming what differs)."""
+    _check_initial_names(initial, names, every)
+    cams = {}
     for n, size, o in zip(names, sizes, opts):
+        if n not in initial:
+            continue
         cam = initial[n]
         if isinstance(cam, (str, os.PathLike)):
             cam = read_camera(os.fspath(cam))  # a model file names itself in its errors
@@ -318,7 +327,7 @@ def _given_cameras(
             raise InputError(f"initial: camera {n!r} is {cam.width}x{cam.height}, its images {size[0]}x{size[1]}")
         if cam.lens != o.lens:
             raise InputError(f"initial: camera {n!r} has lens {cam.lens!r}, its options lens={o.lens!r}")
-        cams.append(cam)
+        cams[n] = cam
     return cams
 
 
@@ -459,6 +468,7 @@ def calibrate_rig(
     jobs: int | None = None,
     max_rounds: int = MAX_ROUNDS,
     tol_px: float = 1e-4,
+    initial: Mapping[str, Camera | str | os.PathLike[str]] | None = None,
 ) -> RigCalibration:
     """Calibrate a rig from images: each camera through circcal's pipeline, then the joint solve with the detector's
     re-correction loop per camera.
@@ -481,6 +491,11 @@ def calibrate_rig(
     max_rounds, tol_px
         The joint re-correction loop's limits: joint solves at most, and the largest centre shift (px) at which it
         has settled.
+    initial : mapping of str to Camera or path, or None
+        Some cameras' intrinsics by name (of their image size and lens model), a Camera or a model file: the joint
+        solve starts those cameras from them (and ``options``' ``fixed`` holds them: every parameter name is
+        ``cv2.stereoCalibrate``'s ``CALIB_FIX_INTRINSIC``). Their own pipeline still finds and corrects their
+        centres, with the ``fixed`` of their options left out there (nothing to start a held camera from).
 
     Returns
     -------
@@ -501,13 +516,17 @@ def calibrate_rig(
     _check_names(names)
     opts = _per_camera_options(names, options)
     instant = rig_instants(images).of  # refuses two images of one instant, naming both
+    if initial is not None:
+        _check_initial_names(initial, names, every=False)
+    given_names = set() if initial is None else set(map(str, initial))
     per_camera: dict[str, ImagesCalibration] = {}
     for n, o in zip(names, opts):
         paths = images[n]
         if not paths:
             raise InputError(f"camera {n!r}: no images given")
+        own = replace(o, fixed=()) if n in given_names else o
         try:
-            per_camera[n] = calibrate_images(paths, board, o, progress=bool(progress), jobs=jobs)
+            per_camera[n] = calibrate_images(paths, board, own, progress=bool(progress), jobs=jobs)
         except CalibrationError as exc:
             raise CalibrationError(f"camera {n!r}: {str(exc).splitlines()[0]}") from exc
     board_pts = board.object_points()
@@ -536,7 +555,15 @@ def calibrate_rig(
         }
         for n, cal in per_camera.items()
     ]
-    layout, sol, result = _calibrate(names, views_of(centres), opts, board, cameras, poses)
+    views = views_of(centres)
+    if initial is not None:
+        sizes = [(c.width, c.height) for c in cameras]
+        given = _given_cameras(initial, names, sizes, opts, every=False)
+        for c, n in enumerate(names):
+            if n in given:
+                cameras[c] = given[n]
+                poses[c] = given_camera_starts([n], [given[n]], [views[c]])[1][0]
+    layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
     max_it = max(o.max_iterations for o in opts)
     rounds: list[dict[str, Any]] = []
     rounds.append({"round": 0, "rms_px": result.rig.rms_px, "max_centre_shift_px": float("nan")})

@@ -37,12 +37,15 @@ class CameraUncertainty:
         Where, px.
     centre_px : float
         At the image centre.
+    held : bool
+        Every intrinsic held (given): no uncertainty is stated for them.
     """
 
     name: str
     worst_px: float
     worst_uv: tuple[float, float]
     centre_px: float
+    held: bool = False
 
     def text(self) -> str:
         """One line.
@@ -51,6 +54,8 @@ class CameraUncertainty:
         -------
         str
         """
+        if self.held:
+            return f"projection uncertainty of {self.name}'s intrinsics: none stated (held at the ones given)"
         return (
             f"projection uncertainty of {self.name}'s intrinsics at infinity: worst {self.worst_px:.3g} px at "
             f"({self.worst_uv[0]:.0f}, {self.worst_uv[1]:.0f}), centre {self.centre_px:.3g} px (1 sigma, worst "
@@ -78,6 +83,9 @@ def projection_uncertainty(rig: RigModel) -> list[CameraUncertainty]:
     out = []
     for k, (name, cam) in enumerate(zip(rig.names, rig.cameras)):
         cov = np.asarray(rig.covariance)[start[k] : start[k + 1], start[k] : start[k + 1]]
+        if not np.any(cov):
+            out.append(CameraUncertainty(name, 0.0, (0.0, 0.0), 0.0, held=True))
+            continue
         u, v = np.meshgrid(np.linspace(0, cam.width - 1, GRID[0]), np.linspace(0, cam.height - 1, GRID[1]))
         centre = np.array([[0.5 * (cam.width - 1), 0.5 * (cam.height - 1)]])
         uv = np.vstack([np.column_stack([u.ravel(), v.ravel()]), centre])

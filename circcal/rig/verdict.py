@@ -385,6 +385,8 @@ class RigCrossValidation:
     notes : list of str
         What the halves' own calibrations warned of (each once, named by the half): the check's trials, not the
         rig above.
+    held : list of str
+        The cameras whose intrinsics were held (given): the same in both halves, not compared.
     """
 
     status: str
@@ -395,6 +397,7 @@ class RigCrossValidation:
     poses: list[PoseCheck] = field(default_factory=list)
     verdict: str | None = None
     notes: list[str] = field(default_factory=list)
+    held: list[str] = field(default_factory=list)
 
     def problems(self) -> list[str]:
         """One sentence per camera projection or pose the halves disagree on.
@@ -430,6 +433,7 @@ class RigCrossValidation:
                 f"{d.max_px:.3g}), within {CONSISTENT_RATIO:g}x their uncertainty over "
                 f"{100 * (d.share_within or 0):.1f}% of the image"
             )
+        out += [f"  projection of {name}: intrinsics held (given), the same in both halves" for name in self.held]
         out += [f"  {p.text()}" for p in self.poses]
         out += [f"  (the check's own fits) {n}" for n in self.notes]
         return out
@@ -441,7 +445,7 @@ class RigCrossValidation:
         -------
         dict
             ``status``, ``message``, ``verdict``, ``halves``, ``projections`` (per camera
-            :meth:`ModelDiff.summary`), ``poses``, ``notes``.
+            :meth:`ModelDiff.summary`), ``poses``, ``notes``, ``held``.
         """
         return {
             "status": self.status,
@@ -451,6 +455,7 @@ class RigCrossValidation:
             "projections": {n: d.summary() for n, d in self.projections.items()},
             "poses": [dict(p.__dict__) for p in self.poses],
             "notes": list(self.notes),
+            "held": list(self.held),
         }
 
 
@@ -525,13 +530,16 @@ def cross_validate_rig(
     a, b = rigs[0].rig, rigs[1].rig
     a = RigModel(a.names, a.cameras, a.rvecs, a.tvecs, covs[0], a.rms_px)
     b = RigModel(b.names, b.cameras, b.rvecs, b.tvecs, covs[1], b.rms_px)
-    projections = {}
+    projections, held = {}, []
     start = 0
     for name, ca, cb in zip(rig.names, a.cameras, b.cameras):
         n = len(ca.intrinsics)
         sa = covs[0][start : start + n, start : start + n]
         sb = covs[1][start : start + n, start : start + n]
         start += n
+        if not np.any(sa) and not np.any(sb):  # every intrinsic held: nothing of them to compare
+            held.append(name)
+            continue
         projections[name] = model_diff(
             ca,
             cb,
@@ -539,7 +547,7 @@ def cross_validate_rig(
             uncertainty_b=lambda uv, c=cb, s=sb: rotation_free_stdev(c, s, uv),
         )
     poses = [pose_check(a, b, k) for k in range(1, rig.n_cameras)]
-    cv = RigCrossValidation("ok", "", halves, rigs, projections, poses, notes=said)
+    cv = RigCrossValidation("ok", "", halves, rigs, projections, poses, notes=said, held=held)
     bad = cv.problems()
     if bad:
         cv.verdict = "model-or-data-problem"
