@@ -142,6 +142,18 @@ def test_the_command_prints_the_table_and_passes(capsys):
     assert "per point, 2-D norm, OpenCV's convention" in out
 
 
+def _two_fair(variant: str, seed: int):
+    """circcal's rig of the `two` scenario's variant and its views as the fair mode gives them to a reference."""
+    from circcal.validators.rig_resolve import float32_views, labelled_views
+
+    sc = rig_scenario("two")
+    raw, _ = rig_variant_observations(sc, variant, seed)
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    rc = calibrate_rig_points(raw, sizes, opts, board=sc.board)
+    return rc, float32_views(labelled_views(rc, raw, sc.board))
+
+
 def test_where_stereo_calibrate_stops_apart_circcals_rig_is_the_lower_minimum():
     # fair mode, intrinsics held at circcal's: on `two` / noise OpenCV lands on circcal's rig (2.2e-8 deg, 1.6e-7 mm);
     # on `two` / flip it stops 2.5e-6 deg, 1.9e-5 mm away -- the issue's 1e-6 deg is not met there -- and its rig costs
@@ -149,14 +161,9 @@ def test_where_stereo_calibrate_stops_apart_circcals_rig_is_the_lower_minimum():
     # board pose re-fitted over both cameras): OpenCV's termination, not another minimum
     from benchmarks.rig_report import refit_rms
     from circcal.validators.rig import shared_pair
-    from circcal.validators.rig_resolve import float32_views, labelled_views, resolve
+    from circcal.validators.rig_resolve import resolve
 
-    sc = rig_scenario("two")
-    raw, _ = rig_variant_observations(sc, "flip", 0)
-    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
-    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
-    rc = calibrate_rig_points(raw, sizes, opts, board=sc.board)
-    fair = float32_views(labelled_views(rc, raw, sc.board))
+    rc, fair = _two_fair("flip", 0)
     cv = opencv_stereo(fair, rc.rig.cameras[:2], "fix-intrinsic")
     ours = resolve(shared_pair(fair), rc.rig, rc.board_poses, hold=True)
     (R, T), (Ro, To) = ours.pair(0, 1), cv.rig.pair(0, 1)
@@ -172,15 +179,11 @@ def test_calibrate_multiview_is_least_squares_reweighted_as_its_source_says():
     # (multiview_calibration.cpp). On `two` / very-noisy (0.5 px) circcal's least squares with the same held
     # intrinsics stops 1.6e-3 deg, 0.012 mm from it (the weights' effect); reweighted alike, 1.3e-6 deg, 4.8e-6 mm
     from circcal.validators.rig import compare_rigs, multiview_weights, opencv_multiview
-    from circcal.validators.rig_resolve import float32_views, labelled_views, resolve, whole_views
+    from circcal.validators.rig_resolve import resolve, whole_views
 
-    sc = rig_scenario("two")
-    raw, _ = rig_variant_observations(sc, "very-noisy", 1)
-    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
-    opts = {n: CalibrationOptions(lens=c.lens) for n, c in zip(sc.rig.names, sc.rig.cameras)}
-    rc = calibrate_rig_points(raw, sizes, opts, board=sc.board)
-    fair = whole_views(float32_views(labelled_views(rc, raw, sc.board)))
-    cv = opencv_multiview(fair, list(sizes.values()), cameras=rc.rig.cameras)
+    rc, fair = _two_fair("very-noisy", 1)
+    fair = whole_views(fair)
+    cv = opencv_multiview(fair, [(c.width, c.height) for c in rc.rig.cameras], cameras=rc.rig.cameras)
     assert cv.status == "ok", cv.notes
     plain = compare_rigs(cv.rig, resolve(fair, rc.rig, rc.board_poses, True))
     weighted = compare_rigs(cv.rig, resolve(fair, rc.rig, rc.board_poses, True, multiview_weights))
