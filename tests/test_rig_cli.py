@@ -247,6 +247,7 @@ def test_given_intrinsics_are_held_and_only_the_poses_solved(fixture_dir, tmp_pa
     assert main(["calibrate-rig", *cams, *given, *GRID, "--out", str(out), "--jobs", "1", "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert text.startswith("verdict: consistent") and "projection of right: intrinsics held (given)" in text
+    assert "consistent: every camera's projection (held, not compared: left, right) within" in text
     assert "projection uncertainty of left's intrinsics: none stated (held at the ones given)" in text
     rig = RigModel.from_dict(json.loads(out.read_text()))
     assert [c.lens for c in rig.cameras] == ["opencv5", "rational"]

@@ -554,8 +554,9 @@ def cross_validate_rig(
         cv.message = "the halves disagree beyond their stated uncertainty: " + "; ".join(bad)
     else:
         cv.verdict = "consistent"
+        cameras = "every camera's projection" + (f" (held, not compared: {', '.join(held)})" if held else "")
         cv.message = (
-            f"consistent: every camera's projection within {CONSISTENT_RATIO:g}x the halves' uncertainty over >= "
+            f"consistent: {cameras} within {CONSISTENT_RATIO:g}x the halves' uncertainty over >= "
             f"{100 * CONSISTENT_SHARE:g}% of its image, and every pose within {POSE_LIMIT:.2f} sigma"
         )
     if notes:
