@@ -170,9 +170,7 @@ FAIR_BOUNDS: dict[str, AgreementBound] = {
 }
 #: What calibrateMultiview's fair row is compared with (its estimator, from its source: intrinsics held, every point
 #: weighted by exp(-e^2 / 30)): circcal's held solve with those weights.
-MULTIVIEW_FAIR = (
-    "circcal's intrinsics held (CALIB_USE_INTRINSIC_GUESS); compared with circcal's held solve weighted as OpenCV's"
-)
+MULTIVIEW_FAIR = "compared with circcal's held solve weighted as OpenCV's, exp(-e^2 / 30) per point"
 
 #: circcal's rig against the truth: |estimate - truth| of fx, fy, cx, cy of every camera and the rvec, tvec of every
 #: camera's pose, in stated sigmas. Bonferroni over the rig conformance matrix's observation cases (3 scenarios x 4
