@@ -66,6 +66,19 @@ def test_rendered_rig_json_round_trip(rendered):
     assert res.rig.covariance is not None and np.all(np.isfinite(res.rig.covariance))
 
 
+def test_a_given_model_file_is_read_before_any_image(rendered, monkeypatch, tmp_path):
+    import circcal.rig.calibrate as rig_calibrate
+
+    sc, images, _ = rendered
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("an image was calibrated before the model file was read")
+
+    monkeypatch.setattr(rig_calibrate, "calibrate_images", no_work)
+    with pytest.raises(InputError, match="none.yaml"):
+        calibrate_rig(images, sc.board, jobs=1, initial={"right": tmp_path / "none.yaml"})
+
+
 def test_one_cameras_given_intrinsics_are_held_the_others_solved(rendered):
     """calibrate_rig(initial=) with one camera of the two: the rational camera held at its truth (every parameter
     fixed, CALIB_FIX_INTRINSIC), the pinhole one refined with the rig; the rig no farther from the truth than the

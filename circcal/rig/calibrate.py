@@ -516,8 +516,9 @@ def calibrate_rig(
     _check_names(names)
     opts = _per_camera_options(names, options)
     instant = rig_instants(images).of  # refuses two images of one instant, naming both
-    if initial is not None:
+    if initial is not None:  # model files read before the work (their errors name them)
         _check_initial_names(initial, names, every=False)
+        initial = {n: read_camera(os.fspath(c)) if isinstance(c, (str, os.PathLike)) else c for n, c in initial.items()}
     given_names = set() if initial is None else set(map(str, initial))
     per_camera: dict[str, ImagesCalibration] = {}
     for n, o in zip(names, opts):
