@@ -11,6 +11,8 @@ Rules (every ``circcal`` command that writes follows them):
   circcal wrote there with its SHA-256: a folder holding anything else, or a file changed since, is refused. A folder
   output may not hold an input, another output, or the working folder. Each refusal is an
   :class:`~circcal.errors.InputError` naming the path, raised when the output is planned, before any work.
+- A file output that something else writes (or changes) during the work is left as it is at the commit: the run's
+  output goes beside it, ``NAME.new-K.SUFFIX``, with a warning naming both.
 - Everything is written into staging places beside the final ones (hidden names starting ``.`` and holding
   ``.circcal-``); nothing final is touched until :meth:`Outputs.commit`. A failure or an interruption before it
   removes the staging places and leaves every earlier output as it was.
@@ -36,6 +38,7 @@ import os
 import shutil
 import stat
 import tempfile
+import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -248,6 +251,23 @@ def check_folder_output(path: Path, kind: str, option: str, shown: Path | None =
     return "earlier"
 
 
+def _not_ours(path: Path) -> bool:
+    """A non-empty regular file at ``path`` that circcal did not write (or one changed since)."""
+    try:
+        return path.is_file() and path.stat().st_size > 0 and not written_by_circcal(path)
+    except OSError:
+        return True  # unreadable now: not ours to replace
+
+
+def _free_name(path: Path) -> Path:
+    """``NAME.new-K.SUFFIX`` beside ``path``, the first K nothing holds."""
+    for k in range(1, 10_000):
+        cand = path.with_name(f"{path.stem}.new-{k}{path.suffix}")
+        if not (cand.exists() or cand.is_symlink()):
+            return cand
+    raise InputError(f"{_display(path)}: no free name beside it for this run's output")
+
+
 class Outputs:
     """The outputs of one command (see the module docstring). Plan each with :meth:`file` or :meth:`folder` before
     the work (the checks run then), write into the staging paths they return, then :meth:`commit`. Used as a
@@ -425,6 +445,14 @@ class Outputs:
                 else:
                     _fsync_file(out.staging)
                     out.sha256 = sha256_file(out.staging)
+                    if _not_ours(out.final):  # written by someone else during the work: left as it is
+                        out.final = _free_name(out.final)
+                        warnings.warn(
+                            f"{out.option} {_display(out.shown)} was written by something else during the run: it "
+                            f"is left as it is; this run's output is {_display(out.final)}",
+                            RuntimeWarning,
+                            stacklevel=2,
+                        )
                     if out.final.exists():  # a new file gets the mode of the one it replaces
                         os.chmod(out.staging, out.final.stat().st_mode & 0o7777)
                     else:

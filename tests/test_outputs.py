@@ -347,3 +347,21 @@ def test_a_killed_runs_half_written_record_is_removed_by_the_next_record(tmp_pat
         out.commit()
     assert not stale.exists()
     assert json.loads((tmp_path / RECORD).read_text())["files"] == {"m.json": sha256_file(tmp_path / "m.json")}
+
+
+def test_a_file_written_by_someone_else_during_the_work_is_left_and_the_output_goes_beside_it(tmp_path):
+    out = Outputs()
+    out.file(tmp_path / "m.json", "--out").write_text("circcal's")
+    (tmp_path / "m.json").write_text("the user's, meanwhile")  # after planning, before the commit
+    with pytest.warns(RuntimeWarning, match="m.json was written by something else during the run.*m.new-1.json"):
+        out.commit()
+    assert (tmp_path / "m.json").read_text() == "the user's, meanwhile"
+    assert (tmp_path / "m.new-1.json").read_text() == "circcal's"
+    assert json.loads((tmp_path / RECORD).read_text())["files"] == {
+        "m.new-1.json": sha256_file(tmp_path / "m.new-1.json")
+    }
+    # circcal's own earlier output, unchanged, is replaced as before: no warning
+    with Outputs() as again:
+        again.file(tmp_path / "m.new-1.json", "--out").write_text("second")
+        again.commit()
+    assert (tmp_path / "m.new-1.json").read_text() == "second" and not (tmp_path / "m.new-2.json").exists()
