@@ -185,7 +185,7 @@ def calibrate_rig_points(
     initial : RigCalibration, mapping of str to Camera or path, or None
         Where the joint solve starts instead of each camera calibrated alone. A calibration of the same cameras (the
         same lens models) whose instants include every one given: its cameras and board poses (a subset of the
-        instants, e.g. the halves of :func:`circcal.rig.verdict.cross_validate_rig`, too few for a camera alone).
+        instants, e.g. the halves of :func:`circcal.rig.crossval.cross_validate_rig`, too few for a camera alone).
         Or each camera's intrinsics by name (of its image size and lens model; e.g. from its own calibration on more
         views), a Camera or a model file (any format :func:`circcal.formats.read_camera` reads): every view's board
         pose from :func:`circcal.solver.pose_start`, the intrinsics refined with the rig as ``cv2.stereoCalibrate``

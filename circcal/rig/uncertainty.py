@@ -3,7 +3,7 @@
 The joint covariance (:attr:`circcal.rig.RigModel.covariance`, first order, board poses marginalised) holds every
 camera's intrinsics block. A camera's projection uncertainty here is the spread of its projection of fixed rays at
 infinity under its intrinsics' covariance, the rotation the intrinsics can trade with fitted out
-(:func:`circcal.rig.verdict.rotation_free_stdev`: what :func:`circcal.analysis.diff.model_diff` compares two models
+(:func:`circcal.rig.crossval.rotation_free_stdev`: what :func:`circcal.analysis.diff.model_diff` compares two models
 by). It leaves out the rig pose's own uncertainty (the extrinsics' sigmas are stated beside it); mrcal's definition
 for one camera also propagates the board poses through the rays, which here the marginalised poses carry only
 through the intrinsics' covariance.
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from circcal.rig.crossval import rotation_free_stdev
 from circcal.rig.model import RigModel
-from circcal.rig.verdict import rotation_free_stdev
 
 __all__ = ["CameraUncertainty", "projection_uncertainty", "GRID"]
 
