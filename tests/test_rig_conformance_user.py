@@ -10,7 +10,7 @@ import sys
 import numpy as np
 
 from circcal.rig import RigModel
-from circcal.validators.rig_validate import RigCase, circcal_rig, rig_cases, run_rig_case
+from circcal.validators.rig_conformance import RigCase, circcal_rig, rig_cases, run_rig_case
 
 CASE = RigCase("chain", "noise", False)
 
@@ -55,7 +55,7 @@ def test_a_two_argument_calibrator_is_called_without_the_keywords():
 def test_the_installed_suite_runs_a_rig_calibrator_file(tmp_path):
     f = tmp_path / "mycal.py"
     f.write_text(
-        "from circcal.validators.rig_validate import circcal_rig\n"
+        "from circcal.validators.rig_conformance import circcal_rig\n"
         "def cal(views, image_sizes, **kw):\n"
         "    return circcal_rig(views, image_sizes, **kw)\n"
     )

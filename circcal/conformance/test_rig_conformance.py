@@ -1,14 +1,14 @@
 """The conformance matrix's rig axis: a rig calibrator (``--rig-calibrator MODULE:ATTR``, else circcal's rig solve)
-against the truth of every rig scenario x variant (:func:`circcal.validators.rig_validate.rig_cases`; the rendered
+against the truth of every rig scenario x variant (:func:`circcal.validators.rig_conformance.rig_cases`; the rendered
 ones only with ``--conformance-full``): every camera's fx, fy, cx, cy and every pose's rvec, tvec within
-:data:`~circcal.validators.rig_validate.RIG_TRUTH_SIGMAS` stated sigmas (the calibrator's own covariance when it
+:data:`~circcal.validators.rig_conformance.RIG_TRUTH_SIGMAS` stated sigmas (the calibrator's own covariance when it
 returns one, else circcal's on the same views)."""
 
 from __future__ import annotations
 
 import pytest
 
-from circcal.validators.rig_validate import rig_cases, run_rig_case
+from circcal.validators.rig_conformance import rig_cases, run_rig_case
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

@@ -92,7 +92,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         default=None,
         metavar="MODULE:ATTR",
         help="rig calibrator under test in circcal.conformance's rig cases: fn(views, image_sizes[, lenses=, "
-        "board=]) -> circcal.rig.RigModel (circcal.validators.rig_validate.RigCalibrator); MODULE may be a path to "
+        "board=]) -> circcal.rig.RigModel (circcal.validators.rig_conformance.RigCalibrator); MODULE may be a path to "
         "a .py file (default: circcal's rig solve)",
     )
 
@@ -109,7 +109,7 @@ def rig_calibrator(pytestconfig: pytest.Config):
     -------
     callable or None
     """
-    from circcal.validators.rig_validate import load_rig_calibrator
+    from circcal.validators.rig_conformance import load_rig_calibrator
 
     spec = pytestconfig.getoption("rig_calibrator", default=None)
     if not spec:
