@@ -248,20 +248,10 @@ def _options(args: argparse.Namespace, names: list[str]) -> dict:
     return out
 
 
-def _header_size(path: Path) -> tuple[int, int] | None:
-    """An image file's (width, height) from its header (Pillow, nothing decoded); None where it cannot tell."""
-    try:
-        from PIL import Image
-
-        with Image.open(path) as im:
-            return int(im.size[0]), int(im.size[1])
-    except Exception:  # noqa: BLE001 - any file Pillow cannot read: the pipeline's decoder decides later
-        return None
-
-
 def _given_intrinsics(args: argparse.Namespace, names: list[str], options: dict, images: dict) -> dict:
     """The cameras of --intrinsics (read before the work, errors naming the file; each checked against its camera's
     first image's size), each camera's options set to the file's lens model with every intrinsic held."""
+    from circcal.detector.image import header_size
     from circcal.formats import read_camera
     from circcal.model import param_names
 
@@ -273,7 +263,7 @@ def _given_intrinsics(args: argparse.Namespace, names: list[str], options: dict,
         if name in given:
             raise InputError(f"--intrinsics {name}: given twice")
         cam = read_camera(path)
-        size = _header_size(images[name][0]) if images[name] else None
+        size = header_size(Path(images[name][0])) if images[name] else None
         if size is not None and size != (cam.width, cam.height):
             raise InputError(
                 f"--intrinsics {name}={path}: a {cam.width}x{cam.height} camera, camera {name}'s images are "

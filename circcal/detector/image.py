@@ -28,6 +28,7 @@ __all__ = [
     "ImageTooLargeError",
     "as_gray",
     "decode_image",
+    "header_size",
     "histogram_u8",
     "max_image_pixels",
     "normalise_u8",
@@ -172,11 +173,33 @@ def _check_header(source: Path | io.BytesIO, limit: int) -> None:
         raise _too_large(claimed[1], claimed[0], limit)
 
 
-def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:
-    """``(pixels, words)``: the size the image file ``source`` (a path, or its bytes) claims in its header, read by
-    Pillow without decoding (``words``: ``"W x H px"``, or the pixel count where Pillow refused to say more);
-    ``None`` where Pillow cannot tell (a format it does not know, a header it cannot parse, a file it cannot open:
-    the decoder, or the reading of the file, decides)."""
+def header_size(source: Path | io.BytesIO) -> tuple[int, int] | None:
+    """The size an image file claims in its header, read by Pillow without decoding it.
+
+    Parameters
+    ----------
+    source : Path or io.BytesIO
+        The file, or its bytes.
+
+    Returns
+    -------
+    (int, int) or None
+        (width, height) px; None where Pillow cannot tell (no Pillow, a format it does not know, a header it cannot
+        parse, a file it cannot open, a size beyond twice its own limit): the decoder decides.
+    """
+    try:
+        return _pillow_size(source)
+    except _DecompressionBomb:
+        return None
+
+
+class _DecompressionBomb(Exception):
+    """Pillow refused a header's size as beyond twice its own limit; the message is Pillow's."""
+
+
+def _pillow_size(source: Path | io.BytesIO) -> tuple[int, int] | None:
+    """:func:`header_size`, raising :class:`_DecompressionBomb` where Pillow refuses the size (its message holds the
+    pixel count)."""
     try:
         from PIL import Image  # (imported here: start-up does not pay for it)
     except ImportError:  # Pillow comes with matplotlib; without it the decoder decides
@@ -185,13 +208,26 @@ def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         try:
             with Image.open(source) as im:
-                w, h = (int(v) for v in im.size)
-        except Image.DecompressionBombError as exc:  # beyond twice Pillow's own limit: the count is in its words
-            m = re.search(r"\((\d+) pixels\)", str(exc))
-            n = int(m.group(1)) if m else None
-            return None if n is None else (n, f"its header claims {n} pixels ({_mp(n)})")
+                return int(im.size[0]), int(im.size[1])
+        except Image.DecompressionBombError as exc:
+            raise _DecompressionBomb(str(exc)) from None
         except Exception:  # noqa: BLE001 - any header Pillow cannot parse, whatever it raises: the decoder decides
             return None
+
+
+def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:
+    """``(pixels, words)``: the size the image file ``source`` (a path, or its bytes) claims in its header
+    (:func:`header_size`; ``words``: ``"W x H px"``, or the pixel count where Pillow refused to say more); ``None``
+    where Pillow cannot tell (the decoder, or the reading of the file, decides)."""
+    try:
+        size = _pillow_size(source)
+    except _DecompressionBomb as exc:  # beyond twice Pillow's own limit: the count is in its words
+        m = re.search(r"\((\d+) pixels\)", str(exc))
+        n = int(m.group(1)) if m else None
+        return None if n is None else (n, f"its header claims {n} pixels ({_mp(n)})")
+    if size is None:
+        return None
+    w, h = size
     return w * h, f"its header claims {w} x {h} px ({_mp(w * h)})"
 
 
