@@ -32,7 +32,7 @@ from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
 from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
-from circcal.rig.solve import RigSolution, solve_rig
+from circcal.rig.solve import RigSolution, solve_rig, weakest_direction
 from circcal.rig.start import (
     BoardSymmetry,
     RigStart,
@@ -411,10 +411,24 @@ class _Layout:
             obs, len(self.instants), [c.intrinsics for c in cameras], [c.lens for c in cameras], free, maps
         )
 
+    def weakest(self, params: list[tuple[int, str]]) -> str:
+        """Where a solve that did not converge crawls: the parameters of the information's weakest direction."""
+        per: dict[str, list[str]] = {}
+        for c, p in params:
+            per.setdefault(self.names[c], []).append(p)
+        if not per:
+            return ""
+        where = "; ".join(f"{', '.join(ps)} of camera {n!r}" for n, ps in per.items())
+        return (
+            f" along what its views determine least ({where}): fewer lens coefficients for that camera, views that "
+            "reach its image's corners, or more iterations (max_iterations)"
+        )
+
     def result(self, prob: RigProblem, sol: RigSolution, cameras: list[Camera]) -> RigCalibration:
         if not sol.converged:
             warnings.warn(
-                f"the rig solve did not converge ({sol.message}); the rig may be inaccurate",
+                f"the rig solve did not converge ({sol.message}); the rig may be inaccurate"
+                + self.weakest(weakest_direction(prob, sol.x)),
                 RuntimeWarning,
                 stacklevel=3,
             )
