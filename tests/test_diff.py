@@ -106,3 +106,12 @@ def test_bad_input_is_a_clear_error_and_writes_nothing(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     assert not heat.exists() and not js.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "broken.cameramodel"]
+
+
+def test_a_stated_uncertainty_is_raised_to_the_noise_floor_only_below_it():
+    from circcal.analysis.diff import NOISE_FLOOR_PX, noise_floor_factor
+
+    assert noise_floor_factor(NOISE_FLOOR_PX / 4) == pytest.approx(4.0)  # a clean render's 0.0025 px
+    assert noise_floor_factor(NOISE_FLOOR_PX) == 1.0
+    assert noise_floor_factor(0.3) == 1.0  # a photograph's noise: unchanged
+    assert noise_floor_factor(float("nan")) == 1.0 and noise_floor_factor(0.0) == 1.0

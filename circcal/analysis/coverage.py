@@ -121,5 +121,7 @@ def coverage(image_points: Sequence[np.ndarray], width: int, height: int) -> Cov
                     if name != "centre"
                     else "the principal point region is extrapolated"
                 )
-                warnings.append(f"nothing in the {name} (x {x0:.0f}..{x1:.0f} px, y {y0:.0f}..{y1:.0f} px): {what}")
+                # the image's edge is at -0.5 (pixel centres are integers): printed from pixel 0, not "-0"
+                a, b = max(x0, 0.0), max(y0, 0.0)
+                warnings.append(f"nothing in the {name} (x {a:.0f}..{x1:.0f} px, y {b:.0f}..{y1:.0f} px): {what}")
     return Coverage(width, height, counts, region_counts, empty, float(np.mean(counts > 0)), warnings)

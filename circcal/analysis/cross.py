@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
+from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff, noise_floor_factor
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
@@ -306,7 +306,8 @@ def _leave_one_out(full: Any, names: Sequence[str], options: CalibrationOptions,
 
 
 def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float | None = None) -> ModelDiff:
-    """Two models' projection difference weighed against their combined uncertainty (the cross-validation's test).
+    """Two models' projection difference weighed against their combined uncertainty (the cross-validation's test),
+    each raised to the noise floor (:data:`circcal.analysis.diff.NOISE_FLOOR_PX`).
 
     Parameters
     ----------
@@ -322,12 +323,13 @@ def halves_diff(a: CalibrationResult, b: CalibrationResult, *, distance: float |
     """
     from circcal.solver.uncertainty import result_projection_stdev
 
+    fa, fb = noise_floor_factor(a.sigma_px), noise_floor_factor(b.sigma_px)
     return model_diff(
         a.camera,
         b.camera,
         distance=distance,
-        uncertainty_a=lambda uv: result_projection_stdev(a, uv, distance=distance),
-        uncertainty_b=lambda uv: result_projection_stdev(b, uv, distance=distance),
+        uncertainty_a=lambda uv: fa * result_projection_stdev(a, uv, distance=distance),
+        uncertainty_b=lambda uv: fb * result_projection_stdev(b, uv, distance=distance),
     )
 
 

@@ -25,13 +25,49 @@ from circcal.formats import read_camera
 from circcal.model import Camera, project_camera, unproject
 from circcal.rotation import fit_rotation, rotation_angle_deg
 
-__all__ = ["ModelDiff", "model_diff", "CONSISTENT_RATIO", "CONSISTENT_SHARE", "region_names"]
+__all__ = [
+    "ModelDiff",
+    "model_diff",
+    "CONSISTENT_RATIO",
+    "CONSISTENT_SHARE",
+    "NOISE_FLOOR_PX",
+    "noise_floor_factor",
+    "region_names",
+]
 
 #: Two models agree when their difference is within this many times their combined uncertainty ...
 CONSISTENT_RATIO = 2.0
 #: ... over at least this share of the image (the issue's rule; mrcal's validate-uncertainty.py finds perfect-data
 #: differences within ~2x of the summed uncertainties).
 CONSISTENT_SHARE = 0.95
+#: The least per-coordinate noise (px) a cross-validation weighs two halves' difference with: a half's stated
+#: uncertainty, first order in its residual noise, is scaled up to this noise (:func:`noise_floor_factor`). Below it
+#: the residuals are the detector's own error, not noise: on the clean rendered rigs (residuals 0.0027-0.0029 px)
+#: the centres' error from the truth is correlated within a view, its mean over a view up to 3x what independent
+#: errors would give (chain's camera c: 0.0126 px x sqrt(n) against 0.0041), so a clean render's halves disagree by
+#: up to ~3x their iid uncertainty (a wide stereo pair of an 11x4 board: 2.7x, a false "model or data problem").
+#: Real photographs' noise is 0.05 px or more (:data:`circcal.solver.outliers.SIGMA_FLOOR_PX`): never floored there.
+NOISE_FLOOR_PX = 0.01
+
+
+def noise_floor_factor(sigma_px: float) -> float:
+    """By how much a stated uncertainty first order in the noise ``sigma_px`` is raised to :data:`NOISE_FLOOR_PX`.
+
+    Parameters
+    ----------
+    sigma_px : float
+        The residual noise per coordinate the uncertainty was scaled with, px.
+
+    Returns
+    -------
+    float
+        ``max(1, NOISE_FLOOR_PX / sigma_px)`` (1 where ``sigma_px`` is not a positive number: nothing to raise).
+    """
+    if not (np.isfinite(sigma_px) and sigma_px > 0):
+        return 1.0
+    return max(1.0, NOISE_FLOOR_PX / float(sigma_px))
+
+
 #: The image is named in thirds each way for "where": corners, edges, centre.
 _THIRDS = (
     ("top-left corner", "top edge", "top-right corner"),

@@ -111,7 +111,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="a camera and its images: a folder (its images, sorted) or a glob in quotes ('left/*.png'); give one "
         "--camera per camera, the reference first",
     )
-    p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 8x11 (asymmetric: 11x4); auto: found")
+    p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 8x11 (asymmetric: 11x4), or auto: found in the images")
     p.add_argument("--pitch", type=parse_length_mm, help="point spacing, e.g. 15mm (the unit of T)")
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")
@@ -544,8 +544,9 @@ def _pose_text(rig, k: int, s) -> str:
         sa = float(np.sqrt(max(g @ C[:3, :3] @ g, 0.0)))
         u = tv / base if base > 0 else np.zeros(3)
         sb = float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0)))
-    T = ", ".join(f"{t:.3f} +- {e:.3f}" for t, e in zip(tv, s[3:]))
+    # sigmas to two significant digits: a clean rig's baseline sigma (~1e-4 mm) does not round to 0
+    T = ", ".join(f"{t:.3f} +- {e:.2g}" for t, e in zip(tv, s[3:]))
     return (
         f"pose in the rig (X_{rig.names[k]} = R X_{rig.names[0]} + T): rotation {np.degrees(angle):.4f} +- "
-        f"{np.degrees(sa):.4f} deg, baseline {base:.3f} +- {sb:.3f} mm; T = ({T}) mm"
+        f"{np.degrees(sa):.2g} deg, baseline {base:.3f} +- {sb:.2g} mm; T = ({T}) mm"
     )

@@ -18,6 +18,10 @@ observations, labels as they are), and the two rigs are compared against their s
   against the sum of the halves' 6x6 covariances (rvec mapped by SO(3)'s left Jacobian), as a Mahalanobis distance
   with 6 degrees of freedom: consistent within :data:`POSE_LIMIT` (twice the 99.9% ellipsoid's distance).
 
+Each half's covariance is first order in its residual noise, raised to at least
+:data:`~circcal.analysis.diff.NOISE_FLOOR_PX` per coordinate (a clean render's residuals are the detector's own
+error, correlated within a view), as a single camera's cross-validation does.
+
 With fewer than :data:`MIN_INSTANTS` instants (or a camera with fewer than 2 x 3 views) it says why it was not done.
 Poses follow :mod:`circcal.rig.model`.
 """
@@ -31,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from circcal.analysis.cross import half_named, noting_warnings
-from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff
+from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff, model_diff, noise_floor_factor
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
 from circcal.observations import MIN_VIEWS
@@ -394,12 +398,12 @@ def cross_validate_rig(
     covs, notes = [], []
     for k, r in enumerate(rigs):
         if r.rig.covariance is not None:
-            covs.append(np.asarray(r.rig.covariance, dtype=np.float64))
+            covs.append(np.asarray(r.rig.covariance, dtype=np.float64) * noise_floor_factor(r.sigma_px) ** 2)
             continue
         # information adds up over the instants: a half holding a share of the points has about 1/share of the
         # full rig's covariance (a nearly degenerate lens model, e.g. rational, is singular on half the views)
         share = _points(r) / _points(cal)
-        covs.append(np.asarray(rig.covariance, dtype=np.float64) / share)
+        covs.append(np.asarray(rig.covariance, dtype=np.float64) * noise_floor_factor(cal.sigma_px) ** 2 / share)
         notes.append(f"{k + 1} ({100 * share:.0f}% of the points)")
     a, b = rigs[0].rig, rigs[1].rig
     a = RigModel(a.names, a.cameras, a.rvecs, a.tvecs, covs[0], a.rms_px)
