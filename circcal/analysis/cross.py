@@ -34,6 +34,7 @@ from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff,
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS as SOLVER_MIN_VIEWS
+from circcal.pathnames import display_name
 from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
 
 #: The argument and the result of a fit :func:`noting_warnings` runs.
@@ -380,7 +381,7 @@ def half_named(members: Sequence[str], unit: str) -> str:
     str
         E.g. ``the half of 7 views (a.png, b.png, c.png, d.png, ...)``.
     """
-    shown = ", ".join(members[:4])
+    shown = ", ".join(display_name(m) for m in members[:4])  # a file name with a newline prints as one line
     return f"the half of {len(members)} {unit} ({shown}{', ...' if len(members) > 4 else ''})"
 
 

@@ -28,8 +28,9 @@ from circcal.errors import InputError
 from circcal.imagefiles import IMAGE_SUFFIXES, expand_images
 from circcal.pathnames import display_name
 
-#: A camera's name: it names files in --ros and --cameramodels folders.
-CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
+#: A camera's name: it names files in --ros and --cameramodels folders (64 characters at most: with a suffix and
+#: the staging file's affixes it stays well inside a file system's 255-byte names).
+CAMERA_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
 #: --out by extension.
 OUT_FORMATS = {".json": "json", ".yaml": "opencv", ".yml": "opencv"}
 
@@ -44,8 +45,8 @@ def _camera(text: str) -> tuple[str, str]:
         )
     if not CAMERA_NAME.fullmatch(name):
         raise argparse.ArgumentTypeError(
-            f"camera name {name!r} must be letters, digits, '_', '.', '+' or '-' (it names files), starting with a "
-            f"letter or digit"
+            f"camera name {display_name(name[:80]) + ('...' if len(name) > 80 else '')!r} must be 1-64 letters, "
+            f"digits, '_', '.', '+' or '-' (it names files), starting with a letter or digit"
         )
     return name, images
 
@@ -111,7 +112,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="a camera and its images: a folder (its images, sorted) or a glob in quotes ('left/*.png'); give one "
         "--camera per camera, the reference first",
     )
-    p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 8x11 (asymmetric: 11x4), or auto: found in the images")
+    p.add_argument(
+        "--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 8x11 (asymmetric: 11x4), or auto: found in the images"
+    )
     p.add_argument("--pitch", type=parse_length_mm, help="point spacing, e.g. 15mm (the unit of T)")
     p.add_argument("--diameter", type=parse_length_mm, help=DIAMETER_HELP)
     p.add_argument("--asymmetric", action="store_true", help="asymmetric circle grid (OpenCV acircles layout)")

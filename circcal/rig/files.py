@@ -270,7 +270,7 @@ def read_opencv_stereo(path: str | Path) -> RigModel:
     text = read_text(path, "OpenCV stereo file", max_bytes=MAX_MODEL_FILE_BYTES)
     try:
         return opencv_stereo_from_text(text)
-    except ModelFileError as exc:
+    except InputError as exc:  # the file's checks, and a camera's own (a focal length that is not positive)
         raise ModelFileError(f"{path}: {exc}") from None
 
 

@@ -21,10 +21,20 @@ from typing import Any
 import numpy as np
 
 from circcal.errors import InputError
+from circcal.formats.limits import check_camera, number
 from circcal.model import Camera
 from circcal.rotation import rodrigues
 
 __all__ = ["RigModel", "relative_pose"]
+
+
+#: Bounds of a rig model file's poses and noise: far outside any rig (a rotation vector's components are at most
+#: pi for a rotation written the usual way; 1000 km; 1e6 px), they keep a damaged file from reaching the math.
+MAX_RVEC = 1e3
+MAX_TVEC_MM = 1e9
+MAX_RMS_PX = 1e6
+#: Relative rounding a covariance read back may carry (to_dict writes a symmetric matrix in full precision).
+COVARIANCE_RTOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -216,14 +226,26 @@ class RigModel:
         for k, c in enumerate(cams):
             if not isinstance(c, dict) or not {"name", "camera", "rvec", "tvec"} <= set(c):
                 raise InputError(f"rig camera {k} must hold name, camera, rvec and tvec")
+        if d.get("version", 1) != 1:
+            raise InputError(f"rig model version {d.get('version')!r}: this circcal reads version 1")
         cov = d.get("covariance")
+        rms = d.get("rms_px")
+        if rms is not None and number(rms, "rig rms_px", 0.0, MAX_RMS_PX, " px") <= 0:
+            raise InputError("rig rms_px must be a positive number of px, got 0")
+        rvecs, tvecs = _vectors([c["rvec"] for c in cams], "rvec"), _vectors([c["tvec"] for c in cams], "tvec")
+        for k in range(len(cams)):
+            if np.max(np.abs(rvecs[k])) > MAX_RVEC or np.max(np.abs(tvecs[k])) > MAX_TVEC_MM:
+                raise InputError(
+                    f"rig camera {k}: rvec components must be within {MAX_RVEC:g} rad and tvec's within "
+                    f"{MAX_TVEC_MM:g} mm, got {rvecs[k].tolist()}, {tvecs[k].tolist()}"
+                )
         rig = cls(
             [c["name"] for c in cams],
-            [Camera.from_dict(c["camera"]) for c in cams],
-            _vectors([c["rvec"] for c in cams], "rvec"),
-            _vectors([c["tvec"] for c in cams], "tvec"),
+            [check_camera(Camera.from_dict(c["camera"])) for c in cams],
+            rvecs,
+            tvecs,
             None if cov is None else _matrix(cov),
-            None if d.get("rms_px") is None else float(d["rms_px"]),
+            None if rms is None else float(rms),
         )
         if rig.covariance is not None and rig.covariance.shape != (len(rig.state_vector()),) * 2:
             raise InputError(f"rig covariance must be {len(rig.state_vector())} x {len(rig.state_vector())}")
@@ -260,11 +282,18 @@ def _vectors(rows: Sequence[Any], what: str) -> np.ndarray:
 
 
 def _matrix(rows: Any) -> np.ndarray:
-    """A finite square float matrix, or InputError."""
+    """A covariance: a finite, symmetric, positive semi-definite square float matrix, or InputError."""
     try:
         a = np.asarray(rows, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError("rig covariance must be a square matrix of numbers") from None
     if a.ndim != 2 or a.shape[0] != a.shape[1] or not np.isfinite(a).all():
         raise InputError("rig covariance must be a square matrix of finite numbers")
+    scale = float(np.max(np.abs(np.diag(a)))) if a.size else 0.0
+    if np.any(np.diag(a) < 0) or not np.allclose(a, a.T, rtol=COVARIANCE_RTOL, atol=COVARIANCE_RTOL * scale):
+        raise InputError("rig covariance must be symmetric with a non-negative diagonal (a covariance)")
+    # positive semi-definite up to rounding: its variances scale the correlations' bound |C_ij| <= sqrt(C_ii C_jj)
+    sd = np.sqrt(np.diag(a))
+    if np.any(np.abs(a) > np.outer(sd, sd) * (1 + COVARIANCE_RTOL) + COVARIANCE_RTOL * scale):
+        raise InputError("rig covariance is not a covariance: a correlation beyond +-1")
     return a

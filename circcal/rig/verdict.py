@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from circcal.analysis.coverage import Coverage, coverage
+from circcal.analysis.remedy import RICHER_LENS
 from circcal.rig.calibrate import RigCalibration, lens_poles
 from circcal.rig.coincident import CoincidentCameras, coincident_cameras
 from circcal.rig.crossval import (
@@ -220,10 +221,20 @@ class RigVerdict:
         if self.cross is not None and self.cross.verdict == "model-or-data-problem":
             out += [f"  {p}" for p in self.cross.problems()]
             proj = [n for n, d in self.cross.projections.items() if not d.consistent]
-            if proj:
+            lenses = dict(zip(self.cross.rigs[0].rig.names, (c.lens for c in self.cross.rigs[0].rig.cameras)))
+            for name in proj:
+                lens = lenses.get(name, "")
+                richer = RICHER_LENS.get(lens)
+                model = (
+                    f"a lens model too simple for the lens (try --lens {name}={richer}, or fisheye for a wide lens), "
+                    if richer
+                    else f"the {lens} lens model unlike the lens, "
+                    if lens
+                    else "a lens model unlike the lens, "
+                )
                 out.append(
-                    f"  what to do: camera(s) {', '.join(proj)}: a lens model too simple for the lens (try rational, "
-                    f"or fisheye for a wide lens), biased centres, or a board unlike the one given (pitch, flatness)"
+                    f"  what to do: camera {name!r}: {model}biased centres, or a board unlike the one given (pitch, "
+                    f"flatness)"
                 )
             if any(not p.consistent for p in self.cross.poses):
                 out.append(

@@ -335,7 +335,8 @@ def _calibrate(
             raise CalibrationError(
                 f"the {lens} lens model's {', '.join(trade)} are not determined by these {len(obj)} views (they "
                 f"trade off against each other; condition number {cond:.3g}): fit a model with fewer coefficients "
-                f"(--lens opencv5, or --lens auto), or add views that reach the image's corners and edges"
+                f"(opencv5: calibrate's --lens opencv5 or --lens auto, calibrate-rig's --lens NAME=opencv5), or add views "
+                f"that reach the image's corners and edges"
             )
         tilts = view_tilts_deg(rv)
         flat = [int(i) for i in np.flatnonzero(tilts < FLAT_VIEW_TILT_DEG)]
