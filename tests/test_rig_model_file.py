@@ -63,3 +63,27 @@ def test_a_correlation_beyond_one_is_refused(doc):
     d["covariance"] = C.tolist()
     with pytest.raises(InputError, match="correlation beyond"):
         RigModel.from_dict(d)
+
+
+@pytest.mark.parametrize(
+    "name, text, words",
+    [
+        ("p.csv", "u,v\n1,2\n3,\n", "line 3: one coordinate only"),
+        ("p.csv", "id,u,v\na,1,2\nb,3,4\na,5,6\n", "line 4: point id 'a' given twice \\(first on line 2\\)"),
+        ("p.json", "[[1, 2], [3, null]]", "point 1 has one coordinate only"),
+    ],
+)
+def test_a_points_file_with_half_a_point_or_an_id_twice_is_refused_by_line(tmp_path, name, text, words):
+    from circcal.commands.triangulate import read_points
+
+    (tmp_path / name).write_text(text)
+    with pytest.raises(InputError, match=words):
+        read_points(tmp_path / name)
+
+
+def test_a_points_file_with_unseen_points_reads(tmp_path):
+    from circcal.commands.triangulate import read_points
+
+    (tmp_path / "p.csv").write_text("id,u,v\na,1,2\nb,,\nc,nan,nan\n")
+    ids, px = read_points(tmp_path / "p.csv")
+    assert ids == ["a", "b", "c"] and px[0] == (1.0, 2.0) and all(np.isnan(px[k]).all() for k in (1, 2))

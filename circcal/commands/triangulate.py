@@ -187,6 +187,8 @@ def read_points(path: Path, option: str = "--points") -> tuple[list[str] | None,
             u, v = (math.nan if x is None else float(x) for x in r)
             if math.isinf(u) or math.isinf(v):
                 raise InputError(f"{where}: point {k} must be finite")
+            if math.isnan(u) != math.isnan(v):
+                raise InputError(f"{where}: point {k} has one coordinate only, got {r!r}: give both, or null for both")
             out.append((u, v))
         return None, out
     rows = [
@@ -202,7 +204,18 @@ def read_points(path: Path, option: str = "--points") -> tuple[list[str] | None,
                 f"{where}: line {n}: expected u,v or id,u,v on every row (as the first), got {len(r)} fields"
             )
     ids = [r[0].strip() for _, r in rows] if rows and len(rows[0][1]) == 3 else None
+    if ids is not None:
+        first: dict[str, int] = {}
+        for (n, _), i in zip(rows, ids):
+            if i in first:
+                raise InputError(
+                    f"{where}: line {n}: point id {display_name(i)!r} given twice (first on line {first[i]})"
+                )
+            first[i] = n
     pixels = [(_number(r[-2], f"{where}: line {n}"), _number(r[-1], f"{where}: line {n}")) for n, r in rows]
+    for (n, _), (u, v) in zip(rows, pixels):
+        if math.isnan(u) != math.isnan(v):
+            raise InputError(f"{where}: line {n}: one coordinate only: give u and v, or leave both empty (unseen)")
     return ids, pixels
 
 
