@@ -309,6 +309,11 @@ def test_triangulate_true_points_within_their_sigmas(tmp_path, capsys):
     assert np.all(np.abs(z) < 4.5) and 0.6 < np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
     assert all(r["sigma_largest_mm"] >= max(r["sigma_x_mm"], r["sigma_y_mm"], r["sigma_z_mm"]) for r in rows[1:])
     assert "behind a camera" not in text and all(r["behind"] == "" for r in rows)
+    # with --out the console shows the first CONSOLE_ROWS points, the file every one
+    from circcal.commands.triangulate import CONSOLE_ROWS
+
+    assert len(rows) > CONSOLE_ROWS and f"... {len(rows) - CONSOLE_ROWS} more point(s) in {out}" in text
+    assert f"\n{'p' + str(CONSOLE_ROWS - 1):>8} " in text and f"\n{'p' + str(CONSOLE_ROWS):>8} " not in text
 
 
 def test_triangulate_names_points_behind_the_cameras(tmp_path, capsys):
