@@ -370,7 +370,7 @@ def run(args: argparse.Namespace) -> int:
             if flag:
                 print(f"circcal calibrate-rig: {flag}", file=sys.stderr)
             return 1
-        verdict = rig_verdict(cal, options, cross_validate=args.cross_validate)
+        verdict = rig_verdict(cal, options, cross_validate=args.cross_validate, progress=not args.no_progress)
         lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
         print("\n".join(lines))
         # the first two cameras at one point have no epipolar geometry: their rectification would be noise

@@ -29,6 +29,7 @@ from circcal.imagefiles import image_list
 from circcal.model import Camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
+from circcal.progress import progress_bar
 from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
@@ -499,7 +500,7 @@ def calibrate_rig(
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         As :func:`calibrate_rig_points`.
     progress : bool or None
-        Show the detector's progress bars.
+        Show the detector's progress bars and the joint solve's (one step per re-correction round).
     jobs : int or None
         Images detected at once (:func:`circcal.detector.detect_files`).
     max_rounds, tol_px
@@ -578,39 +579,43 @@ def calibrate_rig(
             if n in given:
                 cameras[c] = given[n]
                 poses[c] = given_camera_starts([n], [given[n]], [views[c]])[1][0]
-    layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
-    max_it = max(o.max_iterations for o in opts)
-    rounds: list[dict[str, Any]] = []
-    rounds.append({"round": 0, "rms_px": result.rig.rms_px, "max_centre_shift_px": float("nan")})
-    for r in range(1, max_rounds):
-        shift = 0.0
-        new_centres = []
-        for c in range(len(names)):
-            cam = result.rig.cameras[c]
-            per: dict[str, np.ndarray] = {}
-            for v in layout.kept[c]:
-                old = centres[c][v]
-                new = np.asarray(det_mod.recorrect(dets[c][v], board, cam), dtype=np.float64)
-                new = np.where(np.isfinite(old) & np.isfinite(new), new, old)  # the same points every round
-                shift = max(shift, float(np.nanmax(np.linalg.norm(new - old, axis=1))))
-                per[v] = new
-            new_centres.append({**centres[c], **per})
-        views = views_of(new_centres)
-        prob = layout.problem(views, list(result.rig.cameras), opts)
-        try:
-            sol = solve_rig(prob, sol.x, max_it)
-        except CalibrationError as exc:
-            warnings.warn(
-                f"rig centre re-correction stopped after round {r - 1}, whose rig is kept: {exc}",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-            break
-        centres = new_centres
-        result = layout.result(prob, sol, cameras)
-        rounds.append({"round": r, "rms_px": result.rig.rms_px, "max_centre_shift_px": shift})
-        if shift < tol_px:
-            break
+    with progress_bar(max_rounds, "rig joint solve", "round", bool(progress)) as bar:
+        layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
+        bar.update()
+        max_it = max(o.max_iterations for o in opts)
+        rounds: list[dict[str, Any]] = []
+        rounds.append({"round": 0, "rms_px": result.rig.rms_px, "max_centre_shift_px": float("nan")})
+        for r in range(1, max_rounds):
+            bar.update()
+            shift = 0.0
+            new_centres = []
+            for c in range(len(names)):
+                cam = result.rig.cameras[c]
+                per: dict[str, np.ndarray] = {}
+                for v in layout.kept[c]:
+                    old = centres[c][v]
+                    new = np.asarray(det_mod.recorrect(dets[c][v], board, cam), dtype=np.float64)
+                    new = np.where(np.isfinite(old) & np.isfinite(new), new, old)  # the same points every round
+                    shift = max(shift, float(np.nanmax(np.linalg.norm(new - old, axis=1))))
+                    per[v] = new
+                new_centres.append({**centres[c], **per})
+            views = views_of(new_centres)
+            prob = layout.problem(views, list(result.rig.cameras), opts)
+            try:
+                sol = solve_rig(prob, sol.x, max_it)
+            except CalibrationError as exc:
+                warnings.warn(
+                    f"rig centre re-correction stopped after round {r - 1}, whose rig is kept: {exc}",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+                break
+            centres = new_centres
+            result = layout.result(prob, sol, cameras)
+            rounds.append({"round": r, "rms_px": result.rig.rms_px, "max_centre_shift_px": shift})
+            if shift < tol_px:
+                bar.update(max_rounds - 1 - r)  # converged: the rounds left are not needed
+                break
     result.rounds = rounds
     result.per_camera = per_camera
     result.images = {n: {v: p for p, v in instant[n].items()} for n in names}

@@ -39,6 +39,7 @@ from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, ModelDiff,
 from circcal.errors import InputError
 from circcal.model import Camera, project_camera_jacobian, unproject
 from circcal.observations import MIN_VIEWS
+from circcal.progress import progress_bar
 from circcal.rig.calibrate import RigCalibration, calibrate_rig_points
 from circcal.rig.model import RigModel
 from circcal.rotation import left_jacobian, rotation_log, skew
@@ -340,6 +341,8 @@ class RigCrossValidation:
 def cross_validate_rig(
     cal: RigCalibration,
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
+    *,
+    progress: bool = False,
 ) -> RigCrossValidation:
     """Cross-validate a rig calibration on two halves of its instants (see the module).
 
@@ -350,6 +353,8 @@ def cross_validate_rig(
         keep them).
     options : CalibrationOptions, mapping of str to CalibrationOptions, or None
         The settings ``cal`` was made with (one for all cameras or one per camera name).
+    progress : bool
+        Show a progress bar over the two halves' solves.
 
     Returns
     -------
@@ -382,17 +387,19 @@ def cross_validate_rig(
         obs = {n: {v: cal.observations[n][v] for v in instants[n] if v in keep} for n in rig.names}
         return calibrate_rig_points(obs, sizes, options, initial=cal)
 
-    for h in halves:
-        who = half_named(h, "instants")
-        try:
-            rigs.append(noting_warnings(said, who, fit, set(h)))
-        except InputError as exc:  # CalibrationError included: too few views of a camera, a disconnected one
-            return RigCrossValidation(
-                "failed",
-                f"not done: the half {h[:6]}{'...' if len(h) > 6 else ''} gives no rig ({exc})",
-                halves,
-                notes=said,
-            )
+    with progress_bar(len(halves), "rig cross-validation", "half", progress) as bar:
+        for h in halves:
+            who = half_named(h, "instants")
+            try:
+                rigs.append(noting_warnings(said, who, fit, set(h)))
+            except InputError as exc:  # CalibrationError included: too few views of a camera, a disconnected one
+                return RigCrossValidation(
+                    "failed",
+                    f"not done: the half {h[:6]}{'...' if len(h) > 6 else ''} gives no rig ({exc})",
+                    halves,
+                    notes=said,
+                )
+            bar.update()
     if rig.covariance is None and any(r.rig.covariance is None for r in rigs):
         return RigCrossValidation("failed", "not done: the information matrix is singular", halves, rigs, notes=said)
     covs, notes = [], []

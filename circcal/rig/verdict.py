@@ -279,6 +279,7 @@ def rig_verdict(
     options: CalibrationOptions | Mapping[str, CalibrationOptions] | None = None,
     *,
     cross_validate: bool = True,
+    progress: bool = False,
 ) -> RigVerdict:
     """The verdict on a rig calibration: cross-validation (:func:`cross_validate_rig`), outlier views, any lens
     with a pole in its observed field (:func:`circcal.rig.calibrate.lens_poles`) and cameras at one point
@@ -291,6 +292,8 @@ def rig_verdict(
         The settings ``cal`` was made with.
     cross_validate : bool
         False: skip the cross-validation (the verdict is then at best ``"not-checked"``).
+    progress : bool
+        Show the cross-validation's progress bar.
 
     Returns
     -------
@@ -301,7 +304,7 @@ def rig_verdict(
     InputError
         Bad ``options``.
     """
-    cross = cross_validate_rig(cal, options) if cross_validate else None
+    cross = cross_validate_rig(cal, options, progress=progress) if cross_validate else None
     outliers = view_outliers(cal)
     coincident = coincident_cameras(cal)
     undetermined = list(cal.undetermined) if cal.rig.covariance is None else None
