@@ -155,6 +155,16 @@ BAD = {
     "one folder twice": (["--camera", "left=L", "--camera", "right=L"], "is also given to camera 'left'"),
     "a file in two cameras": (["--camera", "left=L", "--camera", "right=L/a.png"], "the same folder given twice?"),
     "empty folder": (["--camera", "left=L", "--camera", "right=E"], "holds no image file"),
+    "a text file as the images": (
+        ["--camera", "left=L", "--camera", "right=N/notes.txt"],
+        "a file that is not an image",
+    ),
+    "a glob of no image": (["--camera", "left=L", "--camera", "right=N/*"], "matches 1 file(s), none an image"),
+    "too few images": (["--camera", "left=L", "--camera", "right=L2"], "--camera right: 1 image(s); a camera's"),
+    "a folder copied": (
+        ["--camera", "left=L", "--camera", "right=C"],
+        "C/b.png holds the bytes of camera left's L/b.png (2 such",
+    ),
     "glob matches nothing": (["--camera", "left=L", "--camera", "right=R/*.jpg"], "the pattern matches no file"),
     "no such folder": (["--camera", "left=L", "--camera", "right=nowhere"], "no such folder or file"),
     "no shared name": (["--camera", "left=L", "--camera", "right=S"], "share no file name"),
@@ -211,6 +221,12 @@ def test_bad_arguments_are_one_line_and_write_nothing(case, tmp_path, monkeypatc
     _images(tmp_path / "L2", ["a.png"])
     _images(tmp_path / "R", ["a.png", "b.png", "d.png"])
     _images(tmp_path / "S", ["x.png", "y.png"])
+    (tmp_path / "N").mkdir()
+    (tmp_path / "N" / "notes.txt").write_text("my notes")
+    for name, data in (("a.png", b""), ("b.png", b"\x89PNG b"), ("c.png", b"\x89PNG c")):  # copies of L's (a: empty)
+        (tmp_path / "C").mkdir(exist_ok=True)
+        (tmp_path / "L" / name).write_bytes(data)
+        (tmp_path / "C" / name).write_bytes(data)
     _images(tmp_path / "P", ["left1.png", "left2.png", "right1.png", "right01.png", "right2.png"])
     (tmp_path / "B.json").write_text('{"rows": 8, "cols": 11, "layout": "symmetric", "pitch_mm": 15}')
     (tmp_path / "E").mkdir()
@@ -415,14 +431,22 @@ def test_a_grid_that_is_not_the_boards_names_the_images_grid(fixture_dir, tmp_pa
 
 
 def test_one_cameras_images_given_for_both_is_named_with_what_to_do(fixture_dir, tmp_path, capsys):
-    # one folder twice is refused before any work ("the same folder given twice?"); a copy of it as the other
-    # camera's (a wrong folder copied) solves to a zero baseline: the verdict says the same images were given for
-    # both cameras (each camera re-corrects its own centres: equal to rounding, 3e-13 px)
+    # one folder twice is refused before any work ("the same folder given twice?"), and so is a byte copy of it as
+    # the other camera's (a wrong folder copied); the same images written again (other bytes, the same pixels)
+    # solve to a zero baseline: the verdict says the same images were given for both cameras (each camera
+    # re-corrects its own centres: equal to rounding, 3e-13 px)
     import shutil
+
+    import cv2
 
     shutil.copytree(fixture_dir / "left", tmp_path / "copy")
     argv = ["calibrate-rig", "--camera", f"left={fixture_dir / 'left'}", "--camera", f"right={tmp_path / 'copy'}"]
     argv += [*GRID, "--no-cross-validate", "--jobs", "1", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "rig.json")]) == 2
+    err = capsys.readouterr().err
+    assert "holds the bytes of camera left's" in err and not (tmp_path / "rig.json").exists()
+    for f in (tmp_path / "copy").glob("*.png"):
+        cv2.imwrite(str(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED), [cv2.IMWRITE_PNG_COMPRESSION, 9])
     assert main([*argv, "--out", str(tmp_path / "rig.json"), "--report", str(tmp_path / "report")]) == 0
     out = capsys.readouterr().out
     assert out.startswith("verdict: a model or data problem"), out[:300]

@@ -26,6 +26,7 @@ from circcal.commands.args import (
 from circcal.commands.board import add_marker_arguments
 from circcal.errors import InputError
 from circcal.imagefiles import IMAGE_SUFFIXES, expand_images
+from circcal.observations import MIN_VIEWS
 from circcal.pathnames import display_name
 
 #: A camera's name: it names files in --ros and --cameramodels folders (64 characters at most: with a suffix and
@@ -179,15 +180,49 @@ def _images_of(name: str, spec: str) -> list[Path]:
     option = f"--camera {name}={spec}"
     path = Path(spec)
     if path.is_dir():  # the summary says how many were found
-        return expand_images([path], option, announce=False)
-    if glob.has_magic(spec):
-        found = sorted(Path(f) for f in glob.glob(spec) if Path(f).is_file())
-        if not found:
+        found = expand_images([path], option, announce=False)
+    elif glob.has_magic(spec):
+        files = sorted(Path(f) for f in glob.glob(spec) if Path(f).is_file())
+        if not files:
             raise InputError(f"{option}: the pattern matches no file")
-        return found
-    if path.is_file():
-        return [path]
-    raise InputError(f"{option}: no such folder or file (give a folder, or a glob in quotes such as 'left/*.png')")
+        # as a folder's: the image files only (a README or a .json beside the images is not an unreadable image)
+        found = [f for f in files if f.suffix.lower() in IMAGE_SUFFIXES]
+        if not found:
+            raise InputError(
+                f"{option}: the pattern matches {len(files)} file(s), none an image ({', '.join(sorted(IMAGE_SUFFIXES))})"
+            )
+    elif path.is_file():
+        if path.suffix.lower() not in IMAGE_SUFFIXES:
+            raise InputError(f"{option}: a file that is not an image; give a folder of images or a glob in quotes")
+        found = [path]
+    else:
+        raise InputError(f"{option}: no such folder or file (give a folder, or a glob in quotes such as 'left/*.png')")
+    return found
+
+
+def _size(path: Path) -> int:
+    """A file's size in bytes; 0 where it cannot be read (the detector reports it)."""
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def _refuse_copies(images: dict[str, list[Path]]) -> None:
+    """Refuse images of one camera whose bytes are another camera's (a folder copied for the second camera): two
+    cameras never record the same bytes, and the rig would be a camera at one point with itself."""
+    from circcal.pipeline import duplicates_of
+
+    # an empty file is no image (the detector says so), not a copy of another camera's
+    flat = [(name, f) for name, paths in images.items() for f in paths if _size(f) > 0]
+    cross = [(j, i) for i, (j, _) in duplicates_of([str(f) for _, f in flat]).items() if flat[i][0] != flat[j][0]]
+    if cross:
+        (a, fa), (b, fb) = flat[cross[0][0]], flat[cross[0][1]]
+        n = sum(1 for j, i in cross if (flat[j][0], flat[i][0]) == (a, b))
+        raise InputError(
+            f"--camera {b}: {display_name(fb)} holds the bytes of camera {a}'s {display_name(fa)} ({n} such "
+            f"image(s)): each camera's images are its own (a folder copied for the other camera?)"
+        )
 
 
 def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
@@ -214,7 +249,13 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
                     f"--camera {name}: {display_name(f)} is also given to camera {other!r}; each camera's "
                     f"images are its own (the same folder given twice?)"
                 )
+    _refuse_copies(images)
     alone = unlinked(instants)
+    few = next((n for n, paths in images.items() if len(paths) < MIN_VIEWS), None)
+    if few is not None and not alone:
+        raise InputError(
+            f"--camera {few}: {len(images[few])} image(s); a camera's calibration needs at least {MIN_VIEWS} views"
+        )
     if alone:
         raise InputError(
             f"--camera {alone[0]}: its images share no file name with the reference {next(iter(images))!r} or a "
