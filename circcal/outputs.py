@@ -33,6 +33,7 @@ Example
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -70,6 +71,10 @@ __all__ = [
     "folder_manifest",
     "write_manifest",
 ]
+
+
+#: Errors of a full disk or quota while outputs are written (named by the output, not by a staging path).
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 
 
 def _display(path: Path | str) -> str:
@@ -288,9 +293,22 @@ class Outputs:
     def __enter__(self) -> Outputs:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if not self.committed:
             self.discard()
+        if isinstance(exc, OSError) and exc.errno in _FULL and not self.committed:
+            # a full disk or quota while writing a staging file: name what could not be written, not a staging
+            # path (or nothing: a write on an open file carries no file name)
+            raise OSError(exc.errno, f"{exc.strerror}; nothing written", self._named(exc.filename)) from None
+
+    def _named(self, filename: object) -> str:
+        """The outputs as the user gave them: the one whose staging place holds ``filename``, else every one."""
+        if isinstance(filename, (str, os.PathLike)):
+            f = Path(os.path.abspath(filename))
+            for out in self._outputs:
+                if f == Path(os.path.abspath(out.staging)) or Path(os.path.abspath(out.staging)) in f.parents:
+                    return f"{out.option} {_display(out.shown)}"
+        return ", ".join(f"{o.option} {_display(o.shown)}" for o in self._outputs) or "the outputs"
 
     # planning --------------------------------------------------------------------------------------------------
     def _plan(self, path: Path, option: str, kind: str | None) -> _Output:

@@ -365,3 +365,23 @@ def test_a_file_written_by_someone_else_during_the_work_is_left_and_the_output_g
         again.file(tmp_path / "m.new-1.json", "--out").write_text("second")
         again.commit()
     assert (tmp_path / "m.new-1.json").read_text() == "second" and not (tmp_path / "m.new-2.json").exists()
+
+
+def test_a_full_disk_names_the_output_not_a_staging_path(tmp_path):
+    """A write that fails for space (ENOSPC; a quota) is said of the output the user gave, the staging places
+    removed and nothing written; a write on an open file (no file name) names every output."""
+    import errno
+
+    mine = tmp_path / "mine.txt"
+    mine.write_text("my notes")
+    with pytest.raises(OSError) as caught, Outputs() as outs:
+        staging = outs.file(tmp_path / "rig.json", "--out")
+        outs.folder(tmp_path / "rep", "--report", kind="report")
+        raise OSError(errno.ENOSPC, "No space left on device", str(staging))
+    assert caught.value.filename == f"--out {tmp_path / 'rig.json'}" and "nothing written" in caught.value.strerror
+    with pytest.raises(OSError) as caught, Outputs() as outs:
+        outs.file(tmp_path / "rig.json", "--out")
+        outs.folder(tmp_path / "rep", "--report", kind="report")
+        raise OSError(errno.EDQUOT, "Disk quota exceeded")
+    assert caught.value.filename == f"--out {tmp_path / 'rig.json'}, --report {tmp_path / 'rep'}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"] and mine.read_text() == "my notes"
