@@ -77,3 +77,16 @@ def test_calibrate_grid_auto_end_to_end(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "--grid auto: --grid 5x4 --asymmetric" in printed
     assert out.is_file()
+
+
+def test_asymmetric_given_for_a_symmetric_grid_is_answered_with_the_flag():
+    """`--grid RxC --asymmetric` on images of the symmetric RxC grid: the hint drops the flag (it named the grid the
+    user had given)."""
+    from dataclasses import replace
+
+    from circcal.commands.args import grid_hint
+
+    truth = load_truth(fixture_dir("small-noisy", "noisy"))
+    assert truth.board.layout == "symmetric"
+    hint = grid_hint([v.image for v in truth.views], replace(truth.board, layout="asymmetric"))
+    assert hint.startswith("a symmetric grid: drop --asymmetric"), hint

@@ -221,7 +221,8 @@ def grid_hint(images: list[Path], board) -> str:
     Returns
     -------
     str
-        ``"an asymmetric grid: add --asymmetric"``, ``"the grid is CxR: --grid CxR"``, or the ``--grid`` line found;
+        ``"an asymmetric grid: add --asymmetric"``, ``"a symmetric grid: drop --asymmetric"``, ``"the grid is CxR:
+        --grid CxR"``, or the ``--grid`` line found;
         ``""`` when the images show that board's grid or no grid.
     """
     from circcal.detector.locate.infer import grid_text, infer_grid, probe_grid_of
@@ -231,6 +232,8 @@ def grid_hint(images: list[Path], board) -> str:
         return ""
     if layout == "asymmetric" and board.layout != "asymmetric" and {rows, cols} == {board.rows, board.cols}:
         return f"an asymmetric grid: add --asymmetric ({grid_text(rows, cols, layout)})"
+    if layout != "asymmetric" and board.layout == "asymmetric" and {rows, cols} == {board.rows, board.cols}:
+        return f"a symmetric grid: drop --asymmetric ({grid_text(rows, cols, layout)})"
     if layout == board.layout and (rows, cols) == (board.cols, board.rows):
         return f"the grid is {rows}x{cols}: --grid {rows}x{cols}"
     return f"the images show {grid_text(rows, cols, layout)} (or give --grid auto)"
