@@ -6,7 +6,7 @@ parsed ``argparse.Namespace`` and returning an exit code). Modules import their 
 
 Exit codes (:mod:`circcal.errors`): 0 done; 1 the job's answer is negative (a check failed, no model, an image
 without its grid); 2 bad input (the message names it); 70 a bug in circcal (the traceback is printed: please
-report it); 130 interrupted.
+report it); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import traceback
 import warnings
 from typing import NoReturn
 
-from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, InputError
+from circcal.errors import EXIT_BAD_INPUT, EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, EXIT_TERMINATED, InputError
 
 #: Subcommands, in the order ``--help`` shows them.
 COMMANDS = (
@@ -79,7 +79,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         "reference calibrators. Reprojection errors name their convention: per point (2-D, "
         "OpenCV's RMS), per coordinate (mrcal's RMS) or mean 2-D (the paper's).",
         epilog="Exit codes: 0 done, 1 negative answer (a check failed, no model), 2 bad input, 70 internal error "
-        "(a bug: the traceback is printed), 130 interrupted.",
+        "(a bug: the traceback is printed), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM).",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in (only,) if only in COMMANDS else COMMANDS:
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit code: 0 done; 1 a negative answer; 2 bad input (one line naming it); 70 a bug (its traceback
-        printed); 130 interrupted (:mod:`circcal.errors`).
+        printed); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM) (:mod:`circcal.errors`).
     """
     for stream in (sys.stdout, sys.stderr):  # a file name of any bytes never stops a message (circcal.pathnames)
         reconfigure = getattr(stream, "reconfigure", None)
@@ -175,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (KeyboardInterrupt, Terminated) as exc:
         print("terminated" if isinstance(exc, Terminated) else "interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
     except (InputError, OSError) as exc:  # what an input can cause: one clear line, no traceback
         what = f"{exc.filename}: {exc.strerror}" if isinstance(exc, OSError) and exc.filename else str(exc)
         print(f"circcal {args.command}: error: {what}", file=sys.stderr)

@@ -18,6 +18,7 @@ __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_INTERNAL_ERROR",
     "EXIT_INTERRUPTED",
+    "EXIT_TERMINATED",
 ]
 
 #: Exit codes of every ``circcal`` command.
@@ -28,8 +29,10 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 #: A bug in circcal (an exception no input should cause); the traceback is printed. (BSD sysexits' EX_SOFTWARE.)
 EXIT_INTERNAL_ERROR = 70
-#: Interrupted (Ctrl-C or SIGTERM): outputs already written are complete, nothing is half-written.
+#: Interrupted (Ctrl-C, SIGINT: 128 + 2): outputs already written are complete, nothing is half-written.
 EXIT_INTERRUPTED = 130
+#: Terminated (SIGTERM: 128 + 15, as a shell reports a process the signal ended), with the same guarantees.
+EXIT_TERMINATED = 143
 
 
 class InputError(ValueError):

@@ -511,3 +511,11 @@ def test_fuzz_mutated_model_files(tmp_path, capsys):
         n_valid += valid
     assert n_files >= 150
     assert n_valid < 0.4 * n_files, (n_valid, n_files)  # most mutations are refused
+
+
+@pytest.mark.parametrize("name", ["m.yaml", "m.json", "m.cameramodel", "cameras.txt", "m.xml"])
+def test_an_empty_file_is_said_to_be_empty(tmp_path, name):
+    # OpenCV's FileStorage answered an empty .yaml with its own assertion text ("(-215:Assertion failed) buf")
+    (tmp_path / name).write_text(" \n")
+    with pytest.raises(ModelFileError, match=f"camera file {tmp_path / name}: an empty file$"):
+        read_model(tmp_path / name)

@@ -182,6 +182,10 @@ BAD = {
         ["--camera", "left=L", "--camera", "right=R", "--lens", "right=fisheye", "--cameramodels", "OUT/m"],
         "--cameramodels: camera 'right' is fisheye",
     ),
+    "kalibr extension": (
+        ["--camera", "left=L", "--camera", "right=R", "--fix-k3", "--kalibr", "OUT/k.txt"],
+        "--kalibr OUT/k.txt: give a .yaml file",
+    ),
     "kalibr k3": (["--camera", "left=L", "--camera", "right=R", "--kalibr", "OUT/k.yaml"], "--fix-k3"),
     "alpha": (["--camera", "left=L", "--camera", "right=R", "--alpha", "2"], "--alpha"),
     "no grid": (["--camera", "left=L", "--camera", "right=R", "--no-grid"], "give --grid ROWSxCOLS"),

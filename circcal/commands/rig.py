@@ -345,6 +345,8 @@ def _check_formats(args: argparse.Namespace, names: list[str], options: dict) ->
                 f"{MRCAL_UNSUPPORTED[options[bad[0]].lens]}"
             )
     if args.kalibr is not None:
+        if args.kalibr.suffix.lower() not in (".yaml", ".yml"):
+            raise InputError(f"--kalibr {display_name(args.kalibr)}: give a .yaml file (Kalibr's camchain is YAML)")
         for n in names:
             o = options[n]
             if o.lens in ("rational", "thin-prism") or (o.lens == "opencv5" and not args.fix_k3):

@@ -173,6 +173,8 @@ def read_model(path: str | Path, fmt: str | None = None) -> tuple[Camera, dict[s
         text = read_text(p, "camera file", max_bytes=MAX_MODEL_FILE_BYTES)
     except InputError as exc:
         raise ModelFileError(str(exc)) from None
+    if not text.strip():  # every reader would say it in its own words (OpenCV's: an assertion on its buffer)
+        raise ModelFileError(f"camera file {p}: an empty file")
     try:
         fmt = fmt or detect_format(p, text)
         if fmt == "json":
