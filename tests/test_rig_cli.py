@@ -476,3 +476,19 @@ def test_calibrate_rig_shows_progress_after_detection(fixture_dir, tmp_path, cap
     assert main(["calibrate-rig", *cams, "--lens", "right=rational", *GRID, "--out", str(tmp_path / "r.json")]) == 0
     err = capsys.readouterr().err
     assert "rig joint solve: 100%" in err and "rig cross-validation: 100%" in err, err[-500:]
+
+
+def test_the_shared_field_of_every_pair_that_shares_an_instant():
+    """The chain rig (c shares the board with b only): the field a-b and b-c share is reported, a-c's is not (it
+    was the first two cameras' only)."""
+    from circcal.commands.rig import summary_lines
+    from circcal.fixtures.rig import rig_observations
+    from circcal.rig import calibrate_rig_points
+    from circcal.solver import CalibrationOptions
+
+    sc = rig_scenario("chain")
+    sizes = {n: (c.width, c.height) for n, c in zip(sc.rig.names, sc.rig.cameras)}
+    cal = calibrate_rig_points(rig_observations(sc, 0.05, 0), sizes, CalibrationOptions(), board=sc.board)
+    text = "\n".join(summary_lines(cal, {n: [] for n in sc.rig.names}))
+    assert "the field a and b share" in text and "the field b and c share" in text
+    assert "the field a and c share" not in text

@@ -502,7 +502,8 @@ def _file_stem(instant: str) -> str:
 
 def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     """The numbers of a rig calibration: per camera its images, RMS, intrinsics and pose with their sigmas, what was
-    left out; then the coverage of each camera and of the field the first two share.
+    left out; then the coverage of each camera and of the field each pair of cameras shares (pairs with a shared
+    instant).
 
     Parameters
     ----------
@@ -565,13 +566,17 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     for name, cov in camera_coverage(cal).items():
         lines.append(f"  {name}: {100 * cov.covered_share:.0f}% of the map's cells hold a point")
         lines += [f"    {w}" for w in cov.warnings]
-    a, b = shared_coverage(cal, 0, 1)
-    lines.append(
-        f"  the field {rig.names[0]} and {rig.names[1]} share (board points both saw at one instant): "
-        f"{100 * a.covered_share:.0f}% of {rig.names[0]}'s map cells, {100 * b.covered_share:.0f}% of "
-        f"{rig.names[1]}'s"
-    )
-    lines += [f"    in {rig.names[0]}: {w}" for w in a.warnings] + [f"    in {rig.names[1]}: {w}" for w in b.warnings]
+    for i in range(rig.n_cameras):  # every pair of cameras that saw the board at one instant
+        for j in range(i + 1, rig.n_cameras):
+            if not set(cal.instants[rig.names[i]]) & set(cal.instants[rig.names[j]]):
+                continue
+            a, b = shared_coverage(cal, i, j)
+            ni, nj = rig.names[i], rig.names[j]
+            lines.append(
+                f"  the field {ni} and {nj} share (board points both saw at one instant): "
+                f"{100 * a.covered_share:.0f}% of {ni}'s map cells, {100 * b.covered_share:.0f}% of {nj}'s"
+            )
+            lines += [f"    in {ni}: {w}" for w in a.warnings] + [f"    in {nj}: {w}" for w in b.warnings]
     return lines
 
 
