@@ -31,6 +31,9 @@ MAX_POINTS_FILE_BYTES = 64 << 20
 OUT_FORMATS = {".csv": "csv", ".json": "json"}
 
 
+#: The largest |u|, |v| of a pixel read: 1e7 px is ten image sides of the largest image a camera file may describe
+#: (beyond, a value is a damaged file: 1e308 overflowed in the projection's arithmetic).
+MAX_PIXEL = 1e7
 #: With --out, the console shows this many points' rows (the file holds them all).
 CONSOLE_ROWS = 20
 
@@ -140,8 +143,10 @@ def _number(text: str, where: str) -> float:
         value = float(t)
     except ValueError:
         raise InputError(f"{where}: not a number: {text!r}") from None
-    if math.isinf(value):
-        raise InputError(f"{where}: must be finite (nan or empty for an unseen point), got {text!r}")
+    if not abs(value) <= MAX_PIXEL:
+        raise InputError(
+            f"{where}: a pixel within {MAX_PIXEL:g} px of the origin (nan or empty for an unseen point), got {text!r}"
+        )
     return value
 
 
@@ -189,8 +194,8 @@ def read_points(path: Path, option: str = "--points") -> tuple[list[str] | None,
             if not ok:
                 raise InputError(f"{where}: point {k} must be [u, v] (numbers, null for unseen), got {r!r}")
             u, v = (math.nan if x is None else float(x) for x in r)
-            if math.isinf(u) or math.isinf(v):
-                raise InputError(f"{where}: point {k} must be finite")
+            if not (abs(u) <= MAX_PIXEL or math.isnan(u)) or not (abs(v) <= MAX_PIXEL or math.isnan(v)):
+                raise InputError(f"{where}: point {k} must be a pixel within {MAX_PIXEL:g} px of the origin")
             if math.isnan(u) != math.isnan(v):
                 raise InputError(f"{where}: point {k} has one coordinate only, got {r!r}: give both, or null for both")
             out.append((u, v))
