@@ -492,3 +492,15 @@ def test_the_shared_field_of_every_pair_that_shares_an_instant():
     text = "\n".join(summary_lines(cal, {n: [] for n in sc.rig.names}))
     assert "the field a and b share" in text and "the field b and c share" in text
     assert "the field a and c share" not in text
+
+
+def test_triangulate_refuses_points_files_without_points(tmp_path, capsys):
+    rig_file = tmp_path / "rig.json"
+    rig_file.write_text(json.dumps(rig_scenario("two").rig.to_dict()))
+    (tmp_path / "l.csv").write_text("u,v\n")
+    (tmp_path / "r.json").write_text("[]")
+    argv = ["triangulate", "--rig", str(rig_file), "--points", f"left={tmp_path / 'l.csv'}"]
+    argv += ["--points", f"right={tmp_path / 'r.json'}", "--pixel-sigma", "0.1"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--points: the files hold no points" in err[0], err

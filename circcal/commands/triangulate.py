@@ -276,6 +276,8 @@ def run(args: argparse.Namespace) -> int:
             + ", ".join(f"{n}: {c}" for n, c in counts.items())
             + "); give one row per point in every file"
         )
+    if not any(counts.values()):
+        raise InputError(f"--points: the files hold no points ({', '.join(str(p) for _, p in args.points)})")
     ids = next((i for i, _ in read.values() if i is not None), None)
     for name, (i, _) in read.items():
         if i is not None and i != ids:
