@@ -87,6 +87,7 @@ def detect(
     camera: Camera | None = None,
     *,
     time_budget_s: float | None = DEFAULT_TIME_BUDGET_S,
+    expected: np.ndarray | None = None,
 ) -> Detection:
     """Find ``board``'s circle grid in ``image`` and return the images of the circle centres.
 
@@ -108,6 +109,10 @@ def detect(
     time_budget_s : float or None, optional
         Seconds this image may take (:data:`~circcal.detector.locate.budget.DEFAULT_TIME_BUDGET_S`; ``None``: no
         limit); past it the image is not found with :attr:`Reason.TIME_BUDGET`.
+    expected : ndarray or None, optional
+        (N, 2) px where each board point is expected in the image (NaN: not known), e.g. projected through a rig
+        from its other cameras' views of the same instant: a part of a board without markers that fits several
+        places on it is labelled by the one near its expected image instead of being refused as ambiguous.
 
     Returns
     -------
@@ -136,7 +141,7 @@ def detect(
     if board.layout == "checkerboard":
         raise InputError("circcal detect finds circle grids; the board is a checkerboard")
     try:
-        return _detect(gray, board, camera, deadline)
+        return _detect(gray, board, camera, deadline, expected=expected)
     except BudgetExceeded:
         return Detection(
             False,
@@ -203,10 +208,16 @@ def _shows_board(gray: np.ndarray, board: Board, deadline: Deadline, camera: Cam
 
 
 def _detect(
-    gray: np.ndarray, board: Board, camera: Camera | None, deadline: Deadline, *, inverted: bool = False
+    gray: np.ndarray,
+    board: Board,
+    camera: Camera | None,
+    deadline: Deadline,
+    *,
+    inverted: bool = False,
+    expected: np.ndarray | None = None,
 ) -> Detection:
     H, W = gray.shape
-    rec, cands, seg_name, best = segment_and_recognise(gray, board, deadline, camera=camera)
+    rec, cands, seg_name, best = segment_and_recognise(gray, board, deadline, camera=camera, expected=expected)
     if rec.order is None:
         return _not_found(board, rec, best, gray, camera, deadline, inverted)
     N = board.n_points

@@ -17,6 +17,7 @@ import os
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,7 +27,7 @@ from circcal.board import Board
 from circcal.errors import CalibrationError, InputError
 from circcal.formats import read_camera
 from circcal.imagefiles import image_list
-from circcal.model import Camera
+from circcal.model import Camera, project_camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
 from circcal.progress import progress_bar
@@ -97,6 +98,9 @@ class RigCalibration:
     undetermined : list of (str, str)
         Where the rig has no covariance (its information is singular): the (camera, parameter) pairs that carry the
         weakest direction (:func:`circcal.rig.solve.weakest_direction`), e.g. ``("right", "k4")``.
+    placed : dict of str to list of str
+        Per camera the instants whose view its detector refused as an ambiguous part of a board without markers and
+        the rig placed (the part near where the other cameras put the board; images only).
     """
 
     rig: RigModel
@@ -115,6 +119,7 @@ class RigCalibration:
     images: dict[str, dict[str, str]] = field(default_factory=dict)
     observations: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
     undetermined: list[tuple[str, str]] = field(default_factory=list)
+    placed: dict[str, list[str]] = field(default_factory=dict)
 
     def std(self) -> np.ndarray:
         """Standard deviations of ``rig.state_vector()`` (intrinsics px / unitless, rvec rad, tvec mm).
@@ -474,6 +479,44 @@ class _Layout:
         )
 
 
+def _rig_placed_views(
+    result: RigCalibration,
+    per_camera: dict[str, ImagesCalibration],
+    instant: dict[str, dict[str, str]],
+    board: Board,
+    instants: set[str],
+) -> dict[str, dict[str, Any]]:
+    """Views a camera's detector refused as an ambiguous part of an unmarked board, found again where the rig
+    expects the board at that instant: per camera, instant -> its detection.
+
+    A part of a board without markers fits several places on it; at an instant another camera saw, the rig's
+    solution projects every board point into this camera, and the detector labels the part by the place near it
+    (:func:`circcal.detector.locate.labels.nearest_labelling`, its 1/4-spacing and 3x rules), or refuses it again.
+    """
+    rig = result.rig
+    P = board.object_points()
+    out: dict[str, dict[str, Any]] = {}
+    for c, n in enumerate(rig.names):
+        cal = per_camera[n]
+        cam = rig.cameras[c]
+        for i, det in enumerate(cal.detections):
+            v = instant[n].get(cal.paths[i])
+            if det.found or det.code != det_mod.Reason.AMBIGUOUS_VIEW or v not in result.board_poses:
+                continue
+            if v not in instants:
+                continue
+            R, t = _board_in_camera(rig, result.board_poses[v], c)
+            Xc = P @ R.T + t
+            expected = np.where((Xc[:, 2] > 0)[:, None], project_camera(Xc, cam), np.nan)
+            image = det_mod.read_image(Path(cal.paths[i]))
+            if image is None:
+                continue
+            again = det_mod.detect(image, board, cam, expected=expected)
+            if again.found:
+                out.setdefault(n, {})[v] = again
+    return out
+
+
 def calibrate_rig(
     images: Mapping[str, str | os.PathLike[str] | Iterable[str | os.PathLike[str]]],
     board: Board,
@@ -581,6 +624,17 @@ def calibrate_rig(
                 poses[c] = given_camera_starts([n], [given[n]], [views[c]])[1][0]
     with progress_bar(max_rounds, "rig joint solve", "round", bool(progress)) as bar:
         layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
+        found = _rig_placed_views(result, per_camera, instant, board, set(layout.instants))
+        if found:  # parts of the board the rig placed: the joint solve again with them
+            for c, n in enumerate(names):
+                for v, det in found.get(n, {}).items():
+                    dets[c][v], centres[c][v] = det, np.asarray(det.centres, np.float64)
+            views = views_of(centres)
+            for c, n in enumerate(names):  # each placed view's board pose in its own labelling, as the others'
+                placed = {v: views[c][v] for v in found.get(n, {})}
+                if placed:
+                    poses[c].update(given_camera_starts([n], [cameras[c]], [placed])[1][0])
+            layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
         bar.update()
         max_it = max(o.max_iterations for o in opts)
         rounds: list[dict[str, Any]] = []
@@ -617,6 +671,7 @@ def calibrate_rig(
                 bar.update(max_rounds - 1 - r)  # converged: the rounds left are not needed
                 break
     result.rounds = rounds
+    result.placed = {n: sorted(v for v in vs if v in result.instants[n]) for n, vs in found.items()}
     result.per_camera = per_camera
     result.images = {n: {v: p for p, v in instant[n].items()} for n in names}
     return result

@@ -32,6 +32,7 @@ unmarked board seen whole); with markers there is one placement and every point 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,9 @@ __all__ = [
     "label_patch",
     "seed_score_needed",
     "patch_grid_text",
+    "nearest_labelling",
+    "EXPECTED_SHARE",
+    "EXPECTED_MARGIN",
 ]
 
 EDGE_TOLERANCE = 1
@@ -68,7 +72,10 @@ class Labelling:
     board), ``"transposed"`` (the transposed grid fits), ``"markers"`` (markers disagree with every placement),
     ``"smaller"`` (a complete grid smaller than the board, nothing around it) or ``"ambiguous"`` (several
     placements). ``message``: the words for a person; ``size``: (rows, cols) of the
-    patch's bounding box in board terms (for the messages); ``placements``: how many distinct labellings fit."""
+    patch's bounding box in board terms (for the messages); ``placements``: how many distinct labellings fit;
+    ``alternatives``: for ``"ambiguous"``, each labelling that fits (the board point of each patch dot), one per
+    class of placements equal up to a rotation of the board onto itself (:func:`nearest_labelling` chooses among
+    them where the board's image is expected)."""
 
     status: str
     message: str
@@ -76,6 +83,7 @@ class Labelling:
     complete: bool = False
     size: tuple[int, int] = (0, 0)
     placements: int = 0
+    alternatives: tuple[np.ndarray, ...] = ()
 
 
 def board_frame(board: Board, ab: np.ndarray) -> np.ndarray:
@@ -271,9 +279,65 @@ def label_patch(
             f"parts of the board fit them ({why}); view rejected rather than guessed",
             size=(rows, cols),
             placements=len(classes),
+            alternatives=tuple(g[0].points.copy() for g in classes),
         )
     p = classes[0][0]
     return Labelling("labelled", "", p.points.copy(), complete, (rows, cols), 1)
+
+
+#: :func:`nearest_labelling` decides when the nearest labelling's RMS distance to the expected image is below this
+#: share of the patch's dot spacing (another placement is a shift of at least one pitch) ...
+EXPECTED_SHARE = 0.25
+#: ... and the next nearest is at least this many times farther (the rule of the rig's symmetry choice).
+EXPECTED_MARGIN = 3.0
+
+
+def nearest_labelling(
+    board: Board, alternatives: Sequence[np.ndarray], pix: np.ndarray, expected: np.ndarray
+) -> np.ndarray | None:
+    """The labelling of an ambiguous patch whose board points lie where the board's image is expected.
+
+    A part of an unmarked board fits several places on it (:func:`label_patch`: ``"ambiguous"``); where the board's
+    image is known from elsewhere (another camera of a rig at the same instant) the one near it is the part seen.
+
+    Parameters
+    ----------
+    board : Board
+    alternatives : sequence of ndarray
+        Each (K,) the board point of each patch dot (:attr:`Labelling.alternatives`).
+    pix : ndarray, shape (K, 2)
+        The patch dots' pixel positions, px.
+    expected : ndarray, shape (N, 2)
+        Where each board point is expected in the image, px (NaN: not known).
+
+    Returns
+    -------
+    ndarray or None
+        (K,) the chosen labelling (or one of its rotations onto itself: the orientation rule decides among those);
+        None unless one is within :data:`EXPECTED_SHARE` of the dot spacing and the others :data:`EXPECTED_MARGIN`
+        times farther.
+    """
+    if len(pix) < 2 or not alternatives:
+        return None
+    d = np.linalg.norm(pix[:, None, :] - pix[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    spacing = float(np.median(np.min(d, axis=1)))
+    syms = [s.perm for s in board.symmetries(reflections=False)]
+    rms = []
+    for pts in alternatives:
+        best = np.inf
+        for perm in syms:
+            e = pix - expected[perm[pts]]
+            ok = np.all(np.isfinite(e), axis=1)
+            if ok.sum() >= max(3, len(pix) // 2):
+                best = min(best, float(np.sqrt(np.mean(np.sum(e[ok] ** 2, axis=1)))))
+        rms.append(best)
+    order = np.argsort(rms)
+    first = float(rms[order[0]])
+    second = float(rms[order[1]]) if len(rms) > 1 else np.inf
+    if first < EXPECTED_SHARE * spacing and second > EXPECTED_MARGIN * first:
+        return np.asarray(alternatives[int(order[0])]).copy()
+    return None
 
 
 def _edge_decided(board: Board, classes: list[list[Placement]], empty_xy: np.ndarray) -> list[list[Placement]]:

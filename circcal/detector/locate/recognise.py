@@ -13,7 +13,8 @@ board), in words.
    part of the board that is labelled unambiguously (a partial view), else says why not: the board has more dots
    than ``--grid``, the transposed grid fits, the markers disagree, or which part of the board is seen is ambiguous.
    On a marker board the board's edges in view help decide (:func:`empty_positions`); on a board given without
-   markers, dots much larger than the rest are named with the ``--board`` file that would use them (:func:`big_dots`).
+   markers, dots much larger than the rest are named with the ``--board`` file that would use them
+   (:mod:`~circcal.detector.locate.bigdots`).
 
 Pixels: OpenCV's convention.
 """
@@ -27,10 +28,11 @@ import numpy as np
 
 from circcal.board import Board
 from circcal.detector.detection import Reason
+from circcal.detector.locate.bigdots import big_dot_notes, big_dot_words, big_dots
 from circcal.detector.locate.budget import Deadline
 from circcal.detector.locate.candidates import Candidate
 from circcal.detector.locate.grid import order_lattice, orient
-from circcal.detector.locate.labels import Labelling, label_patch, seed_score_needed
+from circcal.detector.locate.labels import Labelling, label_patch, nearest_labelling, seed_score_needed
 from circcal.detector.locate.lattice import Lattice, find_lattices
 from circcal.detector.locate.smooth import local_residual
 from circcal.detector.locate.undistorted import inside_image, undistorted_candidates
@@ -45,8 +47,6 @@ __all__ = [
     "MIN_PARTIAL_POINTS",
     "cell_areas",
     "empty_positions",
-    "big_dots",
-    "big_dot_words",
 ]
 
 MAX_LABELLED = 4
@@ -334,6 +334,7 @@ def recognise(
     image_size: tuple[int, int],
     deadline: Deadline | None = None,
     camera: Camera | None = None,
+    expected: np.ndarray | None = None,
 ) -> Recognition:
     """The board among the candidates ``cands`` (module docstring).
 
@@ -351,6 +352,10 @@ def recognise(
         (:func:`~circcal.detector.locate.undistorted.undistorted_candidates`), and on their pixel positions only where
         that finds no board and claims nothing decisive (a model far from the lens must not lose a board the pixels
         show). Orientation and notes use the pixel positions either way.
+    expected : ndarray or None, optional
+        (N, 2) px where each board point is expected in the image (NaN: not known), e.g. from a rig's other cameras:
+        a part of an unmarked board that fits several places on it is labelled by the place near its expected image
+        (:func:`~circcal.detector.locate.labels.nearest_labelling`), not refused as ambiguous.
 
     Returns
     -------
@@ -366,17 +371,28 @@ def recognise(
     area = np.pi * axes[:, 0] * axes[:, 1]
     cut = np.array([c.cut for c in cands], bool)
     if camera is None:
-        return _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M)
+        return _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M, expected=expected)
     keep, u_pts, u_axes, u_ang, u_area = undistorted_candidates(pix, axes, ang, area, camera)
     rec = _recognise(
-        board, u_pts, pix[keep], u_axes, u_ang, u_area, cut[keep], image_size, deadline, M, inside_image(camera)
+        board,
+        u_pts,
+        pix[keep],
+        u_axes,
+        u_ang,
+        u_area,
+        cut[keep],
+        image_size,
+        deadline,
+        M,
+        inside_image(camera),
+        expected=expected,
     )
     if rec.order is not None:
         rec.order = np.where(rec.order >= 0, keep[np.maximum(rec.order, 0)], -1)
         return rec
     if rec.decisive:
         return rec
-    raw = _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M)
+    raw = _recognise(board, pix, pix, axes, ang, area, cut, image_size, deadline, M, expected=expected)
     return raw if raw.order is not None or telling(raw) >= telling(rec) else rec
 
 
@@ -414,12 +430,14 @@ def _recognise(
     deadline: Deadline | None,
     M: int,
     inside: Callable[[np.ndarray], np.ndarray] | None = None,
+    *,
+    expected: np.ndarray | None = None,
 ) -> Recognition:
     """:func:`recognise` on candidates given as arrays: ``pts`` (K, 2) px the positions the lattice is recognised
     on (the pixel positions, or undistorted ones with the test ``inside`` of which lie in the image), ``pix`` (K, 2)
     px their pixel positions (orientation, notes), ``axes`` (K, 2), ``ang`` (K,), ``area`` (K,) their ellipses in
-    the frame of ``pts``, ``cut`` (K,) bool; ``M`` the candidates counted in the messages. ``order`` indexes these
-    K candidates."""
+    the frame of ``pts``, ``cut`` (K,) bool; ``M`` the candidates counted in the messages; ``expected`` as
+    :func:`recognise` takes it. ``order`` indexes these K candidates."""
     N = board.n_points
     if len(pts) == 0:
         return Recognition(None, code=Reason.TOO_FEW_CANDIDATES, message="no candidate dots")
@@ -428,7 +446,7 @@ def _recognise(
         if idx is not None:
             o = orient(board, pix[idx], idx)
             if o is not None:
-                return Recognition(o, True, cut=np.zeros(N, bool), notes=_big_dot_notes(board, o, area, cut))
+                return Recognition(o, True, cut=np.zeros(N, bool), notes=big_dot_notes(board, o, area, cut))
     patches = find_lattices(
         pts, axes, ang, area, image_size, min_seed_score=seed_score_needed(board), deadline=deadline, inside=inside
     )
@@ -455,6 +473,10 @@ def _recognise(
         lab = label_patch(board, lat.ab, flags, closed=_closed(lat), empty=empty)
         if lab.status == "larger":  # a blob or texture beside the board is not a row of the board
             lat, lab = _trimmed(board, lat, pts, area, cut, lab, in_image)
+        if lab.status == "ambiguous" and expected is not None:  # the place seen, where its image is expected
+            chosen_points = nearest_labelling(board, lab.alternatives, pix[lat.index], expected)
+            if chosen_points is not None:
+                lab = Labelling("labelled", "", chosen_points, False, lab.size, 1)
         labelled.append((lat, lab))
     whole = [(lat, lab) for lat, lab in labelled if lab.status == "labelled" and lab.complete]
     part = [
@@ -518,103 +540,8 @@ def _recognise(
                 patches=len(patches),
             )
         cut_pts = np.where(order >= 0, cut[np.maximum(order, 0)], False)
-        notes += _big_dot_notes(board, order, area, cut)
+        notes += big_dot_notes(board, order, area, cut)
     return Recognition(order, lab.complete, cut=cut_pts, notes=notes, patches=len(patches))
-
-
-BIG_DOT_AREA = 1.8
-"""On a board given without markers, a dot whose area is this many times the median of its lattice neighbours' (and
-of the view's dots: none of them cut by the image border) is named as a likely marker: perspective and blur
-change neighbouring dots' areas by tens of percent; markers are printed 1.5-2x the diameter (2.25-4x the area)."""
-BIG_DOT_MAX_SHARE = 0.25
-"""... when such dots are at most this share of the view's (more is a board of mixed dots, not a few markers)."""
-
-
-def big_dots(coords: np.ndarray, area: np.ndarray, cut: np.ndarray) -> tuple[np.ndarray, float]:
-    """The dots much larger than the rest (:data:`BIG_DOT_AREA`), by their lattice neighbours.
-
-    Parameters
-    ----------
-    coords : numpy.ndarray
-        (K, 2) int lattice coordinates of the dots (patch or board (row, col)).
-    area : numpy.ndarray
-        (K,) float their areas, px^2.
-    cut : numpy.ndarray
-        (K,) bool, cut by the image border (never counted).
-
-    Returns
-    -------
-    big : numpy.ndarray
-        (B,) int positions into ``coords`` (none when more than :data:`BIG_DOT_MAX_SHARE` of the dots qualify).
-    ratio : float
-        Their median area over their neighbours' median (NaN for none).
-    """
-    pos = {tuple(q): k for k, q in enumerate(np.asarray(coords).tolist())}
-    ok = ~np.asarray(cut, bool) & np.isfinite(area) & (area > 0)
-    if np.sum(ok) < 4:
-        return np.zeros(0, np.int64), float("nan")
-    typical = float(np.median(area[ok]))
-    ratio = np.full(len(area), np.nan)
-    for k, (a, b) in enumerate(np.asarray(coords).tolist()):
-        nb = [pos[q] for q in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if q in pos and ok[pos[q]]]
-        if ok[k] and nb:
-            ratio[k] = area[k] / float(np.median(area[nb]))
-    big = np.flatnonzero(ok & (ratio > BIG_DOT_AREA) & (area > BIG_DOT_AREA * typical))
-    if len(big) == 0 or len(big) > BIG_DOT_MAX_SHARE * np.sum(ok):
-        return np.zeros(0, np.int64), float("nan")
-    return big, float(np.median(ratio[big]))
-
-
-def big_dot_words(board: Board, n: int, ratio: float, where: list[tuple[int, int]] | None = None) -> str:
-    """What a board given without markers should be told of the ``n`` dots much larger than the rest: that they
-    are, and the ``--board`` description that would use them as markers.
-
-    Parameters
-    ----------
-    board : Board
-        The board given (no markers).
-    n : int
-        How many big dots.
-    ratio : float
-        Their area over their neighbours'.
-    where : list of (int, int) or None
-        Their (row, col) on the board where the view is labelled; None: not known.
-
-    Returns
-    -------
-    str
-        One sentence, with a one-line board file (YAML flow style) to save and give as ``--board FILE``.
-    """
-    d = board.diameter_mm * float(np.sqrt(ratio))
-    spec = (
-        f"rows: {board.rows}, cols: {board.cols}, layout: {board.layout}, pitch_mm: {board.pitch_mm:g}, "
-        f"diameter_mm: {board.diameter_mm:g}, markers: ["
-    )
-    dots = "dot" if n == 1 else "dots"
-    if where:
-        spec += ", ".join(f"{{row: {r}, col: {c}, diameter_mm: {d:.3g}}}" for r, c in where) + "]"
-        at = ", ".join(f"(row {r}, col {c})" for r, c in where)
-        return (
-            f"{n} {dots} much larger than the rest ({ratio:.1f}x the area) at {at}: markers? a board file "
-            f"holding {{{spec}}} given as --board FILE labels partial views too"
-        )
-    spec += f"{{row: R, col: C, diameter_mm: {d:.3g}}}]"
-    return (
-        f"{n} {dots} much larger than the rest ({ratio:.1f}x the area) in view: markers? describe them in a board "
-        f"file, {{{spec}}} with their rows and columns, and give --board FILE: partial views are then labelled"
-    )
-
-
-def _big_dot_notes(board: Board, order: np.ndarray, area: np.ndarray, cut: np.ndarray) -> list[str]:
-    """The note naming a labelled view's big dots (:func:`big_dots`) on a board given without markers."""
-    if board.has_markers:
-        return []
-    seen = np.flatnonzero(order >= 0)
-    rc = np.column_stack(np.divmod(seen, board.cols))
-    big, ratio = big_dots(rc, area[order[seen]], cut[order[seen]])
-    if len(big) == 0:
-        return []
-    return [big_dot_words(board, len(big), ratio, [(int(r), int(c)) for r, c in rc[big]])]
 
 
 def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts: np.ndarray, whole: bool) -> list[str]:

@@ -44,6 +44,7 @@ def segment_and_recognise(
     scales: list[int] | None = None,
     box: tuple[int, int, int, int] | None = None,
     camera: Camera | None = None,
+    expected: np.ndarray | None = None,
 ) -> tuple[Recognition, list[Candidate], str | None, int]:
     """The board among the candidate dots of ``gray``, trying the segmentations at each scale in turn.
 
@@ -73,6 +74,9 @@ def segment_and_recognise(
     camera : Camera or None, optional
         The lens model, whose undistorted image the lattice is recognised in
         (:func:`~circcal.detector.locate.recognise.recognise`; the candidates stay in pixels).
+    expected : ndarray or None, optional
+        (N, 2) px where each board point is expected (a rig's other cameras): an ambiguous part of an unmarked board
+        is labelled by it (:func:`~circcal.detector.locate.recognise.recognise`).
 
     Returns
     -------
@@ -132,13 +136,13 @@ def segment_and_recognise(
                 continue
             if box is not None:
                 cs = [_shifted(c, x0, y0, W, H) for c in cs]
-            rec = recognise(board, cs, (W, H), deadline, camera)
+            rec = recognise(board, cs, (W, H), deadline, camera, expected)
             if scale == 2 and rec.order is None:
                 unrecognised += cs
                 if box is None and not first_only and not searched:
                     # the first unrecognised mask of the finest shrunk scale: its clusters at full resolution now,
                     # before the other thresholds of this scale (they cannot make dots ~3 px across any larger)
-                    got = _search_clusters(gray, board, deadline, cs, need, searched, camera)
+                    got = _search_clusters(gray, board, deadline, cs, need, searched, camera, expected)
                     if got is not None and got[0].complete:
                         return got[0], got[1], got[2], max(best, got[3])
                     if got is not None and (
@@ -163,7 +167,13 @@ def segment_and_recognise(
                         window = (x0, y0, x1, y1)  # a board filling much of a small frame: all of it
                     if window is not None:
                         got = segment_and_recognise(
-                            gray, board, deadline, scales=list(finer_scales), box=window, camera=camera
+                            gray,
+                            board,
+                            deadline,
+                            scales=list(finer_scales),
+                            box=window,
+                            camera=camera,
+                            expected=expected,
                         )
                         if got[0].order is not None:
                             return got[0], got[1], got[2], max(best, got[3])
@@ -184,7 +194,7 @@ def segment_and_recognise(
             if partial is not None:  # a part of the board at this scale: the other scales see no more of it
                 break
     if partial is None and box is None and not first_only and unrecognised:
-        got = _search_clusters(gray, board, deadline, unrecognised, need, searched, camera)
+        got = _search_clusters(gray, board, deadline, unrecognised, need, searched, camera, expected)
         if got is not None:
             return got[0], got[1], got[2], max(best, got[3])
     if partial is not None:
@@ -215,11 +225,12 @@ def _search_clusters(
     need: int,
     searched: set[tuple[int, int, int, int]],
     camera: Camera | None = None,
+    expected: np.ndarray | None = None,
 ) -> tuple[Recognition, list[Candidate], str | None, int] | None:
     """The board in a window around one of the clusters of ``cands`` (:func:`_cluster_windows`), segmented again at
     full resolution: dots ~3 px across at scale 2 are candidates but too rough for the lattice search. Each window is
     searched once (``searched``: the windows searched so far, updated), never the whole frame; ``camera``: the lens
-    model, as :func:`segment_and_recognise` takes it. Returns what
+    model, and ``expected``, as :func:`segment_and_recognise` takes them. Returns what
     :func:`_segment_and_recognise` returns for the first window whose recognition labels dots, else ``None``."""
     H, W = gray.shape
     for window in _cluster_windows(cands, need, (W, H)):
@@ -227,7 +238,7 @@ def _search_clusters(
         if window in searched:
             continue
         searched.add(window)
-        got = segment_and_recognise(gray, board, deadline, scales=[1], box=window, camera=camera)
+        got = segment_and_recognise(gray, board, deadline, scales=[1], box=window, camera=camera, expected=expected)
         if got[0].order is not None:
             return got
     return None
