@@ -148,3 +148,26 @@ def test_parts_of_an_unmarked_board_are_placed_by_the_rig(tmp_path):
             assert len(uv) < sc.board.n_points and np.sqrt(np.mean(e**2)) < 0.01, (n, v, np.sqrt(np.mean(e**2)))
     a = compare_rigs(res.rig, sc.rig)
     assert a.rotation_deg[1] < 0.02 and a.position_mm[1] < 0.2, (a.rotation_deg, a.position_mm)
+
+
+def test_calibrate_rig_says_which_parts_the_rig_placed(tmp_path, capsys):
+    """The console and rig.json name the placed views; the per-camera 'image left out' lines no longer list them."""
+    import json
+
+    from circcal.cli import main
+    from circcal.fixtures.rig import render_rig
+
+    render_rig(rig_scenario("two"), tmp_path / "img", partial=True)
+    out = tmp_path / "rig.json"
+    argv = ["calibrate-rig", "--camera", f"left={tmp_path / 'img' / 'left'}", "--camera"]
+    argv += [f"right={tmp_path / 'img' / 'right'}", "--grid", "8x11", "--pitch", "15mm", "--lens", "right=rational"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert main([*argv, "--out", str(out), "--no-progress", "--no-cross-validate"]) == 0
+    text = capsys.readouterr().out
+    placed = json.loads(out.read_text())["placed"]
+    assert placed and all(placed.values())
+    for name, views in placed.items():
+        assert f"placed where the other cameras put the board: {', '.join(views)}" in text
+        for v in views:
+            assert f"image left out: {tmp_path / 'img' / name / v}" not in text

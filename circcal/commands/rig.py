@@ -473,6 +473,7 @@ def _write(cal, board, verdict, fmt, out, ros, models, kalibr, rectified, alpha)
             sigma_px=cal.sigma_px,
             dropped=cal.dropped,
             relabelled=cal.relabelled,
+            placed=cal.placed,
             board=board.to_dict(),
             verdict=verdict.to_dict(),
         )
@@ -551,8 +552,16 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
         if k > 0:
             lines.append("  " + _pose_text(rig, k, std[offsets[-1] + 6 * (k - 1) : offsets[-1] + 6 * k]))
         per = cal.per_camera.get(name)
+        placed = cal.placed.get(name, [])
+        placed_paths = {str(cal.images.get(name, {}).get(v)) for v in placed}
         for r in getattr(per, "failed", []) or []:
-            lines.append(f"  image left out: {display_name(r.path)}: {r.reason}")
+            if str(r.path) not in placed_paths:
+                lines.append(f"  image left out: {display_name(r.path)}: {r.reason}")
+        if placed:
+            lines.append(
+                f"  parts of the board its detector could not place alone, placed where the other cameras put the "
+                f"board: {', '.join(display_name(v) for v in placed)}"
+            )
         for d in cal.dropped:
             if d["camera"] == name:
                 lines.append(f"  view dropped from the rig: {display_name(d['instant'])}: {d['reason']}")
