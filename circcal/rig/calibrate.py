@@ -501,9 +501,7 @@ def _rig_placed_views(
         cam = rig.cameras[c]
         for i, det in enumerate(cal.detections):
             v = instant[n].get(cal.paths[i])
-            if det.found or det.code != det_mod.Reason.AMBIGUOUS_VIEW or v not in result.board_poses:
-                continue
-            if v not in instants:
+            if det.found or det.code != det_mod.Reason.AMBIGUOUS_VIEW or v not in instants:
                 continue
             R, t = _board_in_camera(rig, result.board_poses[v], c)
             Xc = P @ R.T + t
@@ -625,15 +623,17 @@ def calibrate_rig(
     with progress_bar(max_rounds, "rig joint solve", "round", bool(progress)) as bar:
         layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
         found = _rig_placed_views(result, per_camera, instant, board, set(layout.instants))
-        if found:  # parts of the board the rig placed: the joint solve again with them
-            for c, n in enumerate(names):
-                for v, det in found.get(n, {}).items():
-                    dets[c][v], centres[c][v] = det, np.asarray(det.centres, np.float64)
+        for c, n in enumerate(names):  # each placed view with its board pose in its own labelling, as the others'
+            for v, det in list(found.get(n, {}).items()):
+                view = views_of([{v: np.asarray(det.centres, np.float64)}])[0]
+                try:
+                    poses[c].update(given_camera_starts([n], [cameras[c]], [view])[1][0])
+                except CalibrationError:  # no pose fits it: not a part of this board after all
+                    del found[n][v]
+                    continue
+                dets[c][v], centres[c][v] = det, np.asarray(det.centres, np.float64)
+        if any(found.values()):  # parts of the board the rig placed: the joint solve again with them
             views = views_of(centres)
-            for c, n in enumerate(names):  # each placed view's board pose in its own labelling, as the others'
-                placed = {v: views[c][v] for v in found.get(n, {})}
-                if placed:
-                    poses[c].update(given_camera_starts([n], [cameras[c]], [placed])[1][0])
             layout, sol, result = _calibrate(names, views, opts, board, cameras, poses)
         bar.update()
         max_it = max(o.max_iterations for o in opts)
@@ -671,7 +671,7 @@ def calibrate_rig(
                 bar.update(max_rounds - 1 - r)  # converged: the rounds left are not needed
                 break
     result.rounds = rounds
-    result.placed = {n: sorted(v for v in vs if v in result.instants[n]) for n, vs in found.items()}
+    result.placed = {n: sorted(v for v in vs if v in result.instants[n]) for n, vs in found.items() if vs}
     result.per_camera = per_camera
     result.images = {n: {v: p for p, v in instant[n].items()} for n in names}
     return result
