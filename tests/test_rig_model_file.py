@@ -70,7 +70,7 @@ def test_a_correlation_beyond_one_is_refused(doc):
     [
         ("p.csv", "u,v\n1,2\n3,\n", "line 3: one coordinate only"),
         ("p.csv", "id,u,v\na,1,2\nb,3,4\na,5,6\n", "line 4: point id 'a' given twice \\(first on line 2\\)"),
-        ("p.json", "[[1, 2], [3, null]]", "point 1 has one coordinate only"),
+        ("p.json", "[[1, 2], [3, null]]", "point 1: one coordinate only"),
         ("p.json", "[[1, 2], [1e308, 1e308]]", "point 1 must be a pixel within 1e\\+07 px"),
         ("p.csv", "1,2\n1e308,4\n", "line 2: a pixel within 1e\\+07 px"),
         ("p.csv", "1,2\ninf,4\n", "line 2: a pixel within"),

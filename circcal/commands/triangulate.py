@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 from circcal.commands.args import positive_float
@@ -196,9 +197,8 @@ def read_points(path: Path, option: str = "--points") -> tuple[list[str] | None,
             u, v = (math.nan if x is None else float(x) for x in r)
             if not (abs(u) <= MAX_PIXEL or math.isnan(u)) or not (abs(v) <= MAX_PIXEL or math.isnan(v)):
                 raise InputError(f"{where}: point {k} must be a pixel within {MAX_PIXEL:g} px of the origin")
-            if math.isnan(u) != math.isnan(v):
-                raise InputError(f"{where}: point {k} has one coordinate only, got {r!r}: give both, or null for both")
             out.append((u, v))
+        _both_or_neither(out, lambda k: f"{where}: point {k}")
         return None, out
     rows = [
         (n, r)
@@ -222,10 +222,15 @@ def read_points(path: Path, option: str = "--points") -> tuple[list[str] | None,
                 )
             first[i] = n
     pixels = [(_number(r[-2], f"{where}: line {n}"), _number(r[-1], f"{where}: line {n}")) for n, r in rows]
-    for (n, _), (u, v) in zip(rows, pixels):
-        if math.isnan(u) != math.isnan(v):
-            raise InputError(f"{where}: line {n}: one coordinate only: give u and v, or leave both empty (unseen)")
+    _both_or_neither(pixels, lambda k: f"{where}: line {rows[k][0]}")
     return ids, pixels
+
+
+def _both_or_neither(pixels: list[tuple[float, float]], where: Callable[[int], str]) -> None:
+    """Refuse a point with one coordinate only (``where(k)`` names point k): an unseen point has neither."""
+    for k, (u, v) in enumerate(pixels):
+        if math.isnan(u) != math.isnan(v):
+            raise InputError(f"{where(k)}: one coordinate only: give u and v, or neither (an unseen point)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -282,7 +282,8 @@ def _vectors(rows: Sequence[Any], what: str) -> np.ndarray:
 
 
 def _matrix(rows: Any) -> np.ndarray:
-    """A covariance: a finite, symmetric, positive semi-definite square float matrix, or InputError."""
+    """A covariance: a finite, symmetric square float matrix, variances >= 0 and correlations within +-1 (what a
+    covariance must be; not a full test of positive semi-definiteness), or InputError."""
     try:
         a = np.asarray(rows, dtype=np.float64)
     except (TypeError, ValueError):
