@@ -90,7 +90,7 @@ def test_a_folder_per_instant_names_the_instants(tmp_path):
 
 
 def _namespace(tmp_path, left: str, right: str) -> argparse.Namespace:
-    return argparse.Namespace(camera=[("left", str(tmp_path / left)), ("right", str(tmp_path / right))])
+    return argparse.Namespace(camera=[("left", str(tmp_path / left)), ("right", str(tmp_path / right))], intrinsics=[])
 
 
 def test_the_command_says_when_it_matched_by_prefix(tmp_path, capsys):

@@ -251,10 +251,13 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
                 )
     _refuse_copies(images)
     alone = unlinked(instants)
-    few = next((n for n, paths in images.items() if len(paths) < MIN_VIEWS), None)
+    held = {n for n, _ in args.intrinsics}  # a held camera needs one view another camera shares
+    few = next((n for n, paths in images.items() if len(paths) < MIN_VIEWS and n not in held), None)
     if few is not None and not alone:
         raise InputError(
-            f"--camera {few}: {len(images[few])} image(s); a camera's calibration needs at least {MIN_VIEWS} views"
+            f"--camera {few}: {len(images[few])} image(s); a camera's calibration needs at least {MIN_VIEWS} views "
+            f"(or hold its intrinsics, calibrated on more views, with --intrinsics {few}=MODEL_FILE: then one view "
+            f"another camera shares is enough)"
         )
     if alone:
         raise InputError(
@@ -572,8 +575,13 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
             )
     lines += [u.text() for u in projection_uncertainty(rig)]
     lines.append("coverage (each ninth of the image needs an observed point, else the lens model is extrapolated):")
-    for name, cov in camera_coverage(cal).items():
+    for k, (name, cov) in enumerate(camera_coverage(cal).items()):
         lines.append(f"  {name}: {100 * cov.covered_share:.0f}% of the map's cells hold a point")
+        if not np.any(std[offsets[k] : offsets[k + 1]]):  # held: its lens is the given calibration's
+            lines.append(
+                "    its intrinsics are held (given): their coverage is that of the calibration they came from"
+            )
+            continue
         lines += [f"    {w}" for w in cov.warnings]
     for i in range(rig.n_cameras):  # every pair of cameras that saw the board at one instant
         for j in range(i + 1, rig.n_cameras):

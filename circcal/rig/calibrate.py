@@ -29,8 +29,9 @@ from circcal.formats import read_camera
 from circcal.imagefiles import image_list
 from circcal.model import Camera, project_camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
-from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, calibrate_images
+from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, TooFewImagesError, calibrate_images
 from circcal.progress import progress_bar
+from circcal.rig.held import LocatedImages, held_cameras, is_held, locate_held_camera
 from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
@@ -87,8 +88,9 @@ class RigCalibration:
         The start (pairwise estimates, spanning tree).
     rounds : list of dict
         Per joint solve ``{"round", "rms_px", "max_centre_shift_px"}`` (images only).
-    per_camera : dict of str to ImagesCalibration
-        Each camera's own calibration (images only).
+    per_camera : dict of str to ImagesCalibration or LocatedImages
+        Each camera's own calibration (images only); a camera whose intrinsics were given and held:
+        :class:`circcal.rig.held.LocatedImages` (its images searched and corrected under them, not calibrated alone).
     images : dict of str to dict of str to str
         Per camera, per instant its image file (images only; :mod:`circcal.rig.instants` named the instants).
     observations : dict of str to dict of str to (ndarray (N, 3), ndarray (N, 2))
@@ -115,7 +117,7 @@ class RigCalibration:
     converged: bool
     start: RigStart
     rounds: list[dict[str, Any]] = field(default_factory=list)
-    per_camera: dict[str, ImagesCalibration] = field(default_factory=dict)
+    per_camera: dict[str, ImagesCalibration | LocatedImages] = field(default_factory=dict)
     images: dict[str, dict[str, str]] = field(default_factory=dict)
     observations: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
     undetermined: list[tuple[str, str]] = field(default_factory=list)
@@ -217,12 +219,21 @@ def calibrate_rig_points(
     if missing:
         raise InputError(f"image_sizes has no size for camera(s) {missing}")
     sizes = [check_image_size(image_sizes[n]) for n in names]
+    given = (
+        None if initial is None or isinstance(initial, RigCalibration) else _given_cameras(initial, names, sizes, opts)
+    )
+    start = dict(zip(initial.rig.names, initial.rig.cameras)) if isinstance(initial, RigCalibration) else given
+    held = held_cameras(names, opts, start or {})
     views: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
     for n, size in zip(names, sizes):
         keys = [str(k) for k in observations[n]]
         try:
             obj, img, _ = check_observations(
-                [observations[n][k][0] for k in keys], [observations[n][k][1] for k in keys], size, view_names=keys
+                [observations[n][k][0] for k in keys],
+                [observations[n][k][1] for k in keys],
+                size,
+                view_names=keys,
+                min_views=1 if n in held else MIN_VIEWS,
             )
         except InputError as exc:
             raise InputError(f"camera {n!r}: {str(exc).splitlines()[0]}") from None
@@ -233,7 +244,7 @@ def calibrate_rig_points(
     elif isinstance(initial, RigCalibration):
         cameras, poses = _initial_starts(initial, names, views, opts)
     else:
-        given = _given_cameras(initial, names, sizes, opts)
+        assert given is not None
         cameras, poses = given_camera_starts(names, [given[n] for n in names], views)
     return _calibrate(names, views, opts, board, cameras, poses)[2]
 
@@ -354,7 +365,8 @@ def _calibrate(
 ) -> tuple[_Layout, RigSolution, RigCalibration]:
     """The start and the joint solve from per-camera calibrations."""
     start = rig_start(names, cameras, poses, views, board_symmetries(board))
-    layout = _Layout(names, views, start)
+    need = [1 if is_held(c, o) else MIN_VIEWS for c, o in zip(cameras, opts)]  # a held camera: its pose only
+    layout = _Layout(names, views, start, need)
     prob = layout.problem(views, cameras, opts)
     x0 = prob.pack(
         [c.intrinsics for c in cameras],
@@ -370,15 +382,21 @@ def _calibrate(
 class _Layout:
     """Which views the joint solve uses (after the start's drops), with their labels, and the problem over them."""
 
-    def __init__(self, names: list[str], views: list[dict[str, tuple[np.ndarray, np.ndarray]]], start: RigStart):
+    def __init__(
+        self,
+        names: list[str],
+        views: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+        start: RigStart,
+        need: list[int],
+    ):
         self.names, self.start = names, start
         gone = {(c, v) for c, v, _ in start.dropped}
         self.kept = [[v for v in views[c] if (c, v) not in gone and (c, v) in start.labels] for c in range(len(names))]
         for c, kept in enumerate(self.kept):
-            if len(kept) < MIN_VIEWS:
+            if len(kept) < need[c]:
                 why = "; ".join(f"{v}: {r}" for cc, v, r in start.dropped if cc == c)
                 raise CalibrationError(
-                    f"camera {names[c]!r} keeps {len(kept)} view(s) for the rig, at least {MIN_VIEWS} are needed"
+                    f"camera {names[c]!r} keeps {len(kept)} view(s) for the rig, at least {need[c]} are needed"
                     + (f" (left out: {why})" if why else "")
                 )
         # every camera must still be linked to the reference through kept shared instants
@@ -481,7 +499,7 @@ class _Layout:
 
 def _rig_placed_views(
     result: RigCalibration,
-    per_camera: dict[str, ImagesCalibration],
+    per_camera: dict[str, ImagesCalibration | LocatedImages],
     instant: dict[str, dict[str, str]],
     board: Board,
     instants: set[str],
@@ -550,14 +568,16 @@ def calibrate_rig(
     initial : mapping of str to Camera or path, or None
         Some cameras' intrinsics by name (of their image size and lens model), a Camera or a model file: the joint
         solve starts those cameras from them (and ``options``' ``fixed`` holds them: every parameter name is
-        ``cv2.stereoCalibrate``'s ``CALIB_FIX_INTRINSIC``). Their own pipeline still finds and corrects their
-        centres, with the ``fixed`` of their options left out there (nothing to start a held camera from).
+        ``cv2.stereoCalibrate``'s ``CALIB_FIX_INTRINSIC``). A camera held so is not calibrated alone: its board is
+        searched and its centres corrected under the given intrinsics (:func:`circcal.rig.held.locate_images`), and
+        one view another camera shares is enough for it. A camera started from them but not held still goes through
+        its own pipeline, which finds and corrects its centres.
 
     Returns
     -------
     RigCalibration
-        With ``per_camera`` (each camera's own :class:`~circcal.pipeline.ImagesCalibration`, its images left out in
-        ``failed``) and ``rounds``.
+        With ``per_camera`` (each camera's own :class:`~circcal.pipeline.ImagesCalibration`, or a held camera's
+        :class:`~circcal.rig.held.LocatedImages`; its images left out in ``failed``) and ``rounds``.
 
     Raises
     ------
@@ -565,7 +585,7 @@ def calibrate_rig(
         Fewer than two cameras, a camera without images, one file name twice in one camera, bad options.
     CalibrationError
         As :func:`calibrate_rig_points`, and (:class:`circcal.pipeline.TooFewImagesError`) a camera whose board is
-        found in fewer than 3 images (named).
+        found in fewer than 3 images (named; a held camera: in none).
     """
     images = {n: image_list(ps, f"camera {n!r}") for n, ps in images.items()}  # a generator is read once here
     names = list(images)
@@ -576,14 +596,24 @@ def calibrate_rig(
         _check_initial_names(initial, names, every=False)
         initial = {n: read_camera(os.fspath(c)) if isinstance(c, (str, os.PathLike)) else c for n, c in initial.items()}
     given_names = set() if initial is None else set(map(str, initial))
-    per_camera: dict[str, ImagesCalibration] = {}
+    per_camera: dict[str, ImagesCalibration | LocatedImages] = {}
     for n, o in zip(names, opts):
         paths = images[n]
         if not paths:
             raise InputError(f"camera {n!r}: no images given")
+        if initial is not None and n in initial and is_held(initial[n], o):
+            per_camera[n] = locate_held_camera(n, paths, board, initial[n], o, progress=bool(progress), jobs=jobs)
+            continue
         own = replace(o, fixed=()) if n in given_names else o
         try:
             per_camera[n] = calibrate_images(paths, board, own, progress=bool(progress), jobs=jobs)
+        except TooFewImagesError as exc:
+            raise TooFewImagesError(
+                f"camera {n!r}: {str(exc).splitlines()[0]}; or hold its intrinsics, calibrated on more views "
+                f"(calibrate-rig's --intrinsics {n}=MODEL_FILE, calibrate_rig's initial=): then one view another "
+                f"camera shares is enough",
+                exc.rejected,
+            ) from exc
         except CalibrationError as exc:
             raise CalibrationError(f"camera {n!r}: {str(exc).splitlines()[0]}") from exc
     board_pts = board.object_points()
@@ -604,14 +634,12 @@ def calibrate_rig(
             out.append(vs)
         return out
 
-    cameras = [per_camera[n].result.camera for n in names]
-    poses = [
-        {
-            instant[n][cal.paths[i]]: (rodrigues(rv), tv.copy())
-            for i, rv, tv in zip(cal.used, cal.result.rvecs, cal.result.tvecs)
-        }
-        for n, cal in per_camera.items()
-    ]
+    cameras, poses = [], []
+    for n, cal in per_camera.items():  # a held camera's poses: from its given intrinsics, below
+        own = not isinstance(cal, LocatedImages)
+        cameras.append(cal.result.camera if own else cal.camera)
+        rt = zip(cal.used, cal.result.rvecs, cal.result.tvecs) if own else []
+        poses.append({instant[n][cal.paths[i]]: (rodrigues(rv), tv.copy()) for i, rv, tv in rt})
     views = views_of(centres)
     if initial is not None:
         sizes = [(c.width, c.height) for c in cameras]

@@ -369,15 +369,16 @@ def cross_validate_rig(
     rig = cal.rig
     instants = {n: list(cal.observations.get(n, {})) for n in rig.names}
     n_all = len(set().union(*map(set, instants.values())))
-    short = [f"{n} ({len(v)})" for n, v in instants.items() if len(v) < 2 * MIN_VIEWS]
+    held = _held(rig)
+    short = [f"{n} ({len(v)})" for n, v in instants.items() if len(v) < 2 * (1 if n in held else MIN_VIEWS)]
     if n_all < MIN_INSTANTS or short:
         return RigCrossValidation(
             "too-few-instants",
             f"not done: {n_all} instants"
             + (f", views per camera {', '.join(short)}" if short else "")
             + f"; two independent halves need at least {MIN_INSTANTS} instants and {2 * MIN_VIEWS} views of every "
-            f"camera ({MIN_VIEWS} per half, the least a calibration takes). The rig above stands; take more views "
-            f"to check it",
+            f"camera ({MIN_VIEWS} per half, the least a calibration takes; 2 of a camera whose intrinsics are held). "
+            f"The rig above stands; take more views to check it",
         )
     halves = split_instants(instants)
     sizes = {n: (c.width, c.height) for n, c in zip(rig.names, rig.cameras)}
@@ -450,6 +451,20 @@ def cross_validate_rig(
             f"full rig's divided by its share of the points)"
         )
     return cv
+
+
+def _held(rig: RigModel) -> set[str]:
+    """The cameras whose intrinsics the rig's covariance holds (every variance 0): given, not estimated."""
+    if rig.covariance is None:
+        return set()
+    var = np.diag(np.asarray(rig.covariance, dtype=np.float64))
+    out, start = set(), 0
+    for name, cam in zip(rig.names, rig.cameras):
+        n = len(cam.intrinsics)
+        if not np.any(var[start : start + n]):
+            out.add(name)
+        start += n
+    return out
 
 
 def _points(cal: RigCalibration) -> int:
