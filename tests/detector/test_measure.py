@@ -203,7 +203,7 @@ def _uneven_render():
 
 
 def test_batched_levels_equal_the_per_dot_estimate():
-    from circcal.detector.measure.edges import _pass_geometry
+    from circcal.detector.measure.edges import PROFILE_HALF_MAX_PX, _pass_geometry
     from circcal.detector.measure.ellipse import conic_params_batch
     from circcal.detector.measure.levels import dot_levels_batch
 
@@ -211,7 +211,7 @@ def test_batched_levels_equal_the_per_dot_estimate():
     d = detect(img, BOARD)
     assert d.found, d.reason
     c = conic_params_batch(d.conics)[0]
-    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0)[5].T
+    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0, PROFILE_HALF_MAX_PX)[5].T
     dark, plane, ok = dot_levels_batch(img, d.conics, np.stack([x0, y0, x1, y1], 1))
     assert np.all(ok)
     for k, Q in enumerate(d.conics):
@@ -226,7 +226,7 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     """stride 2 (a steering pass's levels): the dots of minor semi-axis >= 8 px take the levels of the pixels of
     every second row and column of their box, the smaller ones of every pixel (against the reference on those
     pixels); they agree with the full levels to the noise of a quarter of the pixels."""
-    from circcal.detector.measure.edges import _pass_geometry
+    from circcal.detector.measure.edges import PROFILE_HALF_MAX_PX, _pass_geometry
     from circcal.detector.measure.ellipse import conic_params_batch
     from circcal.detector.measure.levels import STRIDE_MIN_MINOR_PX, dot_levels_from_params
 
@@ -234,7 +234,7 @@ def test_strided_levels_are_those_of_every_second_row_and_column():
     d = detect(img, BOARD)
     params = conic_params_batch(d.conics)
     c, axes = params[0], params[1]
-    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0)[5].T
+    x0, y0, x1, y1 = _pass_geometry(np.ascontiguousarray(d.conics), 1.5, *img.shape, 1.0, PROFILE_HALF_MAX_PX)[5].T
     boxes = np.stack([x0, y0, x1, y1], 1)
     dark, plane, ok = dot_levels_from_params(img, *params, boxes, 2)
     dark1, plane1, _ = dot_levels_from_params(img, *params, boxes)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from circcal.detector.kernels.jit import njit
-from circcal.detector.measure.edges import PROFILE_SPACING_PX, subpixel_edge_points_batch
+from circcal.detector.measure.edges import PROFILE_HALF_MAX_PX, PROFILE_SPACING_PX, subpixel_edge_points_batch
 from circcal.detector.measure.ellipse import _sampson_kernel
 from circcal.detector.measure.ellipsefit import FIT_ERRORS, _fit_kernel
 from circcal.detector.measure.robust import MAD_TO_SIGMA, _mad_inliers_kernel
@@ -29,6 +29,13 @@ EDGE_SIGMA = 1.5
 makes the cubic interpolation of the pixel grid accurate to ~1e-3 px even on unblurred (aliased) renders; measured
 best for dots of radius 7-30 px at tilts up to 60 deg (smaller values leave interpolation error, larger ones
 curvature bias). With an optical blur of ~1 px it is also near the noise-optimal (matched) smoothing."""
+TOO_FEW = "only "
+"""How the error of a dot with fewer than :data:`MIN_EDGE_POINTS` edge points begins."""
+RETRY_HALF_MAX_PX = 12.0
+"""A dot with too few edge points is measured again, from its starting ellipse, with profiles of half length up to
+this (``PROFILE_HALF_PER_MINOR`` b, b its minor semi-axis; the first measurement's at most
+:data:`~circcal.detector.measure.edges.PROFILE_HALF_MAX_PX`): a big dot with a soft edge (defocus, a high-resolution
+image) whose half level lies farther from the contours' ellipse than the short profiles reach."""
 MIN_EDGE_POINTS = 10
 """A dot with fewer edge points is not measured (an ellipse needs 5; the rest give the fit and the outlier rule
 some redundancy)."""
@@ -69,8 +76,10 @@ def fit_dots(
     Edge points are measured :data:`FIT_PASSES` times along the normals of the latest ellipse
     (:func:`~circcal.detector.measure.edges.subpixel_edge_points_batch`; sparser in the steering passes,
     :data:`STEERING_SPACING_PX`), each time fitted (direct least squares) and refitted once without the outliers
-    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). Each dot's result depends on that
-    dot alone.
+    (:data:`OUTLIER_SIGMAS`, :data:`OUTLIER_MIN_PX`; :func:`_fit_pass_kernel`). A dot left with fewer than
+    :data:`MIN_EDGE_POINTS` is measured again from its starting ellipse with longer profiles
+    (:data:`RETRY_HALF_MAX_PX`); the other dots are not (their results are those of the short profiles to the bit).
+    Each dot's result depends on that dot alone.
 
     Parameters
     ----------
@@ -92,7 +101,29 @@ def fit_dots(
         (D,): ``None``, or why the dot could not be measured (then its points and conic are not meaningful).
     """
     src = gray if isinstance(gray, SmoothedImage) else SmoothedImage(gray, EDGE_SIGMA)
-    Q = np.asarray(conics0, np.float64).copy()
+    Q0 = np.asarray(conics0, np.float64)
+    pts, mask, Q, errors = _measure(src, Q0.copy(), PROFILE_HALF_MAX_PX)
+    again = np.array([d for d, e in enumerate(errors) if e is not None and e.startswith(TOO_FEW)], np.int64)
+    if len(again):  # a soft edge far from its start: the same dots measured again with longer profiles
+        p2, m2, q2, e2 = _measure(src, Q0[again].copy(), RETRY_HALF_MAX_PX)
+        ok = [j for j, e in enumerate(e2) if e is None]
+        if ok:
+            M = max(pts.shape[1], p2.shape[1])
+            pts = np.concatenate([pts, np.zeros((len(pts), M - pts.shape[1], 2))], axis=1)
+            mask = np.concatenate([mask, np.zeros((len(mask), M - mask.shape[1]), bool)], axis=1)
+            for j in ok:
+                d = again[j]
+                pts[d], mask[d] = 0.0, False
+                pts[d, : p2.shape[1]], mask[d, : m2.shape[1]] = p2[j], m2[j]
+                Q[d], errors[d] = q2[j], None
+    return pts, mask, Q, errors
+
+
+def _measure(
+    src: SmoothedImage, Q: np.ndarray, half_max_px: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str | None]]:
+    """:func:`fit_dots`' passes from the ellipses ``Q`` (D, 3, 3; refined in place) with profiles of half length at
+    most ``half_max_px``: ``(points, mask, conics, errors)``."""
     D = len(Q)
     errors: list[str | None] = [None] * D
     pts = np.zeros((D, 0, 2))
@@ -108,13 +139,14 @@ def fit_dots(
             with_slack=True,
             spacing_px=PROFILE_SPACING_PX if last else STEERING_SPACING_PX,
             level_stride=1 if last else STEERING_LEVEL_STRIDE,
+            half_max_px=half_max_px,
         )
         cnt = m_a.sum(axis=1)
         for j in range(len(ai)):
             if err_a[j] is not None:
                 errors[ai[j]] = err_a[j]
             elif cnt[j] < MIN_EDGE_POINTS and last:
-                errors[ai[j]] = f"only {cnt[j]} sub-pixel edge points"
+                errors[ai[j]] = f"{TOO_FEW}{cnt[j]} sub-pixel edge points"
         sel = np.array([err_a[j] is None and cnt[j] >= MIN_EDGE_POINTS for j in range(len(ai))], bool)  # (a
         # steering pass leaves a dot with too few points on its previous ellipse)
         if last:
@@ -122,8 +154,8 @@ def fit_dots(
             mask = np.zeros((D, p_a.shape[1]), bool)
             pts[ai] = p_a
             mask[ai] = m_a
-        if not np.any(sel):
-            break
+        if not np.any(sel):  # no dot to fit: the next pass measures them on their previous ellipses
+            continue
         fi = ai[sel]
         P, M = p_a[sel], m_a[sel]
         Qa = np.empty((len(fi), 3, 3))

@@ -70,6 +70,7 @@ def subpixel_edge_points_batch(
     with_slack: bool = False,
     spacing_px: float = PROFILE_SPACING_PX,
     level_stride: int = 1,
+    half_max_px: float = PROFILE_HALF_MAX_PX,
 ) -> tuple[np.ndarray, ...]:
     """Sub-pixel boundary points of the dark dots near the given ellipses.
 
@@ -113,7 +114,9 @@ def subpixel_edge_points_batch(
     conics = np.ascontiguousarray(conics, np.float64)
     D = len(conics)
     H, W = src.shape
-    c, ab, ang, okc, hw, boxes, live, n = _pass_geometry(conics, float(src.sigma), H, W, float(spacing_px))
+    c, ab, ang, okc, hw, boxes, live, n = _pass_geometry(
+        conics, float(src.sigma), H, W, float(spacing_px), float(half_max_px)
+    )
     errors: list[str | None] = [None if k else "conic is not a real ellipse" for k in okc.tolist()]
     N = int(n.max()) if D else 0
     if N == 0:
@@ -216,7 +219,7 @@ def _edge_blur_kernel(at, rise, plane, ratio, ok, nominal, out):
 
 
 @njit(cache=True, nogil=True)
-def _pass_geometry(conics, sigma, H, W, spacing_px):
+def _pass_geometry(conics, sigma, H, W, spacing_px, half_max_px):
     """What a measuring pass needs of the ellipses ``conics`` (D, 3, 3) before it samples the image (H, W) smoothed
     by ``sigma`` px: ``(c (D, 2), ab (D, 2), ang (D,), okc (D,), hw (D,), boxes (D, 4), live (D,), n (D,))``.
 
@@ -243,7 +246,7 @@ def _pass_geometry(conics, sigma, H, W, spacing_px):
             c[d, 0] = c[d, 1] = ang[d] = 0.0
             ab[d, 0] = ab[d, 1] = 1.0
         a, b = ab[d, 0], ab[d, 1]
-        h = min(PROFILE_HALF_MAX_PX, max(PROFILE_HALF_MIN_PX, PROFILE_HALF_PER_MINOR * b))
+        h = min(half_max_px, max(PROFILE_HALF_MIN_PX, PROFILE_HALF_PER_MINOR * b))
         pad = h + ROI_PAD_SIGMAS * sigma + ROI_PAD_PX
         hw[d] = h
         x0 = int(max(0.0, np.floor(c[d, 0] - a - pad)))
