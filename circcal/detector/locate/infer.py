@@ -49,6 +49,13 @@ admits the dots of every board of at least 9 points with dots up to 0.8 pitches 
 (regularity) use only the patch's own steps."""
 MIN_LINES = 3
 """A grid is inferred only from a lattice of at least this many rows and columns (a seed needs all 8 neighbours)."""
+INFER_SEED_SCORE = 7
+"""Neighbours (of 8) the first seed of a lattice needs when no board is given: the most the dots of the thinnest
+boards inferred have (:func:`~circcal.detector.locate.labels.seed_score_needed`: 8 on grids of 3 rows and columns
+and more; 7 on a 4-row staggered board, 4 rows of 11 dots). A lattice with 8-neighbour seeds is found as with 8
+(seeds are taken best first); only where none has 8 does a thinner one seed. Not 6 (a 3-row staggered board's):
+over the 90 hostile images of :mod:`circcal.fixtures.fuzz` it found lattices in 8 more of random dots and checkers,
+one a "whole" 3x2 staggered board; 7 finds two partial ones (layout unknown), no board."""
 INFER_BUDGET_S = 20.0
 """Seconds per image for the board-free search (it tries every segmentation of every scale)."""
 
@@ -160,10 +167,13 @@ def shape_of(ab: np.ndarray) -> tuple[int, int, str | None]:
     sx, sy = (int(s) for s in np.ptp(xy, axis=0) + 1)
     options = []  # (rows, cols): rows along one board axis, each of cols dots at every other node
     for across, along in ((sx, sy), (sy, sx)):
-        if across % 2 == 0 and along >= 2 and K == along * across // 2:
+        if across >= 4 and across % 2 == 0 and along >= 2 and K == along * across // 2:  # 2 dots a row at least
             options.append((along, across // 2))
-    if options:
-        r, c = max(options)
+    # both readings of a staggered rectangle are one board only where a rotation (no mirror) puts every dot on it:
+    # OpenCV's rows start on the even nodes, and a quarter turn of a 6x9 board is no 18x3 board
+    fit = [o for o in options if placements(Board(o[0], o[1], 1.0, 0.5, "asymmetric"), xy)]
+    if fit or options:
+        r, c = max(fit or options)
         return r, c, "asymmetric"
     r, c = sorted(int(s) for s in span)
     return r, c, None
@@ -221,7 +231,7 @@ def _search(gray: np.ndarray, name: str, deadline: Deadline | None) -> GridEvide
             ang = np.array([c.angle for c in cs], np.float64)
             area = np.pi * axes[:, 0] * axes[:, 1]
             cut = np.array([c.cut for c in cs], bool)
-            patches = find_lattices(pts, axes, ang, area, (W, H), deadline=deadline)
+            patches = find_lattices(pts, axes, ang, area, (W, H), min_seed_score=INFER_SEED_SCORE, deadline=deadline)
             lat = next((p for p in patches if _regular(PROBE, p, pts, area)), None)
             if lat is None:
                 continue
