@@ -11,7 +11,7 @@ from pathlib import Path
 from circcal.board import Board
 from circcal.detector.detection import Detection, Reason
 from circcal.detector.find import camera_size_mismatch, detect
-from circcal.detector.image import ImageTooLargeError, read_image_messages
+from circcal.detector.image import ImageTooLargeError, exif_orientation_note, read_image_messages
 from circcal.errors import ImageError, InputError
 from circcal.model import Camera
 from circcal.progress import progress_bar
@@ -137,6 +137,9 @@ def _detect_file(path: Path, board: Board, camera: Camera | None) -> Detection:
     d = _detect_image(img, board, camera)
     if said:  # decoded, but the decoder found the file damaged: say so with the result
         d.notes = [*d.notes, "the file is damaged (the decoder said: " + "; ".join(said[:3]) + ")"]
+    turned = exif_orientation_note(path)
+    if turned:
+        d.notes = [*d.notes, turned]
     return d
 
 

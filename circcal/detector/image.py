@@ -23,6 +23,7 @@ from circcal.detector.kernels.jit import njit
 from circcal.errors import ImageError, InputError
 
 __all__ = [
+    "exif_orientation_note",
     "MAX_IMAGE_PIXELS",
     "MAX_IMAGE_PIXELS_ENV",
     "ImageTooLargeError",
@@ -213,6 +214,55 @@ def _pillow_size(source: Path | io.BytesIO) -> tuple[int, int] | None:
             raise _DecompressionBomb(str(exc)) from None
         except Exception:  # noqa: BLE001 - any header Pillow cannot parse, whatever it raises: the decoder decides
             return None
+
+
+#: EXIF orientation (tag 0x0112) -> what a viewer that applies it does to the stored pixels.
+EXIF_TURNS = {
+    2: "mirror it left-right",
+    3: "turn it 180 deg",
+    4: "mirror it top-bottom",
+    5: "mirror and turn it 90 deg",
+    6: "turn it 90 deg clockwise",
+    7: "mirror and turn it 90 deg",
+    8: "turn it 90 deg counter-clockwise",
+}
+
+
+def exif_orientation_note(source: Path) -> str | None:
+    """What to tell about an image file whose EXIF orientation turns it: circcal calibrates its pixels as stored.
+
+    ``cv2.imdecode(..., IMREAD_UNCHANGED)`` ignores the orientation tag, so every image is the sensor's frame and one
+    camera model serves photographs taken upright and sideways alike; a viewer, ``cv2.imread``'s default and most
+    photo tools turn such an image first, so a model used on their pixels does not fit it.
+
+    Parameters
+    ----------
+    source : Path
+        The image file.
+
+    Returns
+    -------
+    str or None
+        The note; None where the file has no orientation tag, tag 1 (as stored), or Pillow cannot read it.
+    """
+    try:
+        from PIL import Image
+    except ImportError:  # Pillow comes with matplotlib; without it nothing is said
+        return None
+    with _HEADER_LOCK, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            with Image.open(source) as im:
+                tag = im.getexif().get(0x0112)
+        except Exception:  # noqa: BLE001 - a header Pillow cannot parse, whatever it raises: nothing to say
+            return None
+    if tag not in EXIF_TURNS:
+        return None
+    return (
+        f"EXIF orientation {tag} (viewers {EXIF_TURNS[tag]}) not applied: circcal uses the pixels as stored (the "
+        f"sensor's frame); a model from them fits images read the same way (cv2.IMREAD_UNCHANGED), not turned ones "
+        f"(cv2.imread's default)"
+    )
 
 
 def _header_pixels(source: Path | io.BytesIO) -> tuple[int, str] | None:

@@ -212,3 +212,20 @@ def test_cli_writes_json_and_overlays(tmp_path):
         cwd=REPO,
     )
     assert r.returncode == 2 and "--grid" in r.stderr and "ROWSxCOLS" in r.stderr
+
+
+def test_an_image_turned_by_its_exif_orientation_is_read_as_stored_and_said(tmp_path):
+    from PIL import Image
+
+    # a phone's portrait photograph: the sensor's landscape pixels with an orientation tag a viewer applies
+    img = to_uint(_render(CAM, 12, 30)[0])
+    plain, tagged = tmp_path / "plain.jpg", tmp_path / "tagged.jpg"
+    Image.fromarray(img).save(plain, quality=95)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(img).save(tagged, quality=95, exif=exif)
+    a, b = detect_files([plain, tagged], BOARD, progress=False, jobs=1)
+    assert a.found and b.found and a.image_size == b.image_size == (img.shape[1], img.shape[0])  # not turned
+    assert np.array_equal(a.centres, b.centres)
+    assert not a.notes
+    assert len(b.notes) == 1 and b.notes[0].startswith("EXIF orientation 6 (viewers turn it 90 deg clockwise)")
