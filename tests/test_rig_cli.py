@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -504,3 +505,27 @@ def test_triangulate_refuses_points_files_without_points(tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--points: the files hold no points" in err[0], err
+
+
+def test_triangulate_warns_when_the_points_are_noisier_than_the_sigma_assumed(tmp_path, capsys):
+    """A rig whose own noise is 0.0024 px (its RMS per point 0.0034 px) and points of 0.2 px noise: one line on stderr
+    naming --pixel-sigma and the points' noise, estimated within 20% of 0.2; none with --pixel-sigma 0.2, none for
+    points at the rig's own noise."""
+    import dataclasses
+
+    sc, _, px = _true_pixels(4)
+    rig_file = tmp_path / "rig.json"
+    rig_file.write_text(json.dumps(dataclasses.replace(sc.rig, rms_px=0.0034).to_dict()))
+    rng = np.random.default_rng(1)
+    for noise, given, warned in ((0.2, [], True), (0.2, ["--pixel-sigma", "0.2"], False), (0.0024, [], False)):
+        noisy = {n: p + rng.normal(0.0, noise, p.shape) for n, p in px.items()}
+        folder = tmp_path / f"{noise}-{len(given)}"
+        folder.mkdir()
+        assert main(["triangulate", "--rig", str(rig_file), *_write_points(folder, noisy), *given]) == 0
+        err = capsys.readouterr().err.strip().splitlines()
+        if not warned:
+            assert err == [], err
+            continue
+        assert len(err) == 1 and "--pixel-sigma" in err[0] and "0.0024 px assumed (the rig's own" in err[0], err
+        stated = float(re.search(r"reproject with ([\d.]+) px of noise per coordinate", err[0]).group(1))
+        assert 0.8 * noise < stated < 1.2 * noise, stated

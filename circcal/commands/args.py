@@ -419,15 +419,118 @@ FIX_FLAGS: dict[str, str] = {
 }
 
 
-def add_fix_arguments(p: argparse.ArgumentParser) -> None:
+#: A rig's ``--fix-*`` flags whose parameter means another term for a fisheye (theta^4, theta^6 of cv2.fisheye's
+#: Kannala-Brandt) than for a pinhole lens (r^4, r^6): given without a camera in a rig mixing the two, they hold the
+#: pinhole cameras' only (:func:`fix_holds`).
+FISHEYE_MEANS_OTHER = ("--fix-k2", "--fix-k3")
+
+
+def add_fix_arguments(p: argparse.ArgumentParser, *, per_camera: bool = False) -> None:
     """Add the ``--fix-*`` flags (:data:`FIX_FLAGS`).
 
     Parameters
     ----------
     p : argparse.ArgumentParser
+    per_camera : bool
+        A rig's flags: each may name a camera (``--fix-k3 NAME`` or ``--fix-k3=NAME``, repeated for several) or none
+        (every camera; a plain ``--fix-k2`` / ``--fix-k3`` in a rig mixing pinhole and fisheye lenses holds the
+        pinhole cameras' only: :data:`FISHEYE_MEANS_OTHER`); the value is then the list of names given, ``None``
+        for the plain flag.
     """
     for flag, text in FIX_FLAGS.items():
-        p.add_argument(flag, action="store_true", help=text)
+        if not per_camera:
+            p.add_argument(flag, action="store_true", help=text)
+            continue
+        other = (
+            "; without NAME in a rig mixing pinhole and fisheye lenses, the pinhole cameras' only (a fisheye's "
+            f"{flag[6:]} is its theta^{2 * int(flag[-1])} term: name the camera to hold it)"
+            if flag in FISHEYE_MEANS_OTHER
+            else ""
+        )
+        p.add_argument(
+            flag,
+            action="append",
+            nargs="?",
+            const=None,
+            default=[],
+            metavar="NAME",
+            help=f"{text}: of camera NAME (repeat for several), or without NAME of every camera{other}",
+        )
+
+
+def fix_holds(args: argparse.Namespace, lenses: dict[str, str]) -> tuple[dict[str, dict[str, bool]], list[str]]:
+    """Which camera each ``--fix-*`` flag holds: a named camera (``--fix-k3 NAME``), or without a name every camera,
+    except that where the rig mixes pinhole and fisheye lenses a plain ``--fix-k2`` / ``--fix-k3`` holds the pinhole
+    cameras' only (a fisheye's k2, k3 are its theta^4, theta^6 terms: :data:`FISHEYE_MEANS_OTHER`), said in a note.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With the ``--fix-*`` flags as :func:`add_fix_arguments` (``per_camera=True``) parses them: per flag a list
+        of camera names, ``None`` for the plain flag (a bool is taken as the plain flag).
+    lenses : dict of str to str
+        Per camera (in the rig's order) its lens model.
+
+    Returns
+    -------
+    holds : dict of str to dict of str to bool
+        Per camera, per flag's keyword (``fix_k3``, ...) whether it holds it.
+    notes : list of str
+        One line per plain flag that left a camera out, saying which and how to hold it there.
+
+    Raises
+    ------
+    InputError
+        One line naming the flag: a camera that is not the rig's, a camera named twice, a camera whose lens model
+        has no such parameter (``--fix-tangential NAME`` of a fisheye; a plain ``--fix-tangential`` in a rig with a
+        fisheye, naming the cameras that have p1, p2).
+    """
+    from circcal.model import lens_model
+    from circcal.solver.options import ASPECT_RATIO, FLAG_HOLDS
+
+    names = list(lenses)
+    fisheye = {n for n, le in lenses.items() if le == "fisheye"}
+    mixed = bool(fisheye) and len(fisheye) < len(names)
+    holds: dict[str, dict[str, bool]] = {n: {} for n in names}
+    notes = []
+    for flag in FIX_FLAGS:
+        key = flag[2:].replace("-", "_")
+        given = getattr(args, key, None) or []
+        given = [None] if given is True else [] if given is False else list(given)
+        params = [q for q in FLAG_HOLDS[key] if q != ASPECT_RATIO]
+        has = {n: all(q in lens_model(lenses[n]).param_names for q in params) for n in names}
+        named = [g for g in given if g is not None]
+        for g in named:
+            if g not in lenses:
+                raise InputError(f"{flag} {g}: no camera {g!r} (cameras: {', '.join(names)})")
+            if named.count(g) > 1:
+                raise InputError(f"{flag} {g}: camera {g!r} given twice")
+            if not has[g]:
+                raise InputError(f"{flag} {g}: the {lenses[g]} lens model has no {', '.join(params)} to hold fixed")
+        on = set(named)
+        if None in given:
+            other = [n for n in names if mixed and flag in FISHEYE_MEANS_OTHER and n in fisheye]
+            plain = [n for n in names if n not in other]
+            lacking = next((n for n in plain if not has[n]), None)
+            if lacking is not None:
+                lens = lenses[lacking]
+                have = [n for n in names if has[n]]
+                raise InputError(
+                    f"camera {lacking!r} (lens {lens}): {flag}: the {lens} lens model has no {', '.join(params)} to "
+                    f"hold fixed"
+                    + (f"; name the cameras that have them: {' '.join(f'{flag} {n}' for n in have)}" if have else "")
+                )
+            left = [n for n in other if n not in on]
+            if left:
+                notes.append(
+                    f"{flag} holds {params[0]} of {', '.join(plain)} only, not of {', '.join(left)} (a fisheye's "
+                    f"{params[0]} is its theta^{2 * int(params[0][1])} term, another coefficient; "
+                    f"{' '.join(f'{flag} {n}' for n in left)} holds it)"
+                )
+            on |= set(plain)
+        for n in names:
+            holds[n][key] = n in on
+    return holds, notes
 
 
 def calibration_options(args: argparse.Namespace):

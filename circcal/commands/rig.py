@@ -18,6 +18,7 @@ from circcal.commands.args import (
     add_fix_arguments,
     board_of_args,
     calibration_options,
+    fix_holds,
     grid_hint,
     parse_grid,
     parse_length_mm,
@@ -131,7 +132,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         + "; ".join(f"{k} ({v})" for k, v in LENS_CHOICES.items())
         + " (default opencv5)",
     )
-    add_fix_arguments(p)
+    add_fix_arguments(p, per_camera=True)
     p.add_argument(
         "--intrinsics",
         action="append",
@@ -151,7 +152,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--ros", type=Path, help="folder: a ROS camera_info YAML pair of the first two cameras (metres)")
     p.add_argument("--cameramodels", type=Path, help="folder: one mrcal .cameramodel per camera, with extrinsics")
-    p.add_argument("--kalibr", type=Path, help="Kalibr camchain YAML (radtan needs --fix-k3, or a fisheye)")
+    p.add_argument(
+        "--kalibr",
+        type=Path,
+        help="Kalibr camchain YAML (an opencv5 camera needs its k3 held, --fix-k3 NAME; or a fisheye)",
+    )
     p.add_argument(
         "--rectified",
         type=Path,
@@ -277,7 +282,8 @@ def _cameras(args: argparse.Namespace) -> dict[str, list[Path]]:
 
 
 def _options(args: argparse.Namespace, names: list[str]) -> dict:
-    """One CalibrationOptions per camera: its --lens (or the one for all), the --fix-* flags."""
+    """One CalibrationOptions per camera: its --lens (or the one for all), the --fix-* flags it is held by
+    (:func:`fix_holds`, whose notes are printed)."""
     lens_of: dict[str | None, str] = {}
     for name, model in args.lens:
         if name is not None and name not in names:
@@ -285,13 +291,17 @@ def _options(args: argparse.Namespace, names: list[str]) -> dict:
         if name in lens_of:
             raise InputError(f"--lens {name or model}: given twice" + (f" for camera {name!r}" if name else ""))
         lens_of[name] = model
+    lenses = {name: lens_of.get(name, lens_of.get(None, "opencv5")) for name in names}
+    holds, notes = fix_holds(args, lenses)
     out = {}
     for name in names:
-        lens = lens_of.get(name, lens_of.get(None, "opencv5"))
+        lens = lenses[name]
         try:
-            out[name] = calibration_options(argparse.Namespace(**{**vars(args), "lens": lens}))
+            out[name] = calibration_options(argparse.Namespace(**{**vars(args), "lens": lens, **holds[name]}))
         except InputError as exc:
             raise InputError(f"camera {name!r} (lens {lens}): {exc}") from None
+    for line in notes:
+        print(f"circcal calibrate-rig: {line}")
     return out
 
 
@@ -350,13 +360,22 @@ def _check_formats(args: argparse.Namespace, names: list[str], options: dict) ->
     if args.kalibr is not None:
         if args.kalibr.suffix.lower() not in (".yaml", ".yml"):
             raise InputError(f"--kalibr {display_name(args.kalibr)}: give a .yaml file (Kalibr's camchain is YAML)")
-        for n in names:
-            o = options[n]
-            if o.lens in ("rational", "thin-prism") or (o.lens == "opencv5" and not args.fix_k3):
-                raise InputError(
-                    f"--kalibr: camera {n!r} ({o.lens}{'' if o.lens != 'opencv5' else ' with k3 free'}): Kalibr's "
-                    f"radtan model holds k1, k2, p1, p2 only; give --fix-k3 with opencv5 (or a fisheye)"
-                )
+        richer = [n for n in names if options[n].lens in ("rational", "thin-prism")]
+        k3 = [n for n in names if options[n].lens == "opencv5" and not options[n].holds("k3")]
+        if richer or k3:
+            blocks = ", ".join(
+                f"{n!r} ({options[n].lens}{' with k3 free' if n in k3 else ''})" for n in names if n in richer + k3
+            )
+            fix = [
+                f"--fix-k3 {n}" if n in k3 else f"--lens {n}=opencv5 --fix-k3 {n}" for n in names if n in richer + k3
+            ]
+            lens = [f"--lens {n}=opencv5 in place of {options[n].lens}" for n in names if n in richer]
+            many = len(richer + k3) > 1
+            raise InputError(
+                f"--kalibr: Kalibr's radtan model holds k1, k2, p1, p2 only, and camera{'s' if many else ''} "
+                f"{blocks} {'have' if many else 'has'} more; give {' '.join(fix)} ({'; '.join([*lens, ''])}or a "
+                f"fisheye: --lens NAME=fisheye, Kalibr's equidistant)"
+            )
     return fmt
 
 
@@ -417,7 +436,11 @@ def run(args: argparse.Namespace) -> int:
                 print(f"circcal calibrate-rig: {flag}", file=sys.stderr)
             return 1
         verdict = rig_verdict(cal, options, cross_validate=args.cross_validate, progress=not args.no_progress)
-        lines = verdict.lines() + summary_lines(cal, images) + ([] if verdict.cross is None else verdict.cross.lines())
+        lines = (
+            verdict.lines()
+            + summary_lines(cal, images, options)
+            + ([] if verdict.cross is None else verdict.cross.lines())
+        )
         print("\n".join(lines))
         # the first two cameras at one point have no epipolar geometry: their rectification would be noise
         at_one_point = [c for c in verdict.coincident if (c.a, c.b) == (names[0], names[1])]
@@ -504,7 +527,7 @@ def _file_stem(instant: str) -> str:
     return Path(flat).stem if Path(flat).suffix.lower() in IMAGE_SUFFIXES else flat
 
 
-def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
+def summary_lines(cal, images: dict[str, list[Path]], options=None) -> list[str]:
     """The numbers of a rig calibration: per camera its images, RMS, intrinsics and pose with their sigmas, what was
     left out; then the coverage of each camera and of the field each pair of cameras shares (pairs with a shared
     instant).
@@ -514,6 +537,10 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     cal : circcal.rig.RigCalibration
     images : dict of str to list of Path
         Per camera the images given.
+    options : CalibrationOptions or dict of str to CalibrationOptions, optional
+        What the joint solve held: where the rig has no covariance (its information singular), the parameters its
+        views still determine get their sigma (:func:`circcal.rig.undetermined.determined_rig_covariance`), the
+        others nan; without it every sigma of such a rig is nan.
 
     Returns
     -------
@@ -522,10 +549,16 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     import numpy as np
 
     from circcal.rig.uncertainty import projection_uncertainty
+    from circcal.rig.undetermined import determined_rig_covariance
     from circcal.rig.verdict import camera_coverage, shared_coverage
 
     rig = cal.rig
     std = cal.std()
+    cov = rig.covariance
+    if cov is None and options is not None:
+        cov = determined_rig_covariance(cal, options)
+        if cov is not None:
+            std = np.sqrt(np.maximum(np.diag(cov), 0.0))  # NaN stays NaN: undetermined
     n_intr = [len(c.intrinsics) for c in rig.cameras]
     offsets = np.concatenate([[0], np.cumsum(n_intr)])
     lines = [
@@ -553,7 +586,7 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
         for pname, v, sv in zip(cam.model.param_names, cam.intrinsics, s):
             lines.append(f"  {pname:>9}  {v:14.6f}  {sv:12.6f}{'  (held)' if sv == 0 else ''}")
         if k > 0:
-            lines.append("  " + _pose_text(rig, k, std[offsets[-1] + 6 * (k - 1) : offsets[-1] + 6 * k]))
+            lines.append("  " + _pose_text(rig, k, std[offsets[-1] + 6 * (k - 1) : offsets[-1] + 6 * k], cov))
         per = cal.per_camera.get(name)
         placed = cal.placed.get(name, [])
         placed_paths = {str(cal.images.get(name, {}).get(v)) for v in placed}
@@ -573,16 +606,16 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
             lines.append(
                 f"  views relabelled by the board's symmetry to agree with the others: {', '.join(relabelled)}"
             )
-    lines += [u.text() for u in projection_uncertainty(rig)]
+    lines += [u.text() for u in projection_uncertainty(rig, cov)]
     lines.append("coverage (each ninth of the image needs an observed point, else the lens model is extrapolated):")
-    for k, (name, cov) in enumerate(camera_coverage(cal).items()):
-        lines.append(f"  {name}: {100 * cov.covered_share:.0f}% of the map's cells hold a point")
+    for k, (name, cover) in enumerate(camera_coverage(cal).items()):
+        lines.append(f"  {name}: {100 * cover.covered_share:.0f}% of the map's cells hold a point")
         if not np.any(std[offsets[k] : offsets[k + 1]]):  # held: its lens is the given calibration's
             lines.append(
                 "    its intrinsics are held (given): their coverage is that of the calibration they came from"
             )
             continue
-        lines += [f"    {w}" for w in cov.warnings]
+        lines += [f"    {w}" for w in cover.warnings]
     for i in range(rig.n_cameras):  # every pair of cameras that saw the board at one instant
         for j in range(i + 1, rig.n_cameras):
             if not set(cal.instants[rig.names[i]]) & set(cal.instants[rig.names[j]]):
@@ -597,24 +630,36 @@ def summary_lines(cal, images: dict[str, list[Path]]) -> list[str]:
     return lines
 
 
-def _pose_text(rig, k: int, s) -> str:
-    """Camera k's pose in the rig with its sigmas (s: the standard deviations of rvec, tvec)."""
+def _pose_text(rig, k: int, s, cov=None) -> str:
+    """Camera k's pose in the rig with its sigmas (s: the standard deviations of rvec, tvec; cov: the covariance of
+    ``rig.state_vector()``, default ``rig.covariance``). The rotation's sigma is that of the rotation error, the
+    small rotation between the estimate and the truth (rvec's covariance through SO(3)'s left Jacobian): about its
+    worst axis and about each axis of camera k's frame, not the angle's alone (a rolled camera's 90 deg is known
+    to 0.0003 deg while its axis is known to 0.004 deg)."""
     import numpy as np
 
+    from circcal.rotation import left_jacobian
+
     rv, tv = rig.rvecs[k], rig.tvecs[k]
-    cov = rig.covariance
+    cov = rig.covariance if cov is None else cov
     angle, base = float(np.linalg.norm(rv)), float(np.linalg.norm(tv))
-    sa = sb = float("nan")
+    sw = sb = float("nan")
+    axes = np.full(3, np.nan)
     if cov is not None:
         n = sum(len(c.intrinsics) for c in rig.cameras) + 6 * (k - 1)
-        C = np.asarray(cov)[n : n + 6, n : n + 6]
-        g = rv / angle if angle > 0 else np.full(3, 3**-0.5)
-        sa = float(np.sqrt(max(g @ C[:3, :3] @ g, 0.0)))
+        C = np.asarray(cov, dtype=np.float64)[n : n + 6, n : n + 6]
+        if np.all(np.isfinite(C[:3, :3])):
+            J = left_jacobian(rv)
+            Cr = J @ C[:3, :3] @ J.T
+            sw = float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (Cr + Cr.T))[-1], 0.0)))
+            axes = np.sqrt(np.maximum(np.diag(Cr), 0.0))
         u = tv / base if base > 0 else np.zeros(3)
-        sb = float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0)))
+        sb = float(np.sqrt(max(u @ C[3:, 3:] @ u, 0.0))) if np.all(np.isfinite(C[3:, 3:])) else float("nan")
     # sigmas to two significant digits: a clean rig's baseline sigma (~1e-4 mm) does not round to 0
     T = ", ".join(f"{t:.3f} +- {e:.2g}" for t, e in zip(tv, s[3:]))
+    ax = ", ".join(f"{np.degrees(a):.2g}" for a in axes)
     return (
-        f"pose in the rig (X_{rig.names[k]} = R X_{rig.names[0]} + T): rotation {np.degrees(angle):.4f} +- "
-        f"{np.degrees(sa):.2g} deg, baseline {base:.3f} +- {sb:.2g} mm; T = ({T}) mm"
+        f"pose in the rig (X_{rig.names[k]} = R X_{rig.names[0]} + T): rotation {np.degrees(angle):.4f} deg +- "
+        f"{np.degrees(sw):.2g} deg (1 sigma of the rotation error about its worst axis; about {rig.names[k]}'s x, "
+        f"y, z: {ax} deg), baseline {base:.3f} +- {sb:.2g} mm; T = ({T}) mm"
     )

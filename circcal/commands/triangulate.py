@@ -37,6 +37,12 @@ OUT_FORMATS = {".csv": "csv", ".json": "json"}
 MAX_PIXEL = 1e7
 #: With --out, the console shows this many points' rows (the file holds them all).
 CONSOLE_ROWS = 20
+#: The points' own noise (their reprojection residuals pooled over their degrees of freedom, 2 per camera less 3
+#: per point) beyond this many times the pixel sigma assumed is warned of: their stated sigmas are too small by that
+#: factor. One two-camera point (1 degree of freedom) under the assumed noise exceeds 3x with probability 0.27%
+#: (chi-square, 1 dof, beyond 9), and the pooled estimate of more points or cameras far less often; the calibration's
+#: own error adds to the residuals well below that.
+NOISE_FACTOR = 3.0
 
 
 def _points_arg(text: str) -> tuple[str, Path]:
@@ -251,6 +257,8 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad argument or input file (the CLI prints it and exits 2).
     """
+    import sys
+
     import numpy as np
 
     from circcal.outputs import Outputs
@@ -300,6 +308,9 @@ def run(args: argparse.Namespace) -> int:
             calibration=False if args.no_calibration_uncertainty else None,
         )
         rows = _rows(ids, tri)
+        noisy = noise_warning(tri, given=args.pixel_sigma is not None)
+        if noisy:
+            print(f"circcal triangulate: warning: {noisy}", file=sys.stderr)
         print(
             f"{len(ids)} points in the frame of {rig.names[0]} (the reference camera), mm; 1-sigma from pixel noise "
             f"{tri.pixel_sigma:.4g} px per coordinate"
@@ -352,6 +363,42 @@ def run(args: argparse.Namespace) -> int:
             outputs.commit()
             print(f"wrote {display_name(args.out)}")
     return 0
+
+
+def noise_warning(tri, *, given: bool) -> str:
+    """Whether the points reproject far worse than the pixel noise assumed: the line that says so, or ``""``.
+
+    The points' noise per coordinate is estimated from their residuals, ``sqrt(sum(rms_n^2 k_n) / sum(2 k_n - 3))``
+    over the points triangulated in front of their ``k_n >= 2`` cameras (``rms_n`` the RMS over its cameras of the
+    2-D norm); beyond :data:`NOISE_FACTOR` times ``tri.pixel_sigma`` the stated sigmas are too small.
+
+    Parameters
+    ----------
+    tri : circcal.rig.triangulate.Triangulated
+    given : bool
+        Whether the pixel sigma was given (``--pixel-sigma``) or the rig's own.
+
+    Returns
+    -------
+    str
+        One line naming ``--pixel-sigma``, or ``""``.
+    """
+    import numpy as np
+
+    k = np.asarray(tri.n_views, dtype=np.float64)
+    ok = np.isfinite(tri.rms_px) & (k >= 2) & ~np.any(tri.behind, axis=1)
+    dof = float(np.sum(2.0 * k[ok] - 3.0))
+    if dof <= 0:
+        return ""
+    noise = float(np.sqrt(np.sum(tri.rms_px[ok] ** 2 * k[ok]) / dof))
+    if not noise > NOISE_FACTOR * tri.pixel_sigma:
+        return ""
+    source = "given (--pixel-sigma)" if given else "assumed (the rig's own: its RMS per point / sqrt(2))"
+    return (
+        f"these points reproject with {noise:.3g} px of noise per coordinate ({int(ok.sum())} points, {dof:.0f} "
+        f"degrees of freedom), {noise / tri.pixel_sigma:.0f}x the {tri.pixel_sigma:.3g} px {source}: the stated "
+        f"sigmas are too small; give --pixel-sigma {noise:.2g} (the noise of these pixels)"
+    )
 
 
 def _rows(ids: list[str], tri) -> list[dict]:

@@ -476,14 +476,21 @@ def kalibr_camchain_text(rig: RigModel) -> str:
     import yaml
 
     doc: dict[str, Any] = {}
+    beyond = {
+        name: {n: float(v) for n, v in zip(cam.model.dist_names[4:], cam.dist[4:]) if v != 0}
+        for name, cam in zip(rig.names, rig.cameras)
+        if cam.model.pinhole
+    }
+    blocks = [
+        f"camera {name!r} has {', '.join(f'{n} = {v:.6g}' for n, v in e.items())}" for name, e in beyond.items() if e
+    ]
+    if blocks:  # every camera that blocks it, at once
+        raise InputError(
+            f"Kalibr's radtan model holds k1, k2, p1, p2 only: {'; '.join(blocks)} (calibrate each as opencv5 with "
+            f"k3 held at 0: calibrate-rig's --lens NAME=opencv5 --fix-k3 NAME)"
+        )
     for k, (name, cam) in enumerate(zip(rig.names, rig.cameras)):
         if cam.model.pinhole:
-            extra = {n: float(v) for n, v in zip(cam.model.dist_names[4:], cam.dist[4:]) if v != 0}
-            if extra:
-                raise InputError(
-                    f"Kalibr's radtan model holds k1, k2, p1, p2 only: camera {name!r} has "
-                    f"{', '.join(f'{n} = {v:.6g}' for n, v in extra.items())} (calibrate with k3 fixed at 0)"
-                )
             model, coeffs = "radtan", cam.dist[:4]
         else:
             model, coeffs = _KALIBR_MODELS[cam.lens], cam.dist

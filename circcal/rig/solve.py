@@ -7,7 +7,9 @@ exactly by eliminating the 6x6 board-pose blocks, one per instant. The covarianc
 ``J^T J`` (board poses marginalised) and ``sigma^2 = SSR / (2N - n)`` the residual variance per coordinate, mapped
 from the free parameters onto :meth:`circcal.rig.model.RigModel.state_vector`'s order (every camera's intrinsics in
 ``Camera.intrinsics`` order, then every camera's ``rvec, tvec`` but the reference's; a held parameter has zero
-variance).
+variance). Where the information is singular only in some directions (a rational camera's coefficients trading
+off), :func:`determined_covariance` still gives the parameters independent of those directions their marginal
+covariance (the pseudo-inverse's), NaN for the others.
 """
 
 from __future__ import annotations
@@ -30,7 +32,10 @@ __all__ = [
     "RigSolution",
     "solve_rig",
     "state_covariance",
+    "determined_covariance",
+    "marginal_covariance",
     "weakest_direction",
+    "NULL_SHARE",
     "MAX_INFORMATION_CONDITION",
     "WEAKEST_SHARE",
 ]
@@ -190,6 +195,12 @@ def state_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.ndarr
     if not cond <= MAX_INFORMATION_CONDITION:
         return None
     cov_free = sigma2 * np.linalg.inv(Sn) / np.outer(scale, scale)
+    return _to_state(prob, cov_free)
+
+
+def _to_state(prob: RigProblem, cov_free: np.ndarray) -> np.ndarray:
+    """The covariance of the free global parameters mapped onto ``RigModel.state_vector``'s order (held: 0); a
+    free parameter's NaN row and column (undetermined) makes NaN the rows and columns of what it maps onto."""
     sizes = [len(b) for b in prob.base]
     n_state = sum(sizes) + 6 * (prob.n_cameras - 1)
     T = np.zeros((n_state, prob.ng))
@@ -198,6 +209,99 @@ def state_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.ndarr
         T[row : row + size, prob.intr_cols[c]] = prob.maps[c]
         row += size
     T[row:, prob.nf :] = np.eye(6 * (prob.n_cameras - 1))
-    C = T @ cov_free @ T.T
+    unknown = np.isnan(np.diag(cov_free))
+    C = T @ (np.where(unknown[:, None] | unknown[None, :], 0.0, cov_free) if unknown.any() else cov_free) @ T.T
     sym: np.ndarray = 0.5 * (C + C.T)
+    if unknown.any():  # 0 x NaN would be NaN for a held parameter too: only what the NaN ones map onto
+        rows = np.any(T[:, unknown] != 0, axis=1)
+        sym[rows, :] = np.nan
+        sym[:, rows] = np.nan
     return sym
+
+
+#: Where the information is singular: a parameter whose direction (in the information normalised to a unit
+#: diagonal) has at most this share of its square in the null space is independent of it and keeps its marginal
+#: variance: the free combination would have to move by 1000 of its own sigmas (conditional, normalised) to move the
+#: parameter by one of its own. Rounding leaves components far below it (1e-7 at most, a share of 1e-13, on the
+#: rational camera of tests/test_rig_undetermined.py), and the parameters the null space is made of are far above
+#: (a share of 0.02-0.3 each); a rendered toe-in rig's opencv5 + rational pair puts its two cx and the rotation
+#: about y above it (components 1.5-3.7e-3: a principal point shifting with a turn), its T and focal lengths below.
+NULL_SHARE = 1e-6
+
+
+def determined_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.ndarray | None:
+    """:func:`state_covariance`, and where the information is singular only in some directions, the marginal
+    covariance of the parameters independent of those directions, NaN for the others.
+
+    The null space is the eigenvectors of the normalised information whose eigenvalues are below the largest over
+    :data:`MAX_INFORMATION_CONDITION` (the rule that makes :func:`state_covariance` None) or below the magnitude of
+    its most negative one (an information matrix has none: rounding made it, and nothing smaller is told from 0); a
+    parameter with a share above :data:`NULL_SHARE` of its direction there is undetermined (its row and column NaN). The others' covariance
+    is the pseudo-inverse's: the covariance of the estimable functions, which does not depend on how the
+    undetermined combination is pinned.
+
+    Parameters
+    ----------
+    prob : RigProblem
+    x : ndarray, shape (n,)
+        The solution.
+    sigma2 : float
+        The residual variance per coordinate, px^2.
+
+    Returns
+    -------
+    ndarray or None
+        (n_state, n_state) in ``RigModel.state_vector`` order: :func:`state_covariance`'s where the information is
+        regular (the same array), else with NaN rows and columns for the undetermined parameters (a held one
+        keeps 0); None where no eigen-decomposition is possible (non-finite information).
+    """
+    full = state_covariance(prob, x, sigma2)
+    if full is not None:
+        return full
+    A, _, B, D, _ = prob.normal_equations(x)[1]
+    try:
+        S = schur_complement(A, B, D)[0]
+    except np.linalg.LinAlgError:
+        return None
+    cov_free = marginal_covariance(S, sigma2)
+    return None if cov_free is None else _to_state(prob, cov_free)
+
+
+def marginal_covariance(S: np.ndarray, sigma2: float) -> np.ndarray | None:
+    """``sigma2 S^-1`` of an information matrix singular in some directions, for the parameters independent of them.
+
+    Parameters
+    ----------
+    S : ndarray, shape (k, k)
+        The information (``J^T J``, board poses marginalised), symmetric positive semi-definite.
+    sigma2 : float
+        The residual variance per coordinate, px^2.
+
+    Returns
+    -------
+    ndarray or None
+        (k, k): ``sigma2`` times the pseudo-inverse of ``S`` (eigenvalues of its unit-diagonal form below the
+        largest over :data:`MAX_INFORMATION_CONDITION`, or below the magnitude of the most negative one, dropped),
+        with NaN rows and columns for each parameter whose direction has more than :data:`NULL_SHARE` of its square
+        in the dropped eigenvectors; None where ``S`` is not finite or has a non-positive diagonal entry (no
+        direction can be told from another).
+    """
+    S = 0.5 * (S + S.T)
+    d = np.diag(S)
+    if not (np.all(np.isfinite(S)) and np.all(d > 0)):
+        return None
+    scale = np.sqrt(d)
+    Sn = S / np.outer(scale, scale)
+    try:
+        w, V = np.linalg.eigh(0.5 * (Sn + Sn.T))
+    except np.linalg.LinAlgError:
+        return None
+    null = w <= max(w[-1] / MAX_INFORMATION_CONDITION, -w[0])  # below rounding's negative eigenvalues: noise
+    kept = ~null
+    pinv = (V[:, kept] / w[kept]) @ V[:, kept].T
+    cov = sigma2 * pinv / np.outer(scale, scale)
+    free = np.sum(V[:, null] ** 2, axis=1) > NULL_SHARE
+    cov[free, :] = np.nan
+    cov[:, free] = np.nan
+    out: np.ndarray = cov
+    return out

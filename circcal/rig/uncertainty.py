@@ -39,6 +39,8 @@ class CameraUncertainty:
         At the image centre.
     held : bool
         Every intrinsic held (given): no uncertainty is stated for them.
+    undetermined : bool
+        Some of its intrinsics are not determined by the views (the covariance given is NaN there): none stated.
     """
 
     name: str
@@ -46,6 +48,7 @@ class CameraUncertainty:
     worst_uv: tuple[float, float]
     centre_px: float
     held: bool = False
+    undetermined: bool = False
 
     def text(self) -> str:
         """One line.
@@ -56,6 +59,11 @@ class CameraUncertainty:
         """
         if self.held:
             return f"projection uncertainty of {self.name}'s intrinsics: none stated (held at the ones given)"
+        if self.undetermined:
+            return (
+                f"projection uncertainty of {self.name}'s intrinsics: none stated (its views leave some of them "
+                f"undetermined: see the verdict)"
+            )
         return (
             f"projection uncertainty of {self.name}'s intrinsics at infinity: worst {self.worst_px:.3g} px at "
             f"({self.worst_uv[0]:.0f}, {self.worst_uv[1]:.0f}), centre {self.centre_px:.3g} px (1 sigma, worst "
@@ -63,26 +71,33 @@ class CameraUncertainty:
         )
 
 
-def projection_uncertainty(rig: RigModel) -> list[CameraUncertainty]:
+def projection_uncertainty(rig: RigModel, covariance: np.ndarray | None = None) -> list[CameraUncertainty]:
     """Every camera's projection uncertainty (see the module).
 
     Parameters
     ----------
     rig : RigModel
         With its covariance.
+    covariance : ndarray, optional
+        Of ``rig.state_vector()`` instead of ``rig.covariance``: e.g. a rig without one, the marginal covariance of
+        what its views determine (:func:`circcal.rig.undetermined.determined_rig_covariance`, NaN for the rest).
 
     Returns
     -------
     list of CameraUncertainty
-        One per camera; empty without a covariance.
+        One per camera (a camera with a NaN in its intrinsics' block: ``undetermined``); empty without a covariance.
     """
-    if rig.covariance is None:
+    full = rig.covariance if covariance is None else covariance
+    if full is None:
         return []
     sizes = [len(c.intrinsics) for c in rig.cameras]
     start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
     out = []
     for k, (name, cam) in enumerate(zip(rig.names, rig.cameras)):
-        cov = np.asarray(rig.covariance)[start[k] : start[k + 1], start[k] : start[k + 1]]
+        cov = np.asarray(full)[start[k] : start[k + 1], start[k] : start[k + 1]]
+        if np.isnan(cov).any():
+            out.append(CameraUncertainty(name, float("nan"), (0.0, 0.0), float("nan"), undetermined=True))
+            continue
         if not np.any(cov):
             out.append(CameraUncertainty(name, 0.0, (0.0, 0.0), 0.0, held=True))
             continue
