@@ -337,6 +337,28 @@ def test_opencv_fisheye_beyond_90_degrees_is_unsupported_with_the_reason():
     assert res.converged and res.errors["rms_per_coord_px"] < 0.1
 
 
+def test_opencv_fisheye_returning_negative_focal_lengths_beyond_90_degrees_is_unsupported(monkeypatch):
+    """OpenCV 5.1's cv2.fisheye.calibrate no longer fails its assertion on the 190-deg lens's views: it returns
+    fx = -15647 px (measured). The reference says why, as for 5.0's assertion (pip installs 5.1; ``make setup`` 5.0,
+    so 5.1's return is imitated here)."""
+    import cv2
+
+    from circcal.validators import registry
+
+    def like_51(obj, img, size, K, d, flags=0, criteria=None):
+        K = np.array([[-15647.2, 0, 640], [0, -16023.4, 512], [0, 0, 1]], float)
+        return 1e3, K, np.zeros((4, 1)), [np.zeros(3)] * len(obj), [np.zeros(3)] * len(obj)
+
+    monkeypatch.setattr(cv2.fisheye, "calibrate", like_51)
+    obj, img = views(FISHEYE_190, 16, 3, 95, distance=(120.0, 300.0))
+    ref = registry.get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, (1280, 1024))
+    assert ref.status == "unsupported" and "90 deg" in ref.message and "fx = -15647.2" in ref.message
+    # within 90 deg the same return is OpenCV's failure, said as such
+    obj, img = views(FISHEYE, 20, 2, 75, distance=(150.0, 400.0))
+    ref = registry.get_for_lens("opencv", "fisheye").calibrate_observations(obj, img, (1280, 1024))
+    assert ref.status == "failed" and "fx = -15647.2" in ref.message
+
+
 def test_rational_wide_recorrection_settles_within_the_default_rounds():
     """The rational model on the wide lens converges slowly (each round's centre shift ~5-10x the next): it settles
     below the pipeline's 1e-4 px within MAX_ROUNDS calibrations, without the 'did not settle' warning."""

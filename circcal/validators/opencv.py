@@ -293,9 +293,14 @@ class OpenCVCalibrator(BaseCalibrator):
                         flags=flags,
                         criteria=criteria,
                     )
-                except cv2.error as exc:
+                except cv2.error as exc:  # OpenCV 5.0: an assertion beyond 90 deg
                     _fisheye_limit(object_points, image_points, size, exc)
                     raise
+                if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K)) and np.all(np.isfinite(dist))):
+                    # OpenCV 5.1 returns there instead, with negative focal lengths (measured: fx -15647 px)
+                    bad = ValueError(f"it returned fx = {K[0, 0]:.6g}, fy = {K[1, 1]:.6g} px")
+                    _fisheye_limit(object_points, image_points, size, bad)
+                    raise bad
                 std_in = per_view = None
             else:
                 rms, K, dist, rvecs, tvecs, std_in, _std_ex, per_view = cv2.calibrateCameraExtended(
