@@ -25,7 +25,58 @@ from circcal.validators.divergence import check_divergence
 from circcal.validators.lens_support import DEFAULT_LENSES, lens_support
 from circcal.validators.reference_result import MODES, Mode, ReferenceResult
 
-__all__ = ["BaseCalibrator", "run_safely", "residuals_of"]
+__all__ = ["BaseCalibrator", "run_safely", "residuals_of", "pose_problem", "camera_size_problem"]
+
+
+def pose_problem(rvecs: Any, tvecs: Any, n_views: int) -> str:
+    """What is wrong with a calibrator's poses for ``n_views`` views, in one line ("" when they are usable).
+
+    Each of ``rvecs``, ``tvecs`` must hold ``n_views`` poses of 3 numbers: shape (V, 3), or OpenCV's (V, 3, 1) / a
+    list of V arrays of shape (3, 1). (Non-finite values are :func:`check_divergence`'s: "diverged".)
+
+    Parameters
+    ----------
+    rvecs, tvecs : array_like
+        The poses as returned (rad; mm).
+    n_views : int
+        V, the number of views calibrated.
+
+    Returns
+    -------
+    str
+        e.g. "rvecs: expected 8 poses of 3 numbers (shape (8, 3)), got shape (2, 7)"; "" when both are usable.
+    """
+    for name, value in (("rvecs", rvecs), ("tvecs", tvecs)):
+        try:
+            a = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):  # ragged, or not numbers
+            return f"{name}: expected {n_views} poses of 3 numbers (shape ({n_views}, 3)), got {type(value).__name__}"
+        if a.ndim < 1 or len(a) != n_views or a.size != 3 * n_views:
+            return f"{name}: expected {n_views} poses of 3 numbers (shape ({n_views}, 3)), got shape {a.shape}"
+    return ""
+
+
+def camera_size_problem(camera: Camera, image_size: tuple[int, int]) -> str:
+    """What is wrong with a returned camera's image size, in one line ("" when it is the calibrated size).
+
+    Parameters
+    ----------
+    camera : circcal.model.Camera
+        The returned camera.
+    image_size : tuple of int
+        (width, height) px the calibrator was given.
+
+    Returns
+    -------
+    str
+        e.g. "the returned camera is 960x540 px; the images are 1920x1080 px (Camera's width, height)".
+    """
+    w, h = (int(v) for v in image_size)
+    if (camera.width, camera.height) == (w, h):
+        return ""
+    return (
+        f"the returned camera is {camera.width}x{camera.height} px; the images are {w}x{h} px (Camera's width, height)"
+    )
 
 
 def residuals_of(
@@ -52,10 +103,21 @@ def residuals_of(
     -------
     list of ndarray, shape (N_v, 2)
         Residuals per view, px.
+
+    Raises
+    ------
+    ValueError
+        Not one pose per view (the message gives both counts).
     """
+    rvecs, tvecs = np.asarray(rvecs), np.asarray(tvecs)
+    if not len(rvecs) == len(tvecs) == len(object_points) == len(image_points):
+        raise ValueError(
+            f"{len(rvecs)} rvecs and {len(tvecs)} tvecs for {len(object_points)} views of object points and "
+            f"{len(image_points)} of image points: expected one pose per view"
+        )
     return [
         np.asarray(p, dtype=np.float64) - project(o, r, t, camera)
-        for o, p, r, t in zip(object_points, image_points, np.asarray(rvecs), np.asarray(tvecs))
+        for o, p, r, t in zip(object_points, image_points, rvecs, tvecs)
     ]
 
 
@@ -291,7 +353,15 @@ class BaseCalibrator:
         -------
         ReferenceResult
             Status "ok", or "failed" when :func:`check_divergence` finds it diverged.
+
+        Raises
+        ------
+        ValueError
+            Poses that are not one (3,) rvec and tvec per view (:func:`pose_problem`).
         """
+        problem = pose_problem(rvecs, tvecs, len(object_points))
+        if problem:
+            raise ValueError(problem)
         rvecs = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
         tvecs = np.asarray(tvecs, dtype=np.float64).reshape(-1, 3)
         if residuals is None:

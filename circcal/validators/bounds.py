@@ -23,7 +23,7 @@ SOLVER_LENSBOY_PX = 1e-2
 #: Primary truth check of one calibration (``circcal validate``, each study run): |estimate - truth| of fx, fy, cx,
 #: cy in units of the stated standard deviation; a correct estimator with correct sigmas exceeds 3 on one of its 4
 #: parameters with probability ~1%. The conformance suite, which checks 47 observation sets, uses the Bonferroni
-#: bound over all of them instead (validators.case_matrix.suite_truth_sigmas, 4.04 at 1% family-wise).
+#: bound over all of them instead (validators.case_matrix.suite_truth_sigmas, 4.06 at 1% family-wise over 51 sets).
 TRUTH_SIGMAS = 3.0
 #: Relative cost difference below which two solutions count as the same minimum (double-precision sums of ~10^3
 #: squared residuals carry ~1e-13 relative rounding).

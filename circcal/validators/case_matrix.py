@@ -198,10 +198,10 @@ def observation_sets() -> int:
 def suite_truth_sigmas(alpha: float = SUITE_FAMILY_ALPHA) -> float:
     """The suite's bound on |estimate - truth| of fx, fy, cx, cy in stated sigmas.
 
-    Bonferroni over its ``observation_sets() x 4`` parameter checks, two-sided, at family-wise rate ``alpha`` (47 sets:
-    4.04). The per-run bound :data:`TRUTH_SIGMAS` (3) suits one calibration (~1% false alarms over its 4 parameters);
-    over 47 sets it would fail a correct estimator ~40% of the time (the case that showed it is in docs/validation.md,
-    "Why the suite's truth bound is 4.04"). Bias is what the Monte-Carlo studies measure, with intervals; this bound
+    Bonferroni over its ``observation_sets() x 4`` parameter checks, two-sided, at family-wise rate ``alpha`` (51 sets today:
+    4.06). The per-run bound :data:`TRUTH_SIGMAS` (3) suits one calibration (~1% false alarms over its 4 parameters);
+    over 51 sets it would fail a correct estimator ~40% of the time (the case that showed it is in docs/validation.md,
+    "Why the suite's truth bound is 4.06"). Bias is what the Monte-Carlo studies measure, with intervals; this bound
     catches gross errors.
 
     Parameters

@@ -6,6 +6,7 @@ import numpy as np
 
 from circcal.formatting import fmt_number
 from circcal.validators.case_run import Outcome, failed_checks
+from circcal.validators.parameter_table import STD_NOTE
 
 
 def format_outcome(outcome: Outcome) -> str:
@@ -37,7 +38,9 @@ def format_outcome(outcome: Outcome) -> str:
 
 
 def summary_line(outcome: Outcome) -> str:
-    """One line for the end-of-run table: the case, its status and its key numbers.
+    """One line for the end-of-run table: the case, its status and its key numbers, then any note on the sigmas a
+    calibrator under test stated (:func:`~circcal.validators.parameter_table.stated_sigmas`: circcal's used for
+    some, unknown keys).
 
     Parameters
     ----------
@@ -62,4 +65,5 @@ def summary_line(outcome: Outcome) -> str:
         parts[0] += f"/{m.get('images', 0):.0f}"
     bad = failed_checks(outcome)
     head = "FAIL" if bad else outcome.status
+    parts += [n for n in outcome.notes if n.startswith(STD_NOTE)]
     return f"{outcome.case.id:<44} {head:<11} " + "; ".join(parts)

@@ -4,10 +4,98 @@ solve and to the truth, in its unit and in stated sigmas.
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
+from typing import Any
+
 import numpy as np
 
 from circcal.formatting import fmt_number
 from circcal.model import Camera, param_names
+
+#: The start of :func:`stated_sigmas`' notes (the end-of-run table shows them on the case's line:
+#: :func:`circcal.validators.case_report.summary_line`).
+STD_NOTE = "std: "
+
+
+def stated_sigmas(
+    std: Any, lens: str, held: Collection[str], fallback: Mapping[str, float] | None
+) -> tuple[dict[str, float], list[str], list[str]]:
+    """The standard deviations a calibrator's camera is held to: those it states, circcal's where it states none.
+
+    A stated value must be a finite number >= 0 (a Python or NumPy scalar); 0 means held, and for a parameter the
+    calibrator fits it counts as not stated. A key that is missing or None is not stated; keys that are not
+    parameters of ``lens`` are ignored, and a note says so.
+
+    Parameters
+    ----------
+    std : dict or None
+        The calibrator's ``std`` as returned (None: it states none).
+    lens : str
+        The lens model of its camera.
+    held : collection of str
+        The parameters it holds (:func:`circcal.validators.user_case.declared_model`).
+    fallback : dict of str to float, or None
+        circcal's standard deviations on the same observations and model.
+
+    Returns
+    -------
+    sigmas : dict of str to float
+        One per parameter of ``lens``.
+    from_circcal : list of str
+        The fitted parameters whose sigma is circcal's.
+    notes : list of str
+        One line each: fitted parameters without a stated sigma (when ``std`` is a dict), unknown keys.
+
+    Raises
+    ------
+    ValueError
+        ``std`` not a dict, or a value that is not a finite number >= 0: one line naming the key, e.g.
+        "std['fx'] must be a finite number >= 0, got 'abc'".
+    """
+    names = param_names(lens)
+    fallback = fallback or {}
+    if std is not None and not isinstance(std, Mapping):
+        raise ValueError(f"std must be a dict keyed {', '.join(names)}, or None; got {type(std).__name__}")
+    stated = dict(std or {})
+    sigmas, missing, zero = {}, [], []
+    for n in names:
+        v = _sigma(n, stated.get(n))
+        if v is not None and (v > 0 or n in held):
+            sigmas[n] = v
+            continue
+        sigmas[n] = float(fallback.get(n, np.nan))
+        if n not in held:
+            (missing if v is None else zero).append(n)
+    notes = []
+    if std is not None and (missing or zero):
+        why = ([f"{', '.join(missing)} (not stated)"] if missing else []) + (
+            [f"{', '.join(zero)} (stated 0 for a fitted parameter)"] if zero else []
+        )
+        notes.append(f"{STD_NOTE}circcal's sigmas on the same observations and model used for {'; '.join(why)}")
+    unknown = [k for k in stated if k not in names]
+    if unknown:
+        notes.append(
+            f"{STD_NOTE}unknown key(s) {', '.join(repr(k) for k in unknown)} ignored (the {lens} model's parameters are "
+            f"{', '.join(names)})"
+        )
+    return sigmas, [n for n in names if n in missing or n in zero], notes
+
+
+def _sigma(name: str, value: Any) -> float | None:
+    """A stated standard deviation as a float (None: not stated); ValueError naming the key when it is not a
+    finite number >= 0."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, str, bytes)) or np.ndim(value) != 0:
+        shown = f"{type(value).__name__} of shape {np.shape(value)}" if np.ndim(value) else repr(value)
+        raise ValueError(f"std[{name!r}] must be a finite number >= 0, got {shown}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"std[{name!r}] must be a finite number >= 0, got {value!r}") from None
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"std[{name!r}] must be a finite number >= 0, got {v:g}")
+    return v
 
 
 def parameter_table(

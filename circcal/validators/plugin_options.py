@@ -12,7 +12,35 @@ from circcal.validators.conformance_summary import ConformanceSummary
 from circcal.validators.plugin_keys import USER_KEY
 from circcal.validators.user_calibrator import calibrator_label, load_calibrator
 
-__all__ = ["pytest_addoption", "pytest_configure", "pytest_report_header", "user_calibrators"]
+__all__ = ["pytest_addoption", "pytest_configure", "pytest_report_header", "user_calibrators", "positive_value"]
+
+
+def positive_value(option: str, value: str | float) -> float:
+    """An option's value as a number > 0 (``inf`` allowed: ``--calibrator-tol inf`` measures without asserting).
+
+    Parameters
+    ----------
+    option : str
+        The option, for the message (``--calibrator-tol``, ``--bias-t``).
+    value : str or float
+        Its value as given.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Not a number, NaN, or <= 0: one line naming the option and the value.
+    """
+    try:
+        v = float(value)
+    except ValueError:
+        v = float("nan")
+    if not v > 0:
+        raise ValueError(f"{option}: expected a number > 0 ('inf': no bound), got {value!r}")
+    return v
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -74,8 +102,16 @@ def pytest_configure(config: pytest.Config) -> None:
     Raises
     ------
     pytest.UsageError
-        A spec that cannot be loaded, or two calibrators with the same label.
+        ``--calibrator-tol`` or ``--bias-t`` not a number > 0, a spec that cannot be loaded, or two calibrators
+        with the same label.
     """
+    for option, dest in (("--calibrator-tol", "calibrator_tol"), ("--bias-t", "bias_t")):
+        value = config.getoption(dest, default=None)
+        if value is not None:
+            try:
+                positive_value(option, value)
+            except ValueError as exc:
+                raise pytest.UsageError(str(exc)) from None
     specs = config.getoption("calibrator", default=None) or []
     cals = []
     for spec in specs:

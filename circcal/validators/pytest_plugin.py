@@ -21,16 +21,19 @@ biased (:func:`circcal.validators.bias.bias_tests`).
 
 * a function ``fn(object_points, image_points, image_size)`` with ``object_points``: per view (N_v, 3) float64 mm
   (z = 0), ``image_points``: per view (N_v, 2) float64 px (OpenCV convention: pixel centres at integer
-  coordinates), ``image_size``: (width, height); it returns a
+  coordinates), ``image_size``: (width, height), all copies of circcal's; it returns a
   :class:`circcal.validators.reference_result.ReferenceResult`, or ``(camera, std)`` or ``(camera, std, rvecs,
-  tvecs)`` with ``camera`` a :class:`circcal.model.Camera`, ``std`` a dict of standard deviations keyed fx, fy, cx,
-  cy, k1, k2, p1, p2, k3 or None, rvecs/tvecs (V, 3) board-to-camera (without them the poses are solved with
-  cv2.solvePnP for the residuals). It is wrapped into a
+  tvecs)`` with ``camera`` a :class:`circcal.model.Camera` of that image size, ``std`` a dict of standard deviations
+  keyed fx, fy, cx, cy, k1, k2, p1, p2, k3 (finite numbers >= 0; circcal's on the same observations, with a note, for
+  those missing: :func:`circcal.validators.parameter_table.stated_sigmas`) or None, rvecs/tvecs (V, 3) board-to-camera
+  (without them the poses are solved for its intrinsics to convergence:
+  :func:`circcal.validators.user_calibrator.solve_poses`). It is wrapped into a
   :class:`circcal.validators.user_calibrator.FunctionCalibrator` whose calls go through
   :func:`circcal.validators.base.run_safely` (an exception becomes a failed case with its message,
   ``NotImplementedError`` an unsupported one);
-* a :class:`~circcal.validators.reference_protocol.ReferenceCalibrator` class, a zero-argument factory returning one,
-  or an instance.
+* a :class:`~circcal.validators.reference_protocol.ReferenceCalibrator` class, a zero-argument factory returning one
+  (a callable that takes no arguments and cannot take three: a function that can is a calibrating function), or an
+  instance.
 
 With ``--calibrator`` the conformance cases test only the given calibrator(s) (ids ``<scenario>-<variant>-<label>``,
 label: LABEL, else the calibrator's ``name``, else the function's name); without it they test circcal and every

@@ -10,11 +10,18 @@ from typing import Any
 import numpy as np
 
 from circcal.analysis.compare import projection_diff
+from circcal.errors import CalibrationError
 from circcal.model import Camera, param_names
+from circcal.validators.base import camera_size_problem
 from circcal.validators.case_matrix import Case, bounds_for, suite_truth_sigmas
 from circcal.validators.case_run import Outcome
-from circcal.validators.checks import SOLVER_PX, Check, solver_agreement, truth_checks
-from circcal.validators.parameter_table import format_parameter_table, largest_difference, parameter_table
+from circcal.validators.checks import SOLVER_PX, TRUTH_PARAMS, Check, solver_agreement, truth_checks
+from circcal.validators.parameter_table import (
+    format_parameter_table,
+    largest_difference,
+    parameter_table,
+    stated_sigmas,
+)
 from circcal.validators.reference_protocol import ReferenceCalibrator
 from circcal.validators.scenario_observations import Observations
 
@@ -257,7 +264,10 @@ def run_user_case(
     if why:
         out.status, out.skip_reason = "unsupported", f"{name} ({_model_words(lens, fixed)}): {why}"
         return out
-    res = calibrator.calibrate_observations(obs.object_points, obs.image_points, obs.image_size, mode=case.mode)
+    # copies: a calibrator that changes its arguments in place must not change the observations the next one gets
+    res = calibrator.calibrate_observations(
+        [o.copy() for o in obs.object_points], [p.copy() for p in obs.image_points], obs.image_size, mode=case.mode
+    )
     out.result = res
     out.measured["time_s"] = float(res.time_s)
     label = f"{res.name} {res.version} [{_model_words(lens, fixed)}]"
@@ -278,13 +288,21 @@ def run_user_case(
     if not res.ok:
         out.status = "failed"
         return out
-    if res.camera.lens != lens:
-        out.checks.append(
-            Check(f"{label} returns a {lens} camera", 0.0, 1.0, False, f"it returned a {res.camera.lens} camera")
-        )
+    problem = _result_problem(res, lens, fixed, obs.image_size)
+    if problem:
+        out.status = "failed"
+        out.checks.append(Check(f"{label} returns a usable result", 0.0, 1.0, False, problem))
         return out
     left_out = (res.extra or {}).get("left_out") or {}
-    circ_cam, circ_std, circ_ssr = restricted_solve(obs, lens, fixed, left_out)
+    try:
+        circ_cam, circ_std, circ_ssr = restricted_solve(obs, lens, fixed, left_out)
+    except CalibrationError as exc:  # these observations do not determine the declared model: nothing to compare with
+        out.status = "unsupported"
+        out.skip_reason = (
+            f"circcal's solve under the same model ({_model_words(lens, fixed)}), which {label} is compared with, "
+            f"fails on these observations: {exc}"
+        )
+        return out
     res_fitted = res
     if left_out:
         from dataclasses import replace
@@ -297,15 +315,16 @@ def run_user_case(
             else [np.delete(r, sorted(keep.get(i, ())), axis=0) for i, r in enumerate(res.residuals)],
         )
         out.notes.append(f"{label} left out {sum(map(len, left_out.values()))} observations; compared on the rest")
-    table = parameter_table(res.camera, res.std, circ_cam, circ_std, obs.truth)
+    std, from_circcal, std_notes = stated_sigmas(res.std, lens, fixed, circ_std)
+    out.notes += std_notes
+    table = parameter_table(res.camera, std, circ_cam, circ_std, obs.truth)
     out.params = table
     vs = projection_diff(circ_cam, res.camera, fit=False)
     out.measured["vs_circcal_max_px"] = vs["max_px"]
     if "mean_2d_px" in (res.errors or {}):
         out.measured["mean_2d_px"] = float(res.errors["mean_2d_px"])
-    std, std_note = res.std, ""
-    if not std or not all(np.isfinite(std.get(n, np.nan)) and std.get(n, 0) > 0 for n in ("fx", "fy", "cx", "cy")):
-        std, std_note = circ_std, "; circcal's on the same observations and model"
+    circ_truth = [n for n in TRUTH_PARAMS if n in from_circcal]
+    std_note = f"; circcal's on the same observations and model for {', '.join(circ_truth)}" if circ_truth else ""
     found, measured = truth_checks(
         res.name,
         res.camera,
@@ -325,6 +344,23 @@ def run_user_case(
         out.checks.append(check)
     out.notes += format_parameter_table(table)
     return out
+
+
+def _result_problem(res: Any, lens: str, fixed: Sequence[str], image_size: tuple[int, int]) -> str:
+    """What makes an "ok" result of a calibrator under test unusable, in one line ("" when nothing): a camera of
+    another lens model or image size, or a ``std`` that is not a dict of finite numbers >= 0."""
+    if not isinstance(res.camera, Camera):
+        return f"the returned camera is a {type(res.camera).__name__}; expected circcal.model.Camera"
+    if res.camera.lens != lens:
+        return f"it returned a {res.camera.lens} camera; it declares lens = {lens!r}"
+    problem = camera_size_problem(res.camera, image_size)
+    if problem:
+        return problem
+    try:
+        stated_sigmas(res.std, lens, fixed, None)
+    except ValueError as exc:
+        return str(exc)
+    return ""
 
 
 def _model_words(lens: str, fixed: Sequence[str]) -> str:
