@@ -37,6 +37,7 @@ __all__ = [
     "calibrate_detections",
     "holdout_detections",
     "duplicates_of",
+    "detect_once",
     "choose_lens",
     "LensChoice",
     "LENS_CANDIDATES",
@@ -351,16 +352,7 @@ def calibrate_images(
     paths = image_list(paths)
     if not paths:
         raise InputError("no images given")
-    first = duplicates_of(paths)
-    unique = [i for i in range(len(paths)) if i not in first]
-    found_unique = det_mod.detect_files([paths[i] for i in unique], board, camera=None, progress=progress, jobs=jobs)
-    detections: list[Detection] = [None] * len(paths)  # type: ignore[list-item]
-    for i, d in zip(unique, found_unique):
-        detections[i] = d
-    for i, (j, how) in first.items():
-        detections[i] = Detection(
-            False, None, f"{how} {display_name(paths[j])} (given earlier): counted once", Reason.DUPLICATE
-        )
+    detections = detect_once(paths, board, None, progress=progress, jobs=jobs)
     found = [i for i, d in enumerate(detections) if d.found]
     if image_size is None and found:
         # one calibration is one camera mode: the size most images share (the first such on a tie)
@@ -415,6 +407,42 @@ def calibrate_images(
                 cal.recovered = [p for p in paths if p in found_again]
     cal.lens_choice = choice
     return cal
+
+
+def detect_once(
+    paths: Sequence[str], board, camera, *, progress: bool = True, jobs: int | None = None
+) -> list[Detection]:
+    """One detection per path, each file's contents detected once: a file whose bytes (or pixels) an earlier one
+    holds (:func:`duplicates_of`) is not found, reason ``DUPLICATE``, naming the earlier one.
+
+    Parameters
+    ----------
+    paths : sequence of str
+        The image files.
+    board : circcal.board.Board
+    camera : Camera or None
+        The camera model the detector may use (:func:`circcal.detector.detect_files`).
+    progress : bool
+        Show a progress bar.
+    jobs : int or None
+        Images detected at once.
+
+    Returns
+    -------
+    list of Detection
+        In the order of ``paths``.
+    """
+    first = duplicates_of(paths)
+    unique = [i for i in range(len(paths)) if i not in first]
+    found = det_mod.detect_files([paths[i] for i in unique], board, camera=camera, progress=progress, jobs=jobs)
+    detections: list[Detection] = [None] * len(paths)  # type: ignore[list-item]
+    for i, d in zip(unique, found):
+        detections[i] = d
+    for i, (j, how) in first.items():
+        detections[i] = Detection(
+            False, None, f"{how} {display_name(paths[j])} (given earlier): counted once", Reason.DUPLICATE
+        )
+    return detections
 
 
 def _same_size(size: Any, image_size: tuple[int, int]) -> bool:

@@ -17,11 +17,11 @@ import numpy as np
 
 from circcal import detector as det_mod
 from circcal.board import Board
-from circcal.detector import Detection, Reason, Rejection
+from circcal.detector import Reason, Rejection
 from circcal.errors import InputError
 from circcal.model import Camera
 from circcal.pathnames import display_name
-from circcal.pipeline import TooFewImagesError, duplicates_of
+from circcal.pipeline import TooFewImagesError, detect_once
 from circcal.rig.problem import free_intrinsics
 from circcal.solver import CalibrationOptions
 from circcal.solver.options import ASPECT_RATIO
@@ -107,16 +107,7 @@ def locate_images(
     ['right/001.png', 'right/003.png']
     """
     paths = [str(p) for p in paths]
-    first = duplicates_of(paths)
-    unique = [i for i in range(len(paths)) if i not in first]
-    found = det_mod.detect_files([paths[i] for i in unique], board, camera=camera, progress=progress, jobs=jobs)
-    detections: list[Detection] = [None] * len(paths)  # type: ignore[list-item]
-    for i, d in zip(unique, found):
-        detections[i] = d
-    for i, (j, how) in first.items():
-        detections[i] = Detection(
-            False, None, f"{how} {display_name(paths[j])} (given earlier): counted once", Reason.DUPLICATE
-        )
+    detections = detect_once(paths, board, camera, progress=progress, jobs=jobs)
     out = LocatedImages(camera, paths, detections)
     size = (camera.width, camera.height)
     for i, d in enumerate(detections):

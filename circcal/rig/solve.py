@@ -236,9 +236,9 @@ def determined_covariance(prob: RigProblem, x: np.ndarray, sigma2: float) -> np.
     The null space is the eigenvectors of the normalised information whose eigenvalues are below the largest over
     :data:`MAX_INFORMATION_CONDITION` (the rule that makes :func:`state_covariance` None) or below the magnitude of
     its most negative one (an information matrix has none: rounding made it, and nothing smaller is told from 0); a
-    parameter with a share above :data:`NULL_SHARE` of its direction there is undetermined (its row and column NaN). The others' covariance
-    is the pseudo-inverse's: the covariance of the estimable functions, which does not depend on how the
-    undetermined combination is pinned.
+    parameter with a share above :data:`NULL_SHARE` of its direction there is undetermined (its row and column
+    NaN). The others' covariance is the pseudo-inverse's: the covariance of the estimable functions, which does not
+    depend on how the undetermined combination is pinned.
 
     Parameters
     ----------
