@@ -407,9 +407,11 @@ def cross_validate(
         The settings ``full`` was made with; the leave-one-out refits use them without outlier rejection (they
         refit ``full``'s final observations, already free of outliers).
     names : sequence of str or None
-        The views' names (default ``view i``).
+        The views' names (default ``view i``). Given, the views are halved in the order of their names (file names:
+        the order of capture, usually), not in the order given: the same images give the same halves however they
+        are listed.
     split : {"alternate", "random"}
-        How the views are halved (:func:`split_views`); ``seed`` seeds ``"random"``.
+        How the views are halved (:func:`split_views` over that order); ``seed`` seeds ``"random"``.
     distance : float or None
         mm along each pixel's ray at which the models are compared (None: infinity).
 
@@ -418,7 +420,11 @@ def cross_validate(
     CrossValidation
     """
     n = len(full.rvecs)
-    names = list(names) if names is not None else [f"view {i}" for i in range(n)]
+    # the halves follow the views' names, not the order they were given in: the same images give the same verdict
+    # however a shell or a script lists them (a folder's images come sorted by name already)
+    given = list(names) if names is not None else None
+    order = sorted(range(n), key=lambda i: (str(given[i]), i)) if given is not None else list(range(n))
+    names = given if given is not None else [f"view {i}" for i in range(n)]
     if n < MIN_VIEWS:
         return CrossValidation(
             "too-few-views",
@@ -429,7 +435,8 @@ def cross_validate(
             seed,
             distance_mm=distance,
         )
-    halves = split_views(n, split, seed)
+    h0, h1 = split_views(n, split, seed)
+    halves = (sorted(order[k] for k in h0), sorted(order[k] for k in h1))
     models = []
     notes: list[str] = []
     for h in halves:
