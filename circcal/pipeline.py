@@ -25,7 +25,7 @@ from circcal.detector import Detection, Reason, Rejection
 from circcal.errors import CalibrationError, InputError
 from circcal.formats import model_json
 from circcal.imagefiles import image_list
-from circcal.observations import MIN_VIEWS
+from circcal.observations import MIN_VIEWS, same_views
 from circcal.pathnames import display_name, path_to_json
 from circcal.solver import CalibrationOptions, CalibrationResult, calibrate, leave_one_out
 
@@ -376,6 +376,15 @@ def calibrate_images(
             )
         else:
             used.append(i)
+    repeats = same_views([detections[i].centres for i in used])
+    for k, (kj, rms) in repeats.items():  # a photograph given twice, re-saved: one view
+        why = (
+            f"the same view as {display_name(Path(paths[used[kj]]).name)} (its dots within {rms:.2g} px RMS: a copy "
+            f"re-saved, or neither board nor camera moved): counted once"
+        )
+        failed.append(Rejection(paths[used[k]], Reason.DUPLICATE, why))
+    used = [i for k, i in enumerate(used) if k not in repeats]
+    failed.sort(key=lambda r: paths.index(r.path))
     if len(used) < MIN_VIEWS:
         raise TooFewImagesError(
             f"the board was found in {len(used)} of {len(paths)} images; calibration needs at least {MIN_VIEWS}"

@@ -197,3 +197,21 @@ def test_duplicates_of_tells_same_files_and_same_bytes(tmp_path):
     other.write_bytes(b"x" * 999)
     paths = [str(p) for p in (a, same_size, a, other, copy, missing)]
     assert duplicates_of(paths) == {2: (0, "same file as"), 4: (0, "identical content to")}
+
+
+def test_a_photograph_given_twice_re_saved_is_one_view(tmp_path):
+    # found by an outside test: a JPEG re-save of one real photograph (not byte-identical) was a view of its own;
+    # it shrank the stated sigmas and put one copy in each cross-validation half (the verdict flipped)
+    import cv2
+
+    from circcal.detector import Reason
+
+    t = load_truth(fixture_dir("paper", "normal"))
+    paths = [shutil.copy(v.image, tmp_path) for v in t.views]
+    once = calibrate_images(paths, t.board, progress=False)
+    copy = str(tmp_path / "copy.jpg")
+    cv2.imwrite(copy, cv2.imread(paths[2], cv2.IMREAD_UNCHANGED), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    twice = calibrate_images([*paths, copy], t.board, progress=False)
+    assert [r.code for r in twice.failed if r.path == copy] == [Reason.DUPLICATE]
+    assert "the same view as" in next(r.reason for r in twice.failed if r.path == copy)
+    assert np.array_equal(twice.result.camera.intrinsics, once.result.camera.intrinsics)
