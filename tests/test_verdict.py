@@ -161,3 +161,17 @@ def test_the_board_shape_waits_for_the_lens():
     for lens_fit, remedy in ((lens_bad, none), (lens_ok, lens_change)):
         (line,) = nxt(lens_fit, remedy)
         assert line.startswith("board shape: decide after the lens model"), line
+    # found by an outside test (a cropped real set): "recommended: --refine-board" and "recommended: the warped
+    # board (--board-warp)", which are not given together: one recommendation, the board shape's an alternative
+    refine = SimpleNamespace(label="--refine-board", options=("--refine-board",))
+    said = SimpleNamespace(
+        target=lambda: refine,
+        headline=lambda: "recommended: --refine-board: ...",
+        lines=lambda: ["recommended: --refine-board: ..."],
+    )
+    rec, alt = nxt(lens_ok, said)
+    assert rec.startswith("recommended: --refine-board") and alt.startswith("board shape: the warped board")
+    assert "not given together" in alt
+    # the same remedy not recommended (its headline asks for more views): the board shape's recommendation stands
+    views = SimpleNamespace(target=lambda: refine, headline=lambda: "recommended: more views: ...", lines=lambda: [])
+    assert nxt(lens_ok, views) == ["recommended: the warped board (--board-warp): ..."]

@@ -243,10 +243,26 @@ class Assessment:
         list of str
         """
         shape = None if self.board_shape is None else self.board_shape.recommendation()
+        target = None if self.remedy is None else self.remedy.target()
         if shape and self.lens_in_question():
             shape = (
                 "board shape: decide after the lens model (a lens the model cannot follow reads as a warped board): "
                 "the recommended run's own board-shape check says whether the board is flat"
+            )
+        elif (
+            shape
+            and target is not None
+            and self.remedy is not None
+            and self.remedy.headline().startswith(f"recommended: {target.label}:")
+            and {"--refine-board", "--board-warp"} & set(target.options)
+        ):
+            # the run recommended above changes the board model already: one recommendation, not two that cannot
+            # be given together (--refine-board and --board-warp each model the board's shape)
+            shape = (
+                "board shape: "
+                + shape.removeprefix("recommended: ")
+                + f" (the run recommended above, {target.label}, models the board itself; its own board-shape check "
+                "decides, and --refine-board and --board-warp are not given together)"
             )
         return ([] if self.remedy is None else self.remedy.lines()) + ([shape] if shape else [])
 
