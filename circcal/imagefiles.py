@@ -3,6 +3,7 @@ recursive), a file for itself. One rule for the commands and the Python API alik
 
 from __future__ import annotations
 
+import glob
 import os
 import sys
 from collections.abc import Iterable
@@ -32,12 +33,15 @@ def expand_images(paths: list[Path], option: str = "images", *, announce: bool =
     Returns
     -------
     list of Path
-        The files given, in order, each folder's images (:data:`IMAGE_SUFFIXES`, not recursive) in its place.
+        The files given, in order, each folder's images (:data:`IMAGE_SUFFIXES`, not recursive) in its place, and
+        each glob pattern that names no file itself (a pattern the shell did not expand: quoted, or matching
+        nothing there) replaced by the image files it matches, sorted. A file that does not exist among others that
+        do stays: the detector reports it as an image left out.
 
     Raises
     ------
     InputError
-        A folder that holds no image file.
+        A folder that holds no image file, a pattern that matches no image file, or none of the paths given exists.
     """
     out: list[Path] = []
     for p in paths:
@@ -50,8 +54,16 @@ def expand_images(paths: list[Path], option: str = "images", *, announce: bool =
             if announce:
                 print(f"{display_name(p)}: {len(found)} images", file=sys.stderr)
             out += found
+        elif not p.exists() and not p.is_symlink() and glob.has_magic(str(p)):
+            found = sorted(Path(f) for f in glob.glob(str(p)) if Path(f).suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise InputError(f"{option}: the pattern {display_name(p)} matches no image file")
+            out += found
         else:
             out.append(p)
+    if out and not any(p.exists() or p.is_symlink() for p in out):  # a typo, or a folder that is not there
+        more = f" (nor {len(out) - 1} more given)" if len(out) > 1 else ""
+        raise InputError(f"{option}: no such file or folder: {display_name(out[0])}{more}")
     return out
 
 
