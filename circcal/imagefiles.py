@@ -12,7 +12,7 @@ from pathlib import Path
 from circcal.errors import InputError
 from circcal.pathnames import display_name
 
-__all__ = ["IMAGE_SUFFIXES", "expand_images", "image_list"]
+__all__ = ["IMAGE_SUFFIXES", "expand_images", "image_list", "require_existing"]
 
 #: Image files a folder given as an input expands to (by extension, case-insensitive).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm", ".webp", ".jp2", ".exr")
@@ -41,7 +41,7 @@ def expand_images(paths: list[Path], option: str = "images", *, announce: bool =
     Raises
     ------
     InputError
-        A folder that holds no image file, a pattern that matches no image file, or none of the paths given exists.
+        A folder that holds no image file, or a pattern that matches no image file.
     """
     out: list[Path] = []
     for p in paths:
@@ -61,10 +61,28 @@ def expand_images(paths: list[Path], option: str = "images", *, announce: bool =
             out += found
         else:
             out.append(p)
-    if out and not any(p.exists() or p.is_symlink() for p in out):  # a typo, or a folder that is not there
-        more = f" (nor {len(out) - 1} more given)" if len(out) > 1 else ""
-        raise InputError(f"{option}: no such file or folder: {display_name(out[0])}{more}")
     return out
+
+
+def require_existing(paths: list[Path], option: str = "images") -> None:
+    """Refuse inputs none of which exists (a typo, a folder that is not there): one line, before the work. A file
+    that does not exist among others that do is the detector's to report (an image left out, with its reason).
+
+    Parameters
+    ----------
+    paths : list of Path
+        The image files (:func:`expand_images`' result).
+    option : str
+        How the message names the argument.
+
+    Raises
+    ------
+    InputError
+        No path given exists.
+    """
+    if paths and not any(p.exists() or p.is_symlink() for p in paths):
+        more = f" (nor {len(paths) - 1} more given)" if len(paths) > 1 else ""
+        raise InputError(f"{option}: no such file or folder: {display_name(paths[0])}{more}")
 
 
 def image_list(images: str | os.PathLike[str] | Iterable[str | os.PathLike[str]], option: str = "images") -> list[str]:

@@ -175,3 +175,26 @@ def test_the_board_shape_waits_for_the_lens():
     # the same remedy not recommended (its headline asks for more views): the board shape's recommendation stands
     views = SimpleNamespace(target=lambda: refine, headline=lambda: "recommended: more views: ...", lines=lambda: [])
     assert nxt(lens_ok, views) == ["recommended: the warped board (--board-warp): ..."]
+
+
+def test_the_console_says_the_verdict_first(tmp_path, capsys):
+    # found by a newcomer test: the report opened with "BAD: the two halves ... disagree", the console with the RMS
+    import re
+
+    folder = fixture_dir("paper", "normal")
+    given = [
+        str(folder),
+        "--grid",
+        "7x7",
+        "--pitch",
+        "10mm",
+        "--diameter",
+        "5mm",
+        "--no-progress",
+        "--out",
+        str(tmp_path / "m.json"),
+    ]
+    assert cli.main(["calibrate", *given]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert re.match(r"verdict: (GOOD|CHECK|BAD): \S", first), first  # no colour codes: not a terminal
+    assert "\033[" not in first

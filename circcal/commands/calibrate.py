@@ -21,7 +21,7 @@ from circcal.commands.args import (
     positive_int,
 )
 from circcal.commands.board import add_marker_arguments
-from circcal.imagefiles import expand_images
+from circcal.imagefiles import expand_images, require_existing
 from circcal.pathnames import display_name
 
 
@@ -316,6 +316,24 @@ def _detection_lines(cal) -> list[str]:
     return lines
 
 
+#: ANSI colours of the verdict's level on a terminal (none where NO_COLOR is set or the output is not a terminal).
+LEVEL_COLOURS = {"good": "\033[32m", "check": "\033[33m", "bad": "\033[31m"}
+
+
+def _verdict_line(assessment, n_images: int) -> str:
+    """The verdict in one line, as the report's headline says it (GOOD, CHECK or BAD and why), coloured on a
+    terminal."""
+    import os
+
+    from circcal.calreport.document import headline
+
+    h = headline(assessment, n_images)
+    level = h["level"].upper()
+    if sys.stdout.isatty() and not os.environ.get("NO_COLOR") and h["level"] in LEVEL_COLOURS:
+        level = f"{LEVEL_COLOURS[h['level']]}{level}\033[0m"
+    return f"verdict: {level}: {h['text']}"
+
+
 def run(args: argparse.Namespace) -> int:
     """Detect, calibrate, re-correct and write the model (and the report) of the arguments.
 
@@ -361,6 +379,7 @@ def run(args: argparse.Namespace) -> int:
                 f"--out {args.out}: {MRCAL_UNSUPPORTED['fisheye']}; write model.json, OpenCV .yaml, "
                 f"COLMAP cameras.txt or ROS camera_info instead"
             )
+        require_existing(args.images)  # the last check before the work: the others' words come first
         try:
             calibration = calibrate(
                 args.images,
@@ -397,7 +416,8 @@ def run(args: argparse.Namespace) -> int:
         if shape is not None and shape.changes and getattr(args, "argv", None) is not None:
             words = [w for w in args.argv if w not in shape.remove]  # the board model's flag, added or removed
             shape.command = recommended_command(words, given, list(args.images), shape.add, ())
-        print("\n".join(assessment.verdict() + assessment.next_lines()))  # the verdict first, then the numbers
+        print(_verdict_line(assessment, len(args.images)))  # the verdict first, then the numbers
+        print("\n".join(assessment.verdict() + assessment.next_lines()))
         print(format_summary(cal))
         print("\n".join(assessment.details()))
         model = cal.to_model_json(board)
