@@ -95,7 +95,7 @@ mrcal-2.5:
 	@echo "export CIRCCAL_MRCAL_PYTHON=$(CURDIR)/.venv-mrcal25/bin/python"
 
 demo: setup
-	$(VENV)/bin/circcal demo
+	$(VENV)/bin/circcal demo --require-all
 
 test: setup
 	$(VPY) -m pytest -n $(JOBS) -q

@@ -185,7 +185,8 @@ class Assessment:
         cv = self.crossval
         if cv is None:
             lines.append(
-                "cross-validation: not run (--no-cross-validate; without it the views are split in two and compared)"
+                "cross-validation: not run (the command line runs it unless --no-cross-validate; in Python "
+                "calibrate(..., cross_validate=True)): the views split in two and compared"
             )
         elif cv.status != "ok":
             lines.append(f"cross-validation: {cv.message}")

@@ -43,6 +43,46 @@ def parse_length_mm(text: str) -> float:
     return value
 
 
+#: ``--distance``'s help (calibrate, diff): a length with its unit, or a bare number of mm as before.
+DISTANCE_HELP = (
+    "distance along each pixel's ray, a length with its unit, e.g. 2m or 500mm (a bare number is mm; default: "
+    "infinity, as mrcal)"
+)
+
+
+def parse_distance_mm(text: str) -> float:
+    """``--distance``: a length with its unit (:func:`parse_length_mm`: ``2m``, ``500mm``), or a bare number of mm
+    (what the option took before it took units, kept so that existing scripts mean the same).
+
+    Parameters
+    ----------
+    text : str
+        ``2m``, ``1.5cm``, ``0.5in``, ``500mm`` or ``500`` (mm).
+
+    Returns
+    -------
+    float
+        The distance in mm (> 0, finite).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not a length or a number, not positive, not finite.
+
+    Examples
+    --------
+    >>> parse_distance_mm("2m"), parse_distance_mm("500")
+    (2000.0, 500.0)
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        return parse_length_mm(text)
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"distance must be a finite length above 0, got {text!r}")
+    return value
+
+
 def parse_grid(text: str) -> tuple[int, int] | str:
     """'7x7' -> (rows, cols): points per column x points per row (an argparse type); ``auto`` -> ``"auto"`` (the grid
     found from the images: :func:`resolve_grid`).

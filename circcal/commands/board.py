@@ -26,7 +26,6 @@ from circcal.commands.args import (
     board_of_args,
     parse_grid,
     parse_length_mm,
-    plain,
 )
 
 __all__ = ["PAPERS", "add_marker_arguments", "add_parser", "draw_board", "parse_paper", "run"]
@@ -53,6 +52,29 @@ SCALE_BAR_MM = 100.0
 """Length of the printed scale bar (mm), shortened to fit narrower pages to 50 or 20 mm."""
 TEXT_PT = 7.0
 """Size of the margin text (pt)."""
+
+
+#: ``circcal board --help``'s description: what the command does and writes, for a user (the module docstring says
+#: how the scale is kept exact).
+DESCRIPTION = """\
+Write a circle-grid calibration board, true to scale, as an SVG or PDF page to print, and beside it (same name,
+.yaml) a board file that describes it: give that to calibrate and detect as --board FILE. Under the board the page
+carries its geometry, the calibrate command line to use, and a 100 mm scale bar.
+
+Print it at 100 % (actual size, not "fit to page"), check the scale bar and the dot spacing with a ruler or a
+caliper, and mount the sheet flat on something rigid. If the printed spacing differs from --pitch, calibrate with
+the measured one (pitch_mm in the .yaml, or --pitch); a sheet that is not quite flat: calibrate --refine-board.
+
+The board is centred on the page (--paper, default a4; turned when it fits only that way), with a white margin of
+one pitch around the outermost dots (--margin). Exit status: 0 written; 2 bad input or a board that does not fit."""
+
+#: ``circcal board --help``'s examples.
+EXAMPLES = """\
+examples:
+  circcal board --grid 7x10 --pitch 20mm --diameter 10mm --out board.pdf
+  circcal board --grid 11x4 --asymmetric --pitch 15mm --paper letter --out acircles.svg
+  circcal board --grid 8x11 --pitch 20mm --markers pattern --paper a3 --out board.pdf
+  circcal board --board board.yaml --out board.pdf"""
 
 
 def add_marker_arguments(p: argparse.ArgumentParser) -> None:
@@ -126,7 +148,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "board",
         help="write a circle-grid board true to scale for printing (SVG or PDF)",
-        description=plain(__doc__ or ""),
+        description=DESCRIPTION,
+        epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--grid", type=parse_grid, help="ROWSxCOLS points, e.g. 7x7 (asymmetric: 11x4)")

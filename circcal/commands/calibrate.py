@@ -8,6 +8,7 @@ from pathlib import Path
 
 from circcal.commands.args import (
     DIAMETER_HELP,
+    DISTANCE_HELP,
     add_board_file_argument,
     add_fix_arguments,
     add_lens_argument,
@@ -15,6 +16,7 @@ from circcal.commands.args import (
     calibration_options,
     grid_hint,
     nonnegative_int,
+    parse_distance_mm,
     parse_grid,
     parse_length_mm,
     positive_float,
@@ -118,10 +120,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--seed", type=nonnegative_int, default=0, help="seed of --split random (default 0)")
     g.add_argument(
         "--distance",
-        type=positive_float,
+        type=parse_distance_mm,
         default=None,
-        help="distance (mm) along each pixel's ray at which uncertainty and cross-validation are "
-        "evaluated (default: infinity, as mrcal)",
+        help="where uncertainty and cross-validation are evaluated: " + DISTANCE_HELP,
     )
     g.add_argument(
         "--report",

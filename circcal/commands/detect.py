@@ -8,6 +8,11 @@ Writes ``{"board": board.to_dict(), "complete": bool, "images": [{"image": path,
 are kept in ``NAME.partial-K.json`` beside it (``"complete": false``; images still missing are left out). ``--grid RxC``: R rows by C columns of *points* (OpenCV patternSize (C, R)). ``--model``: a
 camera in any format circcal reads (model.json, OpenCV YAML, mrcal, COLMAP, ROS) for the distortion-aware centre
 correction. A failed image never stops the others and always says why.
+
+Detection needs the board's shape, not its scale: without ``--pitch`` (and without ``--board``) the board's lengths
+in the JSON (``pitch_mm``, ``diameter_mm``, ``margin_mm``, and ``marker_diameter_mm`` of a marker board) are
+``null``, not a made-up number; ``--diameter`` and ``--marker-diameter`` need ``--pitch``, since the detector uses
+the dots' size relative to their spacing. The help a user reads is :data:`DESCRIPTION`.
 """
 
 from __future__ import annotations
@@ -26,16 +31,39 @@ from circcal.commands.args import (
     grid_hint,
     parse_grid,
     parse_length_mm,
-    plain,
     positive_int,
 )
 from circcal.commands.board import add_marker_arguments
+from circcal.errors import InputError
 from circcal.imagefiles import expand_images
 
-#: The pitch of ``--grid`` without ``--pitch`` (mm): detection needs the board's shape, not its scale.
+#: The scale the detector works in when ``--grid`` comes without ``--pitch`` (mm): detection needs the board's shape,
+#: not its scale, and this number is not written (detections.json says ``pitch_mm: null``).
 DEFAULT_PITCH_MM = 10.0
 #: The staged detections.json is rewritten at most this often (s): what an interruption keeps as partial results.
 SAVE_EVERY_S = 2.0
+
+
+#: ``circcal detect --help``'s description: what the command does and writes, for a user.
+DESCRIPTION = """\
+Find the circle grid in every image and write the centre of each dot as it projects into the image (corrected for
+the bias of a blob's centroid under perspective, and for the lens's distortion with --model) to one JSON file.
+
+The JSON lists the images in the order given: for each, whether the grid was found (and if not, why, with a reason
+code), the centres in pixels in OpenCV's point order (null for a dot not seen: out of frame, occluded or left out as
+bad), and whether the view shows the whole board. --overlay writes a PNG per image to check by eye. The outputs are
+written together at the end; an interrupted run keeps what it did in NAME.partial-K.json beside the output.
+
+Detection needs the board's shape, not its size: --pitch is optional here (the JSON then says pitch_mm: null), but
+--diameter and --marker-diameter need it (the detector uses the dots' size relative to their spacing).
+Exit status: 0 the grid was found in every image; 1 not in some; 2 bad input."""
+
+#: ``circcal detect --help``'s examples.
+EXAMPLES = """\
+examples:
+  circcal detect photos/ --grid 7x7 --json detections.json
+  circcal detect photos/*.jpg --grid 11x4 --asymmetric --overlay overlays --json detections.json
+  circcal detect photos/ --board board.yaml --model model.json --json detections.json"""
 
 
 def add_parser(subparsers) -> None:
@@ -49,7 +77,8 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "detect",
         help="find circle grids and write unbiased centre projections as JSON",
-        description=plain(__doc__ or ""),
+        description=DESCRIPTION,
+        epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("images", nargs="+", type=Path, help="image files, or folders of them (sorted by name)")
@@ -58,7 +87,11 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("--asymmetric", action="store_true", help="OpenCV asymmetric (acircles) layout")
     p.add_argument(
-        "--pitch", type=parse_length_mm, default=None, help="board pitch, e.g. 10mm (OpenCV squareSize; default 10 mm)"
+        "--pitch",
+        type=parse_length_mm,
+        default=None,
+        help="point spacing, e.g. 10mm (OpenCV's squareSize); optional: detection needs the board's shape, not its "
+        "size (the JSON then says pitch_mm: null); needed with --diameter",
     )
     p.add_argument("--diameter", type=parse_length_mm, default=None, help=DIAMETER_HELP)
     add_marker_arguments(p)
@@ -132,8 +165,17 @@ def run(args: argparse.Namespace) -> int:
     from circcal.outputs import Outputs
     from circcal.pathnames import display_name
 
+    scaled = args.board is not None or args.pitch is not None  # the board's lengths known, not only its shape
+    if not scaled:
+        relative = [o for o, v in (("--diameter", args.diameter), ("--marker-diameter", args.marker_diameter)) if v]
+        if relative:
+            raise InputError(
+                f"{relative[0]} needs --pitch: the detector uses the dots' size relative to their spacing (e.g. "
+                f"--pitch 10mm {relative[0]} 5mm), or give neither"
+            )
     args.images = expand_images(args.images)  # a folder stands for its images, sorted
     board = board_of_args(args, "detect", default_pitch_mm=DEFAULT_PITCH_MM)
+    board_doc = board.to_dict() if scaled else _shape_only(board)
     inputs = list(args.images) + ([args.model] if args.model is not None else [])
     inputs += [args.board] if args.board is not None else []
     with Outputs(inputs=inputs) as outputs:  # checked before the work, committed together at the end
@@ -146,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         last_save = [time.monotonic()]
 
         def save(complete: bool) -> None:
-            doc = {"board": board.to_dict(), "complete": complete, "images": [entries[i] for i in sorted(entries)]}
+            doc = {"board": board_doc, "complete": complete, "images": [entries[i] for i in sorted(entries)]}
             atomic.write_text(json_path, dumps(doc, indent=1) + "\n")
             last_save[0] = time.monotonic()
 
@@ -197,6 +239,16 @@ def run(args: argparse.Namespace) -> int:
     if n == 0 and (hint := grid_hint(list(args.images), board)):
         print(f"circcal detect: {hint}")
     return 0 if n == len(dets) else 1
+
+
+def _shape_only(board) -> dict:
+    """``board.to_dict()`` with the lengths a ``--grid`` without ``--pitch`` did not give set to None: the pitch, and
+    the diameter, margin and marker diameter that follow from it (the markers' places and the layout stay)."""
+    doc = board.to_dict()
+    doc.update(pitch_mm=None, diameter_mm=None, margin_mm=None)
+    if board.has_markers:
+        doc["marker_diameter_mm"] = None
+    return doc
 
 
 def _overlay_name(path: Path, i: int, shared: set[str]) -> str:

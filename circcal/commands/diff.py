@@ -1,7 +1,11 @@
 """``circcal diff A B``: the projection difference between two camera models in any format circcal reads, with the
 implied transformation between their frames fitted as ``mrcal-show-projection-diff`` does, and, where both files
 carry an uncertainty (a circcal model.json with its views' observations, or an mrcal ``.cameramodel`` with
-optimisation inputs), the difference in units of their combined uncertainty."""
+optimisation inputs), the difference in units of their combined uncertainty.
+
+A is the reference: a grid of A's pixels is unprojected with A and projected with B. The exit status is 1 when both
+files carry an uncertainty and the models are NOT consistent within it (a script can gate on it), 0 when they are or
+when there is no uncertainty to judge by, 2 on bad input."""
 
 from __future__ import annotations
 
@@ -9,7 +13,7 @@ import argparse
 import math
 from pathlib import Path
 
-from circcal.commands.args import int_between, positive_float
+from circcal.commands.args import DISTANCE_HELP, int_between, parse_distance_mm
 
 #: --gridn's largest value, the grid's points across the image: 1000 (750,000 points at 4:3) keeps the projections
 #: and the uncertainty's per-point work arrays under ~1 GB; 100,000 asked for 41.9 GiB.
@@ -32,13 +36,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "distance), project with model B and measure the 2-D difference: RMS, p95, max and at the "
         "centre. Where both models carry an uncertainty (a model.json written by `circcal calibrate`, "
         "or an mrcal .cameramodel with optimisation inputs), also the difference in units of their "
-        "combined uncertainty (sigma A + sigma B; consistent when within 2x over 95%% of the image).",
+        "combined uncertainty (sigma A + sigma B; consistent when within 2x over 95% of the image). Exit "
+        "status: 0 consistent, or no uncertainty to judge by; 1 NOT consistent; 2 bad input.",
     )
-    p.add_argument("a", type=Path, help="model A (any format circcal reads)")
-    p.add_argument("b", type=Path, help="model B")
-    p.add_argument(
-        "--distance", type=positive_float, default=None, help="distance along each ray, mm (default: infinity)"
-    )
+    p.add_argument("a", type=Path, help="model A, the reference (any format circcal reads)")
+    p.add_argument("b", type=Path, help="model B, compared with A")
+    p.add_argument("--distance", type=parse_distance_mm, default=None, help=DISTANCE_HELP)
     p.add_argument(
         "--radius",
         type=float,
@@ -65,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        The exit status: 0.
+        The exit status: 1 when both models carry an uncertainty and are NOT consistent within it, else 0.
 
     Raises
     ------
@@ -91,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _diff(args: argparse.Namespace, heatmap, json_out) -> int:
-    """The comparison, written to the staged ``heatmap`` and ``json_out`` where given."""
+    """The comparison, written to the staged ``heatmap`` and ``json_out`` where given; the exit status (1: NOT
+    consistent)."""
     from circcal import atomic
     from circcal.analysis.compare import GRID_WIDTH
     from circcal.analysis.diff import CONSISTENT_RATIO, CONSISTENT_SHARE, model_diff
@@ -124,8 +128,8 @@ def _diff(args: argparse.Namespace, heatmap, json_out) -> int:
     )
     s = d.summary()
     print(
-        f"{args.b} against {args.a}, {ca.width}x{ca.height}, {d.diff.size} grid pixels {at}, implied "
-        f"transformation fitted {fit} (rotation {s['implied_rotation_deg']:.4f} deg)"
+        f"A {args.a} (reference), B {args.b}: {ca.width}x{ca.height}, {d.diff.size} grid pixels of A {at}, "
+        f"implied transformation fitted {fit} (rotation {s['implied_rotation_deg']:.4f} deg)"
     )
     print(
         f"  difference: RMS {d.rms_px:.4g} px, p95 {d.p95_px:.4g} px, max {d.max_px:.4g} px, at the centre "
@@ -147,7 +151,7 @@ def _diff(args: argparse.Namespace, heatmap, json_out) -> int:
     if args.heatmap is not None:
         from circcal.calreport.figures import fig_diff, save_png
 
-        save_png(fig_diff(d, ca.width, ca.height, f"{args.b.name} against {args.a.name}"), heatmap)
+        save_png(fig_diff(d, ca.width, ca.height, f"A {args.a.name} vs B {args.b.name}"), heatmap)
     if args.json_out is not None:
         doc = {
             "a": str(args.a),
@@ -158,4 +162,4 @@ def _diff(args: argparse.Namespace, heatmap, json_out) -> int:
             **s,
         }
         atomic.write_text(json_out, dumps(doc, indent=2) + "\n")
-    return 0
+    return 1 if d.consistent is False else 0

@@ -38,7 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Calibrate with circcal and with reference calibrators on the same images, compare every result "
         "with circcal and, for rendered fixtures, with the true camera. With no arguments: the `paper` "
         "scenario against every reference. Exit status 1 when a check fails or nothing was compared, 0 when "
-        "every check passed or nothing is gated (the verdict says why), 2 on bad input.",
+        "every check passed or nothing is gated (the verdict says why), 2 on bad input. A reference that is not "
+        "installed fails the run (each says how to install it); --allow-missing lists it as skipped instead.",
     )
     p.add_argument("scenario", nargs="?", help="fixture scenario (default: paper); see `circcal render --list`")
     p.add_argument("--variant", help="scenario variant (default: its first)")
@@ -102,8 +103,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--allow-missing",
         action="store_true",
-        help="a reference that is not installed is listed as skipped instead of failing the run "
-        "(`make setup` installs every built-in one)",
+        help="a reference that is not installed is listed as skipped instead of failing the run, so that a "
+        "plain `pip install circcal` checks against what is installed (`make setup` installs every built-in one)",
     )
     p.add_argument(
         "--min-images",
@@ -223,8 +224,42 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         print(f"\nreport: {args.report}")
     lines, status = verdict(result)
-    print("\n" + "\n".join(lines))
+    print("\n" + "\n".join(lines + missing_lines(result)))
     return status
+
+
+def missing_lines(result) -> list[str]:
+    """The verdict's lines on the references that are not installed: those that failed the run, with the two ways
+    out (install them, or ``--allow-missing``), and those skipped under ``--allow-missing``.
+
+    Parameters
+    ----------
+    result : ValidationRun
+        The run (:func:`circcal.validators.validate.run_validation`).
+
+    Returns
+    -------
+    list of str
+        None, one or two lines, each starting with "- ".
+    """
+    suffix = " is available"
+    failed = [c.name[: -len(suffix)] for c in result.checks if not c.passed and c.name.endswith(suffix)]
+    skipped = [s.split(":", 1)[0] for s in result.skipped]  # "kornia [fair]: why; pip install ..."
+    lines = []
+    if failed:
+        names = _names(failed)
+        lines.append(
+            f"- not installed: {names}: install {'them' if ', ' in names else 'it'} (the pip line is above; `make "
+            "setup` installs every one), or add --allow-missing to check against the references that are installed"
+        )
+    if skipped:
+        lines.append(f"- not installed, so not checked: {_names(skipped)} (each one's pip line is above)")
+    return lines
+
+
+def _names(labels: list[str]) -> str:
+    """The references of labels such as ``lensboy [fair]``, each once, in order."""
+    return ", ".join(dict.fromkeys(label.split(" [", 1)[0] for label in labels))
 
 
 def _run(args: argparse.Namespace, options, paths, board, truth_cam, against, source):
