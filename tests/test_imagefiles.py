@@ -45,6 +45,7 @@ def test_the_commands_refuse_a_path_that_is_not_there_before_any_work(tmp_path, 
     assert code == 2
     assert "matches no image file" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing written
-    if command == "calibrate":  # a mistyped path: refused, not "the board was found in 0 of 1 images"
-        assert main([command, str(tmp_path / "nope.png"), "--grid", "4x5", "--pitch", "10mm", *out]) == 2
-        assert "images: no such file or folder" in capsys.readouterr().err
+    # a mistyped path: refused, not "the board was found in 0 of 1 images"
+    assert main([command, str(tmp_path / "nope.png"), "--grid", "4x5", "--pitch", "10mm", *out]) == 2
+    assert "images: no such file or folder" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

@@ -35,7 +35,7 @@ from circcal.commands.args import (
 )
 from circcal.commands.board import add_marker_arguments
 from circcal.errors import InputError
-from circcal.imagefiles import expand_images
+from circcal.imagefiles import expand_images, require_existing
 
 #: The scale the detector works in when ``--grid`` comes without ``--pitch`` (mm): detection needs the board's shape,
 #: not its scale, and this number is not written (detections.json says ``pitch_mm: null``).
@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
         json_path = outputs.file(args.json_out, "--json")
         overlay_dir = None if args.overlay is None else outputs.folder(args.overlay, "--overlay", kind="overlays")
         camera = read_camera(args.model) if args.model is not None else None
+        require_existing(args.images)  # a mistyped path: one line, not "grid found in 0 of 1 images"
         entries: dict[int, dict] = {}
         stems = Counter(Path(p).stem for p in args.images)
         shared_stems = {k for k, n in stems.items() if n > 1}  # counted once, not per image
