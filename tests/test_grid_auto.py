@@ -121,3 +121,20 @@ def test_thin_and_even_row_staggered_boards_are_inferred(rows, cols):
     ]
     rows_, cols_, layout, _ = infer_grid(images)
     assert (rows_, cols_, layout) == (rows, cols, "asymmetric")
+
+
+def test_a_whole_grid_of_the_other_layout_is_named_so():
+    # found by a newcomer test: the real 5x4 staggered set given without --asymmetric said, per image, "the board
+    # has more dots than 5x4: 6x6?" (its 20 dots' bounding box in the square reading)
+    from circcal.board import Board
+    from circcal.detector.locate.labels import label_patch
+
+    xy = np.array([[2 * j + i % 2, i] for i in range(5) for j in range(4)])
+    ab = np.column_stack([(xy[:, 0] - xy[:, 1]) // 2, (xy[:, 0] + xy[:, 1]) // 2])
+    lab = label_patch(Board(5, 4, 10.0, 5.0), ab)
+    assert lab.status == "layout" and lab.message.endswith("not a symmetric 5x4 one: --asymmetric?"), lab.message
+    lab = label_patch(Board(7, 7, 10.0, 5.0), ab)  # another size too: ambiguous as a part of the larger board
+    assert lab.status == "ambiguous"
+    sym = np.array([[i, j] for j in range(4) for i in range(6)])
+    lab = label_patch(Board(4, 6, 10.0, 5.0, layout="asymmetric"), sym)
+    assert lab.status == "layout" and "not an asymmetric 4x6 one: without --asymmetric?" in lab.message, lab.message

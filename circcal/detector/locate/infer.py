@@ -28,7 +28,7 @@ from circcal.board import Board, placements
 from circcal.detector.image import STRETCH_TAIL_PX, as_gray, normalise_u8, read_image_messages
 from circcal.detector.locate.budget import Deadline
 from circcal.detector.locate.candidates import area_limits, find_candidates
-from circcal.detector.locate.labels import ASYMMETRIC_FROM_PATCH
+from circcal.detector.locate.labels import ASYMMETRIC_FROM_PATCH, shape_of
 from circcal.detector.locate.lattice import Lattice, find_lattices
 from circcal.detector.locate.recognise import _regular
 from circcal.detector.locate.segment import (
@@ -135,48 +135,6 @@ def _bounded(lat: Lattice, points: np.ndarray, size: tuple[int, int]) -> bool:
     lo = 0.5 * step
     inside = (xy[0, :, 0] >= lo) & (xy[0, :, 1] >= lo) & (xy[0, :, 0] <= W - 1 - lo) & (xy[0, :, 1] <= H_ - 1 - lo)
     return bool(np.all(inside))
-
-
-def shape_of(ab: np.ndarray) -> tuple[int, int, str | None]:
-    """The grid a lattice patch's coordinates form.
-
-    Parameters
-    ----------
-    ab : numpy.ndarray
-        (K, 2) int patch coordinates (:class:`~circcal.detector.locate.lattice.Lattice`).
-
-    Returns
-    -------
-    rows, cols : int
-        The grid in ``--grid`` terms (conventions: module docstring); for a patch of neither shape, its bounding box.
-    layout : str or None
-        ``"symmetric"`` (a full rectangle), ``"asymmetric"`` (a full staggered rectangle), ``None`` (neither).
-
-    Examples
-    --------
-    >>> shape_of(np.array([[i, j] for j in range(3) for i in range(5)]))
-    (3, 5, 'symmetric')
-    """
-    ab = np.asarray(ab, np.int64).reshape(-1, 2)
-    K = len(ab)
-    span = np.ptp(ab, axis=0) + 1
-    if K == int(span[0] * span[1]) and len({tuple(q) for q in ab.tolist()}) == K:
-        r, c = sorted(int(s) for s in span)
-        return r, c, "symmetric"
-    xy = ab @ ASYMMETRIC_FROM_PATCH.T
-    sx, sy = (int(s) for s in np.ptp(xy, axis=0) + 1)
-    options = []  # (rows, cols): rows along one board axis, each of cols dots at every other node
-    for across, along in ((sx, sy), (sy, sx)):
-        if across >= 4 and across % 2 == 0 and along >= 2 and K == along * across // 2:  # 2 dots a row at least
-            options.append((along, across // 2))
-    # both readings of a staggered rectangle are one board only where a rotation (no mirror) puts every dot on it:
-    # OpenCV's rows start on the even nodes, and a quarter turn of a 6x9 board is no 18x3 board
-    fit = [o for o in options if placements(Board(o[0], o[1], 1.0, 0.5, "asymmetric"), xy)]
-    if fit or options:
-        r, c = max(fit or options)
-        return r, c, "asymmetric"
-    r, c = sorted(int(s) for s in span)
-    return r, c, None
 
 
 def image_grid(gray: np.ndarray, name: str = "image", deadline: Deadline | None = None) -> GridEvidence:

@@ -49,6 +49,7 @@ __all__ = [
     "seed_score_needed",
     "patch_grid_text",
     "nearest_labelling",
+    "shape_of",
     "EXPECTED_SHARE",
     "EXPECTED_MARGIN",
 ]
@@ -216,7 +217,8 @@ def label_patch(
     -------
     Labelling
         ``"labelled"`` with the board point of each patch dot, or why not (``"larger"``, ``"transposed"``,
-        ``"markers"``, ``"smaller"``, ``"ambiguous"``) with a message for a person.
+        ``"layout"`` (a whole grid of the other layout), ``"markers"``, ``"smaller"``, ``"ambiguous"``) with a
+        message for a person.
 
     Examples
     --------
@@ -237,6 +239,16 @@ def label_patch(
                 f"--grid {grid} does not match the dots, but {board.cols}x{board.rows} "
                 f"does: the board is {board.cols}x{board.rows}?",
                 size=(rows, cols),
+            )
+        r, c, layout = shape_of(ab)
+        if layout is not None and layout != board.layout and r * c == board.n_points:  # the flag forgotten
+            flag = "--asymmetric" if layout == "asymmetric" else "without --asymmetric"
+            flag = flag if (r, c) == (board.rows, board.cols) else f"--grid {r}x{c} {flag}"
+            return Labelling(
+                "layout",
+                f"the dots form a whole {r}x{c} {layout} grid, not {'an' if board.layout == 'asymmetric' else 'a'} "
+                f"{board.layout} {grid} one: {flag}?",
+                size=(r, c),
             )
         bigger = rows >= board.rows and cols >= board.cols or rows >= board.cols and cols >= board.rows
         if bigger or rows * cols > board.n_points or K > board.n_points:
@@ -374,3 +386,45 @@ def _fits(board: Board, xy: np.ndarray, *, transposed: bool) -> bool:
         return False
     t = Board(board.cols, board.rows, board.pitch_mm, board.diameter_mm, board.layout, board.margin_mm)
     return bool(placements(t, xy))
+
+
+def shape_of(ab: np.ndarray) -> tuple[int, int, str | None]:
+    """The grid a lattice patch's coordinates form.
+
+    Parameters
+    ----------
+    ab : numpy.ndarray
+        (K, 2) int patch coordinates (:class:`~circcal.detector.locate.lattice.Lattice`).
+
+    Returns
+    -------
+    rows, cols : int
+        The grid in ``--grid`` terms (conventions: module docstring); for a patch of neither shape, its bounding box.
+    layout : str or None
+        ``"symmetric"`` (a full rectangle), ``"asymmetric"`` (a full staggered rectangle), ``None`` (neither).
+
+    Examples
+    --------
+    >>> shape_of(np.array([[i, j] for j in range(3) for i in range(5)]))
+    (3, 5, 'symmetric')
+    """
+    ab = np.asarray(ab, np.int64).reshape(-1, 2)
+    K = len(ab)
+    span = np.ptp(ab, axis=0) + 1
+    if K == int(span[0] * span[1]) and len({tuple(q) for q in ab.tolist()}) == K:
+        r, c = sorted(int(s) for s in span)
+        return r, c, "symmetric"
+    xy = ab @ ASYMMETRIC_FROM_PATCH.T
+    sx, sy = (int(s) for s in np.ptp(xy, axis=0) + 1)
+    options = []  # (rows, cols): rows along one board axis, each of cols dots at every other node
+    for across, along in ((sx, sy), (sy, sx)):
+        if across >= 4 and across % 2 == 0 and along >= 2 and K == along * across // 2:  # 2 dots a row at least
+            options.append((along, across // 2))
+    # both readings of a staggered rectangle are one board only where a rotation (no mirror) puts every dot on it:
+    # OpenCV's rows start on the even nodes, and a quarter turn of a 6x9 board is no 18x3 board
+    fit = [o for o in options if placements(Board(o[0], o[1], 1.0, 0.5, "asymmetric"), xy)]
+    if fit or options:
+        r, c = max(fit or options)
+        return r, c, "asymmetric"
+    r, c = sorted(int(s) for s in span)
+    return r, c, None

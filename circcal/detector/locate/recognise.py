@@ -503,6 +503,7 @@ def _recognise(
         code = {
             "larger": Reason.GRID_MISMATCH,
             "transposed": Reason.GRID_MISMATCH,
+            "layout": Reason.GRID_MISMATCH,
             "smaller": Reason.GRID_MISMATCH,
             "markers": Reason.MARKERS_INCONSISTENT,
             "ambiguous": Reason.AMBIGUOUS_VIEW,
@@ -522,7 +523,7 @@ def _recognise(
             message=msg,
             notes=notes,
             patches=len(patches),
-            decisive=lab.status in ("larger", "transposed"),
+            decisive=lab.status in ("larger", "transposed", "layout"),
         )
     lat, lab = chosen
     order = np.full(N, -1, np.int64)
@@ -557,6 +558,7 @@ def _notes(board: Board, labelled: list[tuple[Lattice, Labelling]], chosen, pts:
             "labelled": "another board like this one" if lab.complete else "another part of a board",
             "larger": "a larger dot grid",
             "transposed": "a dot grid of the transposed size",
+            "layout": "a dot grid of the other layout",
             "smaller": "a smaller dot grid",
             "ambiguous": "a dot grid that could be part of the board",
             "markers": "a dot grid with other markers",
