@@ -202,3 +202,17 @@ def test_a_bad_dot_is_flagged_before_the_solve_and_left_out():
         exclude=exclude,
     )
     assert res.errors["n_points"] == sum(len(p) for p in [t.board.object_points()] * len(dets)) - 1
+
+
+def test_the_outliers_line_says_which_were_bad_dots(realdata, tmp_path, capsys):
+    # found by a newcomer test: "outliers: 14 left out (rule: residual beyond 5 sigma ...)" where all 14 were bad
+    # dots the detector told before any solve, none the rule's
+    from circcal import cli
+
+    folder = realdata / "boofcv_sony_hx5v_circle_regular_10x8"
+    args = [str(folder), "--grid", "8x10", "--pitch", "25mm", "--diameter", "15mm", "--no-cross-validate"]
+    assert cli.main(["calibrate", *args, "--no-progress", "--out", str(tmp_path / "m.json")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("outliers: "))
+    assert line.startswith("outliers: 14 left out (14 bad dot(s) the detector could tell before any solve; the rule"), (
+        line
+    )

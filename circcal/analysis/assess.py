@@ -25,6 +25,7 @@ from circcal.analysis.remedy import Remedy, remedy
 from circcal.solver import CalibrationOptions
 from circcal.solver.lensfield import result_pole
 from circcal.solver.modelfit import ModelFit, model_fit
+from circcal.solver.outliers import OutlierReason
 
 __all__ = ["Assessment", "UncertaintyMap", "assess", "uncertainty_map"]
 
@@ -296,9 +297,14 @@ class Assessment:
         rej = self.result.outliers
         if rej is not None:
             if rej.items:
+                bad = sum(r.reason == OutlierReason.BAD_DOT for r in rej.items)
+                solved = len(rej.items) - bad
+                said = [f"{bad} bad dot(s) the detector could tell before any solve"] if bad else []
+                said += [f"{solved} by the residual rule"] if solved else []
                 out.append(
-                    f"outliers: {len(rej.items)} left out (rule: residual beyond {rej.rule.k:g} sigma in x "
-                    f"or y, sigma floored at {rej.rule.sigma_floor_px:g} px; {rej.rounds} solve(s)):"
+                    f"outliers: {len(rej.items)} left out ({', '.join(said)}; the rule: residual beyond "
+                    f"{rej.rule.k:g} sigma in x or y, sigma floored at {rej.rule.sigma_floor_px:g} px; {rej.rounds} "
+                    f"solve(s)):"
                 )
                 names = self.cal_view_names()
                 for r in rej.items:
