@@ -49,7 +49,9 @@ REASON_TEXT: dict[Reason, str] = {
     Reason.TIME_BUDGET: "the image took longer than its time budget (dense texture, thousands of blobs)",
     Reason.CENTRE_CORRECTION_FAILED: "the projective centre correction found no consistent board homography",
     Reason.WRONG_IMAGE_SIZE: "the image's size differs from the camera model's (or from the other images of a calibration)",
-    Reason.DUPLICATE: "the same file (or a file with identical content) was given before: counted once, or the views it adds would shrink the stated uncertainty without adding information",
+    Reason.DUPLICATE: "the same file (or a file with identical content), or the same view (its dots at the same "
+    "pixels within 0.05 px: a photograph re-saved, or neither board nor camera moved), was given before: counted once, "
+    "since the views it adds would shrink the stated uncertainty without adding information",
 }
 
 
