@@ -31,7 +31,14 @@ from circcal.model import Camera, project_camera
 from circcal.observations import MIN_VIEWS, check_image_size, check_observations
 from circcal.pipeline import MAX_ROUNDS, ImagesCalibration, TooFewImagesError, calibrate_images
 from circcal.progress import progress_bar
-from circcal.rig.held import LocatedImages, held_cameras, is_held, locate_held_camera
+from circcal.rig.held import (
+    LocatedImages,
+    check_given_names,
+    given_cameras,
+    held_cameras,
+    is_held,
+    locate_held_camera,
+)
 from circcal.rig.instants import rig_instants
 from circcal.rig.model import RigModel
 from circcal.rig.problem import CameraObservations, RigProblem, free_intrinsics
@@ -220,7 +227,7 @@ def calibrate_rig_points(
         raise InputError(f"image_sizes has no size for camera(s) {missing}")
     sizes = [check_image_size(image_sizes[n]) for n in names]
     given = (
-        None if initial is None or isinstance(initial, RigCalibration) else _given_cameras(initial, names, sizes, opts)
+        None if initial is None or isinstance(initial, RigCalibration) else given_cameras(initial, names, sizes, opts)
     )
     start = dict(zip(initial.rig.names, initial.rig.cameras)) if isinstance(initial, RigCalibration) else given
     held = held_cameras(names, opts, start or {})
@@ -312,40 +319,6 @@ def _initial_starts(
             raise InputError(f"initial: no board pose of instant(s) {missing[:5]} of camera {names[c]!r}")
         poses.append({v: _board_in_camera(rig, initial.board_poses[v], c) for v in vs})
     return list(rig.cameras), poses
-
-
-def _check_initial_names(initial: Any, names: list[str], every: bool) -> None:
-    """Refuse an ``initial`` that is no mapping, or names other cameras (``every``: not all of them)."""
-    if not isinstance(initial, Mapping):
-        raise InputError(
-            f"initial must be a RigCalibration or a mapping of camera name to Camera or model file, got {initial!r}"
-        )
-    given = sorted(map(str, initial))
-    if (every and given != sorted(names)) or not set(given) <= set(names):
-        raise InputError(f"initial: cameras {given}, the observations' are {sorted(names)}")
-
-
-def _given_cameras(
-    initial: Any, names: list[str], sizes: list[tuple[int, int]], opts: list[CalibrationOptions], every: bool = True
-) -> dict[str, Camera]:
-    """The cameras of an ``initial`` mapping camera name -> Camera or model file (``every``: one per camera; else
-    some of them), checked against the rig (one line naming what differs)."""
-    _check_initial_names(initial, names, every)
-    cams = {}
-    for n, size, o in zip(names, sizes, opts):
-        if n not in initial:
-            continue
-        cam = initial[n]
-        if isinstance(cam, (str, os.PathLike)):
-            cam = read_camera(os.fspath(cam))  # a model file names itself in its errors
-        if not isinstance(cam, Camera):
-            raise InputError(f"initial: camera {n!r} must be a Camera or a model file, got {type(cam).__name__}")
-        if (cam.width, cam.height) != tuple(size):
-            raise InputError(f"initial: camera {n!r} is {cam.width}x{cam.height}, its images {size[0]}x{size[1]}")
-        if cam.lens != o.lens:
-            raise InputError(f"initial: camera {n!r} has lens {cam.lens!r}, its options lens={o.lens!r}")
-        cams[n] = cam
-    return cams
 
 
 def _board_in_camera(rig: RigModel, board_pose: tuple[np.ndarray, np.ndarray], c: int) -> tuple[np.ndarray, np.ndarray]:
@@ -593,7 +566,7 @@ def calibrate_rig(
     opts = _per_camera_options(names, options)
     instant = rig_instants(images).of  # refuses two images of one instant, naming both
     if initial is not None:  # model files read before the work (their errors name them)
-        _check_initial_names(initial, names, every=False)
+        check_given_names(initial, names, every=False)
         initial = {n: read_camera(os.fspath(c)) if isinstance(c, (str, os.PathLike)) else c for n, c in initial.items()}
     given_names = set() if initial is None else set(map(str, initial))
     per_camera: dict[str, ImagesCalibration | LocatedImages] = {}
@@ -643,7 +616,7 @@ def calibrate_rig(
     views = views_of(centres)
     if initial is not None:
         sizes = [(c.width, c.height) for c in cameras]
-        given = _given_cameras(initial, names, sizes, opts, every=False)
+        given = given_cameras(initial, names, sizes, opts, every=False)
         for c, n in enumerate(names):
             if n in given:
                 cameras[c] = given[n]

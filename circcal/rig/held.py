@@ -1,5 +1,6 @@
-"""A rig camera whose intrinsics are given and held: its images are searched and its centres corrected under them;
-it is not calibrated alone.
+"""Rig cameras whose intrinsics are given (``initial=``, ``calibrate-rig --intrinsics``): read and checked against
+the rig (:func:`given_cameras`); held, a camera's images are searched and its centres corrected under them, and it
+is not calibrated alone.
 
 ``cv2.stereoCalibrate`` with ``CALIB_FIX_INTRINSIC`` needs no view count of a camera beyond what its pose in the rig
 needs, and the usual workflow calibrates each camera alone on many views, then the rig on a few shared ones. A camera
@@ -9,6 +10,7 @@ model; a held camera needs 1 view that another camera saw at the same instant.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,6 +21,7 @@ from circcal import detector as det_mod
 from circcal.board import Board
 from circcal.detector import Reason, Rejection
 from circcal.errors import InputError
+from circcal.formats import read_camera
 from circcal.model import Camera
 from circcal.pathnames import display_name
 from circcal.pipeline import TooFewImagesError, detect_once
@@ -26,7 +29,16 @@ from circcal.rig.problem import free_intrinsics
 from circcal.solver import CalibrationOptions
 from circcal.solver.options import ASPECT_RATIO
 
-__all__ = ["LocatedImages", "locate_images", "locate_held_camera", "is_held", "held_cameras"]
+__all__ = [
+    "LocatedImages",
+    "check_given_names",
+    "given_camera",
+    "given_cameras",
+    "locate_images",
+    "locate_held_camera",
+    "is_held",
+    "held_cameras",
+]
 
 
 @dataclass
@@ -183,10 +195,7 @@ def locate_held_camera(
     TooFewImagesError
         The board is found in none of the images (each named with its reason).
     """
-    if not isinstance(camera, Camera):
-        raise InputError(f"initial: camera {name!r} must be a Camera or a model file, got {type(camera).__name__}")
-    if camera.lens != options.lens:
-        raise InputError(f"initial: camera {name!r} has lens {camera.lens!r}, its options lens={options.lens!r}")
+    camera = given_camera(name, camera, options)
     found = locate_images(paths, board, camera, progress=progress, jobs=jobs)
     if not found.used:
         raise TooFewImagesError(
@@ -195,3 +204,98 @@ def locate_held_camera(
             found.failed,
         )
     return found
+
+
+def check_given_names(initial: Any, names: Sequence[str], every: bool) -> None:
+    """Refuse an ``initial`` that is no mapping, or that names other cameras.
+
+    Parameters
+    ----------
+    initial : object
+        What was given: a mapping of camera name to Camera or model file.
+    names : sequence of str
+        The rig's cameras.
+    every : bool
+        Every camera must be named (else some of them).
+
+    Raises
+    ------
+    InputError
+        One line naming what differs.
+    """
+    if not isinstance(initial, Mapping):
+        raise InputError(
+            f"initial must be a RigCalibration or a mapping of camera name to Camera or model file, got {initial!r}"
+        )
+    given = sorted(map(str, initial))
+    if (every and given != sorted(names)) or not set(given) <= set(names):
+        raise InputError(f"initial: cameras {given}, the observations' are {sorted(names)}")
+
+
+def given_camera(name: str, camera: Any, options: CalibrationOptions, size: tuple[int, int] | None = None) -> Camera:
+    """Camera ``name``'s given intrinsics, a Camera or a model file, checked against its options and images.
+
+    Parameters
+    ----------
+    name : str
+        The camera's name in the rig (for the errors).
+    camera : Camera, str or path-like
+        As given (a model file in any format :func:`circcal.formats.read_camera` reads; its errors name it).
+    options : CalibrationOptions
+        Its options: their lens model must be the camera's.
+    size : (int, int) or None
+        Its images' (width, height) px, where known.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    InputError
+        No Camera, another lens model or another image size (one line naming the camera).
+    """
+    if isinstance(camera, (str, os.PathLike)):
+        camera = read_camera(os.fspath(camera))
+    if not isinstance(camera, Camera):
+        raise InputError(f"initial: camera {name!r} must be a Camera or a model file, got {type(camera).__name__}")
+    if size is not None and (camera.width, camera.height) != tuple(size):
+        raise InputError(f"initial: camera {name!r} is {camera.width}x{camera.height}, its images {size[0]}x{size[1]}")
+    if camera.lens != options.lens:
+        raise InputError(f"initial: camera {name!r} has lens {camera.lens!r}, its options lens={options.lens!r}")
+    return camera
+
+
+def given_cameras(
+    initial: Any,
+    names: Sequence[str],
+    sizes: Sequence[tuple[int, int]],
+    options: Sequence[CalibrationOptions],
+    every: bool = True,
+) -> dict[str, Camera]:
+    """The cameras of an ``initial`` mapping camera name -> Camera or model file, checked against the rig.
+
+    Parameters
+    ----------
+    initial : mapping of str to Camera or path
+    names : sequence of str
+        The rig's cameras.
+    sizes : sequence of (int, int)
+        Each camera's image size, px.
+    options : sequence of CalibrationOptions
+        Each camera's options.
+    every : bool
+        One per camera (else some of them).
+
+    Returns
+    -------
+    dict of str to Camera
+        The cameras given, by name.
+
+    Raises
+    ------
+    InputError
+        As :func:`check_given_names` and :func:`given_camera`.
+    """
+    check_given_names(initial, names, every)
+    return {n: given_camera(n, initial[n], o, size) for n, size, o in zip(names, sizes, options) if n in initial}
